@@ -1,0 +1,44 @@
+//! # mipnerf-core
+//!
+//! The maths of Mip-NeRF (Barron et al., ICCV 2021) on the CPU, in `f32` as the paper and the
+//! official JAX code use it. This crate is the reference that every other path (the WGSL kernels
+//! of `mipnerf-gpu`) is checked against, and is itself pinned to numbers produced by the official
+//! code (see `tests/golden.rs`).
+//!
+//! The data flow of one ray, in the paper's words:
+//! 1. [`camera`]: a pixel becomes a cone ([`camera::Ray`]: origin, direction, radius).
+//! 2. [`sampling::sample_along_rays`]: interval edges `t` along the cone (stratified in training).
+//! 3. [`mip::conical_frustum_to_gaussian`]: each interval becomes a Gaussian (mean, diagonal
+//!    covariance), and [`mip::integrated_pos_enc`] encodes it (the IPE features fed to the MLP).
+//! 4. The MLP gives a colour and a density per interval; [`render::volumetric_rendering`]
+//!    composites them into a pixel colour, depth and opacity, with weights per interval.
+//! 5. [`sampling::resample_along_rays`]: the fine level's edges from the coarse weights.
+//!
+//! Backward passes ([`render::volumetric_rendering_backward`], the activation derivatives) are
+//! analytic and checked against finite differences.
+//!
+//! Randomness is counter-based ([`rng`]) so that the CPU and the GPU draw the same numbers.
+
+pub mod camera;
+pub mod mip;
+pub mod render;
+pub mod rng;
+pub mod sampling;
+pub mod schedule;
+
+pub use camera::{Camera, PixelCenters, Ray};
+pub use mip::{
+    FrustumMoments, Gaussian, RayShape, cast_ray, conical_frustum_to_gaussian, cylinder_to_gaussian,
+    integrated_pos_enc, lift_gaussian, pos_enc,
+};
+pub use render::{RenderedRay, volumetric_rendering, volumetric_rendering_backward};
+pub use sampling::{PdfSamples, resample_along_rays, sample_along_rays, sorted_piecewise_constant_pdf};
+
+/// Errors of the core crate. Every variant says what was wrong in words a user can act on.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum Error {
+    /// A camera's size, intrinsics or pose is unusable.
+    #[error("invalid camera: {0}")]
+    InvalidCamera(String),
+}

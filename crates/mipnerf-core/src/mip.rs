@@ -1,0 +1,266 @@
+//! Conical frustums as Gaussians and the integrated positional encoding (IPE).
+//!
+//! This is section 3.1 of the Mip-NeRF paper: every interval `[t0, t1]` along a cone cast through a
+//! pixel is approximated by a Gaussian with the same first and second moments, and the positional
+//! encoding of every point in that frustum is replaced by its expectation under the Gaussian.
+//!
+//! All arithmetic is `f32` and follows the official code's operation order, so results agree with
+//! it to about one ulp (the only differences come from `sin`/`exp` implementations).
+
+use glam::{Mat3, Vec3};
+
+/// The shape cast through each pixel: a cone (Mip-NeRF) or a cylinder (used with NDC rays).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RayShape {
+    /// A cone whose radius grows linearly with `t`: radius `t * base_radius`.
+    #[default]
+    Cone,
+    /// A cylinder of constant radius (the official choice for forward-facing NDC scenes).
+    Cylinder,
+}
+
+/// The moments of a frustum along and across its ray, before lifting to world space.
+///
+/// `t_mean` is the mean distance along the ray (in units of the ray's direction vector),
+/// `t_var` the variance along the ray and `r_var` the variance perpendicular to it (per axis).
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct FrustumMoments {
+    /// Mean of `t` over the frustum's volume.
+    pub t_mean: f32,
+    /// Variance of `t` over the frustum's volume.
+    pub t_var: f32,
+    /// Variance of the perpendicular offset, per perpendicular axis.
+    pub r_var: f32,
+}
+
+/// A Gaussian in world space with a diagonal covariance (the paper's Eq. 8 keeps only the diagonal).
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct Gaussian {
+    /// Mean position (world units).
+    pub mean: Vec3,
+    /// Diagonal of the covariance matrix (world units squared).
+    pub cov_diag: Vec3,
+}
+
+/// The moments of the conical frustum between `t0` and `t1` of a cone with radius `base_radius`
+/// at `t = 1`, in the numerically stable form of the official code.
+///
+/// With `t_mu = (t0 + t1) / 2` and `t_delta = (t1 - t0) / 2`:
+/// - `t_mean = t_mu + 2 t_mu t_delta² / (3 t_mu² + t_delta²)`
+/// - `t_var = t_delta²/3 - (4/15) t_delta⁴ (12 t_mu² - t_delta²) / (3 t_mu² + t_delta²)²`
+/// - `r_var = r² (t_mu²/4 + (5/12) t_delta² - (4/15) t_delta⁴ / (3 t_mu² + t_delta²))`
+///
+/// This form keeps full `f32` precision for thin, distant frustums, where the textbook formula
+/// ([`conical_frustum_moments_naive`]) subtracts huge nearly equal powers of `t`.
+///
+/// `t0 = t1 = 0` is the one input that gives NaN (0/0), exactly as the official code does.
+#[must_use]
+#[inline]
+pub fn conical_frustum_moments(t0: f32, t1: f32, base_radius: f32) -> FrustumMoments {
+    let mu = (t0 + t1) / 2.0;
+    let hw = (t1 - t0) / 2.0;
+    let mu2 = mu * mu;
+    let hw2 = hw * hw;
+    let hw4 = hw2 * hw2;
+    let denom = 3.0 * mu2 + hw2;
+    let t_mean = mu + (2.0 * mu * hw2) / denom;
+    let t_var = hw2 / 3.0 - (4.0 / 15.0) * ((hw4 * (12.0 * mu2 - hw2)) / (denom * denom));
+    let r_var =
+        base_radius * base_radius * (mu2 / 4.0 + (5.0 / 12.0) * hw2 - 4.0 / 15.0 * hw4 / denom);
+    FrustumMoments { t_mean, t_var, r_var }
+}
+
+/// The textbook (unstable) moments of a conical frustum, as the paper's Eq. 7 writes them.
+///
+/// Kept only to show, in tests, where `f32` loses precision: `t1⁵ - t0⁵` of two close, large `t`
+/// cancels catastrophically. Use [`conical_frustum_moments`] instead.
+#[must_use]
+pub fn conical_frustum_moments_naive(t0: f32, t1: f32, base_radius: f32) -> FrustumMoments {
+    let d3 = t1.powi(3) - t0.powi(3);
+    let d4 = t1.powi(4) - t0.powi(4);
+    let d5 = t1.powi(5) - t0.powi(5);
+    let t_mean = (3.0 * d4) / (4.0 * d3);
+    let r_var = base_radius * base_radius * (3.0 / 20.0 * d5 / d3);
+    let t_mosq = 3.0 / 5.0 * d5 / d3;
+    FrustumMoments { t_mean, t_var: t_mosq - t_mean * t_mean, r_var }
+}
+
+/// The moments of the cylinder between `t0` and `t1` with radius `radius`: mean `t_mu`,
+/// variance `(t1 - t0)² / 12` along the ray and `radius² / 4` across it.
+#[must_use]
+#[inline]
+pub fn cylinder_moments(t0: f32, t1: f32, radius: f32) -> FrustumMoments {
+    let dt = t1 - t0;
+    FrustumMoments { t_mean: (t0 + t1) / 2.0, t_var: dt * dt / 12.0, r_var: radius * radius / 4.0 }
+}
+
+/// Lifts frustum moments along direction `d` to a world-space Gaussian with diagonal covariance,
+/// centred at `d * t_mean` (add the ray origin to place it in the world):
+/// `cov_diag = t_var d² + r_var (1 - d² / max(|d|², 1e-10))`.
+#[must_use]
+#[inline]
+pub fn lift_gaussian(d: Vec3, m: FrustumMoments) -> Gaussian {
+    let d2 = d * d;
+    let d_mag_sq = (d2.x + d2.y + d2.z).max(1e-10);
+    let null_outer = Vec3::ONE - d2 / d_mag_sq;
+    Gaussian { mean: d * m.t_mean, cov_diag: m.t_var * d2 + m.r_var * null_outer }
+}
+
+/// The full 3x3 covariance that [`lift_gaussian`] keeps the diagonal of:
+/// `t_var d dᵀ + r_var (I - d dᵀ / max(|d|², 1e-10))`.
+#[must_use]
+pub fn lift_gaussian_full_cov(d: Vec3, m: FrustumMoments) -> Mat3 {
+    let outer = Mat3::from_cols(d * d.x, d * d.y, d * d.z);
+    let d_mag_sq = d.length_squared().max(1e-10);
+    let null_outer = Mat3::IDENTITY - outer * (1.0 / d_mag_sq);
+    outer * m.t_var + null_outer * m.r_var
+}
+
+/// The Gaussian of the conical frustum `[t0, t1]` along direction `d` (not normalised, so `t` is
+/// depth along the camera axis), with cone radius `base_radius` at `t = 1`; mean relative to the
+/// ray origin. See [`conical_frustum_moments`].
+#[must_use]
+#[inline]
+pub fn conical_frustum_to_gaussian(d: Vec3, t0: f32, t1: f32, base_radius: f32) -> Gaussian {
+    lift_gaussian(d, conical_frustum_moments(t0, t1, base_radius))
+}
+
+/// The Gaussian of the cylinder `[t0, t1]` along `d` with radius `radius`; mean relative to the
+/// ray origin. See [`cylinder_moments`].
+#[must_use]
+#[inline]
+pub fn cylinder_to_gaussian(d: Vec3, t0: f32, t1: f32, radius: f32) -> Gaussian {
+    lift_gaussian(d, cylinder_moments(t0, t1, radius))
+}
+
+/// Casts one ray: the Gaussian of every interval between consecutive `t_vals` (`n + 1` edges give
+/// `n` Gaussians, written to `out`), in world space (origin added).
+///
+/// # Panics
+/// If `out.len() + 1 != t_vals.len()`.
+pub fn cast_ray(
+    t_vals: &[f32],
+    origin: Vec3,
+    direction: Vec3,
+    radius: f32,
+    shape: RayShape,
+    out: &mut [Gaussian],
+) {
+    assert_eq!(out.len() + 1, t_vals.len(), "cast_ray: need one more t value than Gaussians");
+    for (g, t) in out.iter_mut().zip(t_vals.windows(2)) {
+        let mut lifted = match shape {
+            RayShape::Cone => conical_frustum_to_gaussian(direction, t[0], t[1], radius),
+            RayShape::Cylinder => cylinder_to_gaussian(direction, t[0], t[1], radius),
+        };
+        lifted.mean += origin;
+        *g = lifted;
+    }
+}
+
+/// `100 π` in `f32`: the official code reduces sine arguments at or above this magnitude.
+pub const SAFE_TRIG_LIMIT: f32 = 100.0 * std::f32::consts::PI;
+
+/// `x` reduced modulo [`SAFE_TRIG_LIMIT`] (Python-style, into `[0, 100π)`) when `|x| >= 100π`,
+/// else `x` unchanged. This is the official guard that keeps `sin` of the high IPE degrees
+/// (arguments up to `2^15 |x|`) accurate and finite; note it is not odd, as in the official code.
+#[must_use]
+#[inline]
+pub fn safe_trig_arg(x: f32) -> f32 {
+    if x.abs() < SAFE_TRIG_LIMIT {
+        x
+    } else {
+        let r = x % SAFE_TRIG_LIMIT;
+        if r != 0.0 && r < 0.0 { r + SAFE_TRIG_LIMIT } else { r }
+    }
+}
+
+/// `sin` with the official large-argument guard ([`safe_trig_arg`]).
+#[must_use]
+#[inline]
+pub fn safe_sin(x: f32) -> f32 {
+    safe_trig_arg(x).sin()
+}
+
+/// `cos` with the official large-argument guard ([`safe_trig_arg`]).
+#[must_use]
+#[inline]
+pub fn safe_cos(x: f32) -> f32 {
+    safe_trig_arg(x).cos()
+}
+
+/// The mean and variance of `sin(z)` for `z ~ N(x, x_var)`:
+/// `E = exp(-x_var/2) sin(x)`, `Var = max(0, (1 - exp(-2 x_var) cos(2x)) / 2 - E²)`.
+#[must_use]
+#[inline]
+pub fn expected_sin(x: f32, x_var: f32) -> (f32, f32) {
+    let y = (-0.5 * x_var).exp() * safe_sin(x);
+    let y_var = (0.5 * (1.0 - (-2.0 * x_var).exp() * safe_cos(2.0 * x)) - y * y).max(0.0);
+    (y, y_var)
+}
+
+/// Number of features [`integrated_pos_enc`] writes for degrees `min_deg..max_deg` of a 3-D point.
+#[must_use]
+pub const fn ipe_len(min_deg: u32, max_deg: u32) -> usize {
+    2 * 3 * (max_deg - min_deg) as usize
+}
+
+/// `0.5 π` in `f32`: the IPE "cos" half is `sin(y + π/2)` evaluated in `f32`, as in the official code.
+pub const HALF_PI: f32 = 0.5 * std::f32::consts::PI;
+
+/// The integrated positional encoding of a Gaussian (the paper's Eq. 14) for degrees
+/// `min_deg..max_deg` (the paper uses `0..16`):
+/// `exp(-4^l var / 2) * sin(2^l x)` and the same with `cos`, per axis.
+///
+/// Layout of `out` (length [`ipe_len`]): `[sin part | cos part]`, and within a part the feature of
+/// degree `l` and axis `k` is at `(l - min_deg) * 3 + k`. Every feature lies in `[-1, 1]` and shrinks
+/// towards zero as the variance grows, which is how IPE anti-aliases.
+///
+/// # Panics
+/// If `out.len() != ipe_len(min_deg, max_deg)`.
+pub fn integrated_pos_enc(g: &Gaussian, min_deg: u32, max_deg: u32, out: &mut [f32]) {
+    let n = ipe_len(min_deg, max_deg);
+    assert_eq!(out.len(), n, "integrated_pos_enc: output length");
+    debug_assert!(g.mean.is_finite(), "integrated_pos_enc: non-finite mean {:?}", g.mean);
+    let half = n / 2;
+    let x = g.mean.to_array();
+    let var = g.cov_diag.to_array();
+    for (i, deg) in (min_deg..max_deg).enumerate() {
+        let scale = (1u32 << deg) as f32;
+        for k in 0..3 {
+            let y = x[k] * scale;
+            let y_var = var[k] * (scale * scale);
+            let damp = (-0.5 * y_var).exp();
+            out[i * 3 + k] = damp * safe_sin(y);
+            out[half + i * 3 + k] = damp * safe_sin(y + HALF_PI);
+        }
+    }
+}
+
+/// Number of features [`pos_enc`] writes for a 3-D vector.
+#[must_use]
+pub const fn pos_enc_len(min_deg: u32, max_deg: u32, append_identity: bool) -> usize {
+    2 * 3 * (max_deg - min_deg) as usize + if append_identity { 3 } else { 0 }
+}
+
+/// The ordinary positional encoding of NeRF (used for view directions, degrees `0..4` with the
+/// identity): `[x (if append_identity) | sin(2^l x) | sin(2^l x + π/2)]`, index `(l - min_deg) * 3 + k`
+/// inside each part. Uses plain `sin` (no large-argument guard), as the official code does.
+///
+/// # Panics
+/// If `out.len() != pos_enc_len(min_deg, max_deg, append_identity)`.
+pub fn pos_enc(x: Vec3, min_deg: u32, max_deg: u32, append_identity: bool, out: &mut [f32]) {
+    assert_eq!(out.len(), pos_enc_len(min_deg, max_deg, append_identity), "pos_enc: output length");
+    let (id, rest) = out.split_at_mut(if append_identity { 3 } else { 0 });
+    id.copy_from_slice(&x.to_array()[..id.len()]);
+    let half = rest.len() / 2;
+    let xs = x.to_array();
+    for (i, deg) in (min_deg..max_deg).enumerate() {
+        let scale = (1u32 << deg) as f32;
+        for k in 0..3 {
+            let y = xs[k] * scale;
+            rest[i * 3 + k] = y.sin();
+            rest[half + i * 3 + k] = (y + HALF_PI).sin();
+        }
+    }
+}

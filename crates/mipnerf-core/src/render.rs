@@ -1,0 +1,208 @@
+//! Volume rendering along one ray (the paper's Eq. 1 with per-interval densities), its analytic
+//! backward pass, and the network's output activations with theirs.
+
+use glam::Vec3;
+
+/// What [`volumetric_rendering`] returns for one ray.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct RenderedRay {
+    /// Composited colour (linear, usually in `[0, 1]`), with the background added if requested.
+    pub rgb: [f32; 3],
+    /// Expected depth `sum(w t_mid) / acc`, clipped to `[t_first, t_last]`. A ray with no
+    /// opacity reports `t_first` (the official code's `nan_to_num` quirk).
+    pub distance: f32,
+    /// Accumulated opacity `sum(w)`, in `[0, 1]`.
+    pub acc: f32,
+}
+
+/// Renders one ray from per-interval colours `rgb` and densities `density` (`n` each) on the
+/// interval edges `t_vals` (`n + 1`), writing the per-interval weights to `weights`.
+///
+/// `delta_i = (t_{i+1} - t_i) |dir|`, `alpha_i = 1 - exp(-density_i delta_i)`,
+/// `T_i = exp(-sum_{j<i} density_j delta_j)`, `w_i = alpha_i T_i`. With `white_bkgd` the
+/// colour becomes `rgb + (1 - acc)` (Blender scenes are composited on white).
+///
+/// # Panics
+/// If the lengths disagree.
+pub fn volumetric_rendering(
+    rgb: &[[f32; 3]],
+    density: &[f32],
+    t_vals: &[f32],
+    dir: Vec3,
+    white_bkgd: bool,
+    weights: &mut [f32],
+) -> RenderedRay {
+    let n = density.len();
+    assert!(
+        rgb.len() == n && t_vals.len() == n + 1 && weights.len() == n,
+        "volumetric_rendering: shapes"
+    );
+    let dir_norm = dir.length();
+    let mut cum = 0.0f32; // sum of density * delta before interval i
+    let mut out = RenderedRay::default();
+    let mut dist_num = 0.0f32;
+    for i in 0..n {
+        let delta = (t_vals[i + 1] - t_vals[i]) * dir_norm;
+        let dd = density[i] * delta;
+        let alpha = 1.0 - (-dd).exp();
+        let trans = (-cum).exp();
+        cum += dd;
+        let w = alpha * trans;
+        weights[i] = w;
+        for c in 0..3 {
+            out.rgb[c] += w * rgb[i][c];
+        }
+        out.acc += w;
+        dist_num += w * (0.5 * (t_vals[i] + t_vals[i + 1]));
+    }
+    let d = dist_num / out.acc;
+    let d = if d.is_nan() {
+        0.0
+    } else if d == f32::INFINITY {
+        f32::MAX
+    } else if d == f32::NEG_INFINITY {
+        f32::MIN
+    } else {
+        d
+    };
+    out.distance = d.clamp(t_vals[0], t_vals[n]);
+    if white_bkgd {
+        for c in &mut out.rgb {
+            *c += 1.0 - out.acc;
+        }
+    }
+    out
+}
+
+/// The backward pass of [`volumetric_rendering`] with respect to the colours and densities.
+///
+/// Given the upstream gradients `d_rgb` (of the composited colour) and `d_acc` (of the accumulated
+/// opacity), writes `dL/d rgb_i = w_i d_rgb` to `grad_rgb` and `dL/d density_i` to `grad_density`:
+/// with `g_i = d_rgb · (rgb_i - bg) + d_acc` (`bg = 1` with `white_bkgd`, else 0),
+/// `dL/d s_k = g_k T_{k+1} - sum_{i>k} g_i w_i` and `dL/d density_k = delta_k dL/d s_k`,
+/// where `s_k = density_k delta_k`. `weights` must be the forward pass's. The edges `t_vals` get
+/// no gradient (they are sampled, not learnt).
+///
+/// # Panics
+/// If the lengths disagree.
+#[allow(clippy::too_many_arguments)]
+pub fn volumetric_rendering_backward(
+    rgb: &[[f32; 3]],
+    density: &[f32],
+    t_vals: &[f32],
+    dir: Vec3,
+    white_bkgd: bool,
+    weights: &[f32],
+    d_rgb: [f32; 3],
+    d_acc: f32,
+    grad_rgb: &mut [[f32; 3]],
+    grad_density: &mut [f32],
+) {
+    let n = density.len();
+    assert!(
+        rgb.len() == n
+            && t_vals.len() == n + 1
+            && weights.len() == n
+            && grad_rgb.len() == n
+            && grad_density.len() == n,
+        "volumetric_rendering_backward: shapes"
+    );
+    let bg = if white_bkgd { 1.0 } else { 0.0 };
+    let dir_norm = dir.length();
+    // Forward prefix sums again, to get T_{k+1} = exp(-sum_{j<=k} s_j).
+    let mut cum = 0.0f32;
+    let mut trans_next = Vec::with_capacity(n);
+    let mut deltas = Vec::with_capacity(n);
+    for k in 0..n {
+        let delta = (t_vals[k + 1] - t_vals[k]) * dir_norm;
+        cum += density[k] * delta;
+        trans_next.push((-cum).exp());
+        deltas.push(delta);
+    }
+    let mut suffix = 0.0f32; // sum_{i>k} g_i w_i
+    for k in (0..n).rev() {
+        let g = d_rgb[0] * (rgb[k][0] - bg)
+            + d_rgb[1] * (rgb[k][1] - bg)
+            + d_rgb[2] * (rgb[k][2] - bg)
+            + d_acc;
+        let ds = g * trans_next[k] - suffix;
+        suffix += g * weights[k];
+        grad_density[k] = ds * deltas[k];
+        for c in 0..3 {
+            grad_rgb[k][c] = weights[k] * d_rgb[c];
+        }
+    }
+}
+
+/// How raw density becomes density.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DensityActivation {
+    /// `softplus(raw + bias)`: Mip-NeRF's choice (with bias -1).
+    #[default]
+    Softplus,
+    /// `relu(raw + bias)`: NeRF's choice (the "w/o misc" ablation, bias 0).
+    Relu,
+}
+
+/// `log(1 + exp(x))`, computed stably as `max(x, 0) + log1p(exp(-|x|))`.
+#[must_use]
+#[inline]
+pub fn softplus(x: f32) -> f32 {
+    x.max(0.0) + (-x.abs()).exp().ln_1p()
+}
+
+/// `1 / (1 + exp(-x))`.
+#[must_use]
+#[inline]
+pub fn sigmoid(x: f32) -> f32 {
+    1.0 / (1.0 + (-x).exp())
+}
+
+impl DensityActivation {
+    /// Density from the network's raw output: `act(raw + bias)`.
+    #[must_use]
+    #[inline]
+    pub fn forward(self, raw: f32, bias: f32) -> f32 {
+        let x = raw + bias;
+        match self {
+            Self::Softplus => softplus(x),
+            Self::Relu => x.max(0.0),
+        }
+    }
+
+    /// `d density / d raw` at `raw`: `sigmoid(raw + bias)` for softplus, the step for ReLU
+    /// (0 at the kink).
+    #[must_use]
+    #[inline]
+    pub fn derivative(self, raw: f32, bias: f32) -> f32 {
+        let x = raw + bias;
+        match self {
+            Self::Softplus => sigmoid(x),
+            Self::Relu => {
+                if x > 0.0 {
+                    1.0
+                } else {
+                    0.0
+                }
+            }
+        }
+    }
+}
+
+/// Colour from the network's raw output: `sigmoid(raw) (1 + 2 padding) - padding`, so that the
+/// network can reach exact black and white without infinite raw values (padding 0.001 in Mip-NeRF,
+/// 0 in NeRF).
+#[must_use]
+#[inline]
+pub fn rgb_activation(raw: f32, padding: f32) -> f32 {
+    sigmoid(raw) * (1.0 + 2.0 * padding) - padding
+}
+
+/// `d rgb / d raw` of [`rgb_activation`]: `sigmoid(raw) (1 - sigmoid(raw)) (1 + 2 padding)`.
+#[must_use]
+#[inline]
+pub fn rgb_activation_derivative(raw: f32, padding: f32) -> f32 {
+    let s = sigmoid(raw);
+    s * (1.0 - s) * (1.0 + 2.0 * padding)
+}

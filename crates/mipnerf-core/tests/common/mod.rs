@@ -1,0 +1,92 @@
+//! Shared helpers for the core crate's tests: golden-file loading and tolerant comparison that
+//! reports every mismatch at once.
+#![allow(dead_code, clippy::unwrap_used, missing_docs)]
+
+use serde_json::Value;
+use std::path::PathBuf;
+
+/// Element-wise functions (sin, exp, ...): XLA and libm differ by about 1 ulp.
+pub const TOL_ELEMENTWISE: Tol = Tol { rel: 2e-6, abs: 2e-7 };
+/// Functions that accumulate (sums, cumulative sums, CDF inversion).
+pub const TOL_ACCUMULATED: Tol = Tol { rel: 1e-5, abs: 1e-6 };
+/// Rays: ours are computed in f64 and rounded once, the official Blender loader in f32.
+pub const TOL_RAYS: Tol = Tol { rel: 1e-6, abs: 1e-7 };
+
+/// `|a - b| <= abs + rel * |b|`.
+#[derive(Clone, Copy, Debug)]
+pub struct Tol {
+    pub rel: f64,
+    pub abs: f64,
+}
+
+pub fn golden(name: &str) -> Value {
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/golden").join(name);
+    let s = std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+    serde_json::from_str(&s).unwrap()
+}
+
+/// A float from the golden encoding (numbers, or "NaN"/"Infinity"/"-Infinity"), as f32.
+pub fn f(v: &Value) -> f32 {
+    match v {
+        Value::Number(n) => n.as_f64().unwrap() as f32,
+        Value::String(s) if s == "NaN" => f32::NAN,
+        Value::String(s) if s == "Infinity" => f32::INFINITY,
+        Value::String(s) if s == "-Infinity" => f32::NEG_INFINITY,
+        other => panic!("not a float: {other}"),
+    }
+}
+
+/// All floats of a nested array, flattened in row-major order.
+pub fn flat(v: &Value) -> Vec<f32> {
+    match v {
+        Value::Array(a) => a.iter().flat_map(flat).collect(),
+        other => vec![f(other)],
+    }
+}
+
+pub fn v3(v: &Value) -> glam::Vec3 {
+    let x = flat(v);
+    assert_eq!(x.len(), 3);
+    glam::Vec3::new(x[0], x[1], x[2])
+}
+
+/// Collects mismatches so a test reports all of them in one message.
+#[derive(Default)]
+pub struct Mismatches {
+    lines: Vec<String>,
+    checked: usize,
+}
+
+impl Mismatches {
+    pub fn check(&mut self, what: &str, got: &[f32], want: &[f32], tol: Tol) {
+        if got.len() != want.len() {
+            self.lines.push(format!("{what}: length {} != {}", got.len(), want.len()));
+            return;
+        }
+        for (i, (&g, &w)) in got.iter().zip(want).enumerate() {
+            self.checked += 1;
+            let ok = if w.is_nan() {
+                g.is_nan()
+            } else if w.is_infinite() {
+                g == w
+            } else {
+                let (g64, w64) = (f64::from(g), f64::from(w));
+                (g64 - w64).abs() <= tol.abs + tol.rel * w64.abs()
+            };
+            if !ok {
+                self.lines.push(format!("{what}[{i}]: got {g:e}, want {w:e}, diff {:e}", g - w));
+            }
+        }
+    }
+
+    pub fn finish(self, test: &str) {
+        assert!(self.checked > 0, "{test}: nothing was compared");
+        assert!(
+            self.lines.is_empty(),
+            "{test}: {} of {} values differ:\n{}",
+            self.lines.len(),
+            self.checked,
+            self.lines.join("\n")
+        );
+    }
+}
