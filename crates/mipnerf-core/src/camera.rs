@@ -55,7 +55,11 @@ pub fn focal_from_camera_angle_x(width: u32, camera_angle_x: f64) -> f64 {
 #[must_use]
 pub fn pinhole_pix2cam(width: u32, height: u32, focal: f64) -> [[f64; 3]; 3] {
     let (w, h) = (f64::from(width), f64::from(height));
-    [[1.0 / focal, 0.0, -0.5 * w / focal], [0.0, -1.0 / focal, 0.5 * h / focal], [0.0, 0.0, -1.0]]
+    [
+        [1.0 / focal, 0.0, -0.5 * w / focal],
+        [0.0, -1.0 / focal, 0.5 * h / focal],
+        [0.0, 0.0, -1.0],
+    ]
 }
 
 /// One ray (a cone) through one pixel, in the official code's terms.
@@ -82,7 +86,9 @@ fn check_finite(what: &str, values: impl IntoIterator<Item = f64>) -> Result<(),
     if values.into_iter().all(f64::is_finite) {
         Ok(())
     } else {
-        Err(Error::InvalidCamera(format!("{what} has a non-finite entry")))
+        Err(Error::InvalidCamera(format!(
+            "{what} has a non-finite entry"
+        )))
     }
 }
 
@@ -98,14 +104,21 @@ impl Camera {
         camera_angle_x: f64,
         cam2world: [[f64; 4]; 3],
     ) -> Result<Self, Error> {
-        if !(camera_angle_x.is_finite() && camera_angle_x > 0.0 && camera_angle_x < std::f64::consts::PI)
+        if !(camera_angle_x.is_finite()
+            && camera_angle_x > 0.0
+            && camera_angle_x < std::f64::consts::PI)
         {
             return Err(Error::InvalidCamera(format!(
                 "camera_angle_x must be in (0, pi) radians, got {camera_angle_x}"
             )));
         }
         let focal = focal_from_camera_angle_x(width, camera_angle_x);
-        Self::from_pix2cam(width, height, pinhole_pix2cam(width, height, focal), cam2world)
+        Self::from_pix2cam(
+            width,
+            height,
+            pinhole_pix2cam(width, height, focal),
+            cam2world,
+        )
     }
 
     /// A camera from a full `pix2cam` matrix (the multiscale format's intrinsics).
@@ -119,7 +132,9 @@ impl Camera {
         cam2world: [[f64; 4]; 3],
     ) -> Result<Self, Error> {
         if width == 0 || height == 0 {
-            return Err(Error::InvalidCamera(format!("image size {width}x{height} is empty")));
+            return Err(Error::InvalidCamera(format!(
+                "image size {width}x{height} is empty"
+            )));
         }
         check_finite("pix2cam", pix2cam.iter().flatten().copied())?;
         check_finite("cam2world", cam2world.iter().flatten().copied())?;
@@ -132,13 +147,22 @@ impl Camera {
                 "cam2world rotation is singular (determinant {det:e})"
             )));
         }
-        Ok(Self { width, height, pix2cam, cam2world })
+        Ok(Self {
+            width,
+            height,
+            pix2cam,
+            cam2world,
+        })
     }
 
     /// The camera centre in world space.
     #[must_use]
     pub fn origin(&self) -> [f64; 3] {
-        [self.cam2world[0][3], self.cam2world[1][3], self.cam2world[2][3]]
+        [
+            self.cam2world[0][3],
+            self.cam2world[1][3],
+            self.cam2world[2][3],
+        ]
     }
 
     /// The unnormalised world-space direction through pixel coordinates `(x, y)` (continuous, so
@@ -159,7 +183,13 @@ impl Camera {
     /// the last row reuses the difference of the row before the last, as the official code does
     /// (`dx[-2:-1]`; with two rows, the only difference; with one row, the column spacing).
     #[must_use]
-    pub fn generate_rays(&self, centers: PixelCenters, near: f32, far: f32, lossmult: f32) -> Vec<Ray> {
+    pub fn generate_rays(
+        &self,
+        centers: PixelCenters,
+        near: f32,
+        far: f32,
+        lossmult: f32,
+    ) -> Vec<Ray> {
         let (w, h) = (self.width as usize, self.height as usize);
         let off = centers.offset();
         let dirs: Vec<[f64; 3]> = (0..h * w)
@@ -170,10 +200,17 @@ impl Camera {
         };
         let row_spacing = |y: usize, x: usize| -> f64 {
             if h == 1 {
-                let x1 = if x + 1 < w { x + 1 } else { x.saturating_sub(1) };
+                let x1 = if x + 1 < w {
+                    x + 1
+                } else {
+                    x.saturating_sub(1)
+                };
                 return if x1 == x {
                     // A single pixel: the analytic spacing of one pixel step in x.
-                    dist(self.direction_f64(off, off), self.direction_f64(off + 1.0, off))
+                    dist(
+                        self.direction_f64(off, off),
+                        self.direction_f64(off + 1.0, off),
+                    )
                 } else {
                     dist(dirs[x], dirs[x1])
                 };
@@ -203,6 +240,7 @@ impl Camera {
 }
 
 fn det3(m: impl Fn(usize, usize) -> f64) -> f64 {
-    m(0, 0) * (m(1, 1) * m(2, 2) - m(1, 2) * m(2, 1)) - m(0, 1) * (m(1, 0) * m(2, 2) - m(1, 2) * m(2, 0))
+    m(0, 0) * (m(1, 1) * m(2, 2) - m(1, 2) * m(2, 1))
+        - m(0, 1) * (m(1, 0) * m(2, 2) - m(1, 2) * m(2, 0))
         + m(0, 2) * (m(1, 0) * m(2, 1) - m(1, 1) * m(2, 0))
 }

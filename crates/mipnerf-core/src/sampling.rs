@@ -31,8 +31,14 @@ pub fn sample_along_rays(
     jitter: Option<RayRng>,
     t_vals: &mut [f32],
 ) {
-    assert!(t_vals.len() >= 2, "sample_along_rays: need at least two edges");
-    debug_assert!(near.is_finite() && far.is_finite(), "sample_along_rays: near {near} far {far}");
+    assert!(
+        t_vals.len() >= 2,
+        "sample_along_rays: need at least two edges"
+    );
+    debug_assert!(
+        near.is_finite() && far.is_finite(),
+        "sample_along_rays: near {near} far {far}"
+    );
     let n = (t_vals.len() - 1) as f32;
     for (i, t) in t_vals.iter_mut().enumerate() {
         let s = i as f32 / n;
@@ -49,7 +55,11 @@ pub fn sample_along_rays(
         for i in 0..=last {
             let cur = t_vals[i];
             let lower = if i == 0 { cur } else { 0.5 * (cur + prev_old) };
-            let upper = if i == last { cur } else { 0.5 * (t_vals[i + 1] + cur) };
+            let upper = if i == last {
+                cur
+            } else {
+                0.5 * (t_vals[i + 1] + cur)
+            };
             prev_old = cur;
             t_vals[i] = lower + (upper - lower) * rng.uniform(i as u32);
         }
@@ -81,7 +91,10 @@ pub fn sorted_piecewise_constant_pdf(
     out: &mut [f32],
 ) {
     let nw = weights.len();
-    assert!(nw > 0 && bins.len() == nw + 1, "sorted_piecewise_constant_pdf: shapes");
+    assert!(
+        nw > 0 && bins.len() == nw + 1,
+        "sorted_piecewise_constant_pdf: shapes"
+    );
     // Pad weights so their sum is at least eps.
     let weight_sum: f32 = weights.iter().sum();
     let padding = (PDF_WEIGHT_EPS - weight_sum).max(0.0);
@@ -115,8 +128,16 @@ pub fn sorted_piecewise_constant_pdf(
         };
         // The last edge whose cdf is <= u starts the interval; the first one above u ends it.
         let k = cdf.partition_point(|&c| c <= u); // number of cdf entries <= u (>= 1 as cdf[0] = 0 <= u)
-        let (b0, c0) = if k == 0 { (bins[0], cdf[0]) } else { (bins[k - 1], cdf[k - 1]) };
-        let (b1, c1) = if k > nw { (bins[nw], cdf[nw]) } else { (bins[k], cdf[k]) };
+        let (b0, c0) = if k == 0 {
+            (bins[0], cdf[0])
+        } else {
+            (bins[k - 1], cdf[k - 1])
+        };
+        let (b1, c1) = if k > nw {
+            (bins[nw], cdf[nw])
+        } else {
+            (bins[k], cdf[k])
+        };
         let t = (u - c0) / (c1 - c0);
         let t = if t.is_nan() { 0.0 } else { t }.clamp(0.0, 1.0);
         *o = b0 + t * (b1 - b0);
@@ -165,7 +186,10 @@ pub fn resample_along_rays(
     out: &mut [f32],
 ) {
     let n = weights.len();
-    assert!(n > 0 && t_vals.len() == n + 1 && out.len() == n + 1, "resample_along_rays: shapes");
+    assert!(
+        n > 0 && t_vals.len() == n + 1 && out.len() == n + 1,
+        "resample_along_rays: shapes"
+    );
     let mut buf = [0.0f32; MAX_EDGES];
     let mut heap;
     let blurred: &mut [f32] = if n <= MAX_EDGES {

@@ -1,1 +1,73 @@
-//! placeholder
+//! # mipnerf-gpu
+//!
+//! Mip-NeRF's passes as WGSL compute shaders run through wgpu (Vulkan, Metal, DX12, or software
+//! Vulkan: lavapipe). Every kernel computes what `mipnerf-core` computes on the CPU and is tested
+//! against it.
+//!
+//! - [`GpuContext`]: the one device and queue, with adapter discovery and error capture.
+//! - [`kernels`]: one type per kernel, owning its pipeline and bind-group layout; the WGSL sources
+//!   live in the workspace's `shaders/` folder and are compiled in with `include_str!`.
+
+pub mod context;
+pub mod kernels;
+
+pub use context::{AdapterChoice, AdapterSummary, GpuContext, list_adapters};
+
+/// Errors of the GPU backend. None of them is a panic: a missing or lost device is an error value.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum GpuError {
+    /// No adapter fits the request.
+    #[error(
+        "no {} GPU adapter found. Install a Vulkan driver (for a software one on Debian/Ubuntu: \
+         'apt-get install mesa-vulkan-drivers libvulkan1', or run scripts/ensure-vulkan.sh), \
+         or use the CPU backend (--backend cpu)",
+        if *hardware_only { "hardware" } else { "Vulkan/Metal/DX12" }
+    )]
+    NoAdapter {
+        /// Whether software adapters were excluded.
+        hardware_only: bool,
+    },
+    /// The device could not be created.
+    #[error("could not open the GPU device: {0}")]
+    Device(String),
+    /// The device was lost (driver reset, GPU removed).
+    #[error("the GPU device was lost: {0}")]
+    DeviceLost(String),
+    /// wgpu rejected a shader, pipeline, buffer or command.
+    #[error("GPU validation error: {0}")]
+    Validation(String),
+    /// The caller's inputs are inconsistent.
+    #[error("invalid input to a GPU kernel: {0}")]
+    InvalidInput(String),
+}
+
+/// Support for tests that need a GPU, shared by this crate's and the workspace's tests.
+pub mod test_support {
+    use crate::{AdapterChoice, GpuContext};
+
+    /// The context GPU tests run on, or `None` (after printing one line saying how to get an
+    /// adapter) when this machine has none and the tests do not run in CI.
+    ///
+    /// # Panics
+    /// In CI (`CI` set to anything but `false`/`0`), when no adapter is found or it cannot be
+    /// opened: CI must prove the WGSL on a real (software) adapter, never skip silently.
+    #[must_use]
+    pub fn context_or_skip(test: &str) -> Option<GpuContext> {
+        match GpuContext::new(AdapterChoice::Any) {
+            Ok(ctx) => Some(ctx),
+            Err(e) => {
+                let in_ci =
+                    std::env::var("CI").is_ok_and(|v| !v.is_empty() && v != "false" && v != "0");
+                assert!(
+                    !in_ci,
+                    "{test}: CI needs a GPU adapter (lavapipe at least), but: {e}"
+                );
+                eprintln!(
+                    "SKIPPED {test}: no GPU adapter ({e}); run scripts/ensure-vulkan.sh as root to install lavapipe"
+                );
+                None
+            }
+        }
+    }
+}

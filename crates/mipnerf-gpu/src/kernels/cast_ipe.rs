@@ -1,0 +1,150 @@
+//! `shaders/cast_ipe.wgsl`: rays to frustum Gaussians to IPE features.
+
+use mipnerf_core::{Ray, RayShape, mip::ipe_len};
+
+use crate::{GpuContext, GpuError, kernels::dispatch_grid};
+
+/// The uniform block of `cast_ipe.wgsl` (`struct Params`), 32 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct CastIpeParams {
+    /// Number of rays.
+    pub n_rays: u32,
+    /// Samples (intervals) per ray; each ray has `n_samples + 1` edges.
+    pub n_samples: u32,
+    /// First IPE degree (0 in Mip-NeRF).
+    pub min_deg: u32,
+    /// One past the last IPE degree (16 in Mip-NeRF).
+    pub max_deg: u32,
+    /// 0 for a cone, 1 for a cylinder.
+    pub ray_shape: u32,
+    /// Workgroups along x of the 2-D dispatch grid.
+    pub groups_x: u32,
+    /// Padding to 16-byte alignment.
+    pub _pad: [u32; 2],
+}
+
+/// Workgroup size of `cast_ipe.wgsl`.
+const WORKGROUP: u32 = 64;
+
+/// The compiled `cast_ipe.wgsl` pipeline and its bind-group layout.
+#[derive(Debug)]
+pub struct CastIpeKernel {
+    pipeline: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+}
+
+/// The WGSL source of this kernel.
+pub const SOURCE: &str = include_str!("../../../../shaders/cast_ipe.wgsl");
+
+impl CastIpeKernel {
+    /// Compiles the kernel on `ctx`'s device.
+    ///
+    /// # Errors
+    /// [`GpuError::Validation`] if the device rejects the shader or pipeline.
+    pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
+        let layout = crate::kernels::storage_layout(ctx, "cast_ipe", &[true, true, false]);
+        let pipeline = crate::kernels::compute_pipeline(ctx, "cast_ipe", SOURCE, &layout);
+        ctx.check()?;
+        Ok(Self { pipeline, layout })
+    }
+
+    /// Casts every ray's intervals (`t_vals`: `n_samples + 1` edges per ray, row-major) and encodes
+    /// them; returns `rays.len() * n_samples * ipe_len(min_deg, max_deg)` features laid out as
+    /// [`mipnerf_core::mip::integrated_pos_enc`] writes them, sample after sample.
+    ///
+    /// The output buffer is filled with NaN before the kernel runs, so a feature the kernel failed
+    /// to write shows up as NaN.
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for inconsistent sizes, or any error wgpu reports.
+    pub fn run(
+        &self,
+        ctx: &GpuContext,
+        rays: &[Ray],
+        t_vals: &[f32],
+        n_samples: u32,
+        shape: RayShape,
+        min_deg: u32,
+        max_deg: u32,
+    ) -> Result<Vec<f32>, GpuError> {
+        if n_samples == 0 || t_vals.len() != rays.len() * (n_samples as usize + 1) {
+            return Err(GpuError::InvalidInput(format!(
+                "cast_ipe: {} t values for {} rays of {n_samples} samples",
+                t_vals.len(),
+                rays.len()
+            )));
+        }
+        if max_deg <= min_deg || max_deg > 24 {
+            return Err(GpuError::InvalidInput(format!(
+                "cast_ipe: degrees {min_deg}..{max_deg}"
+            )));
+        }
+        let n_items = rays.len() as u64 * u64::from(n_samples);
+        let (gx, gy) = dispatch_grid(n_items, WORKGROUP)?;
+        let params = CastIpeParams {
+            n_rays: rays.len() as u32,
+            n_samples,
+            min_deg,
+            max_deg,
+            ray_shape: match shape {
+                RayShape::Cone => 0,
+                RayShape::Cylinder => 1,
+            },
+            groups_x: gx,
+            _pad: [0; 2],
+        };
+        let packed: Vec<[f32; 4]> = rays
+            .iter()
+            .flat_map(|r| {
+                [
+                    r.origin.extend(r.radius).to_array(),
+                    r.direction.extend(0.0).to_array(),
+                ]
+            })
+            .collect();
+        let out_len = n_items as usize * ipe_len(min_deg, max_deg);
+        let uniform = ctx.uniform_buffer("cast_ipe params", &params);
+        let ray_buf = ctx.storage_buffer("cast_ipe rays", &packed, false);
+        let t_buf = ctx.storage_buffer("cast_ipe t_vals", t_vals, false);
+        let out_buf = ctx.storage_buffer("cast_ipe encoded", &vec![f32::NAN; out_len], true);
+        let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("cast_ipe bind group"),
+            layout: &self.layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: uniform.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: ray_buf.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: t_buf.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 3,
+                    resource: out_buf.as_entire_binding(),
+                },
+            ],
+        });
+        let mut enc = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("cast_ipe"),
+            });
+        {
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("cast_ipe pass"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(&self.pipeline);
+            pass.set_bind_group(0, &bind, &[]);
+            pass.dispatch_workgroups(gx, gy, 1);
+        }
+        ctx.queue.submit([enc.finish()]);
+        ctx.read_f32(&out_buf, out_len)
+    }
+}

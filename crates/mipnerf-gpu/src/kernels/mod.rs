@@ -1,0 +1,94 @@
+//! One type per WGSL kernel, each owning its pipeline and bind-group layout, and the helpers they
+//! share.
+
+pub mod cast_ipe;
+
+use crate::{GpuContext, GpuError};
+
+/// Every WGSL source of the crate, by file name, for validation and `mipnerf info`.
+pub const ALL_SOURCES: &[(&str, &str)] = &[("cast_ipe.wgsl", cast_ipe::SOURCE)];
+
+/// Most workgroups a dispatch may have along one dimension.
+pub const MAX_GROUPS_PER_DIM: u32 = 65_535;
+
+/// A 2-D grid of workgroups covering `n_items` invocations of `workgroup` each: `(x, y)` with
+/// `x <= 65535`. Kernels flatten it as `gid.y * (x * workgroup) + gid.x`.
+///
+/// # Errors
+/// [`GpuError::InvalidInput`] when even a 65535 x 65535 grid is too small.
+pub fn dispatch_grid(n_items: u64, workgroup: u32) -> Result<(u32, u32), GpuError> {
+    let groups = n_items.div_ceil(u64::from(workgroup)).max(1);
+    let gx = groups.min(u64::from(MAX_GROUPS_PER_DIM));
+    let gy = groups.div_ceil(gx);
+    if gy > u64::from(MAX_GROUPS_PER_DIM) {
+        return Err(GpuError::InvalidInput(format!(
+            "{n_items} invocations exceed one dispatch"
+        )));
+    }
+    Ok((gx as u32, gy as u32))
+}
+
+/// A bind-group layout of one uniform block at binding 0 followed by storage buffers at bindings
+/// 1.., read-only where `read_only[i]` is true.
+#[must_use]
+pub fn storage_layout(ctx: &GpuContext, name: &str, read_only: &[bool]) -> wgpu::BindGroupLayout {
+    let mut entries = vec![wgpu::BindGroupLayoutEntry {
+        binding: 0,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Uniform,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }];
+    for (i, &ro) in read_only.iter().enumerate() {
+        entries.push(wgpu::BindGroupLayoutEntry {
+            binding: i as u32 + 1,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only: ro },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        });
+    }
+    ctx.device
+        .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some(&format!("{name} layout")),
+            entries: &entries,
+        })
+}
+
+/// A labelled compute pipeline for the `main` entry point of `source`.
+#[must_use]
+pub fn compute_pipeline(
+    ctx: &GpuContext,
+    name: &str,
+    source: &str,
+    layout: &wgpu::BindGroupLayout,
+) -> wgpu::ComputePipeline {
+    let module = ctx
+        .device
+        .create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some(name),
+            source: wgpu::ShaderSource::Wgsl(source.into()),
+        });
+    let pl = ctx
+        .device
+        .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some(&format!("{name} pipeline layout")),
+            bind_group_layouts: &[Some(layout)],
+            immediate_size: 0,
+        });
+    ctx.device
+        .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(&format!("{name} pipeline")),
+            layout: Some(&pl),
+            module: &module,
+            entry_point: Some("main"),
+            compilation_options: wgpu::PipelineCompilationOptions::default(),
+            cache: None,
+        })
+}

@@ -1,0 +1,115 @@
+// Rays to conical-frustum (or cylinder) Gaussians to integrated positional encoding (IPE).
+//
+// One invocation per (ray, sample). The maths mirrors mipnerf-core's `mip.rs` operation by
+// operation: `conical_frustum_moments` (stable form), `lift_gaussian` (diagonal), then
+// `integrated_pos_enc` with the official 100*pi argument guard. Sine arguments are further
+// reduced to [-pi, pi] with a two-part 2*pi (Cody-Waite), because GPU `sin` is only accurate there.
+//
+// Output layout, per sample: [sin part | cos part], index (deg - min_deg) * 3 + axis inside a part,
+// samples of a ray contiguous: out[(ray * n_samples + sample) * ipe_len + feature].
+
+struct Params {
+    n_rays: u32,
+    n_samples: u32,
+    min_deg: u32,
+    max_deg: u32,
+    // 0 = cone, 1 = cylinder
+    ray_shape: u32,
+    // Number of workgroups along x in the 2-D dispatch grid.
+    groups_x: u32,
+    _pad0: u32,
+    _pad1: u32,
+}
+
+@group(0) @binding(0) var<uniform> params: Params;
+// Two vec4 per ray: (origin.xyz, radius), (direction.xyz, unused).
+@group(0) @binding(1) var<storage, read> rays: array<vec4<f32>>;
+// n_samples + 1 interval edges per ray.
+@group(0) @binding(2) var<storage, read> t_vals: array<f32>;
+@group(0) @binding(3) var<storage, read_write> encoded: array<f32>;
+
+const SAFE_TRIG_LIMIT: f32 = 314.15927;
+const HALF_PI: f32 = 1.5707964;
+const TWO_PI_HI: f32 = 6.2831855;
+const TWO_PI_LO: f32 = -1.7484555e-7;
+
+// The official guard: reduce |x| >= 100 pi modulo 100 pi (Python-style, into [0, 100 pi)).
+fn safe_trig_arg(x: f32) -> f32 {
+    if (abs(x) < SAFE_TRIG_LIMIT) {
+        return x;
+    }
+    let q = trunc(x / SAFE_TRIG_LIMIT);
+    var r = fma(-q, SAFE_TRIG_LIMIT, x);
+    if (r < 0.0) {
+        r = r + SAFE_TRIG_LIMIT;
+    }
+    if (r >= SAFE_TRIG_LIMIT) {
+        r = r - SAFE_TRIG_LIMIT;
+    }
+    return r;
+}
+
+// sin(x) for |x| < 100 pi, with a precise reduction to [-pi, pi] first.
+fn sin_reduced(x: f32) -> f32 {
+    let k = round(x * (1.0 / 6.2831855));
+    let r = fma(-k, TWO_PI_LO, fma(-k, TWO_PI_HI, x));
+    return sin(r);
+}
+
+fn safe_sin(x: f32) -> f32 {
+    return sin_reduced(safe_trig_arg(x));
+}
+
+@compute @workgroup_size(64)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let idx = gid.y * (params.groups_x * 64u) + gid.x;
+    if (idx >= params.n_rays * params.n_samples) {
+        return;
+    }
+    let ray = idx / params.n_samples;
+    let s = idx % params.n_samples;
+    let o_r = rays[2u * ray];
+    let d = rays[2u * ray + 1u].xyz;
+    let radius = o_r.w;
+    let base_t = ray * (params.n_samples + 1u) + s;
+    let t0 = t_vals[base_t];
+    let t1 = t_vals[base_t + 1u];
+
+    var t_mean: f32;
+    var t_var: f32;
+    var r_var: f32;
+    if (params.ray_shape == 0u) {
+        let mu = (t0 + t1) / 2.0;
+        let hw = (t1 - t0) / 2.0;
+        let mu2 = mu * mu;
+        let hw2 = hw * hw;
+        let hw4 = hw2 * hw2;
+        let denom = 3.0 * mu2 + hw2;
+        t_mean = mu + (2.0 * mu * hw2) / denom;
+        t_var = hw2 / 3.0 - (4.0 / 15.0) * ((hw4 * (12.0 * mu2 - hw2)) / (denom * denom));
+        r_var = radius * radius * (mu2 / 4.0 + (5.0 / 12.0) * hw2 - 4.0 / 15.0 * hw4 / denom);
+    } else {
+        let dt = t1 - t0;
+        t_mean = (t0 + t1) / 2.0;
+        t_var = dt * dt / 12.0;
+        r_var = radius * radius / 4.0;
+    }
+    let d2 = d * d;
+    let d_mag_sq = max(d2.x + d2.y + d2.z, 1e-10);
+    let mean = o_r.xyz + d * t_mean;
+    let cov = t_var * d2 + r_var * (vec3<f32>(1.0) - d2 / d_mag_sq);
+
+    let n_deg = params.max_deg - params.min_deg;
+    let ipe_len = 6u * n_deg;
+    let half = 3u * n_deg;
+    let out_base = idx * ipe_len;
+    for (var i = 0u; i < n_deg; i = i + 1u) {
+        let scale = f32(1u << (params.min_deg + i));
+        let y = mean * scale;
+        let damp = exp(-0.5 * (cov * (scale * scale)));
+        for (var k = 0u; k < 3u; k = k + 1u) {
+            encoded[out_base + i * 3u + k] = damp[k] * safe_sin(y[k]);
+            encoded[out_base + half + i * 3u + k] = damp[k] * safe_sin(y[k] + HALF_PI);
+        }
+    }
+}
