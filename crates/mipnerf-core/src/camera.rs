@@ -244,3 +244,88 @@ fn det3(m: impl Fn(usize, usize) -> f64) -> f64 {
         - m(0, 1) * (m(1, 0) * m(2, 2) - m(1, 2) * m(2, 0))
         + m(0, 2) * (m(1, 0) * m(2, 1) - m(1, 1) * m(2, 0))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const IDENTITY_POSE: [[f64; 4]; 3] = [
+        [1.0, 0.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0, 0.0],
+        [0.0, 0.0, 1.0, 4.0],
+    ];
+
+    #[test]
+    fn centred_and_corner_pixels_differ_by_half_a_pixel() {
+        let cam = Camera::from_camera_angle_x(4, 4, 0.9, IDENTITY_POSE).unwrap();
+        let f = focal_from_camera_angle_x(4, 0.9);
+        let centred = cam.generate_rays(PixelCenters::Centered, 2.0, 6.0, 1.0);
+        let corner = cam.generate_rays(PixelCenters::Corner, 2.0, 6.0, 1.0);
+        // Pixel (0, 0): centre at x = 0.5, corner at x = 0; direction x = (x - W/2) / f.
+        assert!((f64::from(centred[0].direction.x) - (0.5 - 2.0) / f).abs() < 1e-7);
+        assert!((f64::from(corner[0].direction.x) - (0.0 - 2.0) / f).abs() < 1e-7);
+        assert_eq!(centred[0].direction.z, -1.0);
+        assert!((centred[5].viewdir.length() - 1.0).abs() < 1e-6);
+        // Radius: one pixel of direction spacing (1/f at unit depth) times 2/sqrt(12).
+        let r = 1.0 / f * 2.0 / 12f64.sqrt();
+        assert!(
+            centred
+                .iter()
+                .all(|ray| (f64::from(ray.radius) - r).abs() < 1e-7)
+        );
+        assert_eq!(centred[0].origin, Vec3::new(0.0, 0.0, 4.0));
+    }
+
+    #[test]
+    fn single_row_and_single_pixel_images_get_a_radius() {
+        for (w, h) in [(3, 1), (1, 1), (1, 2)] {
+            let cam = Camera::from_camera_angle_x(w, h, 0.9, IDENTITY_POSE).unwrap();
+            let rays = cam.generate_rays(PixelCenters::Centered, 2.0, 6.0, 1.0);
+            assert_eq!(rays.len(), (w * h) as usize);
+            assert!(
+                rays.iter().all(|r| r.radius > 0.0 && r.radius.is_finite()),
+                "{w}x{h}"
+            );
+        }
+    }
+
+    #[test]
+    fn bad_cameras_are_errors_not_panics() {
+        let nan_pose = [
+            [f64::NAN, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 0.0],
+        ];
+        let flat_pose = [
+            [1.0, 0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 0.0],
+        ];
+        let cases = [
+            (
+                Camera::from_camera_angle_x(4, 4, 0.9, nan_pose),
+                "non-finite",
+            ),
+            (
+                Camera::from_camera_angle_x(4, 4, 0.9, flat_pose),
+                "singular",
+            ),
+            (
+                Camera::from_camera_angle_x(0, 4, 0.9, IDENTITY_POSE),
+                "empty",
+            ),
+            (
+                Camera::from_camera_angle_x(4, 4, f64::NAN, IDENTITY_POSE),
+                "camera_angle_x",
+            ),
+            (
+                Camera::from_camera_angle_x(4, 4, 4.0, IDENTITY_POSE),
+                "camera_angle_x",
+            ),
+        ];
+        for (res, needle) in cases {
+            let msg = res.unwrap_err().to_string();
+            assert!(msg.contains(needle), "{msg:?} should mention {needle:?}");
+        }
+    }
+}

@@ -58,6 +58,10 @@ pub struct Gaussian {
 #[must_use]
 #[inline]
 pub fn conical_frustum_moments(t0: f32, t1: f32, base_radius: f32) -> FrustumMoments {
+    debug_assert!(
+        t0.is_finite() && t1.is_finite() && base_radius.is_finite(),
+        "frustum [{t0}, {t1}] r {base_radius}"
+    );
     let mu = (t0 + t1) / 2.0;
     let hw = (t1 - t0) / 2.0;
     let mu2 = mu * mu;
@@ -99,6 +103,10 @@ pub fn conical_frustum_moments_naive(t0: f32, t1: f32, base_radius: f32) -> Frus
 #[must_use]
 #[inline]
 pub fn cylinder_moments(t0: f32, t1: f32, radius: f32) -> FrustumMoments {
+    debug_assert!(
+        t0.is_finite() && t1.is_finite() && radius.is_finite(),
+        "cylinder [{t0}, {t1}] r {radius}"
+    );
     let dt = t1 - t0;
     FrustumMoments {
         t_mean: (t0 + t1) / 2.0,

@@ -11,7 +11,7 @@ pub struct RenderedRay {
     /// Expected depth `sum(w t_mid) / acc`, clipped to `[t_first, t_last]`. A ray with no
     /// opacity reports `t_first` (the official code's `nan_to_num` quirk).
     pub distance: f32,
-    /// Accumulated opacity `sum(w)`, in `[0, 1]`.
+    /// Accumulated opacity `sum(w)`, clamped to `[0, 1]` (rounding can otherwise exceed 1 by an ulp).
     pub acc: f32,
 }
 
@@ -37,6 +37,10 @@ pub fn volumetric_rendering(
         rgb.len() == n && t_vals.len() == n + 1 && weights.len() == n,
         "volumetric_rendering: shapes"
     );
+    debug_assert!(
+        density.iter().all(|d| d.is_finite()),
+        "volumetric_rendering: non-finite density"
+    );
     let dir_norm = dir.length();
     let mut cum = 0.0f32; // sum of density * delta before interval i
     let mut out = RenderedRay::default();
@@ -55,6 +59,9 @@ pub fn volumetric_rendering(
         out.acc += w;
         dist_num += w * (0.5 * (t_vals[i] + t_vals[i + 1]));
     }
+    // Rounding can push the sum of weights one ulp past 1 (the official code lets it); clamp so
+    // that the accumulated opacity is always an opacity. This changes nothing but that last ulp.
+    out.acc = out.acc.min(1.0);
     let d = dist_num / out.acc;
     let d = if d.is_nan() {
         0.0
