@@ -20,7 +20,11 @@
 //! Randomness is counter-based ([`rng`]) so that the CPU and the GPU draw the same numbers.
 
 pub mod camera;
+pub mod linalg;
+pub mod metrics;
 pub mod mip;
+pub mod mlp;
+pub mod model;
 pub mod render;
 pub mod rng;
 pub mod sampling;

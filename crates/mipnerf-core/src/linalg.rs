@@ -1,0 +1,138 @@
+//! Dense matrix products through the `gemm` crate, behind a safe, bounds-checked interface.
+//!
+//! All matrices are row-major and contiguous. The products run single-threaded: the training step
+//! parallelises over independent chunks of rays instead, which keeps every result independent of
+//! the thread count (bit-for-bit reproducible runs).
+#![allow(unsafe_code)]
+
+/// How an operand is stored.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layout {
+    /// As the product uses it: `rows x cols` row-major.
+    Normal,
+    /// Transposed: stored `cols x rows` row-major, used as its transpose.
+    Transposed,
+}
+
+/// `c (m x n) = [c +] a (m x k) · b (k x n)`, with `a` and `b` stored as `la` and `lb` say, and
+/// `c` overwritten (`accumulate == false`) or added to.
+///
+/// # Panics
+/// If a slice is shorter than its shape needs.
+pub fn matmul(
+    c: &mut [f32],
+    a: &[f32],
+    la: Layout,
+    b: &[f32],
+    lb: Layout,
+    m: usize,
+    k: usize,
+    n: usize,
+    accumulate: bool,
+) {
+    assert!(c.len() >= m * n, "matmul: c has {} < {m}x{n}", c.len());
+    assert!(a.len() >= m * k, "matmul: a has {} < {m}x{k}", a.len());
+    assert!(b.len() >= k * n, "matmul: b has {} < {k}x{n}", b.len());
+    if m == 0 || n == 0 {
+        return;
+    }
+    if k == 0 {
+        if !accumulate {
+            c[..m * n].fill(0.0);
+        }
+        return;
+    }
+    // (row stride, column stride) of each operand as the product sees it.
+    let (a_rs, a_cs) = match la {
+        Layout::Normal => (k as isize, 1),
+        Layout::Transposed => (1, m as isize),
+    };
+    let (b_rs, b_cs) = match lb {
+        Layout::Normal => (n as isize, 1),
+        Layout::Transposed => (1, k as isize),
+    };
+    // SAFETY: the asserts above guarantee that every element addressed through these strides lies
+    // inside the slices: a reads rows < m and columns < k of an m*k (or k*m) block, b likewise, and
+    // c writes an m*n block. `c` is exclusively borrowed and does not alias `a` or `b`.
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            c.as_mut_ptr(),
+            1,
+            n as isize,
+            accumulate,
+            a.as_ptr(),
+            a_cs,
+            a_rs,
+            b.as_ptr(),
+            b_cs,
+            b_rs,
+            1.0,
+            1.0,
+            false,
+            false,
+            false,
+            gemm::Parallelism::None,
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn naive(
+        a: &[f32],
+        la: Layout,
+        b: &[f32],
+        lb: Layout,
+        m: usize,
+        k: usize,
+        n: usize,
+    ) -> Vec<f32> {
+        let at = |i: usize, p: usize| {
+            if la == Layout::Normal {
+                a[i * k + p]
+            } else {
+                a[p * m + i]
+            }
+        };
+        let bt = |p: usize, j: usize| {
+            if lb == Layout::Normal {
+                b[p * n + j]
+            } else {
+                b[j * k + p]
+            }
+        };
+        (0..m * n)
+            .map(|ij| (0..k).map(|p| at(ij / n, p) * bt(p, ij % n)).sum())
+            .collect()
+    }
+
+    #[test]
+    fn matches_a_naive_product_for_every_layout() {
+        let (m, k, n) = (37, 19, 23);
+        let a: Vec<f32> = (0..m * k)
+            .map(|i| ((i * 7 % 13) as f32 - 6.0) / 5.0)
+            .collect();
+        let b: Vec<f32> = (0..k * n)
+            .map(|i| ((i * 5 % 11) as f32 - 5.0) / 3.0)
+            .collect();
+        for la in [Layout::Normal, Layout::Transposed] {
+            for lb in [Layout::Normal, Layout::Transposed] {
+                let want = naive(&a, la, &b, lb, m, k, n);
+                let mut c = vec![1.0; m * n];
+                matmul(&mut c, &a, la, &b, lb, m, k, n, false);
+                for (g, w) in c.iter().zip(&want) {
+                    assert!((g - w).abs() < 1e-4, "{la:?} {lb:?}: {g} vs {w}");
+                }
+                matmul(&mut c, &a, la, &b, lb, m, k, n, true);
+                for (g, w) in c.iter().zip(&want) {
+                    assert!((g - 2.0 * w).abs() < 2e-4, "accumulate {la:?} {lb:?}");
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,632 @@
+//! The Mip-NeRF MLP on the CPU: batched forward and backward passes over one flat parameter buffer.
+//!
+//! # Architecture (the official `MLP` of `internal/models.py`)
+//! - Trunk: `net_depth` dense layers of `net_width`, ReLU. After trunk layer `i` with
+//!   `i % skip_layer == 0 && i > 0`, the encoded input is concatenated to the trunk's output
+//!   (`[h, x]`), so the next layer (or the heads) takes `net_width + x_dim` inputs.
+//! - Density head: one dense layer to 1 raw density (activation applied by the model).
+//! - Colour: a `net_width` bottleneck with no activation, concatenated with the view-direction
+//!   encoding (`[bottleneck, view]`), then `net_depth_condition` dense layers of
+//!   `net_width_condition` with ReLU, then one dense layer to 3 raw colours.
+//!
+//! # Parameter layout
+//! Dense layers are numbered in the official creation order: `Dense_0 ..= Dense_{D-1}` (trunk),
+//! `Dense_D` (density), `Dense_{D+1}` (bottleneck), `Dense_{D+2} ..` (condition layers), and the
+//! last one (rgb). For each layer, in that order, the flat buffer holds its kernel
+//! (`fan_in x fan_out`, row-major, so `y = x · kernel + bias` as in flax) and then its bias
+//! (`fan_out`). Where a layer's input is a concatenation, the kernel's rows follow the
+//! concatenation order. The GPU backend and the checkpoints share this layout
+//! ([`MlpShape::layers`] lists the names, offsets and shapes).
+
+use rand::{Rng, SeedableRng, rngs::SmallRng};
+
+use crate::linalg::{Layout, matmul};
+
+/// The shape of the MLP. Defaults are the official ones (the paper's 612K-parameter network).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct MlpConfig {
+    /// Trunk depth (8).
+    pub net_depth: usize,
+    /// Trunk width (256).
+    pub net_width: usize,
+    /// Concatenate the input after every trunk layer `i > 0` with `i % skip_layer == 0` (4).
+    pub skip_layer: usize,
+    /// Depth of the view-conditioned colour branch (1); at least 1.
+    pub net_depth_condition: usize,
+    /// Width of the colour branch (128).
+    pub net_width_condition: usize,
+    /// Width of the encoded sample input (96 = IPE degrees 0..16).
+    pub x_dim: usize,
+    /// Width of the encoded view direction (27 = PE degrees 0..4 with the identity).
+    pub view_dim: usize,
+}
+
+impl Default for MlpConfig {
+    fn default() -> Self {
+        Self {
+            net_depth: 8,
+            net_width: 256,
+            skip_layer: 4,
+            net_depth_condition: 1,
+            net_width_condition: 128,
+            x_dim: 96,
+            view_dim: 27,
+        }
+    }
+}
+
+/// One dense layer's place in the flat parameter buffer.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct DenseLayer {
+    /// `Dense_k`, the official (flax) name.
+    pub name: String,
+    /// Inputs.
+    pub fan_in: usize,
+    /// Outputs.
+    pub fan_out: usize,
+    /// Offset of the `fan_in x fan_out` row-major kernel.
+    pub kernel: usize,
+    /// Offset of the `fan_out` bias.
+    pub bias: usize,
+}
+
+impl DenseLayer {
+    /// The kernel's values in `params`.
+    #[must_use]
+    pub fn kernel<'a>(&self, params: &'a [f32]) -> &'a [f32] {
+        &params[self.kernel..self.kernel + self.fan_in * self.fan_out]
+    }
+    /// Rows `r0..r0 + rows` of the kernel in `params`.
+    #[must_use]
+    pub fn kernel_rows<'a>(&self, params: &'a [f32], r0: usize, rows: usize) -> &'a [f32] {
+        &params[self.kernel + r0 * self.fan_out..self.kernel + (r0 + rows) * self.fan_out]
+    }
+    /// The bias's values in `params`.
+    #[must_use]
+    pub fn bias<'a>(&self, params: &'a [f32]) -> &'a [f32] {
+        &params[self.bias..self.bias + self.fan_out]
+    }
+}
+
+/// An MLP's layers and their place in a flat parameter buffer.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct MlpShape {
+    /// The configuration this shape was built from.
+    pub config: MlpConfig,
+    /// Every dense layer, in the official creation order.
+    pub layers: Vec<DenseLayer>,
+    /// Total number of parameters.
+    pub num_params: usize,
+}
+
+/// Errors in an MLP configuration.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("invalid MLP configuration: {0}")]
+pub struct MlpConfigError(pub String);
+
+impl MlpShape {
+    /// Lays out the MLP of `config`, starting at offset `base` of the flat buffer.
+    ///
+    /// # Errors
+    /// If a size is zero or `net_depth_condition` is 0.
+    pub fn new(config: MlpConfig, base: usize) -> Result<Self, MlpConfigError> {
+        let c = config;
+        if c.net_depth == 0 || c.net_width == 0 || c.net_width_condition == 0 || c.x_dim == 0 {
+            return Err(MlpConfigError(format!(
+                "depth, widths and input width must be positive: {c:?}"
+            )));
+        }
+        if c.net_depth_condition == 0 {
+            return Err(MlpConfigError(
+                "net_depth_condition must be at least 1".into(),
+            ));
+        }
+        let mut layers = Vec::new();
+        let mut off = base;
+        let mut push = |fan_in: usize, fan_out: usize| {
+            let name = format!("Dense_{}", layers.len());
+            layers.push(DenseLayer {
+                name,
+                fan_in,
+                fan_out,
+                kernel: off,
+                bias: off + fan_in * fan_out,
+            });
+            off += fan_in * fan_out + fan_out;
+        };
+        let shape_tmp = |i: usize| config_concat_after(&c, i);
+        for i in 0..c.net_depth {
+            let fan_in = if i == 0 {
+                c.x_dim
+            } else {
+                c.net_width + if shape_tmp(i - 1) { c.x_dim } else { 0 }
+            };
+            push(fan_in, c.net_width);
+        }
+        let top = c.net_width
+            + if shape_tmp(c.net_depth - 1) {
+                c.x_dim
+            } else {
+                0
+            };
+        push(top, 1);
+        push(top, c.net_width);
+        for j in 0..c.net_depth_condition {
+            let fan_in = if j == 0 {
+                c.net_width + c.view_dim
+            } else {
+                c.net_width_condition
+            };
+            push(fan_in, c.net_width_condition);
+        }
+        push(c.net_width_condition, 3);
+        Ok(Self {
+            config: c,
+            layers,
+            num_params: off - base,
+        })
+    }
+
+    /// Whether the encoded input is concatenated after trunk layer `i`.
+    #[must_use]
+    pub fn concat_after(&self, i: usize) -> bool {
+        config_concat_after(&self.config, i)
+    }
+
+    fn trunk(&self, i: usize) -> &DenseLayer {
+        &self.layers[i]
+    }
+    fn density_head(&self) -> &DenseLayer {
+        &self.layers[self.config.net_depth]
+    }
+    fn bottleneck(&self) -> &DenseLayer {
+        &self.layers[self.config.net_depth + 1]
+    }
+    fn condition(&self, j: usize) -> &DenseLayer {
+        &self.layers[self.config.net_depth + 2 + j]
+    }
+    fn rgb_head(&self) -> &DenseLayer {
+        &self.layers[self.layers.len() - 1]
+    }
+
+    /// Glorot-uniform kernels (`U(±sqrt(6 / (fan_in + fan_out)))`) and zero biases, written into
+    /// this MLP's slice of `params`, from `seed`.
+    pub fn init_glorot(&self, params: &mut [f32], seed: u64) {
+        let mut rng = SmallRng::seed_from_u64(seed);
+        for l in &self.layers {
+            let limit = (6.0 / (l.fan_in + l.fan_out) as f64).sqrt() as f32;
+            for v in &mut params[l.kernel..l.kernel + l.fan_in * l.fan_out] {
+                *v = rng.random_range(-limit..limit);
+            }
+            params[l.bias..l.bias + l.fan_out].fill(0.0);
+        }
+    }
+
+    /// Floating-point operations of the matrix products per sample, forward and backward
+    /// (2 per multiply-add; backward = input gradients + weight gradients = 2x forward; the first
+    /// layer's input gradient is not computed).
+    #[must_use]
+    pub fn flops_per_sample(&self) -> f64 {
+        let fwd: usize = self.layers.iter().map(|l| 2 * l.fan_in * l.fan_out).sum();
+        let first = 2 * self.layers[0].fan_in * self.layers[0].fan_out;
+        (3 * fwd - first) as f64
+    }
+}
+
+fn config_concat_after(c: &MlpConfig, i: usize) -> bool {
+    c.skip_layer > 0 && i > 0 && i.is_multiple_of(c.skip_layer)
+}
+
+/// Activations kept from the forward pass for the backward pass, and scratch space. Reused across
+/// calls to avoid allocation.
+#[derive(Default, Debug, Clone)]
+pub struct MlpCache {
+    n: usize,
+    n_rays: usize,
+    /// Post-ReLU outputs of each trunk layer, `n x net_width` each.
+    trunk: Vec<Vec<f32>>,
+    bottleneck: Vec<f32>,
+    /// Per-ray projection of the view encoding through the first condition layer.
+    view_proj: Vec<f32>,
+    /// Post-ReLU outputs of each condition layer.
+    cond: Vec<Vec<f32>>,
+    /// Raw colour, `n x 3`.
+    pub raw_rgb: Vec<f32>,
+    /// Raw density, `n`.
+    pub raw_density: Vec<f32>,
+    grad_a: Vec<f32>,
+    grad_b: Vec<f32>,
+    grad_z: Vec<f32>,
+    grad_ray: Vec<f32>,
+}
+
+fn resize(v: &mut Vec<f32>, len: usize) {
+    v.resize(len, 0.0);
+}
+
+fn fill_bias(out: &mut [f32], bias: &[f32]) {
+    for row in out.chunks_exact_mut(bias.len()) {
+        row.copy_from_slice(bias);
+    }
+}
+
+fn relu_inplace(v: &mut [f32]) {
+    for x in v {
+        *x = x.max(0.0);
+    }
+}
+
+/// `dz = g * (h > 0)` in place on `g`.
+fn relu_backward(g: &mut [f32], h: &[f32]) {
+    for (gi, &hi) in g.iter_mut().zip(h) {
+        if hi <= 0.0 {
+            *gi = 0.0;
+        }
+    }
+}
+
+fn add_col_sums(bias_grad: &mut [f32], g: &[f32]) {
+    for row in g.chunks_exact(bias_grad.len()) {
+        for (b, &x) in bias_grad.iter_mut().zip(row) {
+            *b += x;
+        }
+    }
+}
+
+impl MlpShape {
+    /// Forward pass over `n_rays * samples_per_ray` samples.
+    ///
+    /// `x` is `n x x_dim` (sample encodings, the samples of a ray contiguous), `view` is
+    /// `n_rays x view_dim`. Fills `cache.raw_rgb` (`n x 3`) and `cache.raw_density` (`n`) and
+    /// keeps what the backward pass needs.
+    ///
+    /// # Panics
+    /// If the slices do not match the shapes.
+    pub fn forward(
+        &self,
+        params: &[f32],
+        x: &[f32],
+        view: &[f32],
+        n_rays: usize,
+        samples_per_ray: usize,
+        cache: &mut MlpCache,
+    ) {
+        let c = &self.config;
+        let n = n_rays * samples_per_ray;
+        assert_eq!(x.len(), n * c.x_dim, "mlp forward: x");
+        assert_eq!(view.len(), n_rays * c.view_dim, "mlp forward: view");
+        cache.n = n;
+        cache.n_rays = n_rays;
+        let w = c.net_width;
+        cache.trunk.resize_with(c.net_depth, Vec::new);
+        for i in 0..c.net_depth {
+            let (before, rest) = cache.trunk.split_at_mut(i);
+            let out = &mut rest[0];
+            resize(out, n * w);
+            let l = self.trunk(i);
+            fill_bias(out, l.bias(params));
+            if i == 0 {
+                matmul(
+                    out,
+                    x,
+                    Layout::Normal,
+                    l.kernel(params),
+                    Layout::Normal,
+                    n,
+                    c.x_dim,
+                    w,
+                    true,
+                );
+            } else {
+                let h = &before[i - 1];
+                matmul(
+                    out,
+                    h,
+                    Layout::Normal,
+                    l.kernel_rows(params, 0, w),
+                    Layout::Normal,
+                    n,
+                    w,
+                    w,
+                    true,
+                );
+                if self.concat_after(i - 1) {
+                    matmul(
+                        out,
+                        x,
+                        Layout::Normal,
+                        l.kernel_rows(params, w, c.x_dim),
+                        Layout::Normal,
+                        n,
+                        c.x_dim,
+                        w,
+                        true,
+                    );
+                }
+            }
+            relu_inplace(out);
+        }
+        let top = &cache.trunk[c.net_depth - 1];
+        let top_concat = self.concat_after(c.net_depth - 1);
+        // Heads on [top, x?].
+        let head = |out: &mut [f32], l: &DenseLayer| {
+            fill_bias(out, l.bias(params));
+            matmul(
+                out,
+                top,
+                Layout::Normal,
+                l.kernel_rows(params, 0, w),
+                Layout::Normal,
+                n,
+                w,
+                l.fan_out,
+                true,
+            );
+            if top_concat {
+                matmul(
+                    out,
+                    x,
+                    Layout::Normal,
+                    l.kernel_rows(params, w, c.x_dim),
+                    Layout::Normal,
+                    n,
+                    c.x_dim,
+                    l.fan_out,
+                    true,
+                );
+            }
+        };
+        resize(&mut cache.raw_density, n);
+        head(&mut cache.raw_density, self.density_head());
+        resize(&mut cache.bottleneck, n * w);
+        head(&mut cache.bottleneck, self.bottleneck());
+        // Condition layers; the first takes [bottleneck, view], the view part computed per ray.
+        let wc = c.net_width_condition;
+        cache.cond.resize_with(c.net_depth_condition, Vec::new);
+        let l0 = self.condition(0);
+        resize(&mut cache.view_proj, n_rays * wc);
+        matmul(
+            &mut cache.view_proj,
+            view,
+            Layout::Normal,
+            l0.kernel_rows(params, w, c.view_dim),
+            Layout::Normal,
+            n_rays,
+            c.view_dim,
+            wc,
+            false,
+        );
+        for j in 0..c.net_depth_condition {
+            let (before, rest) = cache.cond.split_at_mut(j);
+            let out = &mut rest[0];
+            resize(out, n * wc);
+            let l = self.condition(j);
+            fill_bias(out, l.bias(params));
+            if j == 0 {
+                matmul(
+                    out,
+                    &cache.bottleneck,
+                    Layout::Normal,
+                    l.kernel_rows(params, 0, w),
+                    Layout::Normal,
+                    n,
+                    w,
+                    wc,
+                    true,
+                );
+                for (r, rows) in out.chunks_exact_mut(samples_per_ray * wc).enumerate() {
+                    let vp = &cache.view_proj[r * wc..(r + 1) * wc];
+                    for row in rows.chunks_exact_mut(wc) {
+                        for (o, &v) in row.iter_mut().zip(vp) {
+                            *o += v;
+                        }
+                    }
+                }
+            } else {
+                matmul(
+                    out,
+                    &before[j - 1],
+                    Layout::Normal,
+                    l.kernel(params),
+                    Layout::Normal,
+                    n,
+                    wc,
+                    wc,
+                    true,
+                );
+            }
+            relu_inplace(out);
+        }
+        resize(&mut cache.raw_rgb, n * 3);
+        let l = self.rgb_head();
+        fill_bias(&mut cache.raw_rgb, l.bias(params));
+        matmul(
+            &mut cache.raw_rgb,
+            &cache.cond[c.net_depth_condition - 1],
+            Layout::Normal,
+            l.kernel(params),
+            Layout::Normal,
+            n,
+            wc,
+            3,
+            true,
+        );
+    }
+
+    /// Backward pass of the last [`forward`](Self::forward) (same `params`, `x`, `view`, `cache`):
+    /// given `d_raw_rgb` (`n x 3`) and `d_raw_density` (`n`), **adds** the gradient of every
+    /// parameter to `grads` (this MLP's slice, same layout as `params`). Inputs get no gradient.
+    ///
+    /// # Panics
+    /// If the slices do not match the shapes of the forward pass.
+    pub fn backward(
+        &self,
+        params: &[f32],
+        x: &[f32],
+        view: &[f32],
+        samples_per_ray: usize,
+        cache: &mut MlpCache,
+        d_raw_rgb: &[f32],
+        d_raw_density: &[f32],
+        grads: &mut [f32],
+    ) {
+        let c = &self.config;
+        let (n, n_rays) = (cache.n, cache.n_rays);
+        assert_eq!(d_raw_rgb.len(), n * 3, "mlp backward: d_raw_rgb");
+        assert_eq!(d_raw_density.len(), n, "mlp backward: d_raw_density");
+        assert_eq!(n, n_rays * samples_per_ray, "mlp backward: samples per ray");
+        let (w, wc) = (c.net_width, c.net_width_condition);
+        let MlpCache {
+            trunk,
+            bottleneck,
+            cond,
+            grad_a,
+            grad_b,
+            grad_z,
+            grad_ray,
+            ..
+        } = cache;
+
+        // Accumulate kernel += inᵀ · dz and bias += colsum(dz).
+        let weight_grad = |grads: &mut [f32],
+                           l: &DenseLayer,
+                           r0: usize,
+                           input: &[f32],
+                           in_w: usize,
+                           dz: &[f32],
+                           rows: usize| {
+            let k = &mut grads[l.kernel + r0 * l.fan_out..l.kernel + (r0 + in_w) * l.fan_out];
+            matmul(
+                k,
+                input,
+                Layout::Transposed,
+                dz,
+                Layout::Normal,
+                in_w,
+                rows,
+                l.fan_out,
+                true,
+            );
+        };
+
+        // rgb head.
+        let l = self.rgb_head();
+        let last = &cond[c.net_depth_condition - 1];
+        weight_grad(grads, l, 0, last, wc, d_raw_rgb, n);
+        add_col_sums(&mut grads[l.bias..l.bias + 3], d_raw_rgb);
+        resize(grad_a, n * wc);
+        matmul(
+            grad_a,
+            d_raw_rgb,
+            Layout::Normal,
+            l.kernel(params),
+            Layout::Transposed,
+            n,
+            3,
+            wc,
+            false,
+        );
+        // Condition layers, top down. grad_a holds d(output of layer j).
+        for j in (0..c.net_depth_condition).rev() {
+            let l = self.condition(j);
+            relu_backward(grad_a, &cond[j]);
+            add_col_sums(&mut grads[l.bias..l.bias + wc], grad_a);
+            if j > 0 {
+                weight_grad(grads, l, 0, &cond[j - 1], wc, grad_a, n);
+                resize(grad_b, n * wc);
+                matmul(
+                    grad_b,
+                    grad_a,
+                    Layout::Normal,
+                    l.kernel(params),
+                    Layout::Transposed,
+                    n,
+                    wc,
+                    wc,
+                    false,
+                );
+                std::mem::swap(grad_a, grad_b);
+            } else {
+                weight_grad(grads, l, 0, bottleneck, w, grad_a, n);
+                // View rows: viewᵀ · (per-ray sums of dz).
+                resize(grad_ray, n_rays * wc);
+                grad_ray.fill(0.0);
+                for (r, rows) in grad_a.chunks_exact(samples_per_ray * wc).enumerate() {
+                    add_col_sums(&mut grad_ray[r * wc..(r + 1) * wc], rows);
+                }
+                weight_grad(grads, l, w, view, c.view_dim, grad_ray, n_rays);
+                // d bottleneck.
+                resize(grad_b, n * w);
+                matmul(
+                    grad_b,
+                    grad_a,
+                    Layout::Normal,
+                    l.kernel_rows(params, 0, w),
+                    Layout::Transposed,
+                    n,
+                    wc,
+                    w,
+                    false,
+                );
+            }
+        }
+        // grad_b = d bottleneck (no activation). Heads read [top, x?].
+        let top_concat = self.concat_after(c.net_depth - 1);
+        let top = &trunk[c.net_depth - 1];
+        resize(grad_z, n * w);
+        for (l, dz, first) in [
+            (self.bottleneck(), &grad_b[..], true),
+            (self.density_head(), d_raw_density, false),
+        ] {
+            weight_grad(grads, l, 0, top, w, dz, n);
+            if top_concat {
+                weight_grad(grads, l, w, x, c.x_dim, dz, n);
+            }
+            add_col_sums(&mut grads[l.bias..l.bias + l.fan_out], dz);
+            matmul(
+                grad_z,
+                dz,
+                Layout::Normal,
+                l.kernel_rows(params, 0, w),
+                Layout::Transposed,
+                n,
+                l.fan_out,
+                w,
+                !first,
+            );
+        }
+        // Trunk, top down. grad_z holds d(output of layer i).
+        for i in (0..c.net_depth).rev() {
+            let l = self.trunk(i);
+            relu_backward(grad_z, &trunk[i]);
+            add_col_sums(&mut grads[l.bias..l.bias + w], grad_z);
+            if i == 0 {
+                weight_grad(grads, l, 0, x, c.x_dim, grad_z, n);
+            } else {
+                weight_grad(grads, l, 0, &trunk[i - 1], w, grad_z, n);
+                if self.concat_after(i - 1) {
+                    weight_grad(grads, l, w, x, c.x_dim, grad_z, n);
+                }
+                resize(grad_a, n * w);
+                matmul(
+                    grad_a,
+                    grad_z,
+                    Layout::Normal,
+                    l.kernel_rows(params, 0, w),
+                    Layout::Transposed,
+                    n,
+                    w,
+                    w,
+                    false,
+                );
+                std::mem::swap(grad_a, grad_z);
+            }
+        }
+    }
+
+    /// The post-ReLU output of trunk layer `i` from the last forward pass (`n x net_width`).
+    #[must_use]
+    pub fn trunk_output<'a>(&self, cache: &'a MlpCache, i: usize) -> &'a [f32] {
+        &cache.trunk[i]
+    }
+}

@@ -1,0 +1,711 @@
+//! The Mip-NeRF model (coarse and fine levels around one MLP), its loss and gradient, on the CPU.
+//!
+//! One call of [`Model::loss_and_grad`] is the official `train_step` minus the optimiser: for a
+//! batch of rays, each level samples intervals (stratified for the coarse level, inverse-CDF from
+//! the previous level's weights for the next), casts them to Gaussians, encodes them (IPE), runs
+//! the MLP, volume renders, and compares the colour with the target; the gradient of
+//! `coarse_loss_mult * coarse + fine` flows back through rendering, the activations and the MLP.
+//! The fine level's intervals carry no gradient (the official `stop_level_grad`).
+//!
+//! The batch is cut into chunks of whole rays that run in parallel (rayon); each chunk's gradient
+//! is summed in chunk order, so results are bit-for-bit the same whatever the thread count.
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+use crate::camera::Ray;
+use crate::mip::{self, Gaussian, RayShape};
+use crate::mlp::{MlpCache, MlpConfig, MlpConfigError, MlpShape};
+use crate::render::{self, DensityActivation};
+use crate::rng::{RayRng, Stream};
+use crate::sampling::{self, PdfSamples};
+
+/// How a sample's Gaussian is encoded for the MLP.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PointEncoding {
+    /// Integrated positional encoding of the Gaussian (Mip-NeRF).
+    #[default]
+    Integrated,
+    /// The same features with the covariance set to zero: plain PE of the frustum's mean, no
+    /// identity (the paper's "w/o IPE" ablation; same width as IPE).
+    Mean,
+    /// NeRF's encoding: the mean itself followed by its PE (`3 + 6 (max_deg - min_deg)` features).
+    Nerf,
+}
+
+/// Everything that defines the model. Defaults are the official Mip-NeRF (Blender) settings.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ModelConfig {
+    /// Trunk depth.
+    pub net_depth: usize,
+    /// Trunk width.
+    pub net_width: usize,
+    /// Concatenate the encoded input after every trunk layer `i > 0` with `i % skip_layer == 0`.
+    pub skip_layer: usize,
+    /// Depth of the view-conditioned colour branch.
+    pub net_depth_condition: usize,
+    /// Width of the colour branch.
+    pub net_width_condition: usize,
+    /// Samples (intervals) per ray and level.
+    pub num_samples: usize,
+    /// Levels: 1 (coarse only) or more (coarse then fine, ...).
+    pub num_levels: usize,
+    /// One MLP for all levels (Mip-NeRF) or one per level (NeRF).
+    pub separate_mlps: bool,
+    /// First positional-encoding degree of sample positions.
+    pub min_deg_point: u32,
+    /// One past the last degree.
+    pub max_deg_point: u32,
+    /// View directions are encoded with degrees `0..deg_view` plus the identity.
+    pub deg_view: u32,
+    /// How samples are encoded.
+    pub point_encoding: PointEncoding,
+    /// Cone (Mip-NeRF) or cylinder (NDC scenes).
+    pub ray_shape: RayShape,
+    /// Sample linearly in disparity instead of depth.
+    pub lindisp: bool,
+    /// Constant added to the blurred weights before resampling.
+    pub resample_padding: f32,
+    /// Density activation.
+    pub density_activation: DensityActivation,
+    /// Added to the raw density before the activation.
+    pub density_bias: f32,
+    /// Colour padding: `rgb = sigmoid(raw) (1 + 2p) - p`.
+    pub rgb_padding: f32,
+    /// Standard deviation of Gaussian noise added to raw density in training.
+    pub density_noise: f32,
+    /// Composite on a white background.
+    pub white_bkgd: bool,
+    /// Weight of every level but the last in the loss.
+    pub coarse_loss_mult: f32,
+    /// Weight each ray by its `lossmult` (its pixel's area; the paper's "area loss").
+    pub area_loss: bool,
+    /// Rays per pixel along each axis for supersampling (1 = one ray per pixel); the rendered
+    /// colours of a pixel's `k x k` rays are averaged.
+    pub supersample: usize,
+}
+
+impl Default for ModelConfig {
+    fn default() -> Self {
+        Self {
+            net_depth: 8,
+            net_width: 256,
+            skip_layer: 4,
+            net_depth_condition: 1,
+            net_width_condition: 128,
+            num_samples: 128,
+            num_levels: 2,
+            separate_mlps: false,
+            min_deg_point: 0,
+            max_deg_point: 16,
+            deg_view: 4,
+            point_encoding: PointEncoding::Integrated,
+            ray_shape: RayShape::Cone,
+            lindisp: false,
+            resample_padding: sampling::RESAMPLE_PADDING,
+            density_activation: DensityActivation::Softplus,
+            density_bias: -1.0,
+            rgb_padding: 0.001,
+            density_noise: 0.0,
+            white_bkgd: true,
+            coarse_loss_mult: 0.1,
+            area_loss: true,
+            supersample: 1,
+        }
+    }
+}
+
+/// Named model sizes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Preset {
+    /// The official shape: 8 x 256 trunk, 128 + 128 samples (612,740 parameters).
+    Paper,
+    /// 4 x 128 trunk, skip after layer 2, 64-wide colour branch, 64 + 64 samples (about 90K).
+    Small,
+    /// 3 x 64 trunk, skip after layer 2, 32-wide colour branch, 32 + 32 samples, IPE degrees
+    /// 0..10 (about 17K): trains in minutes on 2 cores.
+    Tiny,
+}
+
+impl Preset {
+    /// The Mip-NeRF configuration of this size.
+    #[must_use]
+    pub fn config(self) -> ModelConfig {
+        let base = ModelConfig::default();
+        match self {
+            Self::Paper => base,
+            Self::Small => ModelConfig {
+                net_depth: 4,
+                net_width: 128,
+                skip_layer: 2,
+                net_width_condition: 64,
+                num_samples: 64,
+                ..base
+            },
+            Self::Tiny => ModelConfig {
+                net_depth: 3,
+                net_width: 64,
+                skip_layer: 2,
+                net_width_condition: 32,
+                num_samples: 32,
+                max_deg_point: 10,
+                ..base
+            },
+        }
+    }
+}
+
+impl ModelConfig {
+    /// The NeRF baseline of the paper's table, at this configuration's size: NeRF's positional
+    /// encoding (degrees 0..10 with the identity), one MLP per level, coarse weight 1, no area
+    /// loss, rays through pixel corners (set on the dataset), ReLU density without bias, no colour
+    /// padding.
+    #[must_use]
+    pub fn nerf(mut self) -> Self {
+        self.point_encoding = PointEncoding::Nerf;
+        self.max_deg_point = self.max_deg_point.min(10);
+        self.separate_mlps = true;
+        self.coarse_loss_mult = 1.0;
+        self.area_loss = false;
+        self.without_misc()
+    }
+
+    /// The "w/o misc" ablation: ReLU density, density bias 0, colour padding 0.
+    #[must_use]
+    pub fn without_misc(mut self) -> Self {
+        self.density_activation = DensityActivation::Relu;
+        self.density_bias = 0.0;
+        self.rgb_padding = 0.0;
+        self
+    }
+
+    /// Width of the sample encoding.
+    #[must_use]
+    pub fn x_dim(&self) -> usize {
+        match self.point_encoding {
+            PointEncoding::Integrated | PointEncoding::Mean => {
+                mip::ipe_len(self.min_deg_point, self.max_deg_point)
+            }
+            PointEncoding::Nerf => mip::pos_enc_len(self.min_deg_point, self.max_deg_point, true),
+        }
+    }
+
+    /// Width of the view-direction encoding.
+    #[must_use]
+    pub fn view_dim(&self) -> usize {
+        mip::pos_enc_len(0, self.deg_view, true)
+    }
+
+    /// The MLP's shape.
+    #[must_use]
+    pub fn mlp_config(&self) -> MlpConfig {
+        MlpConfig {
+            net_depth: self.net_depth,
+            net_width: self.net_width,
+            skip_layer: self.skip_layer,
+            net_depth_condition: self.net_depth_condition,
+            net_width_condition: self.net_width_condition,
+            x_dim: self.x_dim(),
+            view_dim: self.view_dim(),
+        }
+    }
+}
+
+/// Errors in a model configuration.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ModelError {
+    /// The MLP's shape is invalid.
+    #[error(transparent)]
+    Mlp(#[from] MlpConfigError),
+    /// Another setting is out of range.
+    #[error("invalid model configuration: {0}")]
+    Config(String),
+}
+
+/// A model: its configuration and the layout of its parameters (one MLP, or one per level).
+#[derive(Clone, Debug)]
+pub struct Model {
+    /// The configuration.
+    pub config: ModelConfig,
+    /// The MLPs, back to back in the flat parameter buffer.
+    pub mlps: Vec<MlpShape>,
+    /// Total parameters.
+    pub num_params: usize,
+}
+
+/// What one level renders for one pixel.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct LevelOutput {
+    /// Colour.
+    pub rgb: [f32; 3],
+    /// Expected depth.
+    pub distance: f32,
+    /// Accumulated opacity.
+    pub acc: f32,
+}
+
+/// Whether a pass is training (randomised, with the seed and step that pick its random numbers)
+/// or evaluation (deterministic).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Mode {
+    /// Stratified jitter, random inverse-CDF offsets, density noise.
+    Train {
+        /// Run seed.
+        seed: u32,
+        /// Step number.
+        step: u32,
+    },
+    /// Deterministic sampling.
+    Eval,
+}
+
+/// Losses of one batch.
+#[derive(Clone, Debug, PartialEq, Default)]
+pub struct LossStats {
+    /// Per level: `sum(lossmult (rgb - gt)²) / (3 sum(lossmult))`, the lossmult-weighted
+    /// per-channel mean squared error. (The official code omits the 3, so its losses are 3x these.)
+    pub losses: Vec<f32>,
+    /// `coarse_loss_mult * sum(losses[..last]) + losses[last]`.
+    pub loss: f32,
+    /// Per level, the plain per-channel MSE (no lossmult), what PSNR is computed from.
+    pub mse: Vec<f32>,
+}
+
+impl LossStats {
+    /// PSNR of the last level's plain MSE (`-10 log10(mse)`).
+    #[must_use]
+    pub fn psnr(&self) -> f32 {
+        self.mse
+            .last()
+            .map_or(f32::NAN, |&m| crate::metrics::mse_to_psnr(m))
+    }
+}
+
+/// Rays processed together by one thread.
+pub const CHUNK_RAYS: usize = 64;
+
+/// Per-thread buffers of one chunk.
+#[derive(Default)]
+struct Workspace {
+    t: Vec<f32>,
+    t_next: Vec<f32>,
+    gauss: Vec<Gaussian>,
+    x: Vec<f32>,
+    view: Vec<f32>,
+    cache: MlpCache,
+    rgb: Vec<[f32; 3]>,
+    density: Vec<f32>,
+    weights: Vec<f32>,
+    g_rgb: Vec<[f32; 3]>,
+    g_density: Vec<f32>,
+    d_raw_rgb: Vec<f32>,
+    d_raw_density: Vec<f32>,
+    pixel_rgb: Vec<[f32; 3]>,
+}
+
+impl Model {
+    /// The model of `config`.
+    ///
+    /// # Errors
+    /// If the configuration is invalid.
+    pub fn new(config: ModelConfig) -> Result<Self, ModelError> {
+        if config.num_samples < 1 || config.num_levels < 1 {
+            return Err(ModelError::Config(
+                "num_samples and num_levels must be at least 1".into(),
+            ));
+        }
+        if config.max_deg_point <= config.min_deg_point || config.max_deg_point > 24 {
+            return Err(ModelError::Config(format!(
+                "point encoding degrees {}..{} must be a non-empty range below 24",
+                config.min_deg_point, config.max_deg_point
+            )));
+        }
+        if config.supersample < 1 {
+            return Err(ModelError::Config("supersample must be at least 1".into()));
+        }
+        let n_mlps = if config.separate_mlps {
+            config.num_levels
+        } else {
+            1
+        };
+        let mut mlps = Vec::with_capacity(n_mlps);
+        let mut off = 0;
+        for _ in 0..n_mlps {
+            let s = MlpShape::new(config.mlp_config(), off)?;
+            off += s.num_params;
+            mlps.push(s);
+        }
+        Ok(Self {
+            config,
+            mlps,
+            num_params: off,
+        })
+    }
+
+    /// Fresh parameters: Glorot-uniform kernels and zero biases, from `seed`.
+    #[must_use]
+    pub fn init_params(&self, seed: u64) -> Vec<f32> {
+        let mut p = vec![0.0; self.num_params];
+        for (i, m) in self.mlps.iter().enumerate() {
+            m.init_glorot(&mut p, seed.wrapping_add(i as u64 * 0x9E37_79B9));
+        }
+        p
+    }
+
+    fn mlp_for_level(&self, level: usize) -> &MlpShape {
+        &self.mlps[if self.config.separate_mlps { level } else { 0 }]
+    }
+
+    /// Rays per pixel (`supersample²`).
+    #[must_use]
+    pub fn rays_per_pixel(&self) -> usize {
+        self.config.supersample * self.config.supersample
+    }
+
+    /// Renders every pixel at every level (evaluation mode). `rays` holds
+    /// [`rays_per_pixel`](Self::rays_per_pixel) consecutive rays per pixel; returns
+    /// `pixels x num_levels` outputs, pixel-major.
+    ///
+    /// # Panics
+    /// If `rays.len()` is not a multiple of the rays per pixel, or `params` has the wrong length.
+    #[must_use]
+    pub fn render(&self, params: &[f32], rays: &[Ray]) -> Vec<LevelOutput> {
+        let rpp = self.rays_per_pixel();
+        assert_eq!(rays.len() % rpp, 0, "render: rays per pixel");
+        assert_eq!(params.len(), self.num_params, "render: parameter count");
+        let chunk = CHUNK_RAYS.div_ceil(rpp) * rpp;
+        rays.par_chunks(chunk)
+            .map_init(Workspace::default, |ws, rays| {
+                let mut out =
+                    vec![LevelOutput::default(); rays.len() / rpp * self.config.num_levels];
+                self.run_chunk(params, rays, 0, None, Mode::Eval, ws, None, Some(&mut out));
+                out
+            })
+            .collect::<Vec<_>>()
+            .concat()
+    }
+
+    /// The loss of a batch and, added to `grads` (zeroed by the caller), its gradient with
+    /// respect to every parameter. `targets` has one colour per pixel; `rays` has
+    /// [`rays_per_pixel`](Self::rays_per_pixel) rays per pixel.
+    ///
+    /// # Panics
+    /// If the lengths disagree.
+    pub fn loss_and_grad(
+        &self,
+        params: &[f32],
+        rays: &[Ray],
+        targets: &[[f32; 3]],
+        mode: Mode,
+        grads: &mut [f32],
+    ) -> LossStats {
+        let rpp = self.rays_per_pixel();
+        assert_eq!(
+            rays.len(),
+            targets.len() * rpp,
+            "loss_and_grad: rays per pixel"
+        );
+        assert_eq!(
+            params.len(),
+            self.num_params,
+            "loss_and_grad: parameter count"
+        );
+        assert_eq!(
+            grads.len(),
+            self.num_params,
+            "loss_and_grad: gradient length"
+        );
+        let lm_sum: f64 = rays
+            .chunks(rpp)
+            .map(|r| f64::from(self.lossmult(&r[0])))
+            .sum();
+        let norm = (3.0 * lm_sum) as f32;
+        let n_pix = targets.len() as f32;
+        let chunk_pix = CHUNK_RAYS.div_ceil(rpp);
+        let results: Vec<(Vec<f32>, Vec<[f64; 2]>)> = rays
+            .par_chunks(chunk_pix * rpp)
+            .zip(targets.par_chunks(chunk_pix))
+            .enumerate()
+            .map_init(Workspace::default, |ws, (ci, (rays, tg))| {
+                let mut g = vec![0.0f32; self.num_params];
+                let sums = self.run_chunk(
+                    params,
+                    rays,
+                    ci * chunk_pix * rpp,
+                    Some((tg, norm)),
+                    mode,
+                    ws,
+                    Some(&mut g),
+                    None,
+                );
+                (g, sums)
+            })
+            .collect();
+        let levels = self.config.num_levels;
+        let mut sums = vec![[0.0f64; 2]; levels];
+        for (g, s) in &results {
+            for (a, b) in grads.iter_mut().zip(g) {
+                *a += b;
+            }
+            for l in 0..levels {
+                sums[l][0] += s[l][0];
+                sums[l][1] += s[l][1];
+            }
+        }
+        let losses: Vec<f32> = sums
+            .iter()
+            .map(|s| (s[0] / f64::from(norm)) as f32)
+            .collect();
+        let mse: Vec<f32> = sums
+            .iter()
+            .map(|s| (s[1] / (3.0 * f64::from(n_pix))) as f32)
+            .collect();
+        let loss = self
+            .level_weights()
+            .iter()
+            .zip(&losses)
+            .map(|(w, l)| w * l)
+            .sum();
+        LossStats { losses, loss, mse }
+    }
+
+    /// The loss weight of each level: `coarse_loss_mult` for all but the last, 1 for the last.
+    #[must_use]
+    pub fn level_weights(&self) -> Vec<f32> {
+        let n = self.config.num_levels;
+        (0..n)
+            .map(|l| {
+                if l + 1 == n {
+                    1.0
+                } else {
+                    self.config.coarse_loss_mult
+                }
+            })
+            .collect()
+    }
+
+    fn lossmult(&self, ray: &Ray) -> f32 {
+        if self.config.area_loss {
+            ray.lossmult
+        } else {
+            1.0
+        }
+    }
+
+    /// Runs all levels over one chunk of whole pixels. With `targets`, accumulates the gradient
+    /// into `grads` and returns per level `[sum lossmult·sq, sum sq]`; with `out`, writes the
+    /// rendered pixels.
+    fn run_chunk(
+        &self,
+        params: &[f32],
+        rays: &[Ray],
+        first_ray: usize,
+        targets: Option<(&[[f32; 3]], f32)>,
+        mode: Mode,
+        ws: &mut Workspace,
+        mut grads: Option<&mut [f32]>,
+        mut out: Option<&mut [LevelOutput]>,
+    ) -> Vec<[f64; 2]> {
+        let c = &self.config;
+        let (nr, s) = (rays.len(), c.num_samples);
+        let n = nr * s;
+        let rpp = self.rays_per_pixel();
+        let n_pix = nr / rpp;
+        let inv_rpp = 1.0 / rpp as f32;
+        let (x_dim, v_dim) = (c.x_dim(), c.view_dim());
+        let level_w = self.level_weights();
+        ws.t.resize(nr * (s + 1), 0.0);
+        ws.t_next.resize(nr * (s + 1), 0.0);
+        ws.gauss.resize(s, Gaussian::default());
+        ws.x.resize(n * x_dim, 0.0);
+        ws.view.resize(nr * v_dim, 0.0);
+        ws.rgb.resize(n, [0.0; 3]);
+        ws.density.resize(n, 0.0);
+        ws.weights.resize(n, 0.0);
+        ws.pixel_rgb.resize(n_pix, [0.0; 3]);
+        let mut sums = vec![[0.0f64; 2]; c.num_levels];
+        for (r, ray) in rays.iter().enumerate() {
+            mip::pos_enc(
+                ray.viewdir,
+                0,
+                c.deg_view,
+                true,
+                &mut ws.view[r * v_dim..(r + 1) * v_dim],
+            );
+        }
+        let mut per_ray = vec![render::RenderedRay::default(); nr];
+        for level in 0..c.num_levels {
+            // Interval edges.
+            for (r, ray) in rays.iter().enumerate() {
+                let gi = (first_ray + r) as u32;
+                let t = &mut ws.t_next[r * (s + 1)..(r + 1) * (s + 1)];
+                if level == 0 {
+                    let jitter = match mode {
+                        Mode::Train { seed, step } => {
+                            Some(RayRng::new(seed, step, Stream::SampleJitter, gi))
+                        }
+                        Mode::Eval => None,
+                    };
+                    sampling::sample_along_rays(ray.near, ray.far, c.lindisp, jitter, t);
+                } else {
+                    let samples = match mode {
+                        Mode::Train { seed, step } => PdfSamples::Stratified(RayRng::new(
+                            seed,
+                            step,
+                            Stream::ResampleOffsets,
+                            gi.wrapping_mul(8).wrapping_add(level as u32),
+                        )),
+                        Mode::Eval => PdfSamples::Deterministic,
+                    };
+                    sampling::resample_along_rays(
+                        &ws.t[r * (s + 1)..(r + 1) * (s + 1)],
+                        &ws.weights[r * s..(r + 1) * s],
+                        c.resample_padding,
+                        samples,
+                        t,
+                    );
+                }
+            }
+            std::mem::swap(&mut ws.t, &mut ws.t_next);
+            // Gaussians and their encoding.
+            for (r, ray) in rays.iter().enumerate() {
+                mip::cast_ray(
+                    &ws.t[r * (s + 1)..(r + 1) * (s + 1)],
+                    ray.origin,
+                    ray.direction,
+                    ray.radius,
+                    c.ray_shape,
+                    &mut ws.gauss,
+                );
+                for (i, g) in ws.gauss.iter().enumerate() {
+                    let dst = &mut ws.x[(r * s + i) * x_dim..(r * s + i + 1) * x_dim];
+                    match c.point_encoding {
+                        PointEncoding::Integrated => {
+                            mip::integrated_pos_enc(g, c.min_deg_point, c.max_deg_point, dst)
+                        }
+                        PointEncoding::Mean => {
+                            let g0 = Gaussian {
+                                mean: g.mean,
+                                cov_diag: Vec3::ZERO,
+                            };
+                            mip::integrated_pos_enc(&g0, c.min_deg_point, c.max_deg_point, dst);
+                        }
+                        PointEncoding::Nerf => {
+                            mip::pos_enc(g.mean, c.min_deg_point, c.max_deg_point, true, dst)
+                        }
+                    }
+                }
+            }
+            // MLP and activations.
+            let mlp = self.mlp_for_level(level);
+            mlp.forward(params, &ws.x, &ws.view, nr, s, &mut ws.cache);
+            if let (Mode::Train { seed, step }, true) = (mode, c.density_noise > 0.0) {
+                for r in 0..nr {
+                    let stream = ((first_ray + r) as u32)
+                        .wrapping_mul(8)
+                        .wrapping_add(level as u32);
+                    let rng = RayRng::new(seed, step, Stream::DensityNoise, stream);
+                    for i in 0..s {
+                        ws.cache.raw_density[r * s + i] += c.density_noise * rng.normal(i as u32);
+                    }
+                }
+            }
+            for i in 0..n {
+                ws.density[i] = c
+                    .density_activation
+                    .forward(ws.cache.raw_density[i], c.density_bias);
+                for k in 0..3 {
+                    ws.rgb[i][k] =
+                        render::rgb_activation(ws.cache.raw_rgb[i * 3 + k], c.rgb_padding);
+                }
+            }
+            // Rendering, per pixel averaging.
+            ws.pixel_rgb.iter_mut().for_each(|p| *p = [0.0; 3]);
+            for (r, ray) in rays.iter().enumerate() {
+                let sl = r * s..(r + 1) * s;
+                per_ray[r] = render::volumetric_rendering(
+                    &ws.rgb[sl.clone()],
+                    &ws.density[sl.clone()],
+                    &ws.t[r * (s + 1)..(r + 1) * (s + 1)],
+                    ray.direction,
+                    c.white_bkgd,
+                    &mut ws.weights[sl],
+                );
+                for k in 0..3 {
+                    ws.pixel_rgb[r / rpp][k] += per_ray[r].rgb[k] * inv_rpp;
+                }
+            }
+            if let Some(out) = out.as_deref_mut() {
+                for p in 0..n_pix {
+                    let group = &per_ray[p * rpp..(p + 1) * rpp];
+                    out[p * c.num_levels + level] = LevelOutput {
+                        rgb: ws.pixel_rgb[p],
+                        distance: group.iter().map(|g| g.distance).sum::<f32>() * inv_rpp,
+                        acc: group.iter().map(|g| g.acc).sum::<f32>() * inv_rpp,
+                    };
+                }
+            }
+            let (Some((tg, norm)), Some(grads)) = (targets, grads.as_deref_mut()) else {
+                continue;
+            };
+            // Loss and its gradient with respect to each ray's colour.
+            ws.g_rgb.resize(n, [0.0; 3]);
+            ws.g_density.resize(n, 0.0);
+            ws.d_raw_rgb.resize(n * 3, 0.0);
+            ws.d_raw_density.resize(n, 0.0);
+            for (r, ray) in rays.iter().enumerate() {
+                let p = r / rpp;
+                let lm = self.lossmult(ray);
+                let mut d_rgb = [0.0f32; 3];
+                for k in 0..3 {
+                    let e = ws.pixel_rgb[p][k] - tg[p][k];
+                    if r % rpp == 0 {
+                        sums[level][0] += f64::from(lm) * f64::from(e * e);
+                        sums[level][1] += f64::from(e * e);
+                    }
+                    d_rgb[k] = level_w[level] * 2.0 * lm * e / norm * inv_rpp;
+                }
+                let sl = r * s..(r + 1) * s;
+                render::volumetric_rendering_backward(
+                    &ws.rgb[sl.clone()],
+                    &ws.density[sl.clone()],
+                    &ws.t[r * (s + 1)..(r + 1) * (s + 1)],
+                    ray.direction,
+                    c.white_bkgd,
+                    &ws.weights[sl.clone()],
+                    d_rgb,
+                    0.0,
+                    &mut ws.g_rgb[sl.clone()],
+                    &mut ws.g_density[sl],
+                );
+            }
+            for i in 0..n {
+                let raw = ws.cache.raw_density[i];
+                ws.d_raw_density[i] =
+                    ws.g_density[i] * c.density_activation.derivative(raw, c.density_bias);
+                for k in 0..3 {
+                    ws.d_raw_rgb[i * 3 + k] = ws.g_rgb[i][k]
+                        * render::rgb_activation_derivative(
+                            ws.cache.raw_rgb[i * 3 + k],
+                            c.rgb_padding,
+                        );
+                }
+            }
+            let (x, view, cache) = (&ws.x, &ws.view, &mut ws.cache);
+            mlp.backward(
+                params,
+                x,
+                view,
+                s,
+                cache,
+                &ws.d_raw_rgb,
+                &ws.d_raw_density,
+                grads,
+            );
+        }
+        sums
+    }
+}
