@@ -29,6 +29,7 @@ pub mod render;
 pub mod rng;
 pub mod sampling;
 pub mod schedule;
+pub mod train;
 
 pub use camera::{Camera, PixelCenters, Ray};
 pub use mip::{

@@ -2,6 +2,8 @@
 //! reports every mismatch at once.
 #![allow(dead_code, clippy::unwrap_used, missing_docs)]
 
+pub mod scene;
+
 use serde_json::Value;
 use std::path::PathBuf;
 
