@@ -6,9 +6,7 @@
 
 use mipnerf::core::mip::{self, Gaussian, RayShape};
 use mipnerf::core::sampling::{PdfSamples, RESAMPLE_PADDING};
-use mipnerf::core::{
-    Camera, PixelCenters, resample_along_rays, sample_along_rays, volumetric_rendering,
-};
+use mipnerf::core::{Camera, PixelCenters, resample_along_rays, sample_along_rays, volumetric_rendering};
 
 /// The slab occupies world z in [SLAB_Z - SLAB_HALF, SLAB_Z + SLAB_HALF].
 const SLAB_Z: f32 = -1.0;
@@ -25,8 +23,7 @@ fn erf(x: f32) -> f32 {
     // Abramowitz-Stegun 7.1.26, |error| < 1.5e-7.
     let t = 1.0 / (1.0 + 0.327_591_1 * x.abs());
     let y = 1.0
-        - (((((1.061_405_4 * t - 1.453_152_1) * t) + 1.421_413_7) * t - 0.284_496_74) * t
-            + 0.254_829_6)
+        - (((((1.061_405_4 * t - 1.453_152_1) * t) + 1.421_413_7) * t - 0.284_496_74) * t + 0.254_829_6)
             * t
             * (-x * x).exp();
     y.copysign(x)
@@ -35,11 +32,7 @@ fn erf(x: f32) -> f32 {
 #[test]
 fn a_slab_renders_at_its_depth_and_the_fine_level_samples_it() {
     // Camera at z = 2 looking down -z: the slab's front face is 2.85 away along the axis.
-    let pose = [
-        [1.0, 0.0, 0.0, 0.0],
-        [0.0, 1.0, 0.0, 0.0],
-        [0.0, 0.0, 1.0, 2.0],
-    ];
+    let pose = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 2.0]];
     let cam = Camera::from_camera_angle_x(8, 8, 0.7, pose).unwrap();
     let rays = cam.generate_rays(PixelCenters::Centered, 0.5, 6.0, 1.0);
     let n = 64;
@@ -50,14 +43,7 @@ fn a_slab_renders_at_its_depth_and_the_fine_level_samples_it() {
     let rgb = vec![[0.8, 0.2, 0.1]; n];
     for ray in &rays {
         sample_along_rays(ray.near, ray.far, false, None, &mut t);
-        mip::cast_ray(
-            &t,
-            ray.origin,
-            ray.direction,
-            ray.radius,
-            RayShape::Cone,
-            &mut gs,
-        );
+        mip::cast_ray(&t, ray.origin, ray.direction, ray.radius, RayShape::Cone, &mut gs);
         for g in &gs {
             mip::integrated_pos_enc(g, 0, 16, &mut enc);
             assert!(enc.iter().all(|x| x.is_finite() && x.abs() <= 1.0));
@@ -66,44 +52,15 @@ fn a_slab_renders_at_its_depth_and_the_fine_level_samples_it() {
         let coarse = volumetric_rendering(&rgb, &sigma, &t, ray.direction, true, &mut w);
         // Front face at depth 2.85 along the camera axis (t is depth since direction.z = -1).
         assert!(coarse.acc > 0.99, "slab not opaque: acc {}", coarse.acc);
-        assert!(
-            (coarse.distance - 2.9).abs() < 0.1,
-            "coarse depth {}",
-            coarse.distance
-        );
-        assert!(
-            (coarse.rgb[0] - 0.8).abs() < 0.02,
-            "colour {:?}",
-            coarse.rgb
-        );
+        assert!((coarse.distance - 2.9).abs() < 0.1, "coarse depth {}", coarse.distance);
+        assert!((coarse.rgb[0] - 0.8).abs() < 0.02, "colour {:?}", coarse.rgb);
 
-        resample_along_rays(
-            &t,
-            &w,
-            RESAMPLE_PADDING,
-            PdfSamples::Deterministic,
-            &mut t_fine,
-        );
+        resample_along_rays(&t, &w, RESAMPLE_PADDING, PdfSamples::Deterministic, &mut t_fine);
         let near_slab = t_fine.iter().filter(|&&x| (2.6..3.4).contains(&x)).count();
-        assert!(
-            near_slab > n / 2,
-            "fine level put only {near_slab} of {} edges near the slab",
-            n + 1
-        );
-        mip::cast_ray(
-            &t_fine,
-            ray.origin,
-            ray.direction,
-            ray.radius,
-            RayShape::Cone,
-            &mut gs,
-        );
+        assert!(near_slab > n / 2, "fine level put only {near_slab} of {} edges near the slab", n + 1);
+        mip::cast_ray(&t_fine, ray.origin, ray.direction, ray.radius, RayShape::Cone, &mut gs);
         let sigma: Vec<f32> = gs.iter().map(density).collect();
         let fine = volumetric_rendering(&rgb, &sigma, &t_fine, ray.direction, true, &mut w);
-        assert!(
-            (fine.distance - 2.87).abs() < 0.05,
-            "fine depth {}",
-            fine.distance
-        );
+        assert!((fine.distance - 2.87).abs() < 0.05, "fine depth {}", fine.distance);
     }
 }

@@ -37,8 +37,7 @@ enum Command {
 fn auto_choice(adapters: &[mipnerf_gpu::AdapterSummary]) -> String {
     match adapters.iter().find(|a| !a.is_software) {
         Some(a) => format!("gpu ({}, {})", a.name, a.backend),
-        None => "cpu (no hardware GPU found; software adapters are slower than the CPU path)"
-            .to_string(),
+        None => "cpu (no hardware GPU found; software adapters are slower than the CPU path)".to_string(),
     }
 }
 
@@ -46,16 +45,11 @@ fn info() {
     println!("mipnerf {}", env!("CARGO_PKG_VERSION"));
     let adapters = mipnerf_gpu::list_adapters();
     if adapters.is_empty() {
-        println!(
-            "GPU adapters: none found (install a Vulkan driver, e.g. scripts/ensure-vulkan.sh)"
-        );
+        println!("GPU adapters: none found (install a Vulkan driver, e.g. scripts/ensure-vulkan.sh)");
     } else {
         println!("GPU adapters ({}):", adapters.len());
         for a in &adapters {
-            println!(
-                "  - {} | backend {} | type {} | driver {}",
-                a.name, a.backend, a.device_type, a.driver
-            );
+            println!("  - {} | backend {} | type {} | driver {}", a.name, a.backend, a.device_type, a.driver);
         }
     }
     println!("--backend auto would use: {}", auto_choice(&adapters));
@@ -79,15 +73,8 @@ fn check(backend: Backend) -> Result<()> {
         }
         Err(e) => return Err(e).context("opening the GPU"),
     };
-    println!(
-        "checking on {} ({}, {})",
-        ctx.adapter.name, ctx.adapter.backend, ctx.adapter.device_type
-    );
-    let c2w = [
-        [0.8, 0.0, 0.6, 2.4],
-        [0.36, 0.8, -0.48, -1.92],
-        [-0.48, 0.6, 0.64, 2.56],
-    ];
+    println!("checking on {} ({}, {})", ctx.adapter.name, ctx.adapter.backend, ctx.adapter.device_type);
+    let c2w = [[0.8, 0.0, 0.6, 2.4], [0.36, 0.8, -0.48, -1.92], [-0.48, 0.6, 0.64, 2.56]];
     let cam = mipnerf_core::Camera::from_camera_angle_x(32, 32, 0.69, c2w)?;
     let rays = cam.generate_rays(mipnerf_core::PixelCenters::Centered, 2.0, 6.0, 1.0);
     let n = 32usize;
@@ -114,23 +101,13 @@ fn check(backend: Backend) -> Result<()> {
             mip::integrated_pos_enc(g, 0, 16, &mut enc);
             let off = (r * n + s) * len;
             for (a, b) in gpu[off..off + len].iter().zip(&enc) {
-                let diff = if a.is_nan() {
-                    f32::INFINITY
-                } else {
-                    (a - b).abs()
-                };
+                let diff = if a.is_nan() { f32::INFINITY } else { (a - b).abs() };
                 max = max.max(diff);
             }
         }
     }
-    println!(
-        "cast_ipe: {} features, max |gpu - cpu| = {max:e}",
-        gpu.len()
-    );
-    anyhow::ensure!(
-        max <= 1e-4,
-        "the GPU's IPE features differ from the CPU reference by {max:e} (> 1e-4)"
-    );
+    println!("cast_ipe: {} features, max |gpu - cpu| = {max:e}", gpu.len());
+    anyhow::ensure!(max <= 1e-4, "the GPU's IPE features differ from the CPU reference by {max:e} (> 1e-4)");
     println!("ok");
     Ok(())
 }

@@ -55,11 +55,7 @@ pub fn focal_from_camera_angle_x(width: u32, camera_angle_x: f64) -> f64 {
 #[must_use]
 pub fn pinhole_pix2cam(width: u32, height: u32, focal: f64) -> [[f64; 3]; 3] {
     let (w, h) = (f64::from(width), f64::from(height));
-    [
-        [1.0 / focal, 0.0, -0.5 * w / focal],
-        [0.0, -1.0 / focal, 0.5 * h / focal],
-        [0.0, 0.0, -1.0],
-    ]
+    [[1.0 / focal, 0.0, -0.5 * w / focal], [0.0, -1.0 / focal, 0.5 * h / focal], [0.0, 0.0, -1.0]]
 }
 
 /// One ray (a cone) through one pixel, in the official code's terms.
@@ -86,9 +82,7 @@ fn check_finite(what: &str, values: impl IntoIterator<Item = f64>) -> Result<(),
     if values.into_iter().all(f64::is_finite) {
         Ok(())
     } else {
-        Err(Error::InvalidCamera(format!(
-            "{what} has a non-finite entry"
-        )))
+        Err(Error::InvalidCamera(format!("{what} has a non-finite entry")))
     }
 }
 
@@ -104,21 +98,13 @@ impl Camera {
         camera_angle_x: f64,
         cam2world: [[f64; 4]; 3],
     ) -> Result<Self, Error> {
-        if !(camera_angle_x.is_finite()
-            && camera_angle_x > 0.0
-            && camera_angle_x < std::f64::consts::PI)
-        {
+        if !(camera_angle_x.is_finite() && camera_angle_x > 0.0 && camera_angle_x < std::f64::consts::PI) {
             return Err(Error::InvalidCamera(format!(
                 "camera_angle_x must be in (0, pi) radians, got {camera_angle_x}"
             )));
         }
         let focal = focal_from_camera_angle_x(width, camera_angle_x);
-        Self::from_pix2cam(
-            width,
-            height,
-            pinhole_pix2cam(width, height, focal),
-            cam2world,
-        )
+        Self::from_pix2cam(width, height, pinhole_pix2cam(width, height, focal), cam2world)
     }
 
     /// A camera from a full `pix2cam` matrix (the multiscale format's intrinsics).
@@ -132,9 +118,7 @@ impl Camera {
         cam2world: [[f64; 4]; 3],
     ) -> Result<Self, Error> {
         if width == 0 || height == 0 {
-            return Err(Error::InvalidCamera(format!(
-                "image size {width}x{height} is empty"
-            )));
+            return Err(Error::InvalidCamera(format!("image size {width}x{height} is empty")));
         }
         check_finite("pix2cam", pix2cam.iter().flatten().copied())?;
         check_finite("cam2world", cam2world.iter().flatten().copied())?;
@@ -143,26 +127,15 @@ impl Camera {
         }
         let det = det3(|r, c| cam2world[r][c]);
         if det.abs() < 1e-6 {
-            return Err(Error::InvalidCamera(format!(
-                "cam2world rotation is singular (determinant {det:e})"
-            )));
+            return Err(Error::InvalidCamera(format!("cam2world rotation is singular (determinant {det:e})")));
         }
-        Ok(Self {
-            width,
-            height,
-            pix2cam,
-            cam2world,
-        })
+        Ok(Self { width, height, pix2cam, cam2world })
     }
 
     /// The camera centre in world space.
     #[must_use]
     pub fn origin(&self) -> [f64; 3] {
-        [
-            self.cam2world[0][3],
-            self.cam2world[1][3],
-            self.cam2world[2][3],
-        ]
+        [self.cam2world[0][3], self.cam2world[1][3], self.cam2world[2][3]]
     }
 
     /// The unnormalised world-space direction through pixel coordinates `(x, y)` (continuous, so
@@ -170,8 +143,7 @@ impl Camera {
     #[must_use]
     pub fn direction_f64(&self, x: f64, y: f64) -> [f64; 3] {
         let p = [x, y, 1.0];
-        let cam: [f64; 3] =
-            std::array::from_fn(|r| (0..3).map(|c| self.pix2cam[r][c] * p[c]).sum::<f64>());
+        let cam: [f64; 3] = std::array::from_fn(|r| (0..3).map(|c| self.pix2cam[r][c] * p[c]).sum::<f64>());
         std::array::from_fn(|r| (0..3).map(|c| self.cam2world[r][c] * cam[c]).sum::<f64>())
     }
 
@@ -183,34 +155,19 @@ impl Camera {
     /// the last row reuses the difference of the row before the last, as the official code does
     /// (`dx[-2:-1]`; with two rows, the only difference; with one row, the column spacing).
     #[must_use]
-    pub fn generate_rays(
-        &self,
-        centers: PixelCenters,
-        near: f32,
-        far: f32,
-        lossmult: f32,
-    ) -> Vec<Ray> {
+    pub fn generate_rays(&self, centers: PixelCenters, near: f32, far: f32, lossmult: f32) -> Vec<Ray> {
         let (w, h) = (self.width as usize, self.height as usize);
         let off = centers.offset();
-        let dirs: Vec<[f64; 3]> = (0..h * w)
-            .map(|i| self.direction_f64((i % w) as f64 + off, (i / w) as f64 + off))
-            .collect();
-        let dist = |a: [f64; 3], b: [f64; 3]| {
-            ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
-        };
+        let dirs: Vec<[f64; 3]> =
+            (0..h * w).map(|i| self.direction_f64((i % w) as f64 + off, (i / w) as f64 + off)).collect();
+        let dist =
+            |a: [f64; 3], b: [f64; 3]| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
         let row_spacing = |y: usize, x: usize| -> f64 {
             if h == 1 {
-                let x1 = if x + 1 < w {
-                    x + 1
-                } else {
-                    x.saturating_sub(1)
-                };
+                let x1 = if x + 1 < w { x + 1 } else { x.saturating_sub(1) };
                 return if x1 == x {
                     // A single pixel: the analytic spacing of one pixel step in x.
-                    dist(
-                        self.direction_f64(off, off),
-                        self.direction_f64(off + 1.0, off),
-                    )
+                    dist(self.direction_f64(off, off), self.direction_f64(off + 1.0, off))
                 } else {
                     dist(dirs[x], dirs[x1])
                 };
@@ -240,8 +197,7 @@ impl Camera {
 }
 
 fn det3(m: impl Fn(usize, usize) -> f64) -> f64 {
-    m(0, 0) * (m(1, 1) * m(2, 2) - m(1, 2) * m(2, 1))
-        - m(0, 1) * (m(1, 0) * m(2, 2) - m(1, 2) * m(2, 0))
+    m(0, 0) * (m(1, 1) * m(2, 2) - m(1, 2) * m(2, 1)) - m(0, 1) * (m(1, 0) * m(2, 2) - m(1, 2) * m(2, 0))
         + m(0, 2) * (m(1, 0) * m(2, 1) - m(1, 1) * m(2, 0))
 }
 
@@ -249,11 +205,7 @@ fn det3(m: impl Fn(usize, usize) -> f64) -> f64 {
 mod tests {
     use super::*;
 
-    const IDENTITY_POSE: [[f64; 4]; 3] = [
-        [1.0, 0.0, 0.0, 0.0],
-        [0.0, 1.0, 0.0, 0.0],
-        [0.0, 0.0, 1.0, 4.0],
-    ];
+    const IDENTITY_POSE: [[f64; 4]; 3] = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 4.0]];
 
     #[test]
     fn centred_and_corner_pixels_differ_by_half_a_pixel() {
@@ -268,11 +220,7 @@ mod tests {
         assert!((centred[5].viewdir.length() - 1.0).abs() < 1e-6);
         // Radius: one pixel of direction spacing (1/f at unit depth) times 2/sqrt(12).
         let r = 1.0 / f * 2.0 / 12f64.sqrt();
-        assert!(
-            centred
-                .iter()
-                .all(|ray| (f64::from(ray.radius) - r).abs() < 1e-7)
-        );
+        assert!(centred.iter().all(|ray| (f64::from(ray.radius) - r).abs() < 1e-7));
         assert_eq!(centred[0].origin, Vec3::new(0.0, 0.0, 4.0));
     }
 
@@ -282,46 +230,20 @@ mod tests {
             let cam = Camera::from_camera_angle_x(w, h, 0.9, IDENTITY_POSE).unwrap();
             let rays = cam.generate_rays(PixelCenters::Centered, 2.0, 6.0, 1.0);
             assert_eq!(rays.len(), (w * h) as usize);
-            assert!(
-                rays.iter().all(|r| r.radius > 0.0 && r.radius.is_finite()),
-                "{w}x{h}"
-            );
+            assert!(rays.iter().all(|r| r.radius > 0.0 && r.radius.is_finite()), "{w}x{h}");
         }
     }
 
     #[test]
     fn bad_cameras_are_errors_not_panics() {
-        let nan_pose = [
-            [f64::NAN, 0.0, 0.0, 0.0],
-            [0.0, 1.0, 0.0, 0.0],
-            [0.0, 0.0, 1.0, 0.0],
-        ];
-        let flat_pose = [
-            [1.0, 0.0, 0.0, 0.0],
-            [1.0, 0.0, 0.0, 0.0],
-            [0.0, 0.0, 1.0, 0.0],
-        ];
+        let nan_pose = [[f64::NAN, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]];
+        let flat_pose = [[1.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]];
         let cases = [
-            (
-                Camera::from_camera_angle_x(4, 4, 0.9, nan_pose),
-                "non-finite",
-            ),
-            (
-                Camera::from_camera_angle_x(4, 4, 0.9, flat_pose),
-                "singular",
-            ),
-            (
-                Camera::from_camera_angle_x(0, 4, 0.9, IDENTITY_POSE),
-                "empty",
-            ),
-            (
-                Camera::from_camera_angle_x(4, 4, f64::NAN, IDENTITY_POSE),
-                "camera_angle_x",
-            ),
-            (
-                Camera::from_camera_angle_x(4, 4, 4.0, IDENTITY_POSE),
-                "camera_angle_x",
-            ),
+            (Camera::from_camera_angle_x(4, 4, 0.9, nan_pose), "non-finite"),
+            (Camera::from_camera_angle_x(4, 4, 0.9, flat_pose), "singular"),
+            (Camera::from_camera_angle_x(0, 4, 0.9, IDENTITY_POSE), "empty"),
+            (Camera::from_camera_angle_x(4, 4, f64::NAN, IDENTITY_POSE), "camera_angle_x"),
+            (Camera::from_camera_angle_x(4, 4, 4.0, IDENTITY_POSE), "camera_angle_x"),
         ];
         for (res, needle) in cases {
             let msg = res.unwrap_err().to_string();

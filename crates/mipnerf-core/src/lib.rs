@@ -19,6 +19,7 @@
 //!
 //! Randomness is counter-based ([`rng`]) so that the CPU and the GPU draw the same numbers.
 
+pub mod bench;
 pub mod camera;
 pub mod linalg;
 pub mod metrics;
@@ -33,13 +34,11 @@ pub mod train;
 
 pub use camera::{Camera, PixelCenters, Ray};
 pub use mip::{
-    FrustumMoments, Gaussian, RayShape, cast_ray, conical_frustum_to_gaussian,
-    cylinder_to_gaussian, integrated_pos_enc, lift_gaussian, pos_enc,
+    FrustumMoments, Gaussian, RayShape, cast_ray, conical_frustum_to_gaussian, cylinder_to_gaussian,
+    integrated_pos_enc, lift_gaussian, pos_enc,
 };
 pub use render::{RenderedRay, volumetric_rendering, volumetric_rendering_backward};
-pub use sampling::{
-    PdfSamples, resample_along_rays, sample_along_rays, sorted_piecewise_constant_pdf,
-};
+pub use sampling::{PdfSamples, resample_along_rays, sample_along_rays, sorted_piecewise_constant_pdf};
 
 /// Errors of the core crate. Every variant says what was wrong in words a user can act on.
 #[derive(Debug, thiserror::Error)]

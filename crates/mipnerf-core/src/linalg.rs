@@ -83,43 +83,21 @@ pub fn matmul(
 mod tests {
     use super::*;
 
-    fn naive(
-        a: &[f32],
-        la: Layout,
-        b: &[f32],
-        lb: Layout,
-        m: usize,
-        k: usize,
-        n: usize,
-    ) -> Vec<f32> {
+    fn naive(a: &[f32], la: Layout, b: &[f32], lb: Layout, m: usize, k: usize, n: usize) -> Vec<f32> {
         let at = |i: usize, p: usize| {
-            if la == Layout::Normal {
-                a[i * k + p]
-            } else {
-                a[p * m + i]
-            }
+            if la == Layout::Normal { a[i * k + p] } else { a[p * m + i] }
         };
         let bt = |p: usize, j: usize| {
-            if lb == Layout::Normal {
-                b[p * n + j]
-            } else {
-                b[j * k + p]
-            }
+            if lb == Layout::Normal { b[p * n + j] } else { b[j * k + p] }
         };
-        (0..m * n)
-            .map(|ij| (0..k).map(|p| at(ij / n, p) * bt(p, ij % n)).sum())
-            .collect()
+        (0..m * n).map(|ij| (0..k).map(|p| at(ij / n, p) * bt(p, ij % n)).sum()).collect()
     }
 
     #[test]
     fn matches_a_naive_product_for_every_layout() {
         let (m, k, n) = (37, 19, 23);
-        let a: Vec<f32> = (0..m * k)
-            .map(|i| ((i * 7 % 13) as f32 - 6.0) / 5.0)
-            .collect();
-        let b: Vec<f32> = (0..k * n)
-            .map(|i| ((i * 5 % 11) as f32 - 5.0) / 3.0)
-            .collect();
+        let a: Vec<f32> = (0..m * k).map(|i| ((i * 7 % 13) as f32 - 6.0) / 5.0).collect();
+        let b: Vec<f32> = (0..k * n).map(|i| ((i * 5 % 11) as f32 - 5.0) / 3.0).collect();
         for la in [Layout::Normal, Layout::Transposed] {
             for lb in [Layout::Normal, Layout::Transposed] {
                 let want = naive(&a, la, &b, lb, m, k, n);

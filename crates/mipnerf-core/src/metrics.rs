@@ -30,13 +30,7 @@ pub struct SsimConfig {
 
 impl Default for SsimConfig {
     fn default() -> Self {
-        Self {
-            max_val: 1.0,
-            filter_size: 11,
-            filter_sigma: 1.5,
-            k1: 0.01,
-            k2: 0.03,
-        }
+        Self { max_val: 1.0, filter_size: 11, filter_sigma: 1.5, k1: 0.01, k2: 0.03 }
     }
 }
 
@@ -47,27 +41,16 @@ impl Default for SsimConfig {
 /// # Panics
 /// If the images' lengths differ from `height * width * channels`.
 #[must_use]
-pub fn ssim_map(
-    a: &[f32],
-    b: &[f32],
-    height: usize,
-    width: usize,
-    channels: usize,
-    cfg: &SsimConfig,
-) -> Vec<f64> {
-    assert!(
-        a.len() == height * width * channels && b.len() == a.len(),
-        "ssim: image sizes"
-    );
+pub fn ssim_map(a: &[f32], b: &[f32], height: usize, width: usize, channels: usize, cfg: &SsimConfig) -> Vec<f64> {
+    assert!(a.len() == height * width * channels && b.len() == a.len(), "ssim: image sizes");
     let fs = cfg.filter_size;
     if height < fs || width < fs {
         return Vec::new();
     }
     let hw = (fs / 2) as f64;
     let shift = (2.0 * hw - fs as f64 + 1.0) / 2.0;
-    let mut filt: Vec<f64> = (0..fs)
-        .map(|i| (-0.5 * ((i as f64 - hw + shift) / cfg.filter_sigma).powi(2)).exp())
-        .collect();
+    let mut filt: Vec<f64> =
+        (0..fs).map(|i| (-0.5 * ((i as f64 - hw + shift) / cfg.filter_sigma).powi(2)).exp()).collect();
     let total: f64 = filt.iter().sum();
     filt.iter_mut().for_each(|f| *f /= total);
     let (oh, ow) = (height - fs + 1, width - fs + 1);
@@ -77,9 +60,8 @@ pub fn ssim_map(
         for y in 0..height {
             for x in 0..ow {
                 for c in 0..channels {
-                    tmp[(y * ow + x) * channels + c] = (0..fs)
-                        .map(|k| filt[k] * img((y * width + x + k) * channels + c))
-                        .sum();
+                    tmp[(y * ow + x) * channels + c] =
+                        (0..fs).map(|k| filt[k] * img((y * width + x + k) * channels + c)).sum();
                 }
             }
         }
@@ -87,9 +69,8 @@ pub fn ssim_map(
         for y in 0..oh {
             for x in 0..ow {
                 for c in 0..channels {
-                    out[(y * ow + x) * channels + c] = (0..fs)
-                        .map(|k| filt[k] * tmp[((y + k) * ow + x) * channels + c])
-                        .sum();
+                    out[(y * ow + x) * channels + c] =
+                        (0..fs).map(|k| filt[k] * tmp[((y + k) * ow + x) * channels + c]).sum();
                 }
             }
         }
@@ -112,26 +93,14 @@ pub fn ssim_map(
             let raw01 = s01[i] - m0 * m1;
             let v01 = raw01.signum() * (v00 * v11).sqrt().min(raw01.abs());
             let v01 = if raw01 == 0.0 { 0.0 } else { v01 };
-            ((2.0 * m0 * m1 + c1) * (2.0 * v01 + c2))
-                / ((m0 * m0 + m1 * m1 + c1) * (v00 + v11 + c2))
+            ((2.0 * m0 * m1 + c1) * (2.0 * v01 + c2)) / ((m0 * m0 + m1 * m1 + c1) * (v00 + v11 + c2))
         })
         .collect()
 }
 
 /// The mean SSIM of two images (see [`ssim_map`]); NaN when the image is smaller than the filter.
 #[must_use]
-pub fn ssim(
-    a: &[f32],
-    b: &[f32],
-    height: usize,
-    width: usize,
-    channels: usize,
-    cfg: &SsimConfig,
-) -> f64 {
+pub fn ssim(a: &[f32], b: &[f32], height: usize, width: usize, channels: usize, cfg: &SsimConfig) -> f64 {
     let m = ssim_map(a, b, height, width, channels, cfg);
-    if m.is_empty() {
-        f64::NAN
-    } else {
-        m.iter().sum::<f64>() / m.len() as f64
-    }
+    if m.is_empty() { f64::NAN } else { m.iter().sum::<f64>() / m.len() as f64 }
 }

@@ -58,10 +58,7 @@ pub struct Gaussian {
 #[must_use]
 #[inline]
 pub fn conical_frustum_moments(t0: f32, t1: f32, base_radius: f32) -> FrustumMoments {
-    debug_assert!(
-        t0.is_finite() && t1.is_finite() && base_radius.is_finite(),
-        "frustum [{t0}, {t1}] r {base_radius}"
-    );
+    debug_assert!(t0.is_finite() && t1.is_finite() && base_radius.is_finite(), "frustum [{t0}, {t1}] r {base_radius}");
     let mu = (t0 + t1) / 2.0;
     let hw = (t1 - t0) / 2.0;
     let mu2 = mu * mu;
@@ -70,13 +67,8 @@ pub fn conical_frustum_moments(t0: f32, t1: f32, base_radius: f32) -> FrustumMom
     let denom = 3.0 * mu2 + hw2;
     let t_mean = mu + (2.0 * mu * hw2) / denom;
     let t_var = hw2 / 3.0 - (4.0 / 15.0) * ((hw4 * (12.0 * mu2 - hw2)) / (denom * denom));
-    let r_var =
-        base_radius * base_radius * (mu2 / 4.0 + (5.0 / 12.0) * hw2 - 4.0 / 15.0 * hw4 / denom);
-    FrustumMoments {
-        t_mean,
-        t_var,
-        r_var,
-    }
+    let r_var = base_radius * base_radius * (mu2 / 4.0 + (5.0 / 12.0) * hw2 - 4.0 / 15.0 * hw4 / denom);
+    FrustumMoments { t_mean, t_var, r_var }
 }
 
 /// The textbook (unstable) moments of a conical frustum, as the paper's Eq. 7 writes them.
@@ -91,11 +83,7 @@ pub fn conical_frustum_moments_naive(t0: f32, t1: f32, base_radius: f32) -> Frus
     let t_mean = (3.0 * d4) / (4.0 * d3);
     let r_var = base_radius * base_radius * (3.0 / 20.0 * d5 / d3);
     let t_mosq = 3.0 / 5.0 * d5 / d3;
-    FrustumMoments {
-        t_mean,
-        t_var: t_mosq - t_mean * t_mean,
-        r_var,
-    }
+    FrustumMoments { t_mean, t_var: t_mosq - t_mean * t_mean, r_var }
 }
 
 /// The moments of the cylinder between `t0` and `t1` with radius `radius`: mean `t_mu`,
@@ -103,16 +91,9 @@ pub fn conical_frustum_moments_naive(t0: f32, t1: f32, base_radius: f32) -> Frus
 #[must_use]
 #[inline]
 pub fn cylinder_moments(t0: f32, t1: f32, radius: f32) -> FrustumMoments {
-    debug_assert!(
-        t0.is_finite() && t1.is_finite() && radius.is_finite(),
-        "cylinder [{t0}, {t1}] r {radius}"
-    );
+    debug_assert!(t0.is_finite() && t1.is_finite() && radius.is_finite(), "cylinder [{t0}, {t1}] r {radius}");
     let dt = t1 - t0;
-    FrustumMoments {
-        t_mean: (t0 + t1) / 2.0,
-        t_var: dt * dt / 12.0,
-        r_var: radius * radius / 4.0,
-    }
+    FrustumMoments { t_mean: (t0 + t1) / 2.0, t_var: dt * dt / 12.0, r_var: radius * radius / 4.0 }
 }
 
 /// Lifts frustum moments along direction `d` to a world-space Gaussian with diagonal covariance,
@@ -124,10 +105,7 @@ pub fn lift_gaussian(d: Vec3, m: FrustumMoments) -> Gaussian {
     let d2 = d * d;
     let d_mag_sq = (d2.x + d2.y + d2.z).max(1e-10);
     let null_outer = Vec3::ONE - d2 / d_mag_sq;
-    Gaussian {
-        mean: d * m.t_mean,
-        cov_diag: m.t_var * d2 + m.r_var * null_outer,
-    }
+    Gaussian { mean: d * m.t_mean, cov_diag: m.t_var * d2 + m.r_var * null_outer }
 }
 
 /// The full 3x3 covariance that [`lift_gaussian`] keeps the diagonal of:
@@ -162,19 +140,8 @@ pub fn cylinder_to_gaussian(d: Vec3, t0: f32, t1: f32, radius: f32) -> Gaussian 
 ///
 /// # Panics
 /// If `out.len() + 1 != t_vals.len()`.
-pub fn cast_ray(
-    t_vals: &[f32],
-    origin: Vec3,
-    direction: Vec3,
-    radius: f32,
-    shape: RayShape,
-    out: &mut [Gaussian],
-) {
-    assert_eq!(
-        out.len() + 1,
-        t_vals.len(),
-        "cast_ray: need one more t value than Gaussians"
-    );
+pub fn cast_ray(t_vals: &[f32], origin: Vec3, direction: Vec3, radius: f32, shape: RayShape, out: &mut [Gaussian]) {
+    assert_eq!(out.len() + 1, t_vals.len(), "cast_ray: need one more t value than Gaussians");
     for (g, t) in out.iter_mut().zip(t_vals.windows(2)) {
         let mut lifted = match shape {
             RayShape::Cone => conical_frustum_to_gaussian(direction, t[0], t[1], radius),
@@ -198,11 +165,7 @@ pub fn safe_trig_arg(x: f32) -> f32 {
         x
     } else {
         let r = x % SAFE_TRIG_LIMIT;
-        if r != 0.0 && r < 0.0 {
-            r + SAFE_TRIG_LIMIT
-        } else {
-            r
-        }
+        if r != 0.0 && r < 0.0 { r + SAFE_TRIG_LIMIT } else { r }
     }
 }
 
@@ -252,11 +215,7 @@ pub const HALF_PI: f32 = 0.5 * std::f32::consts::PI;
 pub fn integrated_pos_enc(g: &Gaussian, min_deg: u32, max_deg: u32, out: &mut [f32]) {
     let n = ipe_len(min_deg, max_deg);
     assert_eq!(out.len(), n, "integrated_pos_enc: output length");
-    debug_assert!(
-        g.mean.is_finite(),
-        "integrated_pos_enc: non-finite mean {:?}",
-        g.mean
-    );
+    debug_assert!(g.mean.is_finite(), "integrated_pos_enc: non-finite mean {:?}", g.mean);
     let half = n / 2;
     let x = g.mean.to_array();
     let var = g.cov_diag.to_array();
@@ -285,11 +244,7 @@ pub const fn pos_enc_len(min_deg: u32, max_deg: u32, append_identity: bool) -> u
 /// # Panics
 /// If `out.len() != pos_enc_len(min_deg, max_deg, append_identity)`.
 pub fn pos_enc(x: Vec3, min_deg: u32, max_deg: u32, append_identity: bool, out: &mut [f32]) {
-    assert_eq!(
-        out.len(),
-        pos_enc_len(min_deg, max_deg, append_identity),
-        "pos_enc: output length"
-    );
+    assert_eq!(out.len(), pos_enc_len(min_deg, max_deg, append_identity), "pos_enc: output length");
     let (id, rest) = out.split_at_mut(if append_identity { 3 } else { 0 });
     id.copy_from_slice(&x.to_array()[..id.len()]);
     let half = rest.len() / 2;

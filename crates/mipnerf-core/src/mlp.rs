@@ -112,59 +112,32 @@ impl MlpShape {
     pub fn new(config: MlpConfig, base: usize) -> Result<Self, MlpConfigError> {
         let c = config;
         if c.net_depth == 0 || c.net_width == 0 || c.net_width_condition == 0 || c.x_dim == 0 {
-            return Err(MlpConfigError(format!(
-                "depth, widths and input width must be positive: {c:?}"
-            )));
+            return Err(MlpConfigError(format!("depth, widths and input width must be positive: {c:?}")));
         }
         if c.net_depth_condition == 0 {
-            return Err(MlpConfigError(
-                "net_depth_condition must be at least 1".into(),
-            ));
+            return Err(MlpConfigError("net_depth_condition must be at least 1".into()));
         }
         let mut layers = Vec::new();
         let mut off = base;
         let mut push = |fan_in: usize, fan_out: usize| {
             let name = format!("Dense_{}", layers.len());
-            layers.push(DenseLayer {
-                name,
-                fan_in,
-                fan_out,
-                kernel: off,
-                bias: off + fan_in * fan_out,
-            });
+            layers.push(DenseLayer { name, fan_in, fan_out, kernel: off, bias: off + fan_in * fan_out });
             off += fan_in * fan_out + fan_out;
         };
         let shape_tmp = |i: usize| config_concat_after(&c, i);
         for i in 0..c.net_depth {
-            let fan_in = if i == 0 {
-                c.x_dim
-            } else {
-                c.net_width + if shape_tmp(i - 1) { c.x_dim } else { 0 }
-            };
+            let fan_in = if i == 0 { c.x_dim } else { c.net_width + if shape_tmp(i - 1) { c.x_dim } else { 0 } };
             push(fan_in, c.net_width);
         }
-        let top = c.net_width
-            + if shape_tmp(c.net_depth - 1) {
-                c.x_dim
-            } else {
-                0
-            };
+        let top = c.net_width + if shape_tmp(c.net_depth - 1) { c.x_dim } else { 0 };
         push(top, 1);
         push(top, c.net_width);
         for j in 0..c.net_depth_condition {
-            let fan_in = if j == 0 {
-                c.net_width + c.view_dim
-            } else {
-                c.net_width_condition
-            };
+            let fan_in = if j == 0 { c.net_width + c.view_dim } else { c.net_width_condition };
             push(fan_in, c.net_width_condition);
         }
         push(c.net_width_condition, 3);
-        Ok(Self {
-            config: c,
-            layers,
-            num_params: off - base,
-        })
+        Ok(Self { config: c, layers, num_params: off - base })
     }
 
     /// Whether the encoded input is concatenated after trunk layer `i`.
@@ -244,23 +217,41 @@ fn resize(v: &mut Vec<f32>, len: usize) {
     v.resize(len, 0.0);
 }
 
-fn fill_bias(out: &mut [f32], bias: &[f32]) {
+/// `out (n x fan_out) = sum over parts of input_p · (the kernel rows of part p)`: a dense layer
+/// without its bias, whose input is the concatenation of the parts `(input, width)` (the first
+/// rows of the kernel, in order).
+fn dense(params: &[f32], l: &DenseLayer, parts: &[(&[f32], usize)], n: usize, out: &mut [f32]) {
+    let mut r0 = 0;
+    for (k, &(input, width)) in parts.iter().enumerate() {
+        let rows = l.kernel_rows(params, r0, width);
+        matmul(out, input, Layout::Normal, rows, Layout::Normal, n, width, l.fan_out, k > 0);
+        r0 += width;
+    }
+}
+
+/// `out[row] += bias`, then ReLU if `relu`: one pass, vectorised along rows.
+fn add_bias(out: &mut [f32], bias: &[f32], relu: bool) {
     for row in out.chunks_exact_mut(bias.len()) {
-        row.copy_from_slice(bias);
+        if relu {
+            for (o, &b) in row.iter_mut().zip(bias) {
+                *o = (*o + b).max(0.0);
+            }
+        } else {
+            for (o, &b) in row.iter_mut().zip(bias) {
+                *o += b;
+            }
+        }
     }
 }
 
-fn relu_inplace(v: &mut [f32]) {
-    for x in v {
-        *x = x.max(0.0);
-    }
-}
-
-/// `dz = g * (h > 0)` in place on `g`.
-fn relu_backward(g: &mut [f32], h: &[f32]) {
-    for (gi, &hi) in g.iter_mut().zip(h) {
-        if hi <= 0.0 {
-            *gi = 0.0;
+/// ReLU's backward pass in place (`g = g * (h > 0)`), adding the column sums of the result to
+/// `bias_grad`: one pass, branch-free so that it vectorises.
+fn relu_backward_bias(g: &mut [f32], h: &[f32], bias_grad: &mut [f32]) {
+    let w = bias_grad.len();
+    for (grow, hrow) in g.chunks_exact_mut(w).zip(h.chunks_exact(w)) {
+        for ((gi, &hi), b) in grow.iter_mut().zip(hrow).zip(bias_grad.iter_mut()) {
+            *gi = if hi > 0.0 { *gi } else { 0.0 };
+            *b += *gi;
         }
     }
 }
@@ -297,160 +288,59 @@ impl MlpShape {
         assert_eq!(view.len(), n_rays * c.view_dim, "mlp forward: view");
         cache.n = n;
         cache.n_rays = n_rays;
-        let w = c.net_width;
+        let (w, wc) = (c.net_width, c.net_width_condition);
         cache.trunk.resize_with(c.net_depth, Vec::new);
         for i in 0..c.net_depth {
             let (before, rest) = cache.trunk.split_at_mut(i);
             let out = &mut rest[0];
             resize(out, n * w);
             let l = self.trunk(i);
-            fill_bias(out, l.bias(params));
             if i == 0 {
-                matmul(
-                    out,
-                    x,
-                    Layout::Normal,
-                    l.kernel(params),
-                    Layout::Normal,
-                    n,
-                    c.x_dim,
-                    w,
-                    true,
-                );
+                dense(params, l, &[(x, c.x_dim)], n, out);
+            } else if self.concat_after(i - 1) {
+                dense(params, l, &[(&before[i - 1], w), (x, c.x_dim)], n, out);
             } else {
-                let h = &before[i - 1];
-                matmul(
-                    out,
-                    h,
-                    Layout::Normal,
-                    l.kernel_rows(params, 0, w),
-                    Layout::Normal,
-                    n,
-                    w,
-                    w,
-                    true,
-                );
-                if self.concat_after(i - 1) {
-                    matmul(
-                        out,
-                        x,
-                        Layout::Normal,
-                        l.kernel_rows(params, w, c.x_dim),
-                        Layout::Normal,
-                        n,
-                        c.x_dim,
-                        w,
-                        true,
-                    );
-                }
+                dense(params, l, &[(&before[i - 1], w)], n, out);
             }
-            relu_inplace(out);
+            add_bias(out, l.bias(params), true);
         }
-        let top = &cache.trunk[c.net_depth - 1];
-        let top_concat = self.concat_after(c.net_depth - 1);
         // Heads on [top, x?].
-        let head = |out: &mut [f32], l: &DenseLayer| {
-            fill_bias(out, l.bias(params));
-            matmul(
-                out,
-                top,
-                Layout::Normal,
-                l.kernel_rows(params, 0, w),
-                Layout::Normal,
-                n,
-                w,
-                l.fan_out,
-                true,
-            );
-            if top_concat {
-                matmul(
-                    out,
-                    x,
-                    Layout::Normal,
-                    l.kernel_rows(params, w, c.x_dim),
-                    Layout::Normal,
-                    n,
-                    c.x_dim,
-                    l.fan_out,
-                    true,
-                );
-            }
-        };
+        let top = &cache.trunk[c.net_depth - 1];
+        let top_parts: &[(&[f32], usize)] =
+            if self.concat_after(c.net_depth - 1) { &[(top, w), (x, c.x_dim)] } else { &[(top, w)] };
         resize(&mut cache.raw_density, n);
-        head(&mut cache.raw_density, self.density_head());
+        dense(params, self.density_head(), top_parts, n, &mut cache.raw_density);
+        add_bias(&mut cache.raw_density, self.density_head().bias(params), false);
         resize(&mut cache.bottleneck, n * w);
-        head(&mut cache.bottleneck, self.bottleneck());
-        // Condition layers; the first takes [bottleneck, view], the view part computed per ray.
-        let wc = c.net_width_condition;
+        dense(params, self.bottleneck(), top_parts, n, &mut cache.bottleneck);
+        add_bias(&mut cache.bottleneck, self.bottleneck().bias(params), false);
+        // Condition layers. The first takes [bottleneck, view]; its view part, with the bias, is the
+        // same for all samples of a ray, so it is computed once per ray and added to each sample.
         cache.cond.resize_with(c.net_depth_condition, Vec::new);
         let l0 = self.condition(0);
         resize(&mut cache.view_proj, n_rays * wc);
-        matmul(
-            &mut cache.view_proj,
-            view,
-            Layout::Normal,
-            l0.kernel_rows(params, w, c.view_dim),
-            Layout::Normal,
-            n_rays,
-            c.view_dim,
-            wc,
-            false,
-        );
+        let view_rows = l0.kernel_rows(params, w, c.view_dim);
+        matmul(&mut cache.view_proj, view, Layout::Normal, view_rows, Layout::Normal, n_rays, c.view_dim, wc, false);
+        add_bias(&mut cache.view_proj, l0.bias(params), false);
         for j in 0..c.net_depth_condition {
             let (before, rest) = cache.cond.split_at_mut(j);
             let out = &mut rest[0];
             resize(out, n * wc);
             let l = self.condition(j);
-            fill_bias(out, l.bias(params));
             if j == 0 {
-                matmul(
-                    out,
-                    &cache.bottleneck,
-                    Layout::Normal,
-                    l.kernel_rows(params, 0, w),
-                    Layout::Normal,
-                    n,
-                    w,
-                    wc,
-                    true,
-                );
+                dense(params, l, &[(&cache.bottleneck, w)], n, out);
                 for (r, rows) in out.chunks_exact_mut(samples_per_ray * wc).enumerate() {
-                    let vp = &cache.view_proj[r * wc..(r + 1) * wc];
-                    for row in rows.chunks_exact_mut(wc) {
-                        for (o, &v) in row.iter_mut().zip(vp) {
-                            *o += v;
-                        }
-                    }
+                    add_bias(rows, &cache.view_proj[r * wc..(r + 1) * wc], true);
                 }
             } else {
-                matmul(
-                    out,
-                    &before[j - 1],
-                    Layout::Normal,
-                    l.kernel(params),
-                    Layout::Normal,
-                    n,
-                    wc,
-                    wc,
-                    true,
-                );
+                dense(params, l, &[(&before[j - 1], wc)], n, out);
+                add_bias(out, l.bias(params), true);
             }
-            relu_inplace(out);
         }
         resize(&mut cache.raw_rgb, n * 3);
         let l = self.rgb_head();
-        fill_bias(&mut cache.raw_rgb, l.bias(params));
-        matmul(
-            &mut cache.raw_rgb,
-            &cache.cond[c.net_depth_condition - 1],
-            Layout::Normal,
-            l.kernel(params),
-            Layout::Normal,
-            n,
-            wc,
-            3,
-            true,
-        );
+        dense(params, l, &[(&cache.cond[c.net_depth_condition - 1], wc)], n, &mut cache.raw_rgb);
+        add_bias(&mut cache.raw_rgb, l.bias(params), false);
     }
 
     /// Backward pass of the last [`forward`](Self::forward) (same `params`, `x`, `view`, `cache`):
@@ -476,38 +366,14 @@ impl MlpShape {
         assert_eq!(d_raw_density.len(), n, "mlp backward: d_raw_density");
         assert_eq!(n, n_rays * samples_per_ray, "mlp backward: samples per ray");
         let (w, wc) = (c.net_width, c.net_width_condition);
-        let MlpCache {
-            trunk,
-            bottleneck,
-            cond,
-            grad_a,
-            grad_b,
-            grad_z,
-            grad_ray,
-            ..
-        } = cache;
+        let MlpCache { trunk, bottleneck, cond, grad_a, grad_b, grad_z, grad_ray, .. } = cache;
 
         // Accumulate kernel += inᵀ · dz and bias += colsum(dz).
-        let weight_grad = |grads: &mut [f32],
-                           l: &DenseLayer,
-                           r0: usize,
-                           input: &[f32],
-                           in_w: usize,
-                           dz: &[f32],
-                           rows: usize| {
-            let k = &mut grads[l.kernel + r0 * l.fan_out..l.kernel + (r0 + in_w) * l.fan_out];
-            matmul(
-                k,
-                input,
-                Layout::Transposed,
-                dz,
-                Layout::Normal,
-                in_w,
-                rows,
-                l.fan_out,
-                true,
-            );
-        };
+        let weight_grad =
+            |grads: &mut [f32], l: &DenseLayer, r0: usize, input: &[f32], in_w: usize, dz: &[f32], rows: usize| {
+                let k = &mut grads[l.kernel + r0 * l.fan_out..l.kernel + (r0 + in_w) * l.fan_out];
+                matmul(k, input, Layout::Transposed, dz, Layout::Normal, in_w, rows, l.fan_out, true);
+            };
 
         // rgb head.
         let l = self.rgb_head();
@@ -515,36 +381,15 @@ impl MlpShape {
         weight_grad(grads, l, 0, last, wc, d_raw_rgb, n);
         add_col_sums(&mut grads[l.bias..l.bias + 3], d_raw_rgb);
         resize(grad_a, n * wc);
-        matmul(
-            grad_a,
-            d_raw_rgb,
-            Layout::Normal,
-            l.kernel(params),
-            Layout::Transposed,
-            n,
-            3,
-            wc,
-            false,
-        );
+        matmul(grad_a, d_raw_rgb, Layout::Normal, l.kernel(params), Layout::Transposed, n, 3, wc, false);
         // Condition layers, top down. grad_a holds d(output of layer j).
         for j in (0..c.net_depth_condition).rev() {
             let l = self.condition(j);
-            relu_backward(grad_a, &cond[j]);
-            add_col_sums(&mut grads[l.bias..l.bias + wc], grad_a);
+            relu_backward_bias(grad_a, &cond[j], &mut grads[l.bias..l.bias + wc]);
             if j > 0 {
                 weight_grad(grads, l, 0, &cond[j - 1], wc, grad_a, n);
                 resize(grad_b, n * wc);
-                matmul(
-                    grad_b,
-                    grad_a,
-                    Layout::Normal,
-                    l.kernel(params),
-                    Layout::Transposed,
-                    n,
-                    wc,
-                    wc,
-                    false,
-                );
+                matmul(grad_b, grad_a, Layout::Normal, l.kernel(params), Layout::Transposed, n, wc, wc, false);
                 std::mem::swap(grad_a, grad_b);
             } else {
                 weight_grad(grads, l, 0, bottleneck, w, grad_a, n);
@@ -574,10 +419,7 @@ impl MlpShape {
         let top_concat = self.concat_after(c.net_depth - 1);
         let top = &trunk[c.net_depth - 1];
         resize(grad_z, n * w);
-        for (l, dz, first) in [
-            (self.bottleneck(), &grad_b[..], true),
-            (self.density_head(), d_raw_density, false),
-        ] {
+        for (l, dz, first) in [(self.bottleneck(), &grad_b[..], true), (self.density_head(), d_raw_density, false)] {
             weight_grad(grads, l, 0, top, w, dz, n);
             if top_concat {
                 weight_grad(grads, l, w, x, c.x_dim, dz, n);
@@ -598,8 +440,7 @@ impl MlpShape {
         // Trunk, top down. grad_z holds d(output of layer i).
         for i in (0..c.net_depth).rev() {
             let l = self.trunk(i);
-            relu_backward(grad_z, &trunk[i]);
-            add_col_sums(&mut grads[l.bias..l.bias + w], grad_z);
+            relu_backward_bias(grad_z, &trunk[i], &mut grads[l.bias..l.bias + w]);
             if i == 0 {
                 weight_grad(grads, l, 0, x, c.x_dim, grad_z, n);
             } else {
@@ -608,17 +449,7 @@ impl MlpShape {
                     weight_grad(grads, l, w, x, c.x_dim, grad_z, n);
                 }
                 resize(grad_a, n * w);
-                matmul(
-                    grad_a,
-                    grad_z,
-                    Layout::Normal,
-                    l.kernel_rows(params, 0, w),
-                    Layout::Transposed,
-                    n,
-                    w,
-                    w,
-                    false,
-                );
+                matmul(grad_a, grad_z, Layout::Normal, l.kernel_rows(params, 0, w), Layout::Transposed, n, w, w, false);
                 std::mem::swap(grad_a, grad_z);
             }
         }

@@ -186,9 +186,7 @@ impl ModelConfig {
     #[must_use]
     pub fn x_dim(&self) -> usize {
         match self.point_encoding {
-            PointEncoding::Integrated | PointEncoding::Mean => {
-                mip::ipe_len(self.min_deg_point, self.max_deg_point)
-            }
+            PointEncoding::Integrated | PointEncoding::Mean => mip::ipe_len(self.min_deg_point, self.max_deg_point),
             PointEncoding::Nerf => mip::pos_enc_len(self.min_deg_point, self.max_deg_point, true),
         }
     }
@@ -278,9 +276,7 @@ impl LossStats {
     /// PSNR of the last level's plain MSE (`-10 log10(mse)`).
     #[must_use]
     pub fn psnr(&self) -> f32 {
-        self.mse
-            .last()
-            .map_or(f32::NAN, |&m| crate::metrics::mse_to_psnr(m))
+        self.mse.last().map_or(f32::NAN, |&m| crate::metrics::mse_to_psnr(m))
     }
 }
 
@@ -313,9 +309,7 @@ impl Model {
     /// If the configuration is invalid.
     pub fn new(config: ModelConfig) -> Result<Self, ModelError> {
         if config.num_samples < 1 || config.num_levels < 1 {
-            return Err(ModelError::Config(
-                "num_samples and num_levels must be at least 1".into(),
-            ));
+            return Err(ModelError::Config("num_samples and num_levels must be at least 1".into()));
         }
         if config.max_deg_point <= config.min_deg_point || config.max_deg_point > 24 {
             return Err(ModelError::Config(format!(
@@ -326,11 +320,7 @@ impl Model {
         if config.supersample < 1 {
             return Err(ModelError::Config("supersample must be at least 1".into()));
         }
-        let n_mlps = if config.separate_mlps {
-            config.num_levels
-        } else {
-            1
-        };
+        let n_mlps = if config.separate_mlps { config.num_levels } else { 1 };
         let mut mlps = Vec::with_capacity(n_mlps);
         let mut off = 0;
         for _ in 0..n_mlps {
@@ -338,11 +328,7 @@ impl Model {
             off += s.num_params;
             mlps.push(s);
         }
-        Ok(Self {
-            config,
-            mlps,
-            num_params: off,
-        })
+        Ok(Self { config, mlps, num_params: off })
     }
 
     /// Fresh parameters: Glorot-uniform kernels and zero biases, from `seed`.
@@ -379,8 +365,7 @@ impl Model {
         let chunk = CHUNK_RAYS.div_ceil(rpp) * rpp;
         rays.par_chunks(chunk)
             .map_init(Workspace::default, |ws, rays| {
-                let mut out =
-                    vec![LevelOutput::default(); rays.len() / rpp * self.config.num_levels];
+                let mut out = vec![LevelOutput::default(); rays.len() / rpp * self.config.num_levels];
                 self.run_chunk(params, rays, 0, None, Mode::Eval, ws, None, Some(&mut out));
                 out
             })
@@ -403,25 +388,10 @@ impl Model {
         grads: &mut [f32],
     ) -> LossStats {
         let rpp = self.rays_per_pixel();
-        assert_eq!(
-            rays.len(),
-            targets.len() * rpp,
-            "loss_and_grad: rays per pixel"
-        );
-        assert_eq!(
-            params.len(),
-            self.num_params,
-            "loss_and_grad: parameter count"
-        );
-        assert_eq!(
-            grads.len(),
-            self.num_params,
-            "loss_and_grad: gradient length"
-        );
-        let lm_sum: f64 = rays
-            .chunks(rpp)
-            .map(|r| f64::from(self.lossmult(&r[0])))
-            .sum();
+        assert_eq!(rays.len(), targets.len() * rpp, "loss_and_grad: rays per pixel");
+        assert_eq!(params.len(), self.num_params, "loss_and_grad: parameter count");
+        assert_eq!(grads.len(), self.num_params, "loss_and_grad: gradient length");
+        let lm_sum: f64 = rays.chunks(rpp).map(|r| f64::from(self.lossmult(&r[0]))).sum();
         let norm = (3.0 * lm_sum) as f32;
         let n_pix = targets.len() as f32;
         let chunk_pix = CHUNK_RAYS.div_ceil(rpp);
@@ -431,16 +401,8 @@ impl Model {
             .enumerate()
             .map_init(Workspace::default, |ws, (ci, (rays, tg))| {
                 let mut g = vec![0.0f32; self.num_params];
-                let sums = self.run_chunk(
-                    params,
-                    rays,
-                    ci * chunk_pix * rpp,
-                    Some((tg, norm)),
-                    mode,
-                    ws,
-                    Some(&mut g),
-                    None,
-                );
+                let sums =
+                    self.run_chunk(params, rays, ci * chunk_pix * rpp, Some((tg, norm)), mode, ws, Some(&mut g), None);
                 (g, sums)
             })
             .collect();
@@ -455,20 +417,9 @@ impl Model {
                 sums[l][1] += s[l][1];
             }
         }
-        let losses: Vec<f32> = sums
-            .iter()
-            .map(|s| (s[0] / f64::from(norm)) as f32)
-            .collect();
-        let mse: Vec<f32> = sums
-            .iter()
-            .map(|s| (s[1] / (3.0 * f64::from(n_pix))) as f32)
-            .collect();
-        let loss = self
-            .level_weights()
-            .iter()
-            .zip(&losses)
-            .map(|(w, l)| w * l)
-            .sum();
+        let losses: Vec<f32> = sums.iter().map(|s| (s[0] / f64::from(norm)) as f32).collect();
+        let mse: Vec<f32> = sums.iter().map(|s| (s[1] / (3.0 * f64::from(n_pix))) as f32).collect();
+        let loss = self.level_weights().iter().zip(&losses).map(|(w, l)| w * l).sum();
         LossStats { losses, loss, mse }
     }
 
@@ -476,23 +427,11 @@ impl Model {
     #[must_use]
     pub fn level_weights(&self) -> Vec<f32> {
         let n = self.config.num_levels;
-        (0..n)
-            .map(|l| {
-                if l + 1 == n {
-                    1.0
-                } else {
-                    self.config.coarse_loss_mult
-                }
-            })
-            .collect()
+        (0..n).map(|l| if l + 1 == n { 1.0 } else { self.config.coarse_loss_mult }).collect()
     }
 
     fn lossmult(&self, ray: &Ray) -> f32 {
-        if self.config.area_loss {
-            ray.lossmult
-        } else {
-            1.0
-        }
+        if self.config.area_loss { ray.lossmult } else { 1.0 }
     }
 
     /// Runs all levels over one chunk of whole pixels. With `targets`, accumulates the gradient
@@ -528,13 +467,7 @@ impl Model {
         ws.pixel_rgb.resize(n_pix, [0.0; 3]);
         let mut sums = vec![[0.0f64; 2]; c.num_levels];
         for (r, ray) in rays.iter().enumerate() {
-            mip::pos_enc(
-                ray.viewdir,
-                0,
-                c.deg_view,
-                true,
-                &mut ws.view[r * v_dim..(r + 1) * v_dim],
-            );
+            mip::pos_enc(ray.viewdir, 0, c.deg_view, true, &mut ws.view[r * v_dim..(r + 1) * v_dim]);
         }
         let mut per_ray = vec![render::RenderedRay::default(); nr];
         for level in 0..c.num_levels {
@@ -544,9 +477,7 @@ impl Model {
                 let t = &mut ws.t_next[r * (s + 1)..(r + 1) * (s + 1)];
                 if level == 0 {
                     let jitter = match mode {
-                        Mode::Train { seed, step } => {
-                            Some(RayRng::new(seed, step, Stream::SampleJitter, gi))
-                        }
+                        Mode::Train { seed, step } => Some(RayRng::new(seed, step, Stream::SampleJitter, gi)),
                         Mode::Eval => None,
                     };
                     sampling::sample_along_rays(ray.near, ray.far, c.lindisp, jitter, t);
@@ -583,19 +514,12 @@ impl Model {
                 for (i, g) in ws.gauss.iter().enumerate() {
                     let dst = &mut ws.x[(r * s + i) * x_dim..(r * s + i + 1) * x_dim];
                     match c.point_encoding {
-                        PointEncoding::Integrated => {
-                            mip::integrated_pos_enc(g, c.min_deg_point, c.max_deg_point, dst)
-                        }
+                        PointEncoding::Integrated => mip::integrated_pos_enc(g, c.min_deg_point, c.max_deg_point, dst),
                         PointEncoding::Mean => {
-                            let g0 = Gaussian {
-                                mean: g.mean,
-                                cov_diag: Vec3::ZERO,
-                            };
+                            let g0 = Gaussian { mean: g.mean, cov_diag: Vec3::ZERO };
                             mip::integrated_pos_enc(&g0, c.min_deg_point, c.max_deg_point, dst);
                         }
-                        PointEncoding::Nerf => {
-                            mip::pos_enc(g.mean, c.min_deg_point, c.max_deg_point, true, dst)
-                        }
+                        PointEncoding::Nerf => mip::pos_enc(g.mean, c.min_deg_point, c.max_deg_point, true, dst),
                     }
                 }
             }
@@ -604,9 +528,7 @@ impl Model {
             mlp.forward(params, &ws.x, &ws.view, nr, s, &mut ws.cache);
             if let (Mode::Train { seed, step }, true) = (mode, c.density_noise > 0.0) {
                 for r in 0..nr {
-                    let stream = ((first_ray + r) as u32)
-                        .wrapping_mul(8)
-                        .wrapping_add(level as u32);
+                    let stream = ((first_ray + r) as u32).wrapping_mul(8).wrapping_add(level as u32);
                     let rng = RayRng::new(seed, step, Stream::DensityNoise, stream);
                     for i in 0..s {
                         ws.cache.raw_density[r * s + i] += c.density_noise * rng.normal(i as u32);
@@ -614,12 +536,9 @@ impl Model {
                 }
             }
             for i in 0..n {
-                ws.density[i] = c
-                    .density_activation
-                    .forward(ws.cache.raw_density[i], c.density_bias);
+                ws.density[i] = c.density_activation.forward(ws.cache.raw_density[i], c.density_bias);
                 for k in 0..3 {
-                    ws.rgb[i][k] =
-                        render::rgb_activation(ws.cache.raw_rgb[i * 3 + k], c.rgb_padding);
+                    ws.rgb[i][k] = render::rgb_activation(ws.cache.raw_rgb[i * 3 + k], c.rgb_padding);
                 }
             }
             // Rendering, per pixel averaging.
@@ -684,27 +603,14 @@ impl Model {
             }
             for i in 0..n {
                 let raw = ws.cache.raw_density[i];
-                ws.d_raw_density[i] =
-                    ws.g_density[i] * c.density_activation.derivative(raw, c.density_bias);
+                ws.d_raw_density[i] = ws.g_density[i] * c.density_activation.derivative(raw, c.density_bias);
                 for k in 0..3 {
-                    ws.d_raw_rgb[i * 3 + k] = ws.g_rgb[i][k]
-                        * render::rgb_activation_derivative(
-                            ws.cache.raw_rgb[i * 3 + k],
-                            c.rgb_padding,
-                        );
+                    ws.d_raw_rgb[i * 3 + k] =
+                        ws.g_rgb[i][k] * render::rgb_activation_derivative(ws.cache.raw_rgb[i * 3 + k], c.rgb_padding);
                 }
             }
             let (x, view, cache) = (&ws.x, &ws.view, &mut ws.cache);
-            mlp.backward(
-                params,
-                x,
-                view,
-                s,
-                cache,
-                &ws.d_raw_rgb,
-                &ws.d_raw_density,
-                grads,
-            );
+            mlp.backward(params, x, view, s, cache, &ws.d_raw_rgb, &ws.d_raw_density, grads);
         }
         sums
     }

@@ -33,14 +33,8 @@ pub fn volumetric_rendering(
     weights: &mut [f32],
 ) -> RenderedRay {
     let n = density.len();
-    assert!(
-        rgb.len() == n && t_vals.len() == n + 1 && weights.len() == n,
-        "volumetric_rendering: shapes"
-    );
-    debug_assert!(
-        density.iter().all(|d| d.is_finite()),
-        "volumetric_rendering: non-finite density"
-    );
+    assert!(rgb.len() == n && t_vals.len() == n + 1 && weights.len() == n, "volumetric_rendering: shapes");
+    debug_assert!(density.iter().all(|d| d.is_finite()), "volumetric_rendering: non-finite density");
     let dir_norm = dir.length();
     let mut cum = 0.0f32; // sum of density * delta before interval i
     let mut out = RenderedRay::default();
@@ -107,11 +101,7 @@ pub fn volumetric_rendering_backward(
 ) {
     let n = density.len();
     assert!(
-        rgb.len() == n
-            && t_vals.len() == n + 1
-            && weights.len() == n
-            && grad_rgb.len() == n
-            && grad_density.len() == n,
+        rgb.len() == n && t_vals.len() == n + 1 && weights.len() == n && grad_rgb.len() == n && grad_density.len() == n,
         "volumetric_rendering_backward: shapes"
     );
     let bg = if white_bkgd { 1.0 } else { 0.0 };
@@ -128,10 +118,7 @@ pub fn volumetric_rendering_backward(
     }
     let mut suffix = 0.0f32; // sum_{i>k} g_i w_i
     for k in (0..n).rev() {
-        let g = d_rgb[0] * (rgb[k][0] - bg)
-            + d_rgb[1] * (rgb[k][1] - bg)
-            + d_rgb[2] * (rgb[k][2] - bg)
-            + d_acc;
+        let g = d_rgb[0] * (rgb[k][0] - bg) + d_rgb[1] * (rgb[k][1] - bg) + d_rgb[2] * (rgb[k][2] - bg) + d_acc;
         let ds = g * trans_next[k] - suffix;
         suffix += g * weights[k];
         grad_density[k] = ds * deltas[k];

@@ -79,10 +79,7 @@ mod tests {
         let rng = RayRng::new(1, 2, Stream::SampleJitter, 3);
         let xs: Vec<f32> = (0..100_000).map(|i| rng.uniform(i)).collect();
         assert!(xs.iter().all(|&x| (0.0..1.0).contains(&x)));
-        assert_eq!(
-            xs[17],
-            RayRng::new(1, 2, Stream::SampleJitter, 3).uniform(17)
-        );
+        assert_eq!(xs[17], RayRng::new(1, 2, Stream::SampleJitter, 3).uniform(17));
         let mean = xs.iter().map(|&x| f64::from(x)).sum::<f64>() / xs.len() as f64;
         // Standard error of the mean of U[0,1) over 1e5 draws is 0.0009.
         assert!((mean - 0.5).abs() < 0.005, "mean {mean}");
@@ -90,10 +87,7 @@ mod tests {
         for &x in &xs {
             buckets[(x * 10.0) as usize] += 1;
         }
-        assert!(
-            buckets.iter().all(|&b| (9_500..10_500).contains(&b)),
-            "{buckets:?}"
-        );
+        assert!(buckets.iter().all(|&b| (9_500..10_500).contains(&b)), "{buckets:?}");
         // Different streams, steps and rays give different numbers.
         let other = [
             RayRng::new(1, 2, Stream::ResampleOffsets, 3),
@@ -111,9 +105,6 @@ mod tests {
         let xs: Vec<f64> = (0..100_000).map(|i| f64::from(rng.normal(i))).collect();
         let mean = xs.iter().sum::<f64>() / xs.len() as f64;
         let var = xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / xs.len() as f64;
-        assert!(
-            mean.abs() < 0.02 && (var - 1.0).abs() < 0.02,
-            "mean {mean} var {var}"
-        );
+        assert!(mean.abs() < 0.02 && (var - 1.0).abs() < 0.02, "mean {mean} var {var}");
     }
 }

@@ -24,29 +24,13 @@ pub const PDF_WEIGHT_EPS: f32 = 1e-5;
 ///
 /// # Panics
 /// If `t_vals.len() < 2`.
-pub fn sample_along_rays(
-    near: f32,
-    far: f32,
-    lindisp: bool,
-    jitter: Option<RayRng>,
-    t_vals: &mut [f32],
-) {
-    assert!(
-        t_vals.len() >= 2,
-        "sample_along_rays: need at least two edges"
-    );
-    debug_assert!(
-        near.is_finite() && far.is_finite(),
-        "sample_along_rays: near {near} far {far}"
-    );
+pub fn sample_along_rays(near: f32, far: f32, lindisp: bool, jitter: Option<RayRng>, t_vals: &mut [f32]) {
+    assert!(t_vals.len() >= 2, "sample_along_rays: need at least two edges");
+    debug_assert!(near.is_finite() && far.is_finite(), "sample_along_rays: near {near} far {far}");
     let n = (t_vals.len() - 1) as f32;
     for (i, t) in t_vals.iter_mut().enumerate() {
         let s = i as f32 / n;
-        *t = if lindisp {
-            1.0 / (1.0 / near * (1.0 - s) + 1.0 / far * s)
-        } else {
-            near * (1.0 - s) + far * s
-        };
+        *t = if lindisp { 1.0 / (1.0 / near * (1.0 - s) + 1.0 / far * s) } else { near * (1.0 - s) + far * s };
     }
     if let Some(rng) = jitter {
         // Each new edge depends on the old neighbours, so carry the previous old value.
@@ -55,11 +39,7 @@ pub fn sample_along_rays(
         for i in 0..=last {
             let cur = t_vals[i];
             let lower = if i == 0 { cur } else { 0.5 * (cur + prev_old) };
-            let upper = if i == last {
-                cur
-            } else {
-                0.5 * (t_vals[i + 1] + cur)
-            };
+            let upper = if i == last { cur } else { 0.5 * (t_vals[i + 1] + cur) };
             prev_old = cur;
             t_vals[i] = lower + (upper - lower) * rng.uniform(i as u32);
         }
@@ -84,17 +64,9 @@ pub enum PdfSamples {
 ///
 /// # Panics
 /// If `bins.len() != weights.len() + 1` or `weights` is empty.
-pub fn sorted_piecewise_constant_pdf(
-    bins: &[f32],
-    weights: &[f32],
-    samples: PdfSamples,
-    out: &mut [f32],
-) {
+pub fn sorted_piecewise_constant_pdf(bins: &[f32], weights: &[f32], samples: PdfSamples, out: &mut [f32]) {
     let nw = weights.len();
-    assert!(
-        nw > 0 && bins.len() == nw + 1,
-        "sorted_piecewise_constant_pdf: shapes"
-    );
+    assert!(nw > 0 && bins.len() == nw + 1, "sorted_piecewise_constant_pdf: shapes");
     // Pad weights so their sum is at least eps.
     let weight_sum: f32 = weights.iter().sum();
     let padding = (PDF_WEIGHT_EPS - weight_sum).max(0.0);
@@ -128,16 +100,8 @@ pub fn sorted_piecewise_constant_pdf(
         };
         // The last edge whose cdf is <= u starts the interval; the first one above u ends it.
         let k = cdf.partition_point(|&c| c <= u); // number of cdf entries <= u (>= 1 as cdf[0] = 0 <= u)
-        let (b0, c0) = if k == 0 {
-            (bins[0], cdf[0])
-        } else {
-            (bins[k - 1], cdf[k - 1])
-        };
-        let (b1, c1) = if k > nw {
-            (bins[nw], cdf[nw])
-        } else {
-            (bins[k], cdf[k])
-        };
+        let (b0, c0) = if k == 0 { (bins[0], cdf[0]) } else { (bins[k - 1], cdf[k - 1]) };
+        let (b1, c1) = if k > nw { (bins[nw], cdf[nw]) } else { (bins[k], cdf[k]) };
         let t = (u - c0) / (c1 - c0);
         let t = if t.is_nan() { 0.0 } else { t }.clamp(0.0, 1.0);
         *o = b0 + t * (b1 - b0);
@@ -186,10 +150,7 @@ pub fn resample_along_rays(
     out: &mut [f32],
 ) {
     let n = weights.len();
-    assert!(
-        n > 0 && t_vals.len() == n + 1 && out.len() == n + 1,
-        "resample_along_rays: shapes"
-    );
+    assert!(n > 0 && t_vals.len() == n + 1 && out.len() == n + 1, "resample_along_rays: shapes");
     let mut buf = [0.0f32; MAX_EDGES];
     let mut heap;
     let blurred: &mut [f32] = if n <= MAX_EDGES {

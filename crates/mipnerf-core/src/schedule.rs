@@ -17,13 +17,7 @@ pub struct LrSchedule {
 
 impl Default for LrSchedule {
     fn default() -> Self {
-        Self {
-            lr_init: 5e-4,
-            lr_final: 5e-6,
-            max_steps: 1_000_000,
-            lr_delay_steps: 2500,
-            lr_delay_mult: 0.01,
-        }
+        Self { lr_init: 5e-4, lr_final: 5e-6, max_steps: 1_000_000, lr_delay_steps: 2500, lr_delay_mult: 0.01 }
     }
 }
 
@@ -35,8 +29,7 @@ impl LrSchedule {
     pub fn lr(&self, step: u64) -> f32 {
         let delay_rate = if self.lr_delay_steps > 0 {
             let frac = (step as f64 / self.lr_delay_steps as f64).clamp(0.0, 1.0) as f32;
-            self.lr_delay_mult
-                + (1.0 - self.lr_delay_mult) * (0.5 * std::f32::consts::PI * frac).sin()
+            self.lr_delay_mult + (1.0 - self.lr_delay_mult) * (0.5 * std::f32::consts::PI * frac).sin()
         } else {
             1.0
         };

@@ -19,11 +19,7 @@ pub struct AdamConfig {
 
 impl Default for AdamConfig {
     fn default() -> Self {
-        Self {
-            beta1: 0.9,
-            beta2: 0.999,
-            eps: 1e-8,
-        }
+        Self { beta1: 0.9, beta2: 0.999, eps: 1e-8 }
     }
 }
 
@@ -42,11 +38,7 @@ impl AdamState {
     /// Zero moments for `n` parameters.
     #[must_use]
     pub fn new(n: usize) -> Self {
-        Self {
-            m: vec![0.0; n],
-            v: vec![0.0; n],
-            t: 0,
-        }
+        Self { m: vec![0.0; n], v: vec![0.0; n], t: 0 }
     }
 
     /// One bias-corrected Adam update (as flax's `optim.Adam`):
@@ -55,10 +47,7 @@ impl AdamState {
     /// # Panics
     /// If the lengths differ.
     pub fn update(&mut self, cfg: &AdamConfig, lr: f32, params: &mut [f32], grads: &[f32]) {
-        assert!(
-            params.len() == grads.len() && params.len() == self.m.len(),
-            "adam: lengths"
-        );
+        assert!(params.len() == grads.len() && params.len() == self.m.len(), "adam: lengths");
         self.t += 1;
         let t = self.t as i32;
         let c1 = 1.0 - cfg.beta1.powi(t);
@@ -95,12 +84,7 @@ pub struct OptimConfig {
 
 impl Default for OptimConfig {
     fn default() -> Self {
-        Self {
-            lr: LrSchedule::default(),
-            adam: AdamConfig::default(),
-            grad_max_val: 0.0,
-            grad_max_norm: 0.0,
-        }
+        Self { lr: LrSchedule::default(), adam: AdamConfig::default(), grad_max_val: 0.0, grad_max_norm: 0.0 }
     }
 }
 
@@ -108,15 +92,9 @@ impl Default for OptimConfig {
 /// after value clipping (before norm clipping), the quantity the official code logs.
 pub fn clip_gradients(grads: &mut [f32], max_val: f32, max_norm: f32) -> f32 {
     if max_val > 0.0 {
-        grads
-            .iter_mut()
-            .for_each(|g| *g = g.clamp(-max_val, max_val));
+        grads.iter_mut().for_each(|g| *g = g.clamp(-max_val, max_val));
     }
-    let norm = grads
-        .iter()
-        .map(|g| f64::from(*g) * f64::from(*g))
-        .sum::<f64>()
-        .sqrt() as f32;
+    let norm = grads.iter().map(|g| f64::from(*g) * f64::from(*g)).sum::<f64>().sqrt() as f32;
     if max_norm > 0.0 {
         let mult = (max_norm / (1e-7 + norm)).min(1.0);
         if mult < 1.0 {
@@ -163,15 +141,7 @@ impl Trainer {
     pub fn new(model: Model, optim: OptimConfig, seed: u32) -> Self {
         let params = model.init_params(u64::from(seed));
         let n = model.num_params;
-        Self {
-            model,
-            params,
-            adam: AdamState::new(n),
-            optim,
-            step: 0,
-            seed,
-            grads: vec![0.0; n],
-        }
+        Self { model, params, adam: AdamState::new(n), optim, step: 0, seed, grads: vec![0.0; n] }
     }
 
     /// One training step on a batch: loss, gradient, clipping, Adam update.
@@ -180,27 +150,12 @@ impl Trainer {
     /// If the batch's lengths disagree (see [`Model::loss_and_grad`]).
     pub fn train_step(&mut self, rays: &[Ray], targets: &[[f32; 3]]) -> StepReport {
         self.grads.fill(0.0);
-        let mode = Mode::Train {
-            seed: self.seed,
-            step: self.step as u32,
-        };
-        let stats = self
-            .model
-            .loss_and_grad(&self.params, rays, targets, mode, &mut self.grads);
-        let grad_norm = clip_gradients(
-            &mut self.grads,
-            self.optim.grad_max_val,
-            self.optim.grad_max_norm,
-        );
+        let mode = Mode::Train { seed: self.seed, step: self.step as u32 };
+        let stats = self.model.loss_and_grad(&self.params, rays, targets, mode, &mut self.grads);
+        let grad_norm = clip_gradients(&mut self.grads, self.optim.grad_max_val, self.optim.grad_max_norm);
         let lr = self.optim.lr.lr(self.step);
-        self.adam
-            .update(&self.optim.adam, lr, &mut self.params, &self.grads);
-        let report = StepReport {
-            step: self.step,
-            lr,
-            stats,
-            grad_norm,
-        };
+        self.adam.update(&self.optim.adam, lr, &mut self.params, &self.grads);
+        let report = StepReport { step: self.step, lr, stats, grad_norm };
         self.step += 1;
         report
     }

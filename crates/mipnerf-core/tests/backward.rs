@@ -4,8 +4,7 @@
 
 use glam::Vec3;
 use mipnerf_core::render::{
-    DensityActivation, rgb_activation, rgb_activation_derivative, volumetric_rendering,
-    volumetric_rendering_backward,
+    DensityActivation, rgb_activation, rgb_activation_derivative, volumetric_rendering, volumetric_rendering_backward,
 };
 use rand::{Rng, SeedableRng, rngs::SmallRng};
 
@@ -18,9 +17,7 @@ const FD_REL: f64 = 1e-2;
 
 fn check(what: &str, analytic: f64, numeric: f64, bad: &mut Vec<String>) {
     if (analytic - numeric).abs() > FD_ABS + FD_REL * numeric.abs() {
-        bad.push(format!(
-            "{what}: analytic {analytic:e}, finite difference {numeric:e}"
-        ));
+        bad.push(format!("{what}: analytic {analytic:e}, finite difference {numeric:e}"));
     }
 }
 
@@ -40,21 +37,11 @@ fn random_ray(rng: &mut SmallRng, n: usize) -> RayCase {
     }
     RayCase {
         rgb: (0..n)
-            .map(|_| {
-                [
-                    rng.random_range(0.05..0.95),
-                    rng.random_range(0.05..0.95),
-                    rng.random_range(0.05..0.95),
-                ]
-            })
+            .map(|_| [rng.random_range(0.05..0.95), rng.random_range(0.05..0.95), rng.random_range(0.05..0.95)])
             .collect(),
         density: (0..n).map(|_| rng.random_range(0.05..3.0)).collect(),
         t,
-        dir: Vec3::new(
-            rng.random_range(-0.5..0.5),
-            rng.random_range(-0.5..0.5),
-            -1.0,
-        ),
+        dir: Vec3::new(rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5), -1.0),
     }
 }
 
@@ -62,10 +49,7 @@ fn random_ray(rng: &mut SmallRng, n: usize) -> RayCase {
 fn loss(r: &RayCase, white: bool, c: [f32; 3], a: f32) -> f64 {
     let mut w = vec![0.0; r.density.len()];
     let out = volumetric_rendering(&r.rgb, &r.density, &r.t, r.dir, white, &mut w);
-    (0..3)
-        .map(|k| f64::from(c[k]) * f64::from(out.rgb[k]))
-        .sum::<f64>()
-        + f64::from(a) * f64::from(out.acc)
+    (0..3).map(|k| f64::from(c[k]) * f64::from(out.rgb[k])).sum::<f64>() + f64::from(a) * f64::from(out.acc)
 }
 
 #[test]
@@ -77,19 +61,13 @@ fn volumetric_rendering_backward_matches_finite_differences() {
         let n = [1, 2, 5, 16][case % 4];
         let white = case % 2 == 0;
         let mut r = random_ray(&mut rng, n);
-        let c = [
-            rng.random_range(-1.0..1.0),
-            rng.random_range(-1.0..1.0),
-            rng.random_range(-1.0..1.0),
-        ];
+        let c = [rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)];
         let a = rng.random_range(-1.0..1.0);
         let mut w = vec![0.0; n];
         volumetric_rendering(&r.rgb, &r.density, &r.t, r.dir, white, &mut w);
         let mut g_rgb = vec![[0.0; 3]; n];
         let mut g_den = vec![0.0; n];
-        volumetric_rendering_backward(
-            &r.rgb, &r.density, &r.t, r.dir, white, &w, c, a, &mut g_rgb, &mut g_den,
-        );
+        volumetric_rendering_backward(&r.rgb, &r.density, &r.t, r.dir, white, &w, c, a, &mut g_rgb, &mut g_den);
         for i in 0..n {
             let x0 = r.density[i];
             let h = (FD_STEP * f64::from(x0).abs().max(0.3)) as f32;
@@ -99,12 +77,7 @@ fn volumetric_rendering_backward_matches_finite_differences() {
             let down = loss(&r, white, c, a);
             r.density[i] = x0;
             let h_eff = (f64::from(x0 + h) - f64::from(x0 - h)) / 2.0;
-            check(
-                &format!("case {case} d/d density[{i}]"),
-                f64::from(g_den[i]),
-                (up - down) / (2.0 * h_eff),
-                &mut bad,
-            );
+            check(&format!("case {case} d/d density[{i}]"), f64::from(g_den[i]), (up - down) / (2.0 * h_eff), &mut bad);
             for k in 0..3 {
                 let x0 = r.rgb[i][k];
                 let h = 1e-2f32;
@@ -126,12 +99,7 @@ fn volumetric_rendering_backward_matches_finite_differences() {
         }
     }
     assert!(checked > 100);
-    assert!(
-        bad.is_empty(),
-        "{} of {checked} gradients disagree:\n{}",
-        bad.len(),
-        bad.join("\n")
-    );
+    assert!(bad.is_empty(), "{} of {checked} gradients disagree:\n{}", bad.len(), bad.join("\n"));
 }
 
 #[test]
@@ -163,17 +131,8 @@ fn a_wrong_gradient_is_caught() {
     let down = loss(&r, true, [1.0, 0.5, -0.3], 0.0);
     let numeric = (up - down) / (2.0 * f64::from(h));
     let mut bad = Vec::new();
-    check(
-        "perturbed",
-        f64::from(g_den[1]) * 1.05 + 0.01,
-        numeric,
-        &mut bad,
-    );
-    assert_eq!(
-        bad.len(),
-        1,
-        "a 5% error went unnoticed (numeric {numeric})"
-    );
+    check("perturbed", f64::from(g_den[1]) * 1.05 + 0.01, numeric, &mut bad);
+    assert_eq!(bad.len(), 1, "a 5% error went unnoticed (numeric {numeric})");
 }
 
 #[test]
@@ -208,10 +167,5 @@ fn activation_derivatives_match_finite_differences() {
             );
         }
     }
-    assert!(
-        bad.is_empty(),
-        "{} derivatives disagree:\n{}",
-        bad.len(),
-        bad.join("\n")
-    );
+    assert!(bad.is_empty(), "{} derivatives disagree:\n{}", bad.len(), bad.join("\n"));
 }

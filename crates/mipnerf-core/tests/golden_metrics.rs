@@ -6,10 +6,7 @@ use common::*;
 use mipnerf_core::metrics::{SsimConfig, mse_to_psnr, psnr_to_mse, ssim, ssim_map};
 
 /// SSIM is computed in f64 here and in f32 by XLA (its eager and jitted results differ by 2 ulp).
-const TOL_SSIM: Tol = Tol {
-    rel: 1e-5,
-    abs: 2e-6,
-};
+const TOL_SSIM: Tol = Tol { rel: 1e-5, abs: 2e-6 };
 
 #[test]
 fn ssim_matches_official() {
@@ -19,40 +16,12 @@ fn ssim_matches_official() {
         let p = &g["compute_ssim"]["pairs"][pair];
         let (a, b) = (flat(&p["img0"]), flat(&p["img1"]));
         let cfg = SsimConfig::default();
-        let map: Vec<f32> = ssim_map(&a, &b, 16, 16, 3, &cfg)
-            .iter()
-            .map(|&x| x as f32)
-            .collect();
-        mm.check(
-            &format!("{pair} map"),
-            &map,
-            &flat(&p["ssim_map_eager"]),
-            TOL_SSIM,
-        );
-        mm.check(
-            &format!("{pair} ssim"),
-            &[ssim(&a, &b, 16, 16, 3, &cfg) as f32],
-            &[f(&p["ssim_eager"])],
-            TOL_SSIM,
-        );
-        let mse = a
-            .iter()
-            .zip(&b)
-            .map(|(x, y)| f64::from(x - y).powi(2))
-            .sum::<f64>()
-            / a.len() as f64;
-        mm.check(
-            &format!("{pair} mse"),
-            &[mse as f32],
-            &[f(&p["mse_mean"])],
-            TOL_ACCUMULATED,
-        );
-        mm.check(
-            &format!("{pair} psnr"),
-            &[mse_to_psnr(mse as f32)],
-            &[f(&p["psnr_of_that_mse"])],
-            TOL_ACCUMULATED,
-        );
+        let map: Vec<f32> = ssim_map(&a, &b, 16, 16, 3, &cfg).iter().map(|&x| x as f32).collect();
+        mm.check(&format!("{pair} map"), &map, &flat(&p["ssim_map_eager"]), TOL_SSIM);
+        mm.check(&format!("{pair} ssim"), &[ssim(&a, &b, 16, 16, 3, &cfg) as f32], &[f(&p["ssim_eager"])], TOL_SSIM);
+        let mse = a.iter().zip(&b).map(|(x, y)| f64::from(x - y).powi(2)).sum::<f64>() / a.len() as f64;
+        mm.check(&format!("{pair} mse"), &[mse as f32], &[f(&p["mse_mean"])], TOL_ACCUMULATED);
+        mm.check(&format!("{pair} psnr"), &[mse_to_psnr(mse as f32)], &[f(&p["psnr_of_that_mse"])], TOL_ACCUMULATED);
     }
     mm.finish("ssim_matches_official");
 }

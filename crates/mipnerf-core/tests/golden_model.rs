@@ -10,15 +10,9 @@ use mipnerf_core::model::{Mode, Model, ModelConfig};
 use serde_json::Value;
 
 /// Model outputs and losses: sums over samples and layers in a different order than XLA.
-const TOL_MODEL: Tol = Tol {
-    rel: 1e-5,
-    abs: 1e-6,
-};
+const TOL_MODEL: Tol = Tol { rel: 1e-5, abs: 1e-6 };
 /// Gradients: sums over the batch in a different order than XLA.
-const TOL_GRAD: Tol = Tol {
-    rel: 1e-4,
-    abs: 1e-6,
-};
+const TOL_GRAD: Tol = Tol { rel: 1e-4, abs: 1e-6 };
 /// The official loss sums the squared error over the 3 channels before dividing by sum(lossmult):
 /// 3x the per-channel loss that this project reports (see `LossStats::losses`).
 const OFFICIAL_LOSS_FACTOR: f32 = 3.0;
@@ -46,11 +40,7 @@ fn load(model: &Model, list: &Value, flat_params: &mut [f32]) -> usize {
         let path = p["path"].as_str().unwrap();
         let parts: Vec<&str> = path.split('/').collect();
         assert_eq!(parts[1], "MLP_0", "{path}");
-        let layer = model.mlps[0]
-            .layers
-            .iter()
-            .find(|l| l.name == parts[2])
-            .unwrap_or_else(|| panic!("{path}"));
+        let layer = model.mlps[0].layers.iter().find(|l| l.name == parts[2]).unwrap_or_else(|| panic!("{path}"));
         let values = flat(&p["values"]);
         let (off, len) = match parts[3] {
             "kernel" => (layer.kernel, layer.fan_in * layer.fan_out),
@@ -86,44 +76,24 @@ fn params(model: &Model, g: &Value, perturbed: bool) -> Vec<f32> {
         load(model, &g["bias_perturbed"]["biases"], &mut p);
     }
     n = n.max(p.iter().filter(|x| x.is_finite()).count());
-    assert_eq!(
-        n, model.num_params,
-        "golden parameters do not cover the model"
-    );
+    assert_eq!(n, model.num_params, "golden parameters do not cover the model");
     p
 }
 
-fn check_forward(
-    model: &Model,
-    p: &[f32],
-    rays: &[Ray],
-    want: &Value,
-    what: &str,
-    mm: &mut Mismatches,
-) {
+fn check_forward(model: &Model, p: &[f32], rays: &[Ray], want: &Value, what: &str, mm: &mut Mismatches) {
     let out = model.render(p, rays);
     for level in 0..2 {
         let w = &want["levels"][level];
         for r in 0..2 {
             let o = out[r * 2 + level];
-            mm.check(
-                &format!("{what} level {level} ray {r} comp_rgb"),
-                &o.rgb,
-                &flat(&w["comp_rgb"][r]),
-                TOL_MODEL,
-            );
+            mm.check(&format!("{what} level {level} ray {r} comp_rgb"), &o.rgb, &flat(&w["comp_rgb"][r]), TOL_MODEL);
             mm.check(
                 &format!("{what} level {level} ray {r} distance"),
                 &[o.distance],
                 &[f(&w["distance"][r])],
                 TOL_MODEL,
             );
-            mm.check(
-                &format!("{what} level {level} ray {r} acc"),
-                &[o.acc],
-                &[f(&w["acc"][r])],
-                TOL_MODEL,
-            );
+            mm.check(&format!("{what} level {level} ray {r} acc"), &[o.acc], &[f(&w["acc"][r])], TOL_MODEL);
         }
     }
 }
@@ -132,28 +102,11 @@ fn check_forward(
 fn small_model_forward_matches_official() {
     let g = golden("model_small.json");
     let model = small_model();
-    assert_eq!(
-        model.num_params,
-        24 * 16 + 16 + 16 * 16 + 16 + 40 + 1 + 40 * 16 + 16 + 31 * 8 + 8 + 8 * 3 + 3
-    );
+    assert_eq!(model.num_params, 24 * 16 + 16 + 16 * 16 + 16 + 40 + 1 + 40 * 16 + 16 + 31 * 8 + 8 + 8 * 3 + 3);
     let rays = rays(&g);
     let mut mm = Mismatches::default();
-    check_forward(
-        &model,
-        &params(&model, &g, false),
-        &rays,
-        &g["forward"],
-        "init",
-        &mut mm,
-    );
-    check_forward(
-        &model,
-        &params(&model, &g, true),
-        &rays,
-        &g["bias_perturbed"]["forward"],
-        "biased",
-        &mut mm,
-    );
+    check_forward(&model, &params(&model, &g, false), &rays, &g["forward"], "init", &mut mm);
+    check_forward(&model, &params(&model, &g, true), &rays, &g["bias_perturbed"]["forward"], "biased", &mut mm);
     mm.finish("small_model_forward_matches_official");
 }
 
@@ -170,33 +123,14 @@ fn check_loss_and_grads(
     let mut g = vec![0.0; model.num_params];
     let s = model.loss_and_grad(p, rays, targets, Mode::Eval, &mut g);
     let ours: Vec<f32> = s.losses.iter().map(|l| l * OFFICIAL_LOSS_FACTOR).collect();
-    mm.check(
-        &format!("{what} losses"),
-        &ours,
-        &flat(&stats["losses"]),
-        TOL_MODEL,
-    );
-    mm.check(
-        &format!("{what} loss"),
-        &[s.loss * OFFICIAL_LOSS_FACTOR],
-        &[f(&stats["loss"])],
-        TOL_MODEL,
-    );
+    mm.check(&format!("{what} losses"), &ours, &flat(&stats["losses"]), TOL_MODEL);
+    mm.check(&format!("{what} loss"), &[s.loss * OFFICIAL_LOSS_FACTOR], &[f(&stats["loss"])], TOL_MODEL);
     let scaled: Vec<f32> = g.iter().map(|x| x * OFFICIAL_LOSS_FACTOR).collect();
     let mut want = vec![f32::NAN; model.num_params];
     load(model, grads, &mut want);
     mm.check(&format!("{what} grads"), &scaled, &want, TOL_GRAD);
-    let norm = scaled
-        .iter()
-        .map(|x| f64::from(*x).powi(2))
-        .sum::<f64>()
-        .sqrt() as f32;
-    mm.check(
-        &format!("{what} grad_norm"),
-        &[norm],
-        &[f(&stats["grad_norm"])],
-        TOL_GRAD,
-    );
+    let norm = scaled.iter().map(|x| f64::from(*x).powi(2)).sum::<f64>().sqrt() as f32;
+    mm.check(&format!("{what} grad_norm"), &[norm], &[f(&stats["grad_norm"])], TOL_GRAD);
 }
 
 #[test]
@@ -204,9 +138,7 @@ fn small_model_losses_and_gradients_match_official_train_step() {
     let g = golden("model_small.json");
     let model = small_model();
     let rays = rays(&g);
-    let targets: Vec<[f32; 3]> = (0..2)
-        .map(|i| v3(&g["loss"]["target_pixels"][i]).to_array())
-        .collect();
+    let targets: Vec<[f32; 3]> = (0..2).map(|i| v3(&g["loss"]["target_pixels"][i]).to_array()).collect();
     let mut mm = Mismatches::default();
     check_loss_and_grads(
         &model,
@@ -230,13 +162,7 @@ fn small_model_losses_and_gradients_match_official_train_step() {
     );
     // Our per-channel losses are the lossmult-weighted MSE the README of the golden files derives.
     let mut grads = vec![0.0; model.num_params];
-    let s = model.loss_and_grad(
-        &params(&model, &g, false),
-        &rays,
-        &targets,
-        Mode::Eval,
-        &mut grads,
-    );
+    let s = model.loss_and_grad(&params(&model, &g, false), &rays, &targets, Mode::Eval, &mut grads);
     for level in 0..2 {
         let d = &g["loss"]["derived_per_level_from_eager_forward"][level];
         mm.check(
@@ -245,12 +171,7 @@ fn small_model_losses_and_gradients_match_official_train_step() {
             &[f(&d["lossmult_weighted_per_channel_mse"])],
             TOL_MODEL,
         );
-        mm.check(
-            &format!("level {level} plain mse"),
-            &[s.mse[level]],
-            &[f(&d["plain_per_channel_mse"])],
-            TOL_MODEL,
-        );
+        mm.check(&format!("level {level} plain mse"), &[s.mse[level]], &[f(&d["plain_per_channel_mse"])], TOL_MODEL);
     }
     mm.finish("small_model_losses_and_gradients_match_official_train_step");
 }

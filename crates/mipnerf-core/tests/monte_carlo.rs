@@ -28,55 +28,13 @@ struct Case {
 
 fn cases() -> Vec<Case> {
     vec![
-        Case {
-            name: "thin, near",
-            d: Vec3::new(0.1, -0.2, -1.0),
-            t0: 2.0,
-            t1: 2.05,
-            radius: 0.002,
-        },
-        Case {
-            name: "thick, near",
-            d: Vec3::new(0.3, 0.4, -1.2),
-            t0: 0.5,
-            t1: 3.0,
-            radius: 0.01,
-        },
-        Case {
-            name: "thin, far",
-            d: Vec3::new(-0.2, 0.1, -1.0),
-            t0: 50.0,
-            t1: 50.5,
-            radius: 0.001,
-        },
-        Case {
-            name: "thick, far",
-            d: Vec3::new(0.0, 0.6, -0.8),
-            t0: 20.0,
-            t1: 60.0,
-            radius: 0.003,
-        },
-        Case {
-            name: "narrow cone",
-            d: Vec3::new(0.5, 0.5, -0.7),
-            t0: 2.0,
-            t1: 4.0,
-            radius: 1e-4,
-        },
-        Case {
-            name: "wide cone",
-            d: Vec3::new(0.2, -0.9, 0.3),
-            t0: 1.0,
-            t1: 2.5,
-            radius: 0.4,
-        },
-        Case {
-            name: "starts at apex",
-            d: Vec3::new(1.0, 0.0, 0.0),
-            t0: 0.0,
-            t1: 1.5,
-            radius: 0.2,
-        },
+        Case { name: "thin, near", d: Vec3::new(0.1, -0.2, -1.0), t0: 2.0, t1: 2.05, radius: 0.002 },
+        Case { name: "thick, near", d: Vec3::new(0.3, 0.4, -1.2), t0: 0.5, t1: 3.0, radius: 0.01 },
+        Case { name: "thin, far", d: Vec3::new(-0.2, 0.1, -1.0), t0: 50.0, t1: 50.5, radius: 0.001 },
+        Case { name: "thick, far", d: Vec3::new(0.0, 0.6, -0.8), t0: 20.0, t1: 60.0, radius: 0.003 },
+        Case { name: "narrow cone", d: Vec3::new(0.5, 0.5, -0.7), t0: 2.0, t1: 4.0, radius: 1e-4 },
+        Case { name: "wide cone", d: Vec3::new(0.2, -0.9, 0.3), t0: 1.0, t1: 2.5, radius: 0.4 },
+        Case { name: "starts at apex", d: Vec3::new(1.0, 0.0, 0.0), t0: 0.0, t1: 1.5, radius: 0.2 },
     ]
 }
 
@@ -112,14 +70,7 @@ struct Moments {
 
 impl Moments {
     fn new(shift: f64) -> Self {
-        Self {
-            n: 0.0,
-            s1: 0.0,
-            s2: 0.0,
-            s3: 0.0,
-            s4: 0.0,
-            shift,
-        }
+        Self { n: 0.0, s1: 0.0, s2: 0.0, s3: 0.0, s4: 0.0, shift }
     }
     fn push(&mut self, x: f64) {
         let y = x - self.shift;
@@ -141,8 +92,7 @@ impl Moments {
     }
     fn var_se(&self) -> f64 {
         let m = self.s1 / self.n;
-        let m4 = self.s4 / self.n - 4.0 * m * self.s3 / self.n + 6.0 * m * m * self.s2 / self.n
-            - 3.0 * m.powi(4);
+        let m4 = self.s4 / self.n - 4.0 * m * self.s3 / self.n + 6.0 * m * m * self.s2 / self.n - 3.0 * m.powi(4);
         ((m4 - self.var().powi(2)).max(0.0) / self.n).sqrt()
     }
 }
@@ -172,28 +122,11 @@ fn frustum_gaussian_moments_match_monte_carlo() {
             }
         }
         for k in 0..3 {
-            within(
-                &format!("{} mean[{k}]", c.name),
-                m[k].mean(),
-                m[k].mean_se(),
-                mean[k],
-                &mut bad,
-            );
-            within(
-                &format!("{} var[{k}]", c.name),
-                m[k].var(),
-                m[k].var_se(),
-                f64::from(g.cov_diag[k]),
-                &mut bad,
-            );
+            within(&format!("{} mean[{k}]", c.name), m[k].mean(), m[k].mean_se(), mean[k], &mut bad);
+            within(&format!("{} var[{k}]", c.name), m[k].var(), m[k].var_se(), f64::from(g.cov_diag[k]), &mut bad);
         }
     }
-    assert!(
-        bad.is_empty(),
-        "{} statistics disagree:\n{}",
-        bad.len(),
-        bad.join("\n")
-    );
+    assert!(bad.is_empty(), "{} statistics disagree:\n{}", bad.len(), bad.join("\n"));
 }
 
 #[test]
@@ -207,13 +140,7 @@ fn the_monte_carlo_check_catches_a_wrong_formula() {
         m.push(sample_frustum(c, &mut rng).z);
     }
     let mut bad = Vec::new();
-    within(
-        "cylinder mean z",
-        m.mean(),
-        m.mean_se(),
-        f64::from(g.mean.z),
-        &mut bad,
-    );
+    within("cylinder mean z", m.mean(), m.mean_se(), f64::from(g.mean.z), &mut bad);
     assert!(!bad.is_empty(), "a cylinder's mean passed for a thick cone");
 }
 
@@ -248,21 +175,10 @@ fn ipe_equals_the_expected_positional_encoding_under_the_gaussian() {
         for (j, m) in sums.iter().enumerate() {
             // The standard error of an average of sines is at most 1/sqrt(n); use the sample's own.
             let se = m.mean_se().max(1e-9);
-            within(
-                &format!("{} feature {j}", g_name(c, ci)),
-                m.mean(),
-                se,
-                f64::from(ipe[j]),
-                &mut bad,
-            );
+            within(&format!("{} feature {j}", g_name(c, ci)), m.mean(), se, f64::from(ipe[j]), &mut bad);
         }
     }
-    assert!(
-        bad.is_empty(),
-        "{} IPE features disagree with Monte Carlo:\n{}",
-        bad.len(),
-        bad.join("\n")
-    );
+    assert!(bad.is_empty(), "{} IPE features disagree with Monte Carlo:\n{}", bad.len(), bad.join("\n"));
 }
 
 fn g_name(c: &Case, i: usize) -> String {
@@ -272,10 +188,7 @@ fn g_name(c: &Case, i: usize) -> String {
 #[test]
 fn ipe_of_a_point_is_the_positional_encoding() {
     // Zero covariance: IPE = PE of the mean (the "w/o IPE" ablation's encoding).
-    let g = Gaussian {
-        mean: Vec3::new(0.4, -1.3, 2.2),
-        cov_diag: Vec3::ZERO,
-    };
+    let g = Gaussian { mean: Vec3::new(0.4, -1.3, 2.2), cov_diag: Vec3::ZERO };
     let mut ipe = vec![0.0; mip::ipe_len(0, 6)];
     let mut pe = vec![0.0; mip::pos_enc_len(0, 6, false)];
     mip::integrated_pos_enc(&g, 0, 6, &mut ipe);
@@ -290,29 +203,8 @@ fn a_wider_cone_damps_high_frequencies_more() {
     let d = Vec3::new(0.2, -0.3, -1.0);
     let mut narrow = vec![0.0; mip::ipe_len(0, 16)];
     let mut wide = narrow.clone();
-    mip::integrated_pos_enc(
-        &mip::conical_frustum_to_gaussian(d, 3.0, 3.1, 0.0005),
-        0,
-        16,
-        &mut narrow,
-    );
-    mip::integrated_pos_enc(
-        &mip::conical_frustum_to_gaussian(d, 3.0, 3.1, 0.02),
-        0,
-        16,
-        &mut wide,
-    );
-    let energy = |f: &[f32], lo: usize| {
-        f[lo * 3..48]
-            .iter()
-            .chain(&f[48 + lo * 3..])
-            .map(|x| x * x)
-            .sum::<f32>()
-    };
-    assert!(
-        energy(&wide, 6) < 0.5 * energy(&narrow, 6),
-        "wide {} narrow {}",
-        energy(&wide, 6),
-        energy(&narrow, 6)
-    );
+    mip::integrated_pos_enc(&mip::conical_frustum_to_gaussian(d, 3.0, 3.1, 0.0005), 0, 16, &mut narrow);
+    mip::integrated_pos_enc(&mip::conical_frustum_to_gaussian(d, 3.0, 3.1, 0.02), 0, 16, &mut wide);
+    let energy = |f: &[f32], lo: usize| f[lo * 3..48].iter().chain(&f[48 + lo * 3..]).map(|x| x * x).sum::<f32>();
+    assert!(energy(&wide, 6) < 0.5 * energy(&narrow, 6), "wide {} narrow {}", energy(&wide, 6), energy(&narrow, 6));
 }

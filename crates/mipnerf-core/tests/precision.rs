@@ -9,8 +9,7 @@ fn stable_f64(t0: f64, t1: f64) -> (f64, f64) {
     let hw = (t1 - t0) / 2.0;
     let denom = 3.0 * mu * mu + hw * hw;
     let t_mean = mu + 2.0 * mu * hw * hw / denom;
-    let t_var =
-        hw * hw / 3.0 - 4.0 / 15.0 * (hw.powi(4) * (12.0 * mu * mu - hw * hw)) / (denom * denom);
+    let t_var = hw * hw / 3.0 - 4.0 / 15.0 * (hw.powi(4) * (12.0 * mu * mu - hw * hw)) / (denom * denom);
     (t_mean, t_var)
 }
 
@@ -29,11 +28,7 @@ fn naive_formula_loses_the_variance_of_a_thin_distant_frustum_and_stable_one_kee
             "stable t_var {} vs {want_var} at [{t0}, {t1}]",
             stable.t_var
         );
-        assert!(
-            rel(stable.t_mean, want_mean) < 1e-6,
-            "stable t_mean {} vs {want_mean}",
-            stable.t_mean
-        );
+        assert!(rel(stable.t_mean, want_mean) < 1e-6, "stable t_mean {} vs {want_mean}", stable.t_mean);
         assert!(
             rel(naive.t_var, want_var) > 0.5 || !naive.t_var.is_finite(),
             "expected the naive f32 t_var to be badly wrong at [{t0}, {t1}], got {} vs {want_var}",

@@ -5,28 +5,21 @@ use glam::Vec3;
 use mipnerf_core::mip::{self, Gaussian};
 use mipnerf_core::render::volumetric_rendering;
 use mipnerf_core::rng::{RayRng, Stream};
-use mipnerf_core::sampling::{
-    PdfSamples, RESAMPLE_PADDING, resample_along_rays, sample_along_rays,
-};
+use mipnerf_core::sampling::{PdfSamples, RESAMPLE_PADDING, resample_along_rays, sample_along_rays};
 use proptest::prelude::*;
 
 /// Tolerance of `sum(weights) == acc`: both are the same f32 sum in the same order.
 const TOL_WEIGHT_SUM: f32 = 1e-6;
 
 fn edges(n: usize) -> impl Strategy<Value = (f32, f32, Vec<f32>)> {
-    (
-        0.1f32..5.0,
-        0.5f32..20.0,
-        prop::collection::vec(0.0f32..1.0, n),
-    )
-        .prop_map(|(near, span, mut u)| {
-            u.sort_by(f32::total_cmp);
-            let far = near + span;
-            let mut t: Vec<f32> = u.iter().map(|s| near + s * span).collect();
-            t[0] = near;
-            *t.last_mut().unwrap() = far;
-            (near, far, t)
-        })
+    (0.1f32..5.0, 0.5f32..20.0, prop::collection::vec(0.0f32..1.0, n)).prop_map(|(near, span, mut u)| {
+        u.sort_by(f32::total_cmp);
+        let far = near + span;
+        let mut t: Vec<f32> = u.iter().map(|s| near + s * span).collect();
+        t[0] = near;
+        *t.last_mut().unwrap() = far;
+        (near, far, t)
+    })
 }
 
 proptest! {

@@ -11,13 +11,7 @@ use rand::{Rng, SeedableRng, rngs::SmallRng};
 
 fn tiny_optim(steps: u64) -> OptimConfig {
     OptimConfig {
-        lr: LrSchedule {
-            lr_init: 5e-3,
-            lr_final: 5e-4,
-            max_steps: steps,
-            lr_delay_steps: 0,
-            lr_delay_mult: 1.0,
-        },
+        lr: LrSchedule { lr_init: 5e-3, lr_final: 5e-4, max_steps: steps, lr_delay_steps: 0, lr_delay_mult: 1.0 },
         ..OptimConfig::default()
     }
 }
@@ -26,54 +20,32 @@ fn tiny_optim(steps: u64) -> OptimConfig {
 fn a_few_hundred_steps_cut_the_loss_tenfold_on_a_tiny_scene() {
     let (rays, colours) = ball_scene(8, 16);
     let steps = 200;
-    let mut trainer = Trainer::new(
-        Model::new(Preset::Tiny.config()).unwrap(),
-        tiny_optim(steps),
-        1,
-    );
+    let mut trainer = Trainer::new(Model::new(Preset::Tiny.config()).unwrap(), tiny_optim(steps), 1);
     let batch = 256;
     let mut rng = SmallRng::seed_from_u64(5);
     let mut losses = Vec::new();
     for _ in 0..steps {
-        let idx: Vec<usize> = (0..batch)
-            .map(|_| rng.random_range(0..rays.len()))
-            .collect();
+        let idx: Vec<usize> = (0..batch).map(|_| rng.random_range(0..rays.len())).collect();
         let r: Vec<_> = idx.iter().map(|&i| rays[i]).collect();
         let c: Vec<_> = idx.iter().map(|&i| colours[i]).collect();
         let rep = trainer.train_step(&r, &c);
-        assert!(
-            rep.stats.loss.is_finite(),
-            "step {}: loss {}",
-            rep.step,
-            rep.stats.loss
-        );
+        assert!(rep.stats.loss.is_finite(), "step {}: loss {}", rep.step, rep.stats.loss);
         losses.push(rep.stats.loss);
     }
     let first: f32 = losses[..10].iter().sum::<f32>() / 10.0;
     let last: f32 = losses[steps as usize - 10..].iter().sum::<f32>() / 10.0;
-    eprintln!(
-        "tiny scene: loss {first:.5} -> {last:.5} ({:.1}x)",
-        first / last
-    );
-    assert!(
-        last * 10.0 <= first,
-        "loss fell only from {first} to {last}"
-    );
+    eprintln!("tiny scene: loss {first:.5} -> {last:.5} ({:.1}x)", first / last);
+    assert!(last * 10.0 <= first, "loss fell only from {first} to {last}");
 }
 
 fn run(threads: usize, steps: usize) -> (Vec<f32>, Vec<f32>) {
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .unwrap();
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
     pool.install(|| {
         let (rays, colours) = ball_scene(2, 12);
         let mut cfg = Preset::Tiny.config();
         cfg.density_noise = 0.5; // exercise every random stream
         let mut trainer = Trainer::new(Model::new(cfg).unwrap(), tiny_optim(100), 9);
-        let losses = (0..steps)
-            .map(|_| trainer.train_step(&rays[..200], &colours[..200]).stats.loss)
-            .collect();
+        let losses = (0..steps).map(|_| trainer.train_step(&rays[..200], &colours[..200]).stats.loss).collect();
         (losses, trainer.params)
     })
 }
@@ -85,10 +57,7 @@ fn training_is_bit_for_bit_reproducible_whatever_the_thread_count() {
     let (l3, p3) = run(3, 3);
     assert_eq!(l1, l2);
     assert_eq!(l1, l3);
-    assert!(
-        p1 == p2 && p1 == p3,
-        "parameters differ between thread counts"
-    );
+    assert!(p1 == p2 && p1 == p3, "parameters differ between thread counts");
 }
 
 /// Central differences of the f32 loss. Steps of 1e-2 keep f32 rounding noise (~1e-7 of a loss of
@@ -125,11 +94,7 @@ fn whole_loss_gradient_matches_finite_differences_for_every_layer() {
     model.loss_and_grad(&params, &rays[..40], &colours[..40], mode, &mut grads);
     let loss = |p: &[f32]| {
         let mut g = vec![0.0; model.num_params];
-        f64::from(
-            model
-                .loss_and_grad(p, &rays[..40], &colours[..40], mode, &mut g)
-                .loss,
-        )
+        f64::from(model.loss_and_grad(p, &rays[..40], &colours[..40], mode, &mut g).loss)
     };
     let fd = |p: &mut Vec<f32>, i: usize, h: f32| {
         let x0 = p[i];
@@ -142,15 +107,10 @@ fn whole_loss_gradient_matches_finite_differences_for_every_layer() {
     };
     let (mut bad, mut checked, mut skipped) = (Vec::new(), 0, 0);
     for l in &model.mlps[0].layers {
-        let mut picks: Vec<usize> = (0..6)
-            .map(|_| l.kernel + rng.random_range(0..l.fan_in * l.fan_out))
-            .collect();
+        let mut picks: Vec<usize> = (0..6).map(|_| l.kernel + rng.random_range(0..l.fan_in * l.fan_out)).collect();
         picks.extend((0..2).map(|_| l.bias + rng.random_range(0..l.fan_out)));
         for i in picks {
-            let (a, b) = (
-                fd(&mut params, i, FD_STEP),
-                fd(&mut params, i, FD_STEP / 2.0),
-            );
+            let (a, b) = (fd(&mut params, i, FD_STEP), fd(&mut params, i, FD_STEP / 2.0));
             if (a - b).abs() > FD_ABS + FD_REL * a.abs() {
                 skipped += 1;
                 continue;
@@ -158,24 +118,12 @@ fn whole_loss_gradient_matches_finite_differences_for_every_layer() {
             checked += 1;
             let g = f64::from(grads[i]);
             if (g - b).abs() > FD_ABS + FD_REL * b.abs() {
-                bad.push(format!(
-                    "{} param {i}: analytic {g:e}, finite difference {b:e}",
-                    l.name
-                ));
+                bad.push(format!("{} param {i}: analytic {g:e}, finite difference {b:e}", l.name));
             }
         }
     }
-    assert!(
-        skipped * 4 <= checked + skipped,
-        "{skipped} of {} parameters sat on kinks",
-        checked + skipped
-    );
-    assert!(
-        bad.is_empty(),
-        "{} of {checked} gradients disagree:\n{}",
-        bad.len(),
-        bad.join("\n")
-    );
+    assert!(skipped * 4 <= checked + skipped, "{skipped} of {} parameters sat on kinks", checked + skipped);
+    assert!(bad.is_empty(), "{} of {checked} gradients disagree:\n{}", bad.len(), bad.join("\n"));
 }
 
 #[test]
@@ -183,10 +131,7 @@ fn presets_have_the_documented_parameter_counts() {
     let n = |c: ModelConfig| Model::new(c).unwrap().num_params;
     assert_eq!(n(Preset::Paper.config()), 612_740, "the paper's 612K");
     let nerf = n(Preset::Paper.config().nerf());
-    assert!(
-        (1_190_000..=1_192_000).contains(&nerf),
-        "NeRF's two MLPs: {nerf}, the paper says 1,191K"
-    );
+    assert!((1_190_000..=1_192_000).contains(&nerf), "NeRF's two MLPs: {nerf}, the paper says 1,191K");
     assert!(n(Preset::Small.config()) < 150_000);
     assert!(n(Preset::Tiny.config()) < 30_000);
 }
@@ -199,8 +144,5 @@ fn gradients_are_clipped_by_value_then_norm() {
     assert!((norm - (8.25f32).sqrt()).abs() < 1e-6);
     let mut g = vec![3.0, 4.0];
     clip_gradients(&mut g, 0.0, 1.0);
-    assert!(
-        (g[0] - 0.6).abs() < 1e-6 && (g[1] - 0.8).abs() < 1e-6,
-        "{g:?}"
-    );
+    assert!((g[0] - 0.6).abs() < 1e-6 && (g[1] - 0.8).abs() < 1e-6, "{g:?}");
 }

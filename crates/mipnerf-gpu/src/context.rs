@@ -36,9 +36,7 @@ impl AdapterSummary {
             name: info.name.clone(),
             backend: format!("{:?}", info.backend),
             device_type: format!("{:?}", info.device_type),
-            driver: format!("{} {}", info.driver, info.driver_info)
-                .trim()
-                .to_string(),
+            driver: format!("{} {}", info.driver, info.driver_info).trim().to_string(),
             is_software: info.device_type == wgpu::DeviceType::Cpu,
         }
     }
@@ -64,11 +62,10 @@ fn rank(info: &wgpu::AdapterInfo) -> u8 {
 /// Every adapter wgpu can see on this machine, best first.
 #[must_use]
 pub fn list_adapters() -> Vec<AdapterSummary> {
-    let mut infos: Vec<wgpu::AdapterInfo> =
-        pollster::block_on(instance().enumerate_adapters(wgpu::Backends::all()))
-            .iter()
-            .map(wgpu::Adapter::get_info)
-            .collect();
+    let mut infos: Vec<wgpu::AdapterInfo> = pollster::block_on(instance().enumerate_adapters(wgpu::Backends::all()))
+        .iter()
+        .map(wgpu::Adapter::get_info)
+        .collect();
     infos.sort_by_key(rank);
     infos.iter().map(AdapterSummary::from_info).collect()
 }
@@ -96,9 +93,7 @@ pub struct GpuContext {
 
 impl std::fmt::Debug for GpuContext {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("GpuContext")
-            .field("adapter", &self.adapter)
-            .finish_non_exhaustive()
+        f.debug_struct("GpuContext").field("adapter", &self.adapter).finish_non_exhaustive()
     }
 }
 
@@ -115,12 +110,8 @@ impl GpuContext {
         adapters.sort_by_key(|a| rank(&a.get_info()));
         let adapter = adapters
             .into_iter()
-            .find(|a| {
-                choice == AdapterChoice::Any || a.get_info().device_type != wgpu::DeviceType::Cpu
-            })
-            .ok_or(GpuError::NoAdapter {
-                hardware_only: choice == AdapterChoice::HardwareOnly,
-            })?;
+            .find(|a| choice == AdapterChoice::Any || a.get_info().device_type != wgpu::DeviceType::Cpu)
+            .ok_or(GpuError::NoAdapter { hardware_only: choice == AdapterChoice::HardwareOnly })?;
         let info = adapter.get_info();
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("mipnerf device"),
@@ -144,12 +135,7 @@ impl GpuContext {
                 g.lost = Some(format!("{reason:?}: {msg}"));
             }
         });
-        Ok(Self {
-            adapter: AdapterSummary::from_info(&info),
-            device,
-            queue,
-            sink,
-        })
+        Ok(Self { adapter: AdapterSummary::from_info(&info), device, queue, sink })
     }
 
     /// Returns the first error wgpu reported since the last check, if any, and clears the list.
@@ -157,10 +143,7 @@ impl GpuContext {
     /// # Errors
     /// [`GpuError::DeviceLost`] or [`GpuError::Validation`].
     pub fn check(&self) -> Result<(), GpuError> {
-        let mut g = self
-            .sink
-            .lock()
-            .map_err(|_| GpuError::Validation("error sink poisoned".into()))?;
+        let mut g = self.sink.lock().map_err(|_| GpuError::Validation("error sink poisoned".into()))?;
         if let Some(l) = &g.lost {
             return Err(GpuError::DeviceLost(l.clone()));
         }
@@ -173,12 +156,7 @@ impl GpuContext {
 
     /// Creates a labelled storage buffer initialised with `data`.
     #[must_use]
-    pub fn storage_buffer<T: bytemuck::Pod>(
-        &self,
-        label: &str,
-        data: &[T],
-        copy_src: bool,
-    ) -> wgpu::Buffer {
+    pub fn storage_buffer<T: bytemuck::Pod>(&self, label: &str, data: &[T], copy_src: bool) -> wgpu::Buffer {
         use wgpu::util::DeviceExt;
         let mut usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
         if copy_src {
@@ -193,24 +171,18 @@ impl GpuContext {
         } else {
             bytes
         };
-        self.device
-            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(label),
-                contents,
-                usage,
-            })
+        self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
     }
 
     /// Creates a labelled uniform buffer holding `value`.
     #[must_use]
     pub fn uniform_buffer<T: bytemuck::Pod>(&self, label: &str, value: &T) -> wgpu::Buffer {
         use wgpu::util::DeviceExt;
-        self.device
-            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(label),
-                contents: bytemuck::bytes_of(value),
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            })
+        self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some(label),
+            contents: bytemuck::bytes_of(value),
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        })
     }
 
     /// Copies `len` `f32`s from the start of `buffer` (which needs `COPY_SRC`) back to the host,
@@ -226,11 +198,8 @@ impl GpuContext {
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let mut enc = self
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("mipnerf readback"),
-            });
+        let mut enc =
+            self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("mipnerf readback") });
         enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
         self.queue.submit([enc.finish()]);
         let (tx, rx) = std::sync::mpsc::channel();
@@ -244,9 +213,7 @@ impl GpuContext {
         rx.recv()
             .map_err(|_| GpuError::Validation("readback callback never ran".into()))?
             .map_err(|e| GpuError::Validation(format!("readback map failed: {e}")))?;
-        let view = staging
-            .get_mapped_range(..)
-            .map_err(|e| GpuError::Validation(format!("readback range: {e}")))?;
+        let view = staging.get_mapped_range(..).map_err(|e| GpuError::Validation(format!("readback range: {e}")))?;
         let out = bytemuck::cast_slice::<u8, f32>(&view)[..len].to_vec();
         drop(view);
         staging.unmap();

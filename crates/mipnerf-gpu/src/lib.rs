@@ -57,12 +57,8 @@ pub mod test_support {
         match GpuContext::new(AdapterChoice::Any) {
             Ok(ctx) => Some(ctx),
             Err(e) => {
-                let in_ci =
-                    std::env::var("CI").is_ok_and(|v| !v.is_empty() && v != "false" && v != "0");
-                assert!(
-                    !in_ci,
-                    "{test}: CI needs a GPU adapter (lavapipe at least), but: {e}"
-                );
+                let in_ci = std::env::var("CI").is_ok_and(|v| !v.is_empty() && v != "false" && v != "0");
+                assert!(!in_ci, "{test}: CI needs a GPU adapter (lavapipe at least), but: {e}");
                 eprintln!(
                     "SKIPPED {test}: no GPU adapter ({e}); run scripts/ensure-vulkan.sh as root to install lavapipe"
                 );

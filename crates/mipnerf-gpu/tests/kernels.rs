@@ -16,11 +16,7 @@ use mipnerf_gpu::test_support::context_or_skip;
 const TOL_GPU_IPE_ABS: f32 = 2e-5;
 
 fn test_rays(n_side: u32) -> Vec<Ray> {
-    let c2w = [
-        [0.8, 0.0, 0.6, 2.4],
-        [0.36, 0.8, -0.48, -1.92],
-        [-0.48, 0.6, 0.64, 2.56],
-    ];
+    let c2w = [[0.8, 0.0, 0.6, 2.4], [0.36, 0.8, -0.48, -1.92], [-0.48, 0.6, 0.64, 2.56]];
     let cam = Camera::from_camera_angle_x(n_side, n_side, 0.69, c2w).unwrap();
     cam.generate_rays(PixelCenters::Centered, 2.0, 6.0, 1.0)
 }
@@ -30,14 +26,7 @@ fn cpu_cast_ipe(rays: &[Ray], t: &[f32], n: usize, shape: RayShape) -> Vec<f32> 
     let mut out = vec![0.0; rays.len() * n * len];
     let mut gs = vec![Gaussian::default(); n];
     for (r, ray) in rays.iter().enumerate() {
-        mip::cast_ray(
-            &t[r * (n + 1)..(r + 1) * (n + 1)],
-            ray.origin,
-            ray.direction,
-            ray.radius,
-            shape,
-            &mut gs,
-        );
+        mip::cast_ray(&t[r * (n + 1)..(r + 1) * (n + 1)], ray.origin, ray.direction, ray.radius, shape, &mut gs);
         for (s, g) in gs.iter().enumerate() {
             mip::integrated_pos_enc(g, 0, 16, &mut out[(r * n + s) * len..(r * n + s + 1) * len]);
         }
@@ -56,13 +45,7 @@ fn cast_ipe_matches_cpu_reference() {
     let mut t = vec![0.0; rays.len() * (n + 1)];
     for (r, ray) in rays.iter().enumerate() {
         let rng = RayRng::new(7, 0, Stream::SampleJitter, r as u32);
-        sample_along_rays(
-            ray.near,
-            ray.far,
-            false,
-            Some(rng),
-            &mut t[r * (n + 1)..(r + 1) * (n + 1)],
-        );
+        sample_along_rays(ray.near, ray.far, false, Some(rng), &mut t[r * (n + 1)..(r + 1) * (n + 1)]);
     }
     for shape in [RayShape::Cone, RayShape::Cylinder] {
         let gpu = kernel.run(&ctx, &rays, &t, n as u32, shape, 0, 16).unwrap();
@@ -76,20 +59,9 @@ fn cast_ipe_matches_cpu_reference() {
             .take(20)
             .map(|(i, (g, c))| format!("feature {i}: gpu {g} cpu {c}"))
             .collect();
-        let max = gpu
-            .iter()
-            .zip(&cpu)
-            .map(|(g, c)| (g - c).abs())
-            .fold(0.0f32, f32::max);
-        eprintln!(
-            "cast_ipe {shape:?} on {}: max |gpu - cpu| = {max:e}",
-            ctx.adapter.name
-        );
-        assert!(
-            bad.is_empty(),
-            "{shape:?}: GPU IPE differs from the CPU (max {max:e}):\n{}",
-            bad.join("\n")
-        );
+        let max = gpu.iter().zip(&cpu).map(|(g, c)| (g - c).abs()).fold(0.0f32, f32::max);
+        eprintln!("cast_ipe {shape:?} on {}: max |gpu - cpu| = {max:e}", ctx.adapter.name);
+        assert!(bad.is_empty(), "{shape:?}: GPU IPE differs from the CPU (max {max:e}):\n{}", bad.join("\n"));
     }
 }
 
@@ -99,15 +71,7 @@ fn cast_ipe_rejects_inconsistent_sizes() {
         return;
     };
     let kernel = CastIpeKernel::new(&ctx).unwrap();
-    let rays = vec![
-        Ray {
-            direction: Vec3::NEG_Z,
-            ..Ray::default()
-        };
-        2
-    ];
-    let err = kernel
-        .run(&ctx, &rays, &[2.0, 3.0, 4.0], 2, RayShape::Cone, 0, 16)
-        .unwrap_err();
+    let rays = vec![Ray { direction: Vec3::NEG_Z, ..Ray::default() }; 2];
+    let err = kernel.run(&ctx, &rays, &[2.0, 3.0, 4.0], 2, RayShape::Cone, 0, 16).unwrap_err();
     assert!(err.to_string().contains("3 t values for 2 rays"), "{err}");
 }

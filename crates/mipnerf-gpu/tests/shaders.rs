@@ -10,18 +10,11 @@ fn shaders_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shaders")
 }
 
-fn parse_and_validate(
-    name: &str,
-    src: &str,
-) -> Result<(naga::Module, naga::valid::ModuleInfo), String> {
-    let module =
-        naga::front::wgsl::parse_str(src).map_err(|e| e.emit_to_string_with_path(src, name))?;
-    let info = naga::valid::Validator::new(
-        naga::valid::ValidationFlags::all(),
-        naga::valid::Capabilities::all(),
-    )
-    .validate(&module)
-    .map_err(|e| e.emit_to_string_with_path(src, name))?;
+fn parse_and_validate(name: &str, src: &str) -> Result<(naga::Module, naga::valid::ModuleInfo), String> {
+    let module = naga::front::wgsl::parse_str(src).map_err(|e| e.emit_to_string_with_path(src, name))?;
+    let info = naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::all())
+        .validate(&module)
+        .map_err(|e| e.emit_to_string_with_path(src, name))?;
     Ok((module, info))
 }
 
@@ -33,11 +26,7 @@ fn every_shader_file_parses_and_validates() {
         .filter(|p| p.extension().is_some_and(|x| x == "wgsl"))
         .collect();
     files.sort();
-    assert!(
-        !files.is_empty(),
-        "no .wgsl files in {}",
-        shaders_dir().display()
-    );
+    assert!(!files.is_empty(), "no .wgsl files in {}", shaders_dir().display());
     let mut failures = Vec::new();
     for path in &files {
         let src = std::fs::read_to_string(path).unwrap();
@@ -50,21 +39,13 @@ fn every_shader_file_parses_and_validates() {
             "{name} is in shaders/ but not compiled into mipnerf-gpu (kernels::ALL_SOURCES)"
         );
     }
-    assert!(
-        failures.is_empty(),
-        "{} shader(s) failed:\n{}",
-        failures.len(),
-        failures.join("\n")
-    );
+    assert!(failures.is_empty(), "{} shader(s) failed:\n{}", failures.len(), failures.join("\n"));
 }
 
 #[test]
 fn a_broken_shader_is_reported_with_its_location() {
     let err = parse_and_validate("broken.wgsl", "fn main() { let x: f32 = 1u; }").unwrap_err();
-    assert!(
-        err.contains("broken.wgsl"),
-        "error does not name the file: {err}"
-    );
+    assert!(err.contains("broken.wgsl"), "error does not name the file: {err}");
 }
 
 /// The size in bytes of the struct named `name` in a WGSL module.
@@ -82,13 +63,6 @@ fn wgsl_struct_size(src: &str, name: &str) -> u32 {
 
 #[test]
 fn uniform_structs_match_wgsl_sizes() {
-    let src = ALL_SOURCES
-        .iter()
-        .find(|(n, _)| *n == "cast_ipe.wgsl")
-        .unwrap()
-        .1;
-    assert_eq!(
-        wgsl_struct_size(src, "Params") as usize,
-        std::mem::size_of::<CastIpeParams>()
-    );
+    let src = ALL_SOURCES.iter().find(|(n, _)| *n == "cast_ipe.wgsl").unwrap().1;
+    assert_eq!(wgsl_struct_size(src, "Params") as usize, std::mem::size_of::<CastIpeParams>());
 }

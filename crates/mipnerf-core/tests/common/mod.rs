@@ -8,20 +8,11 @@ use serde_json::Value;
 use std::path::PathBuf;
 
 /// Element-wise functions (sin, exp, ...): XLA and libm differ by about 1 ulp.
-pub const TOL_ELEMENTWISE: Tol = Tol {
-    rel: 2e-6,
-    abs: 2e-7,
-};
+pub const TOL_ELEMENTWISE: Tol = Tol { rel: 2e-6, abs: 2e-7 };
 /// Functions that accumulate (sums, cumulative sums, CDF inversion).
-pub const TOL_ACCUMULATED: Tol = Tol {
-    rel: 1e-5,
-    abs: 1e-6,
-};
+pub const TOL_ACCUMULATED: Tol = Tol { rel: 1e-5, abs: 1e-6 };
 /// Rays: ours are computed in f64 and rounded once, the official Blender loader in f32.
-pub const TOL_RAYS: Tol = Tol {
-    rel: 1e-6,
-    abs: 1e-7,
-};
+pub const TOL_RAYS: Tol = Tol { rel: 1e-6, abs: 1e-7 };
 
 /// `|a - b| <= abs + rel * |b|`.
 #[derive(Clone, Copy, Debug)]
@@ -31,9 +22,7 @@ pub struct Tol {
 }
 
 pub fn golden(name: &str) -> Value {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/data/golden")
-        .join(name);
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/golden").join(name);
     let s = std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
     serde_json::from_str(&s).unwrap()
 }
@@ -73,8 +62,7 @@ pub struct Mismatches {
 impl Mismatches {
     pub fn check(&mut self, what: &str, got: &[f32], want: &[f32], tol: Tol) {
         if got.len() != want.len() {
-            self.lines
-                .push(format!("{what}: length {} != {}", got.len(), want.len()));
+            self.lines.push(format!("{what}: length {} != {}", got.len(), want.len()));
             return;
         }
         for (i, (&g, &w)) in got.iter().zip(want).enumerate() {
@@ -88,10 +76,7 @@ impl Mismatches {
                 (g64 - w64).abs() <= tol.abs + tol.rel * w64.abs()
             };
             if !ok {
-                self.lines.push(format!(
-                    "{what}[{i}]: got {g:e}, want {w:e}, diff {:e}",
-                    g - w
-                ));
+                self.lines.push(format!("{what}[{i}]: got {g:e}, want {w:e}, diff {:e}", g - w));
             }
         }
     }

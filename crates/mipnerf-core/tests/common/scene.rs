@@ -9,15 +9,8 @@ pub const BALL_RADIUS: f32 = 0.8;
 
 fn field(p: Vec3) -> (f32, [f32; 3]) {
     let inside = p.length() < BALL_RADIUS;
-    let rgb = [
-        0.5 + 0.5 * (p.x / BALL_RADIUS),
-        0.3,
-        0.5 - 0.5 * (p.z / BALL_RADIUS),
-    ];
-    (
-        if inside { 30.0 } else { 0.0 },
-        rgb.map(|c| c.clamp(0.0, 1.0)),
-    )
+    let rgb = [0.5 + 0.5 * (p.x / BALL_RADIUS), 0.3, 0.5 - 0.5 * (p.z / BALL_RADIUS)];
+    (if inside { 30.0 } else { 0.0 }, rgb.map(|c| c.clamp(0.0, 1.0)))
 }
 
 /// Rays and ground-truth colours of `views` cameras of `size x size` pixels.
@@ -36,12 +29,9 @@ pub fn ball_scene(views: usize, size: u32) -> (Vec<Ray>, Vec<[f32; 3]>) {
         let cam = Camera::from_camera_angle_x(size, size, 0.8, [m(0), m(1), m(2)]).unwrap();
         for ray in cam.generate_rays(PixelCenters::Centered, 1.5, 4.5, 1.0) {
             let n = 512;
-            let t: Vec<f32> = (0..=n)
-                .map(|i| ray.near + (ray.far - ray.near) * i as f32 / n as f32)
-                .collect();
-            let (density, rgb): (Vec<f32>, Vec<[f32; 3]>) = (0..n)
-                .map(|i| field(ray.origin + ray.direction * 0.5 * (t[i] + t[i + 1])))
-                .unzip();
+            let t: Vec<f32> = (0..=n).map(|i| ray.near + (ray.far - ray.near) * i as f32 / n as f32).collect();
+            let (density, rgb): (Vec<f32>, Vec<[f32; 3]>) =
+                (0..n).map(|i| field(ray.origin + ray.direction * 0.5 * (t[i] + t[i + 1]))).unzip();
             let mut w = vec![0.0; n];
             colours.push(volumetric_rendering(&rgb, &density, &t, ray.direction, true, &mut w).rgb);
             rays.push(ray);

@@ -76,9 +76,7 @@ impl CastIpeKernel {
             )));
         }
         if max_deg <= min_deg || max_deg > 24 {
-            return Err(GpuError::InvalidInput(format!(
-                "cast_ipe: degrees {min_deg}..{max_deg}"
-            )));
+            return Err(GpuError::InvalidInput(format!("cast_ipe: degrees {min_deg}..{max_deg}")));
         }
         let n_items = rays.len() as u64 * u64::from(n_samples);
         let (gx, gy) = dispatch_grid(n_items, WORKGROUP)?;
@@ -96,12 +94,7 @@ impl CastIpeKernel {
         };
         let packed: Vec<[f32; 4]> = rays
             .iter()
-            .flat_map(|r| {
-                [
-                    r.origin.extend(r.radius).to_array(),
-                    r.direction.extend(0.0).to_array(),
-                ]
-            })
+            .flat_map(|r| [r.origin.extend(r.radius).to_array(), r.direction.extend(0.0).to_array()])
             .collect();
         let out_len = n_items as usize * ipe_len(min_deg, max_deg);
         let uniform = ctx.uniform_buffer("cast_ipe params", &params);
@@ -112,29 +105,13 @@ impl CastIpeKernel {
             label: Some("cast_ipe bind group"),
             layout: &self.layout,
             entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: uniform.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: ray_buf.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: t_buf.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 3,
-                    resource: out_buf.as_entire_binding(),
-                },
+                wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: ray_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 2, resource: t_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 3, resource: out_buf.as_entire_binding() },
             ],
         });
-        let mut enc = ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("cast_ipe"),
-            });
+        let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("cast_ipe") });
         {
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("cast_ipe pass"),

@@ -21,9 +21,7 @@ pub fn dispatch_grid(n_items: u64, workgroup: u32) -> Result<(u32, u32), GpuErro
     let gx = groups.min(u64::from(MAX_GROUPS_PER_DIM));
     let gy = groups.div_ceil(gx);
     if gy > u64::from(MAX_GROUPS_PER_DIM) {
-        return Err(GpuError::InvalidInput(format!(
-            "{n_items} invocations exceed one dispatch"
-        )));
+        return Err(GpuError::InvalidInput(format!("{n_items} invocations exceed one dispatch")));
     }
     Ok((gx as u32, gy as u32))
 }
@@ -54,11 +52,10 @@ pub fn storage_layout(ctx: &GpuContext, name: &str, read_only: &[bool]) -> wgpu:
             count: None,
         });
     }
-    ctx.device
-        .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some(&format!("{name} layout")),
-            entries: &entries,
-        })
+    ctx.device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+        label: Some(&format!("{name} layout")),
+        entries: &entries,
+    })
 }
 
 /// A labelled compute pipeline for the `main` entry point of `source`.
@@ -69,26 +66,21 @@ pub fn compute_pipeline(
     source: &str,
     layout: &wgpu::BindGroupLayout,
 ) -> wgpu::ComputePipeline {
-    let module = ctx
-        .device
-        .create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some(name),
-            source: wgpu::ShaderSource::Wgsl(source.into()),
-        });
-    let pl = ctx
-        .device
-        .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some(&format!("{name} pipeline layout")),
-            bind_group_layouts: &[Some(layout)],
-            immediate_size: 0,
-        });
-    ctx.device
-        .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some(&format!("{name} pipeline")),
-            layout: Some(&pl),
-            module: &module,
-            entry_point: Some("main"),
-            compilation_options: wgpu::PipelineCompilationOptions::default(),
-            cache: None,
-        })
+    let module = ctx.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some(name),
+        source: wgpu::ShaderSource::Wgsl(source.into()),
+    });
+    let pl = ctx.device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some(&format!("{name} pipeline layout")),
+        bind_group_layouts: &[Some(layout)],
+        immediate_size: 0,
+    });
+    ctx.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(&format!("{name} pipeline")),
+        layout: Some(&pl),
+        module: &module,
+        entry_point: Some("main"),
+        compilation_options: wgpu::PipelineCompilationOptions::default(),
+        cache: None,
+    })
 }
