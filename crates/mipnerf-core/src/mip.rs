@@ -158,22 +158,62 @@ pub const SAFE_TRIG_LIMIT: f32 = 100.0 * std::f32::consts::PI;
 /// `x` reduced modulo [`SAFE_TRIG_LIMIT`] (Python-style, into `[0, 100π)`) when `|x| >= 100π`,
 /// else `x` unchanged. This is the official guard that keeps `sin` of the high IPE degrees
 /// (arguments up to `2^15 |x|`) accurate and finite; note it is not odd, as in the official code.
+///
+/// The remainder is exact (as C's `fmod` is): it is computed in `f64`, where `q · 100π` is exact
+/// for the quotients that occur (`|x| < 2^28`), branch-free so that loops over it vectorise.
 #[must_use]
-#[inline]
+#[inline(always)]
 pub fn safe_trig_arg(x: f32) -> f32 {
-    if x.abs() < SAFE_TRIG_LIMIT {
-        x
-    } else {
-        let r = x % SAFE_TRIG_LIMIT;
-        if r != 0.0 && r < 0.0 { r + SAFE_TRIG_LIMIT } else { r }
-    }
+    const T: f64 = SAFE_TRIG_LIMIT as f64;
+    const INV_T: f64 = 1.0 / (SAFE_TRIG_LIMIT as f64);
+    let xd = f64::from(x);
+    // Nearest integer quotient by the 1.5 * 2^52 trick (no SSE4.1 rounding needed); the remainder
+    // x - q t is then exact in f64 and in (-t, t), and exactly representable in f32.
+    let q = (xd * INV_T + ROUND_MAGIC) - ROUND_MAGIC;
+    let r = xd - q * T;
+    let r = if r < 0.0 { r + T } else { r };
+    let r = if r >= T { r - T } else { r };
+    // A zero remainder keeps the sign of x, as fmod's does.
+    let r = if r == 0.0 { 0.0f64.copysign(xd) } else { r };
+    if x.abs() < SAFE_TRIG_LIMIT { x } else { r as f32 }
+}
+
+/// `1.5 · 2^52`: adding and subtracting it rounds an `f64` of magnitude below `2^51` to an integer.
+const ROUND_MAGIC: f64 = 6_755_399_441_055_744.0;
+
+/// `sin` of an `f32` argument of magnitude below about `2^20`, evaluated in `f64` and rounded once,
+/// so the result is the correctly rounded `sin` in all but rare half-way cases.
+///
+/// Range reduction by multiples of `π/2` in `f64` (a two-part `π/2`), then the Taylor series of
+/// `sin` or `cos` on `[-π/4, π/4]` (truncation below `1e-11`). Branch-free, so loops vectorise.
+#[must_use]
+#[inline(always)]
+pub fn sin_f32(x: f32) -> f32 {
+    const FRAC_2_PI: f64 = std::f64::consts::FRAC_2_PI;
+    const PIO2_HI: f64 = std::f64::consts::FRAC_PI_2;
+    const PIO2_LO: f64 = 6.123_233_995_736_766e-17;
+    let xd = f64::from(x);
+    let kf = (xd * FRAC_2_PI + ROUND_MAGIC) - ROUND_MAGIC;
+    let r = (xd - kf * PIO2_HI) - kf * PIO2_LO;
+    let quadrant = (kf as i32) & 3;
+    let z = r * r;
+    let s = r + r
+        * z
+        * (-1.0 / 6.0 + z * (1.0 / 120.0 + z * (-1.0 / 5040.0 + z * (1.0 / 362_880.0 + z * (-1.0 / 39_916_800.0)))));
+    let c = 1.0 - 0.5 * z
+        + z * z
+            * (1.0 / 24.0
+                + z * (-1.0 / 720.0 + z * (1.0 / 40_320.0 + z * (-1.0 / 3_628_800.0 + z * (1.0 / 479_001_600.0)))));
+    let v = if quadrant & 1 == 0 { s } else { c };
+    let v = if quadrant & 2 == 0 { v } else { -v };
+    v as f32
 }
 
 /// `sin` with the official large-argument guard ([`safe_trig_arg`]).
 #[must_use]
-#[inline]
+#[inline(always)]
 pub fn safe_sin(x: f32) -> f32 {
-    safe_trig_arg(x).sin()
+    sin_f32(safe_trig_arg(x))
 }
 
 /// `cos` with the official large-argument guard ([`safe_trig_arg`]).
@@ -215,19 +255,27 @@ pub const HALF_PI: f32 = 0.5 * std::f32::consts::PI;
 pub fn integrated_pos_enc(g: &Gaussian, min_deg: u32, max_deg: u32, out: &mut [f32]) {
     let n = ipe_len(min_deg, max_deg);
     assert_eq!(out.len(), n, "integrated_pos_enc: output length");
+    assert!(max_deg <= 24, "integrated_pos_enc: degrees up to 24");
     debug_assert!(g.mean.is_finite(), "integrated_pos_enc: non-finite mean {:?}", g.mean);
     let half = n / 2;
     let x = g.mean.to_array();
     let var = g.cov_diag.to_array();
+    // Arguments first (sin part, then the cos part as sin(y + π/2) in f32, as the official code),
+    // then one vectorisable pass of damping * sin.
+    let mut damp = [0.0f32; 3 * 24];
     for (i, deg) in (min_deg..max_deg).enumerate() {
         let scale = (1u32 << deg) as f32;
         for k in 0..3 {
             let y = x[k] * scale;
-            let y_var = var[k] * (scale * scale);
-            let damp = (-0.5 * y_var).exp();
-            out[i * 3 + k] = damp * safe_sin(y);
-            out[half + i * 3 + k] = damp * safe_sin(y + HALF_PI);
+            out[i * 3 + k] = y;
+            out[half + i * 3 + k] = y + HALF_PI;
+            damp[i * 3 + k] = (-0.5 * (var[k] * (scale * scale))).exp();
         }
+    }
+    let (sin_part, cos_part) = out.split_at_mut(half);
+    for ((s, c), &d) in sin_part.iter_mut().zip(cos_part.iter_mut()).zip(&damp[..half]) {
+        *s = d * safe_sin(*s);
+        *c = d * safe_sin(*c);
     }
 }
 
@@ -255,6 +303,60 @@ pub fn pos_enc(x: Vec3, min_deg: u32, max_deg: u32, append_identity: bool, out: 
             let y = xs[k] * scale;
             rest[i * 3 + k] = y.sin();
             rest[half + i * 3 + k] = (y + HALF_PI).sin();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Distance in units in the last place between two finite f32.
+    fn ulps(a: f32, b: f32) -> u32 {
+        let key = |x: f32| {
+            let i = x.to_bits() as i32;
+            if i < 0 { i32::MIN - i } else { i }
+        };
+        key(a).abs_diff(key(b))
+    }
+
+    #[test]
+    fn sin_f32_is_within_one_ulp_of_the_true_sine() {
+        let mut worst = 0;
+        let mut x = -320.0f32;
+        while x < 320.0 {
+            let want = f64::from(x).sin() as f32;
+            worst = worst.max(if want.abs() < 1e-30 { 0 } else { ulps(sin_f32(x), want) });
+            x += 0.000_731;
+        }
+        for &x in &[0.0f32, 1e-20, -1e-8, std::f32::consts::PI, 314.159_27, 1e5, -65_536.5] {
+            let want = f64::from(x).sin() as f32;
+            assert!(ulps(sin_f32(x), want) <= 1, "sin({x}): {} vs {want}", sin_f32(x));
+        }
+        assert!(worst <= 1, "worst error {worst} ulp");
+    }
+
+    #[test]
+    fn safe_trig_arg_is_the_exact_python_remainder() {
+        let t = SAFE_TRIG_LIMIT;
+        let reference = |x: f32| {
+            if x.abs() < t {
+                return x;
+            }
+            let r = x % t; // C fmod: exact
+            if r != 0.0 && r < 0.0 { r + t } else { r }
+        };
+        let mut x = 1.0f32;
+        while x < 3.0e7 {
+            for v in [x, -x, x + 0.37, -(x * 1.618)] {
+                assert_eq!(safe_trig_arg(v).to_bits(), reference(v).to_bits(), "x = {v}");
+            }
+            x *= 1.013;
+        }
+        for k in 1..2000 {
+            let v = t * k as f32; // multiples of the period, the worst case for a rounded quotient
+            assert_eq!(safe_trig_arg(v).to_bits(), reference(v).to_bits(), "x = {v}");
+            assert_eq!(safe_trig_arg(-v).to_bits(), reference(-v).to_bits(), "x = -{v}");
         }
     }
 }

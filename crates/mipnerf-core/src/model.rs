@@ -283,6 +283,17 @@ impl LossStats {
 /// Rays processed together by one thread.
 pub const CHUNK_RAYS: usize = 64;
 
+/// Per-chunk gradient buffers, kept between training steps to avoid reallocating them.
+#[derive(Default, Debug, Clone)]
+pub struct GradScratch {
+    chunk_grads: Vec<Vec<f32>>,
+}
+
+thread_local! {
+    /// Each rayon worker keeps its buffers between chunks and between steps.
+    static WORKSPACE: std::cell::RefCell<Workspace> = std::cell::RefCell::new(Workspace::default());
+}
+
 /// Per-thread buffers of one chunk.
 #[derive(Default)]
 struct Workspace {
@@ -364,9 +375,11 @@ impl Model {
         assert_eq!(params.len(), self.num_params, "render: parameter count");
         let chunk = CHUNK_RAYS.div_ceil(rpp) * rpp;
         rays.par_chunks(chunk)
-            .map_init(Workspace::default, |ws, rays| {
+            .map(|rays| {
                 let mut out = vec![LevelOutput::default(); rays.len() / rpp * self.config.num_levels];
-                self.run_chunk(params, rays, 0, None, Mode::Eval, ws, None, Some(&mut out));
+                WORKSPACE.with(|ws| {
+                    self.run_chunk(params, rays, 0, None, Mode::Eval, &mut ws.borrow_mut(), None, Some(&mut out))
+                });
                 out
             })
             .collect::<Vec<_>>()
@@ -387,6 +400,23 @@ impl Model {
         mode: Mode,
         grads: &mut [f32],
     ) -> LossStats {
+        self.loss_and_grad_with(params, rays, targets, mode, grads, &mut GradScratch::default())
+    }
+
+    /// [`loss_and_grad`](Self::loss_and_grad) reusing `scratch`'s per-chunk gradient buffers
+    /// across calls (no allocation after the first call of a given batch size).
+    ///
+    /// # Panics
+    /// If the lengths disagree.
+    pub fn loss_and_grad_with(
+        &self,
+        params: &[f32],
+        rays: &[Ray],
+        targets: &[[f32; 3]],
+        mode: Mode,
+        grads: &mut [f32],
+        scratch: &mut GradScratch,
+    ) -> LossStats {
         let rpp = self.rays_per_pixel();
         assert_eq!(rays.len(), targets.len() * rpp, "loss_and_grad: rays per pixel");
         assert_eq!(params.len(), self.num_params, "loss_and_grad: parameter count");
@@ -395,30 +425,43 @@ impl Model {
         let norm = (3.0 * lm_sum) as f32;
         let n_pix = targets.len() as f32;
         let chunk_pix = CHUNK_RAYS.div_ceil(rpp);
-        let results: Vec<(Vec<f32>, Vec<[f64; 2]>)> = rays
-            .par_chunks(chunk_pix * rpp)
-            .zip(targets.par_chunks(chunk_pix))
+        let n_chunks = targets.len().div_ceil(chunk_pix);
+        scratch.chunk_grads.resize_with(n_chunks, Vec::new);
+        let sums: Vec<Vec<[f64; 2]>> = scratch.chunk_grads[..n_chunks]
+            .par_iter_mut()
+            .zip(rays.par_chunks(chunk_pix * rpp).zip(targets.par_chunks(chunk_pix)))
             .enumerate()
-            .map_init(Workspace::default, |ws, (ci, (rays, tg))| {
-                let mut g = vec![0.0f32; self.num_params];
-                let sums =
-                    self.run_chunk(params, rays, ci * chunk_pix * rpp, Some((tg, norm)), mode, ws, Some(&mut g), None);
-                (g, sums)
+            .map(|(ci, (g, (rays, tg)))| {
+                g.clear();
+                g.resize(self.num_params, 0.0);
+                WORKSPACE.with(|ws| {
+                    let ws = &mut ws.borrow_mut();
+                    self.run_chunk(params, rays, ci * chunk_pix * rpp, Some((tg, norm)), mode, ws, Some(g), None)
+                })
             })
             .collect();
-        let levels = self.config.num_levels;
-        let mut sums = vec![[0.0f64; 2]; levels];
-        for (g, s) in &results {
-            for (a, b) in grads.iter_mut().zip(g) {
-                *a += b;
+        // Sum the chunks' gradients in chunk order, element by element: the same result whatever
+        // the number of threads.
+        let chunk_grads = &scratch.chunk_grads[..n_chunks];
+        const BLOCK: usize = 8192;
+        grads.par_chunks_mut(BLOCK).enumerate().for_each(|(bi, out)| {
+            let (lo, len) = (bi * BLOCK, out.len());
+            for g in chunk_grads {
+                for (o, &x) in out.iter_mut().zip(&g[lo..lo + len]) {
+                    *o += x;
+                }
             }
+        });
+        let levels = self.config.num_levels;
+        let mut total = vec![[0.0f64; 2]; levels];
+        for s in &sums {
             for l in 0..levels {
-                sums[l][0] += s[l][0];
-                sums[l][1] += s[l][1];
+                total[l][0] += s[l][0];
+                total[l][1] += s[l][1];
             }
         }
-        let losses: Vec<f32> = sums.iter().map(|s| (s[0] / f64::from(norm)) as f32).collect();
-        let mse: Vec<f32> = sums.iter().map(|s| (s[1] / (3.0 * f64::from(n_pix))) as f32).collect();
+        let losses: Vec<f32> = total.iter().map(|s| (s[0] / f64::from(norm)) as f32).collect();
+        let mse: Vec<f32> = total.iter().map(|s| (s[1] / (3.0 * f64::from(n_pix))) as f32).collect();
         let loss = self.level_weights().iter().zip(&losses).map(|(w, l)| w * l).sum();
         LossStats { losses, loss, mse }
     }

@@ -3,7 +3,7 @@
 use rayon::prelude::*;
 
 use crate::camera::Ray;
-use crate::model::{LossStats, Mode, Model};
+use crate::model::{GradScratch, LossStats, Mode, Model};
 use crate::schedule::LrSchedule;
 
 /// Adam's settings (the official defaults: 0.9, 0.999, 1e-8).
@@ -133,6 +133,7 @@ pub struct Trainer {
     /// Seed of the run's random numbers.
     pub seed: u32,
     grads: Vec<f32>,
+    scratch: GradScratch,
 }
 
 impl Trainer {
@@ -141,7 +142,16 @@ impl Trainer {
     pub fn new(model: Model, optim: OptimConfig, seed: u32) -> Self {
         let params = model.init_params(u64::from(seed));
         let n = model.num_params;
-        Self { model, params, adam: AdamState::new(n), optim, step: 0, seed, grads: vec![0.0; n] }
+        Self {
+            model,
+            params,
+            adam: AdamState::new(n),
+            optim,
+            step: 0,
+            seed,
+            grads: vec![0.0; n],
+            scratch: GradScratch::default(),
+        }
     }
 
     /// One training step on a batch: loss, gradient, clipping, Adam update.
@@ -151,7 +161,8 @@ impl Trainer {
     pub fn train_step(&mut self, rays: &[Ray], targets: &[[f32; 3]]) -> StepReport {
         self.grads.fill(0.0);
         let mode = Mode::Train { seed: self.seed, step: self.step as u32 };
-        let stats = self.model.loss_and_grad(&self.params, rays, targets, mode, &mut self.grads);
+        let stats =
+            self.model.loss_and_grad_with(&self.params, rays, targets, mode, &mut self.grads, &mut self.scratch);
         let grad_norm = clip_gradients(&mut self.grads, self.optim.grad_max_val, self.optim.grad_max_norm);
         let lr = self.optim.lr.lr(self.step);
         self.adam.update(&self.optim.adam, lr, &mut self.params, &self.grads);
