@@ -147,52 +147,62 @@ impl Camera {
         std::array::from_fn(|r| (0..3).map(|c| self.cam2world[r][c] * cam[c]).sum::<f64>())
     }
 
-    /// One ray per pixel, row-major (`y * width + x`), as the official loaders make them.
+    /// The ray through pixel `(x, y)` (integer pixel coordinates, `x` to the right, `y` down),
+    /// as the official loaders make it.
     ///
-    /// Rays are computed in `f64` and rounded to `f32` once: this agrees with the official
-    /// Blender loader (which works in `f32`) to within 1e-7 and with the multiscale loader (`f64`)
-    /// exactly. The cone radius is the distance to the next row's direction times `2/sqrt(12)`;
-    /// the last row reuses the difference of the row before the last, as the official code does
-    /// (`dx[-2:-1]`; with two rows, the only difference; with one row, the column spacing).
+    /// Computed in `f64` and rounded to `f32` once: this agrees with the official Blender loader
+    /// (which works in `f32`) to within 1e-7 and with the multiscale loader (`f64`) exactly. The
+    /// cone radius is the distance to the next row's direction times `2/sqrt(12)`; the last row
+    /// reuses the difference of the row before the last, as the official code does (`dx[-2:-1]`;
+    /// with two rows, the only difference; with one row, the column spacing).
     #[must_use]
-    pub fn generate_rays(&self, centers: PixelCenters, near: f32, far: f32, lossmult: f32) -> Vec<Ray> {
-        let (w, h) = (self.width as usize, self.height as usize);
+    pub fn ray_at(&self, x: u32, y: u32, centers: PixelCenters, near: f32, far: f32, lossmult: f32) -> Ray {
         let off = centers.offset();
-        let dirs: Vec<[f64; 3]> =
-            (0..h * w).map(|i| self.direction_f64((i % w) as f64 + off, (i / w) as f64 + off)).collect();
+        let dir = |px: u32, py: u32| self.direction_f64(f64::from(px) + off, f64::from(py) + off);
+        let d = dir(x, y);
         let dist =
             |a: [f64; 3], b: [f64; 3]| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
-        let row_spacing = |y: usize, x: usize| -> f64 {
-            if h == 1 {
-                let x1 = if x + 1 < w { x + 1 } else { x.saturating_sub(1) };
-                return if x1 == x {
-                    // A single pixel: the analytic spacing of one pixel step in x.
-                    dist(self.direction_f64(off, off), self.direction_f64(off + 1.0, off))
-                } else {
-                    dist(dirs[x], dirs[x1])
-                };
-            }
-            let yy = if y + 1 < h { y } else { h.saturating_sub(3) };
-            dist(dirs[yy * w + x], dirs[(yy + 1) * w + x])
+        let spacing = if self.height == 1 {
+            // No row below: the spacing of one pixel step along x.
+            dist(self.direction_f64(off, off), self.direction_f64(off + 1.0, off))
+        } else {
+            let yy = if y + 1 < self.height { y } else { self.height.saturating_sub(3) };
+            dist(dir(x, yy), dir(x, yy + 1))
         };
+        let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
         let o = self.origin();
-        let origin = Vec3::new(o[0] as f32, o[1] as f32, o[2] as f32);
-        let scale = 2.0 / 12f64.sqrt();
-        (0..h * w)
-            .map(|i| {
-                let d = dirs[i];
-                let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-                Ray {
-                    origin,
-                    direction: Vec3::new(d[0] as f32, d[1] as f32, d[2] as f32),
-                    viewdir: Vec3::new((d[0] / n) as f32, (d[1] / n) as f32, (d[2] / n) as f32),
-                    radius: (row_spacing(i / w, i % w) * scale) as f32,
-                    lossmult,
-                    near,
-                    far,
-                }
-            })
+        Ray {
+            origin: Vec3::new(o[0] as f32, o[1] as f32, o[2] as f32),
+            direction: Vec3::new(d[0] as f32, d[1] as f32, d[2] as f32),
+            viewdir: Vec3::new((d[0] / n) as f32, (d[1] / n) as f32, (d[2] / n) as f32),
+            radius: (spacing * 2.0 / 12f64.sqrt()) as f32,
+            lossmult,
+            near,
+            far,
+        }
+    }
+
+    /// One ray per pixel, row-major (`y * width + x`): [`ray_at`](Self::ray_at) for every pixel.
+    #[must_use]
+    pub fn generate_rays(&self, centers: PixelCenters, near: f32, far: f32, lossmult: f32) -> Vec<Ray> {
+        (0..self.height)
+            .flat_map(|y| (0..self.width).map(move |x| (x, y)))
+            .map(|(x, y)| self.ray_at(x, y, centers, near, far, lossmult))
             .collect()
+    }
+
+    /// This camera at `1 / 2^j` of its resolution (sizes halved `j` times, rounding down; focal
+    /// length and principal point scaled by `2^-j`), as the multiscale dataset's levels are.
+    #[must_use]
+    pub fn downscaled(&self, j: u32) -> Self {
+        let s = f64::from(1u32 << j);
+        let mut p = self.pix2cam;
+        // pix2cam maps pixel coordinates; pixels that are s times larger: scale the first two columns.
+        for row in &mut p {
+            row[0] *= s;
+            row[1] *= s;
+        }
+        Self { width: self.width >> j, height: self.height >> j, pix2cam: p, cam2world: self.cam2world }
     }
 }
 

@@ -1,0 +1,343 @@
+//! Forward-facing captures in the LLFF format, as the official `LLFF` loader reads them.
+//!
+//! `poses_bounds.npy` holds one row of 17 numbers per image: a 3x5 matrix (rotation columns in
+//! LLFF's `[down, right, back]` order, the camera centre, and `[height, width, focal]`) and the
+//! near/far depth bounds. Images are in `images_{factor}` (or `images` for factor 0), sorted by
+//! name. Loading reorders the rotation to `[right, up, back]` (`[y, -x, z]`), scales the scene by
+//! `1 / (0.75 · min bound)`, recentres the poses on their average, holds out every 8th image as a
+//! test image, and maps rays to normalised device coordinates (near plane 1, `t` in `[0, 1]`)
+//! with the cylinder ray shape. The render path is the official 120-frame, 2-rotation spiral;
+//! `spherify` instead recentres the poses on a sphere (world-space rays) with a 120-frame circle.
+
+use std::path::Path;
+
+use glam::{DMat3, DVec3};
+
+use super::{DataError, Dataset, Ndc, Pixels, Split, View, read_png_rgba};
+use crate::camera::{Camera, PixelCenters, Ray, pinhole_pix2cam};
+
+/// Every `LLFF_HOLD`-th image is a test image.
+pub const LLFF_HOLD: usize = 8;
+/// Frames of the render path.
+pub const RENDER_FRAMES: usize = 120;
+
+type Pose = [[f64; 4]; 3];
+
+fn col(p: &Pose, c: usize) -> DVec3 {
+    DVec3::new(p[0][c], p[1][c], p[2][c])
+}
+
+fn pose_from_cols(x: DVec3, y: DVec3, z: DVec3, t: DVec3) -> Pose {
+    std::array::from_fn(|r| [x[r], y[r], z[r], t[r]])
+}
+
+/// The official `viewmatrix`: a camera looking along `-z`... with `z` its back axis, `up` roughly
+/// its up axis, at `pos`.
+fn view_matrix(z: DVec3, up: DVec3, pos: DVec3) -> Pose {
+    let vec2 = z.normalize();
+    let vec0 = up.cross(vec2).normalize();
+    let vec1 = vec2.cross(vec0).normalize();
+    pose_from_cols(vec0, vec1, vec2, pos)
+}
+
+/// The official `poses_avg`: mean centre, summed back and up axes.
+fn poses_avg(poses: &[Pose]) -> Pose {
+    let n = poses.len() as f64;
+    let center = poses.iter().map(|p| col(p, 3)).sum::<DVec3>() / n;
+    let z = poses.iter().map(|p| col(p, 2)).sum::<DVec3>().normalize();
+    let up = poses.iter().map(|p| col(p, 1)).sum::<DVec3>();
+    view_matrix(z, up, center)
+}
+
+/// `inv(a) · b` for rigid 3x4 poses.
+fn relative(a: &Pose, b: &Pose) -> Pose {
+    let ra = DMat3::from_cols(col(a, 0), col(a, 1), col(a, 2));
+    let inv = ra.inverse();
+    let t = inv * (col(b, 3) - col(a, 3));
+    let rb = inv * DMat3::from_cols(col(b, 0), col(b, 1), col(b, 2));
+    pose_from_cols(rb.x_axis, rb.y_axis, rb.z_axis, t)
+}
+
+/// The official 120-frame spiral (2 rotations) around the average pose, focused at a depth
+/// between the closest and farthest bounds.
+fn spiral_path(poses: &[Pose], min_bound: f64, max_bound: f64) -> Vec<Pose> {
+    let c2w = poses_avg(poses);
+    let up = poses.iter().map(|p| col(p, 1)).sum::<DVec3>().normalize();
+    let (close, inf) = (min_bound * 0.9, max_bound * 5.0);
+    let dt = 0.75;
+    let focal = 1.0 / ((1.0 - dt) / close + dt / inf);
+    // 90th percentile of |camera centre| per axis.
+    let rads: [f64; 3] = std::array::from_fn(|k| {
+        let mut v: Vec<f64> = poses.iter().map(|p| p[k][3].abs()).collect();
+        v.sort_by(f64::total_cmp);
+        percentile(&v, 90.0)
+    });
+    let apply = |v: [f64; 4]| DVec3::from_array(std::array::from_fn(|r| (0..4).map(|c| c2w[r][c] * v[c]).sum()));
+    (0..RENDER_FRAMES)
+        .map(|i| {
+            let theta = 2.0 * std::f64::consts::PI * 2.0 * i as f64 / RENDER_FRAMES as f64;
+            let c = apply([theta.cos() * rads[0], -theta.sin() * rads[1], -(theta * 0.5).sin() * rads[2], 1.0]);
+            let z = (c - apply([0.0, 0.0, -focal, 1.0])).normalize();
+            view_matrix(z, up, c)
+        })
+        .collect()
+}
+
+/// numpy's default (linear) percentile of sorted values.
+fn percentile(sorted: &[f64], q: f64) -> f64 {
+    let pos = q / 100.0 * (sorted.len() - 1) as f64;
+    let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
+    sorted[lo] + (sorted[hi] - sorted[lo]) * (pos - lo as f64)
+}
+
+/// The official `generate_spherical_poses`: recentre on the point closest to all optical axes,
+/// scale to a unit sphere, and a 120-frame circle. Returns the new poses, the scale applied, and
+/// the path.
+fn spherify(poses: &[Pose]) -> Option<(Vec<Pose>, f64, Vec<Pose>)> {
+    // Point of least squared distance to every camera's optical axis.
+    let mut a_sum = DMat3::ZERO;
+    let mut b_sum = DVec3::ZERO;
+    for p in poses {
+        let d = col(p, 2);
+        let o = col(p, 3);
+        let a = DMat3::IDENTITY - DMat3::from_cols(d * d.x, d * d.y, d * d.z);
+        let b = -(a * o);
+        a_sum += a.transpose() * a;
+        b_sum += b;
+    }
+    let n = poses.len() as f64;
+    let a_mean = a_sum * (1.0 / n);
+    if a_mean.determinant().abs() < 1e-9 {
+        return None; // parallel optical axes: no point closest to all of them
+    }
+    let center = -(a_mean.inverse() * (b_sum / n));
+    let up = poses.iter().map(|p| col(p, 3) - center).sum::<DVec3>() / n;
+    let vec0 = up.normalize();
+    let vec1 = DVec3::new(0.1, 0.2, 0.3).cross(vec0).normalize();
+    let vec2 = vec0.cross(vec1).normalize();
+    let c2w = pose_from_cols(vec1, vec2, vec0, center);
+    let mut reset: Vec<Pose> = poses.iter().map(|p| relative(&c2w, p)).collect();
+    let rad = (reset.iter().map(|p| col(p, 3).length_squared()).sum::<f64>() / n).sqrt();
+    let sc = 1.0 / rad;
+    for p in &mut reset {
+        for row in p.iter_mut() {
+            row[3] *= sc;
+        }
+    }
+    let zh = reset.iter().map(|p| p[2][3]).sum::<f64>() / n;
+    let radcircle = (1.0 - zh * zh).max(0.0).sqrt();
+    let path = (0..RENDER_FRAMES)
+        .map(|i| {
+            let th = 2.0 * std::f64::consts::PI * i as f64 / (RENDER_FRAMES - 1) as f64;
+            let origin = DVec3::new(radcircle * th.cos(), radcircle * th.sin(), zh);
+            let up = DVec3::new(0.0, 0.0, -1.0);
+            let v2 = origin.normalize();
+            let v0 = v2.cross(up).normalize();
+            let v1 = v2.cross(v0).normalize();
+            pose_from_cols(v0, v1, v2, origin)
+        })
+        .collect();
+    Some((reset, sc, path))
+}
+
+/// Reads `poses_bounds.npy`: `N x 17` float64 (or float32), C order.
+///
+/// # Errors
+/// [`DataError`] naming the file for an unreadable file, another dtype or shape, or non-finite
+/// values.
+pub fn read_poses_bounds(path: &Path) -> Result<Vec<[f64; 17]>, DataError> {
+    let bytes = std::fs::read(path).map_err(|e| DataError::io(path, e))?;
+    let npy = npyz::NpyFile::new(&bytes[..]).map_err(|e| DataError::invalid(path, format!("not a .npy file: {e}")))?;
+    let shape = npy.shape().to_vec();
+    if shape.len() != 2 || shape[1] != 17 || shape[0] == 0 {
+        return Err(DataError::invalid(path, format!("expected an N x 17 array (N > 0), found shape {shape:?}")));
+    }
+    if npy.header().order() != npyz::Order::C {
+        return Err(DataError::invalid(path, "Fortran-ordered arrays are not supported"));
+    }
+    let dtype = npy.dtype();
+    let descr = dtype.descr();
+    let values: Vec<f64> = match descr.trim_matches('\'') {
+        "<f8" => npy.into_vec::<f64>(),
+        "<f4" => npy.into_vec::<f32>().map(|v| v.into_iter().map(f64::from).collect()),
+        other => {
+            return Err(DataError::invalid(path, format!("expected float64 or float32 values, found dtype {other}")));
+        }
+    }
+    .map_err(|e| DataError::invalid(path, format!("truncated or unreadable data: {e}")))?;
+    if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+        return Err(DataError::invalid(path, format!("row {} has a non-finite value", i / 17)));
+    }
+    Ok(values.chunks_exact(17).map(|c| std::array::from_fn(|i| c[i])).collect())
+}
+
+/// Writes `poses_bounds.npy` (float64, `N x 17`).
+///
+/// # Errors
+/// [`DataError`] for an unwritable file.
+pub fn write_poses_bounds(path: &Path, rows: &[[f64; 17]]) -> Result<(), DataError> {
+    use npyz::WriterBuilder;
+    let file = std::fs::File::create(path).map_err(|e| DataError::io(path, e))?;
+    let mut w = npyz::WriteOptions::new()
+        .default_dtype()
+        .shape(&[rows.len() as u64, 17])
+        .writer(std::io::BufWriter::new(file))
+        .begin_nd()
+        .map_err(|e| DataError::io(path, e))?;
+    w.extend(rows.iter().flatten().copied()).map_err(|e| DataError::io(path, e))?;
+    w.finish().map_err(|e| DataError::io(path, e))
+}
+
+fn image_files(dir: &Path) -> Result<Vec<std::path::PathBuf>, DataError> {
+    let mut files: Vec<_> = std::fs::read_dir(dir)
+        .map_err(|e| DataError::io(dir, e))?
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .filter(|p| {
+            p.extension().and_then(|e| e.to_str()).is_some_and(|e| matches!(e, "png" | "PNG" | "jpg" | "JPG" | "jpeg"))
+        })
+        .collect();
+    files.sort();
+    Ok(files)
+}
+
+/// Loads `split` of an LLFF scene (see the module docs). `factor` picks `images_{factor}`
+/// (0: `images`). The test split also gets the render path.
+///
+/// # Errors
+/// [`DataError`] naming the file: unreadable or malformed `poses_bounds.npy`, a missing image
+/// folder, a count of images that differs from the poses, images of different sizes or
+/// undecodable, non-positive bounds, singular poses.
+pub fn load(dir: &Path, split: Split, factor: u32, spherical: bool) -> Result<Dataset, DataError> {
+    let npy = dir.join("poses_bounds.npy");
+    let rows = read_poses_bounds(&npy)?;
+    let imgdir = if factor > 0 { dir.join(format!("images_{factor}")) } else { dir.join("images") };
+    let files = image_files(&imgdir)?;
+    if files.len() != rows.len() {
+        return Err(DataError::invalid(
+            &imgdir,
+            format!("{} images but poses_bounds.npy has {} poses", files.len(), rows.len()),
+        ));
+    }
+    let mut images: Vec<(u32, u32, Vec<u8>)> = Vec::with_capacity(files.len());
+    for f in &files {
+        let (w, h, rgba, _) = read_png_rgba(f)?;
+        if let Some(&(w0, h0, _)) = images.first()
+            && (w, h) != (w0, h0)
+        {
+            return Err(DataError::invalid(f, format!("image is {w}x{h}, the first image is {w0}x{h0}")));
+        }
+        images.push((w, h, rgba));
+    }
+    let (w, h) = (images[0].0, images[0].1);
+    // Rotation columns [down, right, back] -> [right, up, back]: [y, -x, z] of the stored columns.
+    let focal = rows[0][14] / f64::from(factor.max(1));
+    let mut poses: Vec<Pose> = rows
+        .iter()
+        .map(|r| {
+            let m = |i: usize, j: usize| r[i * 5 + j];
+            std::array::from_fn(|i| [m(i, 1), -m(i, 0), m(i, 2), m(i, 3)])
+        })
+        .collect();
+    let bounds: Vec<[f64; 2]> = rows.iter().map(|r| [r[15], r[16]]).collect();
+    let min_b = bounds.iter().map(|b| b[0]).fold(f64::INFINITY, f64::min);
+    let max_b = bounds.iter().map(|b| b[1]).fold(f64::NEG_INFINITY, f64::max);
+    if !(min_b > 0.0 && max_b > min_b) {
+        return Err(DataError::invalid(
+            &npy,
+            format!("depth bounds must be positive with far > near, found {min_b}..{max_b}"),
+        ));
+    }
+    let scale = 1.0 / (min_b * 0.75);
+    for p in &mut poses {
+        for row in p.iter_mut() {
+            row[3] *= scale;
+        }
+    }
+    let (min_b, max_b) = (min_b * scale, max_b * scale);
+    let avg = poses_avg(&poses);
+    let mut poses: Vec<Pose> = poses.iter().map(|p| relative(&avg, p)).collect();
+    let (near, far, path, ndc) = if spherical {
+        let (reset, sc, path) = spherify(&poses).ok_or_else(|| {
+            DataError::invalid(&npy, "spherical poses need cameras whose optical axes converge; these are parallel")
+        })?;
+        poses = reset;
+        ((min_b * sc * 0.9) as f32, (max_b * sc) as f32, path, None)
+    } else {
+        let ndc = Ndc { focal: focal as f32, width: w as f32, height: h as f32 };
+        (0.0, 1.0, spiral_path(&poses, min_b, max_b), Some(ndc))
+    };
+    let pix2cam = pinhole_pix2cam(w, h, focal);
+    let mut views = Vec::new();
+    for (i, ((pose, (iw, ih, rgba)), file)) in poses.iter().zip(images).zip(&files).enumerate() {
+        let is_test = i % LLFF_HOLD == 0;
+        if is_test != (split != Split::Train) {
+            continue;
+        }
+        let camera = Camera::from_pix2cam(iw, ih, pix2cam, *pose)
+            .map_err(|e| DataError::invalid(&npy, format!("pose {i}: {e}")))?;
+        views.push(View {
+            file: file.clone(),
+            camera,
+            pixels: Pixels::Rgba8(rgba),
+            near,
+            far,
+            lossmult: 1.0,
+            scale: 0,
+        });
+    }
+    let mut ds = Dataset::new(dir, split, views, false)?;
+    ds.ndc = ndc;
+    if split != Split::Train {
+        ds.render_path = path
+            .into_iter()
+            .map(|p| Camera::from_pix2cam(w, h, pix2cam, p))
+            .collect::<Result<_, _>>()
+            .map_err(|e| DataError::invalid(&npy, format!("render path: {e}")))?;
+    }
+    Ok(ds)
+}
+
+/// NDC origin and direction of the world ray through continuous pixel coordinates `(px, py)`:
+/// the official `convert_to_ndc` with the near plane at 1.
+fn ndc_of(camera: &Camera, px: f64, py: f64, ndc: Ndc) -> (DVec3, DVec3) {
+    let d = DVec3::from_array(camera.direction_f64(px, py));
+    let o = DVec3::from_array(camera.origin());
+    let near = 1.0;
+    let t = -(near + o.z) / d.z;
+    let o = o + t * d;
+    let (fx, fy) =
+        (2.0 * f64::from(ndc.focal) / f64::from(ndc.width), 2.0 * f64::from(ndc.focal) / f64::from(ndc.height));
+    let origin = DVec3::new(-fx * (o.x / o.z), -fy * (o.y / o.z), 1.0 + 2.0 * near / o.z);
+    let dir = DVec3::new(-fx * (d.x / d.z - o.x / o.z), -fy * (d.y / d.z - o.y / o.z), -2.0 * near / o.z);
+    (origin, dir)
+}
+
+/// The NDC version of `world` (the ray of pixel `(x, y)`): origin and direction in NDC, the view
+/// direction left as the world direction (unnormalised, as the official code does), and the
+/// radius from the spacing of neighbouring NDC origins along both axes (the last row and column
+/// reuse the one before the last, as in the official code), times `2/sqrt(12)`.
+#[must_use]
+pub fn ndc_ray(camera: &Camera, x: u32, y: u32, centers: PixelCenters, ndc: Ndc, world: Ray) -> Ray {
+    let off = centers.offset();
+    let at = |px: u32, py: u32| ndc_of(camera, f64::from(px) + off, f64::from(py) + off, ndc).0;
+    let (o, d) = ndc_of(camera, f64::from(x) + off, f64::from(y) + off, ndc);
+    let (w, h) = (camera.width, camera.height);
+    let pick = |v: u32, n: u32| if v + 1 < n { v } else { n.saturating_sub(3) };
+    let dy = if h > 1 { (at(x, pick(y, h)) - at(x, pick(y, h) + 1)).length() } else { 0.0 };
+    let dx = if w > 1 { (at(pick(x, w), y) - at(pick(x, w) + 1, y)).length() } else { 0.0 };
+    let spacing = match (h > 1, w > 1) {
+        (true, true) => 0.5 * (dx + dy),
+        (true, false) => dy,
+        (false, _) => dx,
+    };
+    Ray {
+        origin: o.as_vec3(),
+        direction: d.as_vec3(),
+        viewdir: world.direction,
+        radius: (spacing * 2.0 / 12f64.sqrt()) as f32,
+        lossmult: 1.0,
+        near: world.near,
+        far: world.far,
+    }
+}

@@ -1,0 +1,418 @@
+//! Datasets: files on disk to views (camera + pixels), and views to batches of rays with targets.
+//!
+//! Formats:
+//! - [`blender`]: `transforms_{train,val,test}.json` with RGBA PNGs (the NeRF synthetic scenes);
+//! - [`multiscale`]: the official multiscale Blender format (`metadata.json`, 4 scales per view),
+//!   and its converter;
+//! - [`llff`]: forward-facing captures (`poses_bounds.npy`, `images_{factor}`), NDC rays;
+//! - [`demo`]: a procedural scene rendered by the project's own ray tracer, written in the
+//!   multiscale format; it needs no files.
+//!
+//! Training batches are drawn uniformly from all training pixels of all views and scales (the
+//! official `all_images` batching): a batch samples global pixel indices and makes each pixel's
+//! ray on the fly from its view's camera, so images are never copied per step and rays are never
+//! stored for the whole dataset.
+
+pub mod blender;
+pub mod demo;
+pub mod llff;
+pub mod multiscale;
+
+use std::path::{Path, PathBuf};
+
+use crate::camera::{Camera, PixelCenters, Ray};
+use crate::rng::{RayRng, Stream};
+
+/// A problem with a dataset's files. Every variant names the file and says what is wrong.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum DataError {
+    /// A file or directory could not be read or written.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// A file's contents are malformed.
+    #[error("{}: {problem}", path.display())]
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong, in words a user can act on.
+        problem: String,
+    },
+    /// A directory is no dataset format this tool knows.
+    #[error(
+        "{}: not a known dataset: expected transforms_train.json (Blender), metadata.json \
+         (multiscale Blender) or poses_bounds.npy (LLFF)",
+        path.display()
+    )]
+    UnknownFormat {
+        /// The directory.
+        path: PathBuf,
+    },
+}
+
+impl DataError {
+    pub(crate) fn invalid(path: &Path, problem: impl Into<String>) -> Self {
+        Self::Invalid { path: path.to_path_buf(), problem: problem.into() }
+    }
+    pub(crate) fn io(path: &Path, source: std::io::Error) -> Self {
+        Self::Io { path: path.to_path_buf(), source }
+    }
+}
+
+/// Reads and parses a JSON file, with errors naming the file (and the line for syntax errors).
+pub(crate) fn read_json(path: &Path) -> Result<serde_json::Value, DataError> {
+    let text = std::fs::read_to_string(path).map_err(|e| DataError::io(path, e))?;
+    serde_json::from_str(&text).map_err(|e| DataError::invalid(path, format!("malformed JSON: {e}")))
+}
+
+/// Which part of a dataset.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Split {
+    /// Training views.
+    Train,
+    /// Validation views.
+    Val,
+    /// Held-out test views.
+    Test,
+}
+
+impl Split {
+    /// `train`, `val` or `test`.
+    #[must_use]
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Train => "train",
+            Self::Val => "val",
+            Self::Test => "test",
+        }
+    }
+}
+
+impl std::fmt::Display for Split {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// An image's pixels, straight (not premultiplied) RGBA, row-major.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Pixels {
+    /// 8 bits per channel, as read from a PNG (4 bytes per pixel).
+    Rgba8(Vec<u8>),
+    /// Floating point in `[0, 1]` (after area downsampling), 4 values per pixel.
+    RgbaF32(Vec<f32>),
+}
+
+impl Pixels {
+    /// Straight RGBA of pixel `i` in `[0, 1]`.
+    #[must_use]
+    #[inline]
+    pub fn rgba(&self, i: usize) -> [f32; 4] {
+        match self {
+            Self::Rgba8(v) => std::array::from_fn(|c| f32::from(v[4 * i + c]) / 255.0),
+            Self::RgbaF32(v) => std::array::from_fn(|c| v[4 * i + c]),
+        }
+    }
+
+    /// Bytes held.
+    #[must_use]
+    pub fn bytes(&self) -> usize {
+        match self {
+            Self::Rgba8(v) => v.len(),
+            Self::RgbaF32(v) => v.len() * 4,
+        }
+    }
+}
+
+/// One image with its camera.
+#[derive(Clone, Debug)]
+pub struct View {
+    /// The image file it came from (or will be written to), for messages and outputs.
+    pub file: PathBuf,
+    /// Its camera.
+    pub camera: Camera,
+    /// Its pixels.
+    pub pixels: Pixels,
+    /// Near bound along its rays.
+    pub near: f32,
+    /// Far bound along its rays.
+    pub far: f32,
+    /// Loss weight of its rays (`4^scale` in a multiscale dataset).
+    pub lossmult: f32,
+    /// Scale index `j` (downsampled by `2^j`); 0 in single-scale datasets.
+    pub scale: u32,
+}
+
+/// Maps rays to normalised device coordinates (forward-facing scenes, the official
+/// `convert_to_ndc` with the near plane at 1).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ndc {
+    /// Focal length in pixels.
+    pub focal: f32,
+    /// Image width.
+    pub width: f32,
+    /// Image height.
+    pub height: f32,
+}
+
+/// A loaded split: its views and how to make rays and colours from them.
+#[derive(Clone, Debug)]
+pub struct Dataset {
+    /// Where it was loaded from.
+    pub root: PathBuf,
+    /// Which split.
+    pub split: Split,
+    /// The views (all scales of all images for multiscale data).
+    pub views: Vec<View>,
+    /// Composite RGBA on white (Blender) rather than dropping alpha.
+    pub white_bkgd: bool,
+    /// Rays through pixel centres or corners.
+    pub centers: PixelCenters,
+    /// Rays in NDC space (LLFF), else world space.
+    pub ndc: Option<Ndc>,
+    /// A camera path for rendering videos, where the format defines one (LLFF's spiral).
+    pub render_path: Vec<Camera>,
+    /// Cumulative pixel counts: view `v` holds global pixels `offsets[v]..offsets[v + 1]`.
+    offsets: Vec<u64>,
+}
+
+impl Dataset {
+    /// A dataset of `views`.
+    ///
+    /// # Errors
+    /// [`DataError::Invalid`] naming `root` when there are no views.
+    pub fn new(root: &Path, split: Split, views: Vec<View>, white_bkgd: bool) -> Result<Self, DataError> {
+        if views.is_empty() {
+            return Err(DataError::invalid(root, format!("the {split} split has no images")));
+        }
+        let mut offsets = Vec::with_capacity(views.len() + 1);
+        let mut acc = 0u64;
+        offsets.push(0);
+        for v in &views {
+            acc += u64::from(v.camera.width) * u64::from(v.camera.height);
+            offsets.push(acc);
+        }
+        Ok(Self {
+            root: root.to_path_buf(),
+            split,
+            views,
+            white_bkgd,
+            centers: PixelCenters::Centered,
+            ndc: None,
+            render_path: Vec::new(),
+            offsets,
+        })
+    }
+
+    /// Total pixels over all views.
+    #[must_use]
+    pub fn num_pixels(&self) -> u64 {
+        *self.offsets.last().unwrap_or(&0)
+    }
+
+    /// Bytes of pixel data held in memory.
+    #[must_use]
+    pub fn pixel_bytes(&self) -> usize {
+        self.views.iter().map(|v| v.pixels.bytes()).sum()
+    }
+
+    /// The view and pixel coordinates of global pixel `g`.
+    #[must_use]
+    pub fn locate(&self, g: u64) -> (usize, u32, u32) {
+        let v = self.offsets.partition_point(|&o| o <= g) - 1;
+        let local = g - self.offsets[v];
+        let w = u64::from(self.views[v].camera.width);
+        (v, (local % w) as u32, (local / w) as u32)
+    }
+
+    /// The target colour of pixel `(x, y)` of view `v`: composited on white, or RGB with alpha
+    /// dropped, as the official loaders do.
+    #[must_use]
+    pub fn target(&self, v: usize, x: u32, y: u32) -> [f32; 3] {
+        let view = &self.views[v];
+        let [r, g, b, a] = view.pixels.rgba((y * view.camera.width + x) as usize);
+        if self.white_bkgd { [r * a + (1.0 - a), g * a + (1.0 - a), b * a + (1.0 - a)] } else { [r, g, b] }
+    }
+
+    /// The ray of pixel `(x, y)` of view `v` (in NDC space for NDC datasets).
+    #[must_use]
+    pub fn ray(&self, v: usize, x: u32, y: u32) -> Ray {
+        let view = &self.views[v];
+        let ray = view.camera.ray_at(x, y, self.centers, view.near, view.far, view.lossmult);
+        match self.ndc {
+            None => ray,
+            Some(ndc) => llff::ndc_ray(&view.camera, x, y, self.centers, ndc, ray),
+        }
+    }
+
+    /// Every ray of view `v`, row-major.
+    #[must_use]
+    pub fn view_rays(&self, v: usize) -> Vec<Ray> {
+        let c = &self.views[v].camera;
+        (0..c.height).flat_map(|y| (0..c.width).map(move |x| (x, y))).map(|(x, y)| self.ray(v, x, y)).collect()
+    }
+
+    /// Every target colour of view `v`, row-major.
+    #[must_use]
+    pub fn view_targets(&self, v: usize) -> Vec<[f32; 3]> {
+        let c = &self.views[v].camera;
+        (0..c.height).flat_map(|y| (0..c.width).map(move |x| (x, y))).map(|(x, y)| self.target(v, x, y)).collect()
+    }
+
+    /// A training batch of `n` pixels drawn uniformly (with replacement) from all pixels of all
+    /// views, a pure function of `(seed, step)`. Fills `rays` and `targets`.
+    pub fn sample_batch(&self, n: usize, seed: u32, step: u32, rays: &mut Vec<Ray>, targets: &mut Vec<[f32; 3]>) {
+        rays.clear();
+        targets.clear();
+        let total = self.num_pixels();
+        let rng = RayRng::new(seed, step, Stream::RayBatch, 0);
+        for i in 0..n as u32 {
+            let r = (u64::from(rng.bits(2 * i)) << 32) | u64::from(rng.bits(2 * i + 1));
+            let (v, x, y) = self.locate(r % total);
+            rays.push(self.ray(v, x, y));
+            targets.push(self.target(v, x, y));
+        }
+    }
+
+    /// The scales present, sorted.
+    #[must_use]
+    pub fn scales(&self) -> Vec<u32> {
+        let mut s: Vec<u32> = self.views.iter().map(|v| v.scale).collect();
+        s.sort_unstable();
+        s.dedup();
+        s
+    }
+}
+
+/// The dataset formats this tool reads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Format {
+    /// `transforms_{split}.json`.
+    Blender,
+    /// `metadata.json`.
+    Multiscale,
+    /// `poses_bounds.npy`.
+    Llff,
+}
+
+/// Detects the format of the dataset in `dir`.
+///
+/// # Errors
+/// [`DataError::Io`] if `dir` is not a readable directory, [`DataError::UnknownFormat`] if it holds
+/// none of the formats' marker files.
+pub fn detect_format(dir: &Path) -> Result<Format, DataError> {
+    let meta = std::fs::metadata(dir).map_err(|e| DataError::io(dir, e))?;
+    if !meta.is_dir() {
+        return Err(DataError::invalid(dir, "is not a directory"));
+    }
+    if dir.join("metadata.json").is_file() {
+        Ok(Format::Multiscale)
+    } else if dir.join("transforms_train.json").is_file() || dir.join("transforms_test.json").is_file() {
+        Ok(Format::Blender)
+    } else if dir.join("poses_bounds.npy").is_file() {
+        Ok(Format::Llff)
+    } else {
+        Err(DataError::UnknownFormat { path: dir.to_path_buf() })
+    }
+}
+
+/// Options that apply when loading any format.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LoadOptions {
+    /// Composite on white (Blender formats); LLFF never does.
+    pub white_bkgd: bool,
+    /// Blender: load at half resolution (2x2 area filter), as the official `factor = 2`.
+    pub half_res: bool,
+    /// LLFF: the image folder's downsampling factor (`images_{factor}`; 0 = `images`).
+    pub llff_factor: u32,
+    /// LLFF: spherical poses instead of forward-facing NDC.
+    pub llff_spherify: bool,
+    /// Rays through pixel centres or corners.
+    pub centers: PixelCenters,
+}
+
+impl Default for LoadOptions {
+    fn default() -> Self {
+        Self {
+            white_bkgd: true,
+            half_res: false,
+            llff_factor: 4,
+            llff_spherify: false,
+            centers: PixelCenters::Centered,
+        }
+    }
+}
+
+/// Loads `split` of the dataset in `dir`, whatever its format.
+///
+/// # Errors
+/// Any [`DataError`] of the format's loader.
+pub fn load(dir: &Path, split: Split, opts: &LoadOptions) -> Result<Dataset, DataError> {
+    let mut ds = match detect_format(dir)? {
+        Format::Blender => blender::load(dir, split, opts.white_bkgd, opts.half_res)?,
+        Format::Multiscale => multiscale::load(dir, split, opts.white_bkgd)?,
+        Format::Llff => llff::load(dir, split, opts.llff_factor, opts.llff_spherify)?,
+    };
+    ds.centers = opts.centers;
+    Ok(ds)
+}
+
+/// Reads a PNG as straight RGBA8, with errors naming the file.
+pub(crate) fn read_png_rgba(path: &Path) -> Result<(u32, u32, Vec<u8>, u8), DataError> {
+    let reader = image::ImageReader::open(path).map_err(|e| DataError::io(path, e))?;
+    let reader = reader.with_guessed_format().map_err(|e| DataError::io(path, e))?;
+    let img = reader.decode().map_err(|e| DataError::invalid(path, format!("cannot decode the image: {e}")))?;
+    let channels = img.color().channel_count();
+    let rgba = img.to_rgba8();
+    Ok((rgba.width(), rgba.height(), rgba.into_raw(), channels))
+}
+
+/// Writes straight RGBA8 as a PNG.
+pub(crate) fn write_png_rgba(path: &Path, width: u32, height: u32, rgba: &[u8]) -> Result<(), DataError> {
+    image::save_buffer(path, rgba, width, height, image::ExtendedColorType::Rgba8)
+        .map_err(|e| DataError::invalid(path, format!("cannot write the PNG: {e}")))
+}
+
+/// A 3x4 camera-to-world matrix from a JSON 4x4 (or 3x4) array, checked for finiteness.
+pub(crate) fn pose_from_json(v: &serde_json::Value, path: &Path, what: &str) -> Result<[[f64; 4]; 3], DataError> {
+    let rows = v.as_array().filter(|r| r.len() == 4 || r.len() == 3);
+    let rows = rows.ok_or_else(|| DataError::invalid(path, format!("{what}: expected a 4x4 matrix")))?;
+    let mut m = [[0.0; 4]; 3];
+    for (i, row) in rows.iter().take(3).enumerate() {
+        let r = row.as_array().filter(|r| r.len() == 4);
+        let r = r.ok_or_else(|| DataError::invalid(path, format!("{what}: row {i} is not 4 numbers")))?;
+        for (j, x) in r.iter().enumerate() {
+            let x = x
+                .as_f64()
+                .ok_or_else(|| DataError::invalid(path, format!("{what}: entry [{i}][{j}] is not a number")))?;
+            if !x.is_finite() {
+                return Err(DataError::invalid(path, format!("{what}: entry [{i}][{j}] is not finite")));
+            }
+            m[i][j] = x;
+        }
+    }
+    Ok(m)
+}
+
+/// The 2x2 box filter of straight RGBA `f32` pixels (`w x h`, both even): the official `down2`.
+#[must_use]
+pub fn down2(rgba: &[f32], w: usize, h: usize) -> Vec<f32> {
+    let (w2, h2) = (w / 2, h / 2);
+    let mut out = vec![0.0; w2 * h2 * 4];
+    for y in 0..h2 {
+        for x in 0..w2 {
+            for c in 0..4 {
+                let p = |dx: usize, dy: usize| rgba[((2 * y + dy) * w + 2 * x + dx) * 4 + c];
+                // numpy's order for np.mean over the (row, column) pair axes.
+                out[(y * w2 + x) * 4 + c] = (((p(0, 0) + p(1, 0)) + p(0, 1)) + p(1, 1)) / 4.0;
+            }
+        }
+    }
+    out
+}

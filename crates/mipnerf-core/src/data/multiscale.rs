@@ -1,0 +1,261 @@
+//! The multiscale Blender format of the Mip-NeRF paper, and the converter that makes it.
+//!
+//! Each image is stored at 4 scales (`1, 1/2, 1/4, 1/8`) made by repeated 2x2 box filtering of
+//! straight (not premultiplied) RGBA, as `images_{split}/{i:03d}_d{j}.png`. `metadata.json` holds,
+//! per split, parallel lists: `file_path`, `cam2world`, `width`, `height`, `focal` (`f / 2^j`),
+//! `label` (`j`), `near`, `far`, `lossmult` (`4^j`) and `pix2cam`.
+
+use std::path::Path;
+
+use serde_json::{Value, json};
+
+use super::{
+    DataError, Dataset, Pixels, Split, View, blender, down2, pose_from_json, read_json, read_png_rgba, write_png_rgba,
+};
+use crate::camera::{Camera, pinhole_pix2cam};
+
+/// Scales the official converter writes.
+pub const NUM_SCALES: u32 = 4;
+
+/// One image at full resolution, straight RGBA in `[0, 1]`, with its pose.
+#[derive(Clone, Debug)]
+pub struct SourceImage {
+    /// Width.
+    pub width: u32,
+    /// Height.
+    pub height: u32,
+    /// `width * height * 4` values.
+    pub rgba: Vec<f32>,
+    /// Camera-to-world, top 3 rows.
+    pub cam2world: [[f64; 4]; 3],
+}
+
+/// `np.uint8(x * 255)` of the official converter: truncation, not rounding.
+#[must_use]
+pub fn quantise(rgba: &[f32]) -> Vec<u8> {
+    rgba.iter().map(|&x| (x * 255.0).clamp(0.0, 255.0) as u8).collect()
+}
+
+/// Writes one split's images at `n_scales` scales into `out/images_{split}/` and returns its
+/// `metadata.json` entry. `focal` is the full-resolution focal length in pixels.
+///
+/// # Errors
+/// [`DataError`] for sizes not divisible by `2^n_scales` (the official converter's requirement)
+/// or unwritable files.
+pub fn write_split(
+    out: &Path,
+    split: Split,
+    images: &[SourceImage],
+    focal: f64,
+    n_scales: u32,
+    near: f64,
+    far: f64,
+) -> Result<Value, DataError> {
+    let imgdir = format!("images_{split}");
+    std::fs::create_dir_all(out.join(&imgdir)).map_err(|e| DataError::io(&out.join(&imgdir), e))?;
+    let mut meta: Vec<(&str, Vec<Value>)> =
+        ["file_path", "cam2world", "width", "height", "focal", "label", "near", "far", "lossmult", "pix2cam"]
+            .into_iter()
+            .map(|k| (k, Vec::new()))
+            .collect();
+    for (i, img) in images.iter().enumerate() {
+        let div = 1u32 << n_scales;
+        if img.width % div != 0 || img.height % div != 0 {
+            return Err(DataError::invalid(
+                &out.join(&imgdir),
+                format!("image {i} is {}x{}; {n_scales} scales need sizes divisible by {div}", img.width, img.height),
+            ));
+        }
+        let (mut w, mut h, mut px) = (img.width, img.height, img.rgba.clone());
+        for j in 0..n_scales {
+            let rel = format!("{imgdir}/{i:03}_d{j}.png");
+            write_png_rgba(&out.join(&rel), w, h, &quantise(&px))?;
+            let f = focal / f64::from(1u32 << j);
+            let c2w: Vec<Vec<f64>> =
+                img.cam2world.iter().map(|r| r.to_vec()).chain([vec![0.0, 0.0, 0.0, 1.0]]).collect();
+            let p2c = pinhole_pix2cam(w, h, f);
+            let values = [
+                json!(rel),
+                json!(c2w),
+                json!(w),
+                json!(h),
+                json!(f),
+                json!(j),
+                json!(near),
+                json!(far),
+                json!(4f64.powi(j as i32)),
+                json!(p2c.iter().map(|r| r.to_vec()).collect::<Vec<_>>()),
+            ];
+            for ((_, list), v) in meta.iter_mut().zip(values) {
+                list.push(v);
+            }
+            px = down2(&px, w as usize, h as usize);
+            w /= 2;
+            h /= 2;
+        }
+    }
+    Ok(Value::Object(meta.into_iter().map(|(k, v)| (k.to_string(), Value::Array(v))).collect()))
+}
+
+/// Converts the Blender scene in `input` into the multiscale format in `output`, exactly as the
+/// official `convert_blender_data.py`: every split present (`train`, `val`, `test`; missing ones are
+/// skipped, and it is an error if none is present), 4 scales, near 2, far 6. Returns the splits
+/// converted.
+///
+/// # Errors
+/// [`DataError`] for unreadable inputs or unwritable outputs.
+pub fn convert(input: &Path, output: &Path) -> Result<Vec<Split>, DataError> {
+    std::fs::create_dir_all(output).map_err(|e| DataError::io(output, e))?;
+    let mut all = serde_json::Map::new();
+    let mut done = Vec::new();
+    for split in [Split::Train, Split::Val, Split::Test] {
+        if !input.join(format!("transforms_{split}.json")).is_file() {
+            continue;
+        }
+        let (angle, frames) = blender::read_transforms(input, split)?;
+        let mut images = Vec::with_capacity(frames.len());
+        for fr in &frames {
+            let (w, h, rgba, _) = read_png_rgba(&fr.file)?;
+            images.push(SourceImage {
+                width: w,
+                height: h,
+                rgba: rgba.iter().map(|&b| f32::from(b) / 255.0).collect(),
+                cam2world: fr.cam2world,
+            });
+        }
+        let focal = crate::camera::focal_from_camera_angle_x(images[0].width, angle);
+        let meta =
+            write_split(output, split, &images, focal, NUM_SCALES, f64::from(blender::NEAR), f64::from(blender::FAR))?;
+        all.insert(split.name().to_string(), meta);
+        done.push(split);
+    }
+    if done.is_empty() {
+        return Err(DataError::invalid(input, "no transforms_{train,val,test}.json to convert"));
+    }
+    write_metadata(output, &Value::Object(all))?;
+    Ok(done)
+}
+
+/// Writes `metadata.json` atomically (a temporary file renamed into place).
+pub(crate) fn write_metadata(dir: &Path, meta: &Value) -> Result<(), DataError> {
+    let path = dir.join("metadata.json");
+    let tmp = dir.join("metadata.json.tmp");
+    let text = serde_json::to_string_pretty(meta).map_err(|e| DataError::invalid(&path, e.to_string()))?;
+    std::fs::write(&tmp, text).map_err(|e| DataError::io(&tmp, e))?;
+    std::fs::rename(&tmp, &path).map_err(|e| DataError::io(&path, e))
+}
+
+fn list<'a>(
+    meta: &'a Value,
+    key: &str,
+    n: Option<usize>,
+    path: &Path,
+    split: Split,
+) -> Result<&'a Vec<Value>, DataError> {
+    let v = meta
+        .get(key)
+        .ok_or_else(|| DataError::invalid(path, format!("{split}: missing key \"{key}\"")))?
+        .as_array()
+        .ok_or_else(|| DataError::invalid(path, format!("{split}: \"{key}\" must be a list")))?;
+    if let Some(n) = n
+        && v.len() != n
+    {
+        return Err(DataError::invalid(
+            path,
+            format!("{split}: \"{key}\" has {} entries, \"file_path\" has {n}", v.len()),
+        ));
+    }
+    Ok(v)
+}
+
+fn number(v: &Value, path: &Path, what: &str) -> Result<f64, DataError> {
+    v.as_f64()
+        .filter(|x| x.is_finite())
+        .ok_or_else(|| DataError::invalid(path, format!("{what} must be a finite number")))
+}
+
+/// Loads `split` of a multiscale dataset: every image at every scale is a view with its own
+/// camera (`pix2cam`, `cam2world`), near, far and `lossmult`.
+///
+/// # Errors
+/// [`DataError`] naming `metadata.json` or the image for a missing split or key, lists of
+/// different lengths, non-finite or singular poses, and missing, undecodable or wrongly sized
+/// images.
+pub fn load(dir: &Path, split: Split, white_bkgd: bool) -> Result<Dataset, DataError> {
+    let path = dir.join("metadata.json");
+    let all = read_json(&path)?;
+    let meta = all.get(split.name()).ok_or_else(|| DataError::invalid(&path, format!("no \"{split}\" split")))?;
+    let files = list(meta, "file_path", None, &path, split)?;
+    let n = Some(files.len());
+    let (c2w, widths, heights) = (
+        list(meta, "cam2world", n, &path, split)?,
+        list(meta, "width", n, &path, split)?,
+        list(meta, "height", n, &path, split)?,
+    );
+    let (nears, fars, lossmults) = (
+        list(meta, "near", n, &path, split)?,
+        list(meta, "far", n, &path, split)?,
+        list(meta, "lossmult", n, &path, split)?,
+    );
+    let labels = meta.get("label").and_then(Value::as_array);
+    let pix2cams = meta.get("pix2cam").and_then(Value::as_array);
+    let focals = meta.get("focal").and_then(Value::as_array);
+    let mut views = Vec::with_capacity(files.len());
+    for i in 0..files.len() {
+        let what = |k: &str| format!("{split} entry {i} \"{k}\"");
+        let rel = files[i]
+            .as_str()
+            .ok_or_else(|| DataError::invalid(&path, format!("{} must be a string", what("file_path"))))?;
+        let file = dir.join(rel);
+        let w = number(&widths[i], &path, &what("width"))? as u32;
+        let h = number(&heights[i], &path, &what("height"))? as u32;
+        let pose = pose_from_json(&c2w[i], &path, &what("cam2world"))?;
+        let pix2cam = match (pix2cams.and_then(|p| p.get(i)), focals.and_then(|f| f.get(i))) {
+            (Some(p), _) => {
+                let rows = p
+                    .as_array()
+                    .filter(|r| r.len() == 3)
+                    .ok_or_else(|| DataError::invalid(&path, format!("{} must be 3x3", what("pix2cam"))))?;
+                let mut m = [[0.0; 3]; 3];
+                for (r, row) in rows.iter().enumerate() {
+                    let row = row
+                        .as_array()
+                        .filter(|x| x.len() == 3)
+                        .ok_or_else(|| DataError::invalid(&path, format!("{} must be 3x3", what("pix2cam"))))?;
+                    for (c, x) in row.iter().enumerate() {
+                        m[r][c] = number(x, &path, &what("pix2cam"))?;
+                    }
+                }
+                m
+            }
+            (None, Some(f)) => pinhole_pix2cam(w, h, number(f, &path, &what("focal"))?),
+            (None, None) => return Err(DataError::invalid(&path, format!("{split}: needs \"pix2cam\" or \"focal\""))),
+        };
+        let camera = Camera::from_pix2cam(w, h, pix2cam, pose)
+            .map_err(|e| DataError::invalid(&path, format!("{split} entry {i}: {e}")))?;
+        let (iw, ih, rgba, channels) = read_png_rgba(&file)?;
+        if (iw, ih) != (w, h) {
+            return Err(DataError::invalid(&file, format!("image is {iw}x{ih}, metadata.json says {w}x{h}")));
+        }
+        if channels != 3 && channels != 4 {
+            return Err(DataError::invalid(
+                &file,
+                format!("expected an RGB or RGBA image, found {channels} channel(s)"),
+            ));
+        }
+        let scale = match labels.and_then(|l| l.get(i)) {
+            Some(l) => number(l, &path, &what("label"))? as u32,
+            None => 0,
+        };
+        views.push(View {
+            file,
+            camera,
+            pixels: Pixels::Rgba8(rgba),
+            near: number(&nears[i], &path, &what("near"))? as f32,
+            far: number(&fars[i], &path, &what("far"))? as f32,
+            lossmult: number(&lossmults[i], &path, &what("lossmult"))? as f32,
+            scale,
+        });
+    }
+    Dataset::new(dir, split, views, white_bkgd)
+}

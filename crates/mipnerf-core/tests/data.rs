@@ -1,0 +1,361 @@
+//! Datasets: the official multiscale conversion, the Blender, multiscale and LLFF loaders, the demo
+//! scene, ray batches, and a clear error for every kind of bad input.
+#![allow(clippy::unwrap_used, missing_docs)]
+
+mod common;
+use std::path::{Path, PathBuf};
+
+use common::*;
+use mipnerf_core::data::{self, DataError, LoadOptions, Split, demo, llff, multiscale};
+
+fn lego_tiny() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/lego_tiny")
+}
+
+#[test]
+fn multiscale_conversion_matches_the_official_converter() {
+    let g = golden("multiscale.json");
+    let c = &g["convert_blender_data"];
+    let inp = &c["inputs"];
+    let bytes: Vec<u8> = flat(&inp["image_rgba_uint8_8x8"]).iter().map(|&x| x as u8).collect();
+    let tm = inp["transform_matrix"].as_array().unwrap();
+    let cam2world: [[f64; 4]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| tm[i][j].as_f64().unwrap()));
+    let img = multiscale::SourceImage {
+        width: 8,
+        height: 8,
+        rgba: bytes.iter().map(|&b| f32::from(b) / 255.0).collect(),
+        cam2world,
+    };
+    let focal = mipnerf_core::camera::focal_from_camera_angle_x(8, inp["camera_angle_x"].as_f64().unwrap());
+    let dir = tempfile::tempdir().unwrap();
+    let n_down = inp["n_down"].as_u64().unwrap() as u32;
+    let meta = multiscale::write_split(dir.path(), Split::Test, std::slice::from_ref(&img), focal, n_down, 2.0, 6.0).unwrap();
+    let mut mm = Mismatches::default();
+    let (mut w, mut px) = (8usize, img.rgba.clone());
+    for (j, level) in c["outputs"]["levels"].as_array().unwrap().iter().enumerate() {
+        mm.check(
+            &format!("level {j} float image"),
+            &px,
+            &flat(&level["image_float32_before_quantisation"]),
+            TOL_ELEMENTWISE,
+        );
+        let (_, _, written) = {
+            let p = dir.path().join(level["file_path"].as_str().unwrap());
+            let im = image::open(&p).unwrap().to_rgba8();
+            (im.width(), im.height(), im.into_raw())
+        };
+        let want: Vec<u8> = flat(&level["png_uint8_written"]).iter().map(|&x| x as u8).collect();
+        assert_eq!(written, want, "level {j}: PNG bytes differ from the official converter's");
+        for key in ["focal", "lossmult", "label", "near", "far", "width", "height"] {
+            mm.check(
+                &format!("level {j} {key}"),
+                &[meta[key][j].as_f64().unwrap() as f32],
+                &[f(&level[key])],
+                TOL_ELEMENTWISE,
+            );
+        }
+        mm.check(&format!("level {j} pix2cam"), &flat(&meta["pix2cam"][j]), &flat(&level["pix2cam"]), TOL_ELEMENTWISE);
+        mm.check(
+            &format!("level {j} cam2world"),
+            &flat(&meta["cam2world"][j]),
+            &flat(&level["cam2world"]),
+            TOL_ELEMENTWISE,
+        );
+        assert_eq!(meta["file_path"][j], level["file_path"]);
+        px = data::down2(&px, w, w);
+        w /= 2;
+    }
+    mm.finish("multiscale_conversion_matches_the_official_converter");
+}
+
+#[test]
+fn blender_scene_loads_with_cameras_and_composited_pixels() {
+    let ds = data::load(&lego_tiny(), Split::Train, &LoadOptions::default()).unwrap();
+    assert_eq!(ds.views.len(), 4);
+    assert_eq!((ds.views[0].camera.width, ds.views[0].camera.height), (100, 100));
+    assert_eq!(ds.num_pixels(), 4 * 100 * 100);
+    // Corners are background: transparent, composited on white.
+    assert_eq!(ds.target(0, 0, 0), [1.0, 1.0, 1.0]);
+    let rays = ds.view_rays(0);
+    assert_eq!(rays.len(), 10_000);
+    assert!(
+        rays.iter().all(|r| r.near == 2.0 && r.far == 6.0 && r.radius > 0.0 && (r.viewdir.length() - 1.0).abs() < 1e-5)
+    );
+    // Half resolution: 2x2 area filter.
+    let half =
+        data::load(&lego_tiny(), Split::Train, &LoadOptions { half_res: true, ..LoadOptions::default() }).unwrap();
+    assert_eq!(half.views[0].camera.width, 50);
+    let (full, hv) = (&ds, &half);
+    let avg: [f32; 3] =
+        std::array::from_fn(|c| (0..4).map(|k| full.target(0, 60 + k % 2, 40 + k / 2)[c]).sum::<f32>() / 4.0);
+    let got = hv.target(0, 30, 20);
+    for c in 0..3 {
+        assert!((avg[c] - got[c]).abs() < 2e-3, "half-res pixel {got:?} vs average {avg:?}");
+    }
+}
+
+#[test]
+fn the_real_lego_scene_loads() {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/nerf_synthetic/lego");
+    if !dir.join("transforms_train.json").is_file() {
+        eprintln!("SKIPPED the_real_lego_scene_loads: {} is absent (it lives in ../shared)", dir.display());
+        return;
+    }
+    let test = data::load(&dir, Split::Test, &LoadOptions::default()).unwrap();
+    assert_eq!(test.views.len(), 13);
+    assert_eq!((test.views[0].camera.width, test.views[0].camera.height), (800, 800));
+    assert!(test.num_pixels() == 13 * 640_000);
+    // A missing split is an error only when it is asked for.
+    let err = data::load(&dir, Split::Val, &LoadOptions::default()).unwrap_err().to_string();
+    assert!(err.contains("transforms_val.json"), "{err}");
+}
+
+#[test]
+fn demo_scene_generates_every_scale_and_loads() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = demo::DemoConfig { size: 32, train_views: 6, test_views: 2, supersample: 3 };
+    let t = std::time::Instant::now();
+    demo::write_demo_scene(dir.path(), &cfg).unwrap();
+    eprintln!("demo scene generated in {:?}", t.elapsed());
+    assert_eq!(data::detect_format(dir.path()).unwrap(), data::Format::Multiscale);
+    let train = data::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap();
+    assert_eq!(train.views.len(), 6 * 4);
+    assert_eq!(train.scales(), vec![0, 1, 2, 3]);
+    for v in &train.views {
+        assert_eq!(v.camera.width, 32 >> v.scale);
+        assert_eq!(v.lossmult, 4f32.powi(v.scale as i32));
+    }
+    // Scale 1 is the 2x2 box filter of scale 0's straight RGBA (up to 8-bit quantisation).
+    let (v0, v1) = (0, 1);
+    assert_eq!(train.views[v1].scale, 1);
+    let px = |v: usize, x: usize, y: usize| train.views[v].pixels.rgba(y * (32 >> train.views[v].scale) + x);
+    for y in 0..16 {
+        for x in 0..16 {
+            let fine: [f32; 4] =
+                std::array::from_fn(|c| (0..4).map(|k| px(v0, 2 * x + k % 2, 2 * y + k / 2)[c]).sum::<f32>() / 4.0);
+            let coarse = px(v1, x, y);
+            for c in 0..4 {
+                assert!((fine[c] - coarse[c]).abs() <= 2.0 / 255.0, "({x},{y}) {fine:?} vs {coarse:?}");
+            }
+        }
+    }
+    // The scene has fine detail: many distinct colours at full resolution.
+    let mut colours: Vec<[u8; 3]> = train.view_targets(0).iter().map(|c| c.map(|x| (x * 255.0) as u8)).collect();
+    colours.sort_unstable();
+    colours.dedup();
+    assert!(colours.len() > 100, "only {} distinct colours", colours.len());
+    // The same rays every time.
+    let ray = train.ray(3, 5, 7);
+    assert_eq!(ray, train.ray(3, 5, 7));
+}
+
+#[test]
+fn batches_come_from_every_scale_with_their_lossmult() {
+    let dir = tempfile::tempdir().unwrap();
+    demo::write_demo_scene(dir.path(), &demo::DemoConfig { size: 16, train_views: 3, test_views: 1, supersample: 1 })
+        .unwrap();
+    let ds = data::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap();
+    let (mut rays, mut targets) = (Vec::new(), Vec::new());
+    ds.sample_batch(4000, 1, 0, &mut rays, &mut targets);
+    assert_eq!((rays.len(), targets.len()), (4000, 4000));
+    let mut seen = std::collections::BTreeMap::new();
+    for r in &rays {
+        *seen.entry(r.lossmult as u32).or_insert(0) += 1;
+    }
+    // Pixels per scale: 256, 64, 16, 4 per view; uniform over pixels.
+    assert_eq!(seen.keys().copied().collect::<Vec<_>>(), vec![1, 4, 16, 64], "{seen:?}");
+    let frac0 = f64::from(seen[&1]) / 4000.0;
+    assert!((frac0 - 256.0 / 340.0).abs() < 0.03, "{frac0}");
+    let (mut r2, mut t2) = (Vec::new(), Vec::new());
+    ds.sample_batch(4000, 1, 0, &mut r2, &mut t2);
+    assert_eq!(rays, r2, "batches are a function of (seed, step)");
+    ds.sample_batch(4000, 1, 1, &mut r2, &mut t2);
+    assert_ne!(rays, r2);
+}
+
+/// A small forward-facing LLFF scene made from the demo scene: 9 cameras on a 3x3 grid looking
+/// along -y at the scene, images in images_4.
+fn make_llff(dir: &Path) {
+    std::fs::create_dir_all(dir.join("images_4")).unwrap();
+    let (w, h, factor) = (32u32, 24u32, 4.0);
+    let focal = 30.0;
+    let mut rows = Vec::new();
+    for i in 0..9 {
+        let (gx, gz) = ((i % 3) as f64 - 1.0, (i / 3) as f64 - 1.0);
+        let pos = [0.3 * gx, -4.0, 0.2 + 0.2 * gz];
+        // OpenGL camera looking (roughly along +y) at a point behind the scene, so that the
+        // optical axes converge as a real capture's do.
+        let back = (glam::DVec3::from_array(pos) - glam::DVec3::new(0.0, 3.0, 0.2)).normalize();
+        let right = glam::DVec3::Z.cross(back).normalize();
+        let up = back.cross(right);
+        let (right, up, back) = (right.to_array(), up.to_array(), back.to_array());
+        let c2w: [[f64; 4]; 3] = std::array::from_fn(|r| [right[r], up[r], back[r], pos[r]]);
+        let cam =
+            mipnerf_core::Camera::from_pix2cam(w, h, mipnerf_core::camera::pinhole_pix2cam(w, h, focal), c2w).unwrap();
+        let rgba = demo::render_view(&cam, 1);
+        let bytes: Vec<u8> = rgba
+            .chunks(4)
+            .flat_map(|p| [p[0], p[1], p[2]].map(|c| (c * 255.0) as u8).into_iter().chain([255]))
+            .collect();
+        image::save_buffer(dir.join(format!("images_4/img_{i:02}.png")), &bytes, w, h, image::ExtendedColorType::Rgba8)
+            .unwrap();
+        // LLFF stores [down, right, back] columns: down = -up.
+        let llff_cols = [[-up[0], right[0], back[0]], [-up[1], right[1], back[1]], [-up[2], right[2], back[2]]];
+        let mut row = [0.0; 17];
+        for r in 0..3 {
+            row[r * 5] = llff_cols[r][0];
+            row[r * 5 + 1] = llff_cols[r][1];
+            row[r * 5 + 2] = llff_cols[r][2];
+            row[r * 5 + 3] = pos[r];
+        }
+        row[4] = f64::from(h) * factor;
+        row[9] = f64::from(w) * factor;
+        row[14] = focal * factor;
+        row[15] = 2.5;
+        row[16] = 5.5;
+        rows.push(row);
+    }
+    llff::write_poses_bounds(&dir.join("poses_bounds.npy"), &rows).unwrap();
+}
+
+#[test]
+fn llff_scene_loads_with_ndc_rays_holdout_and_spiral() {
+    let dir = tempfile::tempdir().unwrap();
+    make_llff(dir.path());
+    assert_eq!(data::detect_format(dir.path()).unwrap(), data::Format::Llff);
+    let opts = LoadOptions { white_bkgd: false, ..LoadOptions::default() };
+    let train = data::load(dir.path(), Split::Train, &opts).unwrap();
+    let test = data::load(dir.path(), Split::Test, &opts).unwrap();
+    assert_eq!((train.views.len(), test.views.len()), (7, 2), "every 8th image (0 and 8) is held out");
+    assert!(!train.white_bkgd && train.ndc.is_some());
+    assert_eq!(test.render_path.len(), llff::RENDER_FRAMES);
+    // Recentred: the average camera centre is the origin, the average camera looks down -z.
+    let mut centre = glam::DVec3::ZERO;
+    for v in train.views.iter().chain(&test.views) {
+        centre += glam::DVec3::from_array(v.camera.origin());
+    }
+    assert!((centre / 9.0).length() < 1e-9, "average centre {centre:?}");
+    for v in 0..7 {
+        for ray in train.view_rays(v) {
+            assert!(ray.origin.is_finite() && ray.direction.is_finite() && ray.radius > 0.0);
+            // NDC origins lie on the near plane z = -1, and t in [0, 1] spans the frustum.
+            assert!((ray.origin.z + 1.0).abs() < 1e-5, "ndc origin {:?}", ray.origin);
+            assert_eq!((ray.near, ray.far), (0.0, 1.0));
+            let end = ray.origin + ray.direction;
+            assert!(end.z > 0.0 && end.z <= 1.0 + 1e-5, "far point {end:?}");
+        }
+    }
+    // The spherical variant loads too, with world-space rays.
+    let sph = data::load(dir.path(), Split::Test, &LoadOptions { llff_spherify: true, ..opts }).unwrap();
+    assert!(sph.ndc.is_none() && sph.render_path.len() == llff::RENDER_FRAMES);
+    let r = sph.ray(0, 3, 3);
+    assert!(r.near > 0.0 && r.far > r.near && r.origin.is_finite());
+}
+
+/// Asserts that the error names `file` and contains `problem`.
+fn assert_error(err: DataError, file: &str, problem: &str) {
+    let msg = err.to_string();
+    assert!(msg.contains(file), "error does not name {file}: {msg}");
+    assert!(msg.to_lowercase().contains(&problem.to_lowercase()), "error does not say {problem:?}: {msg}");
+}
+
+fn copy_lego(dir: &Path) {
+    for sub in ["train", "test"] {
+        std::fs::create_dir_all(dir.join(sub)).unwrap();
+        for e in std::fs::read_dir(lego_tiny().join(sub)).unwrap() {
+            let e = e.unwrap();
+            std::fs::copy(e.path(), dir.join(sub).join(e.file_name())).unwrap();
+        }
+    }
+    for f in ["transforms_train.json", "transforms_test.json"] {
+        std::fs::copy(lego_tiny().join(f), dir.join(f)).unwrap();
+    }
+}
+
+fn edit_json(path: &Path, f: impl FnOnce(&mut serde_json::Value)) {
+    let mut v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    f(&mut v);
+    std::fs::write(path, serde_json::to_string(&v).unwrap()).unwrap();
+}
+
+#[test]
+fn bad_inputs_get_clear_errors_naming_the_file() {
+    let load = |d: &Path| data::load(d, Split::Train, &LoadOptions::default());
+    let case = |setup: &dyn Fn(&Path)| {
+        let dir = tempfile::tempdir().unwrap();
+        copy_lego(dir.path());
+        setup(dir.path());
+        (dir, ())
+    };
+    // Malformed and truncated JSON.
+    let (d, _) = case(&|d| std::fs::write(d.join("transforms_train.json"), "{ \"camera_angle_x\": 0.69, ").unwrap());
+    assert_error(load(d.path()).unwrap_err(), "transforms_train.json", "malformed JSON");
+    let (d, _) = case(&|d| std::fs::write(d.join("transforms_train.json"), "not json").unwrap());
+    assert_error(load(d.path()).unwrap_err(), "transforms_train.json", "malformed JSON");
+    // Missing keys.
+    let (d, _) = case(&|d| {
+        edit_json(&d.join("transforms_train.json"), |v| drop(v.as_object_mut().unwrap().remove("camera_angle_x")))
+    });
+    assert_error(load(d.path()).unwrap_err(), "transforms_train.json", "missing key \"camera_angle_x\"");
+    let (d, _) = case(&|d| {
+        edit_json(&d.join("transforms_train.json"), |v| {
+            drop(v["frames"][1].as_object_mut().unwrap().remove("transform_matrix"))
+        })
+    });
+    assert_error(load(d.path()).unwrap_err(), "transforms_train.json", "frame 1: missing key \"transform_matrix\"");
+    // Empty split.
+    let (d, _) = case(&|d| edit_json(&d.join("transforms_train.json"), |v| v["frames"] = serde_json::json!([])));
+    assert_error(load(d.path()).unwrap_err(), "transforms_train.json", "no frames");
+    // Non-finite and singular poses.
+    let (d, _) = case(&|d| {
+        edit_json(&d.join("transforms_train.json"), |v| {
+            v["frames"][0]["transform_matrix"][0][0] = serde_json::json!("NaN")
+        })
+    });
+    assert_error(
+        load(d.path()).unwrap_err(),
+        "transforms_train.json",
+        "frame 0 transform_matrix: entry [0][0] is not a number",
+    );
+    let (d, _) = case(&|d| {
+        edit_json(&d.join("transforms_train.json"), |v| {
+            v["frames"][2]["transform_matrix"] =
+                serde_json::json!([[1, 0, 0, 0], [1, 0, 0, 0], [0, 0, 0, 0], [0, 0, 0, 1]])
+        })
+    });
+    assert_error(
+        load(d.path()).unwrap_err(),
+        "transforms_train.json",
+        "frame 2: invalid camera: cam2world rotation is singular",
+    );
+    // Missing and unreadable images.
+    let (d, _) = case(&|d| std::fs::remove_file(d.join("train/r_23.png")).unwrap());
+    assert_error(load(d.path()).unwrap_err(), "r_23.png", "No such file");
+    let (d, _) = case(&|d| std::fs::write(d.join("train/r_23.png"), b"\x89PNG\r\n\x1a\ngarbage").unwrap());
+    assert_error(load(d.path()).unwrap_err(), "r_23.png", "cannot decode");
+    // Wrong size and wrong channel count.
+    let (d, _) = case(&|d| {
+        image::save_buffer(d.join("train/r_46.png"), &[0u8; 64 * 4], 8, 8, image::ExtendedColorType::Rgba8).unwrap()
+    });
+    assert_error(load(d.path()).unwrap_err(), "r_46.png", "image is 8x8 but the split's first image is 100x100");
+    let (d, _) = case(&|d| {
+        image::save_buffer(d.join("train/r_1.png"), &[0u8; 100 * 100], 100, 100, image::ExtendedColorType::L8).unwrap()
+    });
+    assert_error(load(d.path()).unwrap_err(), "r_1.png", "found 1 channel");
+    // Not a dataset at all, and not a directory.
+    let empty = tempfile::tempdir().unwrap();
+    assert_error(load(empty.path()).unwrap_err(), &empty.path().display().to_string(), "not a known dataset");
+    assert_error(load(&empty.path().join("nope")).unwrap_err(), "nope", "No such file");
+    // Multiscale metadata with lists of different lengths, and an LLFF file of the wrong shape.
+    let ms = tempfile::tempdir().unwrap();
+    demo::write_demo_scene(ms.path(), &demo::DemoConfig { size: 16, train_views: 2, test_views: 1, supersample: 1 })
+        .unwrap();
+    edit_json(&ms.path().join("metadata.json"), |v| drop(v["train"]["near"].as_array_mut().unwrap().pop()));
+    assert_error(load(ms.path()).unwrap_err(), "metadata.json", "\"near\" has 7 entries, \"file_path\" has 8");
+    let ll = tempfile::tempdir().unwrap();
+    make_llff(ll.path());
+    llff::write_poses_bounds(&ll.path().join("poses_bounds.npy"), &[[1.0; 17]; 3]).unwrap();
+    assert_error(load(ll.path()).unwrap_err(), "images_4", "9 images but poses_bounds.npy has 3 poses");
+    std::fs::write(ll.path().join("poses_bounds.npy"), b"\x93NUMPY truncated").unwrap();
+    assert_error(load(ll.path()).unwrap_err(), "poses_bounds.npy", "not a .npy file");
+}
