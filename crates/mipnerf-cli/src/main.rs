@@ -1,24 +1,50 @@
-//! The `mipnerf` command-line tool.
+//! The `mipnerf` command-line tool: train, evaluate and render anti-aliased neural radiance
+//! fields (Mip-NeRF) on the CPU or a GPU.
+
+mod config;
+mod eval;
+mod images;
+mod plot;
+mod render;
+mod run;
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
+use mipnerf_core::data::{self, Split, demo};
 
-/// Anti-aliased neural radiance fields (Mip-NeRF) on any GPU through wgpu, and on the CPU.
+use config::{Backend, PresetArg, TrainFlags, TrainSettings};
+
+const EXAMPLES: &str = "Examples:
+  mipnerf demo --out runs/demo                       # the built-in scene, end to end, in minutes
+  mipnerf train --data lego --out runs/lego --preset small --steps 20000
+  mipnerf train --data lego_ms --out runs/nerf --model nerf     # the paper's NeRF baseline
+  mipnerf train --out runs/lego --resume --steps 40000          # continue a run
+  mipnerf eval --run runs/lego
+  mipnerf render --run runs/lego --out renders --path orbit --frames 60 --width 400 --height 400
+  mipnerf convert --input nerf_synthetic/lego --output lego_multiscale
+  mipnerf info";
+
+/// Anti-aliased neural radiance fields (Mip-NeRF, Barron et al. 2021) on the CPU and, through
+/// wgpu, on any GPU.
 #[derive(Parser, Debug)]
-#[command(name = "mipnerf", version, about, long_about = None, after_help = "Examples:\n  mipnerf info\n  mipnerf check --backend auto")]
+#[command(name = "mipnerf", version, about, after_help = EXAMPLES)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
 }
 
-/// Where the heavy passes run.
+/// `--backend` of `mipnerf check`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-enum Backend {
-    /// The CPU path (always available).
+enum CheckBackend {
+    /// Nothing to check: the CPU is the reference.
     Cpu,
-    /// A GPU through wgpu (a hardware GPU or a software Vulkan adapter such as lavapipe).
+    /// Any GPU adapter, software ones included.
     Gpu,
-    /// A hardware GPU if one is present, else the CPU.
+    /// A hardware GPU only.
     Auto,
 }
 
@@ -26,12 +52,121 @@ enum Backend {
 enum Command {
     /// Print the version, every GPU adapter found, and the backend `--backend auto` would choose.
     Info,
-    /// Run the GPU kernels on a small synthetic camera and compare them with the CPU reference.
+    /// Run the GPU kernels on a synthetic camera and compare them with the CPU reference.
     Check {
-        /// Which backend to check; `auto` checks the GPU only if a hardware one is present.
-        #[arg(long, value_enum, default_value_t = Backend::Gpu)]
-        backend: Backend,
+        /// Which backend to check.
+        #[arg(long, value_enum, default_value_t = CheckBackend::Gpu)]
+        backend: CheckBackend,
     },
+    /// Train a model on a dataset; writes checkpoints, metrics.csv and loss/PSNR plots to --out.
+    #[command(after_help = EXAMPLES)]
+    Train {
+        /// Run directory (created): config.toml, checkpoint.safetensors, metrics.csv, plots.
+        #[arg(long, value_name = "RUN_DIR")]
+        out: PathBuf,
+        /// A TOML file of settings (keys as the flags, with underscores); flags override it.
+        #[arg(long, value_name = "FILE.toml")]
+        config: Option<PathBuf>,
+        /// Continue the run in --out from its last checkpoint, with its saved configuration.
+        #[arg(long)]
+        resume: bool,
+        #[command(flatten)]
+        flags: TrainFlags,
+    },
+    /// Render a split of a trained run and write RUN_DIR/eval/metrics.json, metrics.md and a
+    /// per-image PSNR chart.
+    Eval {
+        /// The run directory.
+        #[arg(long, value_name = "RUN_DIR")]
+        run: PathBuf,
+        /// Which split [default: test].
+        #[arg(long, value_enum, default_value_t = SplitArg::Test)]
+        split: SplitArg,
+    },
+    /// Render a trained run: colour PNGs, depth and opacity EXRs, colour-mapped depth PNGs, and an
+    /// animated preview (preview.gif) for camera paths.
+    Render {
+        /// The run directory.
+        #[arg(long, value_name = "RUN_DIR")]
+        run: PathBuf,
+        /// Output directory (created).
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+        /// Render every view of this split [default: test, unless --path is given].
+        #[arg(long, value_enum, conflicts_with = "path")]
+        split: Option<SplitArg>,
+        /// Render a camera path instead.
+        #[arg(long, value_enum)]
+        path: Option<render::PathKind>,
+        /// Frames of the path [default: 60].
+        #[arg(long, default_value_t = 60)]
+        frames: usize,
+        /// Output width in pixels (with --height) [default: the data's].
+        #[arg(long, requires = "height")]
+        width: Option<u32>,
+        /// Output height in pixels (with --width).
+        #[arg(long, requires = "width")]
+        height: Option<u32>,
+    },
+    /// Convert a Blender scene into the multiscale format (4 scales, metadata.json), exactly as
+    /// the official convert_blender_data.py.
+    Convert {
+        /// The Blender scene (transforms_*.json).
+        #[arg(long, value_name = "BLENDER_DIR")]
+        input: PathBuf,
+        /// Output directory (created).
+        #[arg(long, value_name = "DIR")]
+        output: PathBuf,
+    },
+    /// The built-in demo scene end to end: generate it into RUN_DIR/data, train, evaluate and
+    /// render, then say where everything is.
+    Demo {
+        /// Run directory (created).
+        #[arg(long, value_name = "RUN_DIR")]
+        out: PathBuf,
+        /// Model size.
+        #[arg(long, value_enum, default_value_t = PresetArg::Tiny)]
+        preset: PresetArg,
+        /// Training steps.
+        #[arg(long, default_value_t = 1500)]
+        steps: u64,
+        /// Where to run.
+        #[arg(long, value_enum, default_value_t = Backend::Auto)]
+        backend: Backend,
+        /// Seed of the run.
+        #[arg(long, default_value_t = 0)]
+        seed: u32,
+        /// Full-resolution image size of the demo scene (a multiple of 16).
+        #[arg(long, default_value_t = 128)]
+        size: u32,
+        /// Training views of the demo scene (test views: a fifth of it, at least 2).
+        #[arg(long, default_value_t = 40)]
+        views: usize,
+        /// Rays per batch.
+        #[arg(long, default_value_t = 1024)]
+        batch_rays: usize,
+    },
+}
+
+/// `--split` values.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum SplitArg {
+    /// Training views.
+    Train,
+    /// Validation views.
+    Val,
+    /// Test views.
+    Test,
+}
+
+impl From<SplitArg> for Split {
+    fn from(s: SplitArg) -> Self {
+        match s {
+            SplitArg::Train => Split::Train,
+            SplitArg::Val => Split::Val,
+            SplitArg::Test => Split::Test,
+        }
+    }
 }
 
 fn auto_choice(adapters: &[mipnerf_gpu::AdapterSummary]) -> String {
@@ -55,19 +190,19 @@ fn info() {
     println!("--backend auto would use: {}", auto_choice(&adapters));
 }
 
-fn check(backend: Backend) -> Result<()> {
+fn check(backend: CheckBackend) -> Result<()> {
     use mipnerf_core::mip::{self, Gaussian, RayShape};
     let choice = match backend {
-        Backend::Cpu => {
+        CheckBackend::Cpu => {
             println!("the CPU backend is the reference; nothing to compare it with");
             return Ok(());
         }
-        Backend::Gpu => mipnerf_gpu::AdapterChoice::Any,
-        Backend::Auto => mipnerf_gpu::AdapterChoice::HardwareOnly,
+        CheckBackend::Gpu => mipnerf_gpu::AdapterChoice::Any,
+        CheckBackend::Auto => mipnerf_gpu::AdapterChoice::HardwareOnly,
     };
     let ctx = match mipnerf_gpu::GpuContext::new(choice) {
         Ok(c) => c,
-        Err(e) if backend == Backend::Auto => {
+        Err(e) if backend == CheckBackend::Auto => {
             println!("auto: {e}; the CPU backend would be used");
             return Ok(());
         }
@@ -112,6 +247,100 @@ fn check(backend: Backend) -> Result<()> {
     Ok(())
 }
 
+fn stop_flag() -> Arc<AtomicBool> {
+    let stop = Arc::new(AtomicBool::new(false));
+    let s = Arc::clone(&stop);
+    // A second Ctrl-C while the checkpoint is written is ignored; the flag is checked every step.
+    let _ = ctrlc::set_handler(move || {
+        eprintln!("\nCtrl-C: finishing this step and writing a checkpoint...");
+        s.store(true, Ordering::SeqCst);
+    });
+    stop
+}
+
+fn print_eval(m: &eval::Metrics) {
+    for s in &m.per_scale {
+        println!(
+            "  scale {} ({} images): PSNR {:.2} dB, SSIM {:.4}, avg error {:.4}",
+            s.scale, s.images, s.psnr, s.ssim, s.avg_error
+        );
+    }
+}
+
+fn train_cmd(
+    out: &Path,
+    config: Option<PathBuf>,
+    resume: bool,
+    flags: &TrainFlags,
+    stop: Arc<AtomicBool>,
+) -> Result<run::TrainOutcome> {
+    let file = config.map(|p| TrainSettings::from_file(&p)).transpose()?;
+    let outcome = run::train(out, file, flags.settings(), resume, stop)?;
+    if let Some((loss, psnr)) = outcome.last {
+        println!(
+            "trained to step {}: loss {loss:.5}, training PSNR {psnr:.2} dB; run in {}",
+            outcome.step,
+            out.display()
+        );
+    }
+    Ok(outcome)
+}
+
+fn demo_cmd(out: &Path, d: &DemoArgs) -> Result<()> {
+    let data_dir = out.join("data");
+    if !data_dir.join("metadata.json").is_file() {
+        let cfg =
+            demo::DemoConfig { size: d.size, train_views: d.views, test_views: (d.views / 5).max(2), supersample: 4 };
+        let t = std::time::Instant::now();
+        demo::write_demo_scene(&data_dir, &cfg)?;
+        println!("generated the demo scene in {} ({:.1}s)", data_dir.display(), t.elapsed().as_secs_f64());
+    }
+    let flags = TrainFlags {
+        data: Some(data_dir.clone()),
+        preset: Some(d.preset),
+        steps: Some(d.steps),
+        backend: Some(d.backend),
+        seed: Some(d.seed),
+        batch_rays: Some(d.batch_rays),
+        lr_init: Some(2e-3),
+        lr_final: Some(2e-4),
+        ..TrainFlags::default()
+    };
+    let resume = out.join(run::CHECKPOINT).is_file();
+    let outcome = train_cmd(out, None, resume, &flags, stop_flag())?;
+    if outcome.interrupted {
+        return Ok(());
+    }
+    let metrics = eval::eval(out, Split::Test)?;
+    println!("test metrics:");
+    print_eval(&metrics);
+    let renders = render::render(out, &out.join("render"), render::Target::Split(Split::Test), None)?;
+    let path = render::render(out, &out.join("render_orbit"), render::Target::Path(render::PathKind::Orbit, 36), None)?;
+    println!("\nEverything is in {}:", out.display());
+    println!("  data/                     the generated scene (multiscale Blender format)");
+    println!("  config.toml               the resolved training configuration");
+    println!("  checkpoint.safetensors    weights and optimiser state");
+    println!("  metrics.csv, loss.png, psnr.png   training curves");
+    println!("  eval/metrics.json, eval/metrics.md, eval/psnr_per_image.png, eval/*.png   test scores and renders");
+    println!(
+        "  render/                   {} files: colour, depth (EXR and PNG), opacity (EXR) of the test views",
+        renders.len()
+    );
+    println!("  render_orbit/preview.gif  an orbit around the scene ({} files)", path.len());
+    Ok(())
+}
+
+/// The flags of `mipnerf demo`, gathered.
+struct DemoArgs {
+    preset: PresetArg,
+    steps: u64,
+    backend: Backend,
+    seed: u32,
+    size: u32,
+    views: usize,
+    batch_rays: usize,
+}
+
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
@@ -120,6 +349,31 @@ fn main() -> std::process::ExitCode {
             Ok(())
         }
         Command::Check { backend } => check(backend),
+        Command::Train { out, config, resume, flags } => {
+            train_cmd(&out, config, resume, &flags, stop_flag()).map(|o| {
+                if o.interrupted {
+                    std::process::exit(130);
+                }
+            })
+        }
+        Command::Eval { run, split } => eval::eval(&run, split.into()).map(|m| {
+            println!("wrote {}", run.join("eval/metrics.json").display());
+            print_eval(&m);
+        }),
+        Command::Render { run, out, split, path, frames, width, height } => {
+            let target = match path {
+                Some(kind) => render::Target::Path(kind, frames),
+                None => render::Target::Split(split.unwrap_or(SplitArg::Test).into()),
+            };
+            render::render(&run, &out, target, width.zip(height))
+                .map(|files| println!("wrote {} files to {}", files.len(), out.display()))
+        }
+        Command::Convert { input, output } => data::multiscale::convert(&input, &output)
+            .map(|splits| println!("converted {splits:?} into {}", output.display()))
+            .map_err(Into::into),
+        Command::Demo { out, preset, steps, backend, seed, size, views, batch_rays } => {
+            demo_cmd(&out, &DemoArgs { preset, steps, backend, seed, size, views, batch_rays })
+        }
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -43,3 +43,214 @@ fn check_compares_the_gpu_with_the_cpu_or_says_why_not() {
         assert!(text.contains("no Vulkan/Metal/DX12 GPU adapter found") && !text.contains("panicked"), "{text}");
     }
 }
+
+fn run_ok(args: &[&str]) -> String {
+    let out = mipnerf(args);
+    let text = String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "mipnerf {args:?} failed:\n{text}");
+    text
+}
+
+/// PSNR of the best constant colour (the image's mean) for each test image of each scale.
+fn constant_psnr_per_scale(data: &std::path::Path) -> std::collections::BTreeMap<u32, f64> {
+    use mipnerf_core::data::{LoadOptions, Split, load};
+    let ds = load(data, Split::Test, &LoadOptions::default()).unwrap();
+    let mut per_scale: std::collections::BTreeMap<u32, Vec<f64>> = Default::default();
+    for v in 0..ds.views.len() {
+        let t = ds.view_targets(v);
+        let n = t.len() as f64 * 3.0;
+        let mean: Vec<f64> = (0..3).map(|c| t.iter().map(|p| f64::from(p[c])).sum::<f64>() / t.len() as f64).collect();
+        let mse = t.iter().map(|p| (0..3).map(|c| (f64::from(p[c]) - mean[c]).powi(2)).sum::<f64>()).sum::<f64>() / n;
+        per_scale.entry(ds.views[v].scale).or_default().push(-10.0 * mse.log10());
+    }
+    per_scale.into_iter().map(|(s, v)| (s, v.iter().sum::<f64>() / v.len() as f64)).collect()
+}
+
+#[test]
+fn the_demo_produces_every_promised_file_and_beats_a_constant_image() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    let r = run.to_str().unwrap();
+    let text = run_ok(&[
+        "demo",
+        "--out",
+        r,
+        "--steps",
+        "250",
+        "--size",
+        "32",
+        "--views",
+        "10",
+        "--batch-rays",
+        "256",
+        "--backend",
+        "cpu",
+    ]);
+    for f in [
+        "data/metadata.json",
+        "config.toml",
+        "checkpoint.safetensors",
+        "metrics.csv",
+        "loss.png",
+        "psnr.png",
+        "eval/metrics.json",
+        "eval/metrics.md",
+        "eval/psnr_per_image.png",
+        "render/000_d0.png",
+        "render/000_d0_depth.exr",
+        "render/000_d0_acc.exr",
+        "render/000_d0_depth.png",
+        "render_orbit/frame_0000.png",
+        "render_orbit/preview.gif",
+    ] {
+        let p = run.join(f);
+        assert!(p.is_file() && std::fs::metadata(&p).unwrap().len() > 0, "{f} missing; output:\n{text}");
+    }
+    assert!(text.contains("Everything is in"), "{text}");
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("eval/metrics.json")).unwrap()).unwrap();
+    let per_scale = m["per_scale"].as_array().unwrap();
+    assert_eq!(per_scale.len(), 4, "four scales");
+    assert_eq!(m["per_image"].as_array().unwrap().len(), 2 * 4, "2 test views x 4 scales");
+    for key in ["file", "scale", "psnr", "ssim"] {
+        assert!(m["per_image"][0].get(key).is_some(), "per_image lacks {key}");
+    }
+    let constant = constant_psnr_per_scale(&run.join("data"));
+    for s in per_scale {
+        let scale = s["scale"].as_u64().unwrap() as u32;
+        for key in ["psnr", "ssim", "avg_error", "images"] {
+            assert!(s[key].is_number(), "scale {scale}: {key} is {}", s[key]);
+        }
+        let psnr = s["psnr"].as_f64().unwrap();
+        assert!(
+            psnr > constant[&scale] + 1.0,
+            "scale {scale}: PSNR {psnr:.2} vs best constant image {:.2}",
+            constant[&scale]
+        );
+    }
+}
+
+#[test]
+fn a_resumed_run_continues_at_the_right_step() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    mipnerf_core::data::demo::write_demo_scene(
+        &data,
+        &mipnerf_core::data::demo::DemoConfig { size: 16, train_views: 3, test_views: 1, supersample: 1 },
+    )
+    .unwrap();
+    let run = dir.path().join("run");
+    let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
+    run_ok(&[
+        "train",
+        "--data",
+        d,
+        "--out",
+        r,
+        "--steps",
+        "20",
+        "--checkpoint-every",
+        "10",
+        "--batch-rays",
+        "64",
+        "--backend",
+        "cpu",
+    ]);
+    // Training into an existing run without --resume is refused, and nothing is overwritten.
+    let again = mipnerf(&["train", "--data", d, "--out", r, "--steps", "20"]);
+    assert!(!again.status.success());
+    assert!(String::from_utf8_lossy(&again.stderr).contains("--resume"), "{again:?}");
+    let text = run_ok(&["train", "--out", r, "--resume", "--steps", "30"]);
+    assert!(text.contains("resuming from step 20"), "{text}");
+    let model = mipnerf_core::model::Model::new(mipnerf_core::model::Preset::Tiny.config()).unwrap();
+    let ck = mipnerf_core::checkpoint::load(&run.join("checkpoint.safetensors"), &model).unwrap();
+    assert_eq!(ck.step, 30);
+    let csv = std::fs::read_to_string(run.join("metrics.csv")).unwrap();
+    let steps: Vec<u64> = csv.lines().skip(1).map(|l| l.split(',').next().unwrap().parse().unwrap()).collect();
+    assert_eq!(steps, vec![0, 10, 19, 20, 29]);
+    // Resuming with another model shape is a clear error, not a crash.
+    let bad = mipnerf(&["train", "--out", r, "--resume", "--steps", "40", "--preset", "small"]);
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(!bad.status.success() && err.contains("checkpoint.safetensors") && !err.contains("panicked"), "{err}");
+}
+
+#[test]
+fn bad_values_and_missing_files_fail_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let o = out.to_str().unwrap();
+    let cases: &[(&[&str], &str)] = &[
+        (&["train", "--data", "/nonexistent/scene", "--out", o], "/nonexistent/scene"),
+        (&["train", "--out", o], "no dataset"),
+        (&["eval", "--run", "/nonexistent/run"], "config.toml"),
+        (&["render", "--run", "/nonexistent/run", "--out", o], "config.toml"),
+        (&["convert", "--input", "/nonexistent/in", "--output", o], "/nonexistent/in"),
+    ];
+    for (args, needle) in cases {
+        let r = mipnerf(args);
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert_eq!(r.status.code(), Some(1), "{args:?}: {err}");
+        assert!(err.contains(needle) && !err.contains("panicked"), "{args:?}: {err}");
+    }
+    for args in [
+        &["train", "--out", o, "--steps", "many"][..],
+        &["render", "--run", o, "--out", o, "--width", "10"][..],
+        &["train", "--out", o, "--preset", "huge"][..],
+    ] {
+        let r = mipnerf(args);
+        assert_eq!(r.status.code(), Some(2), "{args:?}");
+        assert!(String::from_utf8_lossy(&r.stderr).contains("error:"), "{args:?}");
+    }
+    let cfg = dir.path().join("bad.toml");
+    std::fs::write(&cfg, "stepz = 10\n").unwrap();
+    let r = mipnerf(&["train", "--out", o, "--config", cfg.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(!r.status.success() && err.contains("bad.toml") && err.contains("stepz"), "{err}");
+}
+
+#[test]
+fn ctrl_c_writes_a_checkpoint_before_exiting() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    mipnerf_core::data::demo::write_demo_scene(
+        &data,
+        &mipnerf_core::data::demo::DemoConfig { size: 16, train_views: 2, test_views: 1, supersample: 1 },
+    )
+    .unwrap();
+    let run = dir.path().join("run");
+    let child = Command::new(env!("CARGO_BIN_EXE_mipnerf"))
+        .args([
+            "train",
+            "--data",
+            data.to_str().unwrap(),
+            "--out",
+            run.to_str().unwrap(),
+            "--steps",
+            "1000000",
+            "--batch-rays",
+            "32",
+            "--log-every",
+            "1",
+            "--backend",
+            "cpu",
+        ])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Wait until training is under way.
+    let csv = run.join("metrics.csv");
+    let t = std::time::Instant::now();
+    while std::fs::read_to_string(&csv).map_or(0, |s| s.lines().count()) < 4 {
+        assert!(t.elapsed().as_secs() < 120, "training did not start");
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    let ok = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+    assert!(ok.success());
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(130), "{err}");
+    assert!(err.contains("interrupted at step"), "{err}");
+    let model = mipnerf_core::model::Model::new(mipnerf_core::model::Preset::Tiny.config()).unwrap();
+    let ck = mipnerf_core::checkpoint::load(&run.join("checkpoint.safetensors"), &model).unwrap();
+    assert!(ck.step >= 3 && ck.step < 1_000_000, "checkpoint at step {}", ck.step);
+}

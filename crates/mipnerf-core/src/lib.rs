@@ -21,6 +21,7 @@
 
 pub mod bench;
 pub mod camera;
+pub mod checkpoint;
 pub mod data;
 pub mod linalg;
 pub mod metrics;

@@ -123,10 +123,11 @@ impl Default for ModelConfig {
 pub enum Preset {
     /// The official shape: 8 x 256 trunk, 128 + 128 samples (612,740 parameters).
     Paper,
-    /// 4 x 128 trunk, skip after layer 2, 64-wide colour branch, 64 + 64 samples (about 90K).
+    /// 4 x 128 trunk, skip after layer 2, 64-wide colour branch, 64 + 64 samples (101,060
+    /// parameters).
     Small,
     /// 3 x 64 trunk, skip after layer 2, 32-wide colour branch, 32 + 32 samples, IPE degrees
-    /// 0..10 (about 17K): trains in minutes on 2 cores.
+    /// 0..10 (23,392 parameters): trains in minutes on 2 cores.
     Tiny,
 }
 

@@ -29,7 +29,8 @@ fn multiscale_conversion_matches_the_official_converter() {
     let focal = mipnerf_core::camera::focal_from_camera_angle_x(8, inp["camera_angle_x"].as_f64().unwrap());
     let dir = tempfile::tempdir().unwrap();
     let n_down = inp["n_down"].as_u64().unwrap() as u32;
-    let meta = multiscale::write_split(dir.path(), Split::Test, std::slice::from_ref(&img), focal, n_down, 2.0, 6.0).unwrap();
+    let meta =
+        multiscale::write_split(dir.path(), Split::Test, std::slice::from_ref(&img), focal, n_down, 2.0, 6.0).unwrap();
     let mut mm = Mismatches::default();
     let (mut w, mut px) = (8usize, img.rgba.clone());
     for (j, level) in c["outputs"]["levels"].as_array().unwrap().iter().enumerate() {
@@ -156,7 +157,7 @@ fn batches_come_from_every_scale_with_their_lossmult() {
         .unwrap();
     let ds = data::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap();
     let (mut rays, mut targets) = (Vec::new(), Vec::new());
-    ds.sample_batch(4000, 1, 0, &mut rays, &mut targets);
+    ds.sample_batch(4000, 1, 0, 1, &mut rays, &mut targets);
     assert_eq!((rays.len(), targets.len()), (4000, 4000));
     let mut seen = std::collections::BTreeMap::new();
     for r in &rays {
@@ -167,9 +168,13 @@ fn batches_come_from_every_scale_with_their_lossmult() {
     let frac0 = f64::from(seen[&1]) / 4000.0;
     assert!((frac0 - 256.0 / 340.0).abs() < 0.03, "{frac0}");
     let (mut r2, mut t2) = (Vec::new(), Vec::new());
-    ds.sample_batch(4000, 1, 0, &mut r2, &mut t2);
+    ds.sample_batch(4000, 1, 0, 1, &mut r2, &mut t2);
     assert_eq!(rays, r2, "batches are a function of (seed, step)");
-    ds.sample_batch(4000, 1, 1, &mut r2, &mut t2);
+    ds.sample_batch(4000, 1, 1, 1, &mut r2, &mut t2);
+    assert_ne!(rays, r2);
+    ds.sample_batch(10, 1, 0, 3, &mut r2, &mut t2);
+    assert_eq!((r2.len(), t2.len()), (90, 10), "3x3 rays per pixel");
+    assert!((r2[0].radius * 3.0 - rays[0].radius).abs() < 1e-6 && r2[0].origin == rays[0].origin);
     assert_ne!(rays, r2);
 }
 

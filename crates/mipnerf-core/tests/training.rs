@@ -132,8 +132,8 @@ fn presets_have_the_documented_parameter_counts() {
     assert_eq!(n(Preset::Paper.config()), 612_740, "the paper's 612K");
     let nerf = n(Preset::Paper.config().nerf());
     assert!((1_190_000..=1_192_000).contains(&nerf), "NeRF's two MLPs: {nerf}, the paper says 1,191K");
-    assert!(n(Preset::Small.config()) < 150_000);
-    assert!(n(Preset::Tiny.config()) < 30_000);
+    assert_eq!(n(Preset::Small.config()), 101_060);
+    assert_eq!(n(Preset::Tiny.config()), 23_392);
 }
 
 #[test]

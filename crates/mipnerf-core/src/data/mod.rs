@@ -258,6 +258,31 @@ impl Dataset {
         (0..c.height).flat_map(|y| (0..c.width).map(move |x| (x, y))).map(|(x, y)| self.ray(v, x, y)).collect()
     }
 
+    /// Appends the `k x k` rays of pixel `(x, y)` of view `v` for a supersampled NeRF: through a
+    /// regular sub-pixel grid, each a cone of `1/k` of the pixel's radius. With `k == 1`, the
+    /// pixel's own ray. Sub-pixel rays of NDC datasets are not supported: `k` is taken as 1.
+    pub fn push_pixel_rays(&self, v: usize, x: u32, y: u32, k: usize, out: &mut Vec<Ray>) {
+        let base = self.ray(v, x, y);
+        if k <= 1 || self.ndc.is_some() {
+            out.push(base);
+            return;
+        }
+        let cam = &self.views[v].camera;
+        for sy in 0..k {
+            for sx in 0..k {
+                let px = f64::from(x) + (sx as f64 + 0.5) / k as f64;
+                let py = f64::from(y) + (sy as f64 + 0.5) / k as f64;
+                let d = glam::DVec3::from_array(cam.direction_f64(px, py));
+                out.push(Ray {
+                    direction: d.as_vec3(),
+                    viewdir: d.normalize().as_vec3(),
+                    radius: base.radius / k as f32,
+                    ..base
+                });
+            }
+        }
+    }
+
     /// Every target colour of view `v`, row-major.
     #[must_use]
     pub fn view_targets(&self, v: usize) -> Vec<[f32; 3]> {
@@ -266,8 +291,17 @@ impl Dataset {
     }
 
     /// A training batch of `n` pixels drawn uniformly (with replacement) from all pixels of all
-    /// views, a pure function of `(seed, step)`. Fills `rays` and `targets`.
-    pub fn sample_batch(&self, n: usize, seed: u32, step: u32, rays: &mut Vec<Ray>, targets: &mut Vec<[f32; 3]>) {
+    /// views, a pure function of `(seed, step)`. Fills `targets` with one colour per pixel and
+    /// `rays` with `supersample²` rays per pixel (see [`push_pixel_rays`](Self::push_pixel_rays)).
+    pub fn sample_batch(
+        &self,
+        n: usize,
+        seed: u32,
+        step: u32,
+        supersample: usize,
+        rays: &mut Vec<Ray>,
+        targets: &mut Vec<[f32; 3]>,
+    ) {
         rays.clear();
         targets.clear();
         let total = self.num_pixels();
@@ -275,7 +309,7 @@ impl Dataset {
         for i in 0..n as u32 {
             let r = (u64::from(rng.bits(2 * i)) << 32) | u64::from(rng.bits(2 * i + 1));
             let (v, x, y) = self.locate(r % total);
-            rays.push(self.ray(v, x, y));
+            self.push_pixel_rays(v, x, y, supersample, rays);
             targets.push(self.target(v, x, y));
         }
     }

@@ -1,0 +1,433 @@
+//! Training settings: command-line flags, a TOML file, or both (flags win over the file, the file
+//! over the defaults). The resolved settings are saved as `RUN_DIR/config.toml`, which `--resume`,
+//! `eval` and `render` read back.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use clap::{Args, ValueEnum};
+use mipnerf_core::PixelCenters;
+use mipnerf_core::mip::RayShape;
+use mipnerf_core::model::{ModelConfig, PointEncoding, Preset};
+use mipnerf_core::schedule::LrSchedule;
+use mipnerf_core::train::OptimConfig;
+use serde::{Deserialize, Serialize};
+
+/// Where the heavy passes run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Backend {
+    /// The CPU path (always available).
+    Cpu,
+    /// A GPU through wgpu.
+    Gpu,
+    /// A hardware GPU if one is present, else the CPU.
+    Auto,
+}
+
+/// Which of the paper's two systems.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ModelKind {
+    /// Mip-NeRF: IPE, one MLP, coarse weight 0.1, area loss, centred pixels, softplus density.
+    Mipnerf,
+    /// The NeRF baseline: PE, two MLPs, coarse weight 1, no area loss, corner pixels, ReLU density.
+    Nerf,
+}
+
+/// The model size.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PresetArg {
+    /// 3 x 64 trunk, 32 + 32 samples: minutes on 2 cores.
+    Tiny,
+    /// 4 x 128 trunk, 64 + 64 samples.
+    Small,
+    /// The paper's 8 x 256 trunk, 128 + 128 samples (612K parameters).
+    Paper,
+}
+
+/// Every training setting. In a `--config` TOML file the keys are these field names
+/// (e.g. `steps = 5000`, `ipe = false`); every key is optional.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrainSettings {
+    /// Dataset directory.
+    pub data: Option<PathBuf>,
+    /// Model size [default: tiny].
+    pub preset: Option<PresetArg>,
+    /// Mip-NeRF or the NeRF baseline [default: mipnerf].
+    pub model: Option<ModelKind>,
+    /// Training steps in total [default: 2000].
+    pub steps: Option<u64>,
+    /// Rays (pixels) per batch [default: 1024].
+    pub batch_rays: Option<usize>,
+    /// Seed of every random number of the run [default: 0].
+    pub seed: Option<u32>,
+    /// Backend [default: auto].
+    pub backend: Option<Backend>,
+    /// Steps between checkpoints [default: 500].
+    pub checkpoint_every: Option<u64>,
+    /// Steps between log lines in metrics.csv [default: 10].
+    pub log_every: Option<u64>,
+    /// Initial learning rate [default: 5e-4].
+    pub lr_init: Option<f32>,
+    /// Final learning rate [default: 5e-6].
+    pub lr_final: Option<f32>,
+    /// Warm-up steps of the learning rate [default: 2500, or steps/10 if shorter].
+    pub lr_delay_steps: Option<u64>,
+    /// Learning-rate factor at step 0 of the warm-up [default: 0.01].
+    pub lr_delay_mult: Option<f32>,
+    /// Clip the gradient to this norm (0 = off) [default: 0].
+    pub grad_max_norm: Option<f32>,
+    /// Clip gradient entries to this magnitude (0 = off) [default: 0].
+    pub grad_max_val: Option<f32>,
+    /// Samples per ray and level (overrides the preset).
+    pub num_samples: Option<usize>,
+    /// Integrated positional encoding (false: plain PE of the frustum means) [default: true].
+    pub ipe: Option<bool>,
+    /// Weight rays by their pixel's area [default: true for mipnerf].
+    pub area_loss: Option<bool>,
+    /// One MLP per level with coarse weight 1 [default: false for mipnerf].
+    pub two_mlps: Option<bool>,
+    /// Mip-NeRF's softplus density, bias -1 and colour padding [default: true for mipnerf].
+    pub misc: Option<bool>,
+    /// Rays through pixel centres (false: corners) [default: true for mipnerf].
+    pub centered_pixels: Option<bool>,
+    /// Rays per pixel along each axis (supersampled NeRF) [default: 1].
+    pub supersample: Option<usize>,
+    /// Cone or cylinder [default: cone; cylinder for LLFF].
+    pub ray_shape: Option<RayShape>,
+    /// Composite on white [default: true, false for LLFF].
+    pub white_bkgd: Option<bool>,
+    /// Blender: load at half resolution [default: false].
+    pub half_res: Option<bool>,
+    /// LLFF: image folder factor, images_N [default: 4].
+    pub llff_factor: Option<u32>,
+    /// LLFF: spherical poses instead of NDC [default: false].
+    pub spherify: Option<bool>,
+}
+
+macro_rules! merge_fields {
+    ($base:expr, $over:expr, $($f:ident),*) => { TrainSettings { $($f: $over.$f.clone().or($base.$f.clone()),)* } };
+}
+
+impl TrainSettings {
+    /// `self` with every field that `over` sets replaced.
+    #[must_use]
+    pub fn overridden_by(&self, over: &Self) -> Self {
+        merge_fields!(
+            self,
+            over,
+            data,
+            preset,
+            model,
+            steps,
+            batch_rays,
+            seed,
+            backend,
+            checkpoint_every,
+            log_every,
+            lr_init,
+            lr_final,
+            lr_delay_steps,
+            lr_delay_mult,
+            grad_max_norm,
+            grad_max_val,
+            num_samples,
+            ipe,
+            area_loss,
+            two_mlps,
+            misc,
+            centered_pixels,
+            supersample,
+            ray_shape,
+            white_bkgd,
+            half_res,
+            llff_factor,
+            spherify
+        )
+    }
+
+    /// Reads settings from a TOML file.
+    ///
+    /// # Errors
+    /// An unreadable file, malformed TOML or an unknown key, naming the file.
+    pub fn from_file(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        toml::from_str(&text).with_context(|| format!("{}: invalid configuration", path.display()))
+    }
+
+    /// Writes these settings as TOML, atomically.
+    ///
+    /// # Errors
+    /// An unwritable file.
+    pub fn save(&self, path: &Path) -> Result<()> {
+        let text = format!(
+            "# mipnerf run configuration (resolved; read back by --resume, eval and render)\n{}",
+            toml::to_string(self)?
+        );
+        let tmp = path.with_extension("toml.tmp");
+        std::fs::write(&tmp, text).with_context(|| format!("writing {}", tmp.display()))?;
+        std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))
+    }
+
+    /// Fills every unset field with its default (given whether the data is LLFF), so the saved
+    /// configuration says exactly what ran.
+    #[must_use]
+    pub fn resolved(&self, llff: bool) -> Self {
+        let kind = self.model.unwrap_or(ModelKind::Mipnerf);
+        let mip = kind == ModelKind::Mipnerf;
+        let steps = self.steps.unwrap_or(2000);
+        Self {
+            data: self.data.clone(),
+            preset: Some(self.preset.unwrap_or(PresetArg::Tiny)),
+            model: Some(kind),
+            steps: Some(steps),
+            batch_rays: Some(self.batch_rays.unwrap_or(1024)),
+            seed: Some(self.seed.unwrap_or(0)),
+            backend: Some(self.backend.unwrap_or(Backend::Auto)),
+            checkpoint_every: Some(self.checkpoint_every.unwrap_or(500)),
+            log_every: Some(self.log_every.unwrap_or(10)),
+            lr_init: Some(self.lr_init.unwrap_or(5e-4)),
+            lr_final: Some(self.lr_final.unwrap_or(5e-6)),
+            lr_delay_steps: Some(self.lr_delay_steps.unwrap_or(2500.min(steps / 10))),
+            lr_delay_mult: Some(self.lr_delay_mult.unwrap_or(0.01)),
+            grad_max_norm: Some(self.grad_max_norm.unwrap_or(0.0)),
+            grad_max_val: Some(self.grad_max_val.unwrap_or(0.0)),
+            num_samples: self.num_samples,
+            ipe: Some(self.ipe.unwrap_or(mip)),
+            area_loss: Some(self.area_loss.unwrap_or(mip)),
+            two_mlps: Some(self.two_mlps.unwrap_or(!mip)),
+            misc: Some(self.misc.unwrap_or(mip)),
+            centered_pixels: Some(self.centered_pixels.unwrap_or(mip)),
+            supersample: Some(self.supersample.unwrap_or(1)),
+            ray_shape: Some(self.ray_shape.unwrap_or(if llff && !self.spherify.unwrap_or(false) {
+                RayShape::Cylinder
+            } else {
+                RayShape::Cone
+            })),
+            white_bkgd: Some(self.white_bkgd.unwrap_or(!llff)),
+            half_res: Some(self.half_res.unwrap_or(false)),
+            llff_factor: Some(self.llff_factor.unwrap_or(4)),
+            spherify: Some(self.spherify.unwrap_or(false)),
+        }
+    }
+
+    /// The model configuration of resolved settings.
+    ///
+    /// # Errors
+    /// Out-of-range values.
+    pub fn model_config(&self) -> Result<ModelConfig> {
+        let preset = match self.preset.unwrap_or(PresetArg::Tiny) {
+            PresetArg::Tiny => Preset::Tiny,
+            PresetArg::Small => Preset::Small,
+            PresetArg::Paper => Preset::Paper,
+        };
+        let mut m = preset.config();
+        if self.model == Some(ModelKind::Nerf) {
+            m = m.nerf();
+        }
+        if self.ipe == Some(false) && m.point_encoding == PointEncoding::Integrated {
+            m.point_encoding = PointEncoding::Mean;
+        }
+        if self.ipe == Some(true) && m.point_encoding != PointEncoding::Integrated {
+            m.point_encoding = PointEncoding::Integrated;
+            m.max_deg_point = preset.config().max_deg_point;
+        }
+        m.area_loss = self.area_loss.unwrap_or(m.area_loss);
+        if let Some(two) = self.two_mlps {
+            m.separate_mlps = two;
+            m.coarse_loss_mult = if two { 1.0 } else { 0.1 };
+        }
+        if self.misc == Some(false) {
+            m = m.without_misc();
+        } else if self.misc == Some(true) {
+            let d = ModelConfig::default();
+            (m.density_activation, m.density_bias, m.rgb_padding) =
+                (d.density_activation, d.density_bias, d.rgb_padding);
+        }
+        if let Some(n) = self.num_samples {
+            m.num_samples = n;
+        }
+        m.supersample = self.supersample.unwrap_or(1);
+        m.ray_shape = self.ray_shape.unwrap_or(RayShape::Cone);
+        m.white_bkgd = self.white_bkgd.unwrap_or(true);
+        if m.supersample == 0 || m.supersample > 16 {
+            bail!("--supersample must be between 1 and 16, got {}", m.supersample);
+        }
+        if m.num_samples == 0 || m.num_samples > 1024 {
+            bail!("--num-samples must be between 1 and 1024, got {}", m.num_samples);
+        }
+        Ok(m)
+    }
+
+    /// The optimiser configuration of resolved settings.
+    ///
+    /// # Errors
+    /// Non-positive or non-finite learning rates.
+    pub fn optim_config(&self) -> Result<OptimConfig> {
+        let lr = LrSchedule {
+            lr_init: self.lr_init.unwrap_or(5e-4),
+            lr_final: self.lr_final.unwrap_or(5e-6),
+            max_steps: self.steps.unwrap_or(2000),
+            lr_delay_steps: self.lr_delay_steps.unwrap_or(0),
+            lr_delay_mult: self.lr_delay_mult.unwrap_or(0.01),
+        };
+        for (name, v) in [("--lr-init", lr.lr_init), ("--lr-final", lr.lr_final), ("--lr-delay-mult", lr.lr_delay_mult)]
+        {
+            if !(v.is_finite() && v > 0.0) {
+                bail!("{name} must be a positive number, got {v}");
+            }
+        }
+        Ok(OptimConfig {
+            lr,
+            grad_max_norm: self.grad_max_norm.unwrap_or(0.0).max(0.0),
+            grad_max_val: self.grad_max_val.unwrap_or(0.0).max(0.0),
+            ..OptimConfig::default()
+        })
+    }
+
+    /// Pixel centres or corners.
+    #[must_use]
+    pub fn centers(&self) -> PixelCenters {
+        if self.centered_pixels.unwrap_or(true) { PixelCenters::Centered } else { PixelCenters::Corner }
+    }
+}
+
+/// The flags of `mipnerf train`. Every flag can also be given in `--config FILE.toml` under the
+/// same name with underscores (flags win).
+#[derive(Args, Debug, Clone, Default)]
+pub struct TrainFlags {
+    /// Dataset directory: Blender (transforms_*.json), multiscale Blender (metadata.json) or LLFF
+    /// (poses_bounds.npy); the format is detected.
+    #[arg(long, value_name = "DIR")]
+    pub data: Option<PathBuf>,
+    /// Model size: tiny (minutes on 2 cores), small, or paper (the official 612K network)
+    /// [default: tiny].
+    #[arg(long, value_enum)]
+    pub preset: Option<PresetArg>,
+    /// The paper's system: mipnerf, or the nerf baseline (PE, two MLPs, coarse weight 1, no area
+    /// loss, corner pixels, ReLU density) [default: mipnerf]. The single switches below override it.
+    #[arg(long, value_enum)]
+    pub model: Option<ModelKind>,
+    /// Total training steps [default: 2000].
+    #[arg(long)]
+    pub steps: Option<u64>,
+    /// Rays per batch [default: 1024].
+    #[arg(long)]
+    pub batch_rays: Option<usize>,
+    /// Where to run: cpu, gpu, or auto (a hardware GPU if present, else the CPU) [default: auto].
+    #[arg(long, value_enum)]
+    pub backend: Option<Backend>,
+    /// Seed of every random number in the run [default: 0].
+    #[arg(long)]
+    pub seed: Option<u32>,
+    /// Steps between checkpoints [default: 500].
+    #[arg(long)]
+    pub checkpoint_every: Option<u64>,
+    /// Steps between rows of metrics.csv [default: 10].
+    #[arg(long)]
+    pub log_every: Option<u64>,
+    /// Initial learning rate [default: 5e-4].
+    #[arg(long)]
+    pub lr_init: Option<f32>,
+    /// Final learning rate [default: 5e-6].
+    #[arg(long)]
+    pub lr_final: Option<f32>,
+    /// Learning-rate warm-up steps [default: min(2500, steps/10)].
+    #[arg(long)]
+    pub lr_delay_steps: Option<u64>,
+    /// Clip the gradient's norm to this (0 = off) [default: 0].
+    #[arg(long)]
+    pub grad_max_norm: Option<f32>,
+    /// Clip each gradient entry to this magnitude (0 = off) [default: 0].
+    #[arg(long)]
+    pub grad_max_val: Option<f32>,
+    /// Samples per ray and level (overrides the preset).
+    #[arg(long)]
+    pub num_samples: Option<usize>,
+    /// Without integrated positional encoding: plain PE of the frustum means ("w/o IPE").
+    #[arg(long)]
+    pub no_ipe: bool,
+    /// Without the area loss: every ray weighs the same ("w/o area loss").
+    #[arg(long)]
+    pub no_area_loss: bool,
+    /// Two MLPs (one per level) with coarse loss weight 1, as NeRF.
+    #[arg(long)]
+    pub two_mlps: bool,
+    /// Without Mip-NeRF's "misc" changes: ReLU density, no density bias, no colour padding.
+    #[arg(long)]
+    pub no_misc: bool,
+    /// Rays through pixel centres (Mip-NeRF's default).
+    #[arg(long, conflicts_with = "corner_pixels")]
+    pub centered_pixels: bool,
+    /// Rays through pixel corners (NeRF's default).
+    #[arg(long)]
+    pub corner_pixels: bool,
+    /// Supersample: K x K rays per pixel, averaged (the paper's supersampled NeRF) [default: 1].
+    #[arg(long, value_name = "K")]
+    pub supersample: Option<usize>,
+    /// Shape cast through each pixel [default: cone; cylinder for LLFF].
+    #[arg(long, value_enum)]
+    pub ray_shape: Option<RayShapeArg>,
+    /// Blender: load images at half resolution.
+    #[arg(long)]
+    pub half_res: bool,
+    /// LLFF: read images_N [default: 4].
+    #[arg(long, value_name = "N")]
+    pub llff_factor: Option<u32>,
+    /// LLFF: spherical poses and world-space rays instead of NDC.
+    #[arg(long)]
+    pub spherify: bool,
+}
+
+/// `--ray-shape` values.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum RayShapeArg {
+    /// Cones (Mip-NeRF).
+    Cone,
+    /// Cylinders (NDC scenes).
+    Cylinder,
+}
+
+impl TrainFlags {
+    /// The settings these flags set (unset flags stay `None`).
+    #[must_use]
+    pub fn settings(&self) -> TrainSettings {
+        let yes = |b: bool| b.then_some(true);
+        let no = |b: bool| b.then_some(false);
+        TrainSettings {
+            data: self.data.clone(),
+            preset: self.preset,
+            model: self.model,
+            steps: self.steps,
+            batch_rays: self.batch_rays,
+            seed: self.seed,
+            backend: self.backend,
+            checkpoint_every: self.checkpoint_every,
+            log_every: self.log_every,
+            lr_init: self.lr_init,
+            lr_final: self.lr_final,
+            lr_delay_steps: self.lr_delay_steps,
+            lr_delay_mult: None,
+            grad_max_norm: self.grad_max_norm,
+            grad_max_val: self.grad_max_val,
+            num_samples: self.num_samples,
+            ipe: no(self.no_ipe),
+            area_loss: no(self.no_area_loss),
+            two_mlps: yes(self.two_mlps),
+            misc: no(self.no_misc),
+            centered_pixels: yes(self.centered_pixels).or(no(self.corner_pixels)),
+            supersample: self.supersample,
+            ray_shape: self.ray_shape.map(|r| match r {
+                RayShapeArg::Cone => RayShape::Cone,
+                RayShapeArg::Cylinder => RayShape::Cylinder,
+            }),
+            white_bkgd: None,
+            half_res: yes(self.half_res),
+            llff_factor: self.llff_factor,
+            spherify: yes(self.spherify),
+        }
+    }
+}

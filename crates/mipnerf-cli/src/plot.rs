@@ -1,0 +1,93 @@
+//! PNG charts: training curves and per-image PSNR bars (plotters, with an embedded DejaVu Sans so
+//! that no system fonts are needed).
+
+use std::path::Path;
+use std::sync::OnceLock;
+
+use anyhow::{Context, Result, anyhow};
+use plotters::prelude::*;
+
+static FONT: OnceLock<bool> = OnceLock::new();
+
+fn ensure_font() {
+    FONT.get_or_init(|| {
+        plotters::style::register_font("sans-serif", FontStyle::Normal, include_bytes!("../assets/DejaVuSans.ttf"))
+            .is_ok()
+    });
+}
+
+fn plot_err<E: std::fmt::Debug>(path: &Path) -> impl Fn(E) -> anyhow::Error + '_ {
+    move |e| anyhow!("drawing {}: {e:?}", path.display())
+}
+
+/// One curve against the step.
+fn line_chart(path: &Path, title: &str, y_label: &str, points: &[(f64, f64)], log_y: bool) -> Result<()> {
+    ensure_font();
+    let err = plot_err(path);
+    let root = BitMapBackend::new(path, (800, 480)).into_drawing_area();
+    root.fill(&WHITE).map_err(&err)?;
+    let (x0, x1) = (points.first().map_or(0.0, |p| p.0), points.last().map_or(1.0, |p| p.0).max(1.0));
+    let ys = points.iter().map(|p| p.1).filter(|y| y.is_finite() && (!log_y || *y > 0.0));
+    let (lo, hi) = ys.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), y| (a.min(y), b.max(y)));
+    let (lo, hi) = if lo.is_finite() { (lo, hi.max(lo * 1.0001 + 1e-12)) } else { (0.1, 1.0) };
+    let mut chart = ChartBuilder::on(&root);
+    chart.caption(title, ("sans-serif", 22)).margin(12).x_label_area_size(40).y_label_area_size(70);
+    let series = points.iter().copied().filter(|p| p.1.is_finite() && (!log_y || p.1 > 0.0));
+    if log_y {
+        let mut c = chart.build_cartesian_2d(x0..x1, (lo..hi).log_scale()).map_err(&err)?;
+        c.configure_mesh().x_desc("step").y_desc(y_label).draw().map_err(&err)?;
+        c.draw_series(LineSeries::new(series, BLUE.stroke_width(2))).map_err(&err)?;
+    } else {
+        let pad = 0.05 * (hi - lo);
+        let mut c = chart.build_cartesian_2d(x0..x1, (lo - pad)..(hi + pad)).map_err(&err)?;
+        c.configure_mesh().x_desc("step").y_desc(y_label).draw().map_err(&err)?;
+        c.draw_series(LineSeries::new(series, RED.stroke_width(2))).map_err(&err)?;
+    }
+    root.present().map_err(&err)?;
+    Ok(())
+}
+
+/// `loss.png` and `psnr.png` in `out` from a run's `metrics.csv`.
+///
+/// # Errors
+/// An unreadable CSV or unwritable PNGs.
+pub fn training_curves(csv: &Path, out: &Path) -> Result<()> {
+    let text = std::fs::read_to_string(csv).with_context(|| format!("reading {}", csv.display()))?;
+    let rows: Vec<Vec<&str>> = text.lines().skip(1).map(|l| l.split(',').collect()).collect();
+    let col = |i: usize| -> Vec<(f64, f64)> {
+        rows.iter().filter_map(|r| Some((r.first()?.parse().ok()?, r.get(i)?.parse().ok()?))).collect()
+    };
+    line_chart(&out.join("loss.png"), "Training loss (coarse x 0.1 + fine, per-channel MSE)", "loss", &col(1), true)?;
+    line_chart(&out.join("psnr.png"), "Training PSNR (fine level, batch)", "PSNR (dB)", &col(3), false)?;
+    Ok(())
+}
+
+/// A bar chart of PSNR per image, coloured by scale.
+///
+/// # Errors
+/// Unwritable PNG.
+pub fn psnr_bars(path: &Path, bars: &[(String, u32, f64)]) -> Result<()> {
+    ensure_font();
+    let err = plot_err(path);
+    let width = (60 + 18 * bars.len()).clamp(640, 4000) as u32;
+    let root = BitMapBackend::new(path, (width, 480)).into_drawing_area();
+    root.fill(&WHITE).map_err(&err)?;
+    let hi = bars.iter().map(|b| b.2).filter(|v| v.is_finite()).fold(10.0, f64::max) * 1.1;
+    let mut chart = ChartBuilder::on(&root)
+        .caption("PSNR per test image (colour = scale)", ("sans-serif", 22))
+        .margin(12)
+        .x_label_area_size(30)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0.0..bars.len() as f64, 0.0..hi)
+        .map_err(&err)?;
+    chart.configure_mesh().disable_x_mesh().x_desc("image").y_desc("PSNR (dB)").draw().map_err(&err)?;
+    let palette = [BLUE, RED, GREEN, MAGENTA, CYAN];
+    chart
+        .draw_series(bars.iter().enumerate().map(|(i, (_, scale, v))| {
+            let c = palette[*scale as usize % palette.len()];
+            Rectangle::new([(i as f64 + 0.1, 0.0), (i as f64 + 0.9, v.max(0.0))], c.filled())
+        }))
+        .map_err(&err)?;
+    root.present().map_err(&err)?;
+    Ok(())
+}

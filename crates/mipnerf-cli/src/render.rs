@@ -1,0 +1,175 @@
+//! `mipnerf render`: a split's views or a camera path, as colour PNGs, depth and opacity EXRs,
+//! colour-mapped depth PNGs, and an animated preview for paths.
+
+use std::path::Path;
+
+use anyhow::{Context, Result, bail};
+use clap::ValueEnum;
+use mipnerf_core::data::{Dataset, Split};
+use mipnerf_core::{Camera, Ray};
+
+use crate::images::{depth_to_png, rgb_to_png, write_exr, write_gif, write_png};
+use crate::run::{load_split, load_trained, read_config};
+
+/// Camera paths.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum PathKind {
+    /// A circle around the scene at the training cameras' mean distance and elevation.
+    Orbit,
+    /// LLFF's official spiral; for other scenes an orbit whose elevation swings up and down.
+    Spiral,
+}
+
+/// What to render.
+#[derive(Clone, Copy, Debug)]
+pub enum Target {
+    /// Every view of a split at its own resolution.
+    Split(Split),
+    /// `frames` cameras along a path.
+    Path(PathKind, usize),
+}
+
+fn look_at(pos: glam::DVec3) -> [[f64; 4]; 3] {
+    let back = pos.normalize();
+    let right = glam::DVec3::Z.cross(back).normalize();
+    let up = back.cross(right);
+    std::array::from_fn(|r| [right[r], up[r], back[r], pos[r]])
+}
+
+/// Cameras along `kind` for a scene whose training views are `train`.
+fn path_cameras(train: &Dataset, test: Option<&Dataset>, kind: PathKind, frames: usize) -> Result<Vec<Camera>> {
+    if let (PathKind::Spiral, Some(t)) = (kind, test)
+        && !t.render_path.is_empty()
+    {
+        let n = t.render_path.len();
+        return Ok((0..frames).map(|i| t.render_path[i * n / frames].clone()).collect());
+    }
+    let full: Vec<&Camera> = train.views.iter().filter(|v| v.scale == 0).map(|v| &v.camera).collect();
+    let n = full.len() as f64;
+    let origins: Vec<glam::DVec3> = full.iter().map(|c| glam::DVec3::from_array(c.origin())).collect();
+    let radius = origins.iter().map(|o| o.length()).sum::<f64>() / n;
+    let elev = origins.iter().map(|o| (o.z / o.length()).asin()).sum::<f64>() / n;
+    let base = full[0];
+    (0..frames)
+        .map(|i| {
+            let az = i as f64 / frames as f64 * std::f64::consts::TAU;
+            let el = match kind {
+                PathKind::Orbit => elev,
+                PathKind::Spiral => elev + 0.25 * (2.0 * az).sin(),
+            };
+            let pos = glam::DVec3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin()) * radius;
+            Ok(Camera::from_pix2cam(base.width, base.height, base.pix2cam, look_at(pos))?)
+        })
+        .collect()
+}
+
+/// `camera` at `w x h` pixels (the focal length scaled with the width).
+fn resized(camera: &Camera, w: u32, h: u32) -> Result<Camera> {
+    let s = f64::from(camera.width) / f64::from(w);
+    let f = 1.0 / (camera.pix2cam[0][0] * s);
+    Ok(Camera::from_pix2cam(w, h, mipnerf_core::camera::pinhole_pix2cam(w, h, f), camera.cam2world)?)
+}
+
+/// Renders `target` of the run into `out`; returns the files written.
+///
+/// # Errors
+/// Missing run files, bad sizes, unwritable outputs.
+pub fn render(run: &Path, out: &Path, target: Target, size: Option<(u32, u32)>) -> Result<Vec<std::path::PathBuf>> {
+    let s = read_config(run)?;
+    let (model, ck) = load_trained(run, &s)?;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    if let Some((w, h)) = size
+        && (w == 0 || h == 0 || w > 16384 || h > 16384)
+    {
+        bail!("--width and --height must be between 1 and 16384, got {w}x{h}");
+    }
+    // (name, rays) per image.
+    let mut jobs: Vec<(String, u32, u32, Vec<Ray>)> = Vec::new();
+    match target {
+        Target::Split(split) => {
+            let ds = load_split(&s, split)?;
+            for v in 0..ds.views.len() {
+                let view = &ds.views[v];
+                let stem = view.file.file_stem().map_or_else(|| format!("{v:04}"), |x| x.to_string_lossy().to_string());
+                let (cam, rays) = match size {
+                    None => (view.camera.clone(), ds.view_rays(v)),
+                    Some((w, h)) => {
+                        let c = resized(&view.camera, w, h)?;
+                        let r = c.generate_rays(ds.centers, view.near, view.far, 1.0);
+                        (c, r)
+                    }
+                };
+                jobs.push((stem, cam.width, cam.height, rays));
+            }
+        }
+        Target::Path(kind, frames) => {
+            if frames == 0 || frames > 10_000 {
+                bail!("--frames must be between 1 and 10000, got {frames}");
+            }
+            let train = load_split(&s, Split::Train)?;
+            let test = load_split(&s, Split::Test).ok();
+            if train.ndc.is_some()
+                && (kind == PathKind::Orbit || test.as_ref().is_none_or(|t| t.render_path.is_empty()))
+            {
+                bail!("forward-facing (NDC) scenes only have the spiral path: pass --path spiral");
+            }
+            let (near, far) = (train.views[0].near, train.views[0].far);
+            let mut one = train.clone();
+            one.views.truncate(1);
+            for (i, cam) in path_cameras(&train, test.as_ref(), kind, frames)?.into_iter().enumerate() {
+                let cam = match size {
+                    None => cam,
+                    Some((w, h)) => resized(&cam, w, h)?,
+                };
+                one.views[0].camera = cam.clone();
+                let rays =
+                    if one.ndc.is_some() { one.view_rays(0) } else { cam.generate_rays(train.centers, near, far, 1.0) };
+                jobs.push((format!("frame_{i:04}"), cam.width, cam.height, rays));
+            }
+        }
+    }
+    let levels = model.config.num_levels;
+    let mut written = Vec::new();
+    let mut preview = Vec::new();
+    let pb = indicatif::ProgressBar::new(jobs.len() as u64);
+    for (name, w, h, rays) in &jobs {
+        let k = model.rays_per_pixel();
+        let rays: Vec<Ray> = rays.iter().flat_map(|r| std::iter::repeat_n(*r, k)).collect();
+        let outs: Vec<_> = model.render(&ck.params, &rays).chunks(levels).map(|l| l[levels - 1]).collect();
+        let rgb: Vec<[f32; 3]> = outs.iter().map(|o| o.rgb).collect();
+        let depth: Vec<f32> = outs.iter().map(|o| o.distance).collect();
+        let acc: Vec<f32> = outs.iter().map(|o| o.acc).collect();
+        let (near, far) = (rays[0].near, rays[0].far);
+        let png = rgb_to_png(&rgb);
+        for (file, result) in [
+            (format!("{name}.png"), write_png(&out.join(format!("{name}.png")), *w, *h, &png)),
+            (
+                format!("{name}_depth.exr"),
+                write_exr(&out.join(format!("{name}_depth.exr")), *w as usize, *h as usize, "Z", &depth),
+            ),
+            (
+                format!("{name}_acc.exr"),
+                write_exr(&out.join(format!("{name}_acc.exr")), *w as usize, *h as usize, "A", &acc),
+            ),
+            (
+                format!("{name}_depth.png"),
+                write_png(&out.join(format!("{name}_depth.png")), *w, *h, &depth_to_png(&depth, &acc, near, far)),
+            ),
+        ] {
+            result?;
+            written.push(out.join(file));
+        }
+        if matches!(target, Target::Path(..)) {
+            preview.push(png);
+        }
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    if !preview.is_empty() {
+        let (w, h) = (jobs[0].1, jobs[0].2);
+        let gif = out.join("preview.gif");
+        write_gif(&gif, w, h, &preview, 80)?;
+        written.push(gif);
+    }
+    Ok(written)
+}

@@ -1,0 +1,253 @@
+//! A run directory: its configuration, dataset, model and checkpoint, and the training loop.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use indicatif::{ProgressBar, ProgressStyle};
+use mipnerf_core::checkpoint::{self, Checkpoint};
+use mipnerf_core::data::{self, Dataset, Format, LoadOptions, Split};
+use mipnerf_core::model::Model;
+use mipnerf_core::train::Trainer;
+
+use crate::config::{Backend, TrainSettings};
+
+/// File names inside a run directory.
+pub const CONFIG: &str = "config.toml";
+/// The latest checkpoint.
+pub const CHECKPOINT: &str = "checkpoint.safetensors";
+/// Training metrics, one row every `log_every` steps.
+pub const METRICS_CSV: &str = "metrics.csv";
+
+/// Loads `split` of the run's dataset with the run's settings.
+///
+/// # Errors
+/// The dataset's errors, with the path.
+pub fn load_split(s: &TrainSettings, split: Split) -> Result<Dataset> {
+    let dir = s.data.as_ref().context("no dataset: pass --data DIR")?;
+    let opts = LoadOptions {
+        white_bkgd: s.white_bkgd.unwrap_or(true),
+        half_res: s.half_res.unwrap_or(false),
+        llff_factor: s.llff_factor.unwrap_or(4),
+        llff_spherify: s.spherify.unwrap_or(false),
+        centers: s.centers(),
+    };
+    Ok(data::load(dir, split, &opts)?)
+}
+
+/// Reads a run's resolved configuration.
+///
+/// # Errors
+/// A missing or invalid `config.toml`.
+pub fn read_config(run: &Path) -> Result<TrainSettings> {
+    let path = run.join(CONFIG);
+    if !path.is_file() {
+        bail!("{}: no such file; is {} a run directory made by `mipnerf train`?", path.display(), run.display());
+    }
+    TrainSettings::from_file(&path)
+}
+
+/// The model and trained parameters of a run.
+///
+/// # Errors
+/// A missing or mismatched checkpoint.
+pub fn load_trained(run: &Path, s: &TrainSettings) -> Result<(Model, Checkpoint)> {
+    let model = Model::new(s.model_config()?)?;
+    let ck = checkpoint::load(&run.join(CHECKPOINT), &model)?;
+    Ok((model, ck))
+}
+
+/// Picks the backend, saying which. The GPU training backend is not part of this release yet.
+fn choose_backend(b: Backend) -> Result<()> {
+    match b {
+        Backend::Cpu => Ok(()),
+        Backend::Gpu => bail!(
+            "--backend gpu: GPU training is not available in this version yet (the WGSL kernels are \
+             checked against the CPU with `mipnerf check`); use --backend cpu or auto"
+        ),
+        Backend::Auto => {
+            let hw = mipnerf_gpu::list_adapters().into_iter().find(|a| !a.is_software);
+            match hw {
+                Some(a) => {
+                    eprintln!("backend auto: found {} but GPU training is not available yet; using the CPU", a.name)
+                }
+                None => eprintln!("backend auto: no hardware GPU; using the CPU"),
+            }
+            Ok(())
+        }
+    }
+}
+
+/// What a training run ended with.
+#[derive(Debug)]
+pub struct TrainOutcome {
+    /// Steps completed.
+    pub step: u64,
+    /// Whether Ctrl-C stopped it early.
+    pub interrupted: bool,
+    /// Last logged loss and PSNR.
+    pub last: Option<(f32, f32)>,
+}
+
+/// Trains (or resumes) the run in `run_dir` with `flags_settings` over the file and defaults.
+///
+/// # Errors
+/// Bad settings, data, checkpoints or files.
+pub fn train(
+    run_dir: &Path,
+    file_settings: Option<TrainSettings>,
+    flag_settings: TrainSettings,
+    resume: bool,
+    stop: Arc<AtomicBool>,
+) -> Result<TrainOutcome> {
+    let base = if resume { read_config(run_dir)? } else { file_settings.unwrap_or_default() };
+    let merged = base.overridden_by(&flag_settings);
+    let data_dir = merged.data.clone().context("no dataset: pass --data DIR (or data = \"DIR\" in --config)")?;
+    let format = data::detect_format(&data_dir)?;
+    let s = merged.resolved(format == Format::Llff);
+    choose_backend(s.backend.unwrap_or(Backend::Auto))?;
+    let model_cfg = s.model_config()?;
+    let optim = s.optim_config()?;
+    let steps = s.steps.unwrap_or(0);
+    let batch = s.batch_rays.unwrap_or(1024);
+    if batch == 0 {
+        bail!("--batch-rays must be positive");
+    }
+    std::fs::create_dir_all(run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
+    let ckpt_path = run_dir.join(CHECKPOINT);
+    if !resume && ckpt_path.exists() {
+        bail!(
+            "{} already holds a run (checkpoint.safetensors); pass --resume to continue it, or choose another --out",
+            run_dir.display()
+        );
+    }
+    let t_load = Instant::now();
+    let ds = load_split(&s, Split::Train)?;
+    eprintln!(
+        "data: {} ({format:?}, {} views, {} pixels, scales {:?}, {:.1} MiB of pixels, loaded in {:.1}s)",
+        data_dir.display(),
+        ds.views.len(),
+        ds.num_pixels(),
+        ds.scales(),
+        ds.pixel_bytes() as f64 / (1 << 20) as f64,
+        t_load.elapsed().as_secs_f64()
+    );
+    let model = Model::new(model_cfg)?;
+    eprintln!(
+        "model: {} parameters ({:?} preset, {:?})",
+        model.num_params,
+        s.preset.unwrap_or(crate::config::PresetArg::Tiny),
+        s.model.unwrap_or(crate::config::ModelKind::Mipnerf)
+    );
+    let seed = s.seed.unwrap_or(0);
+    let mut trainer = Trainer::new(model, optim, seed);
+    if resume {
+        let ck = checkpoint::load(&ckpt_path, &trainer.model)?;
+        eprintln!("resuming from step {} ({})", ck.step, ckpt_path.display());
+        trainer.params = ck.params;
+        trainer.adam = ck.adam;
+        trainer.step = ck.step;
+    }
+    s.save(&run_dir.join(CONFIG))?;
+    let csv_path = run_dir.join(METRICS_CSV);
+    let mut csv = open_csv(&csv_path, trainer.step)?;
+    let save = |t: &Trainer| -> Result<()> {
+        let ck = Checkpoint { step: t.step, params: t.params.clone(), adam: t.adam.clone() };
+        Ok(checkpoint::save(&ckpt_path, &t.model, &ck)?)
+    };
+    let pb = ProgressBar::new(steps);
+    pb.set_style(
+        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} {msg} ETA {eta}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    pb.set_position(trainer.step);
+    let (mut rays, mut targets) = (Vec::new(), Vec::new());
+    let supersample = trainer.model.config.supersample;
+    let log_every = s.log_every.unwrap_or(10).max(1);
+    let ckpt_every = s.checkpoint_every.unwrap_or(500).max(1);
+    let t0 = Instant::now();
+    let mut window = (Instant::now(), 0u64);
+    let mut last = None;
+    let mut interrupted = false;
+    while trainer.step < steps {
+        if stop.load(Ordering::SeqCst) {
+            interrupted = true;
+            break;
+        }
+        ds.sample_batch(batch, seed, trainer.step as u32, supersample, &mut rays, &mut targets);
+        let rep = trainer.train_step(&rays, &targets);
+        if !rep.stats.loss.is_finite() {
+            save(&trainer)?;
+            bail!(
+                "the loss became {} at step {}; the last checkpoint is kept (try a lower --lr-init or --grad-max-norm)",
+                rep.stats.loss,
+                rep.step
+            );
+        }
+        window.1 += 1;
+        if rep.step.is_multiple_of(log_every) || trainer.step == steps {
+            let dt = window.0.elapsed().as_secs_f64().max(1e-9);
+            let rays_per_s = (window.1 as f64 * batch as f64) / dt;
+            window = (Instant::now(), 0);
+            let psnr = rep.stats.psnr();
+            last = Some((rep.stats.loss, psnr));
+            let losses: Vec<String> = rep.stats.losses.iter().map(|l| format!("{l:.6}")).collect();
+            writeln!(
+                csv,
+                "{},{:.6},{},{:.3},{:.3e},{:.0},{:.1}",
+                rep.step,
+                rep.stats.loss,
+                losses.join(";"),
+                psnr,
+                rep.lr,
+                rays_per_s,
+                t0.elapsed().as_secs_f64()
+            )?;
+            csv.flush()?;
+            pb.set_message(format!(
+                "loss {:.5} psnr {psnr:.2} lr {:.2e} {rays_per_s:.0} rays/s",
+                rep.stats.loss, rep.lr
+            ));
+        }
+        pb.set_position(trainer.step);
+        if trainer.step.is_multiple_of(ckpt_every) {
+            save(&trainer)?;
+        }
+    }
+    save(&trainer)?;
+    pb.finish_and_clear();
+    if interrupted {
+        eprintln!(
+            "interrupted at step {}: checkpoint written to {}; continue with --resume",
+            trainer.step,
+            ckpt_path.display()
+        );
+    }
+    crate::plot::training_curves(&csv_path, run_dir)?;
+    Ok(TrainOutcome { step: trainer.step, interrupted, last })
+}
+
+/// Opens `metrics.csv` for appending rows after `from_step` (dropping any rows at or past it
+/// that a crash left behind), writing the header for a new file.
+fn open_csv(path: &PathBuf, from_step: u64) -> Result<std::fs::File> {
+    const HEADER: &str = "step,loss,level_losses,psnr,lr,rays_per_s,elapsed_s";
+    let kept: Vec<String> = match std::fs::read_to_string(path) {
+        Ok(text) => text
+            .lines()
+            .skip(1)
+            .filter(|l| l.split(',').next().and_then(|s| s.parse::<u64>().ok()).is_some_and(|s| s < from_step))
+            .map(str::to_string)
+            .collect(),
+        Err(_) => Vec::new(),
+    };
+    let mut f = std::fs::File::create(path).with_context(|| format!("writing {}", path.display()))?;
+    writeln!(f, "{HEADER}")?;
+    for l in kept {
+        writeln!(f, "{l}")?;
+    }
+    Ok(f)
+}
