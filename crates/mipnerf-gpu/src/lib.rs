@@ -10,6 +10,7 @@
 
 pub mod context;
 pub mod kernels;
+pub mod mlp;
 
 pub use context::{AdapterChoice, AdapterSummary, GpuContext, list_adapters};
 

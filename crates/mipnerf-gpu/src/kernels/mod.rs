@@ -2,11 +2,14 @@
 //! share.
 
 pub mod cast_ipe;
+pub mod matmul;
+pub mod mlp_aux;
 
 use crate::{GpuContext, GpuError};
 
 /// Every WGSL source of the crate, by file name, for validation and `mipnerf info`.
-pub const ALL_SOURCES: &[(&str, &str)] = &[("cast_ipe.wgsl", cast_ipe::SOURCE)];
+pub const ALL_SOURCES: &[(&str, &str)] =
+    &[("cast_ipe.wgsl", cast_ipe::SOURCE), ("matmul.wgsl", matmul::SOURCE), ("mlp_aux.wgsl", mlp_aux::SOURCE)];
 
 /// Most workgroups a dispatch may have along one dimension.
 pub const MAX_GROUPS_PER_DIM: u32 = 65_535;
@@ -66,6 +69,18 @@ pub fn compute_pipeline(
     source: &str,
     layout: &wgpu::BindGroupLayout,
 ) -> wgpu::ComputePipeline {
+    compute_pipeline_entry(ctx, name, source, "main", layout)
+}
+
+/// A labelled compute pipeline for entry point `entry` of `source`.
+#[must_use]
+pub fn compute_pipeline_entry(
+    ctx: &GpuContext,
+    name: &str,
+    source: &str,
+    entry: &str,
+    layout: &wgpu::BindGroupLayout,
+) -> wgpu::ComputePipeline {
     let module = ctx.device.create_shader_module(wgpu::ShaderModuleDescriptor {
         label: Some(name),
         source: wgpu::ShaderSource::Wgsl(source.into()),
@@ -79,8 +94,33 @@ pub fn compute_pipeline(
         label: Some(&format!("{name} pipeline")),
         layout: Some(&pl),
         module: &module,
-        entry_point: Some("main"),
+        entry_point: Some(entry),
         compilation_options: wgpu::PipelineCompilationOptions::default(),
         cache: None,
     })
+}
+
+/// Records one dispatch of `pipeline` with a fresh uniform block `params` at binding 0 and the
+/// storage `buffers` (whole buffers) at bindings 1.., into `enc`.
+pub fn dispatch<P: bytemuck::Pod>(
+    ctx: &GpuContext,
+    enc: &mut wgpu::CommandEncoder,
+    name: &str,
+    pipeline: &wgpu::ComputePipeline,
+    layout: &wgpu::BindGroupLayout,
+    params: &P,
+    buffers: &[&wgpu::Buffer],
+    groups: (u32, u32, u32),
+) {
+    let uniform = ctx.uniform_buffer(&format!("{name} params"), params);
+    let mut entries = vec![wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() }];
+    for (i, b) in buffers.iter().enumerate() {
+        entries.push(wgpu::BindGroupEntry { binding: i as u32 + 1, resource: b.as_entire_binding() });
+    }
+    let bind =
+        ctx.device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some(name), layout, entries: &entries });
+    let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(name), timestamp_writes: None });
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, &bind, &[]);
+    pass.dispatch_workgroups(groups.0, groups.1, groups.2);
 }

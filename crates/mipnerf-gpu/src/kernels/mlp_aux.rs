@@ -1,0 +1,122 @@
+//! `shaders/mlp_aux.wgsl`: ReLU backward, column sums (bias gradients), row broadcast.
+
+use crate::{GpuContext, GpuError, kernels};
+
+/// The WGSL source of these kernels.
+pub const SOURCE: &str = include_str!("../../../../shaders/mlp_aux.wgsl");
+
+/// The uniform block of `mlp_aux.wgsl` (`struct Params`), 32 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct AuxParams {
+    /// Rows.
+    pub rows: u32,
+    /// Columns.
+    pub cols: u32,
+    /// Elements (relu_backward) or repetitions per row (broadcast_rows).
+    pub count: u32,
+    /// Offset of x.
+    pub x_off: u32,
+    /// Unused (alignment with other kernels' blocks).
+    pub y_off: u32,
+    /// Offset of out.
+    pub out_off: u32,
+    /// col_sums: add to out.
+    pub accumulate: u32,
+    /// Workgroups along x of the dispatch grid.
+    pub groups_x: u32,
+}
+
+/// The three pipelines of `mlp_aux.wgsl`.
+#[derive(Debug)]
+pub struct MlpAuxKernels {
+    relu_backward: wgpu::ComputePipeline,
+    col_sums: wgpu::ComputePipeline,
+    broadcast_rows: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+}
+
+impl MlpAuxKernels {
+    /// Compiles the kernels.
+    ///
+    /// # Errors
+    /// If the device rejects them.
+    pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
+        let layout = kernels::storage_layout(ctx, "mlp_aux", &[true, false]);
+        let p = |e: &str| kernels::compute_pipeline_entry(ctx, &format!("mlp_aux {e}"), SOURCE, e, &layout);
+        let s = Self {
+            relu_backward: p("relu_backward"),
+            col_sums: p("col_sums"),
+            broadcast_rows: p("broadcast_rows"),
+            layout,
+        };
+        ctx.check()?;
+        Ok(s)
+    }
+
+    fn run(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        which: &wgpu::ComputePipeline,
+        items: usize,
+        mut params: AuxParams,
+        x: &wgpu::Buffer,
+        out: &wgpu::Buffer,
+    ) {
+        // Sizes are validated by the callers (they come from the model's shape).
+        let (gx, gy) = kernels::dispatch_grid(items as u64, 64).unwrap_or((1, 1));
+        params.groups_x = gx;
+        kernels::dispatch(ctx, enc, "mlp_aux", which, &self.layout, &params, &[x, out], (gx, gy, 1));
+    }
+
+    /// `g[i] = 0` where the layer output `h[i] <= 0`, over `count` elements (in place on `g`).
+    pub fn relu_backward(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        h: (&wgpu::Buffer, usize),
+        g: (&wgpu::Buffer, usize),
+        count: usize,
+    ) {
+        let params = AuxParams { count: count as u32, x_off: h.1 as u32, out_off: g.1 as u32, ..AuxParams::default() };
+        self.run(ctx, enc, &self.relu_backward, count, params, h.0, g.0);
+    }
+
+    /// `out[col] (+)= sum over rows of x[row, col]`.
+    pub fn col_sums(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        x: (&wgpu::Buffer, usize),
+        out: (&wgpu::Buffer, usize),
+        rows: usize,
+        cols: usize,
+        accumulate: bool,
+    ) {
+        let params = AuxParams {
+            rows: rows as u32,
+            cols: cols as u32,
+            x_off: x.1 as u32,
+            out_off: out.1 as u32,
+            accumulate: u32::from(accumulate),
+            ..AuxParams::default()
+        };
+        self.run(ctx, enc, &self.col_sums, cols, params, x.0, out.0);
+    }
+
+    /// `out[r * rep + i, :] = x[r, :]` for `rows` rows of `cols`.
+    pub fn broadcast_rows(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        x: &wgpu::Buffer,
+        out: &wgpu::Buffer,
+        rows: usize,
+        cols: usize,
+        rep: usize,
+    ) {
+        let params = AuxParams { rows: rows as u32, cols: cols as u32, count: rep as u32, ..AuxParams::default() };
+        self.run(ctx, enc, &self.broadcast_rows, rows * rep * cols, params, x, out);
+    }
+}

@@ -1,0 +1,68 @@
+// Small passes around the MLP's matrix products, one entry point each:
+// - relu_backward: g[i] = h[i] > 0 ? g[i] : 0 over `count` elements;
+// - col_sums: out[col] (+)= sum over rows of g[row, col] (the bias gradient), one invocation per
+//   column summing rows in order, so the result is deterministic;
+// - broadcast_rows: out[r * rep + i, :] = src[r, :] (a ray's view encoding to each of its samples).
+
+struct Params {
+    rows: u32,
+    cols: u32,
+    // relu_backward: elements; broadcast_rows: samples per ray.
+    count: u32,
+    // Offsets of the operands in their buffers.
+    x_off: u32,
+    y_off: u32,
+    out_off: u32,
+    // col_sums: 1 to add to `out`, 0 to overwrite.
+    accumulate: u32,
+    groups_x: u32,
+}
+
+@group(0) @binding(0) var<uniform> p: Params;
+@group(0) @binding(1) var<storage, read> x: array<f32>;
+@group(0) @binding(2) var<storage, read_write> out: array<f32>;
+
+fn flat_id(gid: vec3<u32>) -> u32 {
+    return gid.y * (p.groups_x * 64u) + gid.x;
+}
+
+// out = gradient (in place), x = the layer's post-ReLU output.
+@compute @workgroup_size(64)
+fn relu_backward(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = flat_id(gid);
+    if (i >= p.count) {
+        return;
+    }
+    if (x[p.x_off + i] <= 0.0) {
+        out[p.out_off + i] = 0.0;
+    }
+}
+
+// x = gradient [rows x cols]; out = bias gradient [cols].
+@compute @workgroup_size(64)
+fn col_sums(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let col = flat_id(gid);
+    if (col >= p.cols) {
+        return;
+    }
+    var s = 0.0;
+    for (var r = 0u; r < p.rows; r = r + 1u) {
+        s = s + x[p.x_off + r * p.cols + col];
+    }
+    if (p.accumulate != 0u) {
+        s = out[p.out_off + col] + s;
+    }
+    out[p.out_off + col] = s;
+}
+
+// x = per-ray rows [rows x cols]; out = per-sample rows [rows * count x cols].
+@compute @workgroup_size(64)
+fn broadcast_rows(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = flat_id(gid);
+    if (i >= p.rows * p.count * p.cols) {
+        return;
+    }
+    let col = i % p.cols;
+    let sample_row = i / p.cols;
+    out[p.out_off + i] = x[p.x_off + (sample_row / p.count) * p.cols + col];
+}
