@@ -178,3 +178,196 @@ fn mlp_forward_and_backward_match_cpu_reference() {
         bad.iter().take(40).cloned().collect::<Vec<_>>().join("\n")
     );
 }
+
+/// GPU vs CPU, rendering and its gradients: sums over samples in the same order, but GPU
+/// `exp`/`log` differ from libm by a few ulp.
+const TOL_GPU_RENDER_REL: f32 = 1e-4;
+const TOL_GPU_RENDER_ABS: f32 = 1e-6;
+
+#[test]
+fn render_forward_loss_and_backward_match_cpu_reference() {
+    use mipnerf_core::model::ModelConfig;
+    use mipnerf_core::render::{self, DensityActivation};
+    use mipnerf_gpu::kernels::render::{RenderBuffers, RenderKernel, RenderParams};
+    use rand::{Rng, SeedableRng, rngs::SmallRng};
+    let Some(ctx) = context_or_skip("render_forward_loss_and_backward_match_cpu_reference") else { return };
+    let kernel = RenderKernel::new(&ctx).unwrap();
+    let mut bad = Vec::new();
+    for (ci, (act, white, area)) in
+        [(DensityActivation::Softplus, true, true), (DensityActivation::Relu, false, false)].into_iter().enumerate()
+    {
+        let cfg = ModelConfig {
+            num_samples: 12,
+            density_activation: act,
+            density_bias: if act == DensityActivation::Softplus { -1.0 } else { 0.0 },
+            white_bkgd: white,
+            area_loss: area,
+            ..ModelConfig::default()
+        };
+        let (nr, s) = (9usize, cfg.num_samples);
+        let n = nr * s;
+        let mut rng = SmallRng::seed_from_u64(ci as u64 + 10);
+        // Raw densities away from ReLU's kink.
+        let raw_density: Vec<f32> =
+            (0..n).map(|_| rng.random_range(0.2..4.0) * if rng.random::<bool>() { 1.0 } else { -1.0 }).collect();
+        let raw_rgb: Vec<f32> = (0..n * 3).map(|_| rng.random_range(-3.0..3.0)).collect();
+        let mut t_vals = Vec::new();
+        for _ in 0..nr {
+            let mut t: Vec<f32> = (0..=s).map(|_| rng.random_range(2.0..6.0)).collect();
+            t.sort_by(f32::total_cmp);
+            t_vals.extend(t);
+        }
+        let rays: Vec<[f32; 4]> = (0..nr)
+            .flat_map(|_| {
+                [
+                    [0.0, -4.0, 0.5, 0.001],
+                    [
+                        rng.random_range(-0.3..0.3),
+                        1.0,
+                        rng.random_range(-0.3..0.3),
+                        [1.0, 4.0, 16.0][rng.random_range(0..3)],
+                    ],
+                ]
+            })
+            .collect();
+        let targets: Vec<[f32; 4]> = (0..nr).map(|_| [rng.random(), rng.random(), rng.random(), 0.0]).collect();
+        let lossmult = |r: usize| if area { rays[2 * r + 1][3] } else { 1.0 };
+        let norm = 3.0 * (0..nr).map(lossmult).sum::<f32>();
+        let level_weight = 0.1;
+        // CPU reference.
+        let (mut w_cpu, mut d_rgb_cpu, mut d_den_cpu, mut out_cpu) =
+            (vec![0.0; n], vec![0.0; n * 3], vec![0.0; n], Vec::new());
+        for r in 0..nr {
+            let sl = r * s..(r + 1) * s;
+            let rgb: Vec<[f32; 3]> = sl
+                .clone()
+                .map(|k| std::array::from_fn(|c| render::rgb_activation(raw_rgb[3 * k + c], cfg.rgb_padding)))
+                .collect();
+            let den: Vec<f32> = sl.clone().map(|k| act.forward(raw_density[k], cfg.density_bias)).collect();
+            let t = &t_vals[r * (s + 1)..(r + 1) * (s + 1)];
+            let dir = glam::Vec3::new(rays[2 * r + 1][0], rays[2 * r + 1][1], rays[2 * r + 1][2]);
+            let o = render::volumetric_rendering(&rgb, &den, t, dir, white, &mut w_cpu[sl.clone()]);
+            let err: [f32; 3] = std::array::from_fn(|c| o.rgb[c] - targets[r][c]);
+            let se: f32 = err.iter().map(|e| e * e).sum();
+            out_cpu.extend([o.rgb[0], o.rgb[1], o.rgb[2], o.distance, o.acc, lossmult(r) * se, se, 0.0]);
+            let d_col = err.map(|e| level_weight * 2.0 * lossmult(r) * e / norm);
+            let (mut g_rgb, mut g_den) = (vec![[0.0; 3]; s], vec![0.0; s]);
+            render::volumetric_rendering_backward(
+                &rgb,
+                &den,
+                t,
+                dir,
+                white,
+                &w_cpu[sl.clone()],
+                d_col,
+                0.0,
+                &mut g_rgb,
+                &mut g_den,
+            );
+            for (i, k) in sl.enumerate() {
+                d_den_cpu[k] = g_den[i] * act.derivative(raw_density[k], cfg.density_bias);
+                for c in 0..3 {
+                    d_rgb_cpu[3 * k + c] =
+                        g_rgb[i][c] * render::rgb_activation_derivative(raw_rgb[3 * k + c], cfg.rgb_padding);
+                }
+            }
+        }
+        // GPU, outputs poisoned with NaN.
+        let buf = |name: &str, v: &[f32], out: bool| ctx.storage_buffer(name, v, out);
+        let (b_rgb, b_den, b_t) =
+            (buf("raw rgb", &raw_rgb, false), buf("raw density", &raw_density, false), buf("t", &t_vals, false));
+        let b_rays = buf("rays", rays.as_flattened(), false);
+        let b_targets = buf("targets", targets.as_flattened(), false);
+        let (b_w, b_drgb, b_dden, b_out) = (
+            buf("w", &vec![f32::NAN; n], true),
+            buf("d rgb", &vec![f32::NAN; n * 3], true),
+            buf("d den", &vec![f32::NAN; n], true),
+            buf("out", &vec![f32::NAN; nr * 8], true),
+        );
+        let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("render test") });
+        let rb = RenderBuffers {
+            raw_rgb: &b_rgb,
+            raw_density: &b_den,
+            t_vals: &b_t,
+            rays: &b_rays,
+            targets: &b_targets,
+            weights: &b_w,
+            d_raw_rgb: &b_drgb,
+            d_raw_density: &b_dden,
+            ray_out: &b_out,
+        };
+        kernel.encode(&ctx, &mut enc, RenderParams::new(&cfg, nr, level_weight, norm, true), &rb).unwrap();
+        ctx.queue.submit([enc.finish()]);
+        let tag = format!("case {ci}");
+        bad.extend(compare(
+            &format!("{tag} weights"),
+            &ctx.read_f32(&b_w, n).unwrap(),
+            &w_cpu,
+            TOL_GPU_RENDER_REL,
+            TOL_GPU_RENDER_ABS,
+        ));
+        bad.extend(compare(
+            &format!("{tag} ray outputs"),
+            &ctx.read_f32(&b_out, nr * 8).unwrap(),
+            &out_cpu,
+            TOL_GPU_RENDER_REL,
+            TOL_GPU_RENDER_ABS,
+        ));
+        bad.extend(compare(
+            &format!("{tag} d raw rgb"),
+            &ctx.read_f32(&b_drgb, n * 3).unwrap(),
+            &d_rgb_cpu,
+            TOL_GPU_RENDER_REL,
+            TOL_GPU_RENDER_ABS,
+        ));
+        bad.extend(compare(
+            &format!("{tag} d raw density"),
+            &ctx.read_f32(&b_dden, n).unwrap(),
+            &d_den_cpu,
+            TOL_GPU_RENDER_REL,
+            TOL_GPU_RENDER_ABS,
+        ));
+    }
+    assert!(
+        bad.is_empty(),
+        "{} values differ:\n{}",
+        bad.len(),
+        bad.iter().take(40).cloned().collect::<Vec<_>>().join("\n")
+    );
+}
+
+#[test]
+fn adam_matches_cpu_reference() {
+    use mipnerf_core::train::{AdamConfig, AdamState};
+    use mipnerf_gpu::kernels::adam::AdamKernel;
+    use rand::{Rng, SeedableRng, rngs::SmallRng};
+    let Some(ctx) = context_or_skip("adam_matches_cpu_reference") else { return };
+    let kernel = AdamKernel::new(&ctx).unwrap();
+    let n = 1000;
+    let mut rng = SmallRng::seed_from_u64(3);
+    let mut params: Vec<f32> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let cfg = AdamConfig::default();
+    let (p_buf, m_buf, v_buf) = (
+        ctx.storage_buffer("p", &params, true),
+        ctx.storage_buffer("m", &vec![0.0f32; n], true),
+        ctx.storage_buffer("v", &vec![0.0f32; n], true),
+    );
+    let mut state = AdamState::new(n);
+    for t in 1..=3u64 {
+        let grads: Vec<f32> = (0..n).map(|_| rng.random_range(-0.1..0.1)).collect();
+        let g_buf = ctx.storage_buffer("g", &grads, false);
+        let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("adam test") });
+        kernel.encode(&ctx, &mut enc, &cfg, t, 1e-3, n, &g_buf, &p_buf, &m_buf, &v_buf).unwrap();
+        ctx.queue.submit([enc.finish()]);
+        state.update(&cfg, 1e-3, &mut params, &grads);
+    }
+    let mut bad = compare("params", &ctx.read_f32(&p_buf, n).unwrap(), &params, 1e-6, 1e-7);
+    bad.extend(compare("m", &ctx.read_f32(&m_buf, n).unwrap(), &state.m, 1e-6, 1e-9));
+    bad.extend(compare("v", &ctx.read_f32(&v_buf, n).unwrap(), &state.v, 1e-5, 1e-12));
+    assert!(
+        bad.is_empty(),
+        "{} values differ:\n{}",
+        bad.len(),
+        bad.iter().take(20).cloned().collect::<Vec<_>>().join("\n")
+    );
+}

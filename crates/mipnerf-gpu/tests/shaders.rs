@@ -4,7 +4,10 @@
 
 use std::path::PathBuf;
 
-use mipnerf_gpu::kernels::{ALL_SOURCES, cast_ipe::CastIpeParams};
+use mipnerf_gpu::kernels::{
+    ALL_SOURCES, adam::AdamParams, cast_ipe::CastIpeParams, matmul::MatmulParams, mlp_aux::AuxParams,
+    render::RenderParams,
+};
 
 fn shaders_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shaders")
@@ -63,6 +66,16 @@ fn wgsl_struct_size(src: &str, name: &str) -> u32 {
 
 #[test]
 fn uniform_structs_match_wgsl_sizes() {
-    let src = ALL_SOURCES.iter().find(|(n, _)| *n == "cast_ipe.wgsl").unwrap().1;
-    assert_eq!(wgsl_struct_size(src, "Params") as usize, std::mem::size_of::<CastIpeParams>());
+    let rust_sizes = [
+        ("cast_ipe.wgsl", std::mem::size_of::<CastIpeParams>()),
+        ("matmul.wgsl", std::mem::size_of::<MatmulParams>()),
+        ("mlp_aux.wgsl", std::mem::size_of::<AuxParams>()),
+        ("render.wgsl", std::mem::size_of::<RenderParams>()),
+        ("adam.wgsl", std::mem::size_of::<AdamParams>()),
+    ];
+    assert_eq!(rust_sizes.len(), ALL_SOURCES.len(), "every shader's uniform block is checked");
+    for (file, size) in rust_sizes {
+        let src = ALL_SOURCES.iter().find(|(n, _)| *n == file).unwrap().1;
+        assert_eq!(wgsl_struct_size(src, "Params") as usize, size, "{file}: Params");
+    }
 }

@@ -1,15 +1,22 @@
 //! One type per WGSL kernel, each owning its pipeline and bind-group layout, and the helpers they
 //! share.
 
+pub mod adam;
 pub mod cast_ipe;
 pub mod matmul;
 pub mod mlp_aux;
+pub mod render;
 
 use crate::{GpuContext, GpuError};
 
 /// Every WGSL source of the crate, by file name, for validation and `mipnerf info`.
-pub const ALL_SOURCES: &[(&str, &str)] =
-    &[("cast_ipe.wgsl", cast_ipe::SOURCE), ("matmul.wgsl", matmul::SOURCE), ("mlp_aux.wgsl", mlp_aux::SOURCE)];
+pub const ALL_SOURCES: &[(&str, &str)] = &[
+    ("cast_ipe.wgsl", cast_ipe::SOURCE),
+    ("matmul.wgsl", matmul::SOURCE),
+    ("mlp_aux.wgsl", mlp_aux::SOURCE),
+    ("render.wgsl", render::SOURCE),
+    ("adam.wgsl", adam::SOURCE),
+];
 
 /// Most workgroups a dispatch may have along one dimension.
 pub const MAX_GROUPS_PER_DIM: u32 = 65_535;

@@ -1,0 +1,131 @@
+//! `shaders/render.wgsl`: activations, volume rendering, loss and their backward pass per ray.
+
+use mipnerf_core::render::DensityActivation;
+
+use crate::{GpuContext, GpuError, kernels};
+
+/// The WGSL source of this kernel.
+pub const SOURCE: &str = include_str!("../../../../shaders/render.wgsl");
+
+/// The uniform block of `render.wgsl` (`struct Params`), 48 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct RenderParams {
+    /// Rays.
+    pub n_rays: u32,
+    /// Samples per ray.
+    pub n_samples: u32,
+    /// 1: composite on white.
+    pub white_bkgd: u32,
+    /// 0: softplus, 1: ReLU.
+    pub density_activation: u32,
+    /// Added to raw density.
+    pub density_bias: f32,
+    /// Colour padding.
+    pub rgb_padding: f32,
+    /// Loss weight of the level.
+    pub level_weight: f32,
+    /// `3 * sum(lossmult)` over the batch.
+    pub norm: f32,
+    /// 1: compute the loss gradient.
+    pub train: u32,
+    /// 1: weight rays by lossmult.
+    pub area_loss: u32,
+    /// Workgroups along x.
+    pub groups_x: u32,
+    /// Padding.
+    pub _pad: u32,
+}
+
+impl RenderParams {
+    /// The block for a model configuration.
+    #[must_use]
+    pub fn new(
+        cfg: &mipnerf_core::model::ModelConfig,
+        n_rays: usize,
+        level_weight: f32,
+        norm: f32,
+        train: bool,
+    ) -> Self {
+        Self {
+            n_rays: n_rays as u32,
+            n_samples: cfg.num_samples as u32,
+            white_bkgd: u32::from(cfg.white_bkgd),
+            density_activation: match cfg.density_activation {
+                DensityActivation::Softplus => 0,
+                DensityActivation::Relu => 1,
+            },
+            density_bias: cfg.density_bias,
+            rgb_padding: cfg.rgb_padding,
+            level_weight,
+            norm,
+            train: u32::from(train),
+            area_loss: u32::from(cfg.area_loss),
+            groups_x: 0,
+            _pad: 0,
+        }
+    }
+}
+
+/// The buffers `render.wgsl` reads and writes.
+#[derive(Clone, Copy, Debug)]
+pub struct RenderBuffers<'a> {
+    /// `n x 3` raw colours.
+    pub raw_rgb: &'a wgpu::Buffer,
+    /// `n` raw densities.
+    pub raw_density: &'a wgpu::Buffer,
+    /// `n_rays x (n_samples + 1)` interval edges.
+    pub t_vals: &'a wgpu::Buffer,
+    /// Two vec4 per ray: (origin, radius), (direction, lossmult).
+    pub rays: &'a wgpu::Buffer,
+    /// vec4 per ray: target colour.
+    pub targets: &'a wgpu::Buffer,
+    /// `n` weights (output).
+    pub weights: &'a wgpu::Buffer,
+    /// `n x 3` (output).
+    pub d_raw_rgb: &'a wgpu::Buffer,
+    /// `n` (output).
+    pub d_raw_density: &'a wgpu::Buffer,
+    /// Two vec4 per ray (output): (rgb, distance), (acc, lossmult * se, se, 0).
+    pub ray_out: &'a wgpu::Buffer,
+}
+
+/// The compiled render pipeline.
+#[derive(Debug)]
+pub struct RenderKernel {
+    pipeline: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+}
+
+impl RenderKernel {
+    /// Compiles the kernel.
+    ///
+    /// # Errors
+    /// If the device rejects it.
+    pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
+        let layout =
+            kernels::storage_layout(ctx, "render", &[true, true, true, true, true, false, false, false, false]);
+        let pipeline = kernels::compute_pipeline(ctx, "render", SOURCE, &layout);
+        ctx.check()?;
+        Ok(Self { pipeline, layout })
+    }
+
+    /// Records one pass over `params.n_rays` rays.
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for a grid too large for one dispatch.
+    pub fn encode(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        mut params: RenderParams,
+        b: &RenderBuffers<'_>,
+    ) -> Result<(), GpuError> {
+        let (gx, gy) = kernels::dispatch_grid(u64::from(params.n_rays), 64)?;
+        params.groups_x = gx;
+        let bufs =
+            [b.raw_rgb, b.raw_density, b.t_vals, b.rays, b.targets, b.weights, b.d_raw_rgb, b.d_raw_density, b.ray_out];
+        kernels::dispatch(ctx, enc, "render", &self.pipeline, &self.layout, &params, &bufs, (gx, gy, 1));
+        Ok(())
+    }
+}

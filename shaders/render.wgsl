@@ -1,0 +1,135 @@
+// Output activations, volume rendering, the loss and its backward pass, one invocation per ray:
+// mipnerf-core's `rgb_activation`/`DensityActivation`, `volumetric_rendering` and
+// `volumetric_rendering_backward`, and the model's per-level loss gradient, fused in one pass.
+//
+// Per ray r with samples i (n = n_rays * n_samples):
+//   rgb_i = sigmoid(raw_rgb_i) (1 + 2 pad) - pad;  density_i = act(raw_density_i + bias)
+//   w_i = (1 - exp(-density_i delta_i)) exp(-sum_{j<i} density_j delta_j)
+//   colour = sum w_i rgb_i (+ 1 - acc with a white background)
+// With `train` set, the loss level_weight * lossmult |colour - target|^2 / norm is differentiated:
+// d_raw_rgb and d_raw_density are written for the MLP's backward pass.
+
+struct Params {
+    n_rays: u32,
+    n_samples: u32,
+    white_bkgd: u32,
+    // 0: softplus, 1: relu
+    density_activation: u32,
+    density_bias: f32,
+    rgb_padding: f32,
+    // Loss weight of this level.
+    level_weight: f32,
+    // 3 * sum of lossmult over the batch.
+    norm: f32,
+    train: u32,
+    // 1: weight rays by their lossmult (area loss), 0: by 1.
+    area_loss: u32,
+    groups_x: u32,
+    _pad: u32,
+}
+
+@group(0) @binding(0) var<uniform> p: Params;
+@group(0) @binding(1) var<storage, read> raw_rgb: array<f32>;
+@group(0) @binding(2) var<storage, read> raw_density: array<f32>;
+@group(0) @binding(3) var<storage, read> t_vals: array<f32>;
+// Two vec4 per ray: (origin.xyz, radius), (direction.xyz, lossmult).
+@group(0) @binding(4) var<storage, read> rays: array<vec4<f32>>;
+// vec4 per ray: (r, g, b, unused).
+@group(0) @binding(5) var<storage, read> targets: array<vec4<f32>>;
+@group(0) @binding(6) var<storage, read_write> weights: array<f32>;
+@group(0) @binding(7) var<storage, read_write> d_raw_rgb: array<f32>;
+@group(0) @binding(8) var<storage, read_write> d_raw_density: array<f32>;
+// Two vec4 per ray: (r, g, b, distance), (acc, lossmult * squared error, squared error, 0).
+@group(0) @binding(9) var<storage, read_write> ray_out: array<vec4<f32>>;
+
+fn sigmoid(x: f32) -> f32 {
+    return 1.0 / (1.0 + exp(-x));
+}
+
+fn density_of(raw: f32) -> f32 {
+    let x = raw + p.density_bias;
+    if (p.density_activation == 0u) {
+        return max(x, 0.0) + log(1.0 + exp(-abs(x)));
+    }
+    return max(x, 0.0);
+}
+
+fn density_derivative(raw: f32) -> f32 {
+    let x = raw + p.density_bias;
+    if (p.density_activation == 0u) {
+        return sigmoid(x);
+    }
+    return select(0.0, 1.0, x > 0.0);
+}
+
+@compute @workgroup_size(64)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let r = gid.y * (p.groups_x * 64u) + gid.x;
+    if (r >= p.n_rays) {
+        return;
+    }
+    let s_n = p.n_samples;
+    let base = r * s_n;
+    let tb = r * (s_n + 1u);
+    let dir = rays[2u * r + 1u];
+    let dir_norm = length(dir.xyz);
+    let lossmult = select(1.0, dir.w, p.area_loss != 0u);
+    var cum = 0.0;
+    var colour = vec3<f32>(0.0);
+    var acc = 0.0;
+    var dist_num = 0.0;
+    for (var i = 0u; i < s_n; i = i + 1u) {
+        let k = base + i;
+        let t0 = t_vals[tb + i];
+        let t1 = t_vals[tb + i + 1u];
+        let delta = (t1 - t0) * dir_norm;
+        let dd = density_of(raw_density[k]) * delta;
+        let alpha = 1.0 - exp(-dd);
+        let trans = exp(-cum);
+        cum = cum + dd;
+        let w = alpha * trans;
+        weights[k] = w;
+        let rgb = vec3<f32>(sigmoid(raw_rgb[3u * k]), sigmoid(raw_rgb[3u * k + 1u]), sigmoid(raw_rgb[3u * k + 2u])) * (1.0 + 2.0 * p.rgb_padding) - p.rgb_padding;
+        colour = colour + w * rgb;
+        acc = acc + w;
+        dist_num = dist_num + w * 0.5 * (t0 + t1);
+        // Keep T_{i+1} for the backward pass in the density-gradient slot.
+        d_raw_density[k] = exp(-cum);
+    }
+    acc = min(acc, 1.0);
+    var dist = dist_num / acc;
+    if (!(dist == dist)) {
+        dist = 0.0;
+    }
+    dist = clamp(dist, t_vals[tb], t_vals[tb + s_n]);
+    let bg = select(0.0, 1.0, p.white_bkgd != 0u);
+    colour = colour + bg * (1.0 - acc);
+    let goal = targets[r].xyz;
+    let err = colour - goal;
+    let se = dot(err, err);
+    ray_out[2u * r] = vec4<f32>(colour, dist);
+    ray_out[2u * r + 1u] = vec4<f32>(acc, lossmult * se, se, 0.0);
+    if (p.train == 0u) {
+        return;
+    }
+    // d loss / d colour, then back through rendering and the activations.
+    let d_col = p.level_weight * 2.0 * lossmult * err / p.norm;
+    var suffix = 0.0;
+    for (var j = 0u; j < s_n; j = j + 1u) {
+        let i = s_n - 1u - j;
+        let k = base + i;
+        let raw = vec3<f32>(raw_rgb[3u * k], raw_rgb[3u * k + 1u], raw_rgb[3u * k + 2u]);
+        let sg = vec3<f32>(sigmoid(raw.x), sigmoid(raw.y), sigmoid(raw.z));
+        let rgb = sg * (1.0 + 2.0 * p.rgb_padding) - p.rgb_padding;
+        let w = weights[k];
+        let g = dot(d_col, rgb - vec3<f32>(bg));
+        let ds = g * d_raw_density[k] - suffix;
+        suffix = suffix + g * w;
+        let delta = (t_vals[tb + i + 1u] - t_vals[tb + i]) * dir_norm;
+        d_raw_density[k] = ds * delta * density_derivative(raw_density[k]);
+        let d_rgb = w * d_col * sg * (1.0 - sg) * (1.0 + 2.0 * p.rgb_padding);
+        d_raw_rgb[3u * k] = d_rgb.x;
+        d_raw_rgb[3u * k + 1u] = d_rgb.y;
+        d_raw_rgb[3u * k + 2u] = d_rgb.z;
+    }
+}
