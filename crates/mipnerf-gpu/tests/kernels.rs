@@ -371,3 +371,92 @@ fn adam_matches_cpu_reference() {
         bad.iter().take(20).cloned().collect::<Vec<_>>().join("\n")
     );
 }
+
+/// GPU vs CPU interval edges: the same f32 operations; GPU division is within 2.5 ulp.
+const TOL_GPU_SAMPLE_REL: f32 = 2e-6;
+
+#[test]
+fn sampling_and_resampling_match_cpu_reference() {
+    use mipnerf_core::sampling::{PdfSamples, RESAMPLE_PADDING, resample_along_rays, sample_along_rays};
+    use mipnerf_gpu::kernels::sample::{SampleKernels, SampleParams};
+    use rand::{Rng, SeedableRng, rngs::SmallRng};
+    let Some(ctx) = context_or_skip("sampling_and_resampling_match_cpu_reference") else { return };
+    let k = SampleKernels::new(&ctx).unwrap();
+    let (nr, s, first_ray, seed, step) = (37usize, 24usize, 100u32, 5u32, 9u32);
+    let mut rng = SmallRng::seed_from_u64(1);
+    let bounds: Vec<f32> = (0..nr)
+        .flat_map(|_| {
+            let near = rng.random_range(0.5..3.0);
+            [near, near + rng.random_range(0.5..5.0)]
+        })
+        .collect();
+    // Weights with zeros and spikes.
+    let weights: Vec<f32> =
+        (0..nr * s).map(|i| if i % 7 == 0 { 0.0 } else { rng.random_range(0.0..1.0f32).powi(4) }).collect();
+    let mut bad = Vec::new();
+    for (lindisp, randomized) in [(false, false), (true, false), (false, true), (true, true)] {
+        let params = SampleParams {
+            n_rays: nr as u32,
+            n_samples: s as u32,
+            lindisp: u32::from(lindisp),
+            randomized: u32::from(randomized),
+            seed,
+            step,
+            first_ray,
+            level: 1,
+            resample_padding: RESAMPLE_PADDING,
+            ..SampleParams::default()
+        };
+        // CPU.
+        let (mut t_cpu, mut f_cpu) = (vec![0.0; nr * (s + 1)], vec![0.0; nr * (s + 1)]);
+        for r in 0..nr {
+            let gi = first_ray + r as u32;
+            let jitter = randomized.then(|| RayRng::new(seed, step, Stream::SampleJitter, gi));
+            let t = &mut t_cpu[r * (s + 1)..(r + 1) * (s + 1)];
+            sample_along_rays(bounds[2 * r], bounds[2 * r + 1], lindisp, jitter, t);
+            let samples = if randomized {
+                PdfSamples::Stratified(RayRng::new(seed, step, Stream::ResampleOffsets, gi * 8 + 1))
+            } else {
+                PdfSamples::Deterministic
+            };
+            let t = &t_cpu[r * (s + 1)..(r + 1) * (s + 1)];
+            resample_along_rays(
+                t,
+                &weights[r * s..(r + 1) * s],
+                RESAMPLE_PADDING,
+                samples,
+                &mut f_cpu[r * (s + 1)..(r + 1) * (s + 1)],
+            );
+        }
+        // GPU, outputs poisoned.
+        let b_bounds = ctx.storage_buffer("bounds", &bounds, false);
+        let b_w = ctx.storage_buffer("weights", &weights, false);
+        let b_t = ctx.storage_buffer("t coarse", &vec![f32::NAN; nr * (s + 1)], true);
+        let b_f = ctx.storage_buffer("t fine", &vec![f32::NAN; nr * (s + 1)], true);
+        let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("sample test") });
+        k.stratified(&ctx, &mut enc, params, &b_bounds, &b_t).unwrap();
+        k.resample(&ctx, &mut enc, params, &b_t, &b_w, &b_f).unwrap();
+        ctx.queue.submit([enc.finish()]);
+        let tag = format!("lindisp {lindisp} randomized {randomized}");
+        bad.extend(compare(
+            &format!("{tag} coarse"),
+            &ctx.read_f32(&b_t, nr * (s + 1)).unwrap(),
+            &t_cpu,
+            TOL_GPU_SAMPLE_REL,
+            0.0,
+        ));
+        bad.extend(compare(
+            &format!("{tag} fine"),
+            &ctx.read_f32(&b_f, nr * (s + 1)).unwrap(),
+            &f_cpu,
+            TOL_GPU_SAMPLE_REL,
+            1e-6,
+        ));
+    }
+    assert!(
+        bad.is_empty(),
+        "{} values differ:\n{}",
+        bad.len(),
+        bad.iter().take(40).cloned().collect::<Vec<_>>().join("\n")
+    );
+}

@@ -6,6 +6,7 @@ pub mod cast_ipe;
 pub mod matmul;
 pub mod mlp_aux;
 pub mod render;
+pub mod sample;
 
 use crate::{GpuContext, GpuError};
 
@@ -16,6 +17,7 @@ pub const ALL_SOURCES: &[(&str, &str)] = &[
     ("mlp_aux.wgsl", mlp_aux::SOURCE),
     ("render.wgsl", render::SOURCE),
     ("adam.wgsl", adam::SOURCE),
+    ("sample.wgsl", sample::SOURCE),
 ];
 
 /// Most workgroups a dispatch may have along one dimension.

@@ -1,0 +1,110 @@
+//! `shaders/sample.wgsl`: stratified interval edges and inverse-CDF resampling per ray.
+
+use crate::{GpuContext, GpuError, kernels};
+
+/// The WGSL source of these kernels.
+pub const SOURCE: &str = include_str!("../../../../shaders/sample.wgsl");
+
+/// Most samples per ray the resampling kernel handles (its CDF lives in private memory).
+pub const MAX_SAMPLES: usize = 1024;
+
+/// The uniform block of `sample.wgsl` (`struct Params`), 48 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct SampleParams {
+    /// Rays.
+    pub n_rays: u32,
+    /// Samples per ray.
+    pub n_samples: u32,
+    /// 1: linear in disparity.
+    pub lindisp: u32,
+    /// 1: training (jitter, stratified offsets).
+    pub randomized: u32,
+    /// Run seed.
+    pub seed: u32,
+    /// Step.
+    pub step: u32,
+    /// Global index of the first ray.
+    pub first_ray: u32,
+    /// Level of the resampled edges.
+    pub level: u32,
+    /// Added to the blurred weights.
+    pub resample_padding: f32,
+    /// Workgroups along x.
+    pub groups_x: u32,
+    /// Padding.
+    pub _pad: [u32; 2],
+}
+
+/// The two pipelines of `sample.wgsl`.
+#[derive(Debug)]
+pub struct SampleKernels {
+    stratified: wgpu::ComputePipeline,
+    resample: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+}
+
+impl SampleKernels {
+    /// Compiles the kernels.
+    ///
+    /// # Errors
+    /// If the device rejects them.
+    pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
+        let layout = kernels::storage_layout(ctx, "sample", &[true, true, false]);
+        let p = |e: &str| kernels::compute_pipeline_entry(ctx, &format!("sample {e}"), SOURCE, e, &layout);
+        let s = Self { stratified: p("stratified"), resample: p("resample"), layout };
+        ctx.check()?;
+        Ok(s)
+    }
+
+    fn run(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        which: &wgpu::ComputePipeline,
+        mut params: SampleParams,
+        bufs: [&wgpu::Buffer; 3],
+    ) -> Result<(), GpuError> {
+        if params.n_samples == 0 || params.n_samples as usize > MAX_SAMPLES {
+            return Err(GpuError::InvalidInput(format!(
+                "sample: {} samples per ray (1..={MAX_SAMPLES})",
+                params.n_samples
+            )));
+        }
+        let (gx, gy) = kernels::dispatch_grid(u64::from(params.n_rays), 64)?;
+        params.groups_x = gx;
+        kernels::dispatch(ctx, enc, "sample", which, &self.layout, &params, &bufs, (gx, gy, 1));
+        Ok(())
+    }
+
+    /// Records the coarse edges of every ray from `bounds` ((near, far) per ray) into `t_out`.
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for a sample count out of range.
+    pub fn stratified(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        params: SampleParams,
+        bounds: &wgpu::Buffer,
+        t_out: &wgpu::Buffer,
+    ) -> Result<(), GpuError> {
+        self.run(ctx, enc, &self.stratified, params, [bounds, bounds, t_out])
+    }
+
+    /// Records the fine edges of every ray from the coarse edges and weights into `t_out`.
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for a sample count out of range.
+    pub fn resample(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        params: SampleParams,
+        t_coarse: &wgpu::Buffer,
+        weights: &wgpu::Buffer,
+        t_out: &wgpu::Buffer,
+    ) -> Result<(), GpuError> {
+        self.run(ctx, enc, &self.resample, params, [t_coarse, weights, t_out])
+    }
+}

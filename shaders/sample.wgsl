@@ -1,0 +1,163 @@
+// Interval edges along rays, one invocation per ray (mipnerf-core's `sampling.rs`):
+// - `stratified`: linspace between near and far (or linear in disparity), jittered in training
+//   with the same counter-based random numbers as the CPU (`rng.rs`);
+// - `resample`: the fine level's edges from the coarse weights: pad, 2-tap max, 2-tap blur,
+//   + resample_padding, then inverse-CDF sampling (deterministic or stratified offsets).
+
+struct Params {
+    n_rays: u32,
+    // Samples per ray; each ray has n_samples + 1 edges.
+    n_samples: u32,
+    lindisp: u32,
+    randomized: u32,
+    seed: u32,
+    step: u32,
+    // Global index of the first ray (random streams are per global ray).
+    first_ray: u32,
+    // Level of the resampled edges (picks the random stream).
+    level: u32,
+    resample_padding: f32,
+    groups_x: u32,
+    _pad0: u32,
+    _pad1: u32,
+}
+
+@group(0) @binding(0) var<uniform> p: Params;
+// stratified: (near, far) per ray. resample: the coarse edges.
+@group(0) @binding(1) var<storage, read> src_a: array<f32>;
+// resample: the coarse weights (stratified: unused).
+@group(0) @binding(2) var<storage, read> src_b: array<f32>;
+@group(0) @binding(3) var<storage, read_write> t_out: array<f32>;
+
+const STREAM_SAMPLE_JITTER: u32 = 1u;
+const STREAM_RESAMPLE_OFFSETS: u32 = 2u;
+const F32_EPS: f32 = 1.1920929e-7;
+const PDF_WEIGHT_EPS: f32 = 1e-5;
+const MAX_EDGES: u32 = 1025u;
+
+fn pcg_hash(x: u32) -> u32 {
+    let state = x * 747796405u + 2891336453u;
+    let word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+fn ray_key(stream: u32, ray: u32) -> u32 {
+    return pcg_hash(p.seed ^ pcg_hash(p.step ^ pcg_hash(stream ^ pcg_hash(ray))));
+}
+
+fn uniform01(key: u32, i: u32) -> f32 {
+    return f32(pcg_hash(key ^ pcg_hash(i)) >> 8u) * (1.0 / 16777216.0);
+}
+
+fn ray_index(gid: vec3<u32>) -> u32 {
+    return gid.y * (p.groups_x * 64u) + gid.x;
+}
+
+@compute @workgroup_size(64)
+fn stratified(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let r = ray_index(gid);
+    if (r >= p.n_rays) {
+        return;
+    }
+    let near = src_a[2u * r];
+    let far = src_a[2u * r + 1u];
+    let n = p.n_samples;
+    let base = r * (n + 1u);
+    for (var i = 0u; i <= n; i = i + 1u) {
+        let s = f32(i) / f32(n);
+        if (p.lindisp != 0u) {
+            t_out[base + i] = 1.0 / (1.0 / near * (1.0 - s) + 1.0 / far * s);
+        } else {
+            t_out[base + i] = near * (1.0 - s) + far * s;
+        }
+    }
+    if (p.randomized == 0u) {
+        return;
+    }
+    let key = ray_key(STREAM_SAMPLE_JITTER, p.first_ray + r);
+    var prev_old = t_out[base];
+    for (var i = 0u; i <= n; i = i + 1u) {
+        let cur = t_out[base + i];
+        var lower = cur;
+        if (i > 0u) {
+            lower = 0.5 * (cur + prev_old);
+        }
+        var upper = cur;
+        if (i < n) {
+            upper = 0.5 * (t_out[base + i + 1u] + cur);
+        }
+        prev_old = cur;
+        t_out[base + i] = lower + (upper - lower) * uniform01(key, i);
+    }
+}
+
+fn coarse_weight(base: u32, nw: u32, i: i32) -> f32 {
+    return src_b[base + u32(clamp(i, 0, i32(nw) - 1))];
+}
+
+@compute @workgroup_size(64)
+fn resample(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let r = ray_index(gid);
+    if (r >= p.n_rays) {
+        return;
+    }
+    let nw = p.n_samples;
+    let n_out = nw + 1u;
+    let tb = r * (nw + 1u);
+    let wb = r * nw;
+    // Blurred weights, their sum, and the CDF (nw + 1 entries, 0 first, 1 last).
+    var cdf: array<f32, 1025>;
+    var weight_sum = 0.0;
+    for (var i = 0u; i < nw; i = i + 1u) {
+        let ii = i32(i);
+        let m0 = max(coarse_weight(wb, nw, ii - 1), coarse_weight(wb, nw, ii));
+        let m1 = max(coarse_weight(wb, nw, ii), coarse_weight(wb, nw, ii + 1));
+        let blurred = 0.5 * (m0 + m1) + p.resample_padding;
+        cdf[i + 1u] = blurred;
+        weight_sum = weight_sum + blurred;
+    }
+    let padding = max(PDF_WEIGHT_EPS - weight_sum, 0.0);
+    let per_weight = padding / f32(nw);
+    weight_sum = weight_sum + padding;
+    cdf[0] = 0.0;
+    var acc = 0.0;
+    for (var i = 0u; i + 1u < nw; i = i + 1u) {
+        acc = acc + (cdf[i + 1u] + per_weight) / weight_sum;
+        cdf[i + 1u] = min(acc, 1.0);
+    }
+    cdf[nw] = 1.0;
+    let key = ray_key(STREAM_RESAMPLE_OFFSETS, (p.first_ray + r) * 8u + p.level);
+    var prev = -3.4e38;
+    var k = 0u;
+    for (var i = 0u; i < n_out; i = i + 1u) {
+        var u: f32;
+        if (p.randomized != 0u) {
+            let s = 1.0 / f32(n_out);
+            u = min(f32(i) * s + uniform01(key, i) * (s - F32_EPS), 1.0 - F32_EPS);
+        } else if (i + 1u == n_out) {
+            u = 1.0 - F32_EPS;
+        } else {
+            let s = f32(i) / f32(n_out - 1u);
+            u = (1.0 - F32_EPS) * s;
+        }
+        // k = number of CDF entries <= u (u increases, so continue from the last k).
+        while (k <= nw && cdf[k] <= u) {
+            k = k + 1u;
+        }
+        let i0 = max(k, 1u) - 1u;
+        let i1 = min(k, nw);
+        let c0 = cdf[i0];
+        let c1 = cdf[i1];
+        var t = (u - c0) / (c1 - c0);
+        if (!(t == t)) {
+            t = 0.0;
+        }
+        t = clamp(t, 0.0, 1.0);
+        let b0 = src_a[tb + i0];
+        let b1 = src_a[tb + i1];
+        var v = b0 + t * (b1 - b0);
+        v = max(v, prev);
+        prev = v;
+        t_out[tb + i] = v;
+    }
+}
