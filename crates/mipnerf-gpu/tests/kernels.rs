@@ -460,3 +460,37 @@ fn sampling_and_resampling_match_cpu_reference() {
         bad.iter().take(40).cloned().collect::<Vec<_>>().join("\n")
     );
 }
+
+#[test]
+fn view_direction_encoding_matches_cpu_reference() {
+    use mipnerf_gpu::kernels::view_enc::ViewEncKernel;
+    let Some(ctx) = context_or_skip("view_direction_encoding_matches_cpu_reference") else { return };
+    let k = ViewEncKernel::new(&ctx).unwrap();
+    let rays = test_rays(9);
+    let dirs: Vec<f32> = rays.iter().flat_map(|r| r.viewdir.to_array()).collect();
+    let len = mip::pos_enc_len(0, 4, true);
+    let mut cpu = vec![0.0; rays.len() * len];
+    for (r, ray) in rays.iter().enumerate() {
+        mip::pos_enc(ray.viewdir, 0, 4, true, &mut cpu[r * len..(r + 1) * len]);
+    }
+    let b_in = ctx.storage_buffer("viewdirs", &dirs, false);
+    let b_out = ctx.storage_buffer("view enc", &vec![f32::NAN; cpu.len()], true);
+    let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("view enc test") });
+    k.encode(&ctx, &mut enc, rays.len(), 4, &b_in, &b_out).unwrap();
+    ctx.queue.submit([enc.finish()]);
+    let bad = compare("view encoding", &ctx.read_f32(&b_out, cpu.len()).unwrap(), &cpu, 0.0, TOL_GPU_IPE_ABS);
+    assert!(bad.is_empty(), "{}", bad.join("\n"));
+}
+
+#[test]
+fn a_missing_hardware_gpu_is_an_error_not_a_panic() {
+    use mipnerf_gpu::{AdapterChoice, GpuContext, GpuError};
+    match GpuContext::new(AdapterChoice::HardwareOnly) {
+        Ok(ctx) => assert!(!ctx.adapter.is_software, "HardwareOnly returned {}", ctx.adapter.name),
+        Err(e) => {
+            assert!(matches!(e, GpuError::NoAdapter { hardware_only: true }), "{e:?}");
+            let msg = e.to_string();
+            assert!(msg.contains("no hardware GPU adapter found") && msg.contains("--backend cpu"), "{msg}");
+        }
+    }
+}

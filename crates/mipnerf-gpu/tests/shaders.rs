@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use mipnerf_gpu::kernels::{
     ALL_SOURCES, adam::AdamParams, cast_ipe::CastIpeParams, matmul::MatmulParams, mlp_aux::AuxParams,
-    render::RenderParams, sample::SampleParams,
+    render::RenderParams, sample::SampleParams, view_enc::ViewEncParams,
 };
 
 fn shaders_dir() -> PathBuf {
@@ -73,6 +73,7 @@ fn uniform_structs_match_wgsl_sizes() {
         ("render.wgsl", std::mem::size_of::<RenderParams>()),
         ("adam.wgsl", std::mem::size_of::<AdamParams>()),
         ("sample.wgsl", std::mem::size_of::<SampleParams>()),
+        ("view_enc.wgsl", std::mem::size_of::<ViewEncParams>()),
     ];
     assert_eq!(rust_sizes.len(), ALL_SOURCES.len(), "every shader's uniform block is checked");
     for (file, size) in rust_sizes {

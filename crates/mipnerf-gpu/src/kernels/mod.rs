@@ -7,6 +7,7 @@ pub mod matmul;
 pub mod mlp_aux;
 pub mod render;
 pub mod sample;
+pub mod view_enc;
 
 use crate::{GpuContext, GpuError};
 
@@ -18,6 +19,7 @@ pub const ALL_SOURCES: &[(&str, &str)] = &[
     ("render.wgsl", render::SOURCE),
     ("adam.wgsl", adam::SOURCE),
     ("sample.wgsl", sample::SOURCE),
+    ("view_enc.wgsl", view_enc::SOURCE),
 ];
 
 /// Most workgroups a dispatch may have along one dimension.

@@ -1,0 +1,80 @@
+//! GPU MLP throughput: `cargo bench -p mipnerf-gpu --bench mlp_gpu` (on the best adapter found).
+//!
+//! Times the MLP forward pass and the backward pass (input and weight gradients) of the `paper`
+//! shape and the small shape on the device, median of a few runs after a warm-up that compiles
+//! the shaders, and prints GFLOP/s of the matrix products. Options: `--samples N`, `--reps R`.
+#![allow(missing_docs, clippy::unwrap_used)]
+
+use std::time::Instant;
+
+use mipnerf_core::mlp::{MlpConfig, MlpShape};
+use mipnerf_gpu::mlp::{GpuMlp, MlpBuffers};
+use mipnerf_gpu::{AdapterChoice, GpuContext};
+
+fn arg(name: &str, default: usize) -> usize {
+    let args: Vec<String> = std::env::args().collect();
+    args.iter().position(|a| a == name).and_then(|i| args.get(i + 1)).and_then(|v| v.parse().ok()).unwrap_or(default)
+}
+
+fn time(ctx: &GpuContext, reps: usize, mut record: impl FnMut(&mut wgpu::CommandEncoder)) -> f64 {
+    let mut times: Vec<f64> = (0..reps.max(1) + 1)
+        .map(|_| {
+            let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("bench") });
+            record(&mut enc);
+            let t = Instant::now();
+            ctx.queue.submit([enc.finish()]);
+            ctx.device.poll(wgpu::PollType::wait_indefinitely()).unwrap();
+            t.elapsed().as_secs_f64()
+        })
+        .collect();
+    times.remove(0); // warm-up: shader compilation
+    times.sort_by(f64::total_cmp);
+    times[times.len() / 2]
+}
+
+fn main() {
+    let ctx = match GpuContext::new(AdapterChoice::Any) {
+        Ok(c) => c,
+        Err(e) => {
+            println!("no GPU adapter, nothing to measure: {e}");
+            return;
+        }
+    };
+    let samples = arg("--samples", 8192);
+    let reps = arg("--reps", 3);
+    println!(
+        "adapter: {} ({}, {}), {samples} samples, median of {reps}",
+        ctx.adapter.name, ctx.adapter.backend, ctx.adapter.device_type
+    );
+    println!("| shape | forward ms | forward GFLOP/s | backward ms | backward GFLOP/s |");
+    println!("|---|---|---|---|---|");
+    let mlp = GpuMlp::new(&ctx).unwrap();
+    let small =
+        MlpConfig { net_depth: 4, net_width: 128, skip_layer: 2, net_width_condition: 64, ..MlpConfig::default() };
+    for (name, cfg) in [("paper (8x256)", MlpConfig::default()), ("small (4x128)", small)] {
+        let shape = MlpShape::new(cfg, 0).unwrap();
+        let mut params = vec![0.0; shape.num_params];
+        shape.init_glorot(&mut params, 1);
+        let spr = 64;
+        let n_rays = samples / spr;
+        let bufs = MlpBuffers::new(&ctx, &shape, n_rays, spr);
+        let n = n_rays * spr;
+        ctx.queue.write_buffer(&bufs.x, 0, bytemuck::cast_slice(&vec![0.3f32; n * cfg.x_dim]));
+        ctx.queue.write_buffer(&bufs.view, 0, bytemuck::cast_slice(&vec![0.2f32; n_rays * cfg.view_dim]));
+        let p = ctx.storage_buffer("params", &params, false);
+        let g = ctx.storage_buffer("grads", &vec![0.0f32; shape.num_params], false);
+        let dr = ctx.storage_buffer("d rgb", &vec![0.01f32; n * 3], false);
+        let dd = ctx.storage_buffer("d density", &vec![0.01f32; n], false);
+        let fwd = time(&ctx, reps, |enc| mlp.forward(&ctx, enc, &shape, &p, &bufs));
+        let bwd = time(&ctx, reps, |enc| mlp.backward(&ctx, enc, &shape, &p, &bufs, &dr, &dd, &g));
+        let fwd_flops: f64 = shape.layers.iter().map(|l| 2.0 * (l.fan_in * l.fan_out) as f64).sum::<f64>() * n as f64;
+        let bwd_flops = shape.flops_per_sample() * n as f64 - fwd_flops;
+        println!(
+            "| {name} | {:.1} | {:.2} | {:.1} | {:.2} |",
+            fwd * 1e3,
+            fwd_flops / fwd / 1e9,
+            bwd * 1e3,
+            bwd_flops / bwd / 1e9
+        );
+    }
+}

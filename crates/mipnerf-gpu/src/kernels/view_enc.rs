@@ -1,0 +1,63 @@
+//! `shaders/view_enc.wgsl`: the positional encoding of view directions.
+
+use crate::{GpuContext, GpuError, kernels};
+
+/// The WGSL source of this kernel.
+pub const SOURCE: &str = include_str!("../../../../shaders/view_enc.wgsl");
+
+/// The uniform block of `view_enc.wgsl` (`struct Params`), 16 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct ViewEncParams {
+    /// Rays.
+    pub n_rays: u32,
+    /// Degrees `0..deg_view`.
+    pub deg_view: u32,
+    /// Workgroups along x.
+    pub groups_x: u32,
+    /// Padding.
+    pub _pad: u32,
+}
+
+/// The compiled view-encoding pipeline.
+#[derive(Debug)]
+pub struct ViewEncKernel {
+    pipeline: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+}
+
+impl ViewEncKernel {
+    /// Compiles the kernel.
+    ///
+    /// # Errors
+    /// If the device rejects it.
+    pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
+        let layout = kernels::storage_layout(ctx, "view_enc", &[true, false]);
+        let pipeline = kernels::compute_pipeline(ctx, "view_enc", SOURCE, &layout);
+        ctx.check()?;
+        Ok(Self { pipeline, layout })
+    }
+
+    /// Records the encoding of `n_rays` view directions (3 floats each) into `out`
+    /// (`3 + 6 deg_view` floats per ray).
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for too many rays for one dispatch or `deg_view > 16`.
+    pub fn encode(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        n_rays: usize,
+        deg_view: u32,
+        viewdirs: &wgpu::Buffer,
+        out: &wgpu::Buffer,
+    ) -> Result<(), GpuError> {
+        if deg_view > 16 {
+            return Err(GpuError::InvalidInput(format!("view_enc: {deg_view} degrees (at most 16)")));
+        }
+        let (gx, gy) = kernels::dispatch_grid(n_rays as u64, 64)?;
+        let p = ViewEncParams { n_rays: n_rays as u32, deg_view, groups_x: gx, _pad: 0 };
+        kernels::dispatch(ctx, enc, "view_enc", &self.pipeline, &self.layout, &p, &[viewdirs, out], (gx, gy, 1));
+        Ok(())
+    }
+}
