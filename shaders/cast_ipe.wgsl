@@ -17,7 +17,8 @@ struct Params {
     ray_shape: u32,
     // Number of workgroups along x in the 2-D dispatch grid.
     groups_x: u32,
-    _pad0: u32,
+    // 1: zero covariance (plain PE of the frustum means, the "w/o IPE" ablation).
+    zero_cov: u32,
     _pad1: u32,
 }
 
@@ -97,7 +98,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let d2 = d * d;
     let d_mag_sq = max(d2.x + d2.y + d2.z, 1e-10);
     let mean = o_r.xyz + d * t_mean;
-    let cov = t_var * d2 + r_var * (vec3<f32>(1.0) - d2 / d_mag_sq);
+    var cov = t_var * d2 + r_var * (vec3<f32>(1.0) - d2 / d_mag_sq);
+    if (params.zero_cov != 0u) {
+        cov = vec3<f32>(0.0);
+    }
 
     let n_deg = params.max_deg - params.min_deg;
     let ipe_len = 6u * n_deg;

@@ -11,6 +11,7 @@
 pub mod context;
 pub mod kernels;
 pub mod mlp;
+pub mod model;
 
 pub use context::{AdapterChoice, AdapterSummary, GpuContext, list_adapters};
 

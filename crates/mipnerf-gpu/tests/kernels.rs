@@ -494,3 +494,57 @@ fn a_missing_hardware_gpu_is_an_error_not_a_panic() {
         }
     }
 }
+
+/// GPU vs CPU, the whole model step: the IPE differs by ~1e-6 between the two, and that flows
+/// through the MLP, rendering and every gradient.
+const TOL_GPU_MODEL_REL: f32 = 2e-3;
+const TOL_GPU_MODEL_ABS: f32 = 2e-6;
+
+#[test]
+fn whole_model_loss_and_gradients_match_cpu_reference() {
+    use mipnerf_core::model::{Mode, Model, ModelConfig, PointEncoding, Preset};
+    use mipnerf_gpu::model::GpuModel;
+    let Some(ctx) = context_or_skip("whole_model_loss_and_gradients_match_cpu_reference") else { return };
+    let gpu = GpuModel::new(&ctx).unwrap();
+    let rays = test_rays(8);
+    let targets: Vec<[f32; 3]> = (0..rays.len()).map(|i| [(i % 7) as f32 / 7.0, 0.4, (i % 3) as f32 / 3.0]).collect();
+    let mut bad = Vec::new();
+    let tiny = ModelConfig { num_samples: 16, ..Preset::Tiny.config() };
+    for (ci, (cfg, mode)) in [
+        (tiny.clone(), Mode::Train { seed: 3, step: 7 }),
+        (ModelConfig { point_encoding: PointEncoding::Mean, ..tiny.clone() }.without_misc(), Mode::Eval),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let model = Model::new(cfg).unwrap();
+        let params = model.init_params(11);
+        let mut cpu_grads = vec![0.0; model.num_params];
+        let cpu = model.loss_and_grad(&params, &rays, &targets, mode, &mut cpu_grads);
+        let (g_stats, g_grads) = gpu.loss_and_grad(&ctx, &model, &params, &rays, &targets, mode).unwrap();
+        eprintln!("case {ci}: cpu losses {:?} gpu {:?}", cpu.losses, g_stats.losses);
+        bad.extend(compare(
+            &format!("case {ci} losses"),
+            &g_stats.losses,
+            &cpu.losses,
+            TOL_GPU_MODEL_REL,
+            TOL_GPU_MODEL_ABS,
+        ));
+        bad.extend(compare(&format!("case {ci} mse"), &g_stats.mse, &cpu.mse, TOL_GPU_MODEL_REL, TOL_GPU_MODEL_ABS));
+        // Gradients: compare relative to the gradient's overall scale.
+        let scale = cpu_grads.iter().fold(0.0f32, |m, g| m.max(g.abs()));
+        bad.extend(compare(
+            &format!("case {ci} grads"),
+            &g_grads,
+            &cpu_grads,
+            TOL_GPU_MODEL_REL,
+            TOL_GPU_MODEL_REL * scale,
+        ));
+    }
+    assert!(
+        bad.is_empty(),
+        "{} values differ:\n{}",
+        bad.len(),
+        bad.iter().take(40).cloned().collect::<Vec<_>>().join("\n")
+    );
+}

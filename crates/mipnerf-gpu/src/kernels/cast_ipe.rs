@@ -20,8 +20,10 @@ pub struct CastIpeParams {
     pub ray_shape: u32,
     /// Workgroups along x of the 2-D dispatch grid.
     pub groups_x: u32,
+    /// 1: zero covariance (plain PE of the means, the "w/o IPE" ablation).
+    pub zero_cov: u32,
     /// Padding to 16-byte alignment.
-    pub _pad: [u32; 2],
+    pub _pad: u32,
 }
 
 /// Workgroup size of `cast_ipe.wgsl`.
@@ -47,6 +49,35 @@ impl CastIpeKernel {
         let pipeline = crate::kernels::compute_pipeline(ctx, "cast_ipe", SOURCE, &layout);
         ctx.check()?;
         Ok(Self { pipeline, layout })
+    }
+
+    /// Records the kernel over `params.n_rays * params.n_samples` intervals: `rays` holds two vec4
+    /// per ray ((origin, radius), (direction, anything)), `t_vals` the edges, `out` the features.
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for a grid too large for one dispatch.
+    pub fn encode(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        mut params: CastIpeParams,
+        rays: &wgpu::Buffer,
+        t_vals: &wgpu::Buffer,
+        out: &wgpu::Buffer,
+    ) -> Result<(), GpuError> {
+        let (gx, gy) = dispatch_grid(u64::from(params.n_rays) * u64::from(params.n_samples), WORKGROUP)?;
+        params.groups_x = gx;
+        crate::kernels::dispatch(
+            ctx,
+            enc,
+            "cast_ipe",
+            &self.pipeline,
+            &self.layout,
+            &params,
+            &[rays, t_vals, out],
+            (gx, gy, 1),
+        );
+        Ok(())
     }
 
     /// Casts every ray's intervals (`t_vals`: `n_samples + 1` edges per ray, row-major) and encodes
@@ -90,7 +121,8 @@ impl CastIpeKernel {
                 RayShape::Cylinder => 1,
             },
             groups_x: gx,
-            _pad: [0; 2],
+            zero_cov: 0,
+            _pad: 0,
         };
         let packed: Vec<[f32; 4]> = rays
             .iter()
