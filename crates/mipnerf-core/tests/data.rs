@@ -361,6 +361,10 @@ fn bad_inputs_get_clear_errors_naming_the_file() {
     make_llff(ll.path());
     llff::write_poses_bounds(&ll.path().join("poses_bounds.npy"), &[[1.0; 17]; 3]).unwrap();
     assert_error(load(ll.path()).unwrap_err(), "images_4", "9 images but poses_bounds.npy has 3 poses");
+    let mut rows = [[1.0; 17]; 9];
+    rows[4][7] = f64::NAN;
+    llff::write_poses_bounds(&ll.path().join("poses_bounds.npy"), &rows).unwrap();
+    assert_error(load(ll.path()).unwrap_err(), "poses_bounds.npy", "row 4 has a non-finite value");
     std::fs::write(ll.path().join("poses_bounds.npy"), b"\x93NUMPY truncated").unwrap();
     assert_error(load(ll.path()).unwrap_err(), "poses_bounds.npy", "not a .npy file");
 }
