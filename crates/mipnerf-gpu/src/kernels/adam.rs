@@ -42,9 +42,7 @@ impl AdamKernel {
     /// # Errors
     /// If the device rejects it.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        let layout = kernels::storage_layout(ctx, "adam", &[true, false, false, false]);
-        let pipeline = kernels::compute_pipeline(ctx, "adam", SOURCE, &layout);
-        ctx.check()?;
+        let (pipeline, layout) = crate::kernels::build(ctx, "adam", SOURCE, &[true, false, false, false])?;
         Ok(Self { pipeline, layout })
     }
 

@@ -45,9 +45,7 @@ impl CastIpeKernel {
     /// # Errors
     /// [`GpuError::Validation`] if the device rejects the shader or pipeline.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        let layout = crate::kernels::storage_layout(ctx, "cast_ipe", &[true, true, false]);
-        let pipeline = crate::kernels::compute_pipeline(ctx, "cast_ipe", SOURCE, &layout);
-        ctx.check()?;
+        let (pipeline, layout) = crate::kernels::build(ctx, "cast_ipe", SOURCE, &[true, true, false])?;
         Ok(Self { pipeline, layout })
     }
 

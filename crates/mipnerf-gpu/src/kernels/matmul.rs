@@ -76,9 +76,7 @@ impl MatmulKernel {
     /// # Errors
     /// If the device rejects it.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        let layout = kernels::storage_layout(ctx, "matmul", &[true, true, false]);
-        let pipeline = kernels::compute_pipeline(ctx, "matmul", SOURCE, &layout);
-        ctx.check()?;
+        let (pipeline, layout) = crate::kernels::build(ctx, "matmul", SOURCE, &[true, true, false])?;
         Ok(Self { pipeline, layout })
     }
 

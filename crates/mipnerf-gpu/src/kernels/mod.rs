@@ -72,6 +72,23 @@ pub fn storage_layout(ctx: &GpuContext, name: &str, read_only: &[bool]) -> wgpu:
     })
 }
 
+/// The `main` pipeline of `source` and its layout (a uniform block, then storage buffers,
+/// read-only where `read_only[i]`), checked by the device: what every single-entry kernel owns.
+///
+/// # Errors
+/// [`GpuError::Validation`] if the device rejects the shader or pipeline.
+pub fn build(
+    ctx: &GpuContext,
+    name: &str,
+    source: &str,
+    read_only: &[bool],
+) -> Result<(wgpu::ComputePipeline, wgpu::BindGroupLayout), GpuError> {
+    let layout = storage_layout(ctx, name, read_only);
+    let pipeline = compute_pipeline(ctx, name, source, &layout);
+    ctx.check()?;
+    Ok((pipeline, layout))
+}
+
 /// A labelled compute pipeline for the `main` entry point of `source`.
 #[must_use]
 pub fn compute_pipeline(

@@ -32,9 +32,7 @@ impl ViewEncKernel {
     /// # Errors
     /// If the device rejects it.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        let layout = kernels::storage_layout(ctx, "view_enc", &[true, false]);
-        let pipeline = kernels::compute_pipeline(ctx, "view_enc", SOURCE, &layout);
-        ctx.check()?;
+        let (pipeline, layout) = crate::kernels::build(ctx, "view_enc", SOURCE, &[true, false])?;
         Ok(Self { pipeline, layout })
     }
 
