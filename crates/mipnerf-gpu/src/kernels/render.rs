@@ -103,10 +103,8 @@ impl RenderKernel {
     /// # Errors
     /// If the device rejects it.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        let layout =
-            kernels::storage_layout(ctx, "render", &[true, true, true, true, true, false, false, false, false]);
-        let pipeline = kernels::compute_pipeline(ctx, "render", SOURCE, &layout);
-        ctx.check()?;
+        let read_only = [true, true, true, true, true, false, false, false, false];
+        let (pipeline, layout) = kernels::build(ctx, "render", SOURCE, &read_only)?;
         Ok(Self { pipeline, layout })
     }
 
