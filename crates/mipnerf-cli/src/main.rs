@@ -191,7 +191,7 @@ fn info() {
 }
 
 fn check(backend: CheckBackend) -> Result<()> {
-    use mipnerf_core::mip::{self, Gaussian, RayShape};
+    use mipnerf_core::mip::{self, RayShape};
     let choice = match backend {
         CheckBackend::Cpu => {
             println!("the CPU backend is the reference; nothing to compare it with");
@@ -219,28 +219,12 @@ fn check(backend: CheckBackend) -> Result<()> {
     }
     let kernel = mipnerf_gpu::kernels::cast_ipe::CastIpeKernel::new(&ctx)?;
     let gpu = kernel.run(&ctx, &rays, &t, n as u32, RayShape::Cone, 0, 16)?;
-    let len = mip::ipe_len(0, 16);
-    let mut gs = vec![Gaussian::default(); n];
-    let mut enc = vec![0.0; len];
-    let mut max = 0.0f32;
-    for (r, ray) in rays.iter().enumerate() {
-        mip::cast_ray(
-            &t[r * (n + 1)..(r + 1) * (n + 1)],
-            ray.origin,
-            ray.direction,
-            ray.radius,
-            RayShape::Cone,
-            &mut gs,
-        );
-        for (s, g) in gs.iter().enumerate() {
-            mip::integrated_pos_enc(g, 0, 16, &mut enc);
-            let off = (r * n + s) * len;
-            for (a, b) in gpu[off..off + len].iter().zip(&enc) {
-                let diff = if a.is_nan() { f32::INFINITY } else { (a - b).abs() };
-                max = max.max(diff);
-            }
-        }
-    }
+    let cpu = mip::cast_and_encode(&rays, &t, n, RayShape::Cone, 0, 16);
+    let max = gpu
+        .iter()
+        .zip(&cpu)
+        .map(|(a, b)| if a.is_nan() { f32::INFINITY } else { (a - b).abs() })
+        .fold(0.0f32, f32::max);
     println!("cast_ipe: {} features, max |gpu - cpu| = {max:e}", gpu.len());
     anyhow::ensure!(max <= 1e-4, "the GPU's IPE features differ from the CPU reference by {max:e} (> 1e-4)");
     println!("ok");

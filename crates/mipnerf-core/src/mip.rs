@@ -279,6 +279,42 @@ pub fn integrated_pos_enc(g: &Gaussian, min_deg: u32, max_deg: u32, out: &mut [f
     }
 }
 
+/// Casts every ray's intervals (`t_vals`: `n_samples + 1` edges per ray, row-major) and encodes
+/// them with [`integrated_pos_enc`]: `rays.len() * n_samples * ipe_len(min_deg, max_deg)` features,
+/// sample after sample. This is what the GPU's `cast_ipe` kernel computes.
+///
+/// # Panics
+/// If `t_vals.len() != rays.len() * (n_samples + 1)`.
+#[must_use]
+pub fn cast_and_encode(
+    rays: &[crate::camera::Ray],
+    t_vals: &[f32],
+    n_samples: usize,
+    shape: RayShape,
+    min_deg: u32,
+    max_deg: u32,
+) -> Vec<f32> {
+    assert_eq!(t_vals.len(), rays.len() * (n_samples + 1), "cast_and_encode: t values");
+    let len = ipe_len(min_deg, max_deg);
+    let mut out = vec![0.0; rays.len() * n_samples * len];
+    let mut gs = vec![Gaussian::default(); n_samples];
+    for (r, ray) in rays.iter().enumerate() {
+        cast_ray(
+            &t_vals[r * (n_samples + 1)..(r + 1) * (n_samples + 1)],
+            ray.origin,
+            ray.direction,
+            ray.radius,
+            shape,
+            &mut gs,
+        );
+        for (s, g) in gs.iter().enumerate() {
+            let i = r * n_samples + s;
+            integrated_pos_enc(g, min_deg, max_deg, &mut out[i * len..(i + 1) * len]);
+        }
+    }
+    out
+}
+
 /// Number of features [`pos_enc`] writes for a 3-D vector.
 #[must_use]
 pub const fn pos_enc_len(min_deg: u32, max_deg: u32, append_identity: bool) -> usize {

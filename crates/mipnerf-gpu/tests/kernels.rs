@@ -2,7 +2,7 @@
 #![allow(clippy::unwrap_used, missing_docs)]
 
 use glam::Vec3;
-use mipnerf_core::mip::{self, Gaussian, RayShape};
+use mipnerf_core::mip::{self, RayShape};
 use mipnerf_core::rng::{RayRng, Stream};
 use mipnerf_core::sampling::sample_along_rays;
 use mipnerf_core::{Camera, PixelCenters, Ray};
@@ -21,19 +21,6 @@ fn test_rays(n_side: u32) -> Vec<Ray> {
     cam.generate_rays(PixelCenters::Centered, 2.0, 6.0, 1.0)
 }
 
-fn cpu_cast_ipe(rays: &[Ray], t: &[f32], n: usize, shape: RayShape) -> Vec<f32> {
-    let len = mip::ipe_len(0, 16);
-    let mut out = vec![0.0; rays.len() * n * len];
-    let mut gs = vec![Gaussian::default(); n];
-    for (r, ray) in rays.iter().enumerate() {
-        mip::cast_ray(&t[r * (n + 1)..(r + 1) * (n + 1)], ray.origin, ray.direction, ray.radius, shape, &mut gs);
-        for (s, g) in gs.iter().enumerate() {
-            mip::integrated_pos_enc(g, 0, 16, &mut out[(r * n + s) * len..(r * n + s + 1) * len]);
-        }
-    }
-    out
-}
-
 #[test]
 fn cast_ipe_matches_cpu_reference() {
     let Some(ctx) = context_or_skip("cast_ipe_matches_cpu_reference") else {
@@ -49,7 +36,7 @@ fn cast_ipe_matches_cpu_reference() {
     }
     for shape in [RayShape::Cone, RayShape::Cylinder] {
         let gpu = kernel.run(&ctx, &rays, &t, n as u32, shape, 0, 16).unwrap();
-        let cpu = cpu_cast_ipe(&rays, &t, n, shape);
+        let cpu = mip::cast_and_encode(&rays, &t, n, shape, 0, 16);
         assert_eq!(gpu.len(), cpu.len());
         let bad: Vec<String> = gpu
             .iter()
@@ -80,6 +67,16 @@ fn cast_ipe_rejects_inconsistent_sizes() {
 /// the CPU GEMM's blocking), f32 throughout.
 const TOL_GPU_MLP_REL: f32 = 2e-4;
 const TOL_GPU_MLP_ABS: f32 = 2e-5;
+
+/// Fails with every mismatch `compare` reported (the first 40 listed).
+fn assert_none_differ(bad: &[String]) {
+    assert!(
+        bad.is_empty(),
+        "{} values differ:\n{}",
+        bad.len(),
+        bad.iter().take(40).cloned().collect::<Vec<_>>().join("\n")
+    );
+}
 
 fn compare(what: &str, gpu: &[f32], cpu: &[f32], rel: f32, abs: f32) -> Vec<String> {
     assert_eq!(gpu.len(), cpu.len(), "{what}: lengths");
@@ -171,12 +168,7 @@ fn mlp_forward_and_backward_match_cpu_reference() {
         ));
         bad.extend(compare(&format!("shape {ci} grads"), &grads, &cpu_grads, TOL_GPU_MLP_REL, TOL_GPU_MLP_ABS));
     }
-    assert!(
-        bad.is_empty(),
-        "{} values differ:\n{}",
-        bad.len(),
-        bad.iter().take(40).cloned().collect::<Vec<_>>().join("\n")
-    );
+    assert_none_differ(&bad);
 }
 
 /// GPU vs CPU, rendering and its gradients: sums over samples in the same order, but GPU
@@ -328,12 +320,7 @@ fn render_forward_loss_and_backward_match_cpu_reference() {
             TOL_GPU_RENDER_ABS,
         ));
     }
-    assert!(
-        bad.is_empty(),
-        "{} values differ:\n{}",
-        bad.len(),
-        bad.iter().take(40).cloned().collect::<Vec<_>>().join("\n")
-    );
+    assert_none_differ(&bad);
 }
 
 #[test]
@@ -364,12 +351,7 @@ fn adam_matches_cpu_reference() {
     let mut bad = compare("params", &ctx.read_f32(&p_buf, n).unwrap(), &params, 1e-6, 1e-7);
     bad.extend(compare("m", &ctx.read_f32(&m_buf, n).unwrap(), &state.m, 1e-6, 1e-9));
     bad.extend(compare("v", &ctx.read_f32(&v_buf, n).unwrap(), &state.v, 1e-5, 1e-12));
-    assert!(
-        bad.is_empty(),
-        "{} values differ:\n{}",
-        bad.len(),
-        bad.iter().take(20).cloned().collect::<Vec<_>>().join("\n")
-    );
+    assert_none_differ(&bad);
 }
 
 /// GPU vs CPU interval edges: the same f32 operations; GPU division is within 2.5 ulp.
@@ -453,12 +435,7 @@ fn sampling_and_resampling_match_cpu_reference() {
             1e-6,
         ));
     }
-    assert!(
-        bad.is_empty(),
-        "{} values differ:\n{}",
-        bad.len(),
-        bad.iter().take(40).cloned().collect::<Vec<_>>().join("\n")
-    );
+    assert_none_differ(&bad);
 }
 
 #[test]
@@ -541,10 +518,5 @@ fn whole_model_loss_and_gradients_match_cpu_reference() {
             TOL_GPU_MODEL_REL * scale,
         ));
     }
-    assert!(
-        bad.is_empty(),
-        "{} values differ:\n{}",
-        bad.len(),
-        bad.iter().take(40).cloned().collect::<Vec<_>>().join("\n")
-    );
+    assert_none_differ(&bad);
 }
