@@ -6,7 +6,7 @@
 //   rgb_i = sigmoid(raw_rgb_i) (1 + 2 pad) - pad;  density_i = act(raw_density_i + bias)
 //   w_i = (1 - exp(-density_i delta_i)) exp(-sum_{j<i} density_j delta_j)
 //   colour = sum w_i rgb_i (+ 1 - acc with a white background)
-// With `train` set, the loss level_weight * lossmult |colour - target|^2 / norm is differentiated:
+// With `train` set, the loss level_weight * lossmult |colour - target|^2 / batch_norm[0] is differentiated:
 // d_raw_rgb and d_raw_density are written for the MLP's backward pass.
 
 struct Params {
@@ -19,8 +19,7 @@ struct Params {
     rgb_padding: f32,
     // Loss weight of this level.
     level_weight: f32,
-    // 3 * sum of lossmult over the batch.
-    norm: f32,
+    _pad0: u32,
     train: u32,
     // 1: weight rays by their lossmult (area loss), 0: by 1.
     area_loss: u32,
@@ -41,6 +40,8 @@ struct Params {
 @group(0) @binding(8) var<storage, read_write> d_raw_density: array<f32>;
 // Two vec4 per ray: (r, g, b, distance), (acc, lossmult * squared error, squared error, 0).
 @group(0) @binding(9) var<storage, read_write> ray_out: array<vec4<f32>>;
+// [0]: 3 * sum of lossmult over the batch (written on the device by batch.wgsl, or by the host).
+@group(0) @binding(10) var<storage, read> batch_norm: array<f32>;
 
 fn sigmoid(x: f32) -> f32 {
     return 1.0 / (1.0 + exp(-x));
@@ -113,7 +114,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     // d loss / d colour, then back through rendering and the activations.
-    let d_col = p.level_weight * 2.0 * lossmult * err / p.norm;
+    let d_col = p.level_weight * 2.0 * lossmult * err / batch_norm[0];
     var suffix = 0.0;
     for (var j = 0u; j < s_n; j = j + 1u) {
         let i = s_n - 1u - j;

@@ -19,6 +19,7 @@
 //!
 //! Randomness is counter-based ([`rng`]) so that the CPU and the GPU draw the same numbers.
 
+pub mod backend;
 pub mod bench;
 pub mod camera;
 pub mod checkpoint;

@@ -46,6 +46,14 @@ impl RayRng {
         Self { key: k }
     }
 
+    /// The stream's key: [`bits`](Self::bits)`(i)` is `pcg_hash(key ^ pcg_hash(i))`. The GPU
+    /// kernels take it as a parameter and draw the same bits.
+    #[must_use]
+    #[inline]
+    pub const fn key(&self) -> u32 {
+        self.key
+    }
+
     /// The `i`-th 32 random bits of this stream.
     #[must_use]
     #[inline]

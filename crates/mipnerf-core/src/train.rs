@@ -113,8 +113,9 @@ pub struct StepReport {
     pub lr: f32,
     /// Losses before the update.
     pub stats: LossStats,
-    /// Gradient norm (after value clipping, before norm clipping).
-    pub grad_norm: f32,
+    /// Gradient norm (after value clipping, before norm clipping), where the backend computes it
+    /// (the GPU backend does only when clipping by norm).
+    pub grad_norm: Option<f32>,
 }
 
 /// A model, its parameters and its optimiser state: everything a CPU training run holds.
@@ -166,7 +167,7 @@ impl Trainer {
         let grad_norm = clip_gradients(&mut self.grads, self.optim.grad_max_val, self.optim.grad_max_norm);
         let lr = self.optim.lr.lr(self.step);
         self.adam.update(&self.optim.adam, lr, &mut self.params, &self.grads);
-        let report = StepReport { step: self.step, lr, stats, grad_norm };
+        let report = StepReport { step: self.step, lr, stats, grad_norm: Some(grad_norm) };
         self.step += 1;
         report
     }

@@ -7,13 +7,18 @@
 //! - [`GpuContext`]: the one device and queue, with adapter discovery and error capture.
 //! - [`kernels`]: one type per kernel, owning its pipeline and bind-group layout; the WGSL sources
 //!   live in the workspace's `shaders/` folder and are compiled in with `include_str!`.
+//! - [`mlp`] and [`model`]: the MLP and the whole two-level model of a batch, forward and backward.
+//! - [`GpuBackend`]: training and chunked rendering entirely on the device, behind
+//!   `mipnerf_core::backend::Backend` (the CPU implements the same trait).
 
 pub mod context;
 pub mod kernels;
 pub mod mlp;
 pub mod model;
+pub mod trainer;
 
 pub use context::{AdapterChoice, AdapterSummary, GpuContext, list_adapters};
+pub use trainer::GpuBackend;
 
 /// Errors of the GPU backend. None of them is a panic: a missing or lost device is an error value.
 #[derive(Debug, thiserror::Error)]

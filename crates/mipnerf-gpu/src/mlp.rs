@@ -64,6 +64,15 @@ impl MlpBuffers {
         }
     }
 
+    /// Device bytes these buffers take.
+    #[must_use]
+    pub fn bytes(&self) -> u64 {
+        let all = [&self.x, &self.view, &self.view_b, &self.bottleneck, &self.raw_rgb, &self.raw_density];
+        let mut b: u64 = all.iter().map(|x| x.size()).sum();
+        b += self.trunk.iter().chain(&self.cond).chain(&self.grad).map(wgpu::Buffer::size).sum::<u64>();
+        b
+    }
+
     fn samples_per_ray(&self) -> usize {
         self.n / self.n_rays.max(1)
     }

@@ -1,15 +1,18 @@
-//! The whole Mip-NeRF loss and gradient of a batch on the device: the same computation as
-//! `mipnerf_core::model::Model::loss_and_grad`, composed from this crate's kernels, with every
-//! intermediate kept on the device and one read-back at the end.
+//! The whole Mip-NeRF forward pass, loss and gradient of a batch on the device: the same
+//! computation as `mipnerf_core::model::Model::loss_and_grad` and `Model::render`, composed from
+//! this crate's kernels, with every intermediate kept on the device.
 //!
 //! Per level: edges (`sample.wgsl`: stratified, or resampled from the previous level's weights),
 //! Gaussians and IPE (`cast_ipe.wgsl`), the MLP forward pass, rendering with the loss gradient
 //! (`render.wgsl`), and the MLP backward pass into the gradient buffer. Random numbers are the
 //! CPU's, so a training-mode batch gives the CPU's result to rounding.
+//!
+//! The batch comes in a [`RayBatch`]: made on the device by `batch.wgsl` (training and chunked
+//! rendering, see [`crate::trainer`]) or uploaded from the host ([`RayBatch::upload`]).
 
 use mipnerf_core::Ray;
 use mipnerf_core::mip::RayShape;
-use mipnerf_core::model::{LossStats, Mode, Model, PointEncoding};
+use mipnerf_core::model::{LevelOutput, LossStats, Mode, Model, PointEncoding};
 
 use crate::kernels::cast_ipe::{CastIpeKernel, CastIpeParams};
 use crate::kernels::render::{RenderBuffers, RenderKernel, RenderParams};
@@ -17,6 +20,160 @@ use crate::kernels::sample::{SampleKernels, SampleParams};
 use crate::kernels::view_enc::ViewEncKernel;
 use crate::mlp::{GpuMlp, MlpBuffers};
 use crate::{GpuContext, GpuError};
+
+/// The rays of a batch on the device, as the model's kernels read them.
+#[derive(Debug)]
+pub struct RayBatch {
+    /// Rays.
+    pub n_rays: usize,
+    /// Two vec4 per ray: (origin, radius), (direction, lossmult).
+    pub rays: wgpu::Buffer,
+    /// (near, far) per ray.
+    pub bounds: wgpu::Buffer,
+    /// Normalised direction per ray (3 floats).
+    pub viewdirs: wgpu::Buffer,
+    /// Target colour per ray (vec4; w unused).
+    pub targets: wgpu::Buffer,
+    /// One float: `3 * sum(lossmult)` over the batch (the loss's denominator).
+    pub norm: wgpu::Buffer,
+}
+
+impl RayBatch {
+    /// Buffers for `n_rays` rays, filled with NaN (so that anything not written shows).
+    #[must_use]
+    pub fn new(ctx: &GpuContext, n_rays: usize) -> Self {
+        let nan = |label: &str, len: usize| ctx.storage_buffer(label, &vec![f32::NAN; len.max(1)], true);
+        Self {
+            n_rays,
+            rays: nan("batch rays", n_rays * 8),
+            bounds: nan("batch bounds", n_rays * 2),
+            viewdirs: nan("batch view directions", n_rays * 3),
+            targets: nan("batch targets", n_rays * 4),
+            norm: nan("batch loss denominator", 1),
+        }
+    }
+
+    /// A batch uploaded from the host: `rays` with `targets` (one each), weighted by lossmult
+    /// in the loss when `area_loss`.
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for no rays or differing lengths.
+    pub fn upload(ctx: &GpuContext, rays: &[Ray], targets: &[[f32; 3]], area_loss: bool) -> Result<Self, GpuError> {
+        if rays.len() != targets.len() || rays.is_empty() {
+            return Err(GpuError::InvalidInput(format!("{} rays and {} targets", rays.len(), targets.len())));
+        }
+        let packed: Vec<[f32; 4]> = rays
+            .iter()
+            .flat_map(|r| [r.origin.extend(r.radius).to_array(), r.direction.extend(r.lossmult).to_array()])
+            .collect();
+        let bounds: Vec<f32> = rays.iter().flat_map(|r| [r.near, r.far]).collect();
+        let viewdirs: Vec<f32> = rays.iter().flat_map(|r| r.viewdir.to_array()).collect();
+        let tg: Vec<[f32; 4]> = targets.iter().map(|t| [t[0], t[1], t[2], 0.0]).collect();
+        let lm_sum: f64 = rays.iter().map(|r| if area_loss { f64::from(r.lossmult) } else { 1.0 }).sum();
+        Ok(Self {
+            n_rays: rays.len(),
+            rays: ctx.storage_buffer("batch rays", &packed, true),
+            bounds: ctx.storage_buffer("batch bounds", &bounds, true),
+            viewdirs: ctx.storage_buffer("batch view directions", &viewdirs, true),
+            targets: ctx.storage_buffer("batch targets", &tg, true),
+            norm: ctx.storage_buffer("batch loss denominator", &[(3.0 * lm_sum) as f32], true),
+        })
+    }
+}
+
+/// The per-level intermediates of a batch of `n_rays` rays: edges, MLP activations, weights,
+/// output gradients, and the per-ray outputs of every level.
+#[derive(Debug)]
+pub struct ModelBuffers {
+    /// Rays these buffers hold.
+    pub n_rays: usize,
+    mlp: MlpBuffers,
+    t_vals: Vec<wgpu::Buffer>,
+    /// Per level, two vec4 per ray: (rgb, distance), (acc, lossmult * se, se, 0).
+    pub ray_out: Vec<wgpu::Buffer>,
+    weights: wgpu::Buffer,
+    d_rgb: wgpu::Buffer,
+    d_density: wgpu::Buffer,
+}
+
+impl ModelBuffers {
+    /// Buffers for `n_rays` rays of `model`, filled with NaN.
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] when one buffer would exceed what the device binds (the message
+    /// names the largest batch that fits).
+    pub fn new(ctx: &GpuContext, model: &Model, n_rays: usize) -> Result<Self, GpuError> {
+        let c = &model.config;
+        let (s, levels) = (c.num_samples, c.num_levels);
+        let n = n_rays * s;
+        let limits = ctx.device.limits();
+        let limit = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
+        let widest = Self::largest_buffer_bytes_per_ray(model);
+        if n_rays as u64 * widest > limit {
+            return Err(GpuError::InvalidInput(format!(
+                "{n_rays} rays of {s} samples need a {:.0} MiB buffer; this adapter binds at most {:.0} MiB: \
+                 use at most {} rays per batch",
+                (n_rays as u64 * widest) as f64 / 1048576.0,
+                limit as f64 / 1048576.0,
+                limit / widest
+            )));
+        }
+        let nan = |label: &str, len: usize| ctx.storage_buffer(label, &vec![f32::NAN; len.max(1)], true);
+        Ok(Self {
+            n_rays,
+            mlp: MlpBuffers::new(ctx, &model.mlps[0], n_rays, s),
+            t_vals: (0..levels).map(|l| nan(&format!("edges level {l}"), n_rays * (s + 1))).collect(),
+            ray_out: (0..levels).map(|l| nan(&format!("ray outputs level {l}"), n_rays * 8)).collect(),
+            weights: nan("weights", n),
+            d_rgb: nan("d raw rgb", n * 3),
+            d_density: nan("d raw density", n),
+        })
+    }
+
+    /// Device bytes per ray of the largest single buffer (what the binding size limits).
+    #[must_use]
+    pub fn largest_buffer_bytes_per_ray(model: &Model) -> u64 {
+        Self::widest_row(model) as u64 * 4 * model.config.num_samples as u64
+    }
+
+    /// Floats per sample of the widest buffer.
+    fn widest_row(model: &Model) -> usize {
+        let c = &model.mlps[0].config;
+        c.x_dim.max(c.view_dim).max(c.net_width).max(c.net_width_condition).max(3)
+    }
+
+    /// Device bytes per ray of these buffers, for sizing chunks.
+    #[must_use]
+    pub fn bytes_per_ray(model: &Model) -> u64 {
+        let c = &model.mlps[0].config;
+        let cfg = &model.config;
+        let s = cfg.num_samples;
+        let widest = c.net_width.max(c.net_width_condition).max(3);
+        let per_sample = c.x_dim
+            + c.view_dim
+            + c.net_depth * c.net_width
+            + c.net_width
+            + c.net_depth_condition * c.net_width_condition
+            + 3
+            + 1
+            + 3 * widest
+            + 1
+            + 3
+            + 1;
+        let per_ray = s * per_sample + c.view_dim + cfg.num_levels * (s + 1 + 8);
+        per_ray as u64 * 4
+    }
+
+    /// Device bytes these buffers take.
+    #[must_use]
+    pub fn bytes(&self) -> u64 {
+        let mut b = self.mlp.bytes();
+        for buf in self.t_vals.iter().chain(&self.ray_out).chain([&self.weights, &self.d_rgb, &self.d_density]) {
+            b += buf.size();
+        }
+        b
+    }
+}
 
 /// The kernels of a model step.
 #[derive(Debug)]
@@ -43,25 +200,16 @@ impl GpuModel {
         })
     }
 
-    /// The loss of a batch and the gradient of every parameter, computed on the device from
-    /// `params` (uploaded) for `rays` (one per pixel) and `targets`.
+    /// Whether the GPU path computes `model` (in training when `training`).
     ///
     /// # Errors
-    /// [`GpuError::InvalidInput`] for what the GPU path does not do yet (NeRF's positional
-    /// encoding, density noise, supersampling, separate MLPs per level) or inconsistent sizes;
-    /// any error wgpu reports.
-    pub fn loss_and_grad(
-        &self,
-        ctx: &GpuContext,
-        model: &Model,
-        params: &[f32],
-        rays: &[Ray],
-        targets: &[[f32; 3]],
-        mode: Mode,
-    ) -> Result<(LossStats, Vec<f32>), GpuError> {
+    /// [`GpuError::InvalidInput`] naming what it does not do yet: NeRF's positional encoding,
+    /// supersampling, one MLP per level, density noise in training.
+    pub fn check_supported(model: &Model, training: bool) -> Result<(), GpuError> {
         let c = &model.config;
-        let unsupported =
-            |what: &str| Err(GpuError::InvalidInput(format!("the GPU model does not support {what} yet")));
+        let unsupported = |what: &str| {
+            Err(GpuError::InvalidInput(format!("the GPU backend does not support {what} yet; use the CPU backend")))
+        };
         if c.point_encoding == PointEncoding::Nerf {
             return unsupported("NeRF's positional encoding");
         }
@@ -71,51 +219,46 @@ impl GpuModel {
         if c.separate_mlps {
             return unsupported("one MLP per level");
         }
-        if matches!(mode, Mode::Train { .. }) && c.density_noise > 0.0 {
+        if training && c.density_noise > 0.0 {
             return unsupported("density noise");
         }
-        if rays.len() != targets.len() || rays.is_empty() || params.len() != model.num_params {
+        Ok(())
+    }
+
+    /// Records the model on `batch`: every level's outputs into `work.ray_out`; in training
+    /// (`grads` given) also the loss gradient of every parameter, **added** to `grads`.
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for an unsupported model or buffers of another size.
+    #[allow(clippy::too_many_arguments)]
+    pub fn encode(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        model: &Model,
+        params: &wgpu::Buffer,
+        batch: &RayBatch,
+        work: &ModelBuffers,
+        mode: Mode,
+        grads: Option<&wgpu::Buffer>,
+    ) -> Result<(), GpuError> {
+        Self::check_supported(model, grads.is_some() && matches!(mode, Mode::Train { .. }))?;
+        if batch.n_rays != work.n_rays || batch.n_rays == 0 {
             return Err(GpuError::InvalidInput(format!(
-                "{} rays, {} targets, {} parameters",
-                rays.len(),
-                targets.len(),
-                params.len()
+                "a batch of {} rays with buffers for {}",
+                batch.n_rays, work.n_rays
             )));
         }
-        let (nr, s) = (rays.len(), c.num_samples);
-        let n = nr * s;
+        let c = &model.config;
+        let (nr, s) = (batch.n_rays, c.num_samples);
         let shape = &model.mlps[0];
         let (seed, step, randomized) = match mode {
             Mode::Train { seed, step } => (seed, step, true),
             Mode::Eval => (0, 0, false),
         };
-        // Inputs.
-        let packed: Vec<[f32; 4]> = rays
-            .iter()
-            .flat_map(|r| [r.origin.extend(r.radius).to_array(), r.direction.extend(r.lossmult).to_array()])
-            .collect();
-        let rays_buf = ctx.storage_buffer("batch rays", &packed, false);
-        let bounds: Vec<f32> = rays.iter().flat_map(|r| [r.near, r.far]).collect();
-        let bounds_buf = ctx.storage_buffer("batch bounds", &bounds, false);
-        let viewdirs: Vec<f32> = rays.iter().flat_map(|r| r.viewdir.to_array()).collect();
-        let viewdirs_buf = ctx.storage_buffer("batch view directions", &viewdirs, false);
-        let tg: Vec<[f32; 4]> = targets.iter().map(|t| [t[0], t[1], t[2], 0.0]).collect();
-        let targets_buf = ctx.storage_buffer("batch targets", &tg, false);
-        let params_buf = ctx.storage_buffer("parameters", params, false);
-        let grads = ctx.storage_buffer("gradients", &vec![0.0f32; model.num_params], true);
-        // Intermediates.
-        let bufs = MlpBuffers::new(ctx, shape, nr, s);
-        let nan = |label: &str, len: usize| ctx.storage_buffer(label, &vec![f32::NAN; len], true);
-        let t_bufs: Vec<wgpu::Buffer> =
-            (0..c.num_levels).map(|l| nan(&format!("edges level {l}"), nr * (s + 1))).collect();
-        let ray_out: Vec<wgpu::Buffer> =
-            (0..c.num_levels).map(|l| nan(&format!("ray outputs level {l}"), nr * 8)).collect();
-        let (weights, d_rgb, d_den) = (nan("weights", n), nan("d raw rgb", n * 3), nan("d raw density", n));
-        let lossmult = |r: &Ray| if c.area_loss { r.lossmult } else { 1.0 };
-        let norm = 3.0 * rays.iter().map(|r| f64::from(lossmult(r))).sum::<f64>() as f32;
         let level_w = model.level_weights();
-        let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("model step") });
-        self.view.encode(ctx, &mut enc, nr, c.deg_view, &viewdirs_buf, &bufs.view)?;
+        let bufs = &work.mlp;
+        self.view.encode(ctx, enc, nr, c.deg_view, &batch.viewdirs, &bufs.view)?;
         for level in 0..c.num_levels {
             let sp = SampleParams {
                 n_rays: nr as u32,
@@ -129,10 +272,11 @@ impl GpuModel {
                 resample_padding: c.resample_padding,
                 ..SampleParams::default()
             };
+            let t = &work.t_vals;
             if level == 0 {
-                self.sample.stratified(ctx, &mut enc, sp, &bounds_buf, &t_bufs[0])?;
+                self.sample.stratified(ctx, enc, sp, &batch.bounds, &t[0])?;
             } else {
-                self.sample.resample(ctx, &mut enc, sp, &t_bufs[level - 1], &weights, &t_bufs[level])?;
+                self.sample.resample(ctx, enc, sp, &t[level - 1], &work.weights, &t[level])?;
             }
             let cp = CastIpeParams {
                 n_rays: nr as u32,
@@ -144,34 +288,107 @@ impl GpuModel {
                 zero_cov: u32::from(c.point_encoding == PointEncoding::Mean),
                 _pad: 0,
             };
-            self.cast.encode(ctx, &mut enc, cp, &rays_buf, &t_bufs[level], &bufs.x)?;
-            self.mlp.forward(ctx, &mut enc, shape, &params_buf, &bufs);
+            self.cast.encode(ctx, enc, cp, &batch.rays, &t[level], &bufs.x)?;
+            self.mlp.forward(ctx, enc, shape, params, bufs);
             let rb = RenderBuffers {
                 raw_rgb: &bufs.raw_rgb,
                 raw_density: &bufs.raw_density,
-                t_vals: &t_bufs[level],
-                rays: &rays_buf,
-                targets: &targets_buf,
-                weights: &weights,
-                d_raw_rgb: &d_rgb,
-                d_raw_density: &d_den,
-                ray_out: &ray_out[level],
+                t_vals: &t[level],
+                rays: &batch.rays,
+                targets: &batch.targets,
+                weights: &work.weights,
+                d_raw_rgb: &work.d_rgb,
+                d_raw_density: &work.d_density,
+                ray_out: &work.ray_out[level],
+                norm: &batch.norm,
             };
-            self.render.encode(ctx, &mut enc, RenderParams::new(c, nr, level_w[level], norm, true), &rb)?;
-            self.mlp.backward(ctx, &mut enc, shape, &params_buf, &bufs, &d_rgb, &d_den, &grads);
+            let rp = RenderParams::new(c, nr, level_w[level], grads.is_some());
+            self.render.encode(ctx, enc, rp, &rb)?;
+            if let Some(g) = grads {
+                self.mlp.backward(ctx, enc, shape, params, bufs, &work.d_rgb, &work.d_density, g);
+            }
         }
-        ctx.queue.submit([enc.finish()]);
-        let g = ctx.read_f32(&grads, model.num_params)?;
+        Ok(())
+    }
+
+    /// The losses of the last batch recorded with [`encode`](Self::encode), read back (waits for
+    /// the device).
+    ///
+    /// # Errors
+    /// Any error wgpu reports.
+    pub fn read_losses(
+        &self,
+        ctx: &GpuContext,
+        model: &Model,
+        batch: &RayBatch,
+        work: &ModelBuffers,
+    ) -> Result<LossStats, GpuError> {
+        let nr = batch.n_rays;
+        let norm = f64::from(ctx.read_f32(&batch.norm, 1)?[0]);
         let mut losses = Vec::new();
         let mut mse = Vec::new();
-        for out in &ray_out {
+        for out in &work.ray_out {
             let v = ctx.read_f32(out, nr * 8)?;
             let (lm_se, se): (f64, f64) =
                 v.chunks(8).fold((0.0, 0.0), |acc, o| (acc.0 + f64::from(o[5]), acc.1 + f64::from(o[6])));
-            losses.push((lm_se / f64::from(norm)) as f32);
+            losses.push((lm_se / norm) as f32);
             mse.push((se / (3.0 * nr as f64)) as f32);
         }
-        let loss = level_w.iter().zip(&losses).map(|(w, l)| w * l).sum();
-        Ok((LossStats { losses, loss, mse }, g))
+        let loss = model.level_weights().iter().zip(&losses).map(|(w, l)| w * l).sum();
+        Ok(LossStats { losses, loss, mse })
+    }
+
+    /// The first `n` rays' outputs of every level from the last recorded batch, read back:
+    /// `n x num_levels`, ray-major, as `Model::render` returns them.
+    ///
+    /// # Errors
+    /// Any error wgpu reports, or `n` beyond the buffers.
+    pub fn read_outputs(&self, ctx: &GpuContext, work: &ModelBuffers, n: usize) -> Result<Vec<LevelOutput>, GpuError> {
+        if n > work.n_rays {
+            return Err(GpuError::InvalidInput(format!("{n} outputs of buffers for {}", work.n_rays)));
+        }
+        let levels: Vec<Vec<f32>> = work.ray_out.iter().map(|b| ctx.read_f32(b, n * 8)).collect::<Result<_, _>>()?;
+        let mut out = Vec::with_capacity(n * levels.len());
+        for r in 0..n {
+            for l in &levels {
+                let o = &l[8 * r..8 * r + 8];
+                out.push(LevelOutput { rgb: [o[0], o[1], o[2]], distance: o[3], acc: o[4] });
+            }
+        }
+        Ok(out)
+    }
+
+    /// The loss of a batch and the gradient of every parameter, computed on the device from
+    /// `params` (uploaded) for `rays` (one per pixel) and `targets`.
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for what the GPU path does not do yet (see
+    /// [`check_supported`](Self::check_supported)) or inconsistent sizes; any error wgpu reports.
+    pub fn loss_and_grad(
+        &self,
+        ctx: &GpuContext,
+        model: &Model,
+        params: &[f32],
+        rays: &[Ray],
+        targets: &[[f32; 3]],
+        mode: Mode,
+    ) -> Result<(LossStats, Vec<f32>), GpuError> {
+        Self::check_supported(model, matches!(mode, Mode::Train { .. }))?;
+        if params.len() != model.num_params {
+            return Err(GpuError::InvalidInput(format!(
+                "{} parameters for a model of {}",
+                params.len(),
+                model.num_params
+            )));
+        }
+        let batch = RayBatch::upload(ctx, rays, targets, model.config.area_loss)?;
+        let work = ModelBuffers::new(ctx, model, rays.len())?;
+        let params_buf = ctx.storage_buffer("parameters", params, false);
+        let grads = ctx.storage_buffer("gradients", &vec![0.0f32; model.num_params], true);
+        let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("model step") });
+        self.encode(ctx, &mut enc, model, &params_buf, &batch, &work, mode, Some(&grads))?;
+        ctx.queue.submit([enc.finish()]);
+        let g = ctx.read_f32(&grads, model.num_params)?;
+        Ok((self.read_losses(ctx, model, &batch, &work)?, g))
     }
 }

@@ -5,8 +5,15 @@
 use std::path::PathBuf;
 
 use mipnerf_gpu::kernels::{
-    ALL_SOURCES, adam::AdamParams, cast_ipe::CastIpeParams, matmul::MatmulParams, mlp_aux::AuxParams,
-    render::RenderParams, sample::SampleParams, view_enc::ViewEncParams,
+    ALL_SOURCES,
+    adam::AdamParams,
+    batch::{BatchParams, GpuView},
+    cast_ipe::CastIpeParams,
+    matmul::MatmulParams,
+    mlp_aux::AuxParams,
+    render::RenderParams,
+    sample::SampleParams,
+    view_enc::ViewEncParams,
 };
 
 fn shaders_dir() -> PathBuf {
@@ -74,10 +81,14 @@ fn uniform_structs_match_wgsl_sizes() {
         ("adam.wgsl", std::mem::size_of::<AdamParams>()),
         ("sample.wgsl", std::mem::size_of::<SampleParams>()),
         ("view_enc.wgsl", std::mem::size_of::<ViewEncParams>()),
+        ("batch.wgsl", std::mem::size_of::<BatchParams>()),
     ];
     assert_eq!(rust_sizes.len(), ALL_SOURCES.len(), "every shader's uniform block is checked");
     for (file, size) in rust_sizes {
         let src = ALL_SOURCES.iter().find(|(n, _)| *n == file).unwrap().1;
         assert_eq!(wgsl_struct_size(src, "Params") as usize, size, "{file}: Params");
     }
+    // The per-view camera record of batch.wgsl, read from a storage array.
+    let batch = ALL_SOURCES.iter().find(|(n, _)| *n == "batch.wgsl").unwrap().1;
+    assert_eq!(wgsl_struct_size(batch, "View") as usize, std::mem::size_of::<GpuView>(), "batch.wgsl: View");
 }

@@ -216,6 +216,13 @@ impl Dataset {
         *self.offsets.last().unwrap_or(&0)
     }
 
+    /// Cumulative pixel counts: view `v` holds global pixels `offsets[v]..offsets[v + 1]` (one more
+    /// entry than views). Global pixel `g` is what [`sample_batch`](Self::sample_batch) draws.
+    #[must_use]
+    pub fn pixel_offsets(&self) -> &[u64] {
+        &self.offsets
+    }
+
     /// Bytes of pixel data held in memory.
     #[must_use]
     pub fn pixel_bytes(&self) -> usize {
@@ -244,11 +251,7 @@ impl Dataset {
     #[must_use]
     pub fn ray(&self, v: usize, x: u32, y: u32) -> Ray {
         let view = &self.views[v];
-        let ray = view.camera.ray_at(x, y, self.centers, view.near, view.far, view.lossmult);
-        match self.ndc {
-            None => ray,
-            Some(ndc) => llff::ndc_ray(&view.camera, x, y, self.centers, ndc, ray),
-        }
+        camera_ray(&view.camera, x, y, self.centers, (view.near, view.far), view.lossmult, self.ndc)
     }
 
     /// Every ray of view `v`, row-major.
@@ -258,29 +261,11 @@ impl Dataset {
         (0..c.height).flat_map(|y| (0..c.width).map(move |x| (x, y))).map(|(x, y)| self.ray(v, x, y)).collect()
     }
 
-    /// Appends the `k x k` rays of pixel `(x, y)` of view `v` for a supersampled NeRF: through a
-    /// regular sub-pixel grid, each a cone of `1/k` of the pixel's radius. With `k == 1`, the
-    /// pixel's own ray. Sub-pixel rays of NDC datasets are not supported: `k` is taken as 1.
+    /// Appends the `k x k` rays of pixel `(x, y)` of view `v` for a supersampled NeRF (see
+    /// [`push_camera_rays`]).
     pub fn push_pixel_rays(&self, v: usize, x: u32, y: u32, k: usize, out: &mut Vec<Ray>) {
-        let base = self.ray(v, x, y);
-        if k <= 1 || self.ndc.is_some() {
-            out.push(base);
-            return;
-        }
-        let cam = &self.views[v].camera;
-        for sy in 0..k {
-            for sx in 0..k {
-                let px = f64::from(x) + (sx as f64 + 0.5) / k as f64;
-                let py = f64::from(y) + (sy as f64 + 0.5) / k as f64;
-                let d = glam::DVec3::from_array(cam.direction_f64(px, py));
-                out.push(Ray {
-                    direction: d.as_vec3(),
-                    viewdir: d.normalize().as_vec3(),
-                    radius: base.radius / k as f32,
-                    ..base
-                });
-            }
-        }
+        let view = &self.views[v];
+        push_camera_rays(&view.camera, x, y, self.centers, (view.near, view.far), view.lossmult, self.ndc, k, out);
     }
 
     /// Every target colour of view `v`, row-major.
@@ -321,6 +306,59 @@ impl Dataset {
         s.sort_unstable();
         s.dedup();
         s
+    }
+}
+
+/// The ray of pixel `(x, y)` of `camera` with bounds `(near, far)`, mapped to NDC space when
+/// `ndc` is given (forward-facing scenes).
+#[must_use]
+pub fn camera_ray(
+    camera: &Camera,
+    x: u32,
+    y: u32,
+    centers: PixelCenters,
+    (near, far): (f32, f32),
+    lossmult: f32,
+    ndc: Option<Ndc>,
+) -> Ray {
+    let ray = camera.ray_at(x, y, centers, near, far, lossmult);
+    match ndc {
+        None => ray,
+        Some(ndc) => llff::ndc_ray(camera, x, y, centers, ndc, ray),
+    }
+}
+
+/// Appends the `k x k` rays of pixel `(x, y)` of `camera` for a supersampled NeRF: through a
+/// regular sub-pixel grid, each a cone of `1/k` of the pixel's radius. With `k == 1`, the pixel's
+/// own ray ([`camera_ray`]). Sub-pixel rays in NDC space are not supported: `k` is taken as 1.
+pub fn push_camera_rays(
+    camera: &Camera,
+    x: u32,
+    y: u32,
+    centers: PixelCenters,
+    bounds: (f32, f32),
+    lossmult: f32,
+    ndc: Option<Ndc>,
+    k: usize,
+    out: &mut Vec<Ray>,
+) {
+    let base = camera_ray(camera, x, y, centers, bounds, lossmult, ndc);
+    if k <= 1 || ndc.is_some() {
+        out.push(base);
+        return;
+    }
+    for sy in 0..k {
+        for sx in 0..k {
+            let px = f64::from(x) + (sx as f64 + 0.5) / k as f64;
+            let py = f64::from(y) + (sy as f64 + 0.5) / k as f64;
+            let d = glam::DVec3::from_array(camera.direction_f64(px, py));
+            out.push(Ray {
+                direction: d.as_vec3(),
+                viewdir: d.normalize().as_vec3(),
+                radius: base.radius / k as f32,
+                ..base
+            });
+        }
     }
 }
 

@@ -1,4 +1,4 @@
-//! `shaders/adam.wgsl`: the Adam update on the device.
+//! `shaders/adam.wgsl`: gradient clipping and the Adam update on the device.
 
 use mipnerf_core::train::AdamConfig;
 
@@ -7,7 +7,10 @@ use crate::{GpuContext, GpuError, kernels};
 /// The WGSL source of this kernel.
 pub const SOURCE: &str = include_str!("../../../../shaders/adam.wgsl");
 
-/// The uniform block of `adam.wgsl` (`struct Params`), 32 bytes.
+/// Gradients per workgroup of the norm's first pass.
+const NORM_GROUP: u64 = 256;
+
+/// The uniform block of `adam.wgsl` (`struct Params`), 48 bytes.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct AdamParams {
@@ -27,56 +30,132 @@ pub struct AdamParams {
     pub c1: f32,
     /// `1 - beta2^t`.
     pub c2: f32,
+    /// Clip each gradient entry to `±max_val` (0: off).
+    pub max_val: f32,
+    /// Scale the gradient to this norm if larger (0: off).
+    pub max_norm: f32,
+    /// Workgroups of the norm's first pass.
+    pub n_partials: u32,
+    /// Padding.
+    pub _pad: u32,
 }
 
-/// The compiled Adam pipeline.
+/// One update: Adam's settings, the update number, the learning rate and the clipping.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AdamStep {
+    /// Adam's settings.
+    pub cfg: AdamConfig,
+    /// Update number, 1-based.
+    pub t: u64,
+    /// Learning rate.
+    pub lr: f32,
+    /// Clip each entry to `±max_val` (0: off).
+    pub max_val: f32,
+    /// Clip the norm to `max_norm` (0: off).
+    pub max_norm: f32,
+}
+
+/// The buffers of an update of `count` parameters.
+#[derive(Debug)]
+pub struct AdamBuffers {
+    /// Parameters.
+    pub count: usize,
+    /// Gradients (read).
+    pub grads: wgpu::Buffer,
+    /// Parameters (updated).
+    pub params: wgpu::Buffer,
+    /// First moments (updated).
+    pub m: wgpu::Buffer,
+    /// Second moments (updated).
+    pub v: wgpu::Buffer,
+    /// Per-workgroup sums of squares (scratch).
+    pub partials: wgpu::Buffer,
+    /// `[norm after value clipping, clipping factor]`, written when clipping by norm.
+    pub stats: wgpu::Buffer,
+}
+
+impl AdamBuffers {
+    /// Buffers holding `params`, `m`, `v` and zero gradients.
+    ///
+    /// # Panics
+    /// If the lengths differ.
+    #[must_use]
+    pub fn new(ctx: &GpuContext, params: &[f32], m: &[f32], v: &[f32]) -> Self {
+        let n = params.len();
+        assert!(m.len() == n && v.len() == n, "adam buffers: lengths");
+        let partials = n.div_ceil(NORM_GROUP as usize).max(1);
+        Self {
+            count: n,
+            grads: ctx.storage_buffer("gradients", &vec![0.0f32; n], true),
+            params: ctx.storage_buffer("parameters", params, true),
+            m: ctx.storage_buffer("adam first moments", m, true),
+            v: ctx.storage_buffer("adam second moments", v, true),
+            partials: ctx.storage_buffer("gradient norm partial sums", &vec![0.0f32; partials], false),
+            stats: ctx.storage_buffer("gradient norm", &[f32::NAN; 2], true),
+        }
+    }
+}
+
+/// The compiled pipelines of `adam.wgsl`.
 #[derive(Debug)]
 pub struct AdamKernel {
-    pipeline: wgpu::ComputePipeline,
+    update: wgpu::ComputePipeline,
+    sq_partial: wgpu::ComputePipeline,
+    norm_finish: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
 }
 
 impl AdamKernel {
-    /// Compiles the kernel.
+    /// Compiles the kernels.
     ///
     /// # Errors
-    /// If the device rejects it.
+    /// If the device rejects them.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        let (pipeline, layout) = crate::kernels::build(ctx, "adam", SOURCE, &[true, false, false, false])?;
-        Ok(Self { pipeline, layout })
+        let layout = kernels::storage_layout(ctx, "adam", &[true, false, false, false, false, false]);
+        let p = |e: &str| kernels::compute_pipeline_entry(ctx, &format!("adam {e}"), SOURCE, e, &layout);
+        let s =
+            Self { update: p("main"), sq_partial: p("grad_sq_partial"), norm_finish: p("grad_norm_finish"), layout };
+        ctx.check()?;
+        Ok(s)
     }
 
-    /// Records update number `t` (1-based) of `count` parameters with learning rate `lr`.
+    /// Records the clipping (when on) and update `step` of every parameter in `b`.
     ///
     /// # Errors
     /// [`GpuError::InvalidInput`] for too many parameters for one dispatch.
-    #[allow(clippy::too_many_arguments)]
     pub fn encode(
         &self,
         ctx: &GpuContext,
         enc: &mut wgpu::CommandEncoder,
-        cfg: &AdamConfig,
-        t: u64,
-        lr: f32,
-        count: usize,
-        grads: &wgpu::Buffer,
-        params: &wgpu::Buffer,
-        m: &wgpu::Buffer,
-        v: &wgpu::Buffer,
+        step: &AdamStep,
+        b: &AdamBuffers,
     ) -> Result<(), GpuError> {
-        let (gx, gy) = kernels::dispatch_grid(count as u64, 64)?;
-        let t = t as i32;
-        let p = AdamParams {
-            count: count as u32,
-            groups_x: gx,
-            lr,
+        let t = step.t as i32;
+        let cfg = &step.cfg;
+        let mut p = AdamParams {
+            count: b.count as u32,
+            groups_x: 0,
+            lr: step.lr,
             beta1: cfg.beta1,
             beta2: cfg.beta2,
             eps: cfg.eps,
             c1: 1.0 - cfg.beta1.powi(t),
             c2: 1.0 - cfg.beta2.powi(t),
+            max_val: step.max_val,
+            max_norm: step.max_norm,
+            n_partials: b.count.div_ceil(NORM_GROUP as usize) as u32,
+            _pad: 0,
         };
-        kernels::dispatch(ctx, enc, "adam", &self.pipeline, &self.layout, &p, &[grads, params, m, v], (gx, gy, 1));
+        let bufs = [&b.grads, &b.params, &b.m, &b.v, &b.partials, &b.stats];
+        if step.max_norm > 0.0 {
+            let (gx, gy) = kernels::dispatch_grid(b.count as u64, NORM_GROUP as u32)?;
+            p.groups_x = gx;
+            kernels::dispatch(ctx, enc, "adam norm", &self.sq_partial, &self.layout, &p, &bufs, (gx, gy, 1));
+            kernels::dispatch(ctx, enc, "adam norm finish", &self.norm_finish, &self.layout, &p, &bufs, (1, 1, 1));
+        }
+        let (gx, gy) = kernels::dispatch_grid(b.count as u64, 64)?;
+        p.groups_x = gx;
+        kernels::dispatch(ctx, enc, "adam", &self.update, &self.layout, &p, &bufs, (gx, gy, 1));
         Ok(())
     }
 }

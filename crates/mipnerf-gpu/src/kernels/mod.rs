@@ -2,6 +2,7 @@
 //! share.
 
 pub mod adam;
+pub mod batch;
 pub mod cast_ipe;
 pub mod matmul;
 pub mod mlp_aux;
@@ -20,6 +21,7 @@ pub const ALL_SOURCES: &[(&str, &str)] = &[
     ("adam.wgsl", adam::SOURCE),
     ("sample.wgsl", sample::SOURCE),
     ("view_enc.wgsl", view_enc::SOURCE),
+    ("batch.wgsl", batch::SOURCE),
 ];
 
 /// Most workgroups a dispatch may have along one dimension.

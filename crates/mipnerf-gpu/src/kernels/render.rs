@@ -25,8 +25,8 @@ pub struct RenderParams {
     pub rgb_padding: f32,
     /// Loss weight of the level.
     pub level_weight: f32,
-    /// `3 * sum(lossmult)` over the batch.
-    pub norm: f32,
+    /// Padding (the loss's denominator is in [`RenderBuffers::norm`]).
+    pub _pad0: u32,
     /// 1: compute the loss gradient.
     pub train: u32,
     /// 1: weight rays by lossmult.
@@ -40,13 +40,7 @@ pub struct RenderParams {
 impl RenderParams {
     /// The block for a model configuration.
     #[must_use]
-    pub fn new(
-        cfg: &mipnerf_core::model::ModelConfig,
-        n_rays: usize,
-        level_weight: f32,
-        norm: f32,
-        train: bool,
-    ) -> Self {
+    pub fn new(cfg: &mipnerf_core::model::ModelConfig, n_rays: usize, level_weight: f32, train: bool) -> Self {
         Self {
             n_rays: n_rays as u32,
             n_samples: cfg.num_samples as u32,
@@ -58,7 +52,7 @@ impl RenderParams {
             density_bias: cfg.density_bias,
             rgb_padding: cfg.rgb_padding,
             level_weight,
-            norm,
+            _pad0: 0,
             train: u32::from(train),
             area_loss: u32::from(cfg.area_loss),
             groups_x: 0,
@@ -88,6 +82,8 @@ pub struct RenderBuffers<'a> {
     pub d_raw_density: &'a wgpu::Buffer,
     /// Two vec4 per ray (output): (rgb, distance), (acc, lossmult * se, se, 0).
     pub ray_out: &'a wgpu::Buffer,
+    /// One float: `3 * sum(lossmult)` over the batch, the loss's denominator.
+    pub norm: &'a wgpu::Buffer,
 }
 
 /// The compiled render pipeline.
@@ -103,7 +99,7 @@ impl RenderKernel {
     /// # Errors
     /// If the device rejects it.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        let read_only = [true, true, true, true, true, false, false, false, false];
+        let read_only = [true, true, true, true, true, false, false, false, false, true];
         let (pipeline, layout) = kernels::build(ctx, "render", SOURCE, &read_only)?;
         Ok(Self { pipeline, layout })
     }
@@ -121,8 +117,18 @@ impl RenderKernel {
     ) -> Result<(), GpuError> {
         let (gx, gy) = kernels::dispatch_grid(u64::from(params.n_rays), 64)?;
         params.groups_x = gx;
-        let bufs =
-            [b.raw_rgb, b.raw_density, b.t_vals, b.rays, b.targets, b.weights, b.d_raw_rgb, b.d_raw_density, b.ray_out];
+        let bufs = [
+            b.raw_rgb,
+            b.raw_density,
+            b.t_vals,
+            b.rays,
+            b.targets,
+            b.weights,
+            b.d_raw_rgb,
+            b.d_raw_density,
+            b.ray_out,
+            b.norm,
+        ];
         kernels::dispatch(ctx, enc, "render", &self.pipeline, &self.layout, &params, &bufs, (gx, gy, 1));
         Ok(())
     }

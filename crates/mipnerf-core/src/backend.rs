@@ -1,0 +1,247 @@
+//! One interface for training and rendering, whatever runs them: [`Backend`], implemented here on
+//! the CPU ([`CpuBackend`]) and in `mipnerf-gpu` on any wgpu device (`GpuBackend`).
+//!
+//! A backend owns a model's parameters and Adam state and, for training, the training images: it
+//! draws its own batches (a pure function of the run's seed and the step), so two backends started
+//! from the same seed train on the same pixels and follow the same loss curve up to rounding.
+
+use std::sync::Arc;
+
+use crate::camera::{Camera, PixelCenters, Ray};
+use crate::checkpoint::Checkpoint;
+use crate::data::{Dataset, Ndc, push_camera_rays};
+use crate::model::{LevelOutput, Model};
+use crate::train::{AdamState, OptimConfig, StepReport, Trainer};
+
+/// Why a backend could not do what was asked.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum BackendError {
+    /// The backend does not implement this configuration (e.g. a GPU and NeRF's supersampling).
+    #[error("{0}")]
+    Unsupported(String),
+    /// Training was asked of a backend made without training data.
+    #[error("this backend holds no training data (it was made for rendering only)")]
+    NoData,
+    /// The inputs disagree with the model (sizes, parameter counts).
+    #[error("{0}")]
+    Invalid(String),
+    /// The device failed (validation error, lost device, out of memory).
+    #[error("{0}")]
+    Device(String),
+}
+
+/// A full image to render: its camera and how its pixels become rays.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ImageSpec {
+    /// The camera (its size is the image's).
+    pub camera: Camera,
+    /// Near bound along every ray.
+    pub near: f32,
+    /// Far bound along every ray.
+    pub far: f32,
+    /// Rays through pixel centres or corners.
+    pub centers: PixelCenters,
+    /// NDC mapping for forward-facing scenes.
+    pub ndc: Option<Ndc>,
+    /// Rays per pixel side (`supersample²` rays per pixel, averaged); 1 for Mip-NeRF.
+    pub supersample: usize,
+}
+
+impl ImageSpec {
+    /// View `v` of `ds`, at its own resolution, with `supersample²` rays per pixel.
+    ///
+    /// # Panics
+    /// If `v` is out of range.
+    #[must_use]
+    pub fn of_view(ds: &Dataset, v: usize, supersample: usize) -> Self {
+        let view = &ds.views[v];
+        Self {
+            camera: view.camera.clone(),
+            near: view.near,
+            far: view.far,
+            centers: ds.centers,
+            ndc: ds.ndc,
+            supersample: supersample.max(1),
+        }
+    }
+
+    /// Pixels in the image.
+    #[must_use]
+    pub fn pixels(&self) -> usize {
+        self.camera.width as usize * self.camera.height as usize
+    }
+
+    /// Appends the rays of pixels `first..first + count` (raster order), `supersample²` per pixel.
+    pub fn push_rays(&self, first: usize, count: usize, out: &mut Vec<Ray>) {
+        let w = self.camera.width as usize;
+        for i in first..(first + count).min(self.pixels()) {
+            let (x, y) = ((i % w) as u32, (i / w) as u32);
+            let bounds = (self.near, self.far);
+            push_camera_rays(&self.camera, x, y, self.centers, bounds, 1.0, self.ndc, self.supersample, out);
+        }
+    }
+}
+
+/// Trains and renders one model. Implemented by [`CpuBackend`] and by `mipnerf_gpu::GpuBackend`.
+pub trait Backend {
+    /// What runs the work, for logs: "CPU (2 threads)", "GPU: NVIDIA H100 (Vulkan)".
+    fn describe(&self) -> String;
+
+    /// The model.
+    fn model(&self) -> &Model;
+
+    /// The number of the next training step (the steps done so far).
+    fn step(&self) -> u64;
+
+    /// One training step: draws the step's batch from the training data, computes the loss and
+    /// gradient of both levels, clips, and applies Adam. Returns the step's losses when `report`
+    /// is set (a backend on a device only reads them back then); `None` otherwise.
+    ///
+    /// # Errors
+    /// [`BackendError::NoData`] without training data; device failures.
+    fn train_step(&mut self, report: bool) -> Result<Option<StepReport>, BackendError>;
+
+    /// The parameters, Adam state and step, as a checkpoint (read back from a device).
+    ///
+    /// # Errors
+    /// Device failures.
+    fn checkpoint(&mut self) -> Result<Checkpoint, BackendError>;
+
+    /// Renders every pixel of `image` at every level with the current parameters (evaluation
+    /// mode): `pixels x num_levels` outputs, pixel-major, as [`Model::render`]; supersampled rays
+    /// are averaged per pixel.
+    ///
+    /// # Errors
+    /// [`BackendError::Unsupported`] for what the backend does not render; device failures.
+    fn render_image(&mut self, image: &ImageSpec) -> Result<Vec<LevelOutput>, BackendError>;
+}
+
+/// Where a training run starts: fresh parameters from the seed, or a checkpoint.
+#[derive(Clone, Debug)]
+pub struct TrainState {
+    /// Parameters.
+    pub params: Vec<f32>,
+    /// Adam's moments and update count.
+    pub adam: AdamState,
+    /// The next step.
+    pub step: u64,
+}
+
+impl TrainState {
+    /// Fresh Glorot parameters drawn from `seed`, zero moments, step 0 (what [`Trainer::new`]
+    /// starts from).
+    #[must_use]
+    pub fn fresh(model: &Model, seed: u32) -> Self {
+        Self { params: model.init_params(u64::from(seed)), adam: AdamState::new(model.num_params), step: 0 }
+    }
+
+    /// The state saved in `ck`.
+    #[must_use]
+    pub fn from_checkpoint(ck: Checkpoint) -> Self {
+        Self { params: ck.params, adam: ck.adam, step: ck.step }
+    }
+
+    /// Checks the lengths against `model`.
+    ///
+    /// # Errors
+    /// [`BackendError::Invalid`] naming the mismatch.
+    pub fn check(&self, model: &Model) -> Result<(), BackendError> {
+        let n = model.num_params;
+        if self.params.len() != n || self.adam.m.len() != n || self.adam.v.len() != n {
+            return Err(BackendError::Invalid(format!(
+                "the state holds {} parameters and {}/{} Adam moments; the model has {n}",
+                self.params.len(),
+                self.adam.m.len(),
+                self.adam.v.len()
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// Pixels per chunk when the CPU renders an image (bounds the rays held at once).
+pub const CPU_RENDER_CHUNK: usize = 16 * 1024;
+
+/// The CPU backend: [`Trainer`] with batches drawn by [`Dataset::sample_batch`], and
+/// [`Model::render`] in chunks.
+#[derive(Debug)]
+pub struct CpuBackend {
+    trainer: Trainer,
+    data: Option<(Arc<Dataset>, usize)>,
+    rays: Vec<Ray>,
+    targets: Vec<[f32; 3]>,
+}
+
+impl CpuBackend {
+    /// A backend for `model` starting from `state`, training with `optim` and `seed`.
+    ///
+    /// # Errors
+    /// [`BackendError::Invalid`] when the state does not fit the model.
+    pub fn new(model: Model, optim: OptimConfig, seed: u32, state: TrainState) -> Result<Self, BackendError> {
+        state.check(&model)?;
+        let mut trainer = Trainer::new(model, optim, seed);
+        trainer.params = state.params;
+        trainer.adam = state.adam;
+        trainer.step = state.step;
+        Ok(Self { trainer, data: None, rays: Vec::new(), targets: Vec::new() })
+    }
+
+    /// Trains on batches of `batch_rays` pixels of `data`.
+    #[must_use]
+    pub fn with_data(mut self, data: Arc<Dataset>, batch_rays: usize) -> Self {
+        self.data = Some((data, batch_rays));
+        self
+    }
+
+    /// The trainer inside.
+    #[must_use]
+    pub fn trainer(&self) -> &Trainer {
+        &self.trainer
+    }
+}
+
+impl Backend for CpuBackend {
+    fn describe(&self) -> String {
+        format!("CPU ({} threads)", rayon::current_num_threads())
+    }
+
+    fn model(&self) -> &Model {
+        &self.trainer.model
+    }
+
+    fn step(&self) -> u64 {
+        self.trainer.step
+    }
+
+    fn train_step(&mut self, _report: bool) -> Result<Option<StepReport>, BackendError> {
+        let (ds, batch) = self.data.as_ref().ok_or(BackendError::NoData)?;
+        let t = &self.trainer;
+        ds.sample_batch(*batch, t.seed, t.step as u32, t.model.config.supersample, &mut self.rays, &mut self.targets);
+        Ok(Some(self.trainer.train_step(&self.rays, &self.targets)))
+    }
+
+    fn checkpoint(&mut self) -> Result<Checkpoint, BackendError> {
+        let t = &self.trainer;
+        Ok(Checkpoint { step: t.step, params: t.params.clone(), adam: t.adam.clone() })
+    }
+
+    fn render_image(&mut self, image: &ImageSpec) -> Result<Vec<LevelOutput>, BackendError> {
+        let model = &self.trainer.model;
+        let k = model.config.supersample;
+        if image.supersample != k {
+            return Err(BackendError::Invalid(format!(
+                "the image asks for {}x{} rays per pixel; the model renders {k}x{k}",
+                image.supersample, image.supersample
+            )));
+        }
+        let mut out = Vec::with_capacity(image.pixels() * model.config.num_levels);
+        let mut rays = Vec::new();
+        for first in (0..image.pixels()).step_by(CPU_RENDER_CHUNK) {
+            rays.clear();
+            image.push_rays(first, CPU_RENDER_CHUNK, &mut rays);
+            out.extend(model.render(&self.trainer.params, &rays));
+        }
+        Ok(out)
+    }
+}

@@ -1,0 +1,342 @@
+//! `shaders/batch.wgsl`: ray batches made on the device from images and cameras that live there.
+
+use mipnerf_core::backend::ImageSpec;
+use mipnerf_core::camera::{Camera, PixelCenters};
+use mipnerf_core::data::{Dataset, Pixels};
+use mipnerf_core::rng::{RayRng, Stream};
+
+use crate::model::RayBatch;
+use crate::{GpuContext, GpuError, kernels};
+
+/// The WGSL source of these kernels.
+pub const SOURCE: &str = include_str!("../../../../shaders/batch.wgsl");
+
+/// Pixel buffers a dataset may span (bindings of `batch.wgsl`).
+pub const PIXEL_SLOTS: usize = 4;
+
+/// The uniform block of `batch.wgsl` (`struct Params`), 48 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct BatchParams {
+    /// Rays to make.
+    pub n_rays: u32,
+    /// 1: pixels `first_pixel..` in raster order; 0: drawn at random.
+    pub sequential: u32,
+    /// First pixel (sequential).
+    pub first_pixel: u32,
+    /// Views in the table.
+    pub n_views: u32,
+    /// Pixels over all views.
+    pub total_pixels: u32,
+    /// The `RayRng` key of the step's batch stream.
+    pub key: u32,
+    /// 0: RGBA8, 1: f32 RGBA, 2: no pixels.
+    pub pixel_format: u32,
+    /// 1: composite on white.
+    pub white_bkgd: u32,
+    /// 1: weight rays by lossmult in the loss's denominator.
+    pub area_loss: u32,
+    /// Workgroups along x.
+    pub groups_x: u32,
+    /// Padding.
+    pub _pad: [u32; 2],
+}
+
+/// One view's camera as `batch.wgsl` reads it (`struct View`), 80 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct GpuView {
+    /// Direction through pixel (0, 0) (with the centre offset); w: cone radius.
+    pub dir0: [f32; 4],
+    /// Direction change per pixel along x; w: near.
+    pub step_x: [f32; 4],
+    /// Direction change per pixel along y; w: far.
+    pub step_y: [f32; 4],
+    /// Camera centre; w: lossmult.
+    pub origin: [f32; 4],
+    /// Width, height, pixel slot, first word of the view's pixels in the slot.
+    pub size: [u32; 4],
+}
+
+impl GpuView {
+    /// The record of a pinhole `camera`: its direction field in `f64`, rounded once; the cone
+    /// radius of pixel (0, 0), which a pinhole shares with every pixel.
+    #[must_use]
+    pub fn new(camera: &Camera, centers: PixelCenters, bounds: (f32, f32), lossmult: f32, pixels: (u32, u32)) -> Self {
+        let off = centers.offset();
+        let d0 = camera.direction_f64(off, off);
+        let col = |c: usize| -> [f64; 3] {
+            std::array::from_fn(|r| (0..3).map(|k| camera.cam2world[r][k] * camera.pix2cam[k][c]).sum())
+        };
+        let (sx, sy) = (col(0), col(1));
+        let o = camera.origin();
+        let radius = camera.ray_at(0, 0, centers, bounds.0, bounds.1, lossmult).radius;
+        let v4 = |a: [f64; 3], w: f32| [a[0] as f32, a[1] as f32, a[2] as f32, w];
+        Self {
+            dir0: v4(d0, radius),
+            step_x: v4(sx, bounds.0),
+            step_y: v4(sy, bounds.1),
+            origin: v4(o, lossmult),
+            size: [camera.width, camera.height, pixels.0, pixels.1],
+        }
+    }
+}
+
+/// How pixels are stored on the device.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u32)]
+pub enum PixelFormat {
+    /// Straight RGBA8, one `u32` per pixel.
+    Rgba8 = 0,
+    /// Straight RGBA as four `f32` per pixel (images area-downsampled on loading).
+    F32 = 1,
+    /// No pixels (rendering only).
+    None = 2,
+}
+
+/// Cameras (and for training, images) resident on the device: what `batch.wgsl` makes rays from.
+#[derive(Debug)]
+pub struct DeviceImages {
+    views: wgpu::Buffer,
+    offsets: wgpu::Buffer,
+    pixels: [wgpu::Buffer; PIXEL_SLOTS],
+    n_views: u32,
+    total_pixels: u32,
+    format: PixelFormat,
+    white_bkgd: bool,
+    /// Device bytes of the pixel buffers.
+    pub pixel_bytes: u64,
+}
+
+fn too_large(what: &str) -> GpuError {
+    GpuError::InvalidInput(format!("{what}: more than 2^32 - 1 pixels; the GPU backend indexes pixels with 32 bits"))
+}
+
+impl DeviceImages {
+    /// Uploads every view of `ds` (pixels and cameras), once.
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for NDC (forward-facing) datasets, whose rays are not linear in
+    /// the pixel, and for images that do not fit in the device's buffers (the message says how
+    /// much is needed and allowed).
+    pub fn upload(ctx: &GpuContext, ds: &Dataset) -> Result<Self, GpuError> {
+        let limits = ctx.device.limits();
+        Self::upload_with_slot_bytes(ctx, ds, limits.max_storage_buffer_binding_size.min(limits.max_buffer_size))
+    }
+
+    /// [`upload`](Self::upload) with each of the [`PIXEL_SLOTS`] pixel buffers holding at most
+    /// `slot_bytes` (the adapter's binding limit at most): views are placed in order, each whole in
+    /// one buffer.
+    ///
+    /// # Errors
+    /// As [`upload`](Self::upload).
+    pub fn upload_with_slot_bytes(ctx: &GpuContext, ds: &Dataset, slot_bytes: u64) -> Result<Self, GpuError> {
+        if ds.ndc.is_some() {
+            return Err(GpuError::InvalidInput(format!(
+                "{}: forward-facing (NDC) datasets are not supported by the GPU backend yet; use --backend cpu",
+                ds.root.display()
+            )));
+        }
+        let total = ds.num_pixels();
+        let total_u32 = u32::try_from(total).map_err(|_| too_large(&ds.root.display().to_string()))?;
+        let all_u8 = ds.views.iter().all(|v| matches!(v.pixels, Pixels::Rgba8(_)));
+        let (format, words_per_pixel) = if all_u8 { (PixelFormat::Rgba8, 1u64) } else { (PixelFormat::F32, 4) };
+        let limits = ctx.device.limits();
+        let slot_bytes = slot_bytes.min(limits.max_storage_buffer_binding_size.min(limits.max_buffer_size)) / 4 * 4;
+        // Assign views to slots greedily, in order.
+        let mut placement = Vec::with_capacity(ds.views.len());
+        let mut used = [0u64; PIXEL_SLOTS];
+        let mut slot = 0usize;
+        for v in &ds.views {
+            let bytes = u64::from(v.camera.width) * u64::from(v.camera.height) * words_per_pixel * 4;
+            while slot < PIXEL_SLOTS && used[slot] + bytes > slot_bytes {
+                slot += 1;
+            }
+            if slot == PIXEL_SLOTS {
+                let need = total * words_per_pixel * 4;
+                return Err(GpuError::InvalidInput(format!(
+                    "{}: the training images need {:.0} MiB on the device, but this adapter binds at most \
+                     {PIXEL_SLOTS} x {:.0} MiB; train at lower resolution (--half-res), on fewer views, or with --backend cpu",
+                    ds.root.display(),
+                    need as f64 / 1048576.0,
+                    slot_bytes as f64 / 1048576.0
+                )));
+            }
+            placement.push((slot as u32, (used[slot] / 4) as u32));
+            used[slot] += bytes;
+        }
+        let pixels: [wgpu::Buffer; PIXEL_SLOTS] = std::array::from_fn(|s| {
+            ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(&format!("training pixels {s}")),
+                size: used[s].max(4),
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        });
+        for (v, &(slot, word)) in ds.views.iter().zip(&placement) {
+            let offset = u64::from(word) * 4;
+            match (&v.pixels, format) {
+                (Pixels::Rgba8(bytes), PixelFormat::Rgba8) => {
+                    ctx.queue.write_buffer(&pixels[slot as usize], offset, bytes)
+                }
+                (Pixels::RgbaF32(f), _) => {
+                    ctx.queue.write_buffer(&pixels[slot as usize], offset, bytemuck::cast_slice(f))
+                }
+                (Pixels::Rgba8(bytes), _) => {
+                    let f: Vec<f32> = bytes.iter().map(|&b| f32::from(b) / 255.0).collect();
+                    ctx.queue.write_buffer(&pixels[slot as usize], offset, bytemuck::cast_slice(&f));
+                }
+            }
+        }
+        let views: Vec<GpuView> = ds
+            .views
+            .iter()
+            .zip(&placement)
+            .map(|(v, &p)| GpuView::new(&v.camera, ds.centers, (v.near, v.far), v.lossmult, p))
+            .collect();
+        let offsets: Vec<u32> = ds.pixel_offsets().iter().map(|&o| o as u32).collect();
+        ctx.check()?;
+        Ok(Self {
+            views: ctx.storage_buffer("training cameras", &views, false),
+            offsets: ctx.storage_buffer("training pixel offsets", &offsets, false),
+            pixels,
+            n_views: views.len() as u32,
+            total_pixels: total_u32,
+            format,
+            white_bkgd: ds.white_bkgd,
+            pixel_bytes: used.iter().sum(),
+        })
+    }
+
+    /// The camera of one image to render (no pixels).
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for NDC or supersampled images, which the GPU does not render.
+    pub fn camera_only(ctx: &GpuContext, image: &ImageSpec) -> Result<Self, GpuError> {
+        if image.ndc.is_some() || image.supersample != 1 {
+            return Err(GpuError::InvalidInput(
+                "the GPU backend renders neither forward-facing (NDC) nor supersampled images yet; use --backend cpu"
+                    .into(),
+            ));
+        }
+        let total = image.pixels() as u64;
+        let total_u32 = u32::try_from(total).map_err(|_| too_large("the image"))?;
+        let view = GpuView::new(&image.camera, image.centers, (image.near, image.far), 1.0, (0, 0));
+        let empty = || ctx.storage_buffer("no pixels", &[0u32], false);
+        Ok(Self {
+            views: ctx.storage_buffer("render camera", &[view], false),
+            offsets: ctx.storage_buffer("render pixel offsets", &[0u32, total_u32], false),
+            pixels: std::array::from_fn(|_| empty()),
+            n_views: 1,
+            total_pixels: total_u32,
+            format: PixelFormat::None,
+            white_bkgd: false,
+            pixel_bytes: 0,
+        })
+    }
+
+    /// Pixels over all views.
+    #[must_use]
+    pub fn total_pixels(&self) -> u32 {
+        self.total_pixels
+    }
+}
+
+/// Which pixels a batch holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Draw {
+    /// Uniformly drawn with replacement, as `Dataset::sample_batch(n, seed, step, ..)` draws them.
+    Random {
+        /// Run seed.
+        seed: u32,
+        /// Step.
+        step: u32,
+    },
+    /// Pixels `first..first + n` in raster order over the views; rays past the last pixel repeat
+    /// it (the tail of an image's last chunk).
+    Sequential {
+        /// First pixel.
+        first: u32,
+    },
+}
+
+/// The two pipelines of `batch.wgsl`.
+#[derive(Debug)]
+pub struct BatchKernel {
+    make_rays: wgpu::ComputePipeline,
+    batch_norm: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+}
+
+impl BatchKernel {
+    /// Compiles the kernels.
+    ///
+    /// # Errors
+    /// If the device rejects them.
+    pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
+        let mut read_only = vec![true; 6];
+        read_only.extend([false; 5]);
+        let layout = kernels::storage_layout(ctx, "batch", &read_only);
+        let p = |e: &str| kernels::compute_pipeline_entry(ctx, &format!("batch {e}"), SOURCE, e, &layout);
+        let s = Self { make_rays: p("make_rays"), batch_norm: p("batch_norm"), layout };
+        ctx.check()?;
+        Ok(s)
+    }
+
+    /// Records the making of `out.n_rays` rays from `images` (with targets when the images have
+    /// pixels) and of the loss's denominator (lossmult-weighted when `area_loss`).
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for a sequential start past the last pixel, or a grid too large.
+    pub fn encode(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        images: &DeviceImages,
+        draw: Draw,
+        area_loss: bool,
+        out: &RayBatch,
+    ) -> Result<(), GpuError> {
+        let n = out.n_rays as u32;
+        let (sequential, first, key) = match draw {
+            Draw::Random { seed, step } => (0, 0, RayRng::new(seed, step, Stream::RayBatch, 0).key()),
+            Draw::Sequential { first } => {
+                if first >= images.total_pixels {
+                    return Err(GpuError::InvalidInput(format!("pixel {first} of {}", images.total_pixels)));
+                }
+                (1, first, 0)
+            }
+        };
+        let (gx, gy) = kernels::dispatch_grid(u64::from(n), 64)?;
+        let p = BatchParams {
+            n_rays: n,
+            sequential,
+            first_pixel: first,
+            n_views: images.n_views,
+            total_pixels: images.total_pixels,
+            key,
+            pixel_format: images.format as u32,
+            white_bkgd: u32::from(images.white_bkgd),
+            area_loss: u32::from(area_loss),
+            groups_x: gx,
+            _pad: [0; 2],
+        };
+        let [p0, p1, p2, p3] = &images.pixels;
+        let bufs = [
+            &images.views,
+            &images.offsets,
+            p0,
+            p1,
+            p2,
+            p3,
+            &out.rays,
+            &out.bounds,
+            &out.viewdirs,
+            &out.targets,
+            &out.norm,
+        ];
+        kernels::dispatch(ctx, enc, "batch rays", &self.make_rays, &self.layout, &p, &bufs, (gx, gy, 1));
+        kernels::dispatch(ctx, enc, "batch norm", &self.batch_norm, &self.layout, &p, &bufs, (1, 1, 1));
+        Ok(())
+    }
+}

@@ -1,0 +1,277 @@
+//! [`GpuBackend`]: training and rendering entirely on the device.
+//!
+//! Uploaded once: the training images and cameras ([`DeviceImages`]), the parameters and Adam's
+//! moments. Each training step is one command buffer: the batch is drawn on the device
+//! (`batch.wgsl`, the CPU's pixels for the same seed and step), both levels run forward and
+//! backward ([`GpuModel`]), and Adam updates the parameters (`adam.wgsl`). Nothing is read back
+//! unless the caller asks for the step's losses; checkpoints read the parameters and moments.
+//!
+//! Rendering runs an image in chunks of a fixed number of rays through buffers that are reused
+//! from chunk to chunk, so the device memory it takes is set by the chunk size, not the image.
+
+use mipnerf_core::backend::{Backend, BackendError, ImageSpec, TrainState};
+use mipnerf_core::checkpoint::Checkpoint;
+use mipnerf_core::data::Dataset;
+use mipnerf_core::model::{LevelOutput, Mode, Model};
+use mipnerf_core::train::{AdamState, OptimConfig, StepReport};
+
+use crate::kernels::adam::{AdamBuffers, AdamKernel, AdamStep};
+use crate::kernels::batch::{BatchKernel, DeviceImages, Draw};
+use crate::model::{GpuModel, ModelBuffers, RayBatch};
+use crate::{GpuContext, GpuError};
+
+/// Device memory the render buffers may take when the chunk size is chosen automatically.
+pub const RENDER_BUDGET_BYTES: u64 = 512 << 20;
+
+/// Most rays per render chunk when chosen automatically.
+pub const MAX_RENDER_CHUNK: usize = 16 * 1024;
+
+/// Training steps submitted before the host waits for the device (bounds the queued work).
+pub const MAX_STEPS_IN_FLIGHT: u32 = 8;
+
+impl From<GpuError> for BackendError {
+    fn from(e: GpuError) -> Self {
+        match e {
+            GpuError::InvalidInput(m) => Self::Unsupported(m),
+            other => Self::Device(other.to_string()),
+        }
+    }
+}
+
+/// The training data on the device, with the buffers of one batch.
+#[derive(Debug)]
+struct TrainData {
+    images: DeviceImages,
+    batch: RayBatch,
+    work: ModelBuffers,
+}
+
+/// Training and rendering on a wgpu device. See the [module docs](self).
+#[derive(Debug)]
+pub struct GpuBackend {
+    ctx: GpuContext,
+    model: Model,
+    optim: OptimConfig,
+    seed: u32,
+    step: u64,
+    adam_t: u64,
+    kernels: GpuModel,
+    batch_kernel: BatchKernel,
+    adam_kernel: AdamKernel,
+    state: AdamBuffers,
+    train: Option<TrainData>,
+    render_chunk: usize,
+    render: Option<(RayBatch, ModelBuffers)>,
+    in_flight: u32,
+}
+
+impl GpuBackend {
+    /// A backend on `ctx` for `model` starting from `state`, training with `optim` and `seed`.
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for a model the GPU path does not compute or a state that does
+    /// not fit it; device errors.
+    pub fn new(
+        ctx: GpuContext,
+        model: Model,
+        optim: OptimConfig,
+        seed: u32,
+        state: TrainState,
+    ) -> Result<Self, GpuError> {
+        GpuModel::check_supported(&model, false)?;
+        state.check(&model).map_err(|e| GpuError::InvalidInput(e.to_string()))?;
+        let render_chunk = auto_chunk(&ctx, &model);
+        Ok(Self {
+            kernels: GpuModel::new(&ctx)?,
+            batch_kernel: BatchKernel::new(&ctx)?,
+            adam_kernel: AdamKernel::new(&ctx)?,
+            state: AdamBuffers::new(&ctx, &state.params, &state.adam.m, &state.adam.v),
+            ctx,
+            model,
+            optim,
+            seed,
+            step: state.step,
+            adam_t: state.adam.t,
+            train: None,
+            render_chunk,
+            render: None,
+            in_flight: 0,
+        })
+    }
+
+    /// Uploads the training images and cameras of `ds` and the buffers of batches of
+    /// `batch_rays` rays.
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for what the GPU path does not train (density noise, NDC data)
+    /// or data that does not fit the device; device errors.
+    pub fn with_data(mut self, ds: &Dataset, batch_rays: usize) -> Result<Self, GpuError> {
+        GpuModel::check_supported(&self.model, true)?;
+        if batch_rays == 0 {
+            return Err(GpuError::InvalidInput("a batch needs at least one ray".into()));
+        }
+        let images = DeviceImages::upload(&self.ctx, ds)?;
+        let work = ModelBuffers::new(&self.ctx, &self.model, batch_rays)?;
+        let batch = RayBatch::new(&self.ctx, batch_rays);
+        self.ctx.check()?;
+        self.train = Some(TrainData { images, batch, work });
+        Ok(self)
+    }
+
+    /// Renders in chunks of `rays` rays (at least 1) instead of the automatic size.
+    #[must_use]
+    pub fn with_render_chunk(mut self, rays: usize) -> Self {
+        self.render_chunk = rays.max(1);
+        self.render = None;
+        self
+    }
+
+    /// The device context.
+    #[must_use]
+    pub fn context(&self) -> &GpuContext {
+        &self.ctx
+    }
+
+    /// Rays per render chunk.
+    #[must_use]
+    pub fn render_chunk(&self) -> usize {
+        self.render_chunk
+    }
+
+    /// Device bytes of the render buffers (0 before the first render): the same for every image.
+    #[must_use]
+    pub fn render_buffer_bytes(&self) -> u64 {
+        self.render.as_ref().map_or(0, |(b, w)| {
+            w.bytes() + [&b.rays, &b.bounds, &b.viewdirs, &b.targets, &b.norm].iter().map(|x| x.size()).sum::<u64>()
+        })
+    }
+
+    /// Device bytes of the training images (0 without training data).
+    #[must_use]
+    pub fn image_bytes(&self) -> u64 {
+        self.train.as_ref().map_or(0, |t| t.images.pixel_bytes)
+    }
+
+    fn read_checkpoint(&self) -> Result<Checkpoint, GpuError> {
+        let n = self.model.num_params;
+        let params = self.ctx.read_f32(&self.state.params, n)?;
+        let m = self.ctx.read_f32(&self.state.m, n)?;
+        let v = self.ctx.read_f32(&self.state.v, n)?;
+        Ok(Checkpoint { step: self.step, params, adam: AdamState { m, v, t: self.adam_t } })
+    }
+
+    fn run_step(&mut self, report: bool) -> Result<Option<StepReport>, GpuError> {
+        let data = self.train.as_ref().ok_or_else(|| GpuError::InvalidInput("no training data".into()))?;
+        let ctx = &self.ctx;
+        let step = self.step;
+        let mode = Mode::Train { seed: self.seed, step: step as u32 };
+        let lr = self.optim.lr.lr(step);
+        let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("train step") });
+        enc.clear_buffer(&self.state.grads, 0, None);
+        let draw = Draw::Random { seed: self.seed, step: step as u32 };
+        self.batch_kernel.encode(ctx, &mut enc, &data.images, draw, self.model.config.area_loss, &data.batch)?;
+        self.kernels.encode(
+            ctx,
+            &mut enc,
+            &self.model,
+            &self.state.params,
+            &data.batch,
+            &data.work,
+            mode,
+            Some(&self.state.grads),
+        )?;
+        let adam = AdamStep {
+            cfg: self.optim.adam,
+            t: self.adam_t + 1,
+            lr,
+            max_val: self.optim.grad_max_val,
+            max_norm: self.optim.grad_max_norm,
+        };
+        self.adam_kernel.encode(ctx, &mut enc, &adam, &self.state)?;
+        ctx.queue.submit([enc.finish()]);
+        self.adam_t += 1;
+        self.step += 1;
+        if !report {
+            self.in_flight += 1;
+            if self.in_flight >= MAX_STEPS_IN_FLIGHT {
+                ctx.device
+                    .poll(wgpu::PollType::wait_indefinitely())
+                    .map_err(|e| GpuError::DeviceLost(format!("while waiting for the GPU: {e}")))?;
+                self.in_flight = 0;
+            }
+            ctx.check()?;
+            return Ok(None);
+        }
+        self.in_flight = 0;
+        let stats = self.kernels.read_losses(ctx, &self.model, &data.batch, &data.work)?;
+        let grad_norm =
+            if self.optim.grad_max_norm > 0.0 { Some(ctx.read_f32(&self.state.stats, 1)?[0]) } else { None };
+        Ok(Some(StepReport { step, lr, stats, grad_norm }))
+    }
+
+    fn render_all(&mut self, image: &ImageSpec) -> Result<Vec<LevelOutput>, GpuError> {
+        let cams = DeviceImages::camera_only(&self.ctx, image)?;
+        let total = cams.total_pixels() as usize;
+        let chunk = self.render_chunk;
+        if self.render.is_none() {
+            let work = ModelBuffers::new(&self.ctx, &self.model, chunk)?;
+            self.render = Some((RayBatch::new(&self.ctx, chunk), work));
+        }
+        let Some((batch, work)) = &self.render else { unreachable!("render buffers were just made") };
+        let mut out = Vec::with_capacity(total * self.model.config.num_levels);
+        let ctx = &self.ctx;
+        for first in (0..total).step_by(chunk) {
+            let mut enc =
+                ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("render chunk") });
+            self.batch_kernel.encode(ctx, &mut enc, &cams, Draw::Sequential { first: first as u32 }, false, batch)?;
+            self.kernels.encode(ctx, &mut enc, &self.model, &self.state.params, batch, work, Mode::Eval, None)?;
+            ctx.queue.submit([enc.finish()]);
+            out.extend(self.kernels.read_outputs(ctx, work, chunk.min(total - first))?);
+        }
+        Ok(out)
+    }
+}
+
+/// The largest power-of-two chunk (at most [`MAX_RENDER_CHUNK`]) whose buffers fit in
+/// [`RENDER_BUDGET_BYTES`] and the device's binding size.
+fn auto_chunk(ctx: &GpuContext, model: &Model) -> usize {
+    let per_ray = ModelBuffers::bytes_per_ray(model).max(1);
+    let largest = ModelBuffers::largest_buffer_bytes_per_ray(model).max(1);
+    let limits = ctx.device.limits();
+    let bind = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
+    let mut chunk = MAX_RENDER_CHUNK;
+    while chunk > 1 && (chunk as u64 * per_ray > RENDER_BUDGET_BYTES || chunk as u64 * largest > bind) {
+        chunk /= 2;
+    }
+    chunk
+}
+
+impl Backend for GpuBackend {
+    fn describe(&self) -> String {
+        let a = &self.ctx.adapter;
+        format!("GPU: {} ({}, {})", a.name, a.backend, a.device_type)
+    }
+
+    fn model(&self) -> &Model {
+        &self.model
+    }
+
+    fn step(&self) -> u64 {
+        self.step
+    }
+
+    fn train_step(&mut self, report: bool) -> Result<Option<StepReport>, BackendError> {
+        if self.train.is_none() {
+            return Err(BackendError::NoData);
+        }
+        Ok(self.run_step(report)?)
+    }
+
+    fn checkpoint(&mut self) -> Result<Checkpoint, BackendError> {
+        Ok(self.read_checkpoint()?)
+    }
+
+    fn render_image(&mut self, image: &ImageSpec) -> Result<Vec<LevelOutput>, BackendError> {
+        Ok(self.render_all(image)?)
+    }
+}

@@ -1,0 +1,181 @@
+// Ray batches made on the device from images and cameras that live there: mipnerf-core's
+// `Dataset::sample_batch` (training: pixels drawn uniformly, with replacement, from every pixel of
+// every view with the CPU's counter-based random numbers) and a view's rays in raster order
+// (rendering, chunk by chunk).
+//
+// A pinhole ray's direction is linear in the pixel coordinates, so each view is uploaded as the
+// direction through pixel (0, 0) (with the pixel-centre offset) and its steps along x and y, all
+// computed in f64 on the host and rounded once. The cone radius of a linear camera is the same
+// for every pixel (the spacing of neighbouring directions), so it is uploaded per view too; this
+// includes the official last-row rule, which reuses the previous row's (equal) spacing.
+//
+// Entry points:
+// - `make_rays`: one invocation per ray; writes the ray, its bounds, view direction and target.
+// - `batch_norm`: one workgroup; writes 3 * sum(lossmult) over the batch (3 * n_rays without the
+//   area loss), the denominator of the loss, in a fixed order (deterministic).
+
+struct Params {
+    n_rays: u32,
+    // 0: draw pixels at random (training), 1: pixels first_pixel.. in raster order (rendering;
+    // rays past the last pixel repeat it).
+    sequential: u32,
+    first_pixel: u32,
+    n_views: u32,
+    total_pixels: u32,
+    // The RayRng key of (seed, step, RayBatch, ray 0), computed on the host.
+    key: u32,
+    // 0: RGBA8 packed in one u32 per pixel, 1: four f32 per pixel, 2: no pixels (no targets).
+    pixel_format: u32,
+    white_bkgd: u32,
+    // 1: weight rays by their lossmult in the loss's denominator.
+    area_loss: u32,
+    groups_x: u32,
+    _pad0: u32,
+    _pad1: u32,
+}
+
+struct View {
+    // xyz: direction through pixel (0, 0); w: cone radius.
+    dir0: vec4<f32>,
+    // xyz: direction change per pixel along x; w: near.
+    step_x: vec4<f32>,
+    // xyz: direction change per pixel along y; w: far.
+    step_y: vec4<f32>,
+    // xyz: camera centre; w: lossmult.
+    origin: vec4<f32>,
+    // width, height, pixel buffer slot (0..3), first word of the view's pixels in that slot.
+    size: vec4<u32>,
+}
+
+@group(0) @binding(0) var<uniform> p: Params;
+@group(0) @binding(1) var<storage, read> views: array<View>;
+// Cumulative pixel counts: view v holds global pixels offsets[v]..offsets[v + 1].
+@group(0) @binding(2) var<storage, read> offsets: array<u32>;
+// The pixels, split over four buffers so that a dataset may exceed one binding's size limit.
+@group(0) @binding(3) var<storage, read> pixels0: array<u32>;
+@group(0) @binding(4) var<storage, read> pixels1: array<u32>;
+@group(0) @binding(5) var<storage, read> pixels2: array<u32>;
+@group(0) @binding(6) var<storage, read> pixels3: array<u32>;
+// Two vec4 per ray: (origin.xyz, radius), (direction.xyz, lossmult).
+@group(0) @binding(7) var<storage, read_write> rays: array<vec4<f32>>;
+// (near, far) per ray.
+@group(0) @binding(8) var<storage, read_write> bounds: array<f32>;
+// Normalised direction per ray, 3 floats.
+@group(0) @binding(9) var<storage, read_write> viewdirs: array<f32>;
+// vec4 per ray: (r, g, b, 0).
+@group(0) @binding(10) var<storage, read_write> targets: array<vec4<f32>>;
+// [0]: 3 * sum(lossmult) over the batch.
+@group(0) @binding(11) var<storage, read_write> norm: array<f32>;
+
+// PCG's RXS-M-XS output permutation: mipnerf_core::rng::pcg_hash.
+fn pcg_hash(x: u32) -> u32 {
+    let state = x * 747796405u + 2891336453u;
+    let word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+// (hi * 2^32 + lo) mod m for 0 < m, bit by bit without overflow: the CPU's `u64 % total`.
+fn mod64(hi: u32, lo: u32, m: u32) -> u32 {
+    var r = 0u;
+    for (var b = 0u; b < 64u; b = b + 1u) {
+        let word = select(lo, hi, b < 32u);
+        let bit = (word >> (31u - (b & 31u))) & 1u;
+        // r = 2r mod m: 2r >= m exactly when r >= m - r.
+        let room = m - r;
+        r = select(r + r, r - room, r >= room);
+        if (bit == 1u) {
+            r = select(r + 1u, 0u, r + 1u == m);
+        }
+    }
+    return r;
+}
+
+fn fetch(slot: u32, i: u32) -> u32 {
+    switch slot {
+        case 0u: { return pixels0[i]; }
+        case 1u: { return pixels1[i]; }
+        case 2u: { return pixels2[i]; }
+        default: { return pixels3[i]; }
+    }
+}
+
+@compute @workgroup_size(64)
+fn make_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.y * (p.groups_x * 64u) + gid.x;
+    if (i >= p.n_rays) {
+        return;
+    }
+    var g: u32;
+    if (p.sequential != 0u) {
+        // Rays past the last pixel (the tail of the last chunk) repeat it.
+        g = min(p.first_pixel + i, p.total_pixels - 1u);
+    } else {
+        let hi = pcg_hash(p.key ^ pcg_hash(2u * i));
+        let lo = pcg_hash(p.key ^ pcg_hash(2u * i + 1u));
+        g = mod64(hi, lo, p.total_pixels);
+    }
+    // The last view whose first pixel is at or before g.
+    var lo_v = 0u;
+    var hi_v = p.n_views;
+    while (hi_v - lo_v > 1u) {
+        let mid = (lo_v + hi_v) / 2u;
+        if (offsets[mid] <= g) {
+            lo_v = mid;
+        } else {
+            hi_v = mid;
+        }
+    }
+    let v = views[lo_v];
+    let local = g - offsets[lo_v];
+    let x = local % v.size.x;
+    let y = local / v.size.x;
+    let dir = v.dir0.xyz + f32(x) * v.step_x.xyz + f32(y) * v.step_y.xyz;
+    rays[2u * i] = vec4<f32>(v.origin.xyz, v.dir0.w);
+    rays[2u * i + 1u] = vec4<f32>(dir, v.origin.w);
+    bounds[2u * i] = v.step_x.w;
+    bounds[2u * i + 1u] = v.step_y.w;
+    let vd = dir / sqrt(dot(dir, dir));
+    viewdirs[3u * i] = vd.x;
+    viewdirs[3u * i + 1u] = vd.y;
+    viewdirs[3u * i + 2u] = vd.z;
+    var rgba = vec4<f32>(0.0);
+    if (p.pixel_format == 0u) {
+        let w = fetch(v.size.z, v.size.w + local);
+        rgba = vec4<f32>(f32(w & 255u), f32((w >> 8u) & 255u), f32((w >> 16u) & 255u), f32(w >> 24u)) / 255.0;
+    } else if (p.pixel_format == 1u) {
+        let k = v.size.w + 4u * local;
+        rgba = vec4<f32>(
+            bitcast<f32>(fetch(v.size.z, k)),
+            bitcast<f32>(fetch(v.size.z, k + 1u)),
+            bitcast<f32>(fetch(v.size.z, k + 2u)),
+            bitcast<f32>(fetch(v.size.z, k + 3u)),
+        );
+    }
+    var rgb = rgba.xyz;
+    if (p.white_bkgd != 0u) {
+        rgb = rgb * rgba.w + (1.0 - rgba.w);
+    }
+    targets[i] = vec4<f32>(rgb, 0.0);
+}
+
+const NORM_THREADS: u32 = 256u;
+var<workgroup> partial: array<f32, 256>;
+
+@compute @workgroup_size(256)
+fn batch_norm(@builtin(local_invocation_index) t: u32) {
+    var s = 0.0;
+    for (var r = t; r < p.n_rays; r = r + NORM_THREADS) {
+        s = s + select(1.0, rays[2u * r + 1u].w, p.area_loss != 0u);
+    }
+    partial[t] = s;
+    workgroupBarrier();
+    for (var half = NORM_THREADS / 2u; half > 0u; half = half / 2u) {
+        if (t < half) {
+            partial[t] = partial[t] + partial[t + half];
+        }
+        workgroupBarrier();
+    }
+    if (t == 0u) {
+        norm[0] = 3.0 * partial[0];
+    }
+}
