@@ -19,7 +19,7 @@ use serde::{Deserialize, Serialize};
 pub enum Backend {
     /// The CPU path (always available).
     Cpu,
-    /// A GPU through wgpu.
+    /// A GPU through wgpu: any adapter, software ones (lavapipe) included.
     Gpu,
     /// A hardware GPU if one is present, else the CPU.
     Auto,

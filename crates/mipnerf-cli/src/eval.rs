@@ -4,12 +4,14 @@
 use std::path::Path;
 
 use anyhow::{Context, Result};
+use mipnerf_core::backend::ImageSpec;
 use mipnerf_core::data::Split;
 use mipnerf_core::metrics::{SsimConfig, mse_to_psnr, ssim};
 use serde::Serialize;
 
+use crate::config::Backend;
 use crate::images::{rgb_to_png, write_png};
-use crate::run::{load_split, load_trained, read_config};
+use crate::run::{load_split, open_trained, read_config};
 
 /// One image's scores.
 #[derive(Serialize, Debug, Clone)]
@@ -77,27 +79,26 @@ fn ssim_config(w: usize, h: usize) -> SsimConfig {
 ///
 /// # Errors
 /// Missing run files or data.
-pub fn eval(run: &Path, split: Split) -> Result<Metrics> {
+pub fn eval(run: &Path, split: Split, backend: Backend) -> Result<Metrics> {
     let s = read_config(run)?;
-    let (model, ck) = load_trained(run, &s)?;
     let ds = load_split(&s, split)?;
+    let (mut be, step) = open_trained(run, &s, backend)?;
     let out = run.join("eval");
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-    let k = model.config.supersample;
+    let k = be.model().config.supersample;
+    let levels = be.model().config.num_levels;
     let mut per_image = Vec::new();
     let pb = indicatif::ProgressBar::new(ds.views.len() as u64);
     for v in 0..ds.views.len() {
         let view = &ds.views[v];
         let (w, h) = (view.camera.width as usize, view.camera.height as usize);
-        let mut rays = Vec::with_capacity(w * h * k * k);
-        for y in 0..h as u32 {
-            for x in 0..w as u32 {
-                ds.push_pixel_rays(v, x, y, k, &mut rays);
-            }
-        }
-        let levels = model.config.num_levels;
-        let rendered: Vec<[f32; 3]> =
-            model.render(&ck.params, &rays).chunks(levels).map(|l| l[levels - 1].rgb).collect();
+        let image = ImageSpec::of_view(&ds, v, k);
+        let rendered: Vec<[f32; 3]> = be
+            .render_image(&image)
+            .with_context(|| view.file.display().to_string())?
+            .chunks(levels)
+            .map(|l| l[levels - 1].rgb)
+            .collect();
         let target = ds.view_targets(v);
         let flat = |img: &[[f32; 3]]| img.iter().flat_map(|p| p.map(|c| c.clamp(0.0, 1.0))).collect::<Vec<f32>>();
         let (a, b) = (flat(&rendered), flat(&target));
@@ -138,7 +139,7 @@ pub fn eval(run: &Path, split: Split) -> Result<Metrics> {
         ssim_settings: "official: 11-tap Gaussian filter, sigma 1.5, k1 0.01, k2 0.03, valid filtering, mean over \
                         channels; images smaller than 11 px use the largest odd filter that fits, sigma scaled alike",
         split,
-        step: ck.step,
+        step,
     };
     let json = serde_json::to_string_pretty(&metrics)?;
     std::fs::write(out.join("metrics.json"), json).context("writing metrics.json")?;

@@ -1,6 +1,7 @@
 //! The `mipnerf` command-line tool: train, evaluate and render anti-aliased neural radiance
 //! fields (Mip-NeRF) on the CPU or a GPU.
 
+mod backend;
 mod config;
 mod eval;
 mod images;
@@ -82,6 +83,10 @@ enum Command {
         /// Which split [default: test].
         #[arg(long, value_enum, default_value_t = SplitArg::Test)]
         split: SplitArg,
+        /// Where to render: cpu, gpu (any adapter, software included), or auto (a hardware GPU if
+        /// present, else the CPU).
+        #[arg(long, value_enum, default_value_t = Backend::Auto)]
+        backend: Backend,
     },
     /// Render a trained run: colour PNGs, depth and opacity EXRs, colour-mapped depth PNGs, and an
     /// animated preview (preview.gif) for camera paths.
@@ -107,6 +112,10 @@ enum Command {
         /// Output height in pixels (with --width).
         #[arg(long, requires = "width")]
         height: Option<u32>,
+        /// Where to render: cpu, gpu (any adapter, software included), or auto (a hardware GPU if
+        /// present, else the CPU).
+        #[arg(long, value_enum, default_value_t = Backend::Auto)]
+        backend: Backend,
     },
     /// Convert a Blender scene into the multiscale format (4 scales, metadata.json), exactly as
     /// the official convert_blender_data.py.
@@ -295,11 +304,12 @@ fn demo_cmd(out: &Path, d: &DemoArgs) -> Result<()> {
     if outcome.interrupted {
         return Ok(());
     }
-    let metrics = eval::eval(out, Split::Test)?;
+    let metrics = eval::eval(out, Split::Test, d.backend)?;
     println!("test metrics:");
     print_eval(&metrics);
-    let renders = render::render(out, &out.join("render"), render::Target::Split(Split::Test), None)?;
-    let path = render::render(out, &out.join("render_orbit"), render::Target::Path(render::PathKind::Orbit, 36), None)?;
+    let renders = render::render(out, &out.join("render"), render::Target::Split(Split::Test), None, d.backend)?;
+    let orbit = render::Target::Path(render::PathKind::Orbit, 36);
+    let path = render::render(out, &out.join("render_orbit"), orbit, None, d.backend)?;
     println!("\nEverything is in {}:", out.display());
     println!("  data/                     the generated scene (multiscale Blender format)");
     println!("  config.toml               the resolved training configuration");
@@ -340,16 +350,16 @@ fn main() -> std::process::ExitCode {
                 }
             })
         }
-        Command::Eval { run, split } => eval::eval(&run, split.into()).map(|m| {
+        Command::Eval { run, split, backend } => eval::eval(&run, split.into(), backend).map(|m| {
             println!("wrote {}", run.join("eval/metrics.json").display());
             print_eval(&m);
         }),
-        Command::Render { run, out, split, path, frames, width, height } => {
+        Command::Render { run, out, split, path, frames, width, height, backend } => {
             let target = match path {
                 Some(kind) => render::Target::Path(kind, frames),
                 None => render::Target::Split(split.unwrap_or(SplitArg::Test).into()),
             };
-            render::render(&run, &out, target, width.zip(height))
+            render::render(&run, &out, target, width.zip(height), backend)
                 .map(|files| println!("wrote {} files to {}", files.len(), out.display()))
         }
         Command::Convert { input, output } => data::multiscale::convert(&input, &output)

@@ -5,11 +5,13 @@ use std::path::Path;
 
 use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
+use mipnerf_core::Camera;
+use mipnerf_core::backend::ImageSpec;
 use mipnerf_core::data::{Dataset, Split};
-use mipnerf_core::{Camera, Ray};
 
+use crate::config::{Backend, TrainSettings};
 use crate::images::{depth_to_png, rgb_to_png, write_exr, write_gif, write_png};
-use crate::run::{load_split, load_trained, read_config};
+use crate::run::{load_split, open_trained, read_config};
 
 /// Camera paths.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -70,36 +72,43 @@ fn resized(camera: &Camera, w: u32, h: u32) -> Result<Camera> {
     Ok(Camera::from_pix2cam(w, h, mipnerf_core::camera::pinhole_pix2cam(w, h, f), camera.cam2world)?)
 }
 
+/// Rays per pixel side of the run's model (the NeRF baseline's supersampling).
+fn read_supersample(s: &TrainSettings) -> Result<usize> {
+    Ok(s.model_config()?.supersample)
+}
+
 /// Renders `target` of the run into `out`; returns the files written.
 ///
 /// # Errors
 /// Missing run files, bad sizes, unwritable outputs.
-pub fn render(run: &Path, out: &Path, target: Target, size: Option<(u32, u32)>) -> Result<Vec<std::path::PathBuf>> {
+pub fn render(
+    run: &Path,
+    out: &Path,
+    target: Target,
+    size: Option<(u32, u32)>,
+    backend: Backend,
+) -> Result<Vec<std::path::PathBuf>> {
     let s = read_config(run)?;
-    let (model, ck) = load_trained(run, &s)?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     if let Some((w, h)) = size
         && (w == 0 || h == 0 || w > 16384 || h > 16384)
     {
         bail!("--width and --height must be between 1 and 16384, got {w}x{h}");
     }
-    // (name, rays) per image.
-    let mut jobs: Vec<(String, u32, u32, Vec<Ray>)> = Vec::new();
+    let k = read_supersample(&s)?;
+    // (name, image) per image.
+    let mut jobs: Vec<(String, ImageSpec)> = Vec::new();
     match target {
         Target::Split(split) => {
             let ds = load_split(&s, split)?;
             for v in 0..ds.views.len() {
                 let view = &ds.views[v];
                 let stem = view.file.file_stem().map_or_else(|| format!("{v:04}"), |x| x.to_string_lossy().to_string());
-                let (cam, rays) = match size {
-                    None => (view.camera.clone(), ds.view_rays(v)),
-                    Some((w, h)) => {
-                        let c = resized(&view.camera, w, h)?;
-                        let r = c.generate_rays(ds.centers, view.near, view.far, 1.0);
-                        (c, r)
-                    }
-                };
-                jobs.push((stem, cam.width, cam.height, rays));
+                let mut image = ImageSpec::of_view(&ds, v, k);
+                if let Some((w, h)) = size {
+                    image.camera = resized(&view.camera, w, h)?;
+                }
+                jobs.push((stem, image));
             }
         }
         Target::Path(kind, frames) => {
@@ -113,33 +122,34 @@ pub fn render(run: &Path, out: &Path, target: Target, size: Option<(u32, u32)>) 
             {
                 bail!("forward-facing (NDC) scenes only have the spiral path: pass --path spiral");
             }
-            let (near, far) = (train.views[0].near, train.views[0].far);
-            let mut one = train.clone();
-            one.views.truncate(1);
+            let template = ImageSpec::of_view(&train, 0, k);
             for (i, cam) in path_cameras(&train, test.as_ref(), kind, frames)?.into_iter().enumerate() {
-                let cam = match size {
+                let camera = match size {
                     None => cam,
                     Some((w, h)) => resized(&cam, w, h)?,
                 };
-                one.views[0].camera = cam.clone();
-                let rays =
-                    if one.ndc.is_some() { one.view_rays(0) } else { cam.generate_rays(train.centers, near, far, 1.0) };
-                jobs.push((format!("frame_{i:04}"), cam.width, cam.height, rays));
+                jobs.push((format!("frame_{i:04}"), ImageSpec { camera, ..template.clone() }));
             }
         }
     }
-    let levels = model.config.num_levels;
+    // Load the data first: a bad split fails before the device is opened.
+    let (mut be, _) = open_trained(run, &s, backend)?;
+    let levels = be.model().config.num_levels;
     let mut written = Vec::new();
     let mut preview = Vec::new();
     let pb = indicatif::ProgressBar::new(jobs.len() as u64);
-    for (name, w, h, rays) in &jobs {
-        let k = model.rays_per_pixel();
-        let rays: Vec<Ray> = rays.iter().flat_map(|r| std::iter::repeat_n(*r, k)).collect();
-        let outs: Vec<_> = model.render(&ck.params, &rays).chunks(levels).map(|l| l[levels - 1]).collect();
+    for (name, image) in &jobs {
+        let (w, h) = (&image.camera.width, &image.camera.height);
+        let outs: Vec<_> = be
+            .render_image(image)
+            .with_context(|| format!("rendering {name}"))?
+            .chunks(levels)
+            .map(|l| l[levels - 1])
+            .collect();
         let rgb: Vec<[f32; 3]> = outs.iter().map(|o| o.rgb).collect();
         let depth: Vec<f32> = outs.iter().map(|o| o.distance).collect();
         let acc: Vec<f32> = outs.iter().map(|o| o.acc).collect();
-        let (near, far) = (rays[0].near, rays[0].far);
+        let (near, far) = (image.near, image.far);
         let png = rgb_to_png(&rgb);
         for (file, result) in [
             (format!("{name}.png"), write_png(&out.join(format!("{name}.png")), *w, *h, &png)),
@@ -166,7 +176,7 @@ pub fn render(run: &Path, out: &Path, target: Target, size: Option<(u32, u32)>) 
     }
     pb.finish_and_clear();
     if !preview.is_empty() {
-        let (w, h) = (jobs[0].1, jobs[0].2);
+        let (w, h) = (jobs[0].1.camera.width, jobs[0].1.camera.height);
         let gif = out.join("preview.gif");
         write_gif(&gif, w, h, &preview, 80)?;
         written.push(gif);

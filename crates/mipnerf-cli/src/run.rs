@@ -8,11 +8,12 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
+use mipnerf_core::backend::TrainState;
 use mipnerf_core::checkpoint::{self, Checkpoint};
 use mipnerf_core::data::{self, Dataset, Format, LoadOptions, Split};
 use mipnerf_core::model::Model;
-use mipnerf_core::train::Trainer;
 
+use crate::backend;
 use crate::config::{Backend, TrainSettings};
 
 /// File names inside a run directory.
@@ -50,6 +51,27 @@ pub fn read_config(run: &Path) -> Result<TrainSettings> {
     TrainSettings::from_file(&path)
 }
 
+/// A backend holding a run's trained parameters, for rendering.
+///
+/// # Errors
+/// A missing or mismatched checkpoint, or the backend's errors.
+pub fn open_trained(
+    run: &Path,
+    s: &TrainSettings,
+    choice: Backend,
+) -> Result<(Box<dyn mipnerf_core::backend::Backend>, u64)> {
+    let (model, ck) = load_trained(run, s)?;
+    let step = ck.step;
+    let setup = backend::Setup {
+        model,
+        optim: s.optim_config()?,
+        seed: s.seed.unwrap_or(0),
+        state: TrainState::from_checkpoint(ck),
+        data: None,
+    };
+    Ok((backend::open(choice, setup)?, step))
+}
+
 /// The model and trained parameters of a run.
 ///
 /// # Errors
@@ -58,27 +80,6 @@ pub fn load_trained(run: &Path, s: &TrainSettings) -> Result<(Model, Checkpoint)
     let model = Model::new(s.model_config()?)?;
     let ck = checkpoint::load(&run.join(CHECKPOINT), &model)?;
     Ok((model, ck))
-}
-
-/// Picks the backend, saying which. The GPU training backend is not part of this release yet.
-fn choose_backend(b: Backend) -> Result<()> {
-    match b {
-        Backend::Cpu => Ok(()),
-        Backend::Gpu => bail!(
-            "--backend gpu: GPU training is not available in this version yet (the WGSL kernels are \
-             checked against the CPU with `mipnerf check`); use --backend cpu or auto"
-        ),
-        Backend::Auto => {
-            let hw = mipnerf_gpu::list_adapters().into_iter().find(|a| !a.is_software);
-            match hw {
-                Some(a) => {
-                    eprintln!("backend auto: found {} but GPU training is not available yet; using the CPU", a.name)
-                }
-                None => eprintln!("backend auto: no hardware GPU; using the CPU"),
-            }
-            Ok(())
-        }
-    }
 }
 
 /// What a training run ended with.
@@ -108,7 +109,6 @@ pub fn train(
     let data_dir = merged.data.clone().context("no dataset: pass --data DIR (or data = \"DIR\" in --config)")?;
     let format = data::detect_format(&data_dir)?;
     let s = merged.resolved(format == Format::Llff);
-    choose_backend(s.backend.unwrap_or(Backend::Auto))?;
     let model_cfg = s.model_config()?;
     let optim = s.optim_config()?;
     let steps = s.steps.unwrap_or(0);
@@ -143,20 +143,22 @@ pub fn train(
         s.model.unwrap_or(crate::config::ModelKind::Mipnerf)
     );
     let seed = s.seed.unwrap_or(0);
-    let mut trainer = Trainer::new(model, optim, seed);
-    if resume {
-        let ck = checkpoint::load(&ckpt_path, &trainer.model)?;
+    let state = if resume {
+        let ck = checkpoint::load(&ckpt_path, &model)?;
         eprintln!("resuming from step {} ({})", ck.step, ckpt_path.display());
-        trainer.params = ck.params;
-        trainer.adam = ck.adam;
-        trainer.step = ck.step;
-    }
+        TrainState::from_checkpoint(ck)
+    } else {
+        TrainState::fresh(&model, seed)
+    };
+    let ds = std::sync::Arc::new(ds);
+    let setup = backend::Setup { model, optim, seed, state, data: Some((&ds, batch)) };
+    let mut be = backend::open(s.backend.unwrap_or(Backend::Auto), setup)?;
     s.save(&run_dir.join(CONFIG))?;
     let csv_path = run_dir.join(METRICS_CSV);
-    let mut csv = open_csv(&csv_path, trainer.step)?;
-    let save = |t: &Trainer| -> Result<()> {
-        let ck = Checkpoint { step: t.step, params: t.params.clone(), adam: t.adam.clone() };
-        Ok(checkpoint::save(&ckpt_path, &t.model, &ck)?)
+    let mut csv = open_csv(&csv_path, be.step())?;
+    let save = |b: &mut Box<dyn mipnerf_core::backend::Backend>| -> Result<()> {
+        let ck = b.checkpoint()?;
+        Ok(checkpoint::save(&ckpt_path, b.model(), &ck)?)
     };
     let pb = ProgressBar::new(steps);
     pb.set_style(
@@ -164,32 +166,34 @@ pub fn train(
             .unwrap_or_else(|_| ProgressStyle::default_bar())
             .progress_chars("=> "),
     );
-    pb.set_position(trainer.step);
-    let (mut rays, mut targets) = (Vec::new(), Vec::new());
-    let supersample = trainer.model.config.supersample;
+    pb.set_position(be.step());
     let log_every = s.log_every.unwrap_or(10).max(1);
     let ckpt_every = s.checkpoint_every.unwrap_or(500).max(1);
     let t0 = Instant::now();
     let mut window = (Instant::now(), 0u64);
     let mut last = None;
     let mut interrupted = false;
-    while trainer.step < steps {
+    let mut last_saved = be.step();
+    while be.step() < steps {
         if stop.load(Ordering::SeqCst) {
             interrupted = true;
             break;
         }
-        ds.sample_batch(batch, seed, trainer.step as u32, supersample, &mut rays, &mut targets);
-        let rep = trainer.train_step(&rays, &targets);
-        if !rep.stats.loss.is_finite() {
-            save(&trainer)?;
-            bail!(
-                "the loss became {} at step {}; the last checkpoint is kept (try a lower --lr-init or --grad-max-norm)",
-                rep.stats.loss,
-                rep.step
-            );
-        }
+        let step = be.step();
+        // The losses are read (from the device, for a GPU) only on logged steps.
+        let report = step.is_multiple_of(log_every) || step + 1 == steps;
+        let rep = be.train_step(report)?;
         window.1 += 1;
-        if rep.step.is_multiple_of(log_every) || trainer.step == steps {
+        if let Some(rep) = rep.filter(|_| report) {
+            if !rep.stats.loss.is_finite() {
+                bail!(
+                    "the loss became {} at step {}; the checkpoint of step {last_saved} in {} is kept \
+                     (try a lower --lr-init or --grad-max-norm)",
+                    rep.stats.loss,
+                    rep.step,
+                    ckpt_path.display()
+                );
+            }
             let dt = window.0.elapsed().as_secs_f64().max(1e-9);
             let rays_per_s = (window.1 as f64 * batch as f64) / dt;
             window = (Instant::now(), 0);
@@ -213,22 +217,23 @@ pub fn train(
                 rep.stats.loss, rep.lr
             ));
         }
-        pb.set_position(trainer.step);
-        if trainer.step.is_multiple_of(ckpt_every) {
-            save(&trainer)?;
+        pb.set_position(be.step());
+        if be.step().is_multiple_of(ckpt_every) {
+            save(&mut be)?;
+            last_saved = be.step();
         }
     }
-    save(&trainer)?;
+    save(&mut be)?;
     pb.finish_and_clear();
     if interrupted {
         eprintln!(
             "interrupted at step {}: checkpoint written to {}; continue with --resume",
-            trainer.step,
+            be.step(),
             ckpt_path.display()
         );
     }
     crate::plot::training_curves(&csv_path, run_dir)?;
-    Ok(TrainOutcome { step: trainer.step, interrupted, last })
+    Ok(TrainOutcome { step: be.step(), interrupted, last })
 }
 
 /// Opens `metrics.csv` for appending rows after `from_step` (dropping any rows at or past it

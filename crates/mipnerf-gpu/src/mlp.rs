@@ -64,6 +64,14 @@ impl MlpBuffers {
         }
     }
 
+    /// Makes the next passes use the first `n_rays` rays' samples (at most the capacity, which
+    /// the caller checks).
+    pub(crate) fn set_active(&mut self, n_rays: usize) {
+        let s = self.samples_per_ray();
+        self.n_rays = n_rays;
+        self.n = n_rays * s;
+    }
+
     /// Device bytes these buffers take.
     #[must_use]
     pub fn bytes(&self) -> u64 {

@@ -24,8 +24,9 @@ use crate::{GpuContext, GpuError};
 /// The rays of a batch on the device, as the model's kernels read them.
 #[derive(Debug)]
 pub struct RayBatch {
-    /// Rays.
+    /// Rays the next pass makes or reads (at most [`capacity`](Self::capacity)).
     pub n_rays: usize,
+    capacity: usize,
     /// Two vec4 per ray: (origin, radius), (direction, lossmult).
     pub rays: wgpu::Buffer,
     /// (near, far) per ray.
@@ -45,6 +46,7 @@ impl RayBatch {
         let nan = |label: &str, len: usize| ctx.storage_buffer(label, &vec![f32::NAN; len.max(1)], true);
         Self {
             n_rays,
+            capacity: n_rays,
             rays: nan("batch rays", n_rays * 8),
             bounds: nan("batch bounds", n_rays * 2),
             viewdirs: nan("batch view directions", n_rays * 3),
@@ -72,6 +74,7 @@ impl RayBatch {
         let lm_sum: f64 = rays.iter().map(|r| if area_loss { f64::from(r.lossmult) } else { 1.0 }).sum();
         Ok(Self {
             n_rays: rays.len(),
+            capacity: rays.len(),
             rays: ctx.storage_buffer("batch rays", &packed, true),
             bounds: ctx.storage_buffer("batch bounds", &bounds, true),
             viewdirs: ctx.storage_buffer("batch view directions", &viewdirs, true),
@@ -81,12 +84,33 @@ impl RayBatch {
     }
 }
 
+impl RayBatch {
+    /// Rays the buffers hold.
+    #[must_use]
+    pub fn capacity(&self) -> usize {
+        self.capacity
+    }
+
+    /// Makes the next passes use the first `n` rays (a chunk's tail).
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for `n` of 0 or above the capacity.
+    pub fn set_active(&mut self, n: usize) -> Result<(), GpuError> {
+        if n == 0 || n > self.capacity {
+            return Err(GpuError::InvalidInput(format!("{n} rays in buffers for {}", self.capacity)));
+        }
+        self.n_rays = n;
+        Ok(())
+    }
+}
+
 /// The per-level intermediates of a batch of `n_rays` rays: edges, MLP activations, weights,
 /// output gradients, and the per-ray outputs of every level.
 #[derive(Debug)]
 pub struct ModelBuffers {
-    /// Rays these buffers hold.
+    /// Rays the next pass uses (at most the capacity these buffers were made for).
     pub n_rays: usize,
+    capacity: usize,
     mlp: MlpBuffers,
     t_vals: Vec<wgpu::Buffer>,
     /// Per level, two vec4 per ray: (rgb, distance), (acc, lossmult * se, se, 0).
@@ -121,6 +145,7 @@ impl ModelBuffers {
         let nan = |label: &str, len: usize| ctx.storage_buffer(label, &vec![f32::NAN; len.max(1)], true);
         Ok(Self {
             n_rays,
+            capacity: n_rays,
             mlp: MlpBuffers::new(ctx, &model.mlps[0], n_rays, s),
             t_vals: (0..levels).map(|l| nan(&format!("edges level {l}"), n_rays * (s + 1))).collect(),
             ray_out: (0..levels).map(|l| nan(&format!("ray outputs level {l}"), n_rays * 8)).collect(),
@@ -162,6 +187,19 @@ impl ModelBuffers {
             + 1;
         let per_ray = s * per_sample + c.view_dim + cfg.num_levels * (s + 1 + 8);
         per_ray as u64 * 4
+    }
+
+    /// Makes the next passes use the first `n` rays (a chunk's tail).
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for `n` of 0 or above the capacity.
+    pub fn set_active(&mut self, n: usize) -> Result<(), GpuError> {
+        if n == 0 || n > self.capacity {
+            return Err(GpuError::InvalidInput(format!("{n} rays in buffers for {}", self.capacity)));
+        }
+        self.n_rays = n;
+        self.mlp.set_active(n);
+        Ok(())
     }
 
     /// Device bytes these buffers take.
@@ -344,8 +382,8 @@ impl GpuModel {
     /// # Errors
     /// Any error wgpu reports, or `n` beyond the buffers.
     pub fn read_outputs(&self, ctx: &GpuContext, work: &ModelBuffers, n: usize) -> Result<Vec<LevelOutput>, GpuError> {
-        if n > work.n_rays {
-            return Err(GpuError::InvalidInput(format!("{n} outputs of buffers for {}", work.n_rays)));
+        if n > work.capacity {
+            return Err(GpuError::InvalidInput(format!("{n} outputs of buffers for {}", work.capacity)));
         }
         let levels: Vec<Vec<f32>> = work.ray_out.iter().map(|b| ctx.read_f32(b, n * 8)).collect::<Result<_, _>>()?;
         let mut out = Vec::with_capacity(n * levels.len());

@@ -217,16 +217,19 @@ impl GpuBackend {
             let work = ModelBuffers::new(&self.ctx, &self.model, chunk)?;
             self.render = Some((RayBatch::new(&self.ctx, chunk), work));
         }
-        let Some((batch, work)) = &self.render else { unreachable!("render buffers were just made") };
+        let Some((batch, work)) = &mut self.render else { unreachable!("render buffers were just made") };
         let mut out = Vec::with_capacity(total * self.model.config.num_levels);
         let ctx = &self.ctx;
         for first in (0..total).step_by(chunk) {
+            let n = chunk.min(total - first);
+            batch.set_active(n)?;
+            work.set_active(n)?;
             let mut enc =
                 ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("render chunk") });
             self.batch_kernel.encode(ctx, &mut enc, &cams, Draw::Sequential { first: first as u32 }, false, batch)?;
             self.kernels.encode(ctx, &mut enc, &self.model, &self.state.params, batch, work, Mode::Eval, None)?;
             ctx.queue.submit([enc.finish()]);
-            out.extend(self.kernels.read_outputs(ctx, work, chunk.min(total - first))?);
+            out.extend(self.kernels.read_outputs(ctx, work, n)?);
         }
         Ok(out)
     }
