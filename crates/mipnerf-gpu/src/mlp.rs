@@ -8,7 +8,7 @@
 
 use mipnerf_core::mlp::{DenseLayer, MlpShape};
 
-use crate::kernels::matmul::{Epilogue, MatmulKernel, Operand};
+use crate::kernels::matmul::{Epilogue, MatmulKernel, MatmulVariant, Operand};
 use crate::kernels::mlp_aux::MlpAuxKernels;
 use crate::{GpuContext, GpuError};
 
@@ -103,6 +103,14 @@ impl GpuMlp {
     /// If the device rejects them.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
         Ok(Self { matmul: MatmulKernel::new(ctx)?, aux: MlpAuxKernels::new(ctx)? })
+    }
+
+    /// Compiles the kernels with the matrix products of `variant`.
+    ///
+    /// # Errors
+    /// If the device rejects them.
+    pub fn with_variant(ctx: &GpuContext, variant: MatmulVariant) -> Result<Self, GpuError> {
+        Ok(Self { matmul: MatmulKernel::with_variant(ctx, variant)?, aux: MlpAuxKernels::new(ctx)? })
     }
 
     /// `out = act(sum_p part_p · kernel_rows_p + bias)`.

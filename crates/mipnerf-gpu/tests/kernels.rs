@@ -93,80 +93,86 @@ fn compare(what: &str, gpu: &[f32], cpu: &[f32], rel: f32, abs: f32) -> Vec<Stri
 #[test]
 fn mlp_forward_and_backward_match_cpu_reference() {
     use mipnerf_core::mlp::{MlpCache, MlpConfig, MlpShape};
+    use mipnerf_gpu::kernels::matmul::MatmulVariant;
     use mipnerf_gpu::mlp::{GpuMlp, MlpBuffers};
     use rand::{Rng, SeedableRng, rngs::SmallRng};
     let Some(ctx) = context_or_skip("mlp_forward_and_backward_match_cpu_reference") else { return };
-    let gpu = GpuMlp::new(&ctx).unwrap();
     let mut bad = Vec::new();
-    // Two shapes: a skip concatenation inside the trunk and one before the heads; 1 and 2 colour layers.
-    for (ci, cfg) in [
-        MlpConfig {
-            net_depth: 4,
-            net_width: 32,
-            skip_layer: 2,
-            net_depth_condition: 1,
-            net_width_condition: 16,
-            x_dim: 24,
-            view_dim: 15,
-        },
-        MlpConfig {
-            net_depth: 2,
-            net_width: 20,
-            skip_layer: 1,
-            net_depth_condition: 2,
-            net_width_condition: 12,
-            x_dim: 30,
-            view_dim: 9,
-        },
-    ]
-    .into_iter()
-    .enumerate()
-    {
-        let shape = MlpShape::new(cfg, 0).unwrap();
-        let mut rng = SmallRng::seed_from_u64(ci as u64);
-        let mut params = vec![0.0; shape.num_params];
-        shape.init_glorot(&mut params, 7);
-        for l in &shape.layers {
-            for b in &mut params[l.bias..l.bias + l.fan_out] {
-                *b = rng.random_range(-0.2..0.2);
+    // Both matrix-product kernels, whatever the adapter would pick.
+    for variant in [MatmulVariant::Tiled, MatmulVariant::Blocked] {
+        let gpu = GpuMlp::with_variant(&ctx, variant).unwrap();
+        // Two shapes: a skip concatenation inside the trunk and one before the heads; 1 and 2 colour layers.
+        for (ci, cfg) in [
+            MlpConfig {
+                net_depth: 4,
+                net_width: 32,
+                skip_layer: 2,
+                net_depth_condition: 1,
+                net_width_condition: 16,
+                x_dim: 24,
+                view_dim: 15,
+            },
+            MlpConfig {
+                net_depth: 2,
+                net_width: 20,
+                skip_layer: 1,
+                net_depth_condition: 2,
+                net_width_condition: 12,
+                x_dim: 30,
+                view_dim: 9,
+            },
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let shape = MlpShape::new(cfg, 0).unwrap();
+            let mut rng = SmallRng::seed_from_u64(ci as u64);
+            let mut params = vec![0.0; shape.num_params];
+            shape.init_glorot(&mut params, 7);
+            for l in &shape.layers {
+                for b in &mut params[l.bias..l.bias + l.fan_out] {
+                    *b = rng.random_range(-0.2..0.2);
+                }
             }
+            let (n_rays, spr) = (5, 7);
+            let n = n_rays * spr;
+            let x: Vec<f32> = (0..n * cfg.x_dim).map(|_| rng.random_range(-1.0..1.0)).collect();
+            let view: Vec<f32> = (0..n_rays * cfg.view_dim).map(|_| rng.random_range(-1.0..1.0)).collect();
+            let d_rgb: Vec<f32> = (0..n * 3).map(|_| rng.random_range(-1.0..1.0)).collect();
+            let d_density: Vec<f32> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
+            // CPU reference.
+            let mut cache = MlpCache::default();
+            shape.forward(&params, &x, &view, n_rays, spr, &mut cache);
+            let mut cpu_grads = vec![0.0; shape.num_params];
+            let (cpu_rgb, cpu_density) = (cache.raw_rgb.clone(), cache.raw_density.clone());
+            shape.backward(&params, &x, &view, spr, &mut cache, &d_rgb, &d_density, &mut cpu_grads);
+            // GPU.
+            let bufs = MlpBuffers::new(&ctx, &shape, n_rays, spr);
+            ctx.queue.write_buffer(&bufs.x, 0, bytemuck::cast_slice(&x));
+            ctx.queue.write_buffer(&bufs.view, 0, bytemuck::cast_slice(&view));
+            let p = ctx.storage_buffer("params", &params, true);
+            let g = ctx.storage_buffer("grads", &vec![0.0f32; shape.num_params], true);
+            let dr = ctx.storage_buffer("d rgb", &d_rgb, false);
+            let dd = ctx.storage_buffer("d density", &d_density, false);
+            let mut enc =
+                ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("mlp test") });
+            gpu.forward(&ctx, &mut enc, &shape, &p, &bufs);
+            gpu.backward(&ctx, &mut enc, &shape, &p, &bufs, &dr, &dd, &g);
+            ctx.queue.submit([enc.finish()]);
+            let rgb = ctx.read_f32(&bufs.raw_rgb, n * 3).unwrap();
+            let density = ctx.read_f32(&bufs.raw_density, n).unwrap();
+            let grads = ctx.read_f32(&g, shape.num_params).unwrap();
+            let tag = format!("{variant:?} shape {ci}");
+            bad.extend(compare(&format!("{tag} raw rgb"), &rgb, &cpu_rgb, TOL_GPU_MLP_REL, TOL_GPU_MLP_ABS));
+            bad.extend(compare(
+                &format!("{tag} raw density"),
+                &density,
+                &cpu_density,
+                TOL_GPU_MLP_REL,
+                TOL_GPU_MLP_ABS,
+            ));
+            bad.extend(compare(&format!("{tag} grads"), &grads, &cpu_grads, TOL_GPU_MLP_REL, TOL_GPU_MLP_ABS));
         }
-        let (n_rays, spr) = (5, 7);
-        let n = n_rays * spr;
-        let x: Vec<f32> = (0..n * cfg.x_dim).map(|_| rng.random_range(-1.0..1.0)).collect();
-        let view: Vec<f32> = (0..n_rays * cfg.view_dim).map(|_| rng.random_range(-1.0..1.0)).collect();
-        let d_rgb: Vec<f32> = (0..n * 3).map(|_| rng.random_range(-1.0..1.0)).collect();
-        let d_density: Vec<f32> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
-        // CPU reference.
-        let mut cache = MlpCache::default();
-        shape.forward(&params, &x, &view, n_rays, spr, &mut cache);
-        let mut cpu_grads = vec![0.0; shape.num_params];
-        let (cpu_rgb, cpu_density) = (cache.raw_rgb.clone(), cache.raw_density.clone());
-        shape.backward(&params, &x, &view, spr, &mut cache, &d_rgb, &d_density, &mut cpu_grads);
-        // GPU.
-        let bufs = MlpBuffers::new(&ctx, &shape, n_rays, spr);
-        ctx.queue.write_buffer(&bufs.x, 0, bytemuck::cast_slice(&x));
-        ctx.queue.write_buffer(&bufs.view, 0, bytemuck::cast_slice(&view));
-        let p = ctx.storage_buffer("params", &params, true);
-        let g = ctx.storage_buffer("grads", &vec![0.0f32; shape.num_params], true);
-        let dr = ctx.storage_buffer("d rgb", &d_rgb, false);
-        let dd = ctx.storage_buffer("d density", &d_density, false);
-        let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("mlp test") });
-        gpu.forward(&ctx, &mut enc, &shape, &p, &bufs);
-        gpu.backward(&ctx, &mut enc, &shape, &p, &bufs, &dr, &dd, &g);
-        ctx.queue.submit([enc.finish()]);
-        let rgb = ctx.read_f32(&bufs.raw_rgb, n * 3).unwrap();
-        let density = ctx.read_f32(&bufs.raw_density, n).unwrap();
-        let grads = ctx.read_f32(&g, shape.num_params).unwrap();
-        bad.extend(compare(&format!("shape {ci} raw rgb"), &rgb, &cpu_rgb, TOL_GPU_MLP_REL, TOL_GPU_MLP_ABS));
-        bad.extend(compare(
-            &format!("shape {ci} raw density"),
-            &density,
-            &cpu_density,
-            TOL_GPU_MLP_REL,
-            TOL_GPU_MLP_ABS,
-        ));
-        bad.extend(compare(&format!("shape {ci} grads"), &grads, &cpu_grads, TOL_GPU_MLP_REL, TOL_GPU_MLP_ABS));
     }
     assert_none_differ(&bad);
 }
