@@ -6,7 +6,8 @@
 // reduced to [-pi, pi] with a two-part 2*pi (Cody-Waite), because GPU `sin` is only accurate there.
 //
 // Output layout, per sample: [sin part | cos part], index (deg - min_deg) * 3 + axis inside a part,
-// samples of a ray contiguous: out[(ray * n_samples + sample) * ipe_len + feature].
+// samples of a ray contiguous: out[(ray * n_samples + sample) * ipe_len + feature]. NeRF's
+// encoding (`encoding` 2) puts the mean's 3 coordinates first.
 
 struct Params {
     n_rays: u32,
@@ -17,8 +18,10 @@ struct Params {
     ray_shape: u32,
     // Number of workgroups along x in the 2-D dispatch grid.
     groups_x: u32,
-    // 1: zero covariance (plain PE of the frustum means, the "w/o IPE" ablation).
-    zero_cov: u32,
+    // 0: IPE; 1: zero covariance (PE of the frustum means through the IPE path, the "w/o IPE"
+    // ablation); 2: NeRF's positional encoding of the means: [mean | sin | cos], plain sines
+    // without the 100*pi guard (mipnerf-core's `pos_enc` with the identity).
+    encoding: u32,
     _pad1: u32,
 }
 
@@ -99,13 +102,27 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let d_mag_sq = max(d2.x + d2.y + d2.z, 1e-10);
     let mean = o_r.xyz + d * t_mean;
     var cov = t_var * d2 + r_var * (vec3<f32>(1.0) - d2 / d_mag_sq);
-    if (params.zero_cov != 0u) {
+    if (params.encoding != 0u) {
         cov = vec3<f32>(0.0);
     }
 
     let n_deg = params.max_deg - params.min_deg;
-    let ipe_len = 6u * n_deg;
     let half = 3u * n_deg;
+    if (params.encoding == 2u) {
+        let base = idx * (6u * n_deg + 3u);
+        encoded[base] = mean.x;
+        encoded[base + 1u] = mean.y;
+        encoded[base + 2u] = mean.z;
+        for (var i = 0u; i < n_deg; i = i + 1u) {
+            let y = mean * f32(1u << (params.min_deg + i));
+            for (var k = 0u; k < 3u; k = k + 1u) {
+                encoded[base + 3u + i * 3u + k] = sin_reduced(y[k]);
+                encoded[base + 3u + half + i * 3u + k] = sin_reduced(y[k] + HALF_PI);
+            }
+        }
+        return;
+    }
+    let ipe_len = 6u * n_deg;
     let out_base = idx * ipe_len;
     for (var i = 0u; i < n_deg; i = i + 1u) {
         let scale = f32(1u << (params.min_deg + i));

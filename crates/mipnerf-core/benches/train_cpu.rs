@@ -10,8 +10,9 @@ use mipnerf_core::bench::{sgemm_gflops, train_throughput};
 use mipnerf_core::model::{Model, Preset};
 
 fn main() {
-    // `cargo bench` passes --bench; `cargo test --benches` passes nothing we need.
-    let quick = std::env::args().any(|a| a == "--quick");
+    // `cargo bench` passes --bench; under `cargo test --all-targets` (no --bench) the benchmark
+    // only proves it runs, at a small size.
+    let quick = std::env::args().any(|a| a == "--quick") || !std::env::args().any(|a| a == "--bench");
     let threads = rayon::current_num_threads();
     let sgemm = sgemm_gflops(16_384, 256, 256, if quick { 2 } else { 7 });
     println!("threads: {threads}; sgemm 16384x256x256: {sgemm:.1} GFLOP/s");
@@ -20,7 +21,7 @@ fn main() {
     let (warm, steps) = if quick { (0, 1) } else { (1, 3) };
     for (name, cfg) in [("paper", Preset::Paper.config()), ("small (4x128, skip 2, 64+64)", Preset::Small.config())] {
         let flops = Model::new(cfg.clone()).map(|m| m.mlps[0].flops_per_sample()).unwrap_or(f64::NAN);
-        let r = train_throughput(name, cfg, 1024, warm, steps);
+        let r = train_throughput(name, cfg, if quick { 128 } else { 1024 }, warm, steps);
         let bound = sgemm * 1e9 / flops;
         println!(
             "| {} | {} x {} | {} | {:.3} | {:.0} | {:.1} | {:.0} | {:.0}% |",

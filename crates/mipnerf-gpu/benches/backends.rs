@@ -99,9 +99,11 @@ fn main() {
         "small" => Preset::Small,
         _ => Preset::Tiny,
     };
-    let batch = arg("--batch", 1024usize);
-    let steps = arg("--steps", 10usize);
-    let side = arg("--render-side", 64u32);
+    // Without --bench (under `cargo test --all-targets`) only prove that it runs, at a small size.
+    let full = flag("--bench");
+    let batch = arg("--batch", if full { 1024usize } else { 16 });
+    let steps = arg("--steps", if full { 10usize } else { 1 });
+    let side = arg("--render-side", if full { 64u32 } else { 8 });
     let model = Model::new(preset.config()).unwrap();
     let ds = Arc::new(dataset());
     let optim = OptimConfig::default();

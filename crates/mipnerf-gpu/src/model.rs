@@ -241,21 +241,15 @@ impl GpuModel {
     /// Whether the GPU path computes `model` (in training when `training`).
     ///
     /// # Errors
-    /// [`GpuError::InvalidInput`] naming what it does not do yet: NeRF's positional encoding,
-    /// supersampling, one MLP per level, density noise in training.
+    /// [`GpuError::InvalidInput`] naming what it does not do yet: supersampling, density noise
+    /// in training.
     pub fn check_supported(model: &Model, training: bool) -> Result<(), GpuError> {
         let c = &model.config;
         let unsupported = |what: &str| {
             Err(GpuError::InvalidInput(format!("the GPU backend does not support {what} yet; use the CPU backend")))
         };
-        if c.point_encoding == PointEncoding::Nerf {
-            return unsupported("NeRF's positional encoding");
-        }
         if c.supersample != 1 {
             return unsupported("supersampling");
-        }
-        if c.separate_mlps {
-            return unsupported("one MLP per level");
         }
         if training && c.density_noise > 0.0 {
             return unsupported("density noise");
@@ -289,7 +283,6 @@ impl GpuModel {
         }
         let c = &model.config;
         let (nr, s) = (batch.n_rays, c.num_samples);
-        let shape = &model.mlps[0];
         let (seed, step, randomized) = match mode {
             Mode::Train { seed, step } => (seed, step, true),
             Mode::Eval => (0, 0, false),
@@ -323,10 +316,16 @@ impl GpuModel {
                 max_deg: c.max_deg_point,
                 ray_shape: u32::from(c.ray_shape == RayShape::Cylinder),
                 groups_x: 0,
-                zero_cov: u32::from(c.point_encoding == PointEncoding::Mean),
+                encoding: match c.point_encoding {
+                    PointEncoding::Integrated => 0,
+                    PointEncoding::Mean => 1,
+                    PointEncoding::Nerf => 2,
+                },
                 _pad: 0,
             };
             self.cast.encode(ctx, enc, cp, &batch.rays, &t[level], &bufs.x)?;
+            // One MLP for all levels, or one per level (the same shape at its own offset).
+            let shape = &model.mlps[if c.separate_mlps { level } else { 0 }];
             self.mlp.forward(ctx, enc, shape, params, bufs);
             let rb = RenderBuffers {
                 raw_rgb: &bufs.raw_rgb,

@@ -259,7 +259,7 @@ fn chunked_gpu_render_matches_cpu_with_bounded_memory() {
 #[test]
 fn unsupported_configurations_are_clear_errors() {
     let Some(ctx) = context_or_skip("unsupported_configurations_are_clear_errors") else { return };
-    let nerf = Model::new(Preset::Tiny.config().nerf()).unwrap();
-    let err = GpuBackend::new(ctx, nerf.clone(), OptimConfig::default(), 0, TrainState::fresh(&nerf, 0)).unwrap_err();
-    assert!(err.to_string().contains("CPU backend"), "{err}");
+    let ss = Model::new(ModelConfig { supersample: 2, ..Preset::Tiny.config().nerf() }).unwrap();
+    let err = GpuBackend::new(ctx, ss.clone(), OptimConfig::default(), 0, TrainState::fresh(&ss, 0)).unwrap_err();
+    assert!(err.to_string().contains("supersampling") && err.to_string().contains("CPU backend"), "{err}");
 }

@@ -510,6 +510,8 @@ fn whole_model_loss_and_gradients_match_cpu_reference() {
     for (ci, (cfg, mode)) in [
         (tiny.clone(), Mode::Train { seed: 3, step: 7 }),
         (ModelConfig { point_encoding: PointEncoding::Mean, ..tiny.clone() }.without_misc(), Mode::Eval),
+        // The NeRF baseline: positional encoding with the identity, one MLP per level.
+        (tiny.clone().nerf(), Mode::Train { seed: 1, step: 2 }),
     ]
     .into_iter()
     .enumerate()

@@ -20,8 +20,9 @@ pub struct CastIpeParams {
     pub ray_shape: u32,
     /// Workgroups along x of the 2-D dispatch grid.
     pub groups_x: u32,
-    /// 1: zero covariance (plain PE of the means, the "w/o IPE" ablation).
-    pub zero_cov: u32,
+    /// 0: IPE; 1: zero covariance (the "w/o IPE" ablation); 2: NeRF's positional encoding of the
+    /// means with the identity.
+    pub encoding: u32,
     /// Padding to 16-byte alignment.
     pub _pad: u32,
 }
@@ -119,7 +120,7 @@ impl CastIpeKernel {
                 RayShape::Cylinder => 1,
             },
             groups_x: gx,
-            zero_cov: 0,
+            encoding: 0,
             _pad: 0,
         };
         let packed: Vec<[f32; 4]> = rays
