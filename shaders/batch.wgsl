@@ -3,6 +3,11 @@
 // every view with the CPU's counter-based random numbers) and a view's rays in raster order
 // (rendering, chunk by chunk).
 //
+// In NDC (forward-facing scenes, `ndc_fx > 0`) each ray is mapped as mipnerf-core's `ndc_ray`
+// does (the official `convert_to_ndc`, near plane at 1), in f32 as the official code: the radius
+// comes from the spacing of neighbouring NDC origins (last row and column reuse the ones before),
+// the view direction is the world direction, unnormalised, and lossmult is 1.
+//
 // A pinhole ray's direction is linear in the pixel coordinates, so each view is uploaded as the
 // direction through pixel (0, 0) (with the pixel-centre offset) and its steps along x and y, all
 // computed in f64 on the host and rounded once. The cone radius of a linear camera is the same
@@ -30,8 +35,9 @@ struct Params {
     // 1: weight rays by their lossmult in the loss's denominator.
     area_loss: u32,
     groups_x: u32,
-    _pad0: u32,
-    _pad1: u32,
+    // NDC (forward-facing scenes): 2 focal / width and 2 focal / height of the NDC camera; 0: off.
+    ndc_fx: f32,
+    ndc_fy: f32,
 }
 
 struct View {
@@ -90,6 +96,35 @@ fn mod64(hi: u32, lo: u32, m: u32) -> u32 {
     return r;
 }
 
+// The world direction through pixel (x, y) of view v.
+fn world_dir(v: View, x: u32, y: u32) -> vec3<f32> {
+    return v.dir0.xyz + f32(x) * v.step_x.xyz + f32(y) * v.step_y.xyz;
+}
+
+struct NdcRay {
+    origin: vec3<f32>,
+    dir: vec3<f32>,
+}
+
+// The official `convert_to_ndc` with the near plane at 1.
+fn ndc_of(o: vec3<f32>, d: vec3<f32>) -> NdcRay {
+    let t = -(1.0 + o.z) / d.z;
+    let on = o + t * d;
+    var r: NdcRay;
+    r.origin = vec3<f32>(-p.ndc_fx * (on.x / on.z), -p.ndc_fy * (on.y / on.z), 1.0 + 2.0 / on.z);
+    r.dir = vec3<f32>(-p.ndc_fx * (d.x / d.z - on.x / on.z), -p.ndc_fy * (d.y / d.z - on.y / on.z), -2.0 / on.z);
+    return r;
+}
+
+// The index whose spacing to the next one a pixel uses: its own, or for the last, the one the
+// official code takes (n - 3, at least 0).
+fn pick(i: u32, n: u32) -> u32 {
+    if (i + 1u < n) {
+        return i;
+    }
+    return select(0u, n - 3u, n >= 3u);
+}
+
 fn fetch(slot: u32, i: u32) -> u32 {
     switch slot {
         case 0u: { return pixels0[i]; }
@@ -129,12 +164,38 @@ fn make_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
     let local = g - offsets[lo_v];
     let x = local % v.size.x;
     let y = local / v.size.x;
-    let dir = v.dir0.xyz + f32(x) * v.step_x.xyz + f32(y) * v.step_y.xyz;
-    rays[2u * i] = vec4<f32>(v.origin.xyz, v.dir0.w);
-    rays[2u * i + 1u] = vec4<f32>(dir, v.origin.w);
+    let dir = world_dir(v, x, y);
     bounds[2u * i] = v.step_x.w;
     bounds[2u * i + 1u] = v.step_y.w;
-    let vd = dir / sqrt(dot(dir, dir));
+    var vd = dir / sqrt(dot(dir, dir));
+    if (p.ndc_fx > 0.0) {
+        let o = v.origin.xyz;
+        let r = ndc_of(o, dir);
+        let w = v.size.x;
+        let h = v.size.y;
+        var dy = 0.0;
+        if (h > 1u) {
+            let py = pick(y, h);
+            dy = length(ndc_of(o, world_dir(v, x, py)).origin - ndc_of(o, world_dir(v, x, py + 1u)).origin);
+        }
+        var dx = 0.0;
+        if (w > 1u) {
+            let px = pick(x, w);
+            dx = length(ndc_of(o, world_dir(v, px, y)).origin - ndc_of(o, world_dir(v, px + 1u, y)).origin);
+        }
+        var spacing = dx;
+        if (h > 1u && w > 1u) {
+            spacing = 0.5 * (dx + dy);
+        } else if (h > 1u) {
+            spacing = dy;
+        }
+        rays[2u * i] = vec4<f32>(r.origin, spacing * 0.57735026);
+        rays[2u * i + 1u] = vec4<f32>(r.dir, 1.0);
+        vd = dir;
+    } else {
+        rays[2u * i] = vec4<f32>(v.origin.xyz, v.dir0.w);
+        rays[2u * i + 1u] = vec4<f32>(dir, v.origin.w);
+    }
     viewdirs[3u * i] = vd.x;
     viewdirs[3u * i + 1u] = vd.y;
     viewdirs[3u * i + 2u] = vd.z;

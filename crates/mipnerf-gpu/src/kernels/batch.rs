@@ -2,7 +2,7 @@
 
 use mipnerf_core::backend::ImageSpec;
 use mipnerf_core::camera::{Camera, PixelCenters};
-use mipnerf_core::data::{Dataset, Pixels};
+use mipnerf_core::data::{Dataset, Ndc, Pixels};
 use mipnerf_core::rng::{RayRng, Stream};
 
 use crate::model::RayBatch;
@@ -16,7 +16,7 @@ pub const PIXEL_SLOTS: usize = 4;
 
 /// The uniform block of `batch.wgsl` (`struct Params`), 48 bytes.
 #[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct BatchParams {
     /// Rays to make.
     pub n_rays: u32,
@@ -38,8 +38,10 @@ pub struct BatchParams {
     pub area_loss: u32,
     /// Workgroups along x.
     pub groups_x: u32,
-    /// Padding.
-    pub _pad: [u32; 2],
+    /// NDC: `2 focal / width` (0: world-space rays).
+    pub ndc_fx: f32,
+    /// NDC: `2 focal / height`.
+    pub ndc_fy: f32,
 }
 
 /// One view's camera as `batch.wgsl` reads it (`struct View`), 80 bytes.
@@ -104,6 +106,7 @@ pub struct DeviceImages {
     total_pixels: u32,
     format: PixelFormat,
     white_bkgd: bool,
+    ndc: Option<Ndc>,
     /// Device bytes of the pixel buffers.
     pub pixel_bytes: u64,
 }
@@ -116,9 +119,8 @@ impl DeviceImages {
     /// Uploads every view of `ds` (pixels and cameras), once.
     ///
     /// # Errors
-    /// [`GpuError::InvalidInput`] for NDC (forward-facing) datasets, whose rays are not linear in
-    /// the pixel, and for images that do not fit in the device's buffers (the message says how
-    /// much is needed and allowed).
+    /// [`GpuError::InvalidInput`] for images that do not fit in the device's buffers (the message
+    /// says how much is needed and allowed).
     pub fn upload(ctx: &GpuContext, ds: &Dataset) -> Result<Self, GpuError> {
         let limits = ctx.device.limits();
         Self::upload_with_slot_bytes(ctx, ds, limits.max_storage_buffer_binding_size.min(limits.max_buffer_size))
@@ -131,12 +133,6 @@ impl DeviceImages {
     /// # Errors
     /// As [`upload`](Self::upload).
     pub fn upload_with_slot_bytes(ctx: &GpuContext, ds: &Dataset, slot_bytes: u64) -> Result<Self, GpuError> {
-        if ds.ndc.is_some() {
-            return Err(GpuError::InvalidInput(format!(
-                "{}: forward-facing (NDC) datasets are not supported by the GPU backend yet; use --backend cpu",
-                ds.root.display()
-            )));
-        }
         let total = ds.num_pixels();
         let total_u32 = u32::try_from(total).map_err(|_| too_large(&ds.root.display().to_string()))?;
         let all_u8 = ds.views.iter().all(|v| matches!(v.pixels, Pixels::Rgba8(_)));
@@ -204,6 +200,7 @@ impl DeviceImages {
             total_pixels: total_u32,
             format,
             white_bkgd: ds.white_bkgd,
+            ndc: ds.ndc,
             pixel_bytes: used.iter().sum(),
         })
     }
@@ -211,12 +208,11 @@ impl DeviceImages {
     /// The camera of one image to render (no pixels).
     ///
     /// # Errors
-    /// [`GpuError::InvalidInput`] for NDC or supersampled images, which the GPU does not render.
+    /// [`GpuError::InvalidInput`] for supersampled images, which the GPU does not render.
     pub fn camera_only(ctx: &GpuContext, image: &ImageSpec) -> Result<Self, GpuError> {
-        if image.ndc.is_some() || image.supersample != 1 {
+        if image.supersample != 1 {
             return Err(GpuError::InvalidInput(
-                "the GPU backend renders neither forward-facing (NDC) nor supersampled images yet; use --backend cpu"
-                    .into(),
+                "the GPU backend does not render supersampled images yet; use --backend cpu".into(),
             ));
         }
         let total = image.pixels() as u64;
@@ -231,6 +227,7 @@ impl DeviceImages {
             total_pixels: total_u32,
             format: PixelFormat::None,
             white_bkgd: false,
+            ndc: image.ndc,
             pixel_bytes: 0,
         })
     }
@@ -319,7 +316,8 @@ impl BatchKernel {
             white_bkgd: u32::from(images.white_bkgd),
             area_loss: u32::from(area_loss),
             groups_x: gx,
-            _pad: [0; 2],
+            ndc_fx: images.ndc.map_or(0.0, |n| (2.0 * f64::from(n.focal) / f64::from(n.width)) as f32),
+            ndc_fy: images.ndc.map_or(0.0, |n| (2.0 * f64::from(n.focal) / f64::from(n.height)) as f32),
         };
         let [p0, p1, p2, p3] = &images.pixels;
         let bufs = [
