@@ -24,7 +24,14 @@ struct Params {
     // 1: weight rays by their lossmult (area loss), 0: by 1.
     area_loss: u32,
     groups_x: u32,
-    _pad: u32,
+    // Training only: standard deviation of the Gaussian noise added to raw density (0: none),
+    // and what picks its random numbers (mipnerf-core's `Stream::DensityNoise` of stream
+    // ray * 8 + level).
+    density_noise: f32,
+    seed: u32,
+    step: u32,
+    level: u32,
+    _pad1: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -42,6 +49,28 @@ struct Params {
 @group(0) @binding(9) var<storage, read_write> ray_out: array<vec4<f32>>;
 // [0]: 3 * sum of lossmult over the batch (written on the device by batch.wgsl, or by the host).
 @group(0) @binding(10) var<storage, read> batch_norm: array<f32>;
+
+// mipnerf-core's counter-based random numbers (`rng.rs`), as in sample.wgsl.
+fn pcg_hash(x: u32) -> u32 {
+    let state = x * 747796405u + 2891336453u;
+    let word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+fn uniform01(key: u32, i: u32) -> f32 {
+    return f32(pcg_hash(key ^ pcg_hash(i)) >> 8u) * (1.0 / 16777216.0);
+}
+
+// `RayRng::normal`: Box-Muller on uniforms 2i and 2i + 1; the cosine's argument is brought into
+// [-pi, pi], where GPU `cos` is accurate.
+fn normal(key: u32, i: u32) -> f32 {
+    let u1 = 1.0 - uniform01(key, 2u * i);
+    var a = 6.2831855 * uniform01(key, 2u * i + 1u);
+    if (a > 3.1415927) {
+        a = a - 6.2831855;
+    }
+    return sqrt(-2.0 * log(u1)) * cos(a);
+}
 
 fn sigmoid(x: f32) -> f32 {
     return 1.0 / (1.0 + exp(-x));
@@ -63,6 +92,14 @@ fn density_derivative(raw: f32) -> f32 {
     return select(0.0, 1.0, x > 0.0);
 }
 
+// Raw density of sample k (sample i of its ray), with the training noise when there is any.
+fn raw_den(k: u32, key: u32, i: u32) -> f32 {
+    if (p.density_noise > 0.0) {
+        return raw_density[k] + p.density_noise * normal(key, i);
+    }
+    return raw_density[k];
+}
+
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let r = gid.y * (p.groups_x * 64u) + gid.x;
@@ -75,6 +112,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let dir = rays[2u * r + 1u];
     let dir_norm = length(dir.xyz);
     let lossmult = select(1.0, dir.w, p.area_loss != 0u);
+    // Stream::DensityNoise is 3.
+    let noise_key = pcg_hash(p.seed ^ pcg_hash(p.step ^ pcg_hash(3u ^ pcg_hash(r * 8u + p.level))));
     var cum = 0.0;
     var colour = vec3<f32>(0.0);
     var acc = 0.0;
@@ -84,7 +123,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         let t0 = t_vals[tb + i];
         let t1 = t_vals[tb + i + 1u];
         let delta = (t1 - t0) * dir_norm;
-        let dd = density_of(raw_density[k]) * delta;
+        let dd = density_of(raw_den(k, noise_key, i)) * delta;
         let alpha = 1.0 - exp(-dd);
         let trans = exp(-cum);
         cum = cum + dd;
@@ -127,7 +166,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         let ds = g * d_raw_density[k] - suffix;
         suffix = suffix + g * w;
         let delta = (t_vals[tb + i + 1u] - t_vals[tb + i]) * dir_norm;
-        d_raw_density[k] = ds * delta * density_derivative(raw_density[k]);
+        d_raw_density[k] = ds * delta * density_derivative(raw_den(k, noise_key, i));
         let d_rgb = w * d_col * sg * (1.0 - sg) * (1.0 + 2.0 * p.rgb_padding);
         d_raw_rgb[3u * k] = d_rgb.x;
         d_raw_rgb[3u * k + 1u] = d_rgb.y;

@@ -241,8 +241,7 @@ impl GpuModel {
     /// Whether the GPU path computes `model` (in training when `training`).
     ///
     /// # Errors
-    /// [`GpuError::InvalidInput`] naming what it does not do yet: supersampling, density noise
-    /// in training.
+    /// [`GpuError::InvalidInput`] naming what it does not do yet: supersampling.
     pub fn check_supported(model: &Model, training: bool) -> Result<(), GpuError> {
         let c = &model.config;
         let unsupported = |what: &str| {
@@ -250,9 +249,6 @@ impl GpuModel {
         };
         if c.supersample != 1 {
             return unsupported("supersampling");
-        }
-        if training && c.density_noise > 0.0 {
-            return unsupported("density noise");
         }
         Ok(())
     }
@@ -339,7 +335,10 @@ impl GpuModel {
                 ray_out: &work.ray_out[level],
                 norm: &batch.norm,
             };
-            let rp = RenderParams::new(c, nr, level_w[level], grads.is_some());
+            let mut rp = RenderParams::new(c, nr, level_w[level], grads.is_some());
+            if randomized && c.density_noise > 0.0 {
+                rp = rp.with_density_noise(c.density_noise, seed, step, level as u32);
+            }
             self.render.encode(ctx, enc, rp, &rb)?;
             if let Some(g) = grads {
                 self.mlp.backward(ctx, enc, shape, params, bufs, &work.d_rgb, &work.d_density, g);

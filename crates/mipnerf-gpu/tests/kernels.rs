@@ -512,6 +512,8 @@ fn whole_model_loss_and_gradients_match_cpu_reference() {
         (ModelConfig { point_encoding: PointEncoding::Mean, ..tiny.clone() }.without_misc(), Mode::Eval),
         // The NeRF baseline: positional encoding with the identity, one MLP per level.
         (tiny.clone().nerf(), Mode::Train { seed: 1, step: 2 }),
+        // Noise on raw density in training (the same random numbers on both sides).
+        (ModelConfig { density_noise: 1.0, ..tiny.clone() }, Mode::Train { seed: 4, step: 9 }),
     ]
     .into_iter()
     .enumerate()
@@ -521,6 +523,12 @@ fn whole_model_loss_and_gradients_match_cpu_reference() {
         let mut cpu_grads = vec![0.0; model.num_params];
         let cpu = model.loss_and_grad(&params, &rays, &targets, mode, &mut cpu_grads);
         let (g_stats, g_grads) = gpu.loss_and_grad(&ctx, &model, &params, &rays, &targets, mode).unwrap();
+        if model.config.density_noise > 0.0 {
+            // The case is only meaningful if the noise moves the loss well beyond the tolerance.
+            let quiet = Model::new(ModelConfig { density_noise: 0.0, ..model.config.clone() }).unwrap();
+            let plain = quiet.loss_and_grad(&params, &rays, &targets, mode, &mut vec![0.0; model.num_params]);
+            assert!((plain.loss - cpu.loss).abs() > 20.0 * TOL_GPU_MODEL_REL * cpu.loss, "noise changes nothing");
+        }
         eprintln!("case {ci}: cpu losses {:?} gpu {:?}", cpu.losses, g_stats.losses);
         bad.extend(compare(
             &format!("case {ci} losses"),

@@ -7,7 +7,7 @@ use crate::{GpuContext, GpuError, kernels};
 /// The WGSL source of this kernel.
 pub const SOURCE: &str = include_str!("../../../../shaders/render.wgsl");
 
-/// The uniform block of `render.wgsl` (`struct Params`), 48 bytes.
+/// The uniform block of `render.wgsl` (`struct Params`), 64 bytes.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct RenderParams {
@@ -33,6 +33,14 @@ pub struct RenderParams {
     pub area_loss: u32,
     /// Workgroups along x.
     pub groups_x: u32,
+    /// Standard deviation of the training noise on raw density (0: none).
+    pub density_noise: f32,
+    /// Run seed (density noise).
+    pub seed: u32,
+    /// Step (density noise).
+    pub step: u32,
+    /// Level (density noise).
+    pub level: u32,
     /// Padding.
     pub _pad: u32,
 }
@@ -56,8 +64,22 @@ impl RenderParams {
             train: u32::from(train),
             area_loss: u32::from(cfg.area_loss),
             groups_x: 0,
+            density_noise: 0.0,
+            seed: 0,
+            step: 0,
+            level: 0,
             _pad: 0,
         }
+    }
+
+    /// With the training noise on raw density of `cfg` for `(seed, step, level)`.
+    #[must_use]
+    pub fn with_density_noise(mut self, std: f32, seed: u32, step: u32, level: u32) -> Self {
+        self.density_noise = std;
+        self.seed = seed;
+        self.step = step;
+        self.level = level;
+        self
     }
 }
 
