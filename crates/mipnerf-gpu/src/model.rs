@@ -238,11 +238,11 @@ impl GpuModel {
         })
     }
 
-    /// Whether the GPU path computes `model` (in training when `training`).
+    /// Whether the GPU path computes `model`.
     ///
     /// # Errors
     /// [`GpuError::InvalidInput`] naming what it does not do yet: supersampling.
-    pub fn check_supported(model: &Model, training: bool) -> Result<(), GpuError> {
+    pub fn check_supported(model: &Model) -> Result<(), GpuError> {
         let c = &model.config;
         let unsupported = |what: &str| {
             Err(GpuError::InvalidInput(format!("the GPU backend does not support {what} yet; use the CPU backend")))
@@ -270,7 +270,7 @@ impl GpuModel {
         mode: Mode,
         grads: Option<&wgpu::Buffer>,
     ) -> Result<(), GpuError> {
-        Self::check_supported(model, grads.is_some() && matches!(mode, Mode::Train { .. }))?;
+        Self::check_supported(model)?;
         if batch.n_rays != work.n_rays || batch.n_rays == 0 {
             return Err(GpuError::InvalidInput(format!(
                 "a batch of {} rays with buffers for {}",
@@ -409,7 +409,7 @@ impl GpuModel {
         targets: &[[f32; 3]],
         mode: Mode,
     ) -> Result<(LossStats, Vec<f32>), GpuError> {
-        Self::check_supported(model, matches!(mode, Mode::Train { .. }))?;
+        Self::check_supported(model)?;
         if params.len() != model.num_params {
             return Err(GpuError::InvalidInput(format!(
                 "{} parameters for a model of {}",

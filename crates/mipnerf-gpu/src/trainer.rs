@@ -78,7 +78,7 @@ impl GpuBackend {
         seed: u32,
         state: TrainState,
     ) -> Result<Self, GpuError> {
-        GpuModel::check_supported(&model, false)?;
+        GpuModel::check_supported(&model)?;
         state.check(&model).map_err(|e| GpuError::InvalidInput(e.to_string()))?;
         let render_chunk = auto_chunk(&ctx, &model);
         Ok(Self {
@@ -103,10 +103,8 @@ impl GpuBackend {
     /// `batch_rays` rays.
     ///
     /// # Errors
-    /// [`GpuError::InvalidInput`] for what the GPU path does not train (density noise, NDC data)
-    /// or data that does not fit the device; device errors.
+    /// [`GpuError::InvalidInput`] for data that does not fit the device; device errors.
     pub fn with_data(mut self, ds: &Dataset, batch_rays: usize) -> Result<Self, GpuError> {
-        GpuModel::check_supported(&self.model, true)?;
         if batch_rays == 0 {
             return Err(GpuError::InvalidInput("a batch needs at least one ray".into()));
         }
