@@ -2,6 +2,7 @@
 //! fields (Mip-NeRF) on the CPU or a GPU.
 
 mod backend;
+mod check;
 mod config;
 mod eval;
 mod images;
@@ -13,10 +14,11 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use clap::{Parser, Subcommand, ValueEnum};
 use mipnerf_core::data::{self, Split, demo};
 
+use check::CheckBackend;
 use config::{Backend, PresetArg, TrainFlags, TrainSettings};
 
 const EXAMPLES: &str = "Examples:
@@ -38,22 +40,12 @@ struct Cli {
     command: Command,
 }
 
-/// `--backend` of `mipnerf check`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-enum CheckBackend {
-    /// Nothing to check: the CPU is the reference.
-    Cpu,
-    /// Any GPU adapter, software ones included.
-    Gpu,
-    /// A hardware GPU only.
-    Auto,
-}
-
 #[derive(Subcommand, Debug)]
 enum Command {
     /// Print the version, every GPU adapter found, and the backend `--backend auto` would choose.
     Info,
-    /// Run the GPU kernels on a synthetic camera and compare them with the CPU reference.
+    /// Compare the GPU with the CPU reference on synthetic data: the IPE kernel, a whole model
+    /// step (loss and every gradient), and a few training steps of both backends from one seed.
     Check {
         /// Which backend to check.
         #[arg(long, value_enum, default_value_t = CheckBackend::Gpu)]
@@ -199,47 +191,6 @@ fn info() {
     println!("--backend auto would use: {}", auto_choice(&adapters));
 }
 
-fn check(backend: CheckBackend) -> Result<()> {
-    use mipnerf_core::mip::{self, RayShape};
-    let choice = match backend {
-        CheckBackend::Cpu => {
-            println!("the CPU backend is the reference; nothing to compare it with");
-            return Ok(());
-        }
-        CheckBackend::Gpu => mipnerf_gpu::AdapterChoice::Any,
-        CheckBackend::Auto => mipnerf_gpu::AdapterChoice::HardwareOnly,
-    };
-    let ctx = match mipnerf_gpu::GpuContext::new(choice) {
-        Ok(c) => c,
-        Err(e) if backend == CheckBackend::Auto => {
-            println!("auto: {e}; the CPU backend would be used");
-            return Ok(());
-        }
-        Err(e) => return Err(e).context("opening the GPU"),
-    };
-    println!("checking on {} ({}, {})", ctx.adapter.name, ctx.adapter.backend, ctx.adapter.device_type);
-    let c2w = [[0.8, 0.0, 0.6, 2.4], [0.36, 0.8, -0.48, -1.92], [-0.48, 0.6, 0.64, 2.56]];
-    let cam = mipnerf_core::Camera::from_camera_angle_x(32, 32, 0.69, c2w)?;
-    let rays = cam.generate_rays(mipnerf_core::PixelCenters::Centered, 2.0, 6.0, 1.0);
-    let n = 32usize;
-    let mut t = vec![0.0; rays.len() * (n + 1)];
-    for (r, chunk) in t.chunks_mut(n + 1).enumerate() {
-        mipnerf_core::sample_along_rays(rays[r].near, rays[r].far, false, None, chunk);
-    }
-    let kernel = mipnerf_gpu::kernels::cast_ipe::CastIpeKernel::new(&ctx)?;
-    let gpu = kernel.run(&ctx, &rays, &t, n as u32, RayShape::Cone, 0, 16)?;
-    let cpu = mip::cast_and_encode(&rays, &t, n, RayShape::Cone, 0, 16);
-    let max = gpu
-        .iter()
-        .zip(&cpu)
-        .map(|(a, b)| if a.is_nan() { f32::INFINITY } else { (a - b).abs() })
-        .fold(0.0f32, f32::max);
-    println!("cast_ipe: {} features, max |gpu - cpu| = {max:e}", gpu.len());
-    anyhow::ensure!(max <= 1e-4, "the GPU's IPE features differ from the CPU reference by {max:e} (> 1e-4)");
-    println!("ok");
-    Ok(())
-}
-
 fn stop_flag() -> Arc<AtomicBool> {
     let stop = Arc::new(AtomicBool::new(false));
     let s = Arc::clone(&stop);
@@ -342,7 +293,7 @@ fn main() -> std::process::ExitCode {
             info();
             Ok(())
         }
-        Command::Check { backend } => check(backend),
+        Command::Check { backend } => check::check(backend),
         Command::Train { out, config, resume, flags } => {
             train_cmd(&out, config, resume, &flags, stop_flag()).map(|o| {
                 if o.interrupted {
