@@ -16,8 +16,8 @@
 //
 // Entry points:
 // - `make_rays`: one invocation per ray; writes the ray, its bounds, view direction and target.
-// - `batch_norm`: one workgroup; writes 3 * sum(lossmult) over the batch (3 * n_rays without the
-//   area loss), the denominator of the loss, in a fixed order (deterministic).
+// - `batch_norm`: one workgroup; writes 3 * sum(lossmult) over the batch's pixels (3 * pixels
+//   without the area loss), the denominator of the loss, in a fixed order (deterministic).
 
 struct Params {
     n_rays: u32,
@@ -38,6 +38,13 @@ struct Params {
     // NDC (forward-facing scenes): 2 focal / width and 2 focal / height of the NDC camera; 0: off.
     ndc_fx: f32,
     ndc_fy: f32,
+    // Rays per pixel side (the supersampled NeRF): k x k consecutive rays per pixel through a
+    // regular sub-pixel grid, each a cone of 1/k of the pixel's radius. 1: one ray per pixel.
+    supersample: u32,
+    // The pixel-centre offset included in each view's `dir0` (0.5 or 0).
+    centre_offset: f32,
+    _pad0: u32,
+    _pad1: u32,
 }
 
 struct View {
@@ -140,13 +147,16 @@ fn make_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (i >= p.n_rays) {
         return;
     }
+    let k = p.supersample;
+    let pix = i / (k * k);
+    let sub = i % (k * k);
     var g: u32;
     if (p.sequential != 0u) {
         // Rays past the last pixel (the tail of the last chunk) repeat it.
-        g = min(p.first_pixel + i, p.total_pixels - 1u);
+        g = min(p.first_pixel + pix, p.total_pixels - 1u);
     } else {
-        let hi = pcg_hash(p.key ^ pcg_hash(2u * i));
-        let lo = pcg_hash(p.key ^ pcg_hash(2u * i + 1u));
+        let hi = pcg_hash(p.key ^ pcg_hash(2u * pix));
+        let lo = pcg_hash(p.key ^ pcg_hash(2u * pix + 1u));
         g = mod64(hi, lo, p.total_pixels);
     }
     // The last view whose first pixel is at or before g.
@@ -192,6 +202,15 @@ fn make_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
         rays[2u * i] = vec4<f32>(r.origin, spacing * 0.57735026);
         rays[2u * i + 1u] = vec4<f32>(r.dir, 1.0);
         vd = dir;
+    } else if (k > 1u) {
+        // mipnerf-core's `push_camera_rays`: through (x + (sx + 0.5) / k, y + (sy + 0.5) / k).
+        let fk = f32(k);
+        let ox = (f32(sub % k) + 0.5) / fk - p.centre_offset;
+        let oy = (f32(sub / k) + 0.5) / fk - p.centre_offset;
+        let sdir = dir + ox * v.step_x.xyz + oy * v.step_y.xyz;
+        rays[2u * i] = vec4<f32>(v.origin.xyz, v.dir0.w / fk);
+        rays[2u * i + 1u] = vec4<f32>(sdir, v.origin.w);
+        vd = sdir / sqrt(dot(sdir, sdir));
     } else {
         rays[2u * i] = vec4<f32>(v.origin.xyz, v.dir0.w);
         rays[2u * i + 1u] = vec4<f32>(dir, v.origin.w);
@@ -237,6 +256,7 @@ fn batch_norm(@builtin(local_invocation_index) t: u32) {
         workgroupBarrier();
     }
     if (t == 0u) {
-        norm[0] = 3.0 * partial[0];
+        // Every pixel's k x k rays carry its lossmult: the sum over pixels.
+        norm[0] = 3.0 * partial[0] / f32(p.supersample * p.supersample);
     }
 }

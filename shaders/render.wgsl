@@ -31,7 +31,9 @@ struct Params {
     seed: u32,
     step: u32,
     level: u32,
-    _pad1: u32,
+    // Rays per pixel side (supersampled NeRF). Above 1, `main` only renders; the loss is the
+    // pixel's (the mean of its k x k rays' colours), computed with its gradient by `pixel_backward`.
+    supersample: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -92,6 +94,11 @@ fn density_derivative(raw: f32) -> f32 {
     return select(0.0, 1.0, x > 0.0);
 }
 
+// The key of ray r's density noise (Stream::DensityNoise is 3; stream ray * 8 + level).
+fn density_noise_key(r: u32) -> u32 {
+    return pcg_hash(p.seed ^ pcg_hash(p.step ^ pcg_hash(3u ^ pcg_hash(r * 8u + p.level))));
+}
+
 // Raw density of sample k (sample i of its ray), with the training noise when there is any.
 fn raw_den(k: u32, key: u32, i: u32) -> f32 {
     if (p.density_noise > 0.0) {
@@ -112,8 +119,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let dir = rays[2u * r + 1u];
     let dir_norm = length(dir.xyz);
     let lossmult = select(1.0, dir.w, p.area_loss != 0u);
-    // Stream::DensityNoise is 3.
-    let noise_key = pcg_hash(p.seed ^ pcg_hash(p.step ^ pcg_hash(3u ^ pcg_hash(r * 8u + p.level))));
+    let noise_key = density_noise_key(r);
     var cum = 0.0;
     var colour = vec3<f32>(0.0);
     var acc = 0.0;
@@ -144,16 +150,29 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     dist = clamp(dist, t_vals[tb], t_vals[tb + s_n]);
     let bg = select(0.0, 1.0, p.white_bkgd != 0u);
     colour = colour + bg * (1.0 - acc);
+    ray_out[2u * r] = vec4<f32>(colour, dist);
+    if (p.supersample > 1u) {
+        ray_out[2u * r + 1u] = vec4<f32>(acc, 0.0, 0.0, 0.0);
+        return;
+    }
     let goal = targets[r].xyz;
     let err = colour - goal;
     let se = dot(err, err);
-    ray_out[2u * r] = vec4<f32>(colour, dist);
     ray_out[2u * r + 1u] = vec4<f32>(acc, lossmult * se, se, 0.0);
     if (p.train == 0u) {
         return;
     }
-    // d loss / d colour, then back through rendering and the activations.
-    let d_col = p.level_weight * 2.0 * lossmult * err / batch_norm[0];
+    backward_ray(r, p.level_weight * 2.0 * lossmult * err / batch_norm[0]);
+}
+
+// d loss / d colour of ray r is `d_col`: back through rendering and the activations.
+fn backward_ray(r: u32, d_col: vec3<f32>) {
+    let s_n = p.n_samples;
+    let base = r * s_n;
+    let tb = r * (s_n + 1u);
+    let dir_norm = length(rays[2u * r + 1u].xyz);
+    let noise_key = density_noise_key(r);
+    let bg = select(0.0, 1.0, p.white_bkgd != 0u);
     var suffix = 0.0;
     for (var j = 0u; j < s_n; j = j + 1u) {
         let i = s_n - 1u - j;
@@ -172,4 +191,32 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         d_raw_rgb[3u * k + 1u] = d_rgb.y;
         d_raw_rgb[3u * k + 2u] = d_rgb.z;
     }
+}
+
+// Supersampling, after `main`: each ray's pixel colour is the mean of its pixel's k x k rays'
+// colours (in ray order, as the CPU sums them); the first ray of a pixel records the pixel's loss
+// terms; in training every ray gets 1 / k^2 of the pixel's colour gradient.
+@compute @workgroup_size(64)
+fn pixel_backward(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let r = gid.y * (p.groups_x * 64u) + gid.x;
+    if (r >= p.n_rays) {
+        return;
+    }
+    let kk = p.supersample * p.supersample;
+    let inv = 1.0 / f32(kk);
+    let first = (r / kk) * kk;
+    var mean = vec3<f32>(0.0);
+    for (var j = 0u; j < kk; j = j + 1u) {
+        mean = mean + ray_out[2u * (first + j)].xyz * inv;
+    }
+    let lossmult = select(1.0, rays[2u * first + 1u].w, p.area_loss != 0u);
+    let err = mean - targets[first].xyz;
+    let se = dot(err, err);
+    if (r == first) {
+        ray_out[2u * r + 1u] = vec4<f32>(ray_out[2u * r + 1u].x, lossmult * se, se, 0.0);
+    }
+    if (p.train == 0u) {
+        return;
+    }
+    backward_ray(r, p.level_weight * 2.0 * lossmult * err / batch_norm[0] * inv);
 }

@@ -135,6 +135,9 @@ pub fn train(
         ds.pixel_bytes() as f64 / (1 << 20) as f64,
         t_load.elapsed().as_secs_f64()
     );
+    if ds.ndc.is_some() && model_cfg.supersample > 1 {
+        bail!("{}: {}", data_dir.display(), mipnerf_core::backend::NDC_SUPERSAMPLE);
+    }
     let model = Model::new(model_cfg)?;
     eprintln!(
         "model: {} parameters ({:?} preset, {:?})",

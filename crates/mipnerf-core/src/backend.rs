@@ -160,6 +160,9 @@ impl TrainState {
     }
 }
 
+/// Why forward-facing data and supersampling do not mix.
+pub const NDC_SUPERSAMPLE: &str = "supersampling (--supersample) is not defined for forward-facing (NDC) datasets: sub-pixel rays are not mapped to NDC";
+
 /// Pixels per chunk when the CPU renders an image (bounds the rays held at once).
 pub const CPU_RENDER_CHUNK: usize = 16 * 1024;
 
@@ -217,6 +220,9 @@ impl Backend for CpuBackend {
     fn train_step(&mut self, _report: bool) -> Result<Option<StepReport>, BackendError> {
         let (ds, batch) = self.data.as_ref().ok_or(BackendError::NoData)?;
         let t = &self.trainer;
+        if ds.ndc.is_some() && t.model.config.supersample > 1 {
+            return Err(BackendError::Unsupported(NDC_SUPERSAMPLE.into()));
+        }
         ds.sample_batch(*batch, t.seed, t.step as u32, t.model.config.supersample, &mut self.rays, &mut self.targets);
         Ok(Some(self.trainer.train_step(&self.rays, &self.targets)))
     }
@@ -234,6 +240,9 @@ impl Backend for CpuBackend {
                 "the image asks for {}x{} rays per pixel; the model renders {k}x{k}",
                 image.supersample, image.supersample
             )));
+        }
+        if image.ndc.is_some() && k > 1 {
+            return Err(BackendError::Unsupported(NDC_SUPERSAMPLE.into()));
         }
         let mut out = Vec::with_capacity(image.pixels() * model.config.num_levels);
         let mut rays = Vec::new();

@@ -55,14 +55,25 @@ impl RayBatch {
         }
     }
 
-    /// A batch uploaded from the host: `rays` with `targets` (one each), weighted by lossmult
-    /// in the loss when `area_loss`.
+    /// A batch uploaded from the host: `rays` (`rays_per_pixel` consecutive ones per pixel) with
+    /// `targets` (one per pixel), weighted by lossmult in the loss when `area_loss`.
     ///
     /// # Errors
-    /// [`GpuError::InvalidInput`] for no rays or differing lengths.
-    pub fn upload(ctx: &GpuContext, rays: &[Ray], targets: &[[f32; 3]], area_loss: bool) -> Result<Self, GpuError> {
-        if rays.len() != targets.len() || rays.is_empty() {
-            return Err(GpuError::InvalidInput(format!("{} rays and {} targets", rays.len(), targets.len())));
+    /// [`GpuError::InvalidInput`] for no rays or lengths that disagree.
+    pub fn upload(
+        ctx: &GpuContext,
+        rays: &[Ray],
+        targets: &[[f32; 3]],
+        rays_per_pixel: usize,
+        area_loss: bool,
+    ) -> Result<Self, GpuError> {
+        let rpp = rays_per_pixel.max(1);
+        if rays.len() != targets.len() * rpp || rays.is_empty() {
+            return Err(GpuError::InvalidInput(format!(
+                "{} rays and {} targets ({rpp} rays per pixel)",
+                rays.len(),
+                targets.len()
+            )));
         }
         let packed: Vec<[f32; 4]> = rays
             .iter()
@@ -70,8 +81,9 @@ impl RayBatch {
             .collect();
         let bounds: Vec<f32> = rays.iter().flat_map(|r| [r.near, r.far]).collect();
         let viewdirs: Vec<f32> = rays.iter().flat_map(|r| r.viewdir.to_array()).collect();
-        let tg: Vec<[f32; 4]> = targets.iter().map(|t| [t[0], t[1], t[2], 0.0]).collect();
-        let lm_sum: f64 = rays.iter().map(|r| if area_loss { f64::from(r.lossmult) } else { 1.0 }).sum();
+        let tg: Vec<[f32; 4]> =
+            targets.iter().flat_map(|t| std::iter::repeat_n([t[0], t[1], t[2], 0.0], rpp)).collect();
+        let lm_sum: f64 = rays.iter().step_by(rpp).map(|r| if area_loss { f64::from(r.lossmult) } else { 1.0 }).sum();
         Ok(Self {
             n_rays: rays.len(),
             capacity: rays.len(),
@@ -238,26 +250,11 @@ impl GpuModel {
         })
     }
 
-    /// Whether the GPU path computes `model`.
-    ///
-    /// # Errors
-    /// [`GpuError::InvalidInput`] naming what it does not do yet: supersampling.
-    pub fn check_supported(model: &Model) -> Result<(), GpuError> {
-        let c = &model.config;
-        let unsupported = |what: &str| {
-            Err(GpuError::InvalidInput(format!("the GPU backend does not support {what} yet; use the CPU backend")))
-        };
-        if c.supersample != 1 {
-            return unsupported("supersampling");
-        }
-        Ok(())
-    }
-
     /// Records the model on `batch`: every level's outputs into `work.ray_out`; in training
     /// (`grads` given) also the loss gradient of every parameter, **added** to `grads`.
     ///
     /// # Errors
-    /// [`GpuError::InvalidInput`] for an unsupported model or buffers of another size.
+    /// [`GpuError::InvalidInput`] for buffers of another size or rays that are not whole pixels.
     #[allow(clippy::too_many_arguments)]
     pub fn encode(
         &self,
@@ -270,7 +267,6 @@ impl GpuModel {
         mode: Mode,
         grads: Option<&wgpu::Buffer>,
     ) -> Result<(), GpuError> {
-        Self::check_supported(model)?;
         if batch.n_rays != work.n_rays || batch.n_rays == 0 {
             return Err(GpuError::InvalidInput(format!(
                 "a batch of {} rays with buffers for {}",
@@ -360,6 +356,7 @@ impl GpuModel {
         work: &ModelBuffers,
     ) -> Result<LossStats, GpuError> {
         let nr = batch.n_rays;
+        let pixels = nr / model.rays_per_pixel();
         let norm = f64::from(ctx.read_f32(&batch.norm, 1)?[0]);
         let mut losses = Vec::new();
         let mut mse = Vec::new();
@@ -368,38 +365,60 @@ impl GpuModel {
             let (lm_se, se): (f64, f64) =
                 v.chunks(8).fold((0.0, 0.0), |acc, o| (acc.0 + f64::from(o[5]), acc.1 + f64::from(o[6])));
             losses.push((lm_se / norm) as f32);
-            mse.push((se / (3.0 * nr as f64)) as f32);
+            mse.push((se / (3.0 * pixels as f64)) as f32);
         }
         let loss = model.level_weights().iter().zip(&losses).map(|(w, l)| w * l).sum();
         Ok(LossStats { losses, loss, mse })
     }
 
-    /// The first `n` rays' outputs of every level from the last recorded batch, read back:
-    /// `n x num_levels`, ray-major, as `Model::render` returns them.
+    /// The outputs of every level for the first `n` rays of the last recorded batch, read back
+    /// and averaged over each pixel's `rays_per_pixel` rays: `n / rays_per_pixel x num_levels`,
+    /// pixel-major, as `Model::render` returns them.
     ///
     /// # Errors
-    /// Any error wgpu reports, or `n` beyond the buffers.
-    pub fn read_outputs(&self, ctx: &GpuContext, work: &ModelBuffers, n: usize) -> Result<Vec<LevelOutput>, GpuError> {
-        if n > work.capacity {
-            return Err(GpuError::InvalidInput(format!("{n} outputs of buffers for {}", work.capacity)));
+    /// Any error wgpu reports, or `n` beyond the buffers or not whole pixels.
+    pub fn read_outputs(
+        &self,
+        ctx: &GpuContext,
+        work: &ModelBuffers,
+        n: usize,
+        rays_per_pixel: usize,
+    ) -> Result<Vec<LevelOutput>, GpuError> {
+        let rpp = rays_per_pixel.max(1);
+        if n > work.capacity || !n.is_multiple_of(rpp) {
+            return Err(GpuError::InvalidInput(format!(
+                "{n} outputs of buffers for {} ({rpp} rays per pixel)",
+                work.capacity
+            )));
         }
         let levels: Vec<Vec<f32>> = work.ray_out.iter().map(|b| ctx.read_f32(b, n * 8)).collect::<Result<_, _>>()?;
-        let mut out = Vec::with_capacity(n * levels.len());
-        for r in 0..n {
+        let inv = 1.0 / rpp as f32;
+        let mut out = Vec::with_capacity(n / rpp * levels.len());
+        for p in 0..n / rpp {
             for l in &levels {
-                let o = &l[8 * r..8 * r + 8];
-                out.push(LevelOutput { rgb: [o[0], o[1], o[2]], distance: o[3], acc: o[4] });
+                let mut o = LevelOutput::default();
+                for r in p * rpp..(p + 1) * rpp {
+                    let v = &l[8 * r..8 * r + 8];
+                    for k in 0..3 {
+                        o.rgb[k] += v[k] * inv;
+                    }
+                    o.distance += v[3];
+                    o.acc += v[4];
+                }
+                o.distance *= inv;
+                o.acc *= inv;
+                out.push(o);
             }
         }
         Ok(out)
     }
 
     /// The loss of a batch and the gradient of every parameter, computed on the device from
-    /// `params` (uploaded) for `rays` (one per pixel) and `targets`.
+    /// `params` (uploaded) for `rays` (`Model::rays_per_pixel` per pixel) and `targets` (one per
+    /// pixel).
     ///
     /// # Errors
-    /// [`GpuError::InvalidInput`] for what the GPU path does not do yet (see
-    /// [`check_supported`](Self::check_supported)) or inconsistent sizes; any error wgpu reports.
+    /// [`GpuError::InvalidInput`] for inconsistent sizes; any error wgpu reports.
     pub fn loss_and_grad(
         &self,
         ctx: &GpuContext,
@@ -409,7 +428,6 @@ impl GpuModel {
         targets: &[[f32; 3]],
         mode: Mode,
     ) -> Result<(LossStats, Vec<f32>), GpuError> {
-        Self::check_supported(model)?;
         if params.len() != model.num_params {
             return Err(GpuError::InvalidInput(format!(
                 "{} parameters for a model of {}",
@@ -417,7 +435,7 @@ impl GpuModel {
                 model.num_params
             )));
         }
-        let batch = RayBatch::upload(ctx, rays, targets, model.config.area_loss)?;
+        let batch = RayBatch::upload(ctx, rays, targets, model.rays_per_pixel(), model.config.area_loss)?;
         let work = ModelBuffers::new(ctx, model, rays.len())?;
         let params_buf = ctx.storage_buffer("parameters", params, false);
         let grads = ctx.storage_buffer("gradients", &vec![0.0f32; model.num_params], true);

@@ -69,8 +69,7 @@ impl GpuBackend {
     /// A backend on `ctx` for `model` starting from `state`, training with `optim` and `seed`.
     ///
     /// # Errors
-    /// [`GpuError::InvalidInput`] for a model the GPU path does not compute or a state that does
-    /// not fit it; device errors.
+    /// [`GpuError::InvalidInput`] for a state that does not fit the model; device errors.
     pub fn new(
         ctx: GpuContext,
         model: Model,
@@ -78,7 +77,6 @@ impl GpuBackend {
         seed: u32,
         state: TrainState,
     ) -> Result<Self, GpuError> {
-        GpuModel::check_supported(&model)?;
         state.check(&model).map_err(|e| GpuError::InvalidInput(e.to_string()))?;
         let render_chunk = auto_chunk(&ctx, &model);
         Ok(Self {
@@ -100,17 +98,23 @@ impl GpuBackend {
     }
 
     /// Uploads the training images and cameras of `ds` and the buffers of batches of
-    /// `batch_rays` rays.
+    /// `batch_rays` pixels (`Model::rays_per_pixel` rays each).
     ///
     /// # Errors
-    /// [`GpuError::InvalidInput`] for data that does not fit the device; device errors.
+    /// [`GpuError::InvalidInput`] for data that does not fit the device, or supersampling with
+    /// forward-facing (NDC) data; device errors.
     pub fn with_data(mut self, ds: &Dataset, batch_rays: usize) -> Result<Self, GpuError> {
         if batch_rays == 0 {
             return Err(GpuError::InvalidInput("a batch needs at least one ray".into()));
         }
+        if ds.ndc.is_some() && self.model.config.supersample > 1 {
+            return Err(GpuError::InvalidInput(mipnerf_core::backend::NDC_SUPERSAMPLE.into()));
+        }
         let images = DeviceImages::upload(&self.ctx, ds)?;
-        let work = ModelBuffers::new(&self.ctx, &self.model, batch_rays)?;
-        let batch = RayBatch::new(&self.ctx, batch_rays);
+        // Each pixel is `rays_per_pixel` rays.
+        let n_rays = batch_rays * self.model.rays_per_pixel();
+        let work = ModelBuffers::new(&self.ctx, &self.model, n_rays)?;
+        let batch = RayBatch::new(&self.ctx, n_rays);
         self.ctx.check()?;
         self.train = Some(TrainData { images, batch, work });
         Ok(self)
@@ -167,7 +171,8 @@ impl GpuBackend {
         let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("train step") });
         enc.clear_buffer(&self.state.grads, 0, None);
         let draw = Draw::Random { seed: self.seed, step: step as u32 };
-        self.batch_kernel.encode(ctx, &mut enc, &data.images, draw, self.model.config.area_loss, &data.batch)?;
+        let (area_loss, k) = (self.model.config.area_loss, self.model.config.supersample);
+        self.batch_kernel.encode(ctx, &mut enc, &data.images, draw, area_loss, k, &data.batch)?;
         self.kernels.encode(
             ctx,
             &mut enc,
@@ -208,26 +213,36 @@ impl GpuBackend {
     }
 
     fn render_all(&mut self, image: &ImageSpec) -> Result<Vec<LevelOutput>, GpuError> {
+        let rpp = self.model.rays_per_pixel();
+        if image.supersample != self.model.config.supersample {
+            return Err(GpuError::InvalidInput(format!(
+                "the image asks for {0}x{0} rays per pixel; the model renders {1}x{1}",
+                image.supersample, self.model.config.supersample
+            )));
+        }
         let cams = DeviceImages::camera_only(&self.ctx, image)?;
         let total = cams.total_pixels() as usize;
-        let chunk = self.render_chunk;
-        if self.render.is_none() {
-            let work = ModelBuffers::new(&self.ctx, &self.model, chunk)?;
-            self.render = Some((RayBatch::new(&self.ctx, chunk), work));
+        // Whole pixels per chunk.
+        let chunk_pixels = (self.render_chunk / rpp).max(1);
+        if self.render.as_ref().is_none_or(|(b, _)| b.capacity() != chunk_pixels * rpp) {
+            let work = ModelBuffers::new(&self.ctx, &self.model, chunk_pixels * rpp)?;
+            self.render = Some((RayBatch::new(&self.ctx, chunk_pixels * rpp), work));
         }
         let Some((batch, work)) = &mut self.render else { unreachable!("render buffers were just made") };
         let mut out = Vec::with_capacity(total * self.model.config.num_levels);
         let ctx = &self.ctx;
-        for first in (0..total).step_by(chunk) {
-            let n = chunk.min(total - first);
+        let k = self.model.config.supersample;
+        for first in (0..total).step_by(chunk_pixels) {
+            let n = chunk_pixels.min(total - first) * rpp;
             batch.set_active(n)?;
             work.set_active(n)?;
             let mut enc =
                 ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("render chunk") });
-            self.batch_kernel.encode(ctx, &mut enc, &cams, Draw::Sequential { first: first as u32 }, false, batch)?;
+            let draw = Draw::Sequential { first: first as u32 };
+            self.batch_kernel.encode(ctx, &mut enc, &cams, draw, false, k, batch)?;
             self.kernels.encode(ctx, &mut enc, &self.model, &self.state.params, batch, work, Mode::Eval, None)?;
             ctx.queue.submit([enc.finish()]);
-            out.extend(self.kernels.read_outputs(ctx, work, n)?);
+            out.extend(self.kernels.read_outputs(ctx, work, n, rpp)?);
         }
         Ok(out)
     }

@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use mipnerf_core::backend::{Backend, CpuBackend, ImageSpec, TrainState};
 use mipnerf_core::camera::{Camera, PixelCenters};
-use mipnerf_core::data::{self, Dataset, LoadOptions, Pixels, Split, View};
+use mipnerf_core::data::{self, Dataset, LoadOptions, Pixels, Split, View, demo};
 use mipnerf_core::model::{LevelOutput, Model, ModelConfig, Preset};
 use mipnerf_core::train::OptimConfig;
 use mipnerf_gpu::GpuBackend;
@@ -39,7 +39,7 @@ fn assert_none(bad: &[String]) {
 /// Views of different sizes, poses, bounds and lossmults (a multiscale-like split), with random
 /// pixels, as RGBA8 or as f32.
 fn synthetic_dataset(f32_pixels: bool, white_bkgd: bool) -> Dataset {
-    let poses = mipnerf_core::data::demo::view_poses(5, 0.3);
+    let poses = demo::view_poses(5, 0.3);
     let sizes = [(13u32, 7u32), (8, 8), (21, 3), (5, 17), (1, 1)];
     let mut state = 12345u32;
     let views = poses
@@ -102,7 +102,7 @@ fn device_batches_are_the_cpu_batches() {
             let tag = format!("f32 {f32_pixels} white {white} slots {slot_bytes:?} seed {seed} step {step}");
             let batch = RayBatch::new(&ctx, n);
             let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("batch") });
-            kernel.encode(&ctx, &mut enc, &images, Draw::Random { seed, step }, area_loss, &batch).unwrap();
+            kernel.encode(&ctx, &mut enc, &images, Draw::Random { seed, step }, area_loss, 1, &batch).unwrap();
             ctx.queue.submit([enc.finish()]);
             let [rays, bounds, viewdirs, targets, norm] = read_batch(&ctx, &batch);
             let (mut cpu_rays, mut cpu_targets) = (Vec::new(), Vec::new());
@@ -175,7 +175,7 @@ fn device_ndc_batches_match_the_cpu() {
     let n = 400;
     let batch = RayBatch::new(&ctx, n);
     let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("ndc batch") });
-    kernel.encode(&ctx, &mut enc, &images, Draw::Random { seed: 5, step: 1 }, false, &batch).unwrap();
+    kernel.encode(&ctx, &mut enc, &images, Draw::Random { seed: 5, step: 1 }, false, 1, &batch).unwrap();
     ctx.queue.submit([enc.finish()]);
     let [rays, bounds, viewdirs, _, _] = read_batch(&ctx, &batch);
     let (mut cpu, mut targets) = (Vec::new(), Vec::new());
@@ -285,7 +285,7 @@ fn chunked_gpu_render_matches_cpu_with_bounded_memory() {
     let mut cpu = CpuBackend::new(model.clone(), optim.clone(), 0, state.clone()).unwrap();
     let chunk = 256;
     let mut gpu = GpuBackend::new(ctx, model, optim, 0, state).unwrap().with_render_chunk(chunk);
-    let pose = mipnerf_core::data::demo::camera_pose(0.7, 0.4);
+    let pose = demo::camera_pose(0.7, 0.4);
     let mut bytes = Vec::new();
     let mut bad = Vec::new();
     // 700 and 2,500 pixels: several chunks, the last one partial.
@@ -326,9 +326,45 @@ fn chunked_gpu_render_matches_cpu_with_bounded_memory() {
 }
 
 #[test]
-fn unsupported_configurations_are_clear_errors() {
-    let Some(ctx) = context_or_skip("unsupported_configurations_are_clear_errors") else { return };
-    let ss = Model::new(ModelConfig { supersample: 2, ..Preset::Tiny.config().nerf() }).unwrap();
-    let err = GpuBackend::new(ctx, ss.clone(), OptimConfig::default(), 0, TrainState::fresh(&ss, 0)).unwrap_err();
-    assert!(err.to_string().contains("supersampling") && err.to_string().contains("CPU backend"), "{err}");
+fn supersampled_nerf_trains_and_renders_alike() {
+    let Some(ctx) = context_or_skip("supersampled_nerf_trains_and_renders_alike") else { return };
+    let ds = Arc::new(lego_tiny());
+    // The paper's supersampled NeRF baseline at the tiny size: 2x2 rays per pixel.
+    let cfg = ModelConfig { supersample: 2, num_samples: 16, ..Preset::Tiny.config().nerf() };
+    let model = Model::new(cfg).unwrap();
+    let (seed, batch, steps) = (9u32, 16usize, 10u64);
+    let optim = OptimConfig::default();
+    let state = TrainState::fresh(&model, seed);
+    let mut cpu =
+        CpuBackend::new(model.clone(), optim.clone(), seed, state.clone()).unwrap().with_data(Arc::clone(&ds), batch);
+    let mut gpu = GpuBackend::new(ctx, model, optim, seed, state).unwrap().with_data(&ds, batch).unwrap();
+    let mut bad = Vec::new();
+    for step in 0..steps {
+        let c = cpu.train_step(true).unwrap().unwrap();
+        let g = gpu.train_step(true).unwrap().unwrap();
+        for (l, (gv, cv)) in g.stats.losses.iter().zip(&c.stats.losses).enumerate() {
+            let rel = (gv - cv).abs() / cv.abs();
+            if rel.is_nan() || rel > TOL_LOSS_CURVE_REL {
+                bad.push(format!("step {step} level {l} loss: gpu {gv} cpu {cv} (relative {rel:e})"));
+            }
+        }
+    }
+    assert_none(&bad);
+    // A render whose last chunk is partial: 30 x 20 pixels of 4 rays in chunks of 256 rays.
+    let mut gpu = gpu.with_render_chunk(256);
+    let camera = Camera::from_camera_angle_x(30, 20, 0.7, demo::camera_pose(0.2, 0.5)).unwrap();
+    let image = ImageSpec { camera, near: 2.0, far: 6.0, centers: PixelCenters::Centered, ndc: None, supersample: 2 };
+    let (r_cpu, r_gpu) = (cpu.render_image(&image).unwrap(), gpu.render_image(&image).unwrap());
+    assert_eq!(r_gpu.len(), 30 * 20 * 2);
+    let psnr = psnr_between(&r_cpu, &r_gpu);
+    assert!(psnr >= MIN_RENDER_AGREEMENT_PSNR, "CPU and GPU supersampled renders differ: {psnr:.1} dB");
+}
+
+#[test]
+fn supersampling_forward_facing_data_is_a_clear_error() {
+    let Some(ctx) = context_or_skip("supersampling_forward_facing_data_is_a_clear_error") else { return };
+    let model = Model::new(ModelConfig { supersample: 2, ..Preset::Tiny.config() }).unwrap();
+    let b = GpuBackend::new(ctx, model.clone(), OptimConfig::default(), 0, TrainState::fresh(&model, 0)).unwrap();
+    let err = b.with_data(&ndc_dataset(), 8).unwrap_err().to_string();
+    assert!(err.contains("supersampling") && err.contains("NDC"), "{err}");
 }

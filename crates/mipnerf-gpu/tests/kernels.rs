@@ -15,10 +15,13 @@ use mipnerf_gpu::test_support::context_or_skip;
 /// 2^-11 absolute for `sin` on [-pi, pi], which real GPUs beat by far.
 const TOL_GPU_IPE_ABS: f32 = 2e-5;
 
-fn test_rays(n_side: u32) -> Vec<Ray> {
+fn test_camera(n_side: u32) -> Camera {
     let c2w = [[0.8, 0.0, 0.6, 2.4], [0.36, 0.8, -0.48, -1.92], [-0.48, 0.6, 0.64, 2.56]];
-    let cam = Camera::from_camera_angle_x(n_side, n_side, 0.69, c2w).unwrap();
-    cam.generate_rays(PixelCenters::Centered, 2.0, 6.0, 1.0)
+    Camera::from_camera_angle_x(n_side, n_side, 0.69, c2w).unwrap()
+}
+
+fn test_rays(n_side: u32) -> Vec<Ray> {
+    test_camera(n_side).generate_rays(PixelCenters::Centered, 2.0, 6.0, 1.0)
 }
 
 #[test]
@@ -514,12 +517,38 @@ fn whole_model_loss_and_gradients_match_cpu_reference() {
         (tiny.clone().nerf(), Mode::Train { seed: 1, step: 2 }),
         // Noise on raw density in training (the same random numbers on both sides).
         (ModelConfig { density_noise: 1.0, ..tiny.clone() }, Mode::Train { seed: 4, step: 9 }),
+        // The supersampled NeRF: 2x2 rays per pixel, the loss on their mean.
+        (ModelConfig { supersample: 2, ..tiny.clone().nerf() }, Mode::Train { seed: 6, step: 1 }),
     ]
     .into_iter()
     .enumerate()
     {
         let model = Model::new(cfg).unwrap();
         let params = model.init_params(11);
+        // k x k rays per pixel of the same camera for a supersampled model.
+        let k = model.config.supersample;
+        let rays: Vec<Ray> = if k > 1 {
+            let cam = test_camera(8);
+            let mut out = Vec::new();
+            for p in 0..64u32 {
+                let bounds = (2.0, 6.0);
+                let (x, y) = (p % 8, p / 8);
+                mipnerf_core::data::push_camera_rays(
+                    &cam,
+                    x,
+                    y,
+                    PixelCenters::Centered,
+                    bounds,
+                    1.0,
+                    None,
+                    k,
+                    &mut out,
+                );
+            }
+            out
+        } else {
+            rays.clone()
+        };
         let mut cpu_grads = vec![0.0; model.num_params];
         let cpu = model.loss_and_grad(&params, &rays, &targets, mode, &mut cpu_grads);
         let (g_stats, g_grads) = gpu.loss_and_grad(&ctx, &model, &params, &rays, &targets, mode).unwrap();

@@ -14,7 +14,7 @@ pub const SOURCE: &str = include_str!("../../../../shaders/batch.wgsl");
 /// Pixel buffers a dataset may span (bindings of `batch.wgsl`).
 pub const PIXEL_SLOTS: usize = 4;
 
-/// The uniform block of `batch.wgsl` (`struct Params`), 48 bytes.
+/// The uniform block of `batch.wgsl` (`struct Params`), 64 bytes.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct BatchParams {
@@ -42,6 +42,12 @@ pub struct BatchParams {
     pub ndc_fx: f32,
     /// NDC: `2 focal / height`.
     pub ndc_fy: f32,
+    /// Rays per pixel side (supersampled NeRF).
+    pub supersample: u32,
+    /// The pixel-centre offset in each view's `dir0`.
+    pub centre_offset: f32,
+    /// Padding.
+    pub _pad: [u32; 2],
 }
 
 /// One view's camera as `batch.wgsl` reads it (`struct View`), 80 bytes.
@@ -107,6 +113,7 @@ pub struct DeviceImages {
     format: PixelFormat,
     white_bkgd: bool,
     ndc: Option<Ndc>,
+    centre_offset: f32,
     /// Device bytes of the pixel buffers.
     pub pixel_bytes: u64,
 }
@@ -201,6 +208,7 @@ impl DeviceImages {
             format,
             white_bkgd: ds.white_bkgd,
             ndc: ds.ndc,
+            centre_offset: ds.centers.offset() as f32,
             pixel_bytes: used.iter().sum(),
         })
     }
@@ -208,12 +216,10 @@ impl DeviceImages {
     /// The camera of one image to render (no pixels).
     ///
     /// # Errors
-    /// [`GpuError::InvalidInput`] for supersampled images, which the GPU does not render.
+    /// [`GpuError::InvalidInput`] for a supersampled NDC image (not defined).
     pub fn camera_only(ctx: &GpuContext, image: &ImageSpec) -> Result<Self, GpuError> {
-        if image.supersample != 1 {
-            return Err(GpuError::InvalidInput(
-                "the GPU backend does not render supersampled images yet; use --backend cpu".into(),
-            ));
+        if image.supersample > 1 && image.ndc.is_some() {
+            return Err(GpuError::InvalidInput(mipnerf_core::backend::NDC_SUPERSAMPLE.into()));
         }
         let total = image.pixels() as u64;
         let total_u32 = u32::try_from(total).map_err(|_| too_large("the image"))?;
@@ -228,6 +234,7 @@ impl DeviceImages {
             format: PixelFormat::None,
             white_bkgd: false,
             ndc: image.ndc,
+            centre_offset: image.centers.offset() as f32,
             pixel_bytes: 0,
         })
     }
@@ -281,7 +288,8 @@ impl BatchKernel {
     }
 
     /// Records the making of `out.n_rays` rays from `images` (with targets when the images have
-    /// pixels) and of the loss's denominator (lossmult-weighted when `area_loss`).
+    /// pixels), `supersample²` consecutive rays per pixel, and of the loss's denominator
+    /// (lossmult-weighted when `area_loss`).
     ///
     /// # Errors
     /// [`GpuError::InvalidInput`] for a sequential start past the last pixel, or a grid too large.
@@ -292,9 +300,17 @@ impl BatchKernel {
         images: &DeviceImages,
         draw: Draw,
         area_loss: bool,
+        supersample: usize,
         out: &RayBatch,
     ) -> Result<(), GpuError> {
         let n = out.n_rays as u32;
+        let k = supersample.max(1) as u32;
+        if !n.is_multiple_of(k * k) || (k > 1 && images.ndc.is_some()) {
+            return Err(GpuError::InvalidInput(format!(
+                "{n} rays for pixels of {k}x{k} rays{}",
+                if images.ndc.is_some() { " in NDC" } else { "" }
+            )));
+        }
         let (sequential, first, key) = match draw {
             Draw::Random { seed, step } => (0, 0, RayRng::new(seed, step, Stream::RayBatch, 0).key()),
             Draw::Sequential { first } => {
@@ -318,6 +334,9 @@ impl BatchKernel {
             groups_x: gx,
             ndc_fx: images.ndc.map_or(0.0, |n| (2.0 * f64::from(n.focal) / f64::from(n.width)) as f32),
             ndc_fy: images.ndc.map_or(0.0, |n| (2.0 * f64::from(n.focal) / f64::from(n.height)) as f32),
+            supersample: k,
+            centre_offset: images.centre_offset,
+            _pad: [0; 2],
         };
         let [p0, p1, p2, p3] = &images.pixels;
         let bufs = [

@@ -41,8 +41,8 @@ pub struct RenderParams {
     pub step: u32,
     /// Level (density noise).
     pub level: u32,
-    /// Padding.
-    pub _pad: u32,
+    /// Rays per pixel side (supersampled NeRF); 1: one ray per pixel.
+    pub supersample: u32,
 }
 
 impl RenderParams {
@@ -68,7 +68,7 @@ impl RenderParams {
             seed: 0,
             step: 0,
             level: 0,
-            _pad: 0,
+            supersample: cfg.supersample as u32,
         }
     }
 
@@ -108,10 +108,11 @@ pub struct RenderBuffers<'a> {
     pub norm: &'a wgpu::Buffer,
 }
 
-/// The compiled render pipeline.
+/// The compiled render pipelines: `main` (per ray) and `pixel_backward` (supersampling).
 #[derive(Debug)]
 pub struct RenderKernel {
     pipeline: wgpu::ComputePipeline,
+    pixel_backward: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
 }
 
@@ -122,14 +123,20 @@ impl RenderKernel {
     /// If the device rejects it.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
         let read_only = [true, true, true, true, true, false, false, false, false, true];
-        let (pipeline, layout) = kernels::build(ctx, "render", SOURCE, &read_only)?;
-        Ok(Self { pipeline, layout })
+        let layout = kernels::storage_layout(ctx, "render", &read_only);
+        let pipeline = kernels::compute_pipeline(ctx, "render", SOURCE, &layout);
+        let pixel_backward =
+            kernels::compute_pipeline_entry(ctx, "render pixel_backward", SOURCE, "pixel_backward", &layout);
+        ctx.check()?;
+        Ok(Self { pipeline, pixel_backward, layout })
     }
 
-    /// Records one pass over `params.n_rays` rays.
+    /// Records one pass over `params.n_rays` rays; with supersampling, also the per-pixel loss
+    /// (and in training its gradient) of `pixel_backward`.
     ///
     /// # Errors
-    /// [`GpuError::InvalidInput`] for a grid too large for one dispatch.
+    /// [`GpuError::InvalidInput`] for a grid too large for one dispatch, or rays that are not a
+    /// whole number of pixels.
     pub fn encode(
         &self,
         ctx: &GpuContext,
@@ -137,6 +144,10 @@ impl RenderKernel {
         mut params: RenderParams,
         b: &RenderBuffers<'_>,
     ) -> Result<(), GpuError> {
+        let kk = params.supersample.max(1).pow(2);
+        if !params.n_rays.is_multiple_of(kk) {
+            return Err(GpuError::InvalidInput(format!("{} rays in pixels of {kk} rays", params.n_rays)));
+        }
         let (gx, gy) = kernels::dispatch_grid(u64::from(params.n_rays), 64)?;
         params.groups_x = gx;
         let bufs = [
@@ -152,6 +163,18 @@ impl RenderKernel {
             b.norm,
         ];
         kernels::dispatch(ctx, enc, "render", &self.pipeline, &self.layout, &params, &bufs, (gx, gy, 1));
+        if kk > 1 {
+            kernels::dispatch(
+                ctx,
+                enc,
+                "render pixels",
+                &self.pixel_backward,
+                &self.layout,
+                &params,
+                &bufs,
+                (gx, gy, 1),
+            );
+        }
         Ok(())
     }
 }
