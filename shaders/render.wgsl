@@ -34,6 +34,12 @@ struct Params {
     // Rays per pixel side (supersampled NeRF). Above 1, `main` only renders; the loss is the
     // pixel's (the mean of its k x k rays' colours), computed with its gradient by `pixel_backward`.
     supersample: u32,
+    // Index of the first ray in the step's batch (the batch may run in chunks): random streams
+    // are per batch ray.
+    first_ray: u32,
+    _pad0b: u32,
+    _pad1b: u32,
+    _pad2b: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -96,7 +102,7 @@ fn density_derivative(raw: f32) -> f32 {
 
 // The key of ray r's density noise (Stream::DensityNoise is 3; stream ray * 8 + level).
 fn density_noise_key(r: u32) -> u32 {
-    return pcg_hash(p.seed ^ pcg_hash(p.step ^ pcg_hash(3u ^ pcg_hash(r * 8u + p.level))));
+    return pcg_hash(p.seed ^ pcg_hash(p.step ^ pcg_hash(3u ^ pcg_hash((p.first_ray + r) * 8u + p.level))));
 }
 
 // Raw density of sample k (sample i of its ray), with the training noise when there is any.

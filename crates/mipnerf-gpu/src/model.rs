@@ -27,6 +27,9 @@ pub struct RayBatch {
     /// Rays the next pass makes or reads (at most [`capacity`](Self::capacity)).
     pub n_rays: usize,
     capacity: usize,
+    /// Index of this batch's first ray in the step's batch, when a step runs in chunks: the
+    /// random numbers of sampling and density noise are drawn per batch ray.
+    pub first_ray: u32,
     /// Two vec4 per ray: (origin, radius), (direction, lossmult).
     pub rays: wgpu::Buffer,
     /// (near, far) per ray.
@@ -47,6 +50,7 @@ impl RayBatch {
         Self {
             n_rays,
             capacity: n_rays,
+            first_ray: 0,
             rays: nan("batch rays", n_rays * 8),
             bounds: nan("batch bounds", n_rays * 2),
             viewdirs: nan("batch view directions", n_rays * 3),
@@ -87,6 +91,7 @@ impl RayBatch {
         Ok(Self {
             n_rays: rays.len(),
             capacity: rays.len(),
+            first_ray: 0,
             rays: ctx.storage_buffer("batch rays", &packed, true),
             bounds: ctx.storage_buffer("batch bounds", &bounds, true),
             viewdirs: ctx.storage_buffer("batch view directions", &viewdirs, true),
@@ -290,7 +295,7 @@ impl GpuModel {
                 randomized: u32::from(randomized),
                 seed,
                 step,
-                first_ray: 0,
+                first_ray: batch.first_ray,
                 level: level as u32,
                 resample_padding: c.resample_padding,
                 ..SampleParams::default()
@@ -332,6 +337,7 @@ impl GpuModel {
                 norm: &batch.norm,
             };
             let mut rp = RenderParams::new(c, nr, level_w[level], grads.is_some());
+            rp.first_ray = batch.first_ray;
             if randomized && c.density_noise > 0.0 {
                 rp = rp.with_density_noise(c.density_noise, seed, step, level as u32);
             }
@@ -343,8 +349,9 @@ impl GpuModel {
         Ok(())
     }
 
-    /// The losses of the last batch recorded with [`encode`](Self::encode), read back (waits for
-    /// the device).
+    /// The losses of the last batch recorded with [`encode`](Self::encode), read back from
+    /// `ray_out` (one buffer per level, `n_rays x 8` floats: `ModelBuffers::ray_out`, or where a
+    /// chunked step gathered them) and the batch's denominator (waits for the device).
     ///
     /// # Errors
     /// Any error wgpu reports.
@@ -353,14 +360,14 @@ impl GpuModel {
         ctx: &GpuContext,
         model: &Model,
         batch: &RayBatch,
-        work: &ModelBuffers,
+        ray_out: &[wgpu::Buffer],
     ) -> Result<LossStats, GpuError> {
         let nr = batch.n_rays;
         let pixels = nr / model.rays_per_pixel();
         let norm = f64::from(ctx.read_f32(&batch.norm, 1)?[0]);
         let mut losses = Vec::new();
         let mut mse = Vec::new();
-        for out in &work.ray_out {
+        for out in ray_out {
             let v = ctx.read_f32(out, nr * 8)?;
             let (lm_se, se): (f64, f64) =
                 v.chunks(8).fold((0.0, 0.0), |acc, o| (acc.0 + f64::from(o[5]), acc.1 + f64::from(o[6])));
@@ -443,6 +450,6 @@ impl GpuModel {
         self.encode(ctx, &mut enc, model, &params_buf, &batch, &work, mode, Some(&grads))?;
         ctx.queue.submit([enc.finish()]);
         let g = ctx.read_f32(&grads, model.num_params)?;
-        Ok((self.read_losses(ctx, model, &batch, &work)?, g))
+        Ok((self.read_losses(ctx, model, &batch, &work.ray_out)?, g))
     }
 }

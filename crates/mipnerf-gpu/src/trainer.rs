@@ -4,7 +4,10 @@
 //! moments. Each training step is one command buffer: the batch is drawn on the device
 //! (`batch.wgsl`, the CPU's pixels for the same seed and step), both levels run forward and
 //! backward ([`GpuModel`]), and Adam updates the parameters (`adam.wgsl`). Nothing is read back
-//! unless the caller asks for the step's losses; checkpoints read the parameters and moments.
+//! unless the caller asks for the step's losses; checkpoints read the parameters and moments. A
+//! batch whose intermediates would exceed one device binding or [`TRAIN_BUDGET_BYTES`] runs in
+//! chunks within the step (gradients add up; random numbers are drawn per batch ray), so the
+//! step is the same whatever the device's limits.
 //!
 //! Rendering runs an image in chunks of a fixed number of rays through buffers that are reused
 //! from chunk to chunk, so the device memory it takes is set by the chunk size, not the image.
@@ -38,12 +41,21 @@ impl From<GpuError> for BackendError {
     }
 }
 
+/// Device memory the model's training buffers may take when the chunk size is chosen
+/// automatically; a larger batch runs in chunks (the gradients add up, so the step is the same).
+pub const TRAIN_BUDGET_BYTES: u64 = 2 << 30;
+
 /// The training data on the device, with the buffers of one batch.
 #[derive(Debug)]
 struct TrainData {
     images: DeviceImages,
+    /// The whole batch, as `batch.wgsl` makes it.
     batch: RayBatch,
+    /// The model's buffers, for one chunk of the batch.
     work: ModelBuffers,
+    /// When the batch runs in chunks: each chunk's rays, copied from `batch`, and every level's
+    /// per-ray outputs gathered over the chunks (for the losses).
+    chunks: Option<(RayBatch, Vec<wgpu::Buffer>)>,
 }
 
 /// Training and rendering on a wgpu device. See the [module docs](self).
@@ -98,12 +110,28 @@ impl GpuBackend {
     }
 
     /// Uploads the training images and cameras of `ds` and the buffers of batches of
-    /// `batch_rays` pixels (`Model::rays_per_pixel` rays each).
+    /// `batch_rays` pixels (`Model::rays_per_pixel` rays each). A batch whose buffers would not
+    /// fit one device binding or [`TRAIN_BUDGET_BYTES`] runs in chunks.
     ///
     /// # Errors
     /// [`GpuError::InvalidInput`] for data that does not fit the device, or supersampling with
     /// forward-facing (NDC) data; device errors.
-    pub fn with_data(mut self, ds: &Dataset, batch_rays: usize) -> Result<Self, GpuError> {
+    pub fn with_data(self, ds: &Dataset, batch_rays: usize) -> Result<Self, GpuError> {
+        let model = &self.model;
+        let limits = self.ctx.device.limits();
+        let bind = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
+        let by_binding = bind / ModelBuffers::largest_buffer_bytes_per_ray(model).max(1);
+        let by_budget = TRAIN_BUDGET_BYTES / ModelBuffers::bytes_per_ray(model).max(1);
+        let chunk = by_binding.min(by_budget).max(1) as usize;
+        self.with_data_in_chunks(ds, batch_rays, chunk)
+    }
+
+    /// [`with_data`](Self::with_data) running each batch in chunks of at most `chunk_rays` rays
+    /// (rounded down to whole pixels, at least one).
+    ///
+    /// # Errors
+    /// As [`with_data`](Self::with_data).
+    pub fn with_data_in_chunks(mut self, ds: &Dataset, batch_rays: usize, chunk_rays: usize) -> Result<Self, GpuError> {
         if batch_rays == 0 {
             return Err(GpuError::InvalidInput("a batch needs at least one ray".into()));
         }
@@ -112,11 +140,22 @@ impl GpuBackend {
         }
         let images = DeviceImages::upload(&self.ctx, ds)?;
         // Each pixel is `rays_per_pixel` rays.
-        let n_rays = batch_rays * self.model.rays_per_pixel();
-        let work = ModelBuffers::new(&self.ctx, &self.model, n_rays)?;
+        let rpp = self.model.rays_per_pixel();
+        let n_rays = batch_rays * rpp;
+        let chunk = (chunk_rays / rpp).max(1) * rpp;
         let batch = RayBatch::new(&self.ctx, n_rays);
+        let (work, chunks) = if chunk >= n_rays {
+            (ModelBuffers::new(&self.ctx, &self.model, n_rays)?, None)
+        } else {
+            let outs = (0..self.model.config.num_levels)
+                .map(|l| {
+                    self.ctx.storage_buffer(&format!("batch ray outputs level {l}"), &vec![f32::NAN; n_rays * 8], true)
+                })
+                .collect();
+            (ModelBuffers::new(&self.ctx, &self.model, chunk)?, Some((RayBatch::new(&self.ctx, chunk), outs)))
+        };
         self.ctx.check()?;
-        self.train = Some(TrainData { images, batch, work });
+        self.train = Some(TrainData { images, batch, work, chunks });
         Ok(self)
     }
 
@@ -163,7 +202,7 @@ impl GpuBackend {
     }
 
     fn run_step(&mut self, report: bool) -> Result<Option<StepReport>, GpuError> {
-        let data = self.train.as_ref().ok_or_else(|| GpuError::InvalidInput("no training data".into()))?;
+        let data = self.train.as_mut().ok_or_else(|| GpuError::InvalidInput("no training data".into()))?;
         let ctx = &self.ctx;
         let step = self.step;
         let mode = Mode::Train { seed: self.seed, step: step as u32 };
@@ -173,16 +212,54 @@ impl GpuBackend {
         let draw = Draw::Random { seed: self.seed, step: step as u32 };
         let (area_loss, k) = (self.model.config.area_loss, self.model.config.supersample);
         self.batch_kernel.encode(ctx, &mut enc, &data.images, draw, area_loss, k, &data.batch)?;
-        self.kernels.encode(
-            ctx,
-            &mut enc,
-            &self.model,
-            &self.state.params,
-            &data.batch,
-            &data.work,
-            mode,
-            Some(&self.state.grads),
-        )?;
+        let grads = Some(&self.state.grads);
+        match &mut data.chunks {
+            None => self.kernels.encode(
+                ctx,
+                &mut enc,
+                &self.model,
+                &self.state.params,
+                &data.batch,
+                &data.work,
+                mode,
+                grads,
+            )?,
+            Some((sub, outs)) => {
+                // Each chunk's rays are copied out of the batch; the gradients add up in `grads`.
+                let n = data.batch.n_rays;
+                let chunk = sub.capacity();
+                for first in (0..n).step_by(chunk) {
+                    let m = chunk.min(n - first);
+                    let b = &data.batch;
+                    for (src, dst, floats) in [
+                        (&b.rays, &sub.rays, 8),
+                        (&b.bounds, &sub.bounds, 2),
+                        (&b.viewdirs, &sub.viewdirs, 3),
+                        (&b.targets, &sub.targets, 4),
+                    ] {
+                        let per_ray = floats * 4;
+                        enc.copy_buffer_to_buffer(src, (first * per_ray) as u64, dst, 0, (m * per_ray) as u64);
+                    }
+                    enc.copy_buffer_to_buffer(&b.norm, 0, &sub.norm, 0, 4);
+                    sub.set_active(m)?;
+                    sub.first_ray = first as u32;
+                    data.work.set_active(m)?;
+                    self.kernels.encode(
+                        ctx,
+                        &mut enc,
+                        &self.model,
+                        &self.state.params,
+                        sub,
+                        &data.work,
+                        mode,
+                        grads,
+                    )?;
+                    for (src, dst) in data.work.ray_out.iter().zip(outs.iter()) {
+                        enc.copy_buffer_to_buffer(src, 0, dst, (first * 32) as u64, (m * 32) as u64);
+                    }
+                }
+            }
+        }
         let adam = AdamStep {
             cfg: self.optim.adam,
             t: self.adam_t + 1,
@@ -206,7 +283,8 @@ impl GpuBackend {
             return Ok(None);
         }
         self.in_flight = 0;
-        let stats = self.kernels.read_losses(ctx, &self.model, &data.batch, &data.work)?;
+        let ray_out = data.chunks.as_ref().map_or(&data.work.ray_out, |(_, outs)| outs);
+        let stats = self.kernels.read_losses(ctx, &self.model, &data.batch, ray_out)?;
         let grad_norm =
             if self.optim.grad_max_norm > 0.0 { Some(ctx.read_f32(&self.state.stats, 1)?[0]) } else { None };
         Ok(Some(StepReport { step, lr, stats, grad_norm }))

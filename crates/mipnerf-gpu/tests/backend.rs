@@ -326,6 +326,37 @@ fn chunked_gpu_render_matches_cpu_with_bounded_memory() {
 }
 
 #[test]
+fn a_batch_run_in_chunks_trains_as_the_cpu() {
+    let Some(ctx) = context_or_skip("a_batch_run_in_chunks_trains_as_the_cpu") else { return };
+    let ds = Arc::new(lego_tiny());
+    // Density noise draws per batch ray, so the chunks must know where they sit in the batch.
+    let model = Model::new(ModelConfig { num_samples: 16, density_noise: 0.5, ..Preset::Tiny.config() }).unwrap();
+    let (seed, batch, steps) = (4u32, 64usize, 8u64);
+    let optim = OptimConfig::default();
+    let state = TrainState::fresh(&model, seed);
+    let mut cpu =
+        CpuBackend::new(model.clone(), optim.clone(), seed, state.clone()).unwrap().with_data(Arc::clone(&ds), batch);
+    // 64 rays in chunks of 24, 24 and 16.
+    let mut gpu = GpuBackend::new(ctx, model, optim, seed, state).unwrap().with_data_in_chunks(&ds, batch, 24).unwrap();
+    let mut bad = Vec::new();
+    for step in 0..steps {
+        let c = cpu.train_step(true).unwrap().unwrap();
+        let g = gpu.train_step(true).unwrap().unwrap();
+        for (what, gv, cv) in [("loss", g.stats.loss, c.stats.loss), ("fine mse", g.stats.mse[1], c.stats.mse[1])] {
+            let rel = (gv - cv).abs() / cv.abs();
+            if rel.is_nan() || rel > TOL_LOSS_CURVE_REL {
+                bad.push(format!("step {step} {what}: gpu {gv} cpu {cv} (relative {rel:e})"));
+            }
+        }
+    }
+    assert_none(&bad);
+    let (ck_c, ck_g) = (cpu.checkpoint().unwrap(), gpu.checkpoint().unwrap());
+    let worst = ck_c.params.iter().zip(&ck_g.params).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+    // Eight Adam steps of 5e-4 move a parameter by at most 4e-3; rounding moves it by far less.
+    assert!(worst < 1e-4, "parameters after {steps} chunked steps differ by {worst:e}");
+}
+
+#[test]
 fn supersampled_nerf_trains_and_renders_alike() {
     let Some(ctx) = context_or_skip("supersampled_nerf_trains_and_renders_alike") else { return };
     let ds = Arc::new(lego_tiny());

@@ -7,7 +7,7 @@ use crate::{GpuContext, GpuError, kernels};
 /// The WGSL source of this kernel.
 pub const SOURCE: &str = include_str!("../../../../shaders/render.wgsl");
 
-/// The uniform block of `render.wgsl` (`struct Params`), 64 bytes.
+/// The uniform block of `render.wgsl` (`struct Params`), 80 bytes.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct RenderParams {
@@ -43,6 +43,10 @@ pub struct RenderParams {
     pub level: u32,
     /// Rays per pixel side (supersampled NeRF); 1: one ray per pixel.
     pub supersample: u32,
+    /// Index of the first ray in the step's batch (density noise streams are per batch ray).
+    pub first_ray: u32,
+    /// Padding.
+    pub _pad: [u32; 3],
 }
 
 impl RenderParams {
@@ -69,6 +73,8 @@ impl RenderParams {
             step: 0,
             level: 0,
             supersample: cfg.supersample as u32,
+            first_ray: 0,
+            _pad: [0; 3],
         }
     }
 
