@@ -343,7 +343,18 @@ fn auto_chunk(ctx: &GpuContext, model: &Model) -> usize {
 impl Backend for GpuBackend {
     fn describe(&self) -> String {
         let a = &self.ctx.adapter;
-        format!("GPU: {} ({}, {})", a.name, a.backend, a.device_type)
+        let mib = |b: u64| b as f64 / 1048576.0;
+        let mut s = format!("GPU: {} ({}, {})", a.name, a.backend, a.device_type);
+        if let Some(t) = &self.train {
+            let chunks =
+                t.chunks.as_ref().map_or(String::new(), |(sub, _)| format!(" in chunks of {} rays", sub.capacity()));
+            s += &format!(
+                "; on the device: {:.1} MiB of training images, {:.1} MiB of batch buffers{chunks}",
+                mib(t.images.pixel_bytes),
+                mib(t.work.bytes())
+            );
+        }
+        s
     }
 
     fn model(&self) -> &Model {
