@@ -197,6 +197,14 @@ fn device_ndc_batches_match_the_cpu() {
     }
     eprintln!("NDC batch: worst |ray - cpu| {worst_ray:e}, worst radius relative {worst_radius:e}");
     assert_none(&bad);
+    // A forward-facing view rendered by both backends (rays made on the device, in NDC).
+    let model = Model::new(ModelConfig { num_samples: 16, white_bkgd: false, ..Preset::Tiny.config() }).unwrap();
+    let state = TrainState::fresh(&model, 1);
+    let mut cpu = CpuBackend::new(model.clone(), OptimConfig::default(), 0, state.clone()).unwrap();
+    let mut gpu = GpuBackend::new(ctx, model, OptimConfig::default(), 0, state).unwrap().with_render_chunk(100);
+    let image = ImageSpec::of_view(&ds, 2, 1);
+    let psnr = psnr_between(&cpu.render_image(&image).unwrap(), &gpu.render_image(&image).unwrap());
+    assert!(psnr >= MIN_RENDER_AGREEMENT_PSNR, "CPU and GPU NDC renders differ: {psnr:.1} dB");
 }
 
 #[test]
