@@ -2,6 +2,9 @@
 // - relu_backward: g[i] = h[i] > 0 ? g[i] : 0 over `count` elements;
 // - col_sums: out[col] (+)= sum over rows of g[row, col] (the bias gradient), one invocation per
 //   column summing rows in order, so the result is deterministic;
+// - col_sums_partial: the first of two passes for tall matrices: per block of 256 rows and column,
+//   the block's sum in row order (col_sums then adds the blocks in order), so that a matrix of
+//   a million rows is summed by many invocations, not one per column;
 // - broadcast_rows: out[r * rep + i, :] = src[r, :] (a ray's view encoding to each of its samples).
 
 struct Params {
@@ -53,6 +56,24 @@ fn col_sums(@builtin(global_invocation_id) gid: vec3<u32>) {
         s = out[p.out_off + col] + s;
     }
     out[p.out_off + col] = s;
+}
+
+// x = gradient [rows x cols]; out = partial sums [ceil(rows / 256) x cols] from out_off.
+@compute @workgroup_size(64)
+fn col_sums_partial(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = flat_id(gid);
+    let blocks = (p.rows + 255u) / 256u;
+    if (i >= blocks * p.cols) {
+        return;
+    }
+    let col = i % p.cols;
+    let r0 = (i / p.cols) * 256u;
+    let r1 = min(r0 + 256u, p.rows);
+    var s = 0.0;
+    for (var r = r0; r < r1; r = r + 1u) {
+        s = s + x[p.x_off + r * p.cols + col];
+    }
+    out[p.out_off + i] = s;
 }
 
 // x = per-ray rows [rows x cols]; out = per-sample rows [rows * count x cols].

@@ -33,6 +33,7 @@ pub struct MlpBuffers {
     /// Raw densities, `n`.
     pub raw_density: wgpu::Buffer,
     grad: [wgpu::Buffer; 3],
+    col_scratch: wgpu::Buffer,
 }
 
 fn storage(ctx: &GpuContext, label: &str, len: usize) -> wgpu::Buffer {
@@ -61,6 +62,7 @@ impl MlpBuffers {
             raw_rgb: storage(ctx, "mlp raw rgb", n * 3),
             raw_density: storage(ctx, "mlp raw density", n),
             grad: std::array::from_fn(|i| storage(ctx, &format!("mlp gradient scratch {i}"), n * widest)),
+            col_scratch: storage(ctx, "mlp bias gradient partial sums", MlpAuxKernels::col_sums_scratch_len(n, widest)),
         }
     }
 
@@ -78,6 +80,7 @@ impl MlpBuffers {
         let all = [&self.x, &self.view, &self.view_b, &self.bottleneck, &self.raw_rgb, &self.raw_density];
         let mut b: u64 = all.iter().map(|x| x.size()).sum();
         b += self.trunk.iter().chain(&self.cond).chain(&self.grad).map(wgpu::Buffer::size).sum::<u64>();
+        b += self.col_scratch.size();
         b
     }
 
@@ -149,6 +152,7 @@ impl GpuMlp {
         n: usize,
         dz: &wgpu::Buffer,
         d_first: Option<(&wgpu::Buffer, bool)>,
+        col_scratch: &wgpu::Buffer,
     ) {
         let mut r0 = 0;
         for &(input, width) in parts {
@@ -157,7 +161,7 @@ impl GpuMlp {
             self.matmul.encode(ctx, enc, (width, n, l.fan_out), Operand::t(input, 0), Operand::new(dz, 0), c, epi);
             r0 += width;
         }
-        self.aux.col_sums(ctx, enc, (dz, 0), (grads, l.bias), n, l.fan_out, true);
+        self.aux.col_sums(ctx, enc, (dz, 0), (grads, l.bias), n, l.fan_out, true, col_scratch);
         if let Some((d, accumulate)) = d_first {
             let width = parts[0].1;
             let epi = Epilogue { accumulate, ..Epilogue::default() };
@@ -250,6 +254,7 @@ impl GpuMlp {
             n,
             d_raw_rgb,
             Some((&g[a], false)),
+            &bufs.col_scratch,
         );
         for j in (0..dc).rev() {
             self.aux.relu_backward(ctx, enc, (&bufs.cond[j], 0), (&g[a], 0), n * wc);
@@ -264,30 +269,86 @@ impl GpuMlp {
                     n,
                     &g[a],
                     Some((&g[b], false)),
+                    &bufs.col_scratch,
                 );
                 std::mem::swap(&mut a, &mut b);
             } else {
                 let parts = [(&bufs.bottleneck, w), (&bufs.view_b, c.view_dim)];
-                self.dense_backward(ctx, enc, params, grads, &ls[d + 2], &parts, n, &g[a], Some((&g[b], false)));
+                self.dense_backward(
+                    ctx,
+                    enc,
+                    params,
+                    grads,
+                    &ls[d + 2],
+                    &parts,
+                    n,
+                    &g[a],
+                    Some((&g[b], false)),
+                    &bufs.col_scratch,
+                );
             }
         }
         // g[b] = d bottleneck; heads read the top parts; their input gradient goes to g[z].
         let z = 3 - a - b;
         let top = self.top_parts(shape, bufs);
-        self.dense_backward(ctx, enc, params, grads, &ls[d + 1], &top, n, &g[b], Some((&g[z], false)));
-        self.dense_backward(ctx, enc, params, grads, &ls[d], &top, n, d_raw_density, Some((&g[z], true)));
+        self.dense_backward(
+            ctx,
+            enc,
+            params,
+            grads,
+            &ls[d + 1],
+            &top,
+            n,
+            &g[b],
+            Some((&g[z], false)),
+            &bufs.col_scratch,
+        );
+        self.dense_backward(
+            ctx,
+            enc,
+            params,
+            grads,
+            &ls[d],
+            &top,
+            n,
+            d_raw_density,
+            Some((&g[z], true)),
+            &bufs.col_scratch,
+        );
         let (mut cur, mut other) = (z, a);
         for i in (0..d).rev() {
             self.aux.relu_backward(ctx, enc, (&bufs.trunk[i], 0), (&g[cur], 0), n * w);
             if i == 0 {
-                self.dense_backward(ctx, enc, params, grads, &ls[0], &[(&bufs.x, c.x_dim)], n, &g[cur], None);
+                self.dense_backward(
+                    ctx,
+                    enc,
+                    params,
+                    grads,
+                    &ls[0],
+                    &[(&bufs.x, c.x_dim)],
+                    n,
+                    &g[cur],
+                    None,
+                    &bufs.col_scratch,
+                );
             } else {
                 let parts: Vec<Part<'_>> = if shape.concat_after(i - 1) {
                     vec![(&bufs.trunk[i - 1], w), (&bufs.x, c.x_dim)]
                 } else {
                     vec![(&bufs.trunk[i - 1], w)]
                 };
-                self.dense_backward(ctx, enc, params, grads, &ls[i], &parts, n, &g[cur], Some((&g[other], false)));
+                self.dense_backward(
+                    ctx,
+                    enc,
+                    params,
+                    grads,
+                    &ls[i],
+                    &parts,
+                    n,
+                    &g[cur],
+                    Some((&g[other], false)),
+                    &bufs.col_scratch,
+                );
                 std::mem::swap(&mut cur, &mut other);
             }
         }

@@ -202,7 +202,8 @@ impl ModelBuffers {
             + 1
             + 3
             + 1;
-        let per_ray = s * per_sample + c.view_dim + cfg.num_levels * (s + 1 + 8);
+        // The bias gradients' partial sums: one row of `widest` per 256 samples.
+        let per_ray = s * per_sample + c.view_dim + cfg.num_levels * (s + 1 + 8) + (s * widest).div_ceil(256);
         per_ray as u64 * 4
     }
 

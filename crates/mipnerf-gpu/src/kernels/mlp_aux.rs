@@ -32,6 +32,7 @@ pub struct AuxParams {
 pub struct MlpAuxKernels {
     relu_backward: wgpu::ComputePipeline,
     col_sums: wgpu::ComputePipeline,
+    col_sums_partial: wgpu::ComputePipeline,
     broadcast_rows: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
 }
@@ -47,6 +48,7 @@ impl MlpAuxKernels {
         let s = Self {
             relu_backward: p("relu_backward"),
             col_sums: p("col_sums"),
+            col_sums_partial: p("col_sums_partial"),
             broadcast_rows: p("broadcast_rows"),
             layout,
         };
@@ -83,7 +85,19 @@ impl MlpAuxKernels {
         self.run(ctx, enc, &self.relu_backward, count, params, h.0, g.0);
     }
 
-    /// `out[col] (+)= sum over rows of x[row, col]`.
+    /// Rows summed per block by the first pass of [`col_sums`](Self::col_sums).
+    pub const BLOCK_ROWS: usize = 256;
+
+    /// Floats of scratch [`col_sums`](Self::col_sums) needs for `rows x cols`.
+    #[must_use]
+    pub fn col_sums_scratch_len(rows: usize, cols: usize) -> usize {
+        rows.div_ceil(Self::BLOCK_ROWS) * cols
+    }
+
+    /// `out[col] (+)= sum over rows of x[row, col]`, in a fixed order: for more than
+    /// [`BLOCK_ROWS`](Self::BLOCK_ROWS) rows, blocks of rows are summed first (into `scratch`,
+    /// [`col_sums_scratch_len`](Self::col_sums_scratch_len) floats), then the blocks.
+    #[allow(clippy::too_many_arguments)]
     pub fn col_sums(
         &self,
         ctx: &GpuContext,
@@ -93,7 +107,22 @@ impl MlpAuxKernels {
         rows: usize,
         cols: usize,
         accumulate: bool,
+        scratch: &wgpu::Buffer,
     ) {
+        let (x, rows) = if rows > Self::BLOCK_ROWS {
+            let params = AuxParams {
+                rows: rows as u32,
+                cols: cols as u32,
+                x_off: x.1 as u32,
+                out_off: 0,
+                ..AuxParams::default()
+            };
+            let items = Self::col_sums_scratch_len(rows, cols);
+            self.run(ctx, enc, &self.col_sums_partial, items, params, x.0, scratch);
+            ((scratch, 0), rows.div_ceil(Self::BLOCK_ROWS))
+        } else {
+            (x, rows)
+        };
         let params = AuxParams {
             rows: rows as u32,
             cols: cols as u32,
