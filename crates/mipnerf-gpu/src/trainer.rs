@@ -32,18 +32,18 @@ pub const MAX_RENDER_CHUNK: usize = 16 * 1024;
 /// Training steps submitted before the host waits for the device (bounds the queued work).
 pub const MAX_STEPS_IN_FLIGHT: u32 = 8;
 
+/// Device memory the model's training buffers may take when the chunk size is chosen
+/// automatically; a larger batch runs in chunks (the gradients add up, so the step is the same).
+pub const TRAIN_BUDGET_BYTES: u64 = 2 << 30;
+
 impl From<GpuError> for BackendError {
     fn from(e: GpuError) -> Self {
         match e {
-            GpuError::InvalidInput(m) => Self::Unsupported(m),
+            GpuError::InvalidInput(m) => Self::Invalid(m),
             other => Self::Device(other.to_string()),
         }
     }
 }
-
-/// Device memory the model's training buffers may take when the chunk size is chosen
-/// automatically; a larger batch runs in chunks (the gradients add up, so the step is the same).
-pub const TRAIN_BUDGET_BYTES: u64 = 2 << 30;
 
 /// The training data on the device, with the buffers of one batch.
 #[derive(Debug)]
