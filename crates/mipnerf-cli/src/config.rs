@@ -47,6 +47,18 @@ pub enum PresetArg {
     Paper,
 }
 
+impl PresetArg {
+    /// The model size this names.
+    #[must_use]
+    pub fn preset(self) -> Preset {
+        match self {
+            Self::Tiny => Preset::Tiny,
+            Self::Small => Preset::Small,
+            Self::Paper => Preset::Paper,
+        }
+    }
+}
+
 /// Every training setting. In a `--config` TOML file the keys are these field names
 /// (e.g. `steps = 5000`, `ipe = false`); every key is optional.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -219,11 +231,7 @@ impl TrainSettings {
     /// # Errors
     /// Out-of-range values.
     pub fn model_config(&self) -> Result<ModelConfig> {
-        let preset = match self.preset.unwrap_or(PresetArg::Tiny) {
-            PresetArg::Tiny => Preset::Tiny,
-            PresetArg::Small => Preset::Small,
-            PresetArg::Paper => Preset::Paper,
-        };
+        let preset = self.preset.unwrap_or(PresetArg::Tiny).preset();
         let mut m = preset.config();
         if self.model == Some(ModelKind::Nerf) {
             m = m.nerf();

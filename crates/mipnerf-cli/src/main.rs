@@ -2,6 +2,7 @@
 //! fields (Mip-NeRF) on the CPU or a GPU.
 
 mod backend;
+mod bench;
 mod check;
 mod config;
 mod eval;
@@ -29,6 +30,7 @@ const EXAMPLES: &str = "Examples:
   mipnerf eval --run runs/lego
   mipnerf render --run runs/lego --out renders --path orbit --frames 60 --width 400 --height 400
   mipnerf convert --input nerf_synthetic/lego --output lego_multiscale
+  mipnerf bench --preset paper --backend both                  # training and rendering speed here
   mipnerf info";
 
 /// Anti-aliased neural radiance fields (Mip-NeRF, Barron et al. 2021) on the CPU and, through
@@ -108,6 +110,25 @@ enum Command {
         /// present, else the CPU).
         #[arg(long, value_enum, default_value_t = Backend::Auto)]
         backend: Backend,
+    },
+    /// Measure training samples/s and rendering rays/s of the backends on this machine, on a
+    /// synthetic dataset in memory; prints a markdown table.
+    Bench {
+        /// Which backends.
+        #[arg(long, value_enum, default_value_t = bench::BenchBackends::Both)]
+        backend: bench::BenchBackends,
+        /// Model size.
+        #[arg(long, value_enum, default_value_t = PresetArg::Tiny)]
+        preset: PresetArg,
+        /// Rays (pixels) per training batch.
+        #[arg(long, default_value_t = 1024)]
+        batch_rays: usize,
+        /// Timed training steps (after two untimed ones).
+        #[arg(long, default_value_t = 10)]
+        steps: usize,
+        /// Side of the rendered square image, in pixels.
+        #[arg(long, default_value_t = 64)]
+        render_side: u32,
     },
     /// Convert a Blender scene into the multiscale format (4 scales, metadata.json), exactly as
     /// the official convert_blender_data.py.
@@ -312,6 +333,9 @@ fn main() -> std::process::ExitCode {
             };
             render::render(&run, &out, target, width.zip(height), backend)
                 .map(|files| println!("wrote {} files to {}", files.len(), out.display()))
+        }
+        Command::Bench { backend, preset, batch_rays, steps, render_side } => {
+            bench::bench(&bench::BenchArgs { backends: backend, preset, batch: batch_rays, steps, render_side })
         }
         Command::Convert { input, output } => data::multiscale::convert(&input, &output)
             .map(|splits| println!("converted {splits:?} into {}", output.display()))

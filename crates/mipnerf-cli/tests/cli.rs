@@ -292,3 +292,20 @@ fn the_gpu_backend_trains_resumes_on_the_cpu_evaluates_and_renders() {
     let img = image::open(out.join("000_d0.png")).unwrap();
     assert_eq!((img.width(), img.height()), (24, 20));
 }
+
+#[test]
+fn bench_prints_throughput_of_each_backend() {
+    let both = mipnerf_gpu::test_support::context_or_skip("bench_prints_throughput_of_each_backend (GPU row)").is_some();
+    let which = if both { "both" } else { "cpu" };
+    let text = run_ok(&["bench", "--backend", which, "--batch-rays", "16", "--steps", "1", "--render-side", "8"]);
+    let rows: Vec<&str> = text.lines().filter(|l| l.starts_with("| CPU") || l.starts_with("| GPU")).collect();
+    assert_eq!(rows.len(), if both { 2 } else { 1 }, "{text}");
+    for row in rows {
+        let cells: Vec<&str> = row.split('|').map(str::trim).filter(|c| !c.is_empty()).collect();
+        let numbers: Vec<f64> = cells[1..].iter().map(|c| c.parse().unwrap()).collect();
+        assert!(numbers.len() == 3 && numbers.iter().all(|&x| x > 0.0), "{row}");
+    }
+    let bad = mipnerf(&["bench", "--steps", "0"]);
+    assert_eq!(bad.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("--steps"));
+}

@@ -1,9 +1,14 @@
 //! Throughput measurements shared by `mipnerf bench` and `cargo bench`: CPU training steps in
-//! samples per second, and the machine's sgemm rate for reference.
+//! samples per second, the machine's sgemm rate for reference, and any [`Backend`]'s training
+//! samples and rendering rays per second.
 
 use std::time::Instant;
 
+use std::path::{Path, PathBuf};
+
+use crate::backend::{Backend, BackendError, ImageSpec};
 use crate::camera::{Camera, PixelCenters, Ray};
+use crate::data::{Dataset, Pixels, Split, View, demo};
 use crate::linalg::{Layout, matmul};
 use crate::model::{Model, ModelConfig};
 use crate::train::{OptimConfig, Trainer};
@@ -91,4 +96,99 @@ pub fn sgemm_gflops(m: usize, k: usize, n: usize, reps: usize) -> f64 {
         .collect();
     times.sort_by(f64::total_cmp);
     2.0 * (m * k * n) as f64 / times[times.len() / 2] / 1e9
+}
+
+/// A training set for throughput measurements: `views` views of `side x side` pixels around the
+/// demo scene's cameras, with pseudo-random RGBA8 pixels (throughput does not depend on them).
+///
+/// # Panics
+/// If `side` is 0 or `views` is 0.
+#[must_use]
+pub fn synthetic_dataset(views: usize, side: u32) -> Dataset {
+    let mut state = 1u32;
+    let views = demo::view_poses(views, 0.0)
+        .into_iter()
+        .enumerate()
+        .map(|(i, pose)| {
+            let camera = Camera::from_camera_angle_x(side, side, 0.69, pose).unwrap_or_else(|e| unreachable!("{e}"));
+            let bytes = (0..side * side * 4)
+                .map(|_| {
+                    state = crate::rng::pcg_hash(state);
+                    (state >> 24) as u8
+                })
+                .collect();
+            View {
+                file: PathBuf::from(format!("synthetic_{i}.png")),
+                camera,
+                pixels: Pixels::Rgba8(bytes),
+                near: 2.0,
+                far: 6.0,
+                lossmult: 1.0,
+                scale: 0,
+            }
+        })
+        .collect();
+    Dataset::new(Path::new("synthetic"), Split::Train, views, true).unwrap_or_else(|e| panic!("synthetic dataset: {e}"))
+}
+
+/// What one backend does per second.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct BackendThroughput {
+    /// The backend, as it describes itself.
+    pub backend: String,
+    /// Pixels per training batch.
+    pub batch: usize,
+    /// Mean milliseconds per training step.
+    pub ms_per_step: f64,
+    /// Training samples per second: rays x samples over all levels, per second.
+    pub samples_per_second: f64,
+    /// Rays rendered per second (evaluation mode, all levels).
+    pub render_rays_per_second: f64,
+}
+
+/// Times `steps` training steps of batches of `batch` pixels (after two untimed ones, which
+/// compile a device's shaders), reading the losses every 10th step as `mipnerf train` does, then
+/// the render of a `render_side x render_side` image (after a small untimed one). The backend
+/// must hold training data with `batch` pixels per batch.
+///
+/// # Errors
+/// The backend's errors.
+pub fn backend_throughput(
+    b: &mut dyn Backend,
+    batch: usize,
+    steps: usize,
+    render_side: u32,
+) -> Result<BackendThroughput, BackendError> {
+    let c = &b.model().config;
+    let rays_per_step = batch * c.supersample * c.supersample;
+    let samples_per_ray = c.num_samples * c.num_levels;
+    for _ in 0..2 {
+        b.train_step(true)?;
+    }
+    let steps = steps.max(1);
+    let t = Instant::now();
+    for i in 0..steps {
+        b.train_step(i % 10 == 9 || i + 1 == steps)?;
+    }
+    let train_s = t.elapsed().as_secs_f64();
+    let pose = demo::camera_pose(0.3, 0.5);
+    let camera = |side: u32| {
+        Camera::from_camera_angle_x(side.max(1), side.max(1), 0.69, pose)
+            .map_err(|e| BackendError::Invalid(e.to_string()))
+    };
+    let supersample = b.model().config.supersample;
+    let spec =
+        |camera| ImageSpec { camera, near: 2.0, far: 6.0, centers: PixelCenters::Centered, ndc: None, supersample };
+    b.render_image(&spec(camera(8)?))?;
+    let image = spec(camera(render_side)?);
+    let t = Instant::now();
+    b.render_image(&image)?;
+    let render_s = t.elapsed().as_secs_f64();
+    Ok(BackendThroughput {
+        backend: b.describe(),
+        batch,
+        ms_per_step: train_s / steps as f64 * 1e3,
+        samples_per_second: (steps * rays_per_step * samples_per_ray) as f64 / train_s,
+        render_rays_per_second: image.pixels() as f64 / render_s,
+    })
 }

@@ -1,0 +1,90 @@
+//! `mipnerf bench`: training samples/s and rendering rays/s of the backends on this machine, on
+//! a synthetic dataset in memory (`mipnerf_core::bench`), as a markdown table.
+
+use std::sync::Arc;
+
+use anyhow::{Context, Result};
+use clap::ValueEnum;
+use mipnerf_core::backend::TrainState;
+use mipnerf_core::bench::{backend_throughput, synthetic_dataset};
+use mipnerf_core::model::Model;
+use mipnerf_core::train::OptimConfig;
+
+use crate::backend::{self, Setup};
+use crate::config::{Backend, PresetArg};
+
+/// Which backends `mipnerf bench` measures.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum BenchBackends {
+    /// The CPU.
+    Cpu,
+    /// Any GPU adapter, software ones included.
+    Gpu,
+    /// What `--backend auto` picks.
+    Auto,
+    /// The CPU, then any GPU adapter.
+    Both,
+}
+
+/// The settings of one measurement.
+#[derive(Clone, Copy, Debug)]
+pub struct BenchArgs {
+    /// Which backends.
+    pub backends: BenchBackends,
+    /// Model size.
+    pub preset: PresetArg,
+    /// Pixels per batch.
+    pub batch: usize,
+    /// Timed steps.
+    pub steps: usize,
+    /// Side of the rendered image.
+    pub render_side: u32,
+}
+
+/// Measures and prints the table.
+///
+/// # Errors
+/// Bad sizes, or a backend that cannot be opened or fails.
+pub fn bench(a: &BenchArgs) -> Result<()> {
+    anyhow::ensure!(a.batch > 0 && a.steps > 0, "--batch-rays and --steps must be positive");
+    anyhow::ensure!((1..=4096).contains(&a.render_side), "--render-side must be between 1 and 4096");
+    let model = Model::new(a.preset.preset().config())?;
+    let ds = Arc::new(synthetic_dataset(20, 64));
+    let which: &[Backend] = match a.backends {
+        BenchBackends::Cpu => &[Backend::Cpu],
+        BenchBackends::Gpu => &[Backend::Gpu],
+        BenchBackends::Auto => &[Backend::Auto],
+        BenchBackends::Both => &[Backend::Cpu, Backend::Gpu],
+    };
+    println!(
+        "preset {:?} ({} parameters), batches of {} rays, {} timed steps, render {s}x{s}",
+        a.preset,
+        model.num_params,
+        a.batch,
+        a.steps,
+        s = a.render_side
+    );
+    let mut rows = Vec::new();
+    for &choice in which {
+        let setup = Setup {
+            model: model.clone(),
+            optim: OptimConfig::default(),
+            seed: 0,
+            state: TrainState::fresh(&model, 0),
+            data: Some((&ds, a.batch)),
+        };
+        let mut b = backend::open(choice, setup)?;
+        let r = backend_throughput(b.as_mut(), a.batch, a.steps, a.render_side)
+            .with_context(|| format!("measuring {}", b.describe()))?;
+        rows.push(r);
+    }
+    println!("| backend | ms/step | training samples/s | rendering rays/s |");
+    println!("|---|---|---|---|");
+    for r in rows {
+        println!(
+            "| {} | {:.1} | {:.0} | {:.0} |",
+            r.backend, r.ms_per_step, r.samples_per_second, r.render_rays_per_second
+        );
+    }
+    Ok(())
+}
