@@ -32,6 +32,10 @@ pub enum CheckBackend {
     Auto,
 }
 
+/// Runs the three stages on the adapter `backend` selects and prints each one's agreement.
+///
+/// # Errors
+/// No adapter (for `gpu`), or a stage whose GPU result is outside its tolerance.
 pub fn check(backend: CheckBackend) -> Result<()> {
     use mipnerf_core::mip::{self, RayShape};
     let choice = match backend {
