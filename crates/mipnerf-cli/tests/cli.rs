@@ -295,7 +295,8 @@ fn the_gpu_backend_trains_resumes_on_the_cpu_evaluates_and_renders() {
 
 #[test]
 fn bench_prints_throughput_of_each_backend() {
-    let both = mipnerf_gpu::test_support::context_or_skip("bench_prints_throughput_of_each_backend (GPU row)").is_some();
+    let both =
+        mipnerf_gpu::test_support::context_or_skip("bench_prints_throughput_of_each_backend (GPU row)").is_some();
     let which = if both { "both" } else { "cpu" };
     let text = run_ok(&["bench", "--backend", which, "--batch-rays", "16", "--steps", "1", "--render-side", "8"]);
     let rows: Vec<&str> = text.lines().filter(|l| l.starts_with("| CPU") || l.starts_with("| GPU")).collect();

@@ -407,3 +407,43 @@ fn supersampling_forward_facing_data_is_a_clear_error() {
     let err = b.with_data(&ndc_dataset(), 8).unwrap_err().to_string();
     assert!(err.contains("supersampling") && err.contains("NDC"), "{err}");
 }
+
+#[test]
+fn a_gpu_run_resumed_from_its_checkpoint_is_the_same_run_bit_for_bit() {
+    let Some(ctx) = context_or_skip("a_gpu_run_resumed_from_its_checkpoint_is_the_same_run_bit_for_bit") else {
+        return;
+    };
+    let ds = lego_tiny();
+    let model = Model::new(ModelConfig { num_samples: 16, ..Preset::Tiny.config() }).unwrap();
+    let optim = OptimConfig::default();
+    let fresh = TrainState::fresh(&model, 5);
+    let mut straight =
+        GpuBackend::new(ctx, model.clone(), optim.clone(), 5, fresh.clone()).unwrap().with_data(&ds, 32).unwrap();
+    for _ in 0..6 {
+        straight.train_step(false).unwrap();
+    }
+    let want = straight.checkpoint().unwrap();
+    // The same device again: no atomics anywhere, so the same commands give the same bits.
+    let ctx = straight.context();
+    let ctx2 = mipnerf_gpu::GpuContext::new(mipnerf_gpu::AdapterChoice::Any).unwrap();
+    assert_eq!(ctx2.adapter, ctx.adapter);
+    drop(straight);
+    let mut first = GpuBackend::new(ctx2, model.clone(), optim.clone(), 5, fresh).unwrap().with_data(&ds, 32).unwrap();
+    for _ in 0..3 {
+        first.train_step(false).unwrap();
+    }
+    let half = first.checkpoint().unwrap();
+    assert_eq!((half.step, half.adam.t), (3, 3));
+    let ctx3 = mipnerf_gpu::GpuContext::new(mipnerf_gpu::AdapterChoice::Any).unwrap();
+    drop(first);
+    let state = TrainState::from_checkpoint(half);
+    let mut resumed = GpuBackend::new(ctx3, model, optim, 5, state).unwrap().with_data(&ds, 32).unwrap();
+    for _ in 0..3 {
+        resumed.train_step(false).unwrap();
+    }
+    let got = resumed.checkpoint().unwrap();
+    assert_eq!((got.step, got.adam.t), (want.step, want.adam.t));
+    let differ = got.params.iter().zip(&want.params).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
+    let differ_m = got.adam.m.iter().zip(&want.adam.m).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
+    assert_eq!((differ, differ_m), (0, 0), "resumed run differs in {differ} parameters and {differ_m} moments");
+}
