@@ -447,3 +447,35 @@ fn a_gpu_run_resumed_from_its_checkpoint_is_the_same_run_bit_for_bit() {
     let differ_m = got.adam.m.iter().zip(&want.adam.m).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
     assert_eq!((differ, differ_m), (0, 0), "resumed run differs in {differ} parameters and {differ_m} moments");
 }
+
+#[test]
+fn the_real_lego_scene_trains_alike_on_both_backends() {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/nerf_synthetic/lego");
+    if !dir.is_dir() {
+        eprintln!(
+            "SKIPPED the_real_lego_scene_trains_alike_on_both_backends: {} is absent (it lives in ../shared)",
+            dir.display()
+        );
+        return;
+    }
+    let Some(ctx) = context_or_skip("the_real_lego_scene_trains_alike_on_both_backends") else { return };
+    // 87 views at 800x800: 212 MiB of pixels, more than one 128 MiB binding of lavapipe holds.
+    let ds = Arc::new(data::load(&dir, Split::Train, &LoadOptions::default()).unwrap());
+    let model = Model::new(ModelConfig { num_samples: 16, ..Preset::Tiny.config() }).unwrap();
+    let (seed, batch) = (1u32, 32usize);
+    let optim = OptimConfig::default();
+    let state = TrainState::fresh(&model, seed);
+    let mut cpu =
+        CpuBackend::new(model.clone(), optim.clone(), seed, state.clone()).unwrap().with_data(Arc::clone(&ds), batch);
+    let mut gpu = GpuBackend::new(ctx, model, optim, seed, state).unwrap().with_data(&ds, batch).unwrap();
+    assert_eq!(gpu.image_bytes(), ds.pixel_bytes() as u64);
+    let mut bad = Vec::new();
+    for step in 0..3 {
+        let (c, g) = (cpu.train_step(true).unwrap().unwrap(), gpu.train_step(true).unwrap().unwrap());
+        let rel = (g.stats.loss - c.stats.loss).abs() / c.stats.loss;
+        if rel.is_nan() || rel > TOL_LOSS_CURVE_REL {
+            bad.push(format!("step {step}: gpu {} cpu {} (relative {rel:e})", g.stats.loss, c.stats.loss));
+        }
+    }
+    assert_none(&bad);
+}
