@@ -111,12 +111,10 @@ impl AdamKernel {
     /// # Errors
     /// If the device rejects them.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        let layout = kernels::storage_layout(ctx, "adam", &[true, false, false, false, false, false]);
-        let p = |e: &str| kernels::compute_pipeline_entry(ctx, &format!("adam {e}"), SOURCE, e, &layout);
-        let s =
-            Self { update: p("main"), sq_partial: p("grad_sq_partial"), norm_finish: p("grad_norm_finish"), layout };
-        ctx.check()?;
-        Ok(s)
+        let read_only = [true, false, false, false, false, false];
+        let ([update, sq_partial, norm_finish], layout) =
+            kernels::build_entries(ctx, "adam", SOURCE, &read_only, ["main", "grad_sq_partial", "grad_norm_finish"])?;
+        Ok(Self { update, sq_partial, norm_finish, layout })
     }
 
     /// Records the clipping (when on) and update `step` of every parameter in `b`.

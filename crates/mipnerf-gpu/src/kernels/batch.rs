@@ -280,11 +280,9 @@ impl BatchKernel {
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
         let mut read_only = vec![true; 6];
         read_only.extend([false; 5]);
-        let layout = kernels::storage_layout(ctx, "batch", &read_only);
-        let p = |e: &str| kernels::compute_pipeline_entry(ctx, &format!("batch {e}"), SOURCE, e, &layout);
-        let s = Self { make_rays: p("make_rays"), batch_norm: p("batch_norm"), layout };
-        ctx.check()?;
-        Ok(s)
+        let ([make_rays, batch_norm], layout) =
+            kernels::build_entries(ctx, "batch", SOURCE, &read_only, ["make_rays", "batch_norm"])?;
+        Ok(Self { make_rays, batch_norm, layout })
     }
 
     /// Records the making of `out.n_rays` rays from `images` (with targets when the images have

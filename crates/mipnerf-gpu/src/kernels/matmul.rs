@@ -104,13 +104,11 @@ impl MatmulKernel {
     /// # Errors
     /// If the device rejects it.
     pub fn with_variant(ctx: &GpuContext, variant: MatmulVariant) -> Result<Self, GpuError> {
-        let layout = kernels::storage_layout(ctx, "matmul", &[true, true, false]);
         let entry = match variant {
             MatmulVariant::Tiled => "main",
             MatmulVariant::Blocked => "blocked",
         };
-        let pipeline = kernels::compute_pipeline_entry(ctx, &format!("matmul {entry}"), SOURCE, entry, &layout);
-        ctx.check()?;
+        let ([pipeline], layout) = kernels::build_entries(ctx, "matmul", SOURCE, &[true, true, false], [entry])?;
         Ok(Self { pipeline, layout, variant })
     }
 

@@ -43,17 +43,10 @@ impl MlpAuxKernels {
     /// # Errors
     /// If the device rejects them.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        let layout = kernels::storage_layout(ctx, "mlp_aux", &[true, false]);
-        let p = |e: &str| kernels::compute_pipeline_entry(ctx, &format!("mlp_aux {e}"), SOURCE, e, &layout);
-        let s = Self {
-            relu_backward: p("relu_backward"),
-            col_sums: p("col_sums"),
-            col_sums_partial: p("col_sums_partial"),
-            broadcast_rows: p("broadcast_rows"),
-            layout,
-        };
-        ctx.check()?;
-        Ok(s)
+        let entries = ["relu_backward", "col_sums", "col_sums_partial", "broadcast_rows"];
+        let ([relu_backward, col_sums, col_sums_partial, broadcast_rows], layout) =
+            kernels::build_entries(ctx, "mlp_aux", SOURCE, &[true, false], entries)?;
+        Ok(Self { relu_backward, col_sums, col_sums_partial, broadcast_rows, layout })
     }
 
     fn run(

@@ -85,21 +85,27 @@ pub fn build(
     source: &str,
     read_only: &[bool],
 ) -> Result<(wgpu::ComputePipeline, wgpu::BindGroupLayout), GpuError> {
-    let layout = storage_layout(ctx, name, read_only);
-    let pipeline = compute_pipeline(ctx, name, source, &layout);
-    ctx.check()?;
+    let ([pipeline], layout) = build_entries(ctx, name, source, read_only, ["main"])?;
     Ok((pipeline, layout))
 }
 
-/// A labelled compute pipeline for the `main` entry point of `source`.
-#[must_use]
-pub fn compute_pipeline(
+/// The pipelines of the entry points `entries` of `source`, sharing one layout (a uniform block,
+/// then storage buffers, read-only where `read_only[i]`), checked by the device: what every
+/// kernel type owns.
+///
+/// # Errors
+/// [`GpuError::Validation`] if the device rejects the shader or a pipeline.
+pub fn build_entries<const N: usize>(
     ctx: &GpuContext,
     name: &str,
     source: &str,
-    layout: &wgpu::BindGroupLayout,
-) -> wgpu::ComputePipeline {
-    compute_pipeline_entry(ctx, name, source, "main", layout)
+    read_only: &[bool],
+    entries: [&str; N],
+) -> Result<([wgpu::ComputePipeline; N], wgpu::BindGroupLayout), GpuError> {
+    let layout = storage_layout(ctx, name, read_only);
+    let pipelines = entries.map(|e| compute_pipeline_entry(ctx, &format!("{name} {e}"), source, e, &layout));
+    ctx.check()?;
+    Ok((pipelines, layout))
 }
 
 /// A labelled compute pipeline for entry point `entry` of `source`.

@@ -129,11 +129,8 @@ impl RenderKernel {
     /// If the device rejects it.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
         let read_only = [true, true, true, true, true, false, false, false, false, true];
-        let layout = kernels::storage_layout(ctx, "render", &read_only);
-        let pipeline = kernels::compute_pipeline(ctx, "render", SOURCE, &layout);
-        let pixel_backward =
-            kernels::compute_pipeline_entry(ctx, "render pixel_backward", SOURCE, "pixel_backward", &layout);
-        ctx.check()?;
+        let ([pipeline, pixel_backward], layout) =
+            kernels::build_entries(ctx, "render", SOURCE, &read_only, ["main", "pixel_backward"])?;
         Ok(Self { pipeline, pixel_backward, layout })
     }
 

@@ -50,11 +50,9 @@ impl SampleKernels {
     /// # Errors
     /// If the device rejects them.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        let layout = kernels::storage_layout(ctx, "sample", &[true, true, false]);
-        let p = |e: &str| kernels::compute_pipeline_entry(ctx, &format!("sample {e}"), SOURCE, e, &layout);
-        let s = Self { stratified: p("stratified"), resample: p("resample"), layout };
-        ctx.check()?;
-        Ok(s)
+        let ([stratified, resample], layout) =
+            kernels::build_entries(ctx, "sample", SOURCE, &[true, true, false], ["stratified", "resample"])?;
+        Ok(Self { stratified, resample, layout })
     }
 
     fn run(
