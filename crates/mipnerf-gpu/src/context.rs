@@ -154,6 +154,14 @@ impl GpuContext {
         Ok(())
     }
 
+    /// The most bytes one storage buffer binding may hold on this device (the smaller of the
+    /// binding and buffer size limits).
+    #[must_use]
+    pub fn max_binding_bytes(&self) -> u64 {
+        let limits = self.device.limits();
+        limits.max_storage_buffer_binding_size.min(limits.max_buffer_size)
+    }
+
     /// Creates a labelled storage buffer initialised with `data`.
     #[must_use]
     pub fn storage_buffer<T: bytemuck::Pod>(&self, label: &str, data: &[T], copy_src: bool) -> wgpu::Buffer {

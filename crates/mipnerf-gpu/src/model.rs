@@ -147,8 +147,7 @@ impl ModelBuffers {
         let c = &model.config;
         let (s, levels) = (c.num_samples, c.num_levels);
         let n = n_rays * s;
-        let limits = ctx.device.limits();
-        let limit = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
+        let limit = ctx.max_binding_bytes();
         let widest = Self::largest_buffer_bytes_per_ray(model);
         if n_rays as u64 * widest > limit {
             return Err(GpuError::InvalidInput(format!(

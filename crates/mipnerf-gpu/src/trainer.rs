@@ -118,8 +118,7 @@ impl GpuBackend {
     /// forward-facing (NDC) data; device errors.
     pub fn with_data(self, ds: &Dataset, batch_rays: usize) -> Result<Self, GpuError> {
         let model = &self.model;
-        let limits = self.ctx.device.limits();
-        let bind = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
+        let bind = self.ctx.max_binding_bytes();
         let by_binding = bind / ModelBuffers::largest_buffer_bytes_per_ray(model).max(1);
         let by_budget = TRAIN_BUDGET_BYTES / ModelBuffers::bytes_per_ray(model).max(1);
         let chunk = by_binding.min(by_budget).max(1) as usize;
@@ -331,8 +330,7 @@ impl GpuBackend {
 fn auto_chunk(ctx: &GpuContext, model: &Model) -> usize {
     let per_ray = ModelBuffers::bytes_per_ray(model).max(1);
     let largest = ModelBuffers::largest_buffer_bytes_per_ray(model).max(1);
-    let limits = ctx.device.limits();
-    let bind = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
+    let bind = ctx.max_binding_bytes();
     let mut chunk = MAX_RENDER_CHUNK;
     while chunk > 1 && (chunk as u64 * per_ray > RENDER_BUDGET_BYTES || chunk as u64 * largest > bind) {
         chunk /= 2;

@@ -129,8 +129,7 @@ impl DeviceImages {
     /// [`GpuError::InvalidInput`] for images that do not fit in the device's buffers (the message
     /// says how much is needed and allowed).
     pub fn upload(ctx: &GpuContext, ds: &Dataset) -> Result<Self, GpuError> {
-        let limits = ctx.device.limits();
-        Self::upload_with_slot_bytes(ctx, ds, limits.max_storage_buffer_binding_size.min(limits.max_buffer_size))
+        Self::upload_with_slot_bytes(ctx, ds, ctx.max_binding_bytes())
     }
 
     /// [`upload`](Self::upload) with each of the [`PIXEL_SLOTS`] pixel buffers holding at most
@@ -144,8 +143,7 @@ impl DeviceImages {
         let total_u32 = u32::try_from(total).map_err(|_| too_large(&ds.root.display().to_string()))?;
         let all_u8 = ds.views.iter().all(|v| matches!(v.pixels, Pixels::Rgba8(_)));
         let (format, words_per_pixel) = if all_u8 { (PixelFormat::Rgba8, 1u64) } else { (PixelFormat::F32, 4) };
-        let limits = ctx.device.limits();
-        let slot_bytes = slot_bytes.min(limits.max_storage_buffer_binding_size.min(limits.max_buffer_size)) / 4 * 4;
+        let slot_bytes = slot_bytes.min(ctx.max_binding_bytes()) / 4 * 4;
         // Assign views to slots greedily, in order.
         let mut placement = Vec::with_capacity(ds.views.len());
         let mut used = [0u64; PIXEL_SLOTS];
