@@ -72,6 +72,25 @@ impl ImageSpec {
         self.camera.width as usize * self.camera.height as usize
     }
 
+    /// Whether `model` renders this image: the same rays per pixel as the model's, and no
+    /// supersampling of forward-facing (NDC) rays.
+    ///
+    /// # Errors
+    /// [`BackendError::Invalid`] or [`BackendError::Unsupported`] saying which.
+    pub fn check_for(&self, model: &Model) -> Result<(), BackendError> {
+        let k = model.config.supersample;
+        if self.supersample != k {
+            return Err(BackendError::Invalid(format!(
+                "the image asks for {0}x{0} rays per pixel; the model renders {k}x{k}",
+                self.supersample
+            )));
+        }
+        if self.ndc.is_some() && k > 1 {
+            return Err(BackendError::Unsupported(NDC_SUPERSAMPLE.into()));
+        }
+        Ok(())
+    }
+
     /// Appends the rays of pixels `first..first + count` (raster order), `supersample²` per pixel.
     pub fn push_rays(&self, first: usize, count: usize, out: &mut Vec<Ray>) {
         let w = self.camera.width as usize;
@@ -234,16 +253,7 @@ impl Backend for CpuBackend {
 
     fn render_image(&mut self, image: &ImageSpec) -> Result<Vec<LevelOutput>, BackendError> {
         let model = &self.trainer.model;
-        let k = model.config.supersample;
-        if image.supersample != k {
-            return Err(BackendError::Invalid(format!(
-                "the image asks for {}x{} rays per pixel; the model renders {k}x{k}",
-                image.supersample, image.supersample
-            )));
-        }
-        if image.ndc.is_some() && k > 1 {
-            return Err(BackendError::Unsupported(NDC_SUPERSAMPLE.into()));
-        }
+        image.check_for(model)?;
         let mut out = Vec::with_capacity(image.pixels() * model.config.num_levels);
         let mut rays = Vec::new();
         for first in (0..image.pixels()).step_by(CPU_RENDER_CHUNK) {

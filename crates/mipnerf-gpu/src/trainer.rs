@@ -291,12 +291,6 @@ impl GpuBackend {
 
     fn render_all(&mut self, image: &ImageSpec) -> Result<Vec<LevelOutput>, GpuError> {
         let rpp = self.model.rays_per_pixel();
-        if image.supersample != self.model.config.supersample {
-            return Err(GpuError::InvalidInput(format!(
-                "the image asks for {0}x{0} rays per pixel; the model renders {1}x{1}",
-                image.supersample, self.model.config.supersample
-            )));
-        }
         let cams = DeviceImages::camera_only(&self.ctx, image)?;
         let total = cams.total_pixels() as usize;
         // Whole pixels per chunk.
@@ -375,6 +369,7 @@ impl Backend for GpuBackend {
     }
 
     fn render_image(&mut self, image: &ImageSpec) -> Result<Vec<LevelOutput>, BackendError> {
+        image.check_for(&self.model)?;
         Ok(self.render_all(image)?)
     }
 }

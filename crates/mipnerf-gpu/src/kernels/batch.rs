@@ -211,14 +211,12 @@ impl DeviceImages {
         })
     }
 
-    /// The camera of one image to render (no pixels).
+    /// The camera of one image to render (no pixels). Its rays are made by [`BatchKernel::encode`],
+    /// which refuses supersampled NDC rays.
     ///
     /// # Errors
-    /// [`GpuError::InvalidInput`] for a supersampled NDC image (not defined).
+    /// [`GpuError::InvalidInput`] for an image of 2^32 pixels or more.
     pub fn camera_only(ctx: &GpuContext, image: &ImageSpec) -> Result<Self, GpuError> {
-        if image.supersample > 1 && image.ndc.is_some() {
-            return Err(GpuError::InvalidInput(mipnerf_core::backend::NDC_SUPERSAMPLE.into()));
-        }
         let total = image.pixels() as u64;
         let total_u32 = u32::try_from(total).map_err(|_| too_large("the image"))?;
         let view = GpuView::new(&image.camera, image.centers, (image.near, image.far), 1.0, (0, 0));
