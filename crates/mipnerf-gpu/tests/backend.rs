@@ -230,6 +230,31 @@ const TOL_LOSS_CURVE_REL: f32 = 1e-3;
 /// trained parameters. Measured on lavapipe: 121 dB.
 const MIN_RENDER_AGREEMENT_PSNR: f64 = 60.0;
 
+/// A CPU backend training on `ds` in batches of `batch`, and a GPU backend on `ctx` (given its
+/// data by the caller), both from the fresh state of `seed`.
+fn cpu_and_gpu(
+    ctx: mipnerf_gpu::GpuContext,
+    ds: &Arc<Dataset>,
+    model: &Model,
+    seed: u32,
+    batch: usize,
+) -> (CpuBackend, GpuBackend) {
+    let (optim, state) = (OptimConfig::default(), TrainState::fresh(model, seed));
+    let cpu =
+        CpuBackend::new(model.clone(), optim.clone(), seed, state.clone()).unwrap().with_data(Arc::clone(ds), batch);
+    (cpu, GpuBackend::new(ctx, model.clone(), optim, seed, state).unwrap())
+}
+
+/// Records in `bad` a GPU loss `gpu` that differs from the CPU's `cpu` by more than
+/// [`TOL_LOSS_CURVE_REL`] (or is NaN); returns the relative difference.
+fn compare_loss(bad: &mut Vec<String>, what: &str, gpu: f32, cpu: f32) -> f32 {
+    let rel = (gpu - cpu).abs() / cpu.abs();
+    if rel.is_nan() || rel > TOL_LOSS_CURVE_REL {
+        bad.push(format!("{what}: gpu {gpu} cpu {cpu} (relative {rel:e})"));
+    }
+    rel
+}
+
 fn psnr_between(a: &[LevelOutput], b: &[LevelOutput]) -> f64 {
     let se: f64 = a.iter().zip(b).flat_map(|(x, y)| (0..3).map(move |c| f64::from(x.rgb[c] - y.rgb[c]).powi(2))).sum();
     -10.0 * (se / (3 * a.len()) as f64).log10()
@@ -241,11 +266,8 @@ fn gpu_and_cpu_backends_train_alike_from_the_same_seed() {
     let ds = Arc::new(lego_tiny());
     let model = Model::new(Preset::Tiny.config()).unwrap();
     let (seed, batch, steps) = (3u32, 32usize, 50u64);
-    let optim = OptimConfig::default();
-    let state = TrainState::fresh(&model, seed);
-    let mut cpu =
-        CpuBackend::new(model.clone(), optim.clone(), seed, state.clone()).unwrap().with_data(Arc::clone(&ds), batch);
-    let mut gpu = GpuBackend::new(ctx, model, optim, seed, state).unwrap().with_data(&ds, batch).unwrap();
+    let (mut cpu, gpu) = cpu_and_gpu(ctx, &ds, &model, seed, batch);
+    let mut gpu = gpu.with_data(&ds, batch).unwrap();
     let mut bad = Vec::new();
     let mut worst = 0.0f32;
     for step in 0..steps {
@@ -257,11 +279,7 @@ fn gpu_and_cpu_backends_train_alike_from_the_same_seed() {
         let Some(g) = g else { continue };
         assert_eq!((g.step, g.lr), (c.step, c.lr));
         for (what, gv, cv) in [("loss", g.stats.loss, c.stats.loss), ("fine mse", g.stats.mse[1], c.stats.mse[1])] {
-            let rel = (gv - cv).abs() / cv.abs();
-            worst = worst.max(rel);
-            if rel.is_nan() || rel > TOL_LOSS_CURVE_REL {
-                bad.push(format!("step {step} {what}: gpu {gv} cpu {cv} (relative {rel:e})"));
-            }
+            worst = worst.max(compare_loss(&mut bad, &format!("step {step} {what}"), gv, cv));
         }
     }
     eprintln!("loss curves over {steps} steps: worst relative difference {worst:e}");
@@ -340,21 +358,15 @@ fn a_batch_run_in_chunks_trains_as_the_cpu() {
     // Density noise draws per batch ray, so the chunks must know where they sit in the batch.
     let model = Model::new(ModelConfig { num_samples: 16, density_noise: 0.5, ..Preset::Tiny.config() }).unwrap();
     let (seed, batch, steps) = (4u32, 64usize, 8u64);
-    let optim = OptimConfig::default();
-    let state = TrainState::fresh(&model, seed);
-    let mut cpu =
-        CpuBackend::new(model.clone(), optim.clone(), seed, state.clone()).unwrap().with_data(Arc::clone(&ds), batch);
+    let (mut cpu, gpu) = cpu_and_gpu(ctx, &ds, &model, seed, batch);
     // 64 rays in chunks of 24, 24 and 16.
-    let mut gpu = GpuBackend::new(ctx, model, optim, seed, state).unwrap().with_data_in_chunks(&ds, batch, 24).unwrap();
+    let mut gpu = gpu.with_data_in_chunks(&ds, batch, 24).unwrap();
     let mut bad = Vec::new();
     for step in 0..steps {
         let c = cpu.train_step(true).unwrap().unwrap();
         let g = gpu.train_step(true).unwrap().unwrap();
         for (what, gv, cv) in [("loss", g.stats.loss, c.stats.loss), ("fine mse", g.stats.mse[1], c.stats.mse[1])] {
-            let rel = (gv - cv).abs() / cv.abs();
-            if rel.is_nan() || rel > TOL_LOSS_CURVE_REL {
-                bad.push(format!("step {step} {what}: gpu {gv} cpu {cv} (relative {rel:e})"));
-            }
+            compare_loss(&mut bad, &format!("step {step} {what}"), gv, cv);
         }
     }
     assert_none(&bad);
@@ -372,20 +384,14 @@ fn supersampled_nerf_trains_and_renders_alike() {
     let cfg = ModelConfig { supersample: 2, num_samples: 16, ..Preset::Tiny.config().nerf() };
     let model = Model::new(cfg).unwrap();
     let (seed, batch, steps) = (9u32, 16usize, 10u64);
-    let optim = OptimConfig::default();
-    let state = TrainState::fresh(&model, seed);
-    let mut cpu =
-        CpuBackend::new(model.clone(), optim.clone(), seed, state.clone()).unwrap().with_data(Arc::clone(&ds), batch);
-    let mut gpu = GpuBackend::new(ctx, model, optim, seed, state).unwrap().with_data(&ds, batch).unwrap();
+    let (mut cpu, gpu) = cpu_and_gpu(ctx, &ds, &model, seed, batch);
+    let mut gpu = gpu.with_data(&ds, batch).unwrap();
     let mut bad = Vec::new();
     for step in 0..steps {
         let c = cpu.train_step(true).unwrap().unwrap();
         let g = gpu.train_step(true).unwrap().unwrap();
-        for (l, (gv, cv)) in g.stats.losses.iter().zip(&c.stats.losses).enumerate() {
-            let rel = (gv - cv).abs() / cv.abs();
-            if rel.is_nan() || rel > TOL_LOSS_CURVE_REL {
-                bad.push(format!("step {step} level {l} loss: gpu {gv} cpu {cv} (relative {rel:e})"));
-            }
+        for (l, (&gv, &cv)) in g.stats.losses.iter().zip(&c.stats.losses).enumerate() {
+            compare_loss(&mut bad, &format!("step {step} level {l} loss"), gv, cv);
         }
     }
     assert_none(&bad);
@@ -463,19 +469,13 @@ fn the_real_lego_scene_trains_alike_on_both_backends() {
     let ds = Arc::new(data::load(&dir, Split::Train, &LoadOptions::default()).unwrap());
     let model = Model::new(ModelConfig { num_samples: 16, ..Preset::Tiny.config() }).unwrap();
     let (seed, batch) = (1u32, 32usize);
-    let optim = OptimConfig::default();
-    let state = TrainState::fresh(&model, seed);
-    let mut cpu =
-        CpuBackend::new(model.clone(), optim.clone(), seed, state.clone()).unwrap().with_data(Arc::clone(&ds), batch);
-    let mut gpu = GpuBackend::new(ctx, model, optim, seed, state).unwrap().with_data(&ds, batch).unwrap();
+    let (mut cpu, gpu) = cpu_and_gpu(ctx, &ds, &model, seed, batch);
+    let mut gpu = gpu.with_data(&ds, batch).unwrap();
     assert_eq!(gpu.image_bytes(), ds.pixel_bytes() as u64);
     let mut bad = Vec::new();
     for step in 0..3 {
         let (c, g) = (cpu.train_step(true).unwrap().unwrap(), gpu.train_step(true).unwrap().unwrap());
-        let rel = (g.stats.loss - c.stats.loss).abs() / c.stats.loss;
-        if rel.is_nan() || rel > TOL_LOSS_CURVE_REL {
-            bad.push(format!("step {step}: gpu {} cpu {} (relative {rel:e})", g.stats.loss, c.stats.loss));
-        }
+        compare_loss(&mut bad, &format!("step {step} loss"), g.stats.loss, c.stats.loss);
     }
     assert_none(&bad);
 }
