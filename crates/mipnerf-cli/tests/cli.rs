@@ -44,6 +44,14 @@ fn check_compares_the_gpu_with_the_cpu_or_says_why_not() {
     }
 }
 
+/// A 16-pixel demo scene of `train_views` training views and one test view in `dir/data`.
+fn small_demo_scene(dir: &std::path::Path, train_views: usize) -> std::path::PathBuf {
+    let data = dir.join("data");
+    let cfg = mipnerf_core::data::demo::DemoConfig { size: 16, train_views, test_views: 1, supersample: 1 };
+    mipnerf_core::data::demo::write_demo_scene(&data, &cfg).unwrap();
+    data
+}
+
 fn run_ok(args: &[&str]) -> String {
     let out = mipnerf(args);
     let text = String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
@@ -133,12 +141,7 @@ fn the_demo_produces_every_promised_file_and_beats_a_constant_image() {
 #[test]
 fn a_resumed_run_continues_at_the_right_step() {
     let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    mipnerf_core::data::demo::write_demo_scene(
-        &data,
-        &mipnerf_core::data::demo::DemoConfig { size: 16, train_views: 3, test_views: 1, supersample: 1 },
-    )
-    .unwrap();
+    let data = small_demo_scene(dir.path(), 3);
     let run = dir.path().join("run");
     let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
     run_ok(&[
@@ -211,12 +214,7 @@ fn bad_values_and_missing_files_fail_cleanly() {
 #[test]
 fn ctrl_c_writes_a_checkpoint_before_exiting() {
     let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    mipnerf_core::data::demo::write_demo_scene(
-        &data,
-        &mipnerf_core::data::demo::DemoConfig { size: 16, train_views: 2, test_views: 1, supersample: 1 },
-    )
-    .unwrap();
+    let data = small_demo_scene(dir.path(), 2);
     let run = dir.path().join("run");
     let child = Command::new(env!("CARGO_BIN_EXE_mipnerf"))
         .args([
@@ -264,12 +262,7 @@ fn the_gpu_backend_trains_resumes_on_the_cpu_evaluates_and_renders() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    mipnerf_core::data::demo::write_demo_scene(
-        &data,
-        &mipnerf_core::data::demo::DemoConfig { size: 16, train_views: 3, test_views: 1, supersample: 1 },
-    )
-    .unwrap();
+    let data = small_demo_scene(dir.path(), 3);
     let run = dir.path().join("run");
     let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
     let common = ["--batch-rays", "64", "--log-every", "5", "--checkpoint-every", "10"];
