@@ -349,6 +349,11 @@ fn chunked_gpu_render_matches_cpu_with_bounded_memory() {
     assert_none(&bad);
     assert!(bytes[0] > 0 && bytes[0] == bytes[1], "render buffers grew with the image: {bytes:?}");
     assert_eq!(gpu.render_chunk(), chunk);
+    // The per-ray estimate that sizes automatic chunks follows what the buffers really take.
+    let work = mipnerf_gpu::model::ModelBuffers::new(gpu.context(), gpu.model(), 1000).unwrap();
+    let estimate = 1000 * mipnerf_gpu::model::ModelBuffers::bytes_per_ray(gpu.model());
+    let off = (work.bytes() as f64 / estimate as f64 - 1.0).abs();
+    assert!(off < 0.01, "buffers take {} bytes, the estimate says {estimate}", work.bytes());
 }
 
 #[test]
