@@ -6,11 +6,12 @@ use std::path::Path;
 use anyhow::{Context, Result};
 use mipnerf_core::backend::ImageSpec;
 use mipnerf_core::data::Split;
-use mipnerf_core::metrics::{SsimConfig, mse_to_psnr, ssim};
+use mipnerf_core::metrics::{SsimConfig, average_error, mse_to_psnr, ssim};
 use serde::Serialize;
 
 use crate::config::Backend;
 use crate::images::{rgb_to_png, write_png};
+use crate::lpips::LpipsWeights;
 use crate::run::{load_split, open_trained, read_config};
 
 /// One image's scores.
@@ -24,6 +25,8 @@ pub struct ImageScore {
     pub psnr: f64,
     /// SSIM (official settings).
     pub ssim: f64,
+    /// LPIPS (`lpips_net`), or `null` without the weights.
+    pub lpips: Option<f64>,
     /// Mean squared error.
     pub mse: f64,
 }
@@ -37,7 +40,10 @@ pub struct ScaleScore {
     pub psnr: f64,
     /// Mean SSIM.
     pub ssim: f64,
-    /// Geometric mean of the mean MSE and sqrt(1 - mean SSIM) (no LPIPS: see `avg_error_terms`).
+    /// Mean LPIPS, or `null` without the weights.
+    pub lpips: Option<f64>,
+    /// The average error of this scale's means ([`mipnerf_core::metrics::average_error`]; its
+    /// terms are `avg_error_terms`).
     pub avg_error: f64,
     /// Images averaged.
     pub images: usize,
@@ -50,16 +56,36 @@ pub struct Metrics {
     pub per_scale: Vec<ScaleScore>,
     /// Per image scores.
     pub per_image: Vec<ImageScore>,
-    /// Which terms the average error's geometric mean has.
+    /// The paper's single "average error" of the run: the geometric mean of MSE (from the PSNR
+    /// averaged over scales), sqrt(1 - SSIM) and LPIPS, each averaged over the scales.
+    pub avg_error: f64,
+    /// Which terms the average error's geometric mean has: the paper's three, or the two-term
+    /// variant without LPIPS.
     pub avg_error_terms: Vec<&'static str>,
-    /// Why LPIPS is absent.
-    pub lpips: &'static str,
+    /// The LPIPS backbone (`vgg16` or `alexnet`), or `null` when LPIPS was not computed.
+    pub lpips_net: Option<String>,
+    /// Why LPIPS is absent, when it is.
+    pub lpips_absent: Option<String>,
     /// How SSIM was computed.
     pub ssim_settings: &'static str,
     /// The split evaluated.
     pub split: Split,
     /// The training step of the checkpoint.
     pub step: u64,
+}
+
+impl Metrics {
+    /// Per-scale values of one metric, full resolution first.
+    #[must_use]
+    pub fn column(&self, f: impl Fn(&ScaleScore) -> f64) -> Vec<f64> {
+        self.per_scale.iter().map(f).collect()
+    }
+
+    /// Per-scale LPIPS, or `None` when it was not computed.
+    #[must_use]
+    pub fn lpips_column(&self) -> Option<Vec<f64>> {
+        self.per_scale.iter().map(|s| s.lpips).collect()
+    }
 }
 
 /// The official SSIM settings, or for an image smaller than the 11-tap filter (the 1/8 scale of a
@@ -77,10 +103,22 @@ fn ssim_config(w: usize, h: usize) -> SsimConfig {
 
 /// Renders and scores every image of `split`; writes `RUN/eval/`.
 ///
+/// LPIPS is computed when `weights` lead to weights; otherwise it is `null`, the average error is
+/// the two-term variant (named so in `avg_error_terms`), and one line says how to get them.
+///
 /// # Errors
-/// Missing run files or data.
-pub fn eval(run: &Path, split: Split, backend: Backend) -> Result<Metrics> {
+/// Missing run files or data, or weights that are present but unusable.
+pub fn eval(run: &Path, split: Split, backend: Backend, weights: &LpipsWeights) -> Result<Metrics> {
     let s = read_config(run)?;
+    let (lpips, lpips_absent) = match weights.open()? {
+        Ok(l) => (Some(l), None),
+        Err(why) => {
+            eprintln!("LPIPS: not computed: {why}");
+            (None, Some(why))
+        }
+    };
+    let lpips = lpips.as_ref();
+    let lpips_absent = lpips_absent.as_deref();
     let ds = load_split(&s, split)?;
     let (mut be, step) = open_trained(run, &s, backend)?;
     let out = run.join("eval");
@@ -104,6 +142,8 @@ pub fn eval(run: &Path, split: Split, backend: Backend) -> Result<Metrics> {
         let (a, b) = (flat(&rendered), flat(&target));
         let mse = a.iter().zip(&b).map(|(x, y)| f64::from(x - y).powi(2)).sum::<f64>() / a.len() as f64;
         let ss = ssim(&a, &b, h, w, 3, &ssim_config(w, h));
+        let lp =
+            lpips.map(|l| l.distance(&a, &b, w, h)).transpose().with_context(|| view.file.display().to_string())?;
         let stem = view.file.file_stem().map_or_else(|| format!("{v:04}"), |s| s.to_string_lossy().to_string());
         write_png(&out.join(format!("{stem}.png")), w as u32, h as u32, &rgb_to_png(&rendered))?;
         per_image.push(ImageScore {
@@ -111,6 +151,7 @@ pub fn eval(run: &Path, split: Split, backend: Backend) -> Result<Metrics> {
             scale: view.scale,
             psnr: f64::from(mse_to_psnr(mse as f32)),
             ssim: ss,
+            lpips: lp,
             mse,
         });
         pb.inc(1);
@@ -121,21 +162,34 @@ pub fn eval(run: &Path, split: Split, backend: Backend) -> Result<Metrics> {
         let imgs: Vec<&ImageScore> = per_image.iter().filter(|i| i.scale == scale).collect();
         let n = imgs.len() as f64;
         let mean = |f: fn(&ImageScore) -> f64| imgs.iter().map(|i| f(i)).sum::<f64>() / n;
-        let (mse, ss) = (mean(|i| i.mse), mean(|i| i.ssim));
+        let (psnr, ss) = (mean(|i| i.psnr), mean(|i| i.ssim));
+        let lp = lpips.map(|_| mean(|i| i.lpips.unwrap_or(f64::NAN)));
         per_scale.push(ScaleScore {
             scale,
-            psnr: mean(|i| i.psnr),
+            psnr,
             ssim: ss,
-            avg_error: (mse * (1.0 - ss).max(0.0).sqrt()).sqrt(),
+            lpips: lp,
+            avg_error: average_error(psnr, ss, lp),
             images: imgs.len(),
         });
     }
+    let over_scales = |f: fn(&ScaleScore) -> f64| per_scale.iter().map(f).sum::<f64>() / per_scale.len().max(1) as f64;
+    let avg_error = average_error(
+        over_scales(|s| s.psnr),
+        over_scales(|s| s.ssim),
+        lpips.map(|_| over_scales(|s| s.lpips.unwrap_or(f64::NAN))),
+    );
     let metrics = Metrics {
         per_scale,
         per_image,
-        avg_error_terms: vec!["mse", "sqrt(1 - ssim)"],
-        lpips: "not computed: LPIPS needs pretrained VGG/AlexNet weights, which no crate on this \
-                project's registries ships and which cannot be fetched at run time",
+        avg_error,
+        avg_error_terms: if lpips.is_some() {
+            vec!["mse", "sqrt(1 - ssim)", "lpips"]
+        } else {
+            vec!["mse", "sqrt(1 - ssim)"]
+        },
+        lpips_net: lpips.map(|l| l.net().name().to_string()),
+        lpips_absent: lpips_absent.map(str::to_string),
         ssim_settings: "official: 11-tap Gaussian filter, sigma 1.5, k1 0.01, k2 0.03, valid filtering, mean over \
                         channels; images smaller than 11 px use the largest odd filter that fits, sigma scaled alike",
         split,
@@ -149,27 +203,104 @@ pub fn eval(run: &Path, split: Split, backend: Backend) -> Result<Metrics> {
     Ok(metrics)
 }
 
-/// The paper's table layout: PSNR and SSIM per scale, then the average error.
+/// The paper's table layout: PSNR, SSIM and LPIPS per scale, then the average error.
 #[must_use]
 pub fn markdown(m: &Metrics) -> String {
     let scale_name = |s: u32| if s == 0 { "full".to_string() } else { format!("1/{}", 1 << s) };
     let mut head = String::from("| run |");
     let mut rule = String::from("|---|");
     let mut row = format!("| step {} |", m.step);
-    for metric in ["PSNR", "SSIM"] {
+    for metric in ["PSNR", "SSIM", "LPIPS"] {
         for s in &m.per_scale {
             head += &format!(" {metric} {} |", scale_name(s.scale));
             rule += "---|";
-            row += &if metric == "PSNR" { format!(" {:.3} |", s.psnr) } else { format!(" {:.4} |", s.ssim) };
+            row += &match metric {
+                "PSNR" => format!(" {:.3} |", s.psnr),
+                "SSIM" => format!(" {:.4} |", s.ssim),
+                _ => s.lpips.map_or(" n/a |".to_string(), |l| format!(" {l:.4} |")),
+            };
         }
     }
-    let avg = m.per_scale.iter().map(|s| s.avg_error.ln()).sum::<f64>() / m.per_scale.len().max(1) as f64;
     head += " Avg. error |";
     rule += "---|";
-    row += &format!(" {:.4} |", avg.exp());
-    format!(
-        "{head}\n{rule}\n{row}\n\nAverage error: geometric mean of MSE and sqrt(1 - SSIM) per scale, then over scales \
-         (LPIPS not computed). Split: {}.\n",
-        m.split
-    )
+    row += &format!(" {:.4} |", m.avg_error);
+    let avg = match &m.lpips_net {
+        Some(net) => format!(
+            "Average error: the paper's, the geometric mean of MSE = 10^(-PSNR/10), sqrt(1 - SSIM) and LPIPS ({net}), \
+             each averaged over the scales."
+        ),
+        None => "Average error (two-term variant, LPIPS absent): the geometric mean of MSE = 10^(-PSNR/10) and \
+                 sqrt(1 - SSIM), each averaged over the scales; not comparable with the paper's."
+            .to_string(),
+    };
+    format!("{head}\n{rule}\n{row}\n\n{avg} Split: {}.\n", m.split)
+}
+
+/// Reads an image as RGB in `[0, 1]`, composited on white when it has alpha.
+fn read_rgb(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
+    let img = image::ImageReader::open(path)
+        .with_context(|| format!("{}: cannot open the image", path.display()))?
+        .with_guessed_format()
+        .with_context(|| format!("{}: cannot read the image", path.display()))?
+        .decode()
+        .with_context(|| format!("{}: cannot decode the image", path.display()))?;
+    let alpha = img.color().has_alpha();
+    let rgba = img.to_rgba32f();
+    let (w, h) = (rgba.width() as usize, rgba.height() as usize);
+    let rgb = rgba
+        .pixels()
+        .flat_map(|p| {
+            let a = if alpha { p.0[3] } else { 1.0 };
+            [0, 1, 2].map(|c| p.0[c] * a + (1.0 - a))
+        })
+        .collect();
+    Ok((w, h, rgb))
+}
+
+/// The scores `mipnerf compare` prints.
+#[derive(Serialize, Debug)]
+pub struct Comparison {
+    /// PSNR in dB.
+    pub psnr: f64,
+    /// SSIM, official settings.
+    pub ssim: f64,
+    /// LPIPS, or `null` without weights.
+    pub lpips: Option<f64>,
+    /// The LPIPS backbone (`vgg16` or `alexnet`).
+    pub lpips_net: &'static str,
+}
+
+/// `mipnerf compare A B`: PSNR, SSIM and LPIPS of two images of one size.
+///
+/// # Errors
+/// Unreadable files, different sizes, or missing LPIPS weights (after PSNR and SSIM are printed).
+pub fn compare(a: &Path, b: &Path, json: bool, weights: &LpipsWeights) -> Result<()> {
+    let (wa, ha, ia) = read_rgb(a)?;
+    let (wb, hb, ib) = read_rgb(b)?;
+    if (wa, ha) != (wb, hb) {
+        anyhow::bail!("{} is {wa}x{ha} but {} is {wb}x{hb}: the images must have one size", a.display(), b.display());
+    }
+    let mse = ia.iter().zip(&ib).map(|(x, y)| f64::from(x - y).powi(2)).sum::<f64>() / ia.len() as f64;
+    let psnr = -10.0 * mse.log10();
+    let ss = ssim(&ia, &ib, ha, wa, 3, &ssim_config(wa, ha));
+    let net: mipnerf_core::lpips::Net = weights.net.into();
+    let (lpips, absent) = match weights.open()? {
+        Ok(l) => (Some(l.distance(&ia, &ib, wa, ha)?), None),
+        Err(why) => (None, Some(why)),
+    };
+    let c = Comparison { psnr, ssim: ss, lpips, lpips_net: net.name() };
+    if json {
+        println!("{}", serde_json::to_string(&c)?);
+    } else {
+        println!("PSNR  {psnr:.4} dB");
+        println!("SSIM  {ss:.6}");
+        match lpips {
+            Some(l) => println!("LPIPS {l:.6} ({})", net.name()),
+            None => println!("LPIPS n/a"),
+        }
+    }
+    match absent {
+        Some(why) => anyhow::bail!("LPIPS not computed: {why}"),
+        None => Ok(()),
+    }
 }

@@ -6,7 +6,9 @@ mod bench;
 mod check;
 mod config;
 mod eval;
+mod experiment;
 mod images;
+mod lpips;
 mod plot;
 mod render;
 mod run;
@@ -81,6 +83,42 @@ enum Command {
         /// present, else the CPU).
         #[arg(long, value_enum, default_value_t = Backend::Auto)]
         backend: Backend,
+        #[command(flatten)]
+        lpips: lpips::LpipsWeights,
+    },
+    /// PSNR, SSIM (the official settings) and LPIPS of two images of the same size, composited on
+    /// white when they have alpha.
+    Compare {
+        /// The reference image.
+        a: PathBuf,
+        /// The image compared with it.
+        b: PathBuf,
+        /// Print one JSON object (psnr, ssim, lpips, lpips_net) instead of lines.
+        #[arg(long)]
+        json: bool,
+        #[command(flatten)]
+        lpips: lpips::LpipsWeights,
+    },
+    /// Run an experiment folder (experiment.toml and one TOML per row): train every row that has
+    /// not finished (resuming an interrupted one), evaluate it, write one JSON per row and rebuild
+    /// the results table from every row's JSON.
+    Experiment {
+        /// The experiment folder, e.g. experiments/multiscale-lego.
+        dir: PathBuf,
+        /// The dataset every row trains on (as experiment.toml describes).
+        #[arg(long, value_name = "DIR", required_unless_present = "table_only")]
+        data: Option<PathBuf>,
+        /// Where the rows' run directories go (ROW/ inside it).
+        #[arg(long, value_name = "DIR", required_unless_present = "table_only")]
+        out: Option<PathBuf>,
+        /// Only these rows (repeatable) [default: every row].
+        #[arg(long, value_name = "ROW")]
+        only: Vec<String>,
+        /// Only rebuild the table from the rows' JSON files.
+        #[arg(long)]
+        table_only: bool,
+        #[command(flatten)]
+        lpips: lpips::LpipsWeights,
     },
     /// Render a trained run: colour PNGs, depth and opacity EXRs, colour-mapped depth PNGs, and an
     /// animated preview (preview.gif) for camera paths.
@@ -131,7 +169,7 @@ enum Command {
         render_side: u32,
     },
     /// Convert a Blender scene into the multiscale format (4 scales, metadata.json), exactly as
-    /// the official convert_blender_data.py.
+    /// the official convert_blender_data.py (byte for byte, without --size).
     Convert {
         /// The Blender scene (transforms_*.json).
         #[arg(long, value_name = "BLENDER_DIR")]
@@ -139,6 +177,10 @@ enum Command {
         /// Output directory (created).
         #[arg(long, value_name = "DIR")]
         output: PathBuf,
+        /// First box-filter every image to N pixels wide (straight RGBA, area average, any ratio;
+        /// the height in proportion), then make the 4 scales. N: at least 16, divisible by 8.
+        #[arg(long, value_name = "N")]
+        size: Option<u32>,
     },
     /// The built-in demo scene end to end: generate it into RUN_DIR/data, train, evaluate and
     /// render, then say where everything is.
@@ -225,11 +267,14 @@ fn stop_flag() -> Arc<AtomicBool> {
 
 fn print_eval(m: &eval::Metrics) {
     for s in &m.per_scale {
+        let lp = s.lpips.map_or("LPIPS n/a".to_string(), |l| format!("LPIPS {l:.4}"));
         println!(
-            "  scale {} ({} images): PSNR {:.2} dB, SSIM {:.4}, avg error {:.4}",
+            "  scale {} ({} images): PSNR {:.2} dB, SSIM {:.4}, {lp}, avg error {:.4}",
             s.scale, s.images, s.psnr, s.ssim, s.avg_error
         );
     }
+    let terms = if m.lpips_net.is_some() { "the paper's" } else { "two-term variant, without LPIPS" };
+    println!("  average error over the scales ({terms}): {:.4}", m.avg_error);
 }
 
 fn train_cmd(
@@ -276,7 +321,7 @@ fn demo_cmd(out: &Path, d: &DemoArgs) -> Result<()> {
     if outcome.interrupted {
         return Ok(());
     }
-    let metrics = eval::eval(out, Split::Test, d.backend)?;
+    let metrics = eval::eval(out, Split::Test, d.backend, &lpips::LpipsWeights::default())?;
     println!("test metrics:");
     print_eval(&metrics);
     let renders = render::render(out, &out.join("render"), render::Target::Split(Split::Test), None, d.backend)?;
@@ -322,7 +367,7 @@ fn main() -> std::process::ExitCode {
                 }
             })
         }
-        Command::Eval { run, split, backend } => eval::eval(&run, split.into(), backend).map(|m| {
+        Command::Eval { run, split, backend, lpips } => eval::eval(&run, split.into(), backend, &lpips).map(|m| {
             println!("wrote {}", run.join("eval/metrics.json").display());
             print_eval(&m);
         }),
@@ -334,10 +379,14 @@ fn main() -> std::process::ExitCode {
             render::render(&run, &out, target, width.zip(height), backend)
                 .map(|files| println!("wrote {} files to {}", files.len(), out.display()))
         }
+        Command::Compare { a, b, json, lpips } => eval::compare(&a, &b, json, &lpips),
+        Command::Experiment { dir, data, out, only, table_only, lpips } => {
+            experiment::experiment(&experiment::ExperimentArgs { dir, data, out, only, table_only, lpips }, stop_flag())
+        }
         Command::Bench { backend, preset, batch_rays, steps, render_side } => {
             bench::bench(&bench::BenchArgs { backends: backend, preset, batch: batch_rays, steps, render_side })
         }
-        Command::Convert { input, output } => data::multiscale::convert(&input, &output)
+        Command::Convert { input, output, size } => data::multiscale::convert_resized(&input, &output, size)
             .map(|splits| println!("converted {splits:?} into {}", output.display()))
             .map_err(Into::into),
         Command::Demo { out, preset, steps, backend, seed, size, views, batch_rays } => {

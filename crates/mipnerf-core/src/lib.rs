@@ -25,6 +25,7 @@ pub mod camera;
 pub mod checkpoint;
 pub mod data;
 pub mod linalg;
+pub mod lpips;
 pub mod metrics;
 pub mod mip;
 pub mod mlp;

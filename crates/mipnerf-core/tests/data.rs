@@ -368,3 +368,56 @@ fn bad_inputs_get_clear_errors_naming_the_file() {
     std::fs::write(ll.path().join("poses_bounds.npy"), b"\x93NUMPY truncated").unwrap();
     assert_error(load(ll.path()).unwrap_err(), "poses_bounds.npy", "not a .npy file");
 }
+
+#[test]
+fn box_resize_averages_areas_at_any_ratio() {
+    // A factor of 2 is the official 2x2 box filter.
+    let (w, h) = (6, 4);
+    let img: Vec<f32> = (0..w * h * 4).map(|i| ((i * 37) % 101) as f32 / 100.0).collect();
+    let a = data::box_resize(&img, w, h, 3, 2);
+    let b = data::down2(&img, w, h);
+    assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-6), "{a:?} vs {b:?}");
+    // 3 -> 2 pixels in a row: each output covers 1.5 source pixels.
+    let row: Vec<f32> = [0.0, 0.3, 0.9].iter().flat_map(|&v| [v, 1.0 - v, v, 1.0]).collect();
+    let r = data::box_resize(&row, 3, 1, 2, 1);
+    let want0 = (0.0 + 0.5 * 0.3) / 1.5;
+    let want1 = (0.5 * 0.3 + 0.9) / 1.5;
+    assert!((r[0] - want0).abs() < 1e-6 && (r[4] - want1).abs() < 1e-6, "{r:?}");
+    // Straight alpha is averaged like the other channels, and the mean of the image is kept.
+    assert!((r[3] - 1.0).abs() < 1e-6);
+    let big: Vec<f32> = (0..10 * 10 * 4).map(|i| (i % 7) as f32 / 7.0).collect();
+    let small = data::box_resize(&big, 10, 10, 4, 4);
+    for c in 0..4 {
+        let m = |v: &[f32], n: usize| v.iter().skip(c).step_by(4).sum::<f32>() / n as f32;
+        assert!((m(&big, 100) - m(&small, 16)).abs() < 1e-5, "channel {c}");
+    }
+}
+
+#[test]
+fn convert_with_a_size_box_filters_first_and_checks_the_size() {
+    let out = tempfile::tempdir().unwrap();
+    let splits = multiscale::convert_resized(&lego_tiny(), out.path(), Some(48)).unwrap();
+    assert_eq!(splits, vec![Split::Train, Split::Test]);
+    let ds = data::load(out.path(), Split::Train, &LoadOptions::default()).unwrap();
+    let widths: Vec<u32> = ds.views.iter().take(4).map(|v| v.camera.width).collect();
+    assert_eq!(widths, vec![48, 24, 12, 6]);
+    // The field of view is kept: the focal length scales with the width.
+    let full = data::load(&lego_tiny(), Split::Train, &LoadOptions::default()).unwrap();
+    let ratio = full.views[0].camera.pix2cam[0][0] / ds.views[0].camera.pix2cam[0][0];
+    assert!((ratio - 48.0 / 100.0).abs() < 1e-6, "focal ratio {ratio}");
+    // The full scale is the area average of the source image, quantised as the converter does.
+    let (w, h, src, _) = {
+        let img = image::open(lego_tiny().join("train/r_1.png")).unwrap().to_rgba8();
+        (img.width(), img.height(), img.clone().into_raw(), ())
+    };
+    let f: Vec<f32> = src.iter().map(|&b| f32::from(b) / 255.0).collect();
+    let want = multiscale::quantise(&data::box_resize(&f, w as usize, h as usize, 48, 48));
+    let got = image::open(out.path().join("images_train/000_d0.png")).unwrap().to_rgba8().into_raw();
+    assert_eq!(got, want);
+    // Sizes that cannot be made into 4 whole scales, or that upsample, are refused.
+    for (n, problem) in [(8, "at least 16"), (20, "divisible by 8"), (200, "larger than the image")] {
+        let o = tempfile::tempdir().unwrap();
+        let err = multiscale::convert_resized(&lego_tiny(), o.path(), Some(n)).unwrap_err();
+        assert!(err.to_string().contains(problem), "--size {n}: {err}");
+    }
+}

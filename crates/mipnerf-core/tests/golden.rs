@@ -341,3 +341,23 @@ fn multiscale_rays_from_pix2cam_match_official() {
     }
     mm.finish("multiscale_rays_from_pix2cam_match_official");
 }
+
+/// The average error of the paper's Table 1, recomputed from each row's per-scale means: the
+/// paper's printed value to its 4 digits (NeRF, Mip-NeRF, Mip-NeRF w/o IPE).
+#[test]
+fn average_error_matches_the_papers_table() {
+    use mipnerf_core::metrics::average_error;
+    let mean = |v: [f64; 4]| v.iter().sum::<f64>() / 4.0;
+    let rows = [
+        ([31.196, 30.647, 26.252, 22.533], [0.9498, 0.9560, 0.9299, 0.8709], [0.0546, 0.0342, 0.0428, 0.0750], 0.0288),
+        ([32.629, 34.336, 35.471, 35.602], [0.9579, 0.9703, 0.9786, 0.9833], [0.0469, 0.0260, 0.0168, 0.0120], 0.0114),
+        ([29.876, 32.160, 33.679, 29.647], [0.9384, 0.9602, 0.9746, 0.9648], [0.0742, 0.0393, 0.0226, 0.0377], 0.0186),
+    ];
+    for (p, s, l, want) in rows {
+        let got = average_error(mean(p), mean(s), Some(mean(l)));
+        assert!((got - want).abs() < 5e-5, "average error {got:.5}, the paper prints {want}");
+    }
+    // Without LPIPS: the two-term geometric mean.
+    let two = average_error(20.0, 0.84, None);
+    assert!((two - (0.01f64 * 0.4).sqrt()).abs() < 1e-12, "{two}");
+}

@@ -105,6 +105,26 @@ pub fn write_split(
 /// # Errors
 /// [`DataError`] for unreadable inputs or unwritable outputs.
 pub fn convert(input: &Path, output: &Path) -> Result<Vec<Split>, DataError> {
+    convert_resized(input, output, None)
+}
+
+/// [`convert`], after first box-filtering every Blender image to `width` pixels wide (the height
+/// in proportion): straight RGBA, area average, any ratio ([`super::box_resize`]); the focal
+/// length scales alike. `None` is [`convert`] itself, byte for byte the official converter's.
+///
+/// # Errors
+/// As [`convert`], and for a `width` under 16 or not divisible by 8 (the 1/8 scale must be at
+/// least 2 pixels and whole), for a height that would not be a whole multiple of 8, and for a
+/// `width` larger than the images.
+pub fn convert_resized(input: &Path, output: &Path, width: Option<u32>) -> Result<Vec<Split>, DataError> {
+    if let Some(n) = width
+        && (n < 16 || n % 8 != 0)
+    {
+        return Err(DataError::invalid(
+            input,
+            format!("--size {n}: the size must be at least 16 and divisible by 8 (for the 1/8 scale)"),
+        ));
+    }
     std::fs::create_dir_all(output).map_err(|e| DataError::io(output, e))?;
     let mut all = serde_json::Map::new();
     let mut done = Vec::new();
@@ -116,13 +136,15 @@ pub fn convert(input: &Path, output: &Path) -> Result<Vec<Split>, DataError> {
         let mut images = Vec::with_capacity(frames.len());
         for fr in &frames {
             let (w, h, rgba, _) = read_png_rgba(&fr.file)?;
-            images.push(SourceImage {
-                width: w,
-                height: h,
-                rgba: rgba.iter().map(|&b| f32::from(b) / 255.0).collect(),
-                cam2world: fr.cam2world,
-            });
+            let mut rgba: Vec<f32> = rgba.iter().map(|&b| f32::from(b) / 255.0).collect();
+            let (mut w2, mut h2) = (w, h);
+            if let Some(n) = width {
+                (w2, h2) = resized_shape(&fr.file, w, h, n)?;
+                rgba = super::box_resize(&rgba, w as usize, h as usize, w2 as usize, h2 as usize);
+            }
+            images.push(SourceImage { width: w2, height: h2, rgba, cam2world: fr.cam2world });
         }
+        // The focal length follows the width: the field of view is unchanged.
         let focal = crate::camera::focal_from_camera_angle_x(images[0].width, angle);
         let meta =
             write_split(output, split, &images, focal, NUM_SCALES, f64::from(blender::NEAR), f64::from(blender::FAR))?;
@@ -134,6 +156,24 @@ pub fn convert(input: &Path, output: &Path) -> Result<Vec<Split>, DataError> {
     }
     write_metadata(output, &Value::Object(all))?;
     Ok(done)
+}
+
+/// The `width x height` an image of `w x h` gets at `width` pixels wide, checked.
+fn resized_shape(file: &Path, w: u32, h: u32, width: u32) -> Result<(u32, u32), DataError> {
+    if width > w {
+        return Err(DataError::invalid(file, format!("--size {width} is larger than the image ({w}x{h})")));
+    }
+    let hh = u64::from(h) * u64::from(width);
+    if hh % u64::from(w) != 0 || (hh / u64::from(w)) % 8 != 0 {
+        return Err(DataError::invalid(
+            file,
+            format!(
+                "--size {width}: a {w}x{h} image would be {width}x{:.2}, not a whole multiple of 8 high",
+                hh as f64 / f64::from(w)
+            ),
+        ));
+    }
+    Ok((width, (hh / u64::from(w)) as u32))
 }
 
 /// Writes `metadata.json` atomically (a temporary file renamed into place).

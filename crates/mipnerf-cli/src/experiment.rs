@@ -1,0 +1,416 @@
+//! `mipnerf experiment DIR`: a table of runs described by files, run to completion across
+//! interruptions and machines.
+//!
+//! The folder holds `experiment.toml` (the title, the data it expects, where results go, the
+//! rows in order, and the `[protocol]` every row shares: training settings written once) and one
+//! `ROW.toml` per row (`label`, and `[settings]` that differ from the protocol). For each row the
+//! command trains `OUT/ROW` unless it has finished (resuming one that was interrupted: at most the
+//! steps since its last checkpoint are lost), evaluates the test split, writes
+//! `RESULTS/ROW.json`, and rebuilds the generated table inside the markdown file `table` from
+//! every row's JSON present, so rows run at different times or on different machines meet in one
+//! table.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use mipnerf_core::data::Split;
+use serde::{Deserialize, Serialize};
+
+use crate::config::TrainSettings;
+use crate::lpips::LpipsWeights;
+use crate::run;
+
+/// The file describing an experiment.
+pub const EXPERIMENT_TOML: &str = "experiment.toml";
+/// The file of the paper's rows, beside `experiment.toml` (optional).
+pub const PAPER_TOML: &str = "paper.toml";
+/// Accumulated training wall-clock time of a row, inside its run directory.
+const TRAIN_SECONDS: &str = "train_seconds.txt";
+
+/// `experiment.toml`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Experiment {
+    /// A title for the table.
+    pub title: String,
+    /// What data the rows expect, in words (shown in the table).
+    pub data: String,
+    /// The full-resolution width of the data's training images; checked before training.
+    pub data_width: u32,
+    /// The folder of the rows' JSON files, relative to the experiment folder.
+    pub results: PathBuf,
+    /// The markdown file whose generated block holds the table, relative to the experiment folder.
+    pub table: PathBuf,
+    /// The rows, in the table's order; each is `ROW.toml` in the folder.
+    pub rows: Vec<String>,
+    /// Settings every row shares (the keys of `mipnerf train --config`).
+    pub protocol: TrainSettings,
+}
+
+/// `ROW.toml`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Row {
+    /// The row's name in the table (the paper's).
+    pub label: String,
+    /// Settings over the protocol.
+    #[serde(default)]
+    pub settings: TrainSettings,
+}
+
+/// `paper.toml`: the paper's rows, for the table beside ours.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Paper {
+    source: String,
+    row: Vec<PaperRow>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PaperRow {
+    id: String,
+    psnr: [f64; 4],
+    ssim: [f64; 4],
+    lpips: [f64; 4],
+    avg_error: f64,
+    params: String,
+}
+
+/// One row's results: `RESULTS/ROW.json`.
+#[derive(Debug, Serialize, Deserialize)]
+pub struct RowResult {
+    /// The row's id (its file name).
+    pub row: String,
+    /// The row's label.
+    pub label: String,
+    /// Mean test PSNR per scale, full resolution to 1/8.
+    pub psnr: Vec<f64>,
+    /// Mean test SSIM per scale.
+    pub ssim: Vec<f64>,
+    /// Mean test LPIPS per scale, or `null` without the weights.
+    pub lpips: Option<Vec<f64>>,
+    /// The LPIPS backbone, or `null`.
+    pub lpips_net: Option<String>,
+    /// The average error over the scales (the paper's when `lpips` is present).
+    pub avg_error: f64,
+    /// Its terms.
+    pub avg_error_terms: Vec<String>,
+    /// Wall-clock seconds of training (all segments of an interrupted run added up).
+    pub train_seconds: f64,
+    /// Wall-clock seconds of this evaluation.
+    pub eval_seconds: f64,
+    /// Parameters of the model.
+    pub params: usize,
+    /// Training steps.
+    pub steps: u64,
+    /// The commit the binary was built from (`-dirty` when the tree had changes).
+    pub commit: String,
+    /// The CPU's model name.
+    pub cpu: String,
+    /// Threads used.
+    pub threads: usize,
+    /// The backend it trained and was evaluated on.
+    pub backend: String,
+    /// The resolved training settings (without the data path).
+    pub settings: TrainSettings,
+}
+
+/// The flags of `mipnerf experiment`.
+pub struct ExperimentArgs {
+    /// The experiment folder.
+    pub dir: PathBuf,
+    /// The dataset.
+    pub data: Option<PathBuf>,
+    /// Where run directories go.
+    pub out: Option<PathBuf>,
+    /// Only these rows.
+    pub only: Vec<String>,
+    /// Only rebuild the table.
+    pub table_only: bool,
+    /// LPIPS weights.
+    pub lpips: LpipsWeights,
+}
+
+fn read_toml<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    toml::from_str(&text).with_context(|| format!("{}: invalid", path.display()))
+}
+
+/// Reads `experiment.toml` and every row's file, checking that each listed row has one.
+///
+/// # Errors
+/// A missing or invalid file (unknown keys included), named.
+pub fn read(dir: &Path) -> Result<(Experiment, Vec<(String, Row)>)> {
+    let exp: Experiment = read_toml(&dir.join(EXPERIMENT_TOML))?;
+    if exp.rows.is_empty() {
+        bail!("{}: \"rows\" is empty", dir.join(EXPERIMENT_TOML).display());
+    }
+    let mut rows = Vec::new();
+    for id in &exp.rows {
+        let path = dir.join(format!("{id}.toml"));
+        if !path.is_file() {
+            bail!(
+                "{}: row {id:?} is listed in {} but has no file",
+                path.display(),
+                dir.join(EXPERIMENT_TOML).display()
+            );
+        }
+        rows.push((id.clone(), read_toml::<Row>(&path)?));
+    }
+    Ok((exp, rows))
+}
+
+/// The commit this binary was built from.
+#[must_use]
+pub fn commit() -> &'static str {
+    env!("MIPNERF_COMMIT")
+}
+
+/// The CPU's model name, from `/proc/cpuinfo` where there is one.
+#[must_use]
+pub fn cpu_name() -> String {
+    std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|t| {
+            t.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split(':').nth(1))
+                .map(|s| s.trim().to_string())
+        })
+        .unwrap_or_else(|| std::env::consts::ARCH.to_string())
+}
+
+fn data_width(data: &Path) -> Result<u32> {
+    let meta = data.join("metadata.json");
+    let v: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(&meta)
+            .with_context(|| format!("{}: the experiment needs a multiscale dataset", meta.display()))?,
+    )
+    .with_context(|| format!("{}: malformed JSON", meta.display()))?;
+    v["train"]["width"][0]
+        .as_u64()
+        .and_then(|w| u32::try_from(w).ok())
+        .with_context(|| format!("{}: no train width", meta.display()))
+}
+
+/// Settings as they decide what a run computes (data path and backend aside).
+fn comparable(s: &TrainSettings) -> TrainSettings {
+    TrainSettings { data: None, backend: None, ..s.clone() }
+}
+
+/// Runs the experiment.
+///
+/// # Errors
+/// Bad experiment files, data of the wrong size, a run directory made with other settings, and
+/// every error of training and evaluation.
+pub fn experiment(args: &ExperimentArgs, stop: Arc<AtomicBool>) -> Result<()> {
+    let (exp, rows) = read(&args.dir)?;
+    for o in &args.only {
+        if !exp.rows.contains(o) {
+            bail!(
+                "--only {o}: no such row in {} (rows: {})",
+                args.dir.join(EXPERIMENT_TOML).display(),
+                exp.rows.join(", ")
+            );
+        }
+    }
+    let results = args.dir.join(&exp.results);
+    if !args.table_only {
+        let (Some(data), Some(out)) = (&args.data, &args.out) else { bail!("--data and --out are needed to run rows") };
+        let data = std::path::absolute(data).with_context(|| data.display().to_string())?;
+        let w = data_width(&data)?;
+        if w != exp.data_width {
+            bail!(
+                "{}: the training images are {w} px wide, but {} expects {} ({})",
+                data.display(),
+                args.dir.join(EXPERIMENT_TOML).display(),
+                exp.data_width,
+                exp.data
+            );
+        }
+        std::fs::create_dir_all(&results).with_context(|| results.display().to_string())?;
+        for (id, row) in rows.iter().filter(|(id, _)| args.only.is_empty() || args.only.contains(id)) {
+            let settings = TrainSettings { data: Some(data.clone()), ..exp.protocol.overridden_by(&row.settings) };
+            if !run_row(id, row, &settings, &out.join(id), &results, &args.lpips, &stop)? {
+                eprintln!("experiment interrupted in row {id}; run the same command again to continue");
+                std::process::exit(130);
+            }
+            write_table(&args.dir, &exp)?;
+        }
+    }
+    let path = write_table(&args.dir, &exp)?;
+    println!("table: {}", path.display());
+    Ok(())
+}
+
+/// Trains (or resumes) and evaluates one row; `false` when interrupted.
+fn run_row(
+    id: &str,
+    row: &Row,
+    settings: &TrainSettings,
+    run_dir: &Path,
+    results: &Path,
+    lpips: &LpipsWeights,
+    stop: &Arc<AtomicBool>,
+) -> Result<bool> {
+    let steps = settings.steps.unwrap_or(2000);
+    let ckpt = run_dir.join(run::CHECKPOINT);
+    let mut done_steps = 0;
+    if ckpt.is_file() {
+        let saved = run::read_config(run_dir)?;
+        let now = settings.resolved(false);
+        if comparable(&saved) != comparable(&now) {
+            bail!(
+                "{}: this run was made with other settings than {id}.toml and the protocol now give; \
+                 move it away to train the row again",
+                run_dir.display()
+            );
+        }
+        done_steps = run::load_trained(run_dir, &saved)?.1.step;
+    }
+    let seconds_path = run_dir.join(TRAIN_SECONDS);
+    let read_seconds = || std::fs::read_to_string(&seconds_path).ok().and_then(|s| s.trim().parse::<f64>().ok());
+    if done_steps < steps {
+        println!("== row {id} ({}): training, {} of {steps} steps done", row.label, done_steps);
+        let t = Instant::now();
+        let outcome =
+            run::train(run_dir, Some(settings.clone()), TrainSettings::default(), done_steps > 0, Arc::clone(stop))?;
+        let total = read_seconds().unwrap_or(0.0) + t.elapsed().as_secs_f64();
+        std::fs::write(&seconds_path, format!("{total:.1}\n")).with_context(|| seconds_path.display().to_string())?;
+        if outcome.interrupted {
+            return Ok(false);
+        }
+    }
+    let json_path = results.join(format!("{id}.json"));
+    let have_lpips = lpips.open()?.is_ok();
+    if let Ok(text) = std::fs::read_to_string(&json_path)
+        && let Ok(old) = serde_json::from_str::<RowResult>(&text)
+        && old.steps == steps
+        && (old.lpips.is_some() || !have_lpips)
+    {
+        println!("== row {id} ({}): done ({})", row.label, json_path.display());
+        return Ok(true);
+    }
+    println!("== row {id} ({}): evaluating", row.label);
+    let t = Instant::now();
+    let saved = run::read_config(run_dir)?;
+    let m = crate::eval::eval(run_dir, Split::Test, saved.backend.unwrap_or(crate::config::Backend::Cpu), lpips)?;
+    let (model, _) = run::load_trained(run_dir, &saved)?;
+    let r = RowResult {
+        row: id.to_string(),
+        label: row.label.clone(),
+        psnr: m.column(|s| s.psnr),
+        ssim: m.column(|s| s.ssim),
+        lpips: m.lpips_column(),
+        lpips_net: m.lpips_net.clone(),
+        avg_error: m.avg_error,
+        avg_error_terms: m.avg_error_terms.iter().map(|s| (*s).to_string()).collect(),
+        train_seconds: read_seconds().unwrap_or(f64::NAN),
+        eval_seconds: t.elapsed().as_secs_f64(),
+        params: model.num_params,
+        steps,
+        commit: commit().to_string(),
+        cpu: cpu_name(),
+        threads: rayon::current_num_threads(),
+        backend: format!("{:?}", saved.backend.unwrap_or(crate::config::Backend::Cpu)).to_lowercase(),
+        settings: TrainSettings { data: None, ..saved },
+    };
+    std::fs::write(&json_path, serde_json::to_string_pretty(&r)? + "\n")
+        .with_context(|| json_path.display().to_string())?;
+    println!(
+        "== row {id}: PSNR {} | avg error {:.4} -> {}",
+        r.psnr.iter().map(|p| format!("{p:.2}")).collect::<Vec<_>>().join(" / "),
+        r.avg_error,
+        json_path.display()
+    );
+    Ok(true)
+}
+
+const BEGIN: &str = "<!-- BEGIN GENERATED TABLE";
+const END: &str = "<!-- END GENERATED TABLE -->";
+
+fn fmt_list(v: &[f64], digits: usize) -> String {
+    v.iter().map(|x| format!(" {x:.digits$} |")).collect()
+}
+
+/// The generated markdown: our rows from their JSON files, then the paper's.
+fn table_markdown(dir: &Path, exp: &Experiment) -> Result<String> {
+    let results = dir.join(&exp.results);
+    let head = "| row | PSNR full | 1/2 | 1/4 | 1/8 | SSIM full | 1/2 | 1/4 | 1/8 | LPIPS full | 1/2 | 1/4 | 1/8 | Avg. error |";
+    let rule = "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|";
+    let mut s = format!(
+        "{BEGIN}: `mipnerf experiment` writes it from {}/*.json; edits inside are overwritten -->\n",
+        exp.results.display()
+    );
+    s += &format!("**Ours** ({}; one seed):\n\n{head} train time | params | commit |\n{rule}---|---|---|\n", exp.data);
+    let mut missing = Vec::new();
+    let mut two_term = false;
+    for id in &exp.rows {
+        let path = results.join(format!("{id}.json"));
+        let Ok(text) = std::fs::read_to_string(&path) else {
+            missing.push(id.as_str());
+            continue;
+        };
+        let r: RowResult = serde_json::from_str(&text).with_context(|| format!("{}: malformed", path.display()))?;
+        let lp = r.lpips.as_deref().map_or_else(|| " n/a |".repeat(4), |l| fmt_list(l, 4));
+        two_term |= r.lpips.is_none();
+        let star = if r.lpips.is_none() { "*" } else { "" };
+        s += &format!(
+            "| {} |{}{}{} {:.4}{star} | {:.0} min | {} | {} |\n",
+            r.label,
+            fmt_list(&r.psnr, 2),
+            fmt_list(&r.ssim, 4),
+            lp,
+            r.avg_error,
+            r.train_seconds / 60.0,
+            r.params,
+            &r.commit[..r.commit.len().min(12)]
+        );
+    }
+    if !missing.is_empty() {
+        s += &format!("\nNot run yet: {}.\n", missing.join(", "));
+    }
+    if two_term {
+        s += "\n\\* Without LPIPS: the two-term average error (MSE and sqrt(1 - SSIM)), not the paper's.\n";
+    }
+    let paper_path = dir.join(PAPER_TOML);
+    if paper_path.is_file() {
+        let p: Paper = read_toml(&paper_path)?;
+        s += &format!("\n**The paper's** ({}):\n\n{head} params |\n{rule}---|\n", p.source);
+        for id in &exp.rows {
+            let Some(r) = p.row.iter().find(|r| &r.id == id) else { continue };
+            let label = read_toml::<Row>(&dir.join(format!("{id}.toml")))?.label;
+            s += &format!(
+                "| {label} |{}{}{} {:.4} | {} |\n",
+                fmt_list(&r.psnr, 3),
+                fmt_list(&r.ssim, 4),
+                fmt_list(&r.lpips, 4),
+                r.avg_error,
+                r.params
+            );
+        }
+    }
+    s += END;
+    Ok(s)
+}
+
+/// Rebuilds the generated block of `exp.table` (creating the file, or appending the block, when
+/// there is none); the rest of the file is kept.
+fn write_table(dir: &Path, exp: &Experiment) -> Result<PathBuf> {
+    let path = dir.join(&exp.table);
+    let block = table_markdown(dir, exp)?;
+    let old = std::fs::read_to_string(&path).unwrap_or_else(|_| format!("# {}\n\n", exp.title));
+    let new = match (old.find(BEGIN), old.find(END)) {
+        (Some(a), Some(b)) if b > a => format!("{}{block}{}", &old[..a], &old[b + END.len()..]),
+        _ => format!("{old}\n{block}\n"),
+    };
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).with_context(|| parent.display().to_string())?;
+    }
+    std::fs::write(&path, new).with_context(|| format!("writing {}", path.display()))?;
+    Ok(path)
+}
