@@ -142,8 +142,13 @@ pub fn eval(run: &Path, split: Split, backend: Backend, weights: &LpipsWeights) 
         let (a, b) = (flat(&rendered), flat(&target));
         let mse = a.iter().zip(&b).map(|(x, y)| f64::from(x - y).powi(2)).sum::<f64>() / a.len() as f64;
         let ss = ssim(&a, &b, h, w, 3, &ssim_config(w, h));
-        let lp =
-            lpips.map(|l| l.distance(&a, &b, w, h)).transpose().with_context(|| view.file.display().to_string())?;
+        // LPIPS of images smaller than the backbone takes (the coarse scales of a tiny scene) is
+        // left out, image by image; the scale then has no LPIPS.
+        let lp = lpips
+            .filter(|l| w.min(h) >= l.min_side())
+            .map(|l| l.distance(&a, &b, w, h))
+            .transpose()
+            .with_context(|| view.file.display().to_string())?;
         let stem = view.file.file_stem().map_or_else(|| format!("{v:04}"), |s| s.to_string_lossy().to_string());
         write_png(&out.join(format!("{stem}.png")), w as u32, h as u32, &rgb_to_png(&rendered))?;
         per_image.push(ImageScore {
@@ -163,7 +168,7 @@ pub fn eval(run: &Path, split: Split, backend: Backend, weights: &LpipsWeights) 
         let n = imgs.len() as f64;
         let mean = |f: fn(&ImageScore) -> f64| imgs.iter().map(|i| f(i)).sum::<f64>() / n;
         let (psnr, ss) = (mean(|i| i.psnr), mean(|i| i.ssim));
-        let lp = lpips.map(|_| mean(|i| i.lpips.unwrap_or(f64::NAN)));
+        let lp = imgs.iter().map(|i| i.lpips).sum::<Option<f64>>().map(|sum| sum / n);
         per_scale.push(ScaleScore {
             scale,
             psnr,
@@ -174,22 +179,27 @@ pub fn eval(run: &Path, split: Split, backend: Backend, weights: &LpipsWeights) 
         });
     }
     let over_scales = |f: fn(&ScaleScore) -> f64| per_scale.iter().map(f).sum::<f64>() / per_scale.len().max(1) as f64;
-    let avg_error = average_error(
-        over_scales(|s| s.psnr),
-        over_scales(|s| s.ssim),
-        lpips.map(|_| over_scales(|s| s.lpips.unwrap_or(f64::NAN))),
-    );
+    let lpips_mean = per_scale.iter().map(|s| s.lpips).sum::<Option<f64>>().map(|sum| sum / per_scale.len() as f64);
+    let lpips_absent = match (lpips, lpips_mean) {
+        (Some(l), None) => Some(format!(
+            "some images are smaller than LPIPS-{} takes ({} px a side); those images and their scales have no LPIPS",
+            l.net().name(),
+            l.min_side()
+        )),
+        _ => lpips_absent.map(str::to_string),
+    };
+    let avg_error = average_error(over_scales(|s| s.psnr), over_scales(|s| s.ssim), lpips_mean);
     let metrics = Metrics {
         per_scale,
         per_image,
         avg_error,
-        avg_error_terms: if lpips.is_some() {
+        avg_error_terms: if lpips_mean.is_some() {
             vec!["mse", "sqrt(1 - ssim)", "lpips"]
         } else {
             vec!["mse", "sqrt(1 - ssim)"]
         },
         lpips_net: lpips.map(|l| l.net().name().to_string()),
-        lpips_absent: lpips_absent.map(str::to_string),
+        lpips_absent,
         ssim_settings: "official: 11-tap Gaussian filter, sigma 1.5, k1 0.01, k2 0.03, valid filtering, mean over \
                         channels; images smaller than 11 px use the largest odd filter that fits, sigma scaled alike",
         split,
@@ -224,7 +234,7 @@ pub fn markdown(m: &Metrics) -> String {
     head += " Avg. error |";
     rule += "---|";
     row += &format!(" {:.4} |", m.avg_error);
-    let avg = match &m.lpips_net {
+    let avg = match m.lpips_net.as_ref().filter(|_| m.avg_error_terms.len() == 3) {
         Some(net) => format!(
             "Average error: the paper's, the geometric mean of MSE = 10^(-PSNR/10), sqrt(1 - SSIM) and LPIPS ({net}), \
              each averaged over the scales."

@@ -303,3 +303,208 @@ fn bench_prints_throughput_of_each_backend() {
     assert_eq!(bad.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&bad.stderr).contains("--steps"));
 }
+
+/// `../shared/models/lpips`, or `None` (one line printed) when it is absent outside CI.
+fn shared_lpips(test: &str) -> Option<String> {
+    let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/models/lpips");
+    if dir.join("vgg16.safetensors").is_file() {
+        return Some(dir.to_str().unwrap().to_string());
+    }
+    assert!(std::env::var_os("CI").is_none(), "{test}: {} is absent in CI, which has ../shared", dir.display());
+    eprintln!("SKIPPED {test}: {} is absent (get the weights with scripts/fetch-lpips-weights.sh)", dir.display());
+    None
+}
+
+#[test]
+fn eval_reports_lpips_and_the_papers_average_error_or_says_how_to_get_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let cfg = mipnerf_core::data::demo::DemoConfig { size: 128, train_views: 2, test_views: 1, supersample: 1 };
+    mipnerf_core::data::demo::write_demo_scene(&data, &cfg).unwrap();
+    let run = dir.path().join("run");
+    let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
+    run_ok(&["train", "--data", d, "--out", r, "--steps", "3", "--batch-rays", "64", "--backend", "cpu"]);
+    let metrics = || -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(run.join("eval/metrics.json")).unwrap()).unwrap()
+    };
+    // Without weights: LPIPS is null (not 0), the average error is the two-term variant, named so,
+    // and one line says how to get the weights.
+    let text = run_ok(&["eval", "--run", r, "--backend", "cpu", "--lpips-weights", "/nonexistent"]);
+    assert!(text.contains("LPIPS: not computed") && text.contains("fetch-lpips-weights.sh"), "{text}");
+    let m = metrics();
+    assert!(m["per_scale"].as_array().unwrap().iter().all(|s| s["lpips"].is_null()), "{m}");
+    assert!(m["per_image"].as_array().unwrap().iter().all(|s| s["lpips"].is_null()), "{m}");
+    assert_eq!(m["avg_error_terms"], serde_json::json!(["mse", "sqrt(1 - ssim)"]));
+    assert!(m["lpips_net"].is_null() && m["lpips_absent"].as_str().unwrap().contains("/nonexistent"), "{m}");
+    let md = std::fs::read_to_string(run.join("eval/metrics.md")).unwrap();
+    assert!(md.contains("two-term variant") && md.contains("LPIPS full"), "{md}");
+    let Some(w) = shared_lpips("eval_reports_lpips_and_the_papers_average_error_or_says_how_to_get_them") else {
+        return;
+    };
+    // With weights: LPIPS per image and per scale (128 down to 16 px: VGG takes all four), and the
+    // paper's average error from the means over the scales.
+    let text = run_ok(&["eval", "--run", r, "--backend", "cpu", "--lpips-weights", &w]);
+    assert!(text.contains("LPIPS 0.") && text.contains("the paper's"), "{text}");
+    let m = metrics();
+    let scales = m["per_scale"].as_array().unwrap();
+    assert_eq!(scales.len(), 4);
+    let mean = |k: &str| scales.iter().map(|s| s[k].as_f64().unwrap()).sum::<f64>() / 4.0;
+    for s in scales {
+        let l = s["lpips"].as_f64().unwrap();
+        assert!(l > 0.0 && l < 2.0, "{s}");
+    }
+    for i in m["per_image"].as_array().unwrap() {
+        assert!(i["lpips"].as_f64().is_some_and(|l| l > 0.0), "{i}");
+    }
+    let want = mipnerf_core::metrics::average_error(mean("psnr"), mean("ssim"), Some(mean("lpips")));
+    assert!((m["avg_error"].as_f64().unwrap() - want).abs() < 1e-12, "{m}");
+    assert_eq!(m["avg_error_terms"], serde_json::json!(["mse", "sqrt(1 - ssim)", "lpips"]));
+    assert_eq!(m["lpips_net"], "vgg16");
+    let md = std::fs::read_to_string(run.join("eval/metrics.md")).unwrap();
+    assert!(md.contains("the paper's") && md.contains("LPIPS 1/8") && !md.contains("n/a"), "{md}");
+}
+
+#[test]
+fn compare_prints_psnr_ssim_and_lpips_or_a_clear_error() {
+    let golden = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../mipnerf-core/tests/data/lpips");
+    let (a, b) = (golden.join("ref_64.png"), golden.join("blur_64.png"));
+    let (a, b) = (a.to_str().unwrap(), b.to_str().unwrap());
+    // Missing weights: PSNR and SSIM still printed, LPIPS null, a clear error.
+    let out = mipnerf(&["compare", a, b, "--json", "--lpips-weights", "/nonexistent"]);
+    assert_eq!(out.status.code(), Some(1));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(v["psnr"].as_f64().unwrap() > 20.0 && v["ssim"].as_f64().unwrap() > 0.5 && v["lpips"].is_null(), "{v}");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("LPIPS not computed") && err.contains("/nonexistent/vgg16.safetensors"), "{err}");
+    // Different sizes and unreadable files.
+    let other = golden.join("ref_200.png");
+    let out = mipnerf(&["compare", a, other.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.code() == Some(1) && err.contains("is 64x64 but") && err.contains("200x200"), "{err}");
+    let out = mipnerf(&["compare", a, "/nonexistent.png"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.code() == Some(1) && err.contains("/nonexistent.png") && !err.contains("panicked"), "{err}");
+    let Some(w) = shared_lpips("compare_prints_psnr_ssim_and_lpips_or_a_clear_error") else { return };
+    // The reference's value for this pair, with both backbones.
+    for (net, name, want) in [("vgg", "vgg16", 0.219_590_097_665_786_74), ("alex", "alexnet", 0.377_614_110_708_236_7)]
+    {
+        let out = run_ok(&["compare", a, b, "--json", "--net", net, "--lpips-weights", &w]);
+        let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
+        assert!((v["lpips"].as_f64().unwrap() - want).abs() < 1e-5, "{v}");
+        assert_eq!(v["lpips_net"], name);
+    }
+    // An image with alpha is composited on white: a transparent image equals a white one.
+    let dir = tempfile::tempdir().unwrap();
+    let (clear, white) = (dir.path().join("clear.png"), dir.path().join("white.png"));
+    image::RgbaImage::from_pixel(32, 32, image::Rgba([10, 200, 30, 0])).save(&clear).unwrap();
+    image::RgbImage::from_pixel(32, 32, image::Rgb([255, 255, 255])).save(&white).unwrap();
+    let text = run_ok(&["compare", clear.to_str().unwrap(), white.to_str().unwrap(), "--lpips-weights", &w]);
+    assert!(text.contains("LPIPS 0.000000") && text.contains("SSIM  1.0"), "{text}");
+}
+
+/// An experiment folder of two rows over the 16-pixel demo scene.
+fn small_experiment(dir: &std::path::Path, steps: u64) -> std::path::PathBuf {
+    let exp = dir.join("exp");
+    std::fs::create_dir_all(&exp).unwrap();
+    std::fs::write(
+        exp.join("experiment.toml"),
+        format!(
+            "title = \"t\"\ndata = \"demo 16 px\"\ndata_width = 16\nresults = \"results\"\ntable = \"RESULTS.md\"\n\
+             rows = [\"nerf\", \"mipnerf\"]\n[protocol]\npreset = \"tiny\"\nsteps = {steps}\nbatch_rays = 32\n\
+             backend = \"cpu\"\ncheckpoint_every = 10\nlog_every = 1\n"
+        ),
+    )
+    .unwrap();
+    std::fs::write(exp.join("nerf.toml"), "label = \"NeRF\"\n[settings]\nmodel = \"nerf\"\n").unwrap();
+    std::fs::write(exp.join("mipnerf.toml"), "label = \"Mip-NeRF\"\n[settings]\nmodel = \"mipnerf\"\n").unwrap();
+    std::fs::write(exp.join("RESULTS.md"), "# Results\n\nProse that the table must not overwrite.\n").unwrap();
+    exp
+}
+
+#[test]
+fn an_experiment_trains_every_row_resumes_when_interrupted_and_tables_the_json() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_demo_scene(dir.path(), 2);
+    let exp = small_experiment(dir.path(), 600);
+    let out = dir.path().join("runs");
+    let args = ["experiment", exp.to_str().unwrap(), "--data", data.to_str().unwrap(), "--out", out.to_str().unwrap()];
+    // Interrupted during the first row: it keeps its checkpoint and exits 130.
+    let child = Command::new(env!("CARGO_BIN_EXE_mipnerf"))
+        .args(args)
+        .arg("--lpips-weights=/nonexistent")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let csv = out.join("nerf/metrics.csv");
+    let t = std::time::Instant::now();
+    while std::fs::read_to_string(&csv).map_or(0, |s| s.lines().count()) < 30 {
+        assert!(t.elapsed().as_secs() < 120, "training did not start");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    assert!(Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap().success());
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(130), "{err}");
+    assert!(err.contains("experiment interrupted in row nerf"), "{err}");
+    assert!(!exp.join("results/nerf.json").exists());
+    // Run again: the first row resumes from its checkpoint, the second trains, both are evaluated.
+    let mut a: Vec<&str> = args.to_vec();
+    a.push("--lpips-weights=/nonexistent");
+    let text = run_ok(&a);
+    let resumed = text.lines().find(|l| l.starts_with("== row nerf (NeRF): training, ")).unwrap();
+    assert!(!resumed.contains("training, 0 of"), "{resumed}");
+    let tiny = mipnerf_core::model::Preset::Tiny.config();
+    for (row, cfg) in [("nerf", tiny.clone().nerf()), ("mipnerf", tiny)] {
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(exp.join(format!("results/{row}.json"))).unwrap()).unwrap();
+        for key in ["psnr", "ssim"] {
+            assert_eq!(v[key].as_array().unwrap().len(), 4, "{row}: {key}");
+        }
+        assert!(v["lpips"].is_null(), "{row}: {v}");
+        for key in ["avg_error", "train_seconds", "params", "steps", "threads"] {
+            assert!(v[key].as_f64().is_some_and(|x| x > 0.0), "{row}: {key} = {}", v[key]);
+        }
+        assert_eq!(v["steps"], 600);
+        assert!(v["commit"].as_str().unwrap().len() >= 7 && !v["cpu"].as_str().unwrap().is_empty(), "{v}");
+        // NeRF has one MLP per level (and PE inputs): its own count.
+        let params = mipnerf_core::model::Model::new(cfg).unwrap().num_params;
+        assert_eq!(v["params"].as_u64().unwrap() as usize, params, "{row}");
+    }
+    let table = std::fs::read_to_string(exp.join("RESULTS.md")).unwrap();
+    assert!(table.contains("Prose that the table must not overwrite."), "{table}");
+    assert!(table.contains("| NeRF |") && table.contains("| Mip-NeRF |"), "{table}");
+    // Finished rows are neither trained nor evaluated again; the table is rebuilt, not appended.
+    let text = run_ok(&a);
+    assert!(text.contains("row nerf (NeRF): done") && text.contains("row mipnerf (Mip-NeRF): done"), "{text}");
+    let again = std::fs::read_to_string(exp.join("RESULTS.md")).unwrap();
+    assert_eq!(again.matches("BEGIN GENERATED TABLE").count(), 1, "{again}");
+}
+
+#[test]
+fn bad_experiment_files_are_clear_errors_naming_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_demo_scene(dir.path(), 2);
+    let (d, o) = (data.to_str().unwrap().to_string(), dir.path().join("runs").to_str().unwrap().to_string());
+    let run = |exp: &std::path::Path| {
+        let r = mipnerf(&["experiment", exp.to_str().unwrap(), "--data", &d, "--out", &o]);
+        assert_eq!(r.status.code(), Some(1), "{r:?}");
+        String::from_utf8_lossy(&r.stderr).to_string()
+    };
+    let exp = small_experiment(dir.path(), 5);
+    std::fs::write(exp.join("mipnerf.toml"), "label = \"Mip-NeRF\"\n[settings]\nipee = false\n").unwrap();
+    let err = run(&exp);
+    assert!(err.contains("mipnerf.toml") && err.contains("ipee"), "{err}");
+    std::fs::remove_file(exp.join("mipnerf.toml")).unwrap();
+    let err = run(&exp);
+    assert!(err.contains("mipnerf.toml") && err.contains("has no file"), "{err}");
+    let exp = small_experiment(&dir.path().join("b"), 5);
+    let text = std::fs::read_to_string(exp.join("experiment.toml")).unwrap();
+    std::fs::write(exp.join("experiment.toml"), text.replace("data_width = 16", "data_width = 256")).unwrap();
+    let err = run(&exp);
+    assert!(err.contains("16 px wide") && err.contains("expects 256"), "{err}");
+    std::fs::write(exp.join("experiment.toml"), text + "colour = 1\n").unwrap();
+    let err = run(&exp);
+    assert!(err.contains("experiment.toml") && err.contains("colour"), "{err}");
+    assert!(!dir.path().join("runs").exists(), "nothing is trained before the files are checked");
+}

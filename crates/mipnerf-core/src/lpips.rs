@@ -299,8 +299,10 @@ impl Lpips {
         Ok(total)
     }
 
-    /// The smallest side the backbone takes (every tap at least 1 x 1).
-    fn min_side(&self) -> usize {
+    /// The smallest image side the backbone takes (every tap at least 1 x 1): 16 for VGG16, 31
+    /// for AlexNet.
+    #[must_use]
+    pub fn min_side(&self) -> usize {
         let mut side = 1usize;
         for l in self.layers.iter().rev() {
             match l {
