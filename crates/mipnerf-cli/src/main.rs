@@ -7,6 +7,7 @@ mod check;
 mod config;
 mod eval;
 mod experiment;
+mod figure;
 mod images;
 mod lpips;
 mod plot;
@@ -119,6 +120,30 @@ enum Command {
         table_only: bool,
         #[command(flatten)]
         lpips: lpips::LpipsWeights,
+    },
+    /// The paper's figure 1 for evaluated runs: one test view at every scale, ground truth beside
+    /// each run's render (blown up with square pixels so aliasing shows), a zoomed crop of each, and
+    /// the PSNR written on every render.
+    Figure {
+        /// An evaluated run directory (repeat: e.g. NeRF, then Mip-NeRF).
+        #[arg(long = "run", value_name = "RUN_DIR", required = true)]
+        runs: Vec<PathBuf>,
+        /// A column title per --run [default: the run directories' names].
+        #[arg(long = "label")]
+        labels: Vec<String>,
+        /// The test view (its index at each scale).
+        #[arg(long, default_value_t = 0)]
+        view: usize,
+        /// Cell side in pixels.
+        #[arg(long, default_value_t = 192)]
+        cell: u32,
+        /// Zoom window X,Y,SIDE as fractions of the image [default: where the first run's error
+        /// exceeds the last run's the most at the coarsest scale].
+        #[arg(long, value_name = "X,Y,SIDE", value_delimiter = ',', num_args = 3)]
+        crop: Option<Vec<f64>>,
+        /// The PNG to write.
+        #[arg(long, value_name = "FILE.png")]
+        out: PathBuf,
     },
     /// Render a trained run: colour PNGs, depth and opacity EXRs, colour-mapped depth PNGs, and an
     /// animated preview (preview.gif) for camera paths.
@@ -378,6 +403,17 @@ fn main() -> std::process::ExitCode {
             };
             render::render(&run, &out, target, width.zip(height), backend)
                 .map(|files| println!("wrote {} files to {}", files.len(), out.display()))
+        }
+        Command::Figure { runs, labels, view, cell, crop, out } => {
+            let crop = crop.map(|c| (c[0], c[1], c[2]));
+            let args = figure::FigureArgs { runs, labels, view, cell: cell.clamp(32, 1024), crop, out };
+            figure::figure(&args).map(|s| {
+                for (label, psnr) in s.runs {
+                    let p: Vec<String> = psnr.iter().map(|p| format!("{p:.2}")).collect();
+                    println!("{label}: test PSNR per scale (full to coarsest) {}", p.join(" / "));
+                }
+                println!("wrote {}", args.out.display());
+            })
         }
         Command::Compare { a, b, json, lpips } => eval::compare(&a, &b, json, &lpips),
         Command::Experiment { dir, data, out, only, table_only, lpips } => {

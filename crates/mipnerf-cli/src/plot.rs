@@ -9,7 +9,7 @@ use plotters::prelude::*;
 
 static FONT: OnceLock<bool> = OnceLock::new();
 
-fn ensure_font() {
+pub(crate) fn ensure_font() {
     FONT.get_or_init(|| {
         plotters::style::register_font("sans-serif", FontStyle::Normal, include_bytes!("../assets/DejaVuSans.ttf"))
             .is_ok()

@@ -1,0 +1,258 @@
+//! `mipnerf figure`: the paper's figure 1 for evaluated runs: one test view at every scale,
+//! ground truth beside each run's render (each scale blown up to one size with square pixels, so
+//! aliasing shows as it would on screen), a zoomed crop of each, and the PSNR on every render.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use plotters::prelude::*;
+
+/// What the figure shows.
+pub struct FigureArgs {
+    /// Evaluated run directories (`mipnerf eval` done), one column each.
+    pub runs: Vec<PathBuf>,
+    /// Column titles, one per run [default: the run directories' names].
+    pub labels: Vec<String>,
+    /// Which test view (index within each scale).
+    pub view: usize,
+    /// Side of one cell in pixels.
+    pub cell: u32,
+    /// Crop `(x, y, side)` as fractions of the image; `None` picks the window where the first run's
+    /// error exceeds the last run's the most at the coarsest scale.
+    pub crop: Option<(f64, f64, f64)>,
+    /// The PNG to write.
+    pub out: PathBuf,
+}
+
+/// One image: `w x h` RGB in `[0, 1]`.
+struct Img {
+    w: usize,
+    h: usize,
+    rgb: Vec<f32>,
+}
+
+impl Img {
+    fn read(path: &Path) -> Result<Self> {
+        let img = image::open(path).with_context(|| format!("{}: cannot read the image", path.display()))?;
+        let alpha = img.color().has_alpha();
+        let p = img.to_rgba32f();
+        let (w, h) = (p.width() as usize, p.height() as usize);
+        let rgb = p
+            .pixels()
+            .flat_map(|q| {
+                let a = if alpha { q.0[3] } else { 1.0 };
+                [0, 1, 2].map(|c| q.0[c] * a + (1.0 - a))
+            })
+            .collect();
+        Ok(Self { w, h, rgb })
+    }
+
+    fn px(&self, x: usize, y: usize) -> [f32; 3] {
+        let i = (y.min(self.h - 1) * self.w + x.min(self.w - 1)) * 3;
+        [self.rgb[i], self.rgb[i + 1], self.rgb[i + 2]]
+    }
+}
+
+/// One column's images at every scale, with their PSNRs.
+struct Column {
+    title: String,
+    images: Vec<Img>,
+    psnr: Vec<Option<f64>>,
+}
+
+/// The per-scale PSNRs of each run's whole test split, for the caller to print.
+pub struct FigureSummary {
+    /// `(label, mean PSNR per scale)` of each run.
+    pub runs: Vec<(String, Vec<f64>)>,
+}
+
+fn read_metrics(run: &Path) -> Result<serde_json::Value> {
+    let path = run.join("eval/metrics.json");
+    let text = std::fs::read_to_string(&path)
+        .with_context(|| format!("{}: run `mipnerf eval` on it first", path.display()))?;
+    serde_json::from_str(&text).with_context(|| format!("{}: malformed JSON", path.display()))
+}
+
+/// The chosen view's entry at every scale: `(data file, scale, psnr)`.
+fn view_entries(m: &serde_json::Value, view: usize, path: &Path) -> Result<Vec<(String, Option<f64>)>> {
+    let per_image = m["per_image"].as_array().with_context(|| format!("{}: no per_image list", path.display()))?;
+    let mut scales: Vec<u64> = per_image.iter().filter_map(|i| i["scale"].as_u64()).collect();
+    scales.sort_unstable();
+    scales.dedup();
+    scales
+        .iter()
+        .map(|&s| {
+            let at: Vec<&serde_json::Value> = per_image.iter().filter(|i| i["scale"].as_u64() == Some(s)).collect();
+            let e = at.get(view).with_context(|| {
+                format!("{}: view {view} does not exist at scale {s} ({} views)", path.display(), at.len())
+            })?;
+            let file = e["file"].as_str().with_context(|| format!("{}: an image without a file", path.display()))?;
+            Ok((file.to_string(), e["psnr"].as_f64()))
+        })
+        .collect()
+}
+
+/// The crop window (fractions) where `a`'s squared error exceeds `b`'s the most.
+fn pick_crop(gt: &Img, a: &Img, b: &Img, side: f64) -> (f64, f64, f64) {
+    let win = ((gt.w.min(gt.h) as f64 * side).round() as usize).max(1);
+    let err = |img: &Img, x: usize, y: usize| -> f32 {
+        let (p, q) = (img.px(x, y), gt.px(x, y));
+        (0..3).map(|c| (p[c] - q[c]).powi(2)).sum()
+    };
+    let mut best = (f32::NEG_INFINITY, 0, 0);
+    for y0 in 0..=gt.h.saturating_sub(win) {
+        for x0 in 0..=gt.w.saturating_sub(win) {
+            let mut s = 0.0;
+            for y in y0..y0 + win {
+                for x in x0..x0 + win {
+                    s += err(a, x, y) - err(b, x, y);
+                }
+            }
+            if s > best.0 {
+                best = (s, x0, y0);
+            }
+        }
+    }
+    (best.1 as f64 / gt.w as f64, best.2 as f64 / gt.h as f64, win as f64 / gt.w.min(gt.h) as f64)
+}
+
+/// Writes the figure; returns each run's per-scale PSNR.
+///
+/// # Errors
+/// Runs that are not evaluated, runs of different data, unreadable images, or an unwritable PNG.
+pub fn figure(args: &FigureArgs) -> Result<FigureSummary> {
+    if args.runs.len() < 1 || args.runs.len() > 4 {
+        bail!("--run: give 1 to 4 evaluated runs, got {}", args.runs.len());
+    }
+    if !args.labels.is_empty() && args.labels.len() != args.runs.len() {
+        bail!("--label: give one per --run ({} runs, {} labels)", args.runs.len(), args.labels.len());
+    }
+    if let Some((x, y, s)) = args.crop
+        && !(s > 0.0 && x >= 0.0 && y >= 0.0 && x + s <= 1.0 && y + s <= 1.0)
+    {
+        bail!("--crop {x},{y},{s}: the window must lie inside the image (fractions in [0, 1])");
+    }
+    let mut columns = Vec::new();
+    let mut summary = Vec::new();
+    let mut gt_files: Option<Vec<String>> = None;
+    for (k, run) in args.runs.iter().enumerate() {
+        let m = read_metrics(run)?;
+        let entries = view_entries(&m, args.view, &run.join("eval/metrics.json"))?;
+        let files: Vec<String> = entries.iter().map(|e| e.0.clone()).collect();
+        match &gt_files {
+            None => gt_files = Some(files.clone()),
+            Some(g) if *g != files => {
+                bail!("{}: evaluated on other images than {}", run.display(), args.runs[0].display())
+            }
+            Some(_) => {}
+        }
+        let title = args.labels.get(k).cloned().unwrap_or_else(|| {
+            run.file_name().map_or_else(|| run.display().to_string(), |n| n.to_string_lossy().to_string())
+        });
+        let images = files
+            .iter()
+            .map(|f| {
+                let stem = Path::new(f).file_stem().map_or_else(String::new, |s| s.to_string_lossy().to_string());
+                Img::read(&run.join("eval").join(format!("{stem}.png")))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let per_scale =
+            m["per_scale"].as_array().map_or_else(Vec::new, |a| a.iter().filter_map(|s| s["psnr"].as_f64()).collect());
+        summary.push((title.clone(), per_scale));
+        columns.push(Column { title, images, psnr: entries.iter().map(|e| e.1).collect() });
+    }
+    let gt_files = gt_files.unwrap_or_default();
+    let gt = Column {
+        title: "ground truth".to_string(),
+        images: gt_files.iter().map(|f| Img::read(Path::new(f))).collect::<Result<Vec<_>>>()?,
+        psnr: vec![None; gt_files.len()],
+    };
+    let coarsest = gt_files.len() - 1;
+    let crop = args.crop.unwrap_or_else(|| {
+        let (a, b) = (&columns[0].images[coarsest], &columns[columns.len() - 1].images[coarsest]);
+        pick_crop(&gt.images[coarsest], a, b, 0.3)
+    });
+    columns.insert(0, gt);
+    draw(args, &columns, crop)?;
+    Ok(FigureSummary { runs: summary })
+}
+
+const HEADER: u32 = 34;
+const ROW_LABEL: u32 = 30;
+const GAP: u32 = 4;
+
+fn draw(args: &FigureArgs, columns: &[Column], crop: (f64, f64, f64)) -> Result<()> {
+    crate::plot::ensure_font();
+    let n_cols = columns.len() as u32 * 2;
+    let n_rows = columns[0].images.len() as u32;
+    let cell = args.cell;
+    let (w, h) = (ROW_LABEL + n_cols * (cell + GAP), HEADER + n_rows * (cell + GAP));
+    let mut buf = vec![255u8; (w * h * 3) as usize];
+    // Pixels: each image blown up with square pixels (nearest), then its crop.
+    for (ci, col) in columns.iter().enumerate() {
+        for (r, img) in col.images.iter().enumerate() {
+            let y0 = HEADER + r as u32 * (cell + GAP);
+            for (half, window) in [(0, (0.0, 0.0, 1.0)), (1, crop)] {
+                let x0 = ROW_LABEL + (half * columns.len() as u32 + ci as u32) * (cell + GAP);
+                for y in 0..cell {
+                    for x in 0..cell {
+                        let fx = window.0 + window.2 * (f64::from(x) + 0.5) / f64::from(cell);
+                        let fy = window.1 + window.2 * (f64::from(y) + 0.5) / f64::from(cell);
+                        let p = img.px((fx * img.w as f64) as usize, (fy * img.h as f64) as usize);
+                        let i = (((y0 + y) * w + x0 + x) * 3) as usize;
+                        for c in 0..3 {
+                            buf[i + c] = (p[c].clamp(0.0, 1.0) * 255.0).round() as u8;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let err = |e: &dyn std::fmt::Debug| anyhow::anyhow!("drawing {}: {e:?}", args.out.display());
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        let font = ("sans-serif", 15).into_font().color(&BLACK);
+        let small = ("sans-serif", 15).into_font().color(&BLACK);
+        for (ci, col) in columns.iter().enumerate() {
+            for half in 0..2 {
+                let x0 = ROW_LABEL + (half * columns.len() as u32 + ci as u32) * (cell + GAP);
+                let t = if half == 0 { col.title.clone() } else { format!("{} (zoom)", col.title) };
+                root.draw(&Text::new(t, (x0 as i32 + 4, 8), font.clone())).map_err(|e| err(&e))?;
+                for (r, psnr) in col.psnr.iter().enumerate() {
+                    let y0 = (HEADER + r as u32 * (cell + GAP)) as i32;
+                    if half == 0 {
+                        let (cx, cy, cs) = crop;
+                        let (a, b) = (
+                            (x0 as i32 + (cx * f64::from(cell)) as i32, y0 + (cy * f64::from(cell)) as i32),
+                            (
+                                x0 as i32 + ((cx + cs) * f64::from(cell)) as i32,
+                                y0 + ((cy + cs) * f64::from(cell)) as i32,
+                            ),
+                        );
+                        root.draw(&Rectangle::new([a, b], RGBColor(230, 160, 0).stroke_width(2)))
+                            .map_err(|e| err(&e))?;
+                    }
+                    if let Some(p) = psnr {
+                        let label = format!("{p:.2} dB");
+                        let (bx, by) = (x0 as i32 + 3, y0 + cell as i32 - 22);
+                        root.draw(&Rectangle::new([(bx, by), (bx + 72, by + 19)], WHITE.mix(0.8).filled()))
+                            .map_err(|e| err(&e))?;
+                        root.draw(&Text::new(label, (bx + 4, by + 2), small.clone())).map_err(|e| err(&e))?;
+                    }
+                }
+            }
+        }
+        for (r, img) in columns[0].images.iter().enumerate() {
+            let y0 = (HEADER + r as u32 * (cell + GAP) + cell / 2) as i32;
+            let scale = if r == 0 { "full".to_string() } else { format!("1/{}", 1 << r) };
+            let style = small.clone().transform(FontTransform::Rotate270);
+            root.draw(&Text::new(format!("{scale}, {} px", img.w), (6, y0 + 40), style)).map_err(|e| err(&e))?;
+        }
+        root.present().map_err(|e| err(&e))?;
+    }
+    if let Some(parent) = args.out.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent).with_context(|| parent.display().to_string())?;
+    }
+    image::save_buffer(&args.out, &buf, w, h, image::ExtendedColorType::Rgb8)
+        .with_context(|| format!("writing {}", args.out.display()))
+}
