@@ -121,7 +121,7 @@ fn pick_crop(gt: &Img, a: &Img, b: &Img, side: f64) -> (f64, f64, f64) {
 /// # Errors
 /// Runs that are not evaluated, runs of different data, unreadable images, or an unwritable PNG.
 pub fn figure(args: &FigureArgs) -> Result<FigureSummary> {
-    if args.runs.len() < 1 || args.runs.len() > 4 {
+    if args.runs.is_empty() || args.runs.len() > 4 {
         bail!("--run: give 1 to 4 evaluated runs, got {}", args.runs.len());
     }
     if !args.labels.is_empty() && args.labels.len() != args.runs.len() {

@@ -33,6 +33,10 @@ const EXAMPLES: &str = "Examples:
   mipnerf eval --run runs/lego
   mipnerf render --run runs/lego --out renders --path orbit --frames 60 --width 400 --height 400
   mipnerf convert --input nerf_synthetic/lego --output lego_multiscale
+  mipnerf convert --input nerf_synthetic/lego --output lego256 --size 256   # box-filtered first
+  mipnerf experiment experiments/multiscale-lego --data lego256 --out runs/ms
+  mipnerf figure --run runs/ms/nerf --run runs/ms/mipnerf --out fig.png
+  mipnerf compare render.png truth.png --json
   mipnerf bench --preset paper --backend both                  # training and rendering speed here
   mipnerf info";
 
@@ -207,8 +211,9 @@ enum Command {
         #[arg(long, value_name = "N")]
         size: Option<u32>,
     },
-    /// The built-in demo scene end to end: generate it into RUN_DIR/data, train, evaluate and
-    /// render, then say where everything is.
+    /// The built-in demo scene end to end: generate it into RUN_DIR/data, train Mip-NeRF (in
+    /// RUN_DIR) and the NeRF baseline (RUN_DIR/nerf) alike, evaluate both, render, and write
+    /// RUN_DIR/antialiasing.png: one test view at four scales, ground truth | NeRF | Mip-NeRF.
     Demo {
         /// Run directory (created).
         #[arg(long, value_name = "RUN_DIR")]
@@ -216,8 +221,8 @@ enum Command {
         /// Model size.
         #[arg(long, value_enum, default_value_t = PresetArg::Tiny)]
         preset: PresetArg,
-        /// Training steps.
-        #[arg(long, default_value_t = 1500)]
+        /// Training steps of each system (Mip-NeRF, then the NeRF baseline).
+        #[arg(long, default_value_t = 800)]
         steps: u64,
         /// Where to run.
         #[arg(long, value_enum, default_value_t = Backend::Auto)]
@@ -330,39 +335,86 @@ fn demo_cmd(out: &Path, d: &DemoArgs) -> Result<()> {
         demo::write_demo_scene(&data_dir, &cfg)?;
         println!("generated the demo scene in {} ({:.1}s)", data_dir.display(), t.elapsed().as_secs_f64());
     }
-    let flags = TrainFlags {
-        data: Some(data_dir.clone()),
-        preset: Some(d.preset),
-        steps: Some(d.steps),
-        backend: Some(d.backend),
-        seed: Some(d.seed),
-        batch_rays: Some(d.batch_rays),
-        lr_init: Some(2e-3),
-        lr_final: Some(2e-4),
-        ..TrainFlags::default()
-    };
-    let resume = out.join(run::CHECKPOINT).is_file();
-    let outcome = train_cmd(out, None, resume, &flags, stop_flag())?;
-    if outcome.interrupted {
-        return Ok(());
+    // Mip-NeRF in RUN_DIR, the NeRF baseline in RUN_DIR/nerf: the same data, steps, batch,
+    // learning rates and seed.
+    let nerf_dir = out.join("nerf");
+    let weights = lpips::LpipsWeights::default();
+    let mut scores = Vec::new();
+    for (name, dir, model) in
+        [("Mip-NeRF", out, config::ModelKind::Mipnerf), ("NeRF", nerf_dir.as_path(), config::ModelKind::Nerf)]
+    {
+        println!("== training {name} ({} steps)", d.steps);
+        let flags = TrainFlags {
+            data: Some(data_dir.clone()),
+            preset: Some(d.preset),
+            model: Some(model),
+            steps: Some(d.steps),
+            backend: Some(d.backend),
+            seed: Some(d.seed),
+            batch_rays: Some(d.batch_rays),
+            lr_init: Some(2e-3),
+            lr_final: Some(2e-4),
+            ..TrainFlags::default()
+        };
+        let resume = dir.join(run::CHECKPOINT).is_file();
+        let outcome = train_cmd(dir, None, resume, &flags, stop_flag())?;
+        if outcome.interrupted {
+            return Ok(());
+        }
+        let metrics = eval::eval(dir, Split::Test, d.backend, &weights)?;
+        println!("{name} test metrics:");
+        print_eval(&metrics);
+        scores.push((name, metrics));
     }
-    let metrics = eval::eval(out, Split::Test, d.backend, &lpips::LpipsWeights::default())?;
-    println!("test metrics:");
-    print_eval(&metrics);
     let renders = render::render(out, &out.join("render"), render::Target::Split(Split::Test), None, d.backend)?;
     let orbit = render::Target::Path(render::PathKind::Orbit, 36);
     let path = render::render(out, &out.join("render_orbit"), orbit, None, d.backend)?;
+    let fig_path = out.join("antialiasing.png");
+    let fig = figure::FigureArgs {
+        runs: vec![nerf_dir.clone(), out.to_path_buf()],
+        labels: vec!["NeRF".to_string(), "Mip-NeRF".to_string()],
+        view: 0,
+        cell: 192,
+        crop: None,
+        out: fig_path.clone(),
+    };
+    figure::figure(&fig)?;
     println!("\nEverything is in {}:", out.display());
     println!("  data/                     the generated scene (multiscale Blender format)");
-    println!("  config.toml               the resolved training configuration");
-    println!("  checkpoint.safetensors    weights and optimiser state");
-    println!("  metrics.csv, loss.png, psnr.png   training curves");
-    println!("  eval/metrics.json, eval/metrics.md, eval/psnr_per_image.png, eval/*.png   test scores and renders");
+    println!("  config.toml, checkpoint.safetensors, metrics.csv, loss.png, psnr.png   the Mip-NeRF run");
+    println!("  nerf/                     the NeRF baseline's run, trained alike");
+    println!("  eval/, nerf/eval/         test scores (metrics.json, metrics.md) and renders of each");
     println!(
         "  render/                   {} files: colour, depth (EXR and PNG), opacity (EXR) of the test views",
         renders.len()
     );
     println!("  render_orbit/preview.gif  an orbit around the scene ({} files)", path.len());
+    println!("\nTest PSNR (dB) per scale, the same scene seen at full, 1/2, 1/4 and 1/8 resolution:");
+    println!("  | system | full | 1/2 | 1/4 | 1/8 | mean |");
+    println!("  |---|---|---|---|---|---|");
+    for (name, m) in &scores {
+        let p = m.column(|s| s.psnr);
+        let cells: Vec<String> = p.iter().map(|x| format!("{x:.2}")).collect();
+        println!("  | {name} | {} | {:.2} |", cells.join(" | "), p.iter().sum::<f64>() / p.len().max(1) as f64);
+    }
+    let gain = |k: usize| {
+        scores[0].1.column(|s| s.psnr).get(k).copied().unwrap_or(f64::NAN)
+            - scores[1].1.column(|s| s.psnr).get(k).copied().unwrap_or(f64::NAN)
+    };
+    let why = if gain(3) >= 1.0 {
+        "NeRF, trained on point samples, renders the coarse scales' pixels as aliased point samples of the fine \
+         texture, while Mip-NeRF's cones average it"
+    } else {
+        "at this budget the coarse scales differ little; more --steps let both learn the texture that NeRF then aliases"
+    };
+    println!(
+        "\n{} shows one test view at the four scales, each blown up to one size: ground truth | NeRF | Mip-NeRF, \
+         then a zoom of each where NeRF errs most at 1/8, with the PSNR on every render. Mip-NeRF leads NeRF by \
+         {:.1} dB at full scale and {:.1} dB at 1/8: {why}.",
+        fig_path.display(),
+        gain(0),
+        gain(3)
+    );
     Ok(())
 }
 

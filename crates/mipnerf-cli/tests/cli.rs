@@ -110,11 +110,25 @@ fn the_demo_produces_every_promised_file_and_beats_a_constant_image() {
         "render/000_d0_depth.png",
         "render_orbit/frame_0000.png",
         "render_orbit/preview.gif",
+        "nerf/checkpoint.safetensors",
+        "nerf/eval/metrics.json",
+        "antialiasing.png",
     ] {
         let p = run.join(f);
         assert!(p.is_file() && std::fs::metadata(&p).unwrap().len() > 0, "{f} missing; output:\n{text}");
     }
     assert!(text.contains("Everything is in"), "{text}");
+    // The last lines: both systems' PSNR per scale, and what the figure shows and where it is.
+    assert!(text.contains("| Mip-NeRF |") && text.contains("| NeRF |"), "{text}");
+    let last = text.lines().rev().find(|l| !l.trim().is_empty()).unwrap();
+    assert!(last.contains("antialiasing.png") && last.contains("ground truth | NeRF | Mip-NeRF"), "{last}");
+    let nerf: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(run.join("nerf/config.toml").with_file_name("eval/metrics.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(nerf["per_scale"].as_array().unwrap().len(), 4);
+    let nerf_cfg = std::fs::read_to_string(run.join("nerf/config.toml")).unwrap();
+    assert!(nerf_cfg.contains("model = \"nerf\"") && nerf_cfg.contains("steps = 250"), "{nerf_cfg}");
     let m: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(run.join("eval/metrics.json")).unwrap()).unwrap();
     let per_scale = m["per_scale"].as_array().unwrap();

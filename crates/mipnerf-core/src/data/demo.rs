@@ -64,6 +64,14 @@ pub fn view_poses(n: usize, offset: f64) -> Vec<[[f64; 4]; 3]> {
         .collect()
 }
 
+/// Checker cells of the sphere per half turn of latitude and of longitude (about 5 px a cell at
+/// 128 px, less than a pixel at 1/8: it aliases there).
+const SPHERE_CELLS: f64 = 12.0;
+/// Rings of the floor per world unit of radius, and spokes per half turn.
+const FLOOR_RINGS: f64 = 40.0;
+const FLOOR_SPOKES: f64 = 24.0;
+/// Grid lines of the box per world unit.
+const BOX_GRID: f64 = 30.0;
 const LIGHT: DVec3 = DVec3::new(0.408_248, -0.408_248, 0.816_497);
 const SPHERE_C: DVec3 = DVec3::new(0.0, 0.0, 0.15);
 const SPHERE_R: f64 = 0.7;
@@ -88,8 +96,8 @@ fn trace(o: DVec3, d: DVec3) -> [f64; 4] {
         let t = -b - disc.sqrt();
         if t > 0.0 && t < best.0 {
             let n = (o + t * d - SPHERE_C) / SPHERE_R;
-            let lat = n.z.asin() / std::f64::consts::PI * 12.0;
-            let lon = n.y.atan2(n.x) / std::f64::consts::PI * 12.0;
+            let lat = n.z.asin() / std::f64::consts::PI * SPHERE_CELLS;
+            let lon = n.y.atan2(n.x) / std::f64::consts::PI * SPHERE_CELLS;
             let c = if checker(lat, lon) { [0.85, 0.15, 0.1] } else { [0.95, 0.85, 0.2] };
             best = (t, c, n);
         }
@@ -100,8 +108,8 @@ fn trace(o: DVec3, d: DVec3) -> [f64; 4] {
         let p = o + t * d;
         let r = (p.x * p.x + p.y * p.y).sqrt();
         if t > 0.0 && t < best.0 && r < FLOOR_R {
-            let rings = (r * 40.0).floor() as i64 % 2 == 0;
-            let spokes = (p.y.atan2(p.x) / std::f64::consts::PI * 24.0).floor() as i64 % 2 == 0;
+            let rings = (r * FLOOR_RINGS).floor() as i64 % 2 == 0;
+            let spokes = (p.y.atan2(p.x) / std::f64::consts::PI * FLOOR_SPOKES).floor() as i64 % 2 == 0;
             let c = match (rings, spokes) {
                 (true, true) => [0.1, 0.3, 0.8],
                 (true, false) => [0.9, 0.9, 0.95],
@@ -127,7 +135,7 @@ fn trace(o: DVec3, d: DVec3) -> [f64; 4] {
         } else {
             DVec3::Z * q.z.signum()
         };
-        let g = p * 30.0;
+        let g = p * BOX_GRID;
         let grid = (g.x.fract().abs() < 0.15) || (g.y.fract().abs() < 0.15) || (g.z.fract().abs() < 0.15);
         let col = if grid { [0.1, 0.1, 0.1] } else { [0.3, 0.75, 0.9] };
         best = (tmin, col, n);
