@@ -247,7 +247,7 @@ pub fn markdown(m: &Metrics) -> String {
 }
 
 /// Reads an image as RGB in `[0, 1]`, composited on white when it has alpha.
-fn read_rgb(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
+pub(crate) fn read_rgb(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
     let img = image::ImageReader::open(path)
         .with_context(|| format!("{}: cannot open the image", path.display()))?
         .with_guessed_format()

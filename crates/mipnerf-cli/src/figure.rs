@@ -33,17 +33,7 @@ struct Img {
 
 impl Img {
     fn read(path: &Path) -> Result<Self> {
-        let img = image::open(path).with_context(|| format!("{}: cannot read the image", path.display()))?;
-        let alpha = img.color().has_alpha();
-        let p = img.to_rgba32f();
-        let (w, h) = (p.width() as usize, p.height() as usize);
-        let rgb = p
-            .pixels()
-            .flat_map(|q| {
-                let a = if alpha { q.0[3] } else { 1.0 };
-                [0, 1, 2].map(|c| q.0[c] * a + (1.0 - a))
-            })
-            .collect();
+        let (w, h, rgb) = crate::eval::read_rgb(path)?;
         Ok(Self { w, h, rgb })
     }
 
