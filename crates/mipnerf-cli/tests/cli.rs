@@ -52,9 +52,15 @@ fn small_demo_scene(dir: &std::path::Path, train_views: usize) -> std::path::Pat
     data
 }
 
+/// Separates standard output from standard error in what [`run_ok`] returns.
+const STDERR_FOLLOWS: &str = "\n--- stderr ---\n";
+
+/// Runs the binary, asserts success, and returns its standard output, [`STDERR_FOLLOWS`] and its
+/// standard error.
 fn run_ok(args: &[&str]) -> String {
     let out = mipnerf(args);
-    let text = String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    let text =
+        String::from_utf8_lossy(&out.stdout).to_string() + STDERR_FOLLOWS + &String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "mipnerf {args:?} failed:\n{text}");
     text
 }
@@ -120,7 +126,9 @@ fn the_demo_produces_every_promised_file_and_beats_a_constant_image() {
     assert!(text.contains("Everything is in"), "{text}");
     // The last lines: both systems' PSNR per scale, and what the figure shows and where it is.
     assert!(text.contains("| Mip-NeRF |") && text.contains("| NeRF |"), "{text}");
-    let last = text.lines().rev().find(|l| !l.trim().is_empty()).unwrap();
+    let last = text.lines().rev().find(|l| l.contains("antialiasing.png shows")).unwrap_or_default();
+    let stdout_last = text.split(STDERR_FOLLOWS).next().unwrap().lines().rev().find(|l| !l.trim().is_empty());
+    assert_eq!(stdout_last, Some(last), "the figure's line is the demo's last");
     assert!(last.contains("antialiasing.png") && last.contains("ground truth | NeRF | Mip-NeRF"), "{last}");
     let nerf: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(run.join("nerf/config.toml").with_file_name("eval/metrics.json")).unwrap(),
@@ -403,7 +411,7 @@ fn compare_prints_psnr_ssim_and_lpips_or_a_clear_error() {
     for (net, name, want) in [("vgg", "vgg16", 0.219_590_097_665_786_74), ("alex", "alexnet", 0.377_614_110_708_236_7)]
     {
         let out = run_ok(&["compare", a, b, "--json", "--net", net, "--lpips-weights", &w]);
-        let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
+        let v: serde_json::Value = serde_json::from_str(out.split(STDERR_FOLLOWS).next().unwrap().trim()).unwrap();
         assert!((v["lpips"].as_f64().unwrap() - want).abs() < 1e-5, "{v}");
         assert_eq!(v["lpips_net"], name);
     }
