@@ -402,8 +402,8 @@ fn demo_cmd(out: &Path, d: &DemoArgs) -> Result<()> {
             - scores[1].1.column(|s| s.psnr).get(k).copied().unwrap_or(f64::NAN)
     };
     let why = if gain(3) >= 1.0 {
-        "NeRF, trained on point samples, renders the coarse scales' pixels as aliased point samples of the fine \
-         texture, while Mip-NeRF's cones average it"
+        "NeRF casts one infinitely thin ray per pixel, so a coarse pixel gets a point sample of the scene where \
+         Mip-NeRF's cone integrates the pixel's whole footprint"
     } else {
         "at this budget the coarse scales differ little; more --steps let both learn the texture that NeRF then aliases"
     };
