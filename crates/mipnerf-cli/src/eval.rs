@@ -101,6 +101,13 @@ fn ssim_config(w: usize, h: usize) -> SsimConfig {
     SsimConfig { filter_size: fs, filter_sigma: d.filter_sigma * fs as f64 / d.filter_size as f64, ..d }
 }
 
+/// MSE, PSNR (dB) and SSIM (official settings) of two `w x h` RGB images in `[0, 1]`: the scores
+/// `eval` and `compare` share.
+fn pixel_scores(a: &[f32], b: &[f32], w: usize, h: usize) -> (f64, f64, f64) {
+    let mse = a.iter().zip(b).map(|(x, y)| f64::from(x - y).powi(2)).sum::<f64>() / a.len() as f64;
+    (mse, f64::from(mse_to_psnr(mse as f32)), ssim(a, b, h, w, 3, &ssim_config(w, h)))
+}
+
 /// Renders and scores every image of `split`; writes `RUN/eval/`.
 ///
 /// LPIPS is computed when `weights` lead to weights; otherwise it is `null`, the average error is
@@ -140,8 +147,7 @@ pub fn eval(run: &Path, split: Split, backend: Backend, weights: &LpipsWeights) 
         let target = ds.view_targets(v);
         let flat = |img: &[[f32; 3]]| img.iter().flat_map(|p| p.map(|c| c.clamp(0.0, 1.0))).collect::<Vec<f32>>();
         let (a, b) = (flat(&rendered), flat(&target));
-        let mse = a.iter().zip(&b).map(|(x, y)| f64::from(x - y).powi(2)).sum::<f64>() / a.len() as f64;
-        let ss = ssim(&a, &b, h, w, 3, &ssim_config(w, h));
+        let (mse, psnr, ss) = pixel_scores(&a, &b, w, h);
         // LPIPS of images smaller than the backbone takes (the coarse scales of a tiny scene) is
         // left out, image by image; the scale then has no LPIPS.
         let lp = lpips
@@ -154,7 +160,7 @@ pub fn eval(run: &Path, split: Split, backend: Backend, weights: &LpipsWeights) 
         per_image.push(ImageScore {
             file: view.file.display().to_string(),
             scale: view.scale,
-            psnr: f64::from(mse_to_psnr(mse as f32)),
+            psnr,
             ssim: ss,
             lpips: lp,
             mse,
@@ -290,9 +296,7 @@ pub fn compare(a: &Path, b: &Path, json: bool, weights: &LpipsWeights) -> Result
     if (wa, ha) != (wb, hb) {
         anyhow::bail!("{} is {wa}x{ha} but {} is {wb}x{hb}: the images must have one size", a.display(), b.display());
     }
-    let mse = ia.iter().zip(&ib).map(|(x, y)| f64::from(x - y).powi(2)).sum::<f64>() / ia.len() as f64;
-    let psnr = -10.0 * mse.log10();
-    let ss = ssim(&ia, &ib, ha, wa, 3, &ssim_config(wa, ha));
+    let (_, psnr, ss) = pixel_scores(&ia, &ib, wa, ha);
     let net: mipnerf_core::lpips::Net = weights.net.into();
     let (lpips, absent) = match weights.open()? {
         Ok(l) => (Some(l.distance(&ia, &ib, wa, ha)?), None),
