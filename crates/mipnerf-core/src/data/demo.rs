@@ -3,8 +3,10 @@
 //! multiscale Blender format. It needs no files and generates in well under a second.
 //!
 //! The scene (world units, `z` up, inside the radius-1.3 ball that the Blender scenes use): a
-//! sphere with a latitude-longitude checkerboard, a disc floor with fine concentric rings and
-//! radial spokes, and a box with a fine grid. Misses are transparent (alpha 0), as Blender renders
+//! sphere with fine horizontal bands, a disc floor with a fine plaid, and a box with fine stripes.
+//! Every pattern is a square wave along one world axis at a frequency of the positional encoding,
+//! so that a small model learns it in minutes at full resolution, and every one is finer than a
+//! pixel at 1/8 scale, where NeRF's point samples alias. Misses are transparent (alpha 0), as Blender renders
 //! are, so the scene composites on white. Cameras sit on the upper hemisphere at distance 4, looking
 //! at the origin, with the lego scene's field of view.
 
@@ -64,14 +66,16 @@ pub fn view_poses(n: usize, offset: f64) -> Vec<[[f64; 4]; 3]> {
         .collect()
 }
 
-/// Checker cells of the sphere per half turn of latitude and of longitude (about 5 px a cell at
-/// 128 px, less than a pixel at 1/8: it aliases there).
-const SPHERE_CELLS: f64 = 12.0;
-/// Rings of the floor per world unit of radius, and spokes per half turn.
-const FLOOR_RINGS: f64 = 40.0;
-const FLOOR_SPOKES: f64 = 24.0;
-/// Grid lines of the box per world unit.
-const BOX_GRID: f64 = 30.0;
+/// Period (world units) of the sphere's horizontal bands: `2 pi / 32`, one of the frequencies of
+/// the positional encoding, so a small MLP learns the bands in a minute. The camera sees about 44
+/// px per world unit at 128 px: a band is about 4 px wide there and half a pixel at 1/8, where it
+/// aliases.
+const SPHERE_BAND: f64 = std::f64::consts::TAU / 32.0;
+/// Period of the floor's stripes along `x` and along `y` (`2 pi / 16`): crossed, they make a plaid
+/// whose far side, foreshortened, is finer than a pixel at 1/4 and 1/8.
+const FLOOR_STRIPE: f64 = std::f64::consts::TAU / 16.0;
+/// Period of the box's stripes along `x`.
+const BOX_STRIPE: f64 = std::f64::consts::TAU / 32.0;
 const LIGHT: DVec3 = DVec3::new(0.408_248, -0.408_248, 0.816_497);
 const SPHERE_C: DVec3 = DVec3::new(0.0, 0.0, 0.15);
 const SPHERE_R: f64 = 0.7;
@@ -80,8 +84,9 @@ const FLOOR_R: f64 = 1.25;
 const BOX_MIN: DVec3 = DVec3::new(0.55, -0.95, -0.55);
 const BOX_MAX: DVec3 = DVec3::new(0.95, -0.55, -0.15);
 
-fn checker(a: f64, b: f64) -> bool {
-    ((a.floor() as i64) + (b.floor() as i64)).rem_euclid(2) == 0
+/// 1 on the first half of every period of `x`, 0 on the second: a square wave.
+fn stripe(x: f64, period: f64) -> f64 {
+    if (x / period).rem_euclid(1.0) < 0.5 { 1.0 } else { 0.0 }
 }
 
 /// Colour (straight RGBA) seen along one ray.
@@ -95,11 +100,9 @@ fn trace(o: DVec3, d: DVec3) -> [f64; 4] {
     if disc > 0.0 {
         let t = -b - disc.sqrt();
         if t > 0.0 && t < best.0 {
-            let n = (o + t * d - SPHERE_C) / SPHERE_R;
-            let lat = n.z.asin() / std::f64::consts::PI * SPHERE_CELLS;
-            let lon = n.y.atan2(n.x) / std::f64::consts::PI * SPHERE_CELLS;
-            let c = if checker(lat, lon) { [0.85, 0.15, 0.1] } else { [0.95, 0.85, 0.2] };
-            best = (t, c, n);
+            let p = o + t * d;
+            let c = if stripe(p.z, SPHERE_BAND) > 0.5 { [0.85, 0.15, 0.1] } else { [0.95, 0.85, 0.2] };
+            best = (t, c, (p - SPHERE_C) / SPHERE_R);
         }
     }
     // Floor disc.
@@ -108,14 +111,10 @@ fn trace(o: DVec3, d: DVec3) -> [f64; 4] {
         let p = o + t * d;
         let r = (p.x * p.x + p.y * p.y).sqrt();
         if t > 0.0 && t < best.0 && r < FLOOR_R {
-            let rings = (r * FLOOR_RINGS).floor() as i64 % 2 == 0;
-            let spokes = (p.y.atan2(p.x) / std::f64::consts::PI * FLOOR_SPOKES).floor() as i64 % 2 == 0;
-            let c = match (rings, spokes) {
-                (true, true) => [0.1, 0.3, 0.8],
-                (true, false) => [0.9, 0.9, 0.95],
-                (false, true) => [0.15, 0.6, 0.3],
-                (false, false) => [0.05, 0.05, 0.1],
-            };
+            // A plaid: x stripes add yellow, y stripes add blue (dark navy where neither,
+            // near white where both).
+            let (sx, sy) = (stripe(p.x, FLOOR_STRIPE), stripe(p.y, FLOOR_STRIPE));
+            let c = [0.05 + 0.8 * sx + 0.05 * sy, 0.08 + 0.65 * sx + 0.2 * sy, 0.2 + 0.7 * sy];
             best = (t, c, DVec3::Z);
         }
     }
@@ -135,9 +134,7 @@ fn trace(o: DVec3, d: DVec3) -> [f64; 4] {
         } else {
             DVec3::Z * q.z.signum()
         };
-        let g = p * BOX_GRID;
-        let grid = (g.x.fract().abs() < 0.15) || (g.y.fract().abs() < 0.15) || (g.z.fract().abs() < 0.15);
-        let col = if grid { [0.1, 0.1, 0.1] } else { [0.3, 0.75, 0.9] };
+        let col = if stripe(p.x, BOX_STRIPE) > 0.5 { [0.1, 0.1, 0.1] } else { [0.3, 0.75, 0.9] };
         best = (tmin, col, n);
     }
     if best.0.is_infinite() {
