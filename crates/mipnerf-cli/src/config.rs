@@ -59,6 +59,13 @@ impl PresetArg {
     }
 }
 
+/// The most training steps a run can take: the step number seeds the random numbers as a `u32`.
+pub const MAX_STEPS: u64 = u32::MAX as u64;
+
+/// The most rays per batch: 1,024 times the paper's 4,096, and far below where a ray index or a
+/// buffer offset (`u32` on the GPU) would overflow.
+pub const MAX_BATCH_RAYS: usize = 1 << 22;
+
 /// Every training setting. In a `--config` TOML file the keys are these field names
 /// (e.g. `steps = 5000`, `ipe = false`); every key is optional.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -179,9 +186,7 @@ impl TrainSettings {
             "# mipnerf run configuration (resolved; read back by --resume, eval and render)\n{}",
             toml::to_string(self)?
         );
-        let tmp = path.with_extension("toml.tmp");
-        std::fs::write(&tmp, text).with_context(|| format!("writing {}", tmp.display()))?;
-        std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))
+        Ok(mipnerf_core::checkpoint::write_atomic(path, text.as_bytes(), &mut mipnerf_core::checkpoint::RealFs)?)
     }
 
     /// Fills every unset field with its default (given whether the data is LLFF), so the saved
@@ -290,10 +295,58 @@ impl TrainSettings {
         }
         Ok(OptimConfig {
             lr,
-            grad_max_norm: self.grad_max_norm.unwrap_or(0.0).max(0.0),
-            grad_max_val: self.grad_max_val.unwrap_or(0.0).max(0.0),
+            grad_max_norm: self.grad_max_norm.unwrap_or(0.0),
+            grad_max_val: self.grad_max_val.unwrap_or(0.0),
             ..OptimConfig::default()
         })
+    }
+
+    /// Checks every number of resolved settings before anything is allocated: counts positive
+    /// and within what the run can address (`u32` step and ray counters), rates and thresholds
+    /// finite. `bytes_per_ray` is the memory one ray of a batch needs, for the error message.
+    ///
+    /// # Errors
+    /// The first bad value, named as the flag and as the config-file key.
+    pub fn validate(&self, bytes_per_ray: u64) -> Result<()> {
+        let name = |key: &str| format!("--{} (`{key}` in a config file)", key.replace('_', "-"));
+        let positive = [
+            ("steps", self.steps.unwrap_or(1)),
+            ("checkpoint_every", self.checkpoint_every.unwrap_or(1)),
+            ("log_every", self.log_every.unwrap_or(1)),
+        ];
+        for (key, v) in positive {
+            if v == 0 {
+                bail!("{} must be at least 1, got 0", name(key));
+            }
+        }
+        let steps = self.steps.unwrap_or(1);
+        if steps > MAX_STEPS {
+            bail!(
+                "{} must be at most {MAX_STEPS} (the step counter of the random numbers is 32-bit), got {steps}",
+                name("steps")
+            );
+        }
+        let batch = self.batch_rays.unwrap_or(1024);
+        let need = |rays: u64| rays.saturating_mul(bytes_per_ray) as f64 / f64::from(1u32 << 30);
+        if batch == 0 || batch > MAX_BATCH_RAYS {
+            bail!(
+                "{} must be between 1 and {MAX_BATCH_RAYS}, got {batch} (it would need about {:.1} GiB for one batch's \
+                 buffers; the paper uses 4096)",
+                name("batch_rays"),
+                need(batch as u64)
+            );
+        }
+        for (key, v) in [("grad_max_norm", self.grad_max_norm), ("grad_max_val", self.grad_max_val)] {
+            if let Some(v) = v
+                && !(v.is_finite() && v >= 0.0)
+            {
+                bail!("{} must be a finite number >= 0 (0 = off), got {v}", name(key));
+            }
+        }
+        if self.llff_factor == Some(0) {
+            bail!("{} must be at least 1, got 0", name("llff_factor"));
+        }
+        Ok(())
     }
 
     /// Pixel centres or corners.
@@ -346,6 +399,9 @@ pub struct TrainFlags {
     /// Learning-rate warm-up steps [default: min(2500, steps/10)].
     #[arg(long)]
     pub lr_delay_steps: Option<u64>,
+    /// Learning-rate factor at the start of the warm-up [default: 0.01].
+    #[arg(long)]
+    pub lr_delay_mult: Option<f32>,
     /// Clip the gradient's norm to this (0 = off) [default: 0].
     #[arg(long)]
     pub grad_max_norm: Option<f32>,
@@ -418,7 +474,7 @@ impl TrainFlags {
             lr_init: self.lr_init,
             lr_final: self.lr_final,
             lr_delay_steps: self.lr_delay_steps,
-            lr_delay_mult: None,
+            lr_delay_mult: self.lr_delay_mult,
             grad_max_norm: self.grad_max_norm,
             grad_max_val: self.grad_max_val,
             num_samples: self.num_samples,

@@ -27,8 +27,6 @@ use crate::run;
 pub const EXPERIMENT_TOML: &str = "experiment.toml";
 /// The file of the paper's rows, beside `experiment.toml` (optional).
 pub const PAPER_TOML: &str = "paper.toml";
-/// Accumulated training wall-clock time of a row, inside its run directory.
-const TRAIN_SECONDS: &str = "train_seconds.txt";
 
 /// `experiment.toml`.
 #[derive(Debug, Deserialize)]
@@ -272,15 +270,10 @@ fn run_row(
         }
         done_steps = run::load_trained(run_dir, &saved)?.1.step;
     }
-    let seconds_path = run_dir.join(TRAIN_SECONDS);
-    let read_seconds = || std::fs::read_to_string(&seconds_path).ok().and_then(|s| s.trim().parse::<f64>().ok());
     if done_steps < steps {
         println!("== row {id} ({}): training, {} of {steps} steps done", row.label, done_steps);
-        let t = Instant::now();
         let outcome =
             run::train(run_dir, Some(settings.clone()), TrainSettings::default(), done_steps > 0, Arc::clone(stop))?;
-        let total = read_seconds().unwrap_or(0.0) + t.elapsed().as_secs_f64();
-        std::fs::write(&seconds_path, format!("{total:.1}\n")).with_context(|| seconds_path.display().to_string())?;
         if outcome.interrupted {
             return Ok(false);
         }
@@ -309,7 +302,7 @@ fn run_row(
         lpips_net: m.lpips_net.clone(),
         avg_error: m.avg_error,
         avg_error_terms: m.avg_error_terms.iter().map(|s| (*s).to_string()).collect(),
-        train_seconds: read_seconds().unwrap_or(f64::NAN),
+        train_seconds: run::train_seconds(run_dir).unwrap_or(f64::NAN),
         eval_seconds: t.elapsed().as_secs_f64(),
         params: model.num_params,
         steps,

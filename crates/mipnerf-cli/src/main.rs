@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use anyhow::Result;
+use anyhow::{Result, bail};
 use clap::{Parser, Subcommand, ValueEnum};
 use mipnerf_core::data::{self, Split, demo};
 
@@ -287,9 +287,10 @@ fn info() {
 fn stop_flag() -> Arc<AtomicBool> {
     let stop = Arc::new(AtomicBool::new(false));
     let s = Arc::clone(&stop);
-    // A second Ctrl-C while the checkpoint is written is ignored; the flag is checked every step.
+    // Ctrl-C (SIGINT), SIGTERM (kill, systemd, Docker, Slurm, CI) and SIGHUP (a closed terminal)
+    // alike: a second one while the checkpoint is written is ignored; the flag is checked every step.
     let _ = ctrlc::set_handler(move || {
-        eprintln!("\nCtrl-C: finishing this step and writing a checkpoint...");
+        eprintln!("\ninterrupted (Ctrl-C, SIGTERM or SIGHUP): finishing this step and writing a checkpoint...");
         s.store(true, Ordering::SeqCst);
     });
     stop
@@ -314,6 +315,13 @@ fn train_cmd(
     flags: &TrainFlags,
     stop: Arc<AtomicBool>,
 ) -> Result<run::TrainOutcome> {
+    if resume && let Some(p) = &config {
+        bail!(
+            "--config {} with --resume: a resumed run keeps its own config.toml; pass the settings to change \
+             (e.g. --steps) as flags",
+            p.display()
+        );
+    }
     let file = config.map(|p| TrainSettings::from_file(&p)).transpose()?;
     let outcome = run::train(out, file, flags.settings(), resume, stop)?;
     if let Some((loss, psnr)) = outcome.last {

@@ -89,7 +89,6 @@ pub fn render(
     backend: Backend,
 ) -> Result<Vec<std::path::PathBuf>> {
     let s = read_config(run)?;
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     if let Some((w, h)) = size
         && (w == 0 || h == 0 || w > 16384 || h > 16384)
     {
@@ -134,6 +133,8 @@ pub fn render(
     }
     // Load the data first: a bad split fails before the device is opened.
     let (mut be, _) = open_trained(run, &s, backend)?;
+    // Only now, with every argument checked and the model open, is anything created.
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let levels = be.model().config.num_levels;
     let mut written = Vec::new();
     let mut preview = Vec::new();

@@ -20,6 +20,9 @@ use crate::config::{Backend, TrainSettings};
 pub const CONFIG: &str = "config.toml";
 /// The latest checkpoint.
 pub const CHECKPOINT: &str = "checkpoint.safetensors";
+/// Wall-clock seconds of training up to the checkpoint's step, over every segment of a resumed
+/// run; rewritten after each checkpoint.
+pub const TRAIN_SECONDS: &str = "train_seconds.txt";
 /// Training metrics, one row every `log_every` steps.
 pub const METRICS_CSV: &str = "metrics.csv";
 
@@ -78,8 +81,33 @@ pub fn open_trained(
 /// A missing or mismatched checkpoint.
 pub fn load_trained(run: &Path, s: &TrainSettings) -> Result<(Model, Checkpoint)> {
     let model = Model::new(s.model_config()?)?;
-    let ck = checkpoint::load(&run.join(CHECKPOINT), &model)?;
+    let ck = load_checkpoint(&run.join(CHECKPOINT), &model)?;
     Ok((model, ck))
+}
+
+/// Reads a checkpoint, verifying its checksum; a file written before checksums existed is read
+/// as it is, and that is said once per process.
+///
+/// # Errors
+/// A missing, damaged or mismatched checkpoint.
+pub fn load_checkpoint(path: &Path, model: &Model) -> Result<Checkpoint> {
+    static SAID: std::sync::Once = std::sync::Once::new();
+    let (ck, integrity) = checkpoint::load_checked(path, model)?;
+    if integrity == checkpoint::Integrity::Unchecked {
+        SAID.call_once(|| {
+            eprintln!(
+                "note: {} predates checkpoint checksums and was read unverified (the next save adds one)",
+                path.display()
+            );
+        });
+    }
+    Ok(ck)
+}
+
+/// The training time a run directory records ([`TRAIN_SECONDS`]), if any.
+#[must_use]
+pub fn train_seconds(run: &Path) -> Option<f64> {
+    std::fs::read_to_string(run.join(TRAIN_SECONDS)).ok().and_then(|s| s.trim().parse().ok())
 }
 
 /// What a training run ended with.
@@ -108,15 +136,24 @@ pub fn train(
     let merged = base.overridden_by(&flag_settings);
     let data_dir = merged.data.clone().context("no dataset: pass --data DIR (or data = \"DIR\" in --config)")?;
     let format = data::detect_format(&data_dir)?;
-    let s = merged.resolved(format == Format::Llff);
+    // The dataset is stored as an absolute path, so that eval, render and --resume work from any
+    // working directory.
+    let data_dir = std::path::absolute(&data_dir).with_context(|| format!("resolving {}", data_dir.display()))?;
+    let mut s = merged.resolved(format == Format::Llff);
+    s.data = Some(data_dir.clone());
     let model_cfg = s.model_config()?;
     let optim = s.optim_config()?;
+    let model = Model::new(model_cfg)?;
+    s.validate(mipnerf_gpu::model::ModelBuffers::bytes_per_ray(&model))?;
     let steps = s.steps.unwrap_or(0);
     let batch = s.batch_rays.unwrap_or(1024);
-    if batch == 0 {
-        bail!("--batch-rays must be positive");
-    }
     std::fs::create_dir_all(run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
+    let _lock = lock_run_dir(run_dir)?;
+    // Temporary files that a kill during a save left behind (no other writer exists: we hold the
+    // lock); the files they were to replace are intact.
+    for name in [CHECKPOINT, CONFIG] {
+        let _ = std::fs::remove_file(run_dir.join(format!("{name}.tmp")));
+    }
     let ckpt_path = run_dir.join(CHECKPOINT);
     if !resume && ckpt_path.exists() {
         bail!(
@@ -135,10 +172,9 @@ pub fn train(
         ds.pixel_bytes() as f64 / (1 << 20) as f64,
         t_load.elapsed().as_secs_f64()
     );
-    if ds.ndc.is_some() && model_cfg.supersample > 1 {
+    if ds.ndc.is_some() && model.config.supersample > 1 {
         bail!("{}: {}", data_dir.display(), mipnerf_core::backend::NDC_SUPERSAMPLE);
     }
-    let model = Model::new(model_cfg)?;
     eprintln!(
         "model: {} parameters ({:?} preset, {:?})",
         model.num_params,
@@ -147,7 +183,7 @@ pub fn train(
     );
     let seed = s.seed.unwrap_or(0);
     let state = if resume {
-        let ck = checkpoint::load(&ckpt_path, &model)?;
+        let ck = load_checkpoint(&ckpt_path, &model)?;
         eprintln!("resuming from step {} ({})", ck.step, ckpt_path.display());
         TrainState::from_checkpoint(ck)
     } else {
@@ -157,11 +193,33 @@ pub fn train(
     let setup = backend::Setup { model, optim, seed, state, data: Some((&ds, batch)) };
     let mut be = backend::open(s.backend.unwrap_or(Backend::Auto), setup)?;
     s.save(&run_dir.join(CONFIG))?;
+    let seconds_before = if resume { train_seconds(run_dir).unwrap_or(0.0) } else { 0.0 };
+    let t0 = Instant::now();
     let csv_path = run_dir.join(METRICS_CSV);
     let mut csv = open_csv(&csv_path, be.step())?;
-    let save = |b: &mut Box<dyn mipnerf_core::backend::Backend>| -> Result<()> {
+    let kept = |last_saved: Option<u64>| match last_saved {
+        Some(k) => format!("the checkpoint of step {k} in {} is kept", ckpt_path.display()),
+        None => "no checkpoint was written".to_string(),
+    };
+    // Never writes a non-finite state: the last good checkpoint stays, and the error names the
+    // step at which the state broke and the step that is kept.
+    let save = |b: &mut Box<dyn mipnerf_core::backend::Backend>, last_saved: Option<u64>| -> Result<()> {
         let ck = b.checkpoint()?;
-        Ok(checkpoint::save(&ckpt_path, b.model(), &ck)?)
+        match checkpoint::save(&ckpt_path, b.model(), &ck) {
+            Err(checkpoint::CheckpointError::NonFinite { step, what, .. }) => {
+                bail!(
+                    "the training state became non-finite by step {step} ({what}); not saved: {} \
+                     (try a lower --lr-init or --grad-max-norm)",
+                    kept(last_saved)
+                )
+            }
+            r => r?,
+        }
+        // The time it took to reach the saved state: a kill loses at most the time since.
+        let total = seconds_before + t0.elapsed().as_secs_f64();
+        let path = run_dir.join(TRAIN_SECONDS);
+        checkpoint::write_atomic(&path, format!("{total:.3}\n").as_bytes(), &mut checkpoint::RealFs)?;
+        Ok(())
     };
     let pb = ProgressBar::new(steps);
     pb.set_style(
@@ -170,13 +228,12 @@ pub fn train(
             .progress_chars("=> "),
     );
     pb.set_position(be.step());
-    let log_every = s.log_every.unwrap_or(10).max(1);
-    let ckpt_every = s.checkpoint_every.unwrap_or(500).max(1);
-    let t0 = Instant::now();
+    let log_every = s.log_every.unwrap_or(10);
+    let ckpt_every = s.checkpoint_every.unwrap_or(500);
     let mut window = (Instant::now(), 0u64);
     let mut last = None;
     let mut interrupted = false;
-    let mut last_saved = be.step();
+    let mut last_saved = resume.then(|| be.step());
     while be.step() < steps {
         if stop.load(Ordering::SeqCst) {
             interrupted = true;
@@ -190,11 +247,10 @@ pub fn train(
         if let Some(rep) = rep.filter(|_| report) {
             if !rep.stats.loss.is_finite() {
                 bail!(
-                    "the loss became {} at step {}; the checkpoint of step {last_saved} in {} is kept \
-                     (try a lower --lr-init or --grad-max-norm)",
+                    "the loss became {} at step {}; {} (try a lower --lr-init or --grad-max-norm)",
                     rep.stats.loss,
                     rep.step,
-                    ckpt_path.display()
+                    kept(last_saved)
                 );
             }
             let dt = window.0.elapsed().as_secs_f64().max(1e-9);
@@ -212,7 +268,7 @@ pub fn train(
                 psnr,
                 rep.lr,
                 rays_per_s,
-                t0.elapsed().as_secs_f64()
+                seconds_before + t0.elapsed().as_secs_f64()
             )?;
             csv.flush()?;
             pb.set_message(format!(
@@ -222,11 +278,11 @@ pub fn train(
         }
         pb.set_position(be.step());
         if be.step().is_multiple_of(ckpt_every) {
-            save(&mut be)?;
-            last_saved = be.step();
+            save(&mut be, last_saved)?;
+            last_saved = Some(be.step());
         }
     }
-    save(&mut be)?;
+    save(&mut be, last_saved)?;
     pb.finish_and_clear();
     if interrupted {
         eprintln!(
@@ -237,6 +293,45 @@ pub fn train(
     }
     crate::plot::training_curves(&csv_path, run_dir)?;
     Ok(TrainOutcome { step: be.step(), interrupted, last })
+}
+
+/// The lock file of a run directory, held by the `train` that writes it.
+pub const LOCK: &str = "train.lock";
+
+/// Takes the exclusive lock of `run_dir` for the life of the returned file, so that two `train`
+/// processes never write one run directory. The lock is the operating system's (`flock` on Unix),
+/// released when the process ends however it ends, so a killed run leaves no stale lock. Readers
+/// (`eval`, `render`) take no lock: every file they read is replaced atomically.
+///
+/// # Errors
+/// Another process holds the lock (the error names it), or the file cannot be made.
+fn lock_run_dir(run_dir: &Path) -> Result<std::fs::File> {
+    let path = run_dir.join(LOCK);
+    let mut f = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&path)
+        .with_context(|| format!("opening {}", path.display()))?;
+    match f.try_lock() {
+        Ok(()) => {}
+        Err(std::fs::TryLockError::WouldBlock) => {
+            let holder = std::fs::read_to_string(&path).unwrap_or_default();
+            bail!(
+                "{} is in use by another `mipnerf train` ({}); wait for it to finish, or choose another --out",
+                run_dir.display(),
+                holder.trim()
+            );
+        }
+        Err(std::fs::TryLockError::Error(e)) => {
+            return Err(e).with_context(|| format!("locking {}", path.display()));
+        }
+    }
+    f.set_len(0)?;
+    writeln!(f, "process {}", std::process::id())?;
+    f.flush()?;
+    Ok(f)
 }
 
 /// Opens `metrics.csv` for appending rows after `from_step` (dropping any rows at or past it

@@ -1,11 +1,10 @@
 //! The real `mipnerf` binary, run as a user would.
 #![allow(clippy::unwrap_used, missing_docs)]
 
+mod common;
 use std::process::Command;
 
-fn mipnerf(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_mipnerf")).args(args).env("XDG_RUNTIME_DIR", "/tmp").output().unwrap()
-}
+use common::*;
 
 #[test]
 fn info_prints_version_adapters_and_auto_choice() {
@@ -42,27 +41,6 @@ fn check_compares_the_gpu_with_the_cpu_or_says_why_not() {
         assert!(std::env::var("CI").is_err(), "CI must have a GPU adapter: {text}");
         assert!(text.contains("no Vulkan/Metal/DX12 GPU adapter found") && !text.contains("panicked"), "{text}");
     }
-}
-
-/// A 16-pixel demo scene of `train_views` training views and one test view in `dir/data`.
-fn small_demo_scene(dir: &std::path::Path, train_views: usize) -> std::path::PathBuf {
-    let data = dir.join("data");
-    let cfg = mipnerf_core::data::demo::DemoConfig { size: 16, train_views, test_views: 1, supersample: 1 };
-    mipnerf_core::data::demo::write_demo_scene(&data, &cfg).unwrap();
-    data
-}
-
-/// Separates standard output from standard error in what [`run_ok`] returns.
-const STDERR_FOLLOWS: &str = "\n--- stderr ---\n";
-
-/// Runs the binary, asserts success, and returns its standard output, [`STDERR_FOLLOWS`] and its
-/// standard error.
-fn run_ok(args: &[&str]) -> String {
-    let out = mipnerf(args);
-    let text =
-        String::from_utf8_lossy(&out.stdout).to_string() + STDERR_FOLLOWS + &String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "mipnerf {args:?} failed:\n{text}");
-    text
 }
 
 /// PSNR of the best constant colour (the image's mean) for each test image of each scale.
@@ -231,48 +209,6 @@ fn bad_values_and_missing_files_fail_cleanly() {
     let r = mipnerf(&["train", "--out", o, "--config", cfg.to_str().unwrap()]);
     let err = String::from_utf8_lossy(&r.stderr);
     assert!(!r.status.success() && err.contains("bad.toml") && err.contains("stepz"), "{err}");
-}
-
-#[test]
-fn ctrl_c_writes_a_checkpoint_before_exiting() {
-    let dir = tempfile::tempdir().unwrap();
-    let data = small_demo_scene(dir.path(), 2);
-    let run = dir.path().join("run");
-    let child = Command::new(env!("CARGO_BIN_EXE_mipnerf"))
-        .args([
-            "train",
-            "--data",
-            data.to_str().unwrap(),
-            "--out",
-            run.to_str().unwrap(),
-            "--steps",
-            "1000000",
-            "--batch-rays",
-            "32",
-            "--log-every",
-            "1",
-            "--backend",
-            "cpu",
-        ])
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    // Wait until training is under way.
-    let csv = run.join("metrics.csv");
-    let t = std::time::Instant::now();
-    while std::fs::read_to_string(&csv).map_or(0, |s| s.lines().count()) < 4 {
-        assert!(t.elapsed().as_secs() < 120, "training did not start");
-        std::thread::sleep(std::time::Duration::from_millis(50));
-    }
-    let ok = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
-    assert!(ok.success());
-    let out = child.wait_with_output().unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(130), "{err}");
-    assert!(err.contains("interrupted at step"), "{err}");
-    let model = mipnerf_core::model::Model::new(mipnerf_core::model::Preset::Tiny.config()).unwrap();
-    let ck = mipnerf_core::checkpoint::load(&run.join("checkpoint.safetensors"), &model).unwrap();
-    assert!(ck.step >= 3 && ck.step < 1_000_000, "checkpoint at step {}", ck.step);
 }
 
 #[test]

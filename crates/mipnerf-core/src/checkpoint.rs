@@ -3,12 +3,13 @@
 //! Each dense layer is its own tensor, named as the official flax checkpoint names it
 //! (`MLP_{i}/Dense_{k}/kernel` with shape `[fan_in, fan_out]`, `.../bias` with `[fan_out]`), so the
 //! file opens in any safetensors reader; Adam's moments are the same tensors prefixed with
-//! `adam_m/` and `adam_v/`. Metadata holds the format version, the step and Adam's update count.
+//! `adam_m/` and `adam_v/`. Metadata holds the format version, the step, Adam's update count and the
+//! SHA-256 of the tensor bytes, verified on every load. Writes are atomic and synced, and refuse
+//! non-finite state, so the file on disk is always the last good state.
 
-use std::collections::HashMap;
 use std::path::Path;
 
-use safetensors::tensor::{Dtype, SafeTensors, TensorView};
+use safetensors::tensor::{Dtype, SafeTensors};
 
 use crate::model::Model;
 use crate::train::AdamState;
@@ -31,12 +32,22 @@ pub struct Checkpoint {
 #[derive(Debug, thiserror::Error)]
 pub enum CheckpointError {
     /// The file system failed.
-    #[error("{}: {source}", path.display())]
+    #[error("{}: {error}", path.display())]
     Io {
         /// The file.
         path: std::path::PathBuf,
         /// What the system said.
-        source: std::io::Error,
+        error: std::io::Error,
+    },
+    /// The state to save holds a non-finite value: nothing was written.
+    #[error("{}: not written: {what} is not finite at step {step}; the previous file is kept", path.display())]
+    NonFinite {
+        /// The file that was not written.
+        path: std::path::PathBuf,
+        /// The step of the state.
+        step: u64,
+        /// Which value (tensor kind and flat index) and what it was.
+        what: String,
     },
     /// The file is not a checkpoint of this model.
     #[error("{}: {problem}", path.display())]
@@ -68,15 +79,179 @@ fn le_bytes(v: &[f32]) -> Vec<u8> {
     v.iter().flat_map(|x| x.to_le_bytes()).collect()
 }
 
-/// Writes `ckpt` for `model` to `path` atomically: to a temporary file beside it, then renamed,
-/// so an interrupted write never damages the previous checkpoint.
+/// The metadata key holding the SHA-256 (lower-case hex) of the file's content (metadata and
+/// tensors).
+pub const CHECKSUM_KEY: &str = "sha256";
+
+/// The file operations of an atomic write, a seam so that tests can make any of them fail.
+pub trait FileOps {
+    /// Creates (or truncates) `path`, writes `bytes` and flushes them to the disk (`fsync`).
+    ///
+    /// # Errors
+    /// What the system said.
+    fn write_synced(&mut self, path: &Path, bytes: &[u8]) -> std::io::Result<()>;
+    /// Renames `from` to `to`, replacing `to` atomically.
+    ///
+    /// # Errors
+    /// What the system said.
+    fn rename(&mut self, from: &Path, to: &Path) -> std::io::Result<()>;
+    /// Flushes the directory `dir` itself (the rename) to the disk.
+    ///
+    /// # Errors
+    /// What the system said.
+    fn sync_dir(&mut self, dir: &Path) -> std::io::Result<()>;
+}
+
+/// The real file system.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct RealFs;
+
+impl FileOps for RealFs {
+    fn write_synced(&mut self, path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+        use std::io::Write;
+        let mut f = std::fs::File::create(path)?;
+        f.write_all(bytes)?;
+        f.sync_all()
+    }
+
+    fn rename(&mut self, from: &Path, to: &Path) -> std::io::Result<()> {
+        std::fs::rename(from, to)
+    }
+
+    fn sync_dir(&mut self, dir: &Path) -> std::io::Result<()> {
+        // Directories can be opened and synced on Unix; elsewhere the rename is what we have.
+        #[cfg(unix)]
+        {
+            std::fs::File::open(dir)?.sync_all()
+        }
+        #[cfg(not(unix))]
+        {
+            let _ = dir;
+            Ok(())
+        }
+    }
+}
+
+/// Writes `bytes` to `path` so that `path` holds either its previous content or all of
+/// `bytes`, never a mix, even across a crash or a power loss: to `path` + `.tmp` (synced), renamed
+/// over `path`, then the directory synced. A failure removes the temporary file and leaves `path`
+/// as it was.
 ///
 /// # Errors
-/// [`CheckpointError`] when the file cannot be written or the state does not fit the model.
+/// The failing operation's error, naming the file.
+pub fn write_atomic(path: &Path, bytes: &[u8], fs: &mut dyn FileOps) -> Result<(), CheckpointError> {
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    let tmp = std::path::PathBuf::from(tmp);
+    let io = |p: &Path, e: std::io::Error| CheckpointError::Io { path: p.to_path_buf(), error: e };
+    if let Err(e) = fs.write_synced(&tmp, bytes) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(io(&tmp, e));
+    }
+    if let Err(e) = fs.rename(&tmp, path) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(io(path, e));
+    }
+    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    fs.sync_dir(dir).map_err(|e| io(dir, e))
+}
+
+/// The SHA-256 (lower-case hex) of a checkpoint's content: every metadata entry but the checksum
+/// (sorted by key), then every tensor's name, shape and bytes (sorted by name). It covers all that
+/// [`load`] reads, so a change anywhere that matters is detected, whatever the layout of the header.
+fn content_digest<'a>(
+    meta: impl IntoIterator<Item = (&'a str, &'a str)>,
+    tensors: impl IntoIterator<Item = (&'a str, &'a [usize], &'a [u8])>,
+) -> String {
+    use sha2::Digest;
+    let mut h = sha2::Sha256::new();
+    let mut meta: Vec<_> = meta.into_iter().filter(|(k, _)| *k != CHECKSUM_KEY).collect();
+    meta.sort_unstable();
+    for (k, v) in meta {
+        for part in [k.as_bytes(), b"\0", v.as_bytes(), b"\0"] {
+            h.update(part);
+        }
+    }
+    let mut tensors: Vec<_> = tensors.into_iter().collect();
+    tensors.sort_unstable_by_key(|t| t.0);
+    for (name, shape, bytes) in tensors {
+        h.update(name.as_bytes());
+        h.update(b"\0");
+        for d in shape {
+            h.update((*d as u64).to_le_bytes());
+        }
+        h.update((bytes.len() as u64).to_le_bytes());
+        h.update(bytes);
+    }
+    h.finalize().iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// The bytes of a safetensors file holding `tensors` (name, little-endian `f32` data, shape) and
+/// `meta`, laid out deterministically: header keys sorted (`__metadata__` first, then the tensors
+/// by name), data in the same order, the header padded with spaces to 8 bytes. Equal inputs give
+/// equal bytes. The metadata gains [`CHECKSUM_KEY`]: the [`content_digest`] of the rest.
+fn safetensors_bytes(mut tensors: Vec<(String, Vec<u8>, Vec<usize>)>, meta: &[(&str, String)]) -> Vec<u8> {
+    tensors.sort_by(|a, b| a.0.cmp(&b.0));
+    let mut data = Vec::with_capacity(tensors.iter().map(|t| t.1.len()).sum());
+    let mut entries = serde_json::Map::new();
+    for (name, bytes, shape) in &tensors {
+        let begin = data.len();
+        data.extend_from_slice(bytes);
+        entries.insert(
+            name.clone(),
+            serde_json::json!({"dtype": "F32", "shape": shape, "data_offsets": [begin, data.len()]}),
+        );
+    }
+    let mut m: std::collections::BTreeMap<&str, String> = meta.iter().map(|(k, v)| (*k, v.clone())).collect();
+    let digest = content_digest(
+        meta.iter().map(|(k, v)| (*k, v.as_str())),
+        tensors.iter().map(|(n, b, sh)| (n.as_str(), sh.as_slice(), b.as_slice())),
+    );
+    m.insert(CHECKSUM_KEY, digest);
+    // serde_json's map is ordered by key; "__metadata__" sorts before every tensor name, which
+    // begins with a letter.
+    entries.insert("__metadata__".to_string(), serde_json::json!(m));
+    let mut header = serde_json::to_vec(&serde_json::Value::Object(entries)).unwrap_or_default();
+    while !header.len().is_multiple_of(8) {
+        header.push(b' ');
+    }
+    let mut out = Vec::with_capacity(8 + header.len() + data.len());
+    out.extend_from_slice(&(header.len() as u64).to_le_bytes());
+    out.extend_from_slice(&header);
+    out.extend_from_slice(&data);
+    out
+}
+
+/// Writes `ckpt` for `model` to `path` atomically ([`write_atomic`]): an interrupted or failed
+/// write never damages the previous checkpoint. The file is a function of `ckpt` alone (byte for
+/// byte) and carries the SHA-256 of its tensor bytes.
+///
+/// # Errors
+/// [`CheckpointError`] when the file cannot be written, the state does not fit the model, or the
+/// state holds a non-finite value (nothing is written then: the previous checkpoint stays).
 pub fn save(path: &Path, model: &Model, ckpt: &Checkpoint) -> Result<(), CheckpointError> {
+    save_with(path, model, ckpt, &mut RealFs)
+}
+
+/// [`save`] through the file operations `fs` (the seam the fault-injection tests use).
+///
+/// # Errors
+/// As [`save`].
+pub fn save_with(path: &Path, model: &Model, ckpt: &Checkpoint, fs: &mut dyn FileOps) -> Result<(), CheckpointError> {
     let n = model.num_params;
     if ckpt.params.len() != n || ckpt.adam.m.len() != n || ckpt.adam.v.len() != n {
         return Err(invalid(path, format!("state has {} parameters, the model {n}", ckpt.params.len())));
+    }
+    for (what, v) in
+        [("parameter", &ckpt.params), ("Adam first moment", &ckpt.adam.m), ("Adam second moment", &ckpt.adam.v)]
+    {
+        if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+            return Err(CheckpointError::NonFinite {
+                path: path.to_path_buf(),
+                step: ckpt.step,
+                what: format!("{what} {i} ({})", v[i]),
+            });
+        }
     }
     let mut buffers: Vec<(String, Vec<u8>, Vec<usize>)> = Vec::new();
     for (prefix, source) in [("", &ckpt.params), ("adam_m/", &ckpt.adam.m), ("adam_v/", &ckpt.adam.v)] {
@@ -85,23 +260,22 @@ pub fn save(path: &Path, model: &Model, ckpt: &Checkpoint) -> Result<(), Checkpo
             buffers.push((format!("{prefix}{name}"), le_bytes(&source[off..off + len]), shape));
         }
     }
-    let views: Vec<(String, TensorView<'_>)> = buffers
-        .iter()
-        .map(|(name, bytes, shape)| {
-            TensorView::new(Dtype::F32, shape.clone(), bytes)
-                .map(|v| (name.clone(), v))
-                .map_err(|e| invalid(path, e.to_string()))
-        })
-        .collect::<Result<_, _>>()?;
-    let meta = HashMap::from([
-        ("format".to_string(), FORMAT.to_string()),
-        ("step".to_string(), ckpt.step.to_string()),
-        ("adam_t".to_string(), ckpt.adam.t.to_string()),
-        ("num_params".to_string(), n.to_string()),
-    ]);
-    let tmp = path.with_extension("safetensors.tmp");
-    safetensors::serialize_to_file(views, Some(meta), &tmp).map_err(|e| invalid(&tmp, e.to_string()))?;
-    std::fs::rename(&tmp, path).map_err(|e| CheckpointError::Io { path: path.to_path_buf(), source: e })
+    let meta = [
+        ("format", FORMAT.to_string()),
+        ("step", ckpt.step.to_string()),
+        ("adam_t", ckpt.adam.t.to_string()),
+        ("num_params", n.to_string()),
+    ];
+    write_atomic(path, &safetensors_bytes(buffers, &meta), fs)
+}
+
+/// Whether a loaded checkpoint's tensor bytes were checked against its stored SHA-256.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Integrity {
+    /// The checksum was present and matched.
+    Verified,
+    /// The file predates checksums (no [`CHECKSUM_KEY`] metadata): read as it is.
+    Unchecked,
 }
 
 /// Reads a checkpoint of `model` from `path`.
@@ -110,13 +284,42 @@ pub fn save(path: &Path, model: &Model, ckpt: &Checkpoint) -> Result<(), Checkpo
 /// [`CheckpointError`] for an unreadable file, another format, or tensors that do not fit the
 /// model (a checkpoint of another configuration).
 pub fn load(path: &Path, model: &Model) -> Result<Checkpoint, CheckpointError> {
-    let bytes = std::fs::read(path).map_err(|e| CheckpointError::Io { path: path.to_path_buf(), source: e })?;
+    load_checked(path, model).map(|(ck, _)| ck)
+}
+
+/// [`load`], also saying whether the file's checksum was verified ([`Integrity::Unchecked`] for a
+/// file written before checksums existed).
+///
+/// # Errors
+/// As [`load`], and a checksum that does not match the tensor bytes (a damaged file).
+pub fn load_checked(path: &Path, model: &Model) -> Result<(Checkpoint, Integrity), CheckpointError> {
+    let bytes = std::fs::read(path).map_err(|e| CheckpointError::Io { path: path.to_path_buf(), error: e })?;
     let st = SafeTensors::deserialize(&bytes).map_err(|e| invalid(path, format!("not a safetensors file: {e}")))?;
     let (_, header) = SafeTensors::read_metadata(&bytes).map_err(|e| invalid(path, e.to_string()))?;
     let meta = header.metadata().clone().unwrap_or_default();
     if meta.get("format").map(String::as_str) != Some(FORMAT) {
         return Err(invalid(path, format!("not a {FORMAT} file (format {:?})", meta.get("format"))));
     }
+    let integrity = match meta.get(CHECKSUM_KEY) {
+        None => Integrity::Unchecked,
+        Some(stored) => {
+            let views = st.tensors();
+            let actual = content_digest(
+                meta.iter().map(|(k, v)| (k.as_str(), v.as_str())),
+                views.iter().map(|(n, t)| (n.as_str(), t.shape(), t.data())),
+            );
+            if *stored != actual {
+                return Err(invalid(
+                    path,
+                    format!(
+                        "damaged: the content's SHA-256 is {actual}, the file says {stored} \
+                         (restore the file from a copy, or retrain)"
+                    ),
+                ));
+            }
+            Integrity::Verified
+        }
+    };
     let num = |k: &str| -> Result<u64, CheckpointError> {
         meta.get(k)
             .and_then(|v| v.parse().ok())
@@ -145,5 +348,5 @@ pub fn load(path: &Path, model: &Model) -> Result<Checkpoint, CheckpointError> {
     if params.iter().chain(&m).chain(&v).any(|x| !x.is_finite()) {
         return Err(invalid(path, "holds non-finite values"));
     }
-    Ok(Checkpoint { step: num("step")?, params, adam: AdamState { m, v, t: num("adam_t")? } })
+    Ok((Checkpoint { step: num("step")?, params, adam: AdamState { m, v, t: num("adam_t")? } }, integrity))
 }

@@ -118,12 +118,12 @@ impl std::str::FromStr for Net {
 #[non_exhaustive]
 pub enum LpipsError {
     /// The weights file cannot be read.
-    #[error("{path}: cannot read the LPIPS weights: {source}")]
+    #[error("{path}: cannot read the LPIPS weights: {error}")]
     Io {
         /// The file.
         path: PathBuf,
         /// The OS error.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// The weights file is not valid safetensors, or a tensor is missing or malformed.
     #[error("{path}: {problem}")]
@@ -206,7 +206,7 @@ impl Lpips {
     /// [`LpipsError`] naming the file, and the tensor for a missing tensor, a wrong shape, a dtype
     /// other than F32 or a non-finite value.
     pub fn load(path: &Path, net: Net) -> Result<Self, LpipsError> {
-        let bytes = std::fs::read(path).map_err(|source| LpipsError::Io { path: path.to_path_buf(), source })?;
+        let bytes = std::fs::read(path).map_err(|error| LpipsError::Io { path: path.to_path_buf(), error })?;
         Self::from_bytes(&bytes, path, net)
     }
 

@@ -421,3 +421,121 @@ fn convert_with_a_size_box_filters_first_and_checks_the_size() {
         assert!(err.to_string().contains(problem), "--size {n}: {err}");
     }
 }
+
+#[test]
+fn multiscale_numbers_are_checked_and_each_error_names_the_key_and_the_index() {
+    use serde_json::json;
+    let base = tempfile::tempdir().unwrap();
+    demo::write_demo_scene(base.path(), &demo::DemoConfig { size: 16, train_views: 2, test_views: 1, supersample: 1 })
+        .unwrap();
+    let meta = base.path().join("metadata.json");
+    let original = std::fs::read_to_string(&meta).unwrap();
+    let load = || data::load(base.path(), Split::Train, &LoadOptions::default());
+    type Edit = Box<dyn Fn(&mut serde_json::Value)>;
+    let cases: Vec<(Edit, &str)> = vec![
+        (
+            Box::new(|v| v["train"]["near"][3] = json!(7.0)),
+            "train entry 3: \"near\" 7 and \"far\" 6: need 0 < near < far",
+        ),
+        (Box::new(|v| v["train"]["near"][2] = json!(6.0)), "train entry 2: \"near\" 6 and \"far\" 6"),
+        (Box::new(|v| v["train"]["near"][1] = json!(0.0)), "train entry 1: \"near\" 0"),
+        (Box::new(|v| v["train"]["near"][1] = json!(-1.0)), "train entry 1: \"near\" -1"),
+        (
+            Box::new(|v| drop(v["train"]["label"].as_array_mut().unwrap().pop())),
+            "\"label\" has 7 entries, \"file_path\" has 8",
+        ),
+        (
+            Box::new(|v| {
+                v["train"].as_object_mut().unwrap().remove("pix2cam");
+                v["train"]["focal"].as_array_mut().unwrap().truncate(5);
+            }),
+            "\"focal\" has 5 entries, \"file_path\" has 8",
+        ),
+        (
+            Box::new(|v| {
+                v["train"].as_object_mut().unwrap().remove("pix2cam");
+                v["train"]["focal"][4] = json!(-20.0);
+            }),
+            "train entry 4 \"focal\" must be positive, got -20",
+        ),
+        (Box::new(|v| v["train"]["lossmult"][6] = json!(-4.0)), "train entry 6 \"lossmult\" must be positive"),
+        (Box::new(|v| v["train"]["lossmult"][0] = json!(0.0)), "train entry 0 \"lossmult\" must be positive"),
+        (
+            Box::new(|v| v["train"]["width"][0] = json!(16.5)),
+            "train entry 0 \"width\" must be a whole number from 1 to 65536, got 16.5",
+        ),
+        (
+            Box::new(|v| v["train"]["height"][5] = json!(-8)),
+            "train entry 5 \"height\" must be a whole number from 1 to 65536, got -8",
+        ),
+        (Box::new(|v| v["train"]["label"][2] = json!(7)), "train entry 2 \"label\" must be a whole number from 0 to 3"),
+        (Box::new(|v| v["train"]["label"][2] = json!(1.5)), "train entry 2 \"label\" must be a whole number"),
+        (Box::new(|v| v["train"]["far"][1] = json!("far")), "train entry 1 \"far\" must be a finite number"),
+    ];
+    for (edit, problem) in cases {
+        std::fs::write(&meta, &original).unwrap();
+        edit_json(&meta, edit);
+        assert_error(load().unwrap_err(), "metadata.json", problem);
+    }
+}
+
+/// Replaces, inserts, deletes or truncates bytes of `bytes` as `ops` say (each op: kind, position
+/// as a fraction of the length, byte).
+fn mutate(mut bytes: Vec<u8>, ops: &[(u8, f64, u8)]) -> Vec<u8> {
+    for &(kind, at, b) in ops {
+        let i = ((at * bytes.len() as f64) as usize).min(bytes.len().saturating_sub(1));
+        match kind % 4 {
+            0 if !bytes.is_empty() => bytes[i] = b,
+            1 => bytes.insert(i, b),
+            2 if !bytes.is_empty() => drop(bytes.remove(i)),
+            _ => bytes.truncate(i),
+        }
+    }
+    bytes
+}
+
+proptest::proptest! {
+    // Every parser a user feeds, given mutated bytes of a valid file, returns Ok or an error and
+    // never panics. Cases here: 48 per parser (PROPTEST_CASES=100000 for the long run; see README).
+    #![proptest_config(proptest::prelude::ProptestConfig {
+        cases: std::env::var("PROPTEST_CASES").ok().and_then(|c| c.parse().ok()).unwrap_or(48),
+        failure_persistence: None,
+        ..Default::default()
+    })]
+    #[test]
+    fn mutated_files_never_panic_a_parser(
+        ops in proptest::collection::vec((0u8..4, 0.0f64..1.0, proptest::num::u8::ANY), 1..6),
+    ) {
+        use mipnerf_core::checkpoint;
+        use mipnerf_core::model::{Model, Preset};
+        // metadata.json of a multiscale scene.
+        let ms = tempfile::tempdir().unwrap();
+        demo::write_demo_scene(ms.path(), &demo::DemoConfig { size: 16, train_views: 1, test_views: 1, supersample: 1 })
+            .unwrap();
+        let meta = ms.path().join("metadata.json");
+        std::fs::write(&meta, mutate(std::fs::read(&meta).unwrap(), &ops)).unwrap();
+        let _ = data::load(ms.path(), Split::Train, &LoadOptions::default());
+        // transforms_train.json of a Blender scene.
+        let bl = tempfile::tempdir().unwrap();
+        copy_lego(bl.path());
+        let tf = bl.path().join("transforms_train.json");
+        std::fs::write(&tf, mutate(std::fs::read(&tf).unwrap(), &ops)).unwrap();
+        let _ = data::load(bl.path(), Split::Train, &LoadOptions::default());
+        // A checkpoint.
+        let model = Model::new(Preset::Tiny.config()).unwrap();
+        let ck = tempfile::tempdir().unwrap();
+        let path = ck.path().join("checkpoint.safetensors");
+        let state = mipnerf_core::backend::TrainState::fresh(&model, 0);
+        let c = checkpoint::Checkpoint { step: 1, params: state.params.clone(), adam: state.adam.clone() };
+        checkpoint::save(&path, &model, &c).unwrap();
+        let mutated = mutate(std::fs::read(&path).unwrap(), &ops);
+        let changed = mutated != std::fs::read(&path).unwrap();
+        std::fs::write(&path, mutated).unwrap();
+        let loaded = checkpoint::load(&path, &model);
+        // A changed checkpoint never loads as it was silently... unless the change only touched
+        // header whitespace padding, which carries no information.
+        if changed && let Ok(back) = loaded {
+            proptest::prop_assert_eq!(back, c);
+        }
+    }
+}

@@ -208,6 +208,18 @@ fn list<'a>(
     Ok(v)
 }
 
+/// The largest image side the loaders accept.
+pub const MAX_SIDE: u32 = 1 << 16;
+
+/// `v` as a whole number in `lo..=hi` (`3.0` is accepted, `3.5` is not).
+fn integer(v: &Value, path: &Path, what: &str, lo: u32, hi: u32) -> Result<u32, DataError> {
+    let x = number(v, path, what)?;
+    if x.fract() != 0.0 || x < f64::from(lo) || x > f64::from(hi) {
+        return Err(DataError::invalid(path, format!("{what} must be a whole number from {lo} to {hi}, got {x}")));
+    }
+    Ok(x as u32)
+}
+
 fn number(v: &Value, path: &Path, what: &str) -> Result<f64, DataError> {
     v.as_f64()
         .filter(|x| x.is_finite())
@@ -237,9 +249,11 @@ pub fn load(dir: &Path, split: Split, white_bkgd: bool) -> Result<Dataset, DataE
         list(meta, "far", n, &path, split)?,
         list(meta, "lossmult", n, &path, split)?,
     );
-    let labels = meta.get("label").and_then(Value::as_array);
-    let pix2cams = meta.get("pix2cam").and_then(Value::as_array);
-    let focals = meta.get("focal").and_then(Value::as_array);
+    // Optional lists, each as long as "file_path" when present.
+    let optional = |key: &str| -> Result<Option<&Vec<Value>>, DataError> {
+        if meta.get(key).is_some() { list(meta, key, n, &path, split).map(Some) } else { Ok(None) }
+    };
+    let (labels, pix2cams, focals) = (optional("label")?, optional("pix2cam")?, optional("focal")?);
     let mut views = Vec::with_capacity(files.len());
     for i in 0..files.len() {
         let what = |k: &str| format!("{split} entry {i} \"{k}\"");
@@ -247,8 +261,8 @@ pub fn load(dir: &Path, split: Split, white_bkgd: bool) -> Result<Dataset, DataE
             .as_str()
             .ok_or_else(|| DataError::invalid(&path, format!("{} must be a string", what("file_path"))))?;
         let file = dir.join(rel);
-        let w = number(&widths[i], &path, &what("width"))? as u32;
-        let h = number(&heights[i], &path, &what("height"))? as u32;
+        let w = integer(&widths[i], &path, &what("width"), 1, MAX_SIDE)?;
+        let h = integer(&heights[i], &path, &what("height"), 1, MAX_SIDE)?;
         let pose = pose_from_json(&c2w[i], &path, &what("cam2world"))?;
         let pix2cam = match (pix2cams.and_then(|p| p.get(i)), focals.and_then(|f| f.get(i))) {
             (Some(p), _) => {
@@ -268,7 +282,13 @@ pub fn load(dir: &Path, split: Split, white_bkgd: bool) -> Result<Dataset, DataE
                 }
                 m
             }
-            (None, Some(f)) => pinhole_pix2cam(w, h, number(f, &path, &what("focal"))?),
+            (None, Some(f)) => {
+                let focal = number(f, &path, &what("focal"))?;
+                if focal <= 0.0 {
+                    return Err(DataError::invalid(&path, format!("{} must be positive, got {focal}", what("focal"))));
+                }
+                pinhole_pix2cam(w, h, focal)
+            }
             (None, None) => return Err(DataError::invalid(&path, format!("{split}: needs \"pix2cam\" or \"focal\""))),
         };
         let camera = Camera::from_pix2cam(w, h, pix2cam, pose)
@@ -284,16 +304,30 @@ pub fn load(dir: &Path, split: Split, white_bkgd: bool) -> Result<Dataset, DataE
             ));
         }
         let scale = match labels.and_then(|l| l.get(i)) {
-            Some(l) => number(l, &path, &what("label"))? as u32,
+            Some(l) => integer(l, &path, &what("label"), 0, NUM_SCALES - 1)?,
             None => 0,
         };
+        let (near, far) = (number(&nears[i], &path, &what("near"))?, number(&fars[i], &path, &what("far"))?);
+        if near <= 0.0 || far <= near {
+            return Err(DataError::invalid(
+                &path,
+                format!("{split} entry {i}: \"near\" {near} and \"far\" {far}: need 0 < near < far"),
+            ));
+        }
+        let lossmult = number(&lossmults[i], &path, &what("lossmult"))?;
+        if lossmult <= 0.0 {
+            return Err(DataError::invalid(
+                &path,
+                format!("{} must be positive (a pixel's weight in the loss), got {lossmult}", what("lossmult")),
+            ));
+        }
         views.push(View {
             file,
             camera,
             pixels: Pixels::Rgba8(rgba),
-            near: number(&nears[i], &path, &what("near"))? as f32,
-            far: number(&fars[i], &path, &what("far"))? as f32,
-            lossmult: number(&lossmults[i], &path, &what("lossmult"))? as f32,
+            near: near as f32,
+            far: far as f32,
+            lossmult: lossmult as f32,
             scale,
         });
     }

@@ -1,0 +1,30 @@
+//! Helpers shared by the binary's test files: run it, and make small scenes.
+#![allow(clippy::unwrap_used, missing_docs, dead_code)]
+
+use std::process::Command;
+
+/// Runs the binary with `args` and returns what it did.
+pub fn mipnerf(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_mipnerf")).args(args).env("XDG_RUNTIME_DIR", "/tmp").output().unwrap()
+}
+
+/// A 16-pixel demo scene of `train_views` training views and one test view in `dir/data`.
+pub fn small_demo_scene(dir: &std::path::Path, train_views: usize) -> std::path::PathBuf {
+    let data = dir.join("data");
+    let cfg = mipnerf_core::data::demo::DemoConfig { size: 16, train_views, test_views: 1, supersample: 1 };
+    mipnerf_core::data::demo::write_demo_scene(&data, &cfg).unwrap();
+    data
+}
+
+/// Separates standard output from standard error in what [`run_ok`] returns.
+pub const STDERR_FOLLOWS: &str = "\n--- stderr ---\n";
+
+/// Runs the binary, asserts success, and returns its standard output, [`STDERR_FOLLOWS`] and its
+/// standard error.
+pub fn run_ok(args: &[&str]) -> String {
+    let out = mipnerf(args);
+    let text =
+        String::from_utf8_lossy(&out.stdout).to_string() + STDERR_FOLLOWS + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "mipnerf {args:?} failed:\n{text}");
+    text
+}
