@@ -46,7 +46,13 @@ pub struct BenchArgs {
 /// # Errors
 /// Bad sizes, or a backend that cannot be opened or fails.
 pub fn bench(a: &BenchArgs) -> Result<()> {
-    anyhow::ensure!(a.batch > 0 && a.steps > 0, "--batch-rays and --steps must be positive");
+    anyhow::ensure!(a.steps > 0, "--steps must be positive");
+    anyhow::ensure!(
+        (1..=crate::config::MAX_BATCH_RAYS).contains(&a.batch),
+        "--batch-rays must be between 1 and {}, got {}",
+        crate::config::MAX_BATCH_RAYS,
+        a.batch
+    );
     anyhow::ensure!((1..=4096).contains(&a.render_side), "--render-side must be between 1 and 4096");
     let model = Model::new(a.preset.preset().config())?;
     let ds = Arc::new(synthetic_dataset(20, 64));

@@ -242,6 +242,10 @@ fn sizes_are_checked_before_anything_is_allocated() {
         assert_eq!(code, Some(1), "{line}: {err}");
         assert!(err.contains(needle), "{line}: {err}");
     }
+    // So is the benchmark.
+    let (code, err) = fails(&["bench", "--backend", "cpu", "--batch-rays", "4294967297", "--steps", "1"]);
+    assert_eq!(code, Some(1), "{err}");
+    assert!(err.contains("--batch-rays must be between 1 and 4194304"), "{err}");
     // The GPU backend is guarded by the same check, before a device is opened.
     let (code, err) = fails(&["train", "--data", d, "--out", r, "--backend", "gpu", "--batch-rays", "4294967297"]);
     assert_eq!(code, Some(1), "{err}");

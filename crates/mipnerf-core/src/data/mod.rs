@@ -278,6 +278,10 @@ impl Dataset {
     /// A training batch of `n` pixels drawn uniformly (with replacement) from all pixels of all
     /// views, a pure function of `(seed, step)`. Fills `targets` with one colour per pixel and
     /// `rays` with `supersample²` rays per pixel (see [`push_pixel_rays`](Self::push_pixel_rays)).
+    ///
+    /// # Panics
+    /// If `n` is `2^31` or more (two 32-bit random draws per pixel are counted in a `u32`);
+    /// callers bound the batch well below that.
     pub fn sample_batch(
         &self,
         n: usize,
@@ -291,7 +295,8 @@ impl Dataset {
         targets.clear();
         let total = self.num_pixels();
         let rng = RayRng::new(seed, step, Stream::RayBatch, 0);
-        for i in 0..n as u32 {
+        let n = u32::try_from(n).ok().filter(|n| *n < 1 << 31).unwrap_or_else(|| panic!("sample_batch: {n} pixels"));
+        for i in 0..n {
             let r = (u64::from(rng.bits(2 * i)) << 32) | u64::from(rng.bits(2 * i + 1));
             let (v, x, y) = self.locate(r % total);
             self.push_pixel_rays(v, x, y, supersample, rays);
