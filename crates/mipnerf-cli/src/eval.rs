@@ -133,7 +133,7 @@ pub fn eval(run: &Path, split: Split, backend: Backend, weights: &LpipsWeights) 
     let k = be.model().config.supersample;
     let levels = be.model().config.num_levels;
     let mut per_image = Vec::new();
-    let pb = indicatif::ProgressBar::new(ds.views.len() as u64);
+    let mut pb = crate::progress::Progress::new("eval", 0, ds.views.len() as u64);
     for v in 0..ds.views.len() {
         let view = &ds.views[v];
         let (w, h) = (view.camera.width as usize, view.camera.height as usize);
@@ -165,9 +165,9 @@ pub fn eval(run: &Path, split: Split, backend: Backend, weights: &LpipsWeights) 
             lpips: lp,
             mse,
         });
-        pb.inc(1);
+        pb.inc();
     }
-    pb.finish_and_clear();
+    pb.finish();
     let mut per_scale = Vec::new();
     for scale in ds.scales() {
         let imgs: Vec<&ImageScore> = per_image.iter().filter(|i| i.scale == scale).collect();

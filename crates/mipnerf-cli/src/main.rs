@@ -11,6 +11,7 @@ mod figure;
 mod images;
 mod lpips;
 mod plot;
+mod progress;
 mod render;
 mod run;
 
@@ -47,6 +48,9 @@ const EXAMPLES: &str = "Examples:
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// No progress bars or progress lines (results and errors are still printed).
+    #[arg(long, global = true)]
+    quiet: bool,
 }
 
 #[derive(Subcommand, Debug)]
@@ -439,6 +443,7 @@ struct DemoArgs {
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
+    progress::set_quiet(cli.quiet);
     let result = match cli.command {
         Command::Info => {
             info();

@@ -138,7 +138,7 @@ pub fn render(
     let levels = be.model().config.num_levels;
     let mut written = Vec::new();
     let mut preview = Vec::new();
-    let pb = indicatif::ProgressBar::new(jobs.len() as u64);
+    let mut pb = crate::progress::Progress::new("render", 0, jobs.len() as u64);
     for (name, image) in &jobs {
         let (w, h) = (&image.camera.width, &image.camera.height);
         let outs: Vec<_> = be
@@ -173,9 +173,9 @@ pub fn render(
         if matches!(target, Target::Path(..)) {
             preview.push(png);
         }
-        pb.inc(1);
+        pb.inc();
     }
-    pb.finish_and_clear();
+    pb.finish();
     if !preview.is_empty() {
         let (w, h) = (jobs[0].1.camera.width, jobs[0].1.camera.height);
         let gif = out.join("preview.gif");

@@ -7,7 +7,6 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use indicatif::{ProgressBar, ProgressStyle};
 use mipnerf_core::backend::TrainState;
 use mipnerf_core::checkpoint::{self, Checkpoint};
 use mipnerf_core::data::{self, Dataset, Format, LoadOptions, Split};
@@ -15,6 +14,7 @@ use mipnerf_core::model::Model;
 
 use crate::backend;
 use crate::config::{Backend, TrainSettings};
+use crate::progress::Progress;
 
 /// File names inside a run directory.
 pub const CONFIG: &str = "config.toml";
@@ -221,13 +221,7 @@ pub fn train(
         checkpoint::write_atomic(&path, format!("{total:.3}\n").as_bytes(), &mut checkpoint::RealFs)?;
         Ok(())
     };
-    let pb = ProgressBar::new(steps);
-    pb.set_style(
-        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} {msg} ETA {eta}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-    );
-    pb.set_position(be.step());
+    let mut pb = Progress::new("train", be.step(), steps);
     let log_every = s.log_every.unwrap_or(10);
     let ckpt_every = s.checkpoint_every.unwrap_or(500);
     let mut window = (Instant::now(), 0u64);
@@ -283,7 +277,7 @@ pub fn train(
         }
     }
     save(&mut be, last_saved)?;
-    pb.finish_and_clear();
+    pb.finish();
     if interrupted {
         eprintln!(
             "interrupted at step {}: checkpoint written to {}; continue with --resume",

@@ -466,3 +466,46 @@ fn bad_experiment_files_are_clear_errors_naming_the_file() {
     assert!(err.contains("experiment.toml") && err.contains("colour"), "{err}");
     assert!(!dir.path().join("runs").exists(), "nothing is trained before the files are checked");
 }
+
+#[test]
+fn piped_output_gets_plain_progress_lines_and_quiet_silences_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_demo_scene(dir.path(), 2);
+    let run_with = |run: &str, quiet: bool| {
+        let run = dir.path().join(run);
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_mipnerf"));
+        cmd.args(["train", "--data", data.to_str().unwrap(), "--out", run.to_str().unwrap()])
+            .args(["--steps", "40", "--batch-rays", "32", "--backend", "cpu"])
+            // One line every 20 ms instead of every 30 s, so that a short run shows several.
+            .env("MIPNERF_PROGRESS_SECONDS", "0.02");
+        if quiet {
+            cmd.arg("--quiet");
+        }
+        let out = cmd.output().unwrap();
+        assert!(out.status.success(), "{out:?}");
+        let eval = Command::new(env!("CARGO_BIN_EXE_mipnerf"))
+            .args(["eval", "--run", run.to_str().unwrap(), "--backend", "cpu"])
+            .args(quiet.then_some("--quiet"))
+            .env("MIPNERF_PROGRESS_SECONDS", "0")
+            .output()
+            .unwrap();
+        assert!(eval.status.success(), "{eval:?}");
+        String::from_utf8_lossy(&out.stderr).to_string() + &String::from_utf8_lossy(&eval.stderr)
+    };
+    let text = run_with("loud", false);
+    let lines: Vec<&str> = text.lines().filter(|l| l.starts_with("train: ")).collect();
+    assert!(lines.len() >= 2, "{text}");
+    for l in &lines {
+        assert!(l.contains("/40 (") && l.contains("elapsed") && l.contains("ETA"), "{l}");
+    }
+    // The last line closes the task, with the loss, PSNR and throughput of the last logged step.
+    let last = lines.last().unwrap();
+    assert!(
+        last.starts_with("train: 40/40 (100%) loss ") && last.contains("psnr") && last.contains("rays/s"),
+        "{last}"
+    );
+    assert!(text.lines().any(|l| l.starts_with("eval: 4/4 (100%)")), "{text}");
+    assert!(!text.contains('\r') && !text.contains("\x1b["), "no terminal control codes in a pipe: {text:?}");
+    let quiet = run_with("quiet", true);
+    assert!(!quiet.lines().any(|l| l.starts_with("train: ") || l.starts_with("eval: ")), "{quiet}");
+}
