@@ -204,16 +204,26 @@ enum Command {
     /// Convert a Blender scene into the multiscale format (4 scales, metadata.json), exactly as
     /// the official convert_blender_data.py (byte for byte, without --size).
     Convert {
-        /// The Blender scene (transforms_*.json).
-        #[arg(long, value_name = "BLENDER_DIR")]
+        /// The scene: Blender (transforms_*.json) for --to multiscale, COLMAP (sparse/ and
+        /// images/) for --to llff.
+        #[arg(long, value_name = "DIR")]
         input: PathBuf,
         /// Output directory (created).
         #[arg(long, value_name = "DIR")]
         output: PathBuf,
-        /// First box-filter every image to N pixels wide (straight RGBA, area average, any ratio;
-        /// the height in proportion), then make the 4 scales. N: at least 16, divisible by 8.
+        /// What to write: the multiscale Blender format (from a Blender scene), or LLFF's
+        /// poses_bounds.npy and images (from a COLMAP scene, as LLFF's imgs2poses does).
+        #[arg(long, value_enum, default_value_t = ConvertTo::Multiscale)]
+        to: ConvertTo,
+        /// --to multiscale: first box-filter every image to N pixels wide (straight RGBA, area
+        /// average, any ratio; the height in proportion), then make the 4 scales. N: at least 16,
+        /// divisible by 8.
         #[arg(long, value_name = "N")]
         size: Option<u32>,
+        /// --to llff: write the images box-filtered by N into images_N (0 or 1: full size, into
+        /// images/; train on it with the same --llff-factor).
+        #[arg(long, value_name = "N", default_value_t = 4)]
+        factor: u32,
     },
     /// The built-in demo scene end to end: generate it into RUN_DIR/data, train Mip-NeRF (in
     /// RUN_DIR) and the NeRF baseline (RUN_DIR/nerf) alike, evaluate both, render, and write
@@ -244,6 +254,15 @@ enum Command {
         #[arg(long, default_value_t = 1024)]
         batch_rays: usize,
     },
+}
+
+/// `convert --to` values.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum ConvertTo {
+    /// The multiscale Blender format (metadata.json), from a Blender scene.
+    Multiscale,
+    /// LLFF's poses_bounds.npy and images, from a COLMAP scene.
+    Llff,
 }
 
 /// `--split` values.
@@ -336,6 +355,27 @@ fn train_cmd(
         );
     }
     Ok(outcome)
+}
+
+fn convert_llff(input: &Path, output: &Path, size: Option<u32>, factor: u32) -> Result<()> {
+    if size.is_some() {
+        bail!("--size applies to --to multiscale; for --to llff, downsample with --factor N");
+    }
+    if factor > 64 {
+        bail!("--factor must be between 0 and 64, got {factor}");
+    }
+    let names = data::colmap::convert_to_llff(input, output, factor)?;
+    let folder = if factor > 1 { format!("images_{factor}") } else { "images".to_string() };
+    println!(
+        "wrote {} and {} images to {}/{folder}; train with --data {} --llff-factor {} (add --spherify for a \
+         capture all around the object)",
+        output.join("poses_bounds.npy").display(),
+        names.len(),
+        output.display(),
+        output.display(),
+        if factor > 1 { factor } else { 0 }
+    );
+    Ok(())
 }
 
 fn demo_cmd(out: &Path, d: &DemoArgs) -> Result<()> {
@@ -487,9 +527,14 @@ fn main() -> std::process::ExitCode {
         Command::Bench { backend, preset, batch_rays, steps, render_side } => {
             bench::bench(&bench::BenchArgs { backends: backend, preset, batch: batch_rays, steps, render_side })
         }
-        Command::Convert { input, output, size } => data::multiscale::convert_resized(&input, &output, size)
-            .map(|splits| println!("converted {splits:?} into {}", output.display()))
-            .map_err(Into::into),
+        Command::Convert { input, output, to: ConvertTo::Multiscale, size, .. } => {
+            data::multiscale::convert_resized(&input, &output, size)
+                .map(|splits| println!("converted {splits:?} into {}", output.display()))
+                .map_err(Into::into)
+        }
+        Command::Convert { input, output, to: ConvertTo::Llff, size, factor } => {
+            convert_llff(&input, &output, size, factor)
+        }
         Command::Demo { out, preset, steps, backend, seed, size, views, batch_rays } => {
             demo_cmd(&out, &DemoArgs { preset, steps, backend, seed, size, views, batch_rays })
         }

@@ -139,7 +139,7 @@ pub fn train(
     // The dataset is stored as an absolute path, so that eval, render and --resume work from any
     // working directory.
     let data_dir = std::path::absolute(&data_dir).with_context(|| format!("resolving {}", data_dir.display()))?;
-    let mut s = merged.resolved(format == Format::Llff);
+    let mut s = merged.resolved(matches!(format, Format::Llff | Format::Colmap));
     s.data = Some(data_dir.clone());
     let model_cfg = s.model_config()?;
     let optim = s.optim_config()?;
@@ -172,6 +172,9 @@ pub fn train(
         ds.pixel_bytes() as f64 / (1 << 20) as f64,
         t_load.elapsed().as_secs_f64()
     );
+    for note in &ds.notes {
+        eprintln!("note: {note}");
+    }
     if ds.ndc.is_some() && model.config.supersample > 1 {
         bail!("{}: {}", data_dir.display(), mipnerf_core::backend::NDC_SUPERSAMPLE);
     }

@@ -509,3 +509,66 @@ fn piped_output_gets_plain_progress_lines_and_quiet_silences_them() {
     let quiet = run_with("quiet", true);
     assert!(!quiet.lines().any(|l| l.starts_with("train: ") || l.starts_with("eval: ")), "{quiet}");
 }
+
+/// The real COLMAP reconstruction committed under tests/data (see scripts/make-colmap-test-data.sh).
+fn colmap_scene() -> std::path::PathBuf {
+    std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/colmap_lego")
+}
+
+#[test]
+fn a_colmap_scene_trains_directly_and_converts_to_llff() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    let scene = colmap_scene();
+    let text = run_ok(&[
+        "train",
+        "--data",
+        scene.to_str().unwrap(),
+        "--out",
+        run.to_str().unwrap(),
+        "--spherify",
+        "--steps",
+        "60",
+        "--batch-rays",
+        "256",
+        "--lr-init",
+        "5e-3",
+        "--lr-final",
+        "1e-3",
+        "--backend",
+        "cpu",
+    ]);
+    assert!(text.contains("Colmap") && text.contains("note: images_4/ is absent"), "{text}");
+    let csv = std::fs::read_to_string(run.join("metrics.csv")).unwrap();
+    let losses: Vec<f64> = csv.lines().skip(1).map(|l| l.split(',').nth(1).unwrap().parse().unwrap()).collect();
+    let (first, last) = (losses[0], *losses.last().unwrap());
+    assert!(last < first / 3.0, "the loss went from {first} to {last}: {csv}");
+    // The same scene as LLFF files, which the LLFF loader reads.
+    let llff = dir.path().join("llff");
+    let out =
+        run_ok(&["convert", "--input", scene.to_str().unwrap(), "--output", llff.to_str().unwrap(), "--to", "llff"]);
+    assert!(out.contains("--llff-factor 4") && llff.join("poses_bounds.npy").is_file(), "{out}");
+    let n = std::fs::read_dir(llff.join("images_4")).unwrap().count();
+    let model = mipnerf_core::data::colmap::read_model(&scene.join("sparse/0")).unwrap();
+    assert_eq!(n, model.images.len());
+    let r2 = dir.path().join("run2");
+    run_ok(&[
+        "train",
+        "--data",
+        llff.to_str().unwrap(),
+        "--out",
+        r2.to_str().unwrap(),
+        "--steps",
+        "2",
+        "--backend",
+        "cpu",
+    ]);
+    // --size belongs to --to multiscale; a Blender folder is no COLMAP scene.
+    let bad =
+        mipnerf(&["convert", "--input", scene.to_str().unwrap(), "--output", "x", "--to", "llff", "--size", "64"]);
+    assert!(!bad.status.success() && String::from_utf8_lossy(&bad.stderr).contains("--factor"), "{bad:?}");
+    let blender = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/lego_tiny");
+    let bad = mipnerf(&["convert", "--input", blender.to_str().unwrap(), "--output", "x", "--to", "llff"]);
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(!bad.status.success() && err.contains("sparse") && !err.contains("panicked"), "{err}");
+}

@@ -219,17 +219,55 @@ pub fn load(dir: &Path, split: Split, factor: u32, spherical: bool) -> Result<Da
             format!("{} images but poses_bounds.npy has {} poses", files.len(), rows.len()),
         ));
     }
-    let mut images: Vec<(u32, u32, Vec<u8>)> = Vec::with_capacity(files.len());
-    for f in &files {
-        let (w, h, rgba, _) = read_png_rgba(f)?;
-        if let Some(&(w0, h0, _)) = images.first()
-            && (w, h) != (w0, h0)
-        {
-            return Err(DataError::invalid(f, format!("image is {w}x{h}, the first image is {w0}x{h0}")));
-        }
-        images.push((w, h, rgba));
+    let mut images: Vec<LlffImage> = Vec::with_capacity(files.len());
+    for f in files {
+        let (w, h, rgba, _) = read_png_rgba(&f)?;
+        images.push(LlffImage { file: f, width: w, height: h, rgba });
     }
-    let (w, h) = (images[0].0, images[0].1);
+    from_rows(dir, &npy, &rows, images, factor, split, spherical)
+}
+
+/// One image of an LLFF scene: its file, size and straight RGBA8 pixels.
+#[derive(Clone, Debug)]
+pub struct LlffImage {
+    /// Where it was read from (named in errors and outputs).
+    pub file: std::path::PathBuf,
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Straight RGBA8, row-major.
+    pub rgba: Vec<u8>,
+}
+
+/// The LLFF loader's work after reading: `rows` (as in `poses_bounds.npy`, whose path `npy`
+/// errors name) with one image each, in order, downsampled by `factor` from the resolution the
+/// rows' focal length is given at (0 and 1: not downsampled).
+///
+/// # Errors
+/// Images of different sizes, non-positive bounds, singular poses.
+pub fn from_rows(
+    dir: &Path,
+    npy: &Path,
+    rows: &[[f64; 17]],
+    images: Vec<LlffImage>,
+    factor: u32,
+    split: Split,
+    spherical: bool,
+) -> Result<Dataset, DataError> {
+    let npy = npy.to_path_buf();
+    if images.len() != rows.len() || images.is_empty() {
+        return Err(DataError::invalid(&npy, format!("{} images for {} poses", images.len(), rows.len())));
+    }
+    let (w, h) = (images[0].width, images[0].height);
+    if let Some(im) = images.iter().find(|im| (im.width, im.height) != (w, h)) {
+        return Err(DataError::invalid(
+            &im.file,
+            format!("image is {}x{}, the first image is {w}x{h}", im.width, im.height),
+        ));
+    }
+    let files: Vec<std::path::PathBuf> = images.iter().map(|im| im.file.clone()).collect();
+    let images: Vec<(u32, u32, Vec<u8>)> = images.into_iter().map(|im| (im.width, im.height, im.rgba)).collect();
     // Rotation columns [down, right, back] -> [right, up, back]: [y, -x, z] of the stored columns.
     let focal = rows[0][14] / f64::from(factor.max(1));
     let mut poses: Vec<Pose> = rows

@@ -14,6 +14,7 @@
 //! stored for the whole dataset.
 
 pub mod blender;
+pub mod colmap;
 pub mod demo;
 pub mod llff;
 pub mod multiscale;
@@ -46,7 +47,7 @@ pub enum DataError {
     /// A directory is no dataset format this tool knows.
     #[error(
         "{}: not a known dataset: expected transforms_train.json (Blender), metadata.json \
-         (multiscale Blender) or poses_bounds.npy (LLFF)",
+         (multiscale Blender), poses_bounds.npy (LLFF) or sparse/ and images/ (COLMAP)",
         path.display()
     )]
     UnknownFormat {
@@ -178,6 +179,9 @@ pub struct Dataset {
     pub ndc: Option<Ndc>,
     /// A camera path for rendering videos, where the format defines one (LLFF's spiral).
     pub render_path: Vec<Camera>,
+    /// Choices the loader made that a user should hear about (which COLMAP model was taken,
+    /// images downsampled in memory), one sentence each.
+    pub notes: Vec<String>,
     /// Cumulative pixel counts: view `v` holds global pixels `offsets[v]..offsets[v + 1]`.
     offsets: Vec<u64>,
 }
@@ -206,6 +210,7 @@ impl Dataset {
             centers: PixelCenters::Centered,
             ndc: None,
             render_path: Vec::new(),
+            notes: Vec::new(),
             offsets,
         })
     }
@@ -376,6 +381,8 @@ pub enum Format {
     Multiscale,
     /// `poses_bounds.npy`.
     Llff,
+    /// A COLMAP sparse model (`sparse/0/cameras.bin` or `.txt`, ...) beside `images/`.
+    Colmap,
 }
 
 /// Detects the format of the dataset in `dir`.
@@ -394,6 +401,8 @@ pub fn detect_format(dir: &Path) -> Result<Format, DataError> {
         Ok(Format::Blender)
     } else if dir.join("poses_bounds.npy").is_file() {
         Ok(Format::Llff)
+    } else if dir.join("sparse").is_dir() && dir.join("images").is_dir() {
+        Ok(Format::Colmap)
     } else {
         Err(DataError::UnknownFormat { path: dir.to_path_buf() })
     }
@@ -406,7 +415,7 @@ pub struct LoadOptions {
     pub white_bkgd: bool,
     /// Blender: load at half resolution (2x2 area filter), as the official `factor = 2`.
     pub half_res: bool,
-    /// LLFF: the image folder's downsampling factor (`images_{factor}`; 0 = `images`).
+    /// LLFF and COLMAP: the image folder's downsampling factor (`images_{factor}`; 0 = `images`).
     pub llff_factor: u32,
     /// LLFF: spherical poses instead of forward-facing NDC.
     pub llff_spherify: bool,
@@ -435,6 +444,7 @@ pub fn load(dir: &Path, split: Split, opts: &LoadOptions) -> Result<Dataset, Dat
         Format::Blender => blender::load(dir, split, opts.white_bkgd, opts.half_res)?,
         Format::Multiscale => multiscale::load(dir, split, opts.white_bkgd)?,
         Format::Llff => llff::load(dir, split, opts.llff_factor, opts.llff_spherify)?,
+        Format::Colmap => colmap::load(dir, split, opts.llff_factor, opts.llff_spherify)?,
     };
     ds.centers = opts.centers;
     Ok(ds)
