@@ -1,11 +1,13 @@
 #!/usr/bin/env bash
 # The whole test suite, as CI runs it: formatting, lints, and every test (GPU tests included, on
-# lavapipe where there is no hardware GPU). Installs a Vulkan driver first if none is present.
+# lavapipe where there is no hardware GPU). Installs a Vulkan driver first if none is present, and
+# in CI headless Chromium for the browser test of eval's page.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp}"
 start=$(date +%s)
 bash scripts/ensure-vulkan.sh
+bash scripts/ensure-chromium.sh
 echo "== cargo fmt --check"
 cargo fmt --all -- --check
 echo "== cargo clippy"

@@ -133,6 +133,7 @@ pub fn eval(run: &Path, split: Split, backend: Backend, weights: &LpipsWeights) 
     let k = be.model().config.supersample;
     let levels = be.model().config.num_levels;
     let mut per_image = Vec::new();
+    let mut entries = Vec::new();
     let mut pb = crate::progress::Progress::new("eval", 0, ds.views.len() as u64);
     for v in 0..ds.views.len() {
         let view = &ds.views[v];
@@ -157,6 +158,15 @@ pub fn eval(run: &Path, split: Split, backend: Backend, weights: &LpipsWeights) 
             .with_context(|| view.file.display().to_string())?;
         let stem = view.file.file_stem().map_or_else(|| format!("{v:04}"), |s| s.to_string_lossy().to_string());
         write_png(&out.join(format!("{stem}.png")), w as u32, h as u32, &rgb_to_png(&rendered))?;
+        write_png(&out.join(format!("{stem}_gt.png")), w as u32, h as u32, &rgb_to_png(&target))?;
+        write_png(&out.join(format!("{stem}_error.png")), w as u32, h as u32, &crate::html::error_map(&a, &b))?;
+        entries.push(crate::html::Entry {
+            name: stem.clone(),
+            scale: view.scale,
+            size: (w, h),
+            scores: (psnr, ss, lp),
+            files: [format!("{stem}_gt.png"), format!("{stem}.png"), format!("{stem}_error.png")],
+        });
         per_image.push(ImageScore {
             file: view.file.display().to_string(),
             scale: view.scale,
@@ -216,6 +226,7 @@ pub fn eval(run: &Path, split: Split, backend: Backend, weights: &LpipsWeights) 
     std::fs::write(out.join("metrics.md"), markdown(&metrics)).context("writing metrics.md")?;
     let bars: Vec<(String, u32, f64)> = metrics.per_image.iter().map(|i| (i.file.clone(), i.scale, i.psnr)).collect();
     crate::plot::psnr_bars(&out.join("psnr_per_image.png"), &bars)?;
+    crate::html::write_index(&out, run, &metrics, &entries)?;
     Ok(metrics)
 }
 

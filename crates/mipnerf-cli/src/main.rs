@@ -8,6 +8,7 @@ mod config;
 mod eval;
 mod experiment;
 mod figure;
+mod html;
 mod images;
 mod lpips;
 mod plot;

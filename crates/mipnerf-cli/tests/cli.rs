@@ -572,3 +572,74 @@ fn a_colmap_scene_trains_directly_and_converts_to_llff() {
     let err = String::from_utf8_lossy(&bad.stderr);
     assert!(!bad.status.success() && err.contains("sparse") && !err.contains("panicked"), "{err}");
 }
+
+#[test]
+fn eval_writes_a_page_that_a_real_browser_loads_with_every_image() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_demo_scene(dir.path(), 2);
+    let run = dir.path().join("run");
+    let r = run.to_str().unwrap();
+    run_ok(&[
+        "train",
+        "--data",
+        data.to_str().unwrap(),
+        "--out",
+        r,
+        "--steps",
+        "5",
+        "--batch-rays",
+        "32",
+        "--backend",
+        "cpu",
+    ]);
+    run_ok(&["eval", "--run", r, "--backend", "cpu", "--quiet"]);
+    let page = run.join("eval/index.html");
+    let html = std::fs::read_to_string(&page).unwrap();
+    // Every image the page shows is beside it, and nothing comes from the network.
+    let srcs: Vec<&str> = html.split("src=\"").skip(1).map(|s| &s[..s.find('"').unwrap()]).collect();
+    assert!(srcs.len() >= 3 * 4 + 3, "{srcs:?}");
+    for s in &srcs {
+        assert!(run.join("eval").join(s).is_file(), "{s} is missing");
+    }
+    assert!(!html.contains("http://") && !html.contains("https://"), "the page reaches the network");
+    for needle in ["Scores per scale", "000_d0_gt.png", "000_d3_error.png", "training_loss.png"] {
+        assert!(html.contains(needle), "{needle}");
+    }
+    let Some(chromium) = ["chromium", "chromium-browser", "google-chrome"]
+        .into_iter()
+        .find(|c| Command::new(c).arg("--version").output().is_ok_and(|o| o.status.success()))
+    else {
+        assert!(std::env::var("CI").is_err(), "CI installs Chromium (scripts/ensure-chromium.sh)");
+        eprintln!("SKIPPED the browser check of eval/index.html: no chromium (Debian: apt-get install chromium)");
+        return;
+    };
+    let url = format!("file://{}", page.display());
+    let base = ["--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--virtual-time-budget=10000"];
+    let dom = Command::new(chromium)
+        .args(base)
+        .args(["--enable-logging=stderr", "--v=0", "--dump-dom", &url])
+        .output()
+        .unwrap();
+    let (dom_text, log) = (String::from_utf8_lossy(&dom.stdout), String::from_utf8_lossy(&dom.stderr));
+    assert!(dom.status.success(), "{log}");
+    let total = srcs.len();
+    assert!(
+        dom_text.contains(&format!("data-images-ok=\"{total}\" data-images-total=\"{total}\"")),
+        "not every image decoded: {}",
+        dom_text.lines().find(|l| l.contains("<body")).unwrap_or("")
+    );
+    let console: Vec<&str> = log.lines().filter(|l| l.contains(":CONSOLE")).collect();
+    assert!(console.is_empty(), "console messages: {console:?}");
+    let shot = dir.path().join("page.png");
+    let out = Command::new(chromium)
+        .args(base)
+        .args(["--window-size=1300,2000", &format!("--screenshot={}", shot.display()), &url])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let img = image::open(&shot).unwrap().to_rgb8();
+    let mut colours: Vec<[u8; 3]> = img.pixels().map(|p| p.0).collect();
+    colours.sort_unstable();
+    colours.dedup();
+    assert!(colours.len() > 500, "the screenshot looks empty: {} colours", colours.len());
+}
