@@ -4,7 +4,7 @@
 //   g = g * min(max_norm / (1e-7 + |g|), 1)            (max_norm > 0; |g| after value clipping)
 //   m = b1 m + (1 - b1) g; v = b2 v + (1 - b2) g^2; p -= lr (m / c1) / (sqrt(v / c2) + eps).
 //
-// Entry points: `grad_sq_partial` (one sum of squares per workgroup of 256 gradients),
+// Entry points: `grad_sq_partial` (one sum of squares per workgroup of REDUCE_WORKGROUP (256) gradients),
 // `grad_norm_finish` (one workgroup: the norm and the clipping factor into `stats`), `main` (the
 // update). The norm passes run only when clipping by norm; the sums are in a fixed order.
 
@@ -44,7 +44,7 @@ fn clipped(i: u32) -> f32 {
     return g;
 }
 
-var<workgroup> sums: array<f32, 256>;
+var<workgroup> sums: array<f32, REDUCE_WORKGROUP>;
 
 // Tree sum of `sums` within the workgroup; the result is in sums[0].
 fn reduce_workgroup(t: u32) {
@@ -57,10 +57,10 @@ fn reduce_workgroup(t: u32) {
     }
 }
 
-@compute @workgroup_size(256)
+@compute @workgroup_size(REDUCE_WORKGROUP)
 fn grad_sq_partial(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t: u32) {
     let group = wg.y * p.groups_x + wg.x;
-    let i = group * 256u + t;
+    let i = group * REDUCE_WORKGROUP + t;
     var s = 0.0;
     if (i < p.count) {
         let g = clipped(i);
@@ -73,10 +73,10 @@ fn grad_sq_partial(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocati
     }
 }
 
-@compute @workgroup_size(256)
+@compute @workgroup_size(REDUCE_WORKGROUP)
 fn grad_norm_finish(@builtin(local_invocation_index) t: u32) {
     var s = 0.0;
-    for (var k = t; k < p.n_partials; k = k + 256u) {
+    for (var k = t; k < p.n_partials; k = k + REDUCE_WORKGROUP) {
         s = s + partials[k];
     }
     sums[t] = s;
@@ -88,9 +88,9 @@ fn grad_norm_finish(@builtin(local_invocation_index) t: u32) {
     }
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let i = gid.y * (p.groups_x * 64u) + gid.x;
+    let i = gid.y * (p.groups_x * WORKGROUP) + gid.x;
     if (i >= p.count) {
         return;
     }

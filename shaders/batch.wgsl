@@ -80,13 +80,6 @@ struct View {
 // [0]: 3 * sum(lossmult) over the batch.
 @group(0) @binding(11) var<storage, read_write> norm: array<f32>;
 
-// PCG's RXS-M-XS output permutation: mipnerf_core::rng::pcg_hash.
-fn pcg_hash(x: u32) -> u32 {
-    let state = x * 747796405u + 2891336453u;
-    let word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
-    return (word >> 22u) ^ word;
-}
-
 // (hi * 2^32 + lo) mod m for 0 < m, bit by bit without overflow: the CPU's `u64 % total`.
 fn mod64(hi: u32, lo: u32, m: u32) -> u32 {
     var r = 0u;
@@ -141,9 +134,9 @@ fn fetch(slot: u32, i: u32) -> u32 {
     }
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)
 fn make_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let i = gid.y * (p.groups_x * 64u) + gid.x;
+    let i = gid.y * (p.groups_x * WORKGROUP) + gid.x;
     if (i >= p.n_rays) {
         return;
     }
@@ -155,8 +148,8 @@ fn make_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
         // Rays past the last pixel (the tail of the last chunk) repeat it.
         g = min(p.first_pixel + pix, p.total_pixels - 1u);
     } else {
-        let hi = pcg_hash(p.key ^ pcg_hash(2u * pix));
-        let lo = pcg_hash(p.key ^ pcg_hash(2u * pix + 1u));
+        let hi = stream_bits(p.key, 2u * pix);
+        let lo = stream_bits(p.key, 2u * pix + 1u);
         g = mod64(hi, lo, p.total_pixels);
     }
     // The last view whose first pixel is at or before g.
@@ -219,10 +212,10 @@ fn make_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
     viewdirs[3u * i + 1u] = vd.y;
     viewdirs[3u * i + 2u] = vd.z;
     var rgba = vec4<f32>(0.0);
-    if (p.pixel_format == 0u) {
+    if (p.pixel_format == PIXEL_FORMAT_RGBA8) {
         let w = fetch(v.size.z, v.size.w + local);
         rgba = vec4<f32>(f32(w & 255u), f32((w >> 8u) & 255u), f32((w >> 16u) & 255u), f32(w >> 24u)) / 255.0;
-    } else if (p.pixel_format == 1u) {
+    } else if (p.pixel_format == PIXEL_FORMAT_F32) {
         let k = v.size.w + 4u * local;
         rgba = vec4<f32>(
             bitcast<f32>(fetch(v.size.z, k)),
@@ -238,10 +231,10 @@ fn make_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
     targets[i] = vec4<f32>(rgb, 0.0);
 }
 
-const NORM_THREADS: u32 = 256u;
-var<workgroup> partial: array<f32, 256>;
+const NORM_THREADS: u32 = REDUCE_WORKGROUP;
+var<workgroup> partial: array<f32, REDUCE_WORKGROUP>;
 
-@compute @workgroup_size(256)
+@compute @workgroup_size(REDUCE_WORKGROUP)
 fn batch_norm(@builtin(local_invocation_index) t: u32) {
     var s = 0.0;
     for (var r = t; r < p.n_rays; r = r + NORM_THREADS) {

@@ -64,9 +64,9 @@ fn safe_sin(x: f32) -> f32 {
     return sin_reduced(safe_trig_arg(x));
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let idx = gid.y * (params.groups_x * 64u) + gid.x;
+    let idx = gid.y * (params.groups_x * WORKGROUP) + gid.x;
     if (idx >= params.n_rays * params.n_samples) {
         return;
     }
@@ -82,7 +82,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     var t_mean: f32;
     var t_var: f32;
     var r_var: f32;
-    if (params.ray_shape == 0u) {
+    if (params.ray_shape == RAY_SHAPE_CONE) {
         let mu = (t0 + t1) / 2.0;
         let hw = (t1 - t0) / 2.0;
         let mu2 = mu * mu;
@@ -102,13 +102,13 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let d_mag_sq = max(d2.x + d2.y + d2.z, 1e-10);
     let mean = o_r.xyz + d * t_mean;
     var cov = t_var * d2 + r_var * (vec3<f32>(1.0) - d2 / d_mag_sq);
-    if (params.encoding != 0u) {
+    if (params.encoding != ENCODING_INTEGRATED) {
         cov = vec3<f32>(0.0);
     }
 
     let n_deg = params.max_deg - params.min_deg;
     let half = 3u * n_deg;
-    if (params.encoding == 2u) {
+    if (params.encoding == ENCODING_NERF) {
         let base = idx * (6u * n_deg + 3u);
         encoded[base] = mean.x;
         encoded[base + 1u] = mean.y;

@@ -26,11 +26,11 @@ struct Params {
 @group(0) @binding(2) var<storage, read_write> out: array<f32>;
 
 fn flat_id(gid: vec3<u32>) -> u32 {
-    return gid.y * (p.groups_x * 64u) + gid.x;
+    return gid.y * (p.groups_x * WORKGROUP) + gid.x;
 }
 
 // out = gradient (in place), x = the layer's post-ReLU output.
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)
 fn relu_backward(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = flat_id(gid);
     if (i >= p.count) {
@@ -42,7 +42,7 @@ fn relu_backward(@builtin(global_invocation_id) gid: vec3<u32>) {
 }
 
 // x = gradient [rows x cols]; out = bias gradient [cols].
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)
 fn col_sums(@builtin(global_invocation_id) gid: vec3<u32>) {
     let col = flat_id(gid);
     if (col >= p.cols) {
@@ -59,16 +59,16 @@ fn col_sums(@builtin(global_invocation_id) gid: vec3<u32>) {
 }
 
 // x = gradient [rows x cols]; out = partial sums [ceil(rows / 256) x cols] from out_off.
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)
 fn col_sums_partial(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = flat_id(gid);
-    let blocks = (p.rows + 255u) / 256u;
+    let blocks = (p.rows + MLP_BLOCK_ROWS - 1u) / MLP_BLOCK_ROWS;
     if (i >= blocks * p.cols) {
         return;
     }
     let col = i % p.cols;
-    let r0 = (i / p.cols) * 256u;
-    let r1 = min(r0 + 256u, p.rows);
+    let r0 = (i / p.cols) * MLP_BLOCK_ROWS;
+    let r1 = min(r0 + MLP_BLOCK_ROWS, p.rows);
     var s = 0.0;
     for (var r = r0; r < r1; r = r + 1u) {
         s = s + x[p.x_off + r * p.cols + col];
@@ -77,7 +77,7 @@ fn col_sums_partial(@builtin(global_invocation_id) gid: vec3<u32>) {
 }
 
 // x = per-ray rows [rows x cols]; out = per-sample rows [rows * count x cols].
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)
 fn broadcast_rows(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = flat_id(gid);
     if (i >= p.rows * p.count * p.cols) {

@@ -13,7 +13,7 @@ struct Params {
     n_rays: u32,
     n_samples: u32,
     white_bkgd: u32,
-    // 0: softplus, 1: relu
+    // DENSITY_SOFTPLUS or DENSITY_RELU
     density_activation: u32,
     density_bias: f32,
     rgb_padding: f32,
@@ -26,7 +26,7 @@ struct Params {
     groups_x: u32,
     // Training only: standard deviation of the Gaussian noise added to raw density (0: none),
     // and what picks its random numbers (mipnerf-core's `Stream::DensityNoise` of stream
-    // ray * 8 + level).
+    // the ray's stream at this level: `rng::ray_level_index`).
     density_noise: f32,
     seed: u32,
     step: u32,
@@ -58,35 +58,13 @@ struct Params {
 // [0]: 3 * sum of lossmult over the batch (written on the device by batch.wgsl, or by the host).
 @group(0) @binding(10) var<storage, read> batch_norm: array<f32>;
 
-// mipnerf-core's counter-based random numbers (`rng.rs`), as in sample.wgsl.
-fn pcg_hash(x: u32) -> u32 {
-    let state = x * 747796405u + 2891336453u;
-    let word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
-    return (word >> 22u) ^ word;
-}
-
-fn uniform01(key: u32, i: u32) -> f32 {
-    return f32(pcg_hash(key ^ pcg_hash(i)) >> 8u) * (1.0 / 16777216.0);
-}
-
-// `RayRng::normal`: Box-Muller on uniforms 2i and 2i + 1; the cosine's argument is brought into
-// [-pi, pi], where GPU `cos` is accurate.
-fn normal(key: u32, i: u32) -> f32 {
-    let u1 = 1.0 - uniform01(key, 2u * i);
-    var a = 6.2831855 * uniform01(key, 2u * i + 1u);
-    if (a > 3.1415927) {
-        a = a - 6.2831855;
-    }
-    return sqrt(-2.0 * log(u1)) * cos(a);
-}
-
 fn sigmoid(x: f32) -> f32 {
     return 1.0 / (1.0 + exp(-x));
 }
 
 fn density_of(raw: f32) -> f32 {
     let x = raw + p.density_bias;
-    if (p.density_activation == 0u) {
+    if (p.density_activation == DENSITY_SOFTPLUS) {
         return max(x, 0.0) + log(1.0 + exp(-abs(x)));
     }
     return max(x, 0.0);
@@ -94,15 +72,15 @@ fn density_of(raw: f32) -> f32 {
 
 fn density_derivative(raw: f32) -> f32 {
     let x = raw + p.density_bias;
-    if (p.density_activation == 0u) {
+    if (p.density_activation == DENSITY_SOFTPLUS) {
         return sigmoid(x);
     }
     return select(0.0, 1.0, x > 0.0);
 }
 
-// The key of ray r's density noise (Stream::DensityNoise is 3; stream ray * 8 + level).
+// The key of ray r's density noise (`Stream::DensityNoise`, the ray's stream at this level).
 fn density_noise_key(r: u32) -> u32 {
-    return pcg_hash(p.seed ^ pcg_hash(p.step ^ pcg_hash(3u ^ pcg_hash((p.first_ray + r) * 8u + p.level))));
+    return stream_key(p.seed, p.step, STREAM_DENSITY_NOISE, ray_level_index(p.first_ray + r, p.level));
 }
 
 // Raw density of sample k (sample i of its ray), with the training noise when there is any.
@@ -113,9 +91,9 @@ fn raw_den(k: u32, key: u32, i: u32) -> f32 {
     return raw_density[k];
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let r = gid.y * (p.groups_x * 64u) + gid.x;
+    let r = gid.y * (p.groups_x * WORKGROUP) + gid.x;
     if (r >= p.n_rays) {
         return;
     }
@@ -202,9 +180,9 @@ fn backward_ray(r: u32, d_col: vec3<f32>) {
 // Supersampling, after `main`: each ray's pixel colour is the mean of its pixel's k x k rays'
 // colours (in ray order, as the CPU sums them); the first ray of a pixel records the pixel's loss
 // terms; in training every ray gets 1 / k^2 of the pixel's colour gradient.
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)
 fn pixel_backward(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let r = gid.y * (p.groups_x * 64u) + gid.x;
+    let r = gid.y * (p.groups_x * WORKGROUP) + gid.x;
     if (r >= p.n_rays) {
         return;
     }

@@ -29,31 +29,19 @@ struct Params {
 @group(0) @binding(2) var<storage, read> src_b: array<f32>;
 @group(0) @binding(3) var<storage, read_write> t_out: array<f32>;
 
-const STREAM_SAMPLE_JITTER: u32 = 1u;
-const STREAM_RESAMPLE_OFFSETS: u32 = 2u;
 const F32_EPS: f32 = 1.1920929e-7;
 const PDF_WEIGHT_EPS: f32 = 1e-5;
 const MAX_EDGES: u32 = 1025u;
 
-fn pcg_hash(x: u32) -> u32 {
-    let state = x * 747796405u + 2891336453u;
-    let word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
-    return (word >> 22u) ^ word;
-}
-
 fn ray_key(stream: u32, ray: u32) -> u32 {
-    return pcg_hash(p.seed ^ pcg_hash(p.step ^ pcg_hash(stream ^ pcg_hash(ray))));
-}
-
-fn uniform01(key: u32, i: u32) -> f32 {
-    return f32(pcg_hash(key ^ pcg_hash(i)) >> 8u) * (1.0 / 16777216.0);
+    return stream_key(p.seed, p.step, stream, ray);
 }
 
 fn ray_index(gid: vec3<u32>) -> u32 {
-    return gid.y * (p.groups_x * 64u) + gid.x;
+    return gid.y * (p.groups_x * WORKGROUP) + gid.x;
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)
 fn stratified(@builtin(global_invocation_id) gid: vec3<u32>) {
     let r = ray_index(gid);
     if (r >= p.n_rays) {
@@ -95,7 +83,7 @@ fn coarse_weight(base: u32, nw: u32, i: i32) -> f32 {
     return src_b[base + u32(clamp(i, 0, i32(nw) - 1))];
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)
 fn resample(@builtin(global_invocation_id) gid: vec3<u32>) {
     let r = ray_index(gid);
     if (r >= p.n_rays) {
@@ -126,7 +114,7 @@ fn resample(@builtin(global_invocation_id) gid: vec3<u32>) {
         cdf[i + 1u] = min(acc, 1.0);
     }
     cdf[nw] = 1.0;
-    let key = ray_key(STREAM_RESAMPLE_OFFSETS, (p.first_ray + r) * 8u + p.level);
+    let key = ray_key(STREAM_RESAMPLE_OFFSETS, ray_level_index(p.first_ray + r, p.level));
     var prev = -3.4e38;
     var k = 0u;
     for (var i = 0u; i < n_out; i = i + 1u) {

@@ -23,9 +23,9 @@ fn sin_reduced(x: f32) -> f32 {
     return sin(fma(-k, TWO_PI_LO, fma(-k, TWO_PI_HI, x)));
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let r = gid.y * (p.groups_x * 64u) + gid.x;
+    let r = gid.y * (p.groups_x * WORKGROUP) + gid.x;
     if (r >= p.n_rays) {
         return;
     }

@@ -12,12 +12,13 @@ use glam::{Mat3, Vec3};
 /// The shape cast through each pixel: a cone (Mip-NeRF) or a cylinder (used with NDC rays).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
+#[repr(u32)]
 pub enum RayShape {
     /// A cone whose radius grows linearly with `t`: radius `t * base_radius`.
     #[default]
-    Cone,
+    Cone = 0,
     /// A cylinder of constant radius (the official choice for forward-facing NDC scenes).
-    Cylinder,
+    Cylinder = 1,
 }
 
 /// The moments of a frustum along and across its ray, before lifting to world space.

@@ -23,15 +23,16 @@ use crate::sampling::{self, PdfSamples};
 /// How a sample's Gaussian is encoded for the MLP.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
+#[repr(u32)]
 pub enum PointEncoding {
     /// Integrated positional encoding of the Gaussian (Mip-NeRF).
     #[default]
-    Integrated,
+    Integrated = 0,
     /// The same features with the covariance set to zero: plain PE of the frustum's mean, no
     /// identity (the paper's "w/o IPE" ablation; same width as IPE).
-    Mean,
+    Mean = 1,
     /// NeRF's encoding: the mean itself followed by its PE (`3 + 6 (max_deg - min_deg)` features).
-    Nerf,
+    Nerf = 2,
 }
 
 /// Everything that defines the model. Defaults are the official Mip-NeRF (Blender) settings.
@@ -531,7 +532,7 @@ impl Model {
                             seed,
                             step,
                             Stream::ResampleOffsets,
-                            gi.wrapping_mul(8).wrapping_add(level as u32),
+                            crate::rng::ray_level_index(gi, level as u32),
                         )),
                         Mode::Eval => PdfSamples::Deterministic,
                     };
@@ -572,7 +573,7 @@ impl Model {
             mlp.forward(params, &ws.x, &ws.view, nr, s, &mut ws.cache);
             if let (Mode::Train { seed, step }, true) = (mode, c.density_noise > 0.0) {
                 for r in 0..nr {
-                    let stream = ((first_ray + r) as u32).wrapping_mul(8).wrapping_add(level as u32);
+                    let stream = crate::rng::ray_level_index((first_ray + r) as u32, level as u32);
                     let rng = RayRng::new(seed, step, Stream::DensityNoise, stream);
                     for i in 0..s {
                         ws.cache.raw_density[r * s + i] += c.density_noise * rng.normal(i as u32);

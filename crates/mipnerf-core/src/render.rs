@@ -132,12 +132,13 @@ pub fn volumetric_rendering_backward(
 /// How raw density becomes density.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
+#[repr(u32)]
 pub enum DensityActivation {
     /// `softplus(raw + bias)`: Mip-NeRF's choice (with bias -1).
     #[default]
-    Softplus,
+    Softplus = 0,
     /// `relu(raw + bias)`: NeRF's choice (the "w/o misc" ablation, bias 0).
-    Relu,
+    Relu = 1,
 }
 
 /// `log(1 + exp(x))`, computed stably as `max(x, 0) + log1p(exp(-|x|))`.

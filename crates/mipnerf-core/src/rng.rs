@@ -2,7 +2,8 @@
 //!
 //! Every random number in training (sample jitter, inverse-CDF offsets, density noise, ray batch
 //! indices) is a pure function of `(seed, step, stream, index)`, so a run is reproducible bit for
-//! bit whatever the thread count, and the WGSL kernels (`shaders/rng.wgsl`) reproduce the same
+//! bit whatever the thread count, and the WGSL kernels (`shaders/rng.wgsl`, with the stream ids and [`RAY_LEVEL_STRIDE`]
+//! passed to them from here) reproduce the same
 //! numbers. The hash is PCG's output permutation (O'Neill 2014) applied in a chain, which passes
 //! the usual avalanche tests for this use.
 
@@ -13,6 +14,17 @@ pub const fn pcg_hash(x: u32) -> u32 {
     let state = x.wrapping_mul(747_796_405).wrapping_add(2_891_336_453);
     let word = ((state >> ((state >> 28) + 4)) ^ state).wrapping_mul(277_803_737);
     (word >> 22) ^ word
+}
+
+/// Streams per ray: a ray's draws at level `l` use stream index `ray * RAY_LEVEL_STRIDE + l`, so
+/// that up to 8 levels never share one.
+pub const RAY_LEVEL_STRIDE: u32 = 8;
+
+/// The stream index of `ray`'s draws at `level` (wrapping, as the WGSL's `u32` arithmetic does).
+#[must_use]
+#[inline]
+pub const fn ray_level_index(ray: u32, level: u32) -> u32 {
+    ray.wrapping_mul(RAY_LEVEL_STRIDE).wrapping_add(level)
 }
 
 /// Which use a random stream serves; keeps the streams of one step independent.

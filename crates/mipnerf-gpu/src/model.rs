@@ -11,8 +11,7 @@
 //! rendering, see [`crate::trainer`]) or uploaded from the host ([`RayBatch::upload`]).
 
 use mipnerf_core::Ray;
-use mipnerf_core::mip::RayShape;
-use mipnerf_core::model::{LevelOutput, LossStats, Mode, Model, PointEncoding};
+use mipnerf_core::model::{LevelOutput, LossStats, Mode, Model};
 
 use crate::kernels::cast_ipe::{CastIpeKernel, CastIpeParams};
 use crate::kernels::render::{RenderBuffers, RenderKernel, RenderParams};
@@ -311,13 +310,9 @@ impl GpuModel {
                 n_samples: s as u32,
                 min_deg: c.min_deg_point,
                 max_deg: c.max_deg_point,
-                ray_shape: u32::from(c.ray_shape == RayShape::Cylinder),
+                ray_shape: c.ray_shape as u32,
                 groups_x: 0,
-                encoding: match c.point_encoding {
-                    PointEncoding::Integrated => 0,
-                    PointEncoding::Mean => 1,
-                    PointEncoding::Nerf => 2,
-                },
+                encoding: c.point_encoding as u32,
                 _pad: 0,
             };
             self.cast.encode(ctx, enc, cp, &batch.rays, &t[level], &bufs.x)?;

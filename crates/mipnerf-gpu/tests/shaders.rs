@@ -5,12 +5,14 @@
 use std::path::PathBuf;
 
 use mipnerf_gpu::kernels::{
-    ALL_SOURCES,
+    ALL_SOURCES, RNG_SOURCE, WgslStruct,
     adam::AdamParams,
     batch::{BatchParams, GpuView},
     cast_ipe::CastIpeParams,
+    compose,
     matmul::MatmulParams,
     mlp_aux::AuxParams,
+    prelude,
     render::RenderParams,
     sample::SampleParams,
     view_enc::ViewEncParams,
@@ -29,7 +31,7 @@ fn parse_and_validate(name: &str, src: &str) -> Result<(naga::Module, naga::vali
 }
 
 #[test]
-fn every_shader_file_parses_and_validates() {
+fn every_shader_file_parses_and_validates_as_composed() {
     let mut files: Vec<PathBuf> = std::fs::read_dir(shaders_dir())
         .unwrap()
         .map(|e| e.unwrap().path())
@@ -41,7 +43,16 @@ fn every_shader_file_parses_and_validates() {
     for path in &files {
         let src = std::fs::read_to_string(path).unwrap();
         let name = path.file_name().unwrap().to_string_lossy().to_string();
-        if let Err(e) = parse_and_validate(&name, &src) {
+        if name == "rng.wgsl" {
+            // The shared file, composed in front of every kernel; also valid on its own after the
+            // generated constants.
+            assert_eq!(src, RNG_SOURCE, "rng.wgsl differs from kernels::RNG_SOURCE");
+            if let Err(e) = parse_and_validate(&name, &format!("{}\n{src}", prelude())) {
+                failures.push(e);
+            }
+            continue;
+        }
+        if let Err(e) = parse_and_validate(&name, &compose(&src)) {
             failures.push(e);
         }
         assert!(
@@ -53,42 +64,108 @@ fn every_shader_file_parses_and_validates() {
 }
 
 #[test]
+fn no_kernel_restates_what_the_shared_sources_define() {
+    // The hash, the stream formula and the generated constants live in one place each.
+    for (name, src) in ALL_SOURCES {
+        for needle in
+            ["fn pcg_hash", "747796405u", "const STREAM_", "const WORKGROUP", "* 8u + ", "@workgroup_size(64)"]
+        {
+            assert!(!src.contains(needle), "{name} restates {needle:?}: use shaders/rng.wgsl or the prelude");
+        }
+    }
+    let prelude = prelude();
+    assert!(
+        prelude.contains(&format!(
+            "const STREAM_DENSITY_NOISE: u32 = {}u;",
+            mipnerf_core::rng::Stream::DensityNoise as u32
+        ))
+    );
+    assert!(
+        prelude.contains(&format!("const ENCODING_NERF: u32 = {}u;", mipnerf_core::model::PointEncoding::Nerf as u32))
+    );
+}
+
+#[test]
 fn a_broken_shader_is_reported_with_its_location() {
     let err = parse_and_validate("broken.wgsl", "fn main() { let x: f32 = 1u; }").unwrap_err();
     assert!(err.contains("broken.wgsl"), "error does not name the file: {err}");
 }
 
-/// The size in bytes of the struct named `name` in a WGSL module.
-fn wgsl_struct_size(src: &str, name: &str) -> u32 {
-    let (module, _) = parse_and_validate(name, src).unwrap();
+/// The layout of the struct named `name` in a WGSL module: its size and its members (name,
+/// offset, WGSL type), padding members (names starting with `_`) left out.
+fn wgsl_struct(file: &str, src: &str, name: &str) -> (u32, Vec<(String, usize, String)>) {
+    let (module, _) = parse_and_validate(file, src).unwrap();
     let mut layouter = naga::proc::Layouter::default();
     layouter.update(module.to_ctx()).unwrap();
-    let (handle, _) = module
+    let (handle, ty) = module
         .types
         .iter()
         .find(|(_, t)| t.name.as_deref() == Some(name))
-        .unwrap_or_else(|| panic!("no struct {name}"));
-    layouter[handle].size
+        .unwrap_or_else(|| panic!("{file}: no struct {name}"));
+    let naga::TypeInner::Struct { members, .. } = &ty.inner else { panic!("{file}: {name} is not a struct") };
+    let type_name = |h: naga::Handle<naga::Type>| -> String {
+        let scalar = |s: naga::Scalar| match (s.kind, s.width) {
+            (naga::ScalarKind::Uint, 4) => "u32",
+            (naga::ScalarKind::Sint, 4) => "i32",
+            (naga::ScalarKind::Float, 4) => "f32",
+            other => panic!("unexpected scalar {other:?}"),
+        };
+        match module.types[h].inner {
+            naga::TypeInner::Scalar(s) => scalar(s).to_string(),
+            naga::TypeInner::Vector { size, scalar: s } => format!("vec{}<{}>", size as u8, scalar(s)),
+            ref other => format!("{other:?}"),
+        }
+    };
+    let list = members
+        .iter()
+        .filter_map(|m| {
+            let n = m.name.clone().unwrap_or_default();
+            (!n.starts_with('_')).then(|| (n, m.offset as usize, type_name(m.ty)))
+        })
+        .collect();
+    (layouter[handle].size, list)
+}
+
+/// Asserts that `T` and the WGSL struct it mirrors agree member by member and in size.
+fn check<T: WgslStruct>(file: &str, mismatches: &mut Vec<String>) {
+    let src = compose(ALL_SOURCES.iter().find(|(n, _)| *n == file).unwrap().1);
+    let (size, wgsl) = wgsl_struct(file, &src, T::WGSL_NAME);
+    let rust: Vec<(String, usize, String)> =
+        T::members().into_iter().map(|m| (m.name.to_string(), m.offset, m.ty.to_string())).collect();
+    if rust != wgsl {
+        mismatches.push(format!("{file} {}: Rust {rust:?}\n   WGSL {wgsl:?}", T::WGSL_NAME));
+    }
+    if size as usize != std::mem::size_of::<T>() {
+        mismatches.push(format!("{file} {}: {} bytes in Rust, {size} in WGSL", T::WGSL_NAME, std::mem::size_of::<T>()));
+    }
 }
 
 #[test]
-fn uniform_structs_match_wgsl_sizes() {
-    let rust_sizes = [
-        ("cast_ipe.wgsl", std::mem::size_of::<CastIpeParams>()),
-        ("matmul.wgsl", std::mem::size_of::<MatmulParams>()),
-        ("mlp_aux.wgsl", std::mem::size_of::<AuxParams>()),
-        ("render.wgsl", std::mem::size_of::<RenderParams>()),
-        ("adam.wgsl", std::mem::size_of::<AdamParams>()),
-        ("sample.wgsl", std::mem::size_of::<SampleParams>()),
-        ("view_enc.wgsl", std::mem::size_of::<ViewEncParams>()),
-        ("batch.wgsl", std::mem::size_of::<BatchParams>()),
-    ];
-    assert_eq!(rust_sizes.len(), ALL_SOURCES.len(), "every shader's uniform block is checked");
-    for (file, size) in rust_sizes {
-        let src = ALL_SOURCES.iter().find(|(n, _)| *n == file).unwrap().1;
-        assert_eq!(wgsl_struct_size(src, "Params") as usize, size, "{file}: Params");
-    }
+fn uniform_structs_match_wgsl_member_by_member() {
+    let mut mismatches = Vec::new();
+    check::<CastIpeParams>("cast_ipe.wgsl", &mut mismatches);
+    check::<MatmulParams>("matmul.wgsl", &mut mismatches);
+    check::<AuxParams>("mlp_aux.wgsl", &mut mismatches);
+    check::<RenderParams>("render.wgsl", &mut mismatches);
+    check::<AdamParams>("adam.wgsl", &mut mismatches);
+    check::<SampleParams>("sample.wgsl", &mut mismatches);
+    check::<ViewEncParams>("view_enc.wgsl", &mut mismatches);
+    check::<BatchParams>("batch.wgsl", &mut mismatches);
     // The per-view camera record of batch.wgsl, read from a storage array.
-    let batch = ALL_SOURCES.iter().find(|(n, _)| *n == "batch.wgsl").unwrap().1;
-    assert_eq!(wgsl_struct_size(batch, "View") as usize, std::mem::size_of::<GpuView>(), "batch.wgsl: View");
+    check::<GpuView>("batch.wgsl", &mut mismatches);
+    assert!(mismatches.is_empty(), "{} mismatch(es):\n{}", mismatches.len(), mismatches.join("\n"));
+}
+
+#[test]
+fn the_member_check_catches_two_swapped_fields_of_one_size() {
+    // A Params whose first two u32 fields are swapped in the WGSL: the sizes agree, the members do not.
+    let src = compose(mipnerf_gpu::kernels::view_enc::SOURCE)
+        .replacen("    n_rays: u32,\n", "    deg_view_: u32,\n", 1)
+        .replacen("    deg_view: u32,\n", "    n_rays: u32,\n", 1)
+        .replacen("    deg_view_: u32,\n", "    deg_view: u32,\n", 1);
+    assert!(src.find("deg_view: u32") < src.find("n_rays: u32"), "the test's edit did not apply");
+    let (_, wgsl) = wgsl_struct("swapped.wgsl", &src, "Params");
+    let rust: Vec<(String, usize, String)> =
+        ViewEncParams::members().into_iter().map(|m| (m.name.to_string(), m.offset, m.ty.to_string())).collect();
+    assert_ne!(rust, wgsl);
 }

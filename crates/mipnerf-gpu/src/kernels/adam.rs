@@ -8,7 +8,7 @@ use crate::{GpuContext, GpuError, kernels};
 pub const SOURCE: &str = include_str!("../../../../shaders/adam.wgsl");
 
 /// Gradients per workgroup of the norm's first pass.
-const NORM_GROUP: u64 = 256;
+const NORM_GROUP: u64 = kernels::REDUCE_WORKGROUP as u64;
 
 /// The uniform block of `adam.wgsl` (`struct Params`), 48 bytes.
 #[repr(C)]
@@ -151,9 +151,15 @@ impl AdamKernel {
             kernels::dispatch(ctx, enc, "adam norm", &self.sq_partial, &self.layout, &p, &bufs, (gx, gy, 1));
             kernels::dispatch(ctx, enc, "adam norm finish", &self.norm_finish, &self.layout, &p, &bufs, (1, 1, 1));
         }
-        let (gx, gy) = kernels::dispatch_grid(b.count as u64, 64)?;
+        let (gx, gy) = kernels::dispatch_grid(b.count as u64, kernels::WORKGROUP)?;
         p.groups_x = gx;
         kernels::dispatch(ctx, enc, "adam", &self.update, &self.layout, &p, &bufs, (gx, gy, 1));
         Ok(())
     }
 }
+
+super::wgsl_struct!(
+    AdamParams,
+    "Params",
+    [count, groups_x, lr, beta1, beta2, eps, c1, c2, max_val, max_norm, n_partials]
+);

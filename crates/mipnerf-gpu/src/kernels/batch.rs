@@ -314,7 +314,7 @@ impl BatchKernel {
                 (1, first, 0)
             }
         };
-        let (gx, gy) = kernels::dispatch_grid(u64::from(n), 64)?;
+        let (gx, gy) = kernels::dispatch_grid(u64::from(n), kernels::WORKGROUP)?;
         let p = BatchParams {
             n_rays: n,
             sequential,
@@ -351,3 +351,25 @@ impl BatchKernel {
         Ok(())
     }
 }
+
+super::wgsl_struct!(
+    BatchParams,
+    "Params",
+    [
+        n_rays,
+        sequential,
+        first_pixel,
+        n_views,
+        total_pixels,
+        key,
+        pixel_format,
+        white_bkgd,
+        area_loss,
+        groups_x,
+        ndc_fx,
+        ndc_fy,
+        supersample,
+        centre_offset,
+    ]
+);
+super::wgsl_struct!(GpuView, "View", [dir0, step_x, step_y, origin, size]);

@@ -2,7 +2,8 @@
 
 use mipnerf_core::{Ray, RayShape, mip::ipe_len};
 
-use crate::{GpuContext, GpuError, kernels::dispatch_grid};
+use crate::kernels::{WORKGROUP, dispatch_grid};
+use crate::{GpuContext, GpuError};
 
 /// The uniform block of `cast_ipe.wgsl` (`struct Params`), 32 bytes.
 #[repr(C)]
@@ -26,9 +27,6 @@ pub struct CastIpeParams {
     /// Padding to 16-byte alignment.
     pub _pad: u32,
 }
-
-/// Workgroup size of `cast_ipe.wgsl`.
-const WORKGROUP: u32 = 64;
 
 /// The compiled `cast_ipe.wgsl` pipeline and its bind-group layout.
 #[derive(Debug)]
@@ -115,10 +113,7 @@ impl CastIpeKernel {
             n_samples,
             min_deg,
             max_deg,
-            ray_shape: match shape {
-                RayShape::Cone => 0,
-                RayShape::Cylinder => 1,
-            },
+            ray_shape: shape as u32,
             groups_x: gx,
             encoding: 0,
             _pad: 0,
@@ -156,3 +151,5 @@ impl CastIpeKernel {
         ctx.read_f32(&out_buf, out_len)
     }
 }
+
+super::wgsl_struct!(CastIpeParams, "Params", [n_rays, n_samples, min_deg, max_deg, ray_shape, groups_x, encoding]);

@@ -162,3 +162,5 @@ impl MatmulKernel {
         );
     }
 }
+
+super::wgsl_struct!(MatmulParams, "Params", [m, k, n, flags, a_off, b_off, c_off, bias_off]);

@@ -60,7 +60,7 @@ impl MlpAuxKernels {
         out: &wgpu::Buffer,
     ) {
         // Sizes are validated by the callers (they come from the model's shape).
-        let (gx, gy) = kernels::dispatch_grid(items as u64, 64).unwrap_or((1, 1));
+        let (gx, gy) = kernels::dispatch_grid(items as u64, kernels::WORKGROUP).unwrap_or((1, 1));
         params.groups_x = gx;
         kernels::dispatch(ctx, enc, "mlp_aux", which, &self.layout, &params, &[x, out], (gx, gy, 1));
     }
@@ -142,3 +142,5 @@ impl MlpAuxKernels {
         self.run(ctx, enc, &self.broadcast_rows, rows * rep * cols, params, x, out);
     }
 }
+
+super::wgsl_struct!(AuxParams, "Params", [rows, cols, count, x_off, y_off, out_off, accumulate, groups_x]);

@@ -1,7 +1,5 @@
 //! `shaders/render.wgsl`: activations, volume rendering, loss and their backward pass per ray.
 
-use mipnerf_core::render::DensityActivation;
-
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of this kernel.
@@ -57,10 +55,7 @@ impl RenderParams {
             n_rays: n_rays as u32,
             n_samples: cfg.num_samples as u32,
             white_bkgd: u32::from(cfg.white_bkgd),
-            density_activation: match cfg.density_activation {
-                DensityActivation::Softplus => 0,
-                DensityActivation::Relu => 1,
-            },
+            density_activation: cfg.density_activation as u32,
             density_bias: cfg.density_bias,
             rgb_padding: cfg.rgb_padding,
             level_weight,
@@ -151,7 +146,7 @@ impl RenderKernel {
         if !params.n_rays.is_multiple_of(kk) {
             return Err(GpuError::InvalidInput(format!("{} rays in pixels of {kk} rays", params.n_rays)));
         }
-        let (gx, gy) = kernels::dispatch_grid(u64::from(params.n_rays), 64)?;
+        let (gx, gy) = kernels::dispatch_grid(u64::from(params.n_rays), kernels::WORKGROUP)?;
         params.groups_x = gx;
         let bufs = [
             b.raw_rgb,
@@ -181,3 +176,26 @@ impl RenderKernel {
         Ok(())
     }
 }
+
+super::wgsl_struct!(
+    RenderParams,
+    "Params",
+    [
+        n_rays,
+        n_samples,
+        white_bkgd,
+        density_activation,
+        density_bias,
+        rgb_padding,
+        level_weight,
+        train,
+        area_loss,
+        groups_x,
+        density_noise,
+        seed,
+        step,
+        level,
+        supersample,
+        first_ray,
+    ]
+);

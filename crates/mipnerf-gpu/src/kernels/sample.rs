@@ -69,7 +69,7 @@ impl SampleKernels {
                 params.n_samples
             )));
         }
-        let (gx, gy) = kernels::dispatch_grid(u64::from(params.n_rays), 64)?;
+        let (gx, gy) = kernels::dispatch_grid(u64::from(params.n_rays), kernels::WORKGROUP)?;
         params.groups_x = gx;
         kernels::dispatch(ctx, enc, "sample", which, &self.layout, &params, &bufs, (gx, gy, 1));
         Ok(())
@@ -106,3 +106,9 @@ impl SampleKernels {
         self.run(ctx, enc, &self.resample, params, [t_coarse, weights, t_out])
     }
 }
+
+super::wgsl_struct!(
+    SampleParams,
+    "Params",
+    [n_rays, n_samples, lindisp, randomized, seed, step, first_ray, level, resample_padding, groups_x,]
+);

@@ -53,9 +53,11 @@ impl ViewEncKernel {
         if deg_view > 16 {
             return Err(GpuError::InvalidInput(format!("view_enc: {deg_view} degrees (at most 16)")));
         }
-        let (gx, gy) = kernels::dispatch_grid(n_rays as u64, 64)?;
+        let (gx, gy) = kernels::dispatch_grid(n_rays as u64, kernels::WORKGROUP)?;
         let p = ViewEncParams { n_rays: n_rays as u32, deg_view, groups_x: gx, _pad: 0 };
         kernels::dispatch(ctx, enc, "view_enc", &self.pipeline, &self.layout, &p, &[viewdirs, out], (gx, gy, 1));
         Ok(())
     }
 }
+
+super::wgsl_struct!(ViewEncParams, "Params", [n_rays, deg_view, groups_x]);

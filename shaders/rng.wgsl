@@ -1,0 +1,41 @@
+// mipnerf-core's counter-based random numbers (crates/mipnerf-core/src/rng.rs), the one WGSL copy:
+// composed in front of every kernel's own source, after the generated constants (STREAM_*,
+// RAY_LEVEL_STRIDE) that come from the Rust definitions.
+
+// One round of the PCG-RXS-M-XS 32-bit permutation: `rng::pcg_hash`.
+fn pcg_hash(x: u32) -> u32 {
+    let state = x * 747796405u + 2891336453u;
+    let word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+// The key of the stream (seed, step, stream, index): `RayRng::new(..).key()`.
+fn stream_key(seed: u32, step: u32, stream: u32, index: u32) -> u32 {
+    return pcg_hash(seed ^ pcg_hash(step ^ pcg_hash(stream ^ pcg_hash(index))));
+}
+
+// The stream index of a ray's draws at one level: `rng::ray_level_index`.
+fn ray_level_index(ray: u32, level: u32) -> u32 {
+    return ray * RAY_LEVEL_STRIDE + level;
+}
+
+// The i-th 32 random bits of a stream: `RayRng::bits`.
+fn stream_bits(key: u32, i: u32) -> u32 {
+    return pcg_hash(key ^ pcg_hash(i));
+}
+
+// A uniform number in [0, 1) from the top 24 bits: `RayRng::uniform`.
+fn uniform01(key: u32, i: u32) -> f32 {
+    return f32(stream_bits(key, i) >> 8u) * (1.0 / 16777216.0);
+}
+
+// `RayRng::normal`: Box-Muller on uniforms 2i and 2i + 1; the cosine's argument is brought into
+// [-pi, pi], where GPU `cos` is accurate.
+fn normal(key: u32, i: u32) -> f32 {
+    let u1 = 1.0 - uniform01(key, 2u * i);
+    var a = 6.2831855 * uniform01(key, 2u * i + 1u);
+    if (a > 3.1415927) {
+        a = a - 6.2831855;
+    }
+    return sqrt(-2.0 * log(u1)) * cos(a);
+}
