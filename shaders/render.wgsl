@@ -6,7 +6,8 @@
 //   rgb_i = sigmoid(raw_rgb_i) (1 + 2 pad) - pad;  density_i = act(raw_density_i + bias)
 //   w_i = (1 - exp(-density_i delta_i)) exp(-sum_{j<i} density_j delta_j)
 //   colour = sum w_i rgb_i (+ 1 - acc with a white background)
-// With `train` set, the loss level_weight * lossmult |colour - target|^2 / batch_norm[0] is differentiated:
+// With `train` set, the loss level_weight * lossmult |colour - target|^2 / batch_norm[0] is differentiated
+// (its gradient is mipnerf_core::model::pixel_loss_gradient, the formula's one statement):
 // d_raw_rgb and d_raw_density are written for the MLP's backward pass.
 
 struct Params {

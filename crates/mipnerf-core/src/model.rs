@@ -475,13 +475,15 @@ impl Model {
         (0..n).map(|l| if l + 1 == n { 1.0 } else { self.config.coarse_loss_mult }).collect()
     }
 
+    /// A ray's weight in the loss: its pixel's footprint area relative to a full-resolution pixel
+    /// (`lossmult`, the paper's area loss) when the area loss is on, else 1.
     fn lossmult(&self, ray: &Ray) -> f32 {
         if self.config.area_loss { ray.lossmult } else { 1.0 }
     }
 
-    /// Runs all levels over one chunk of whole pixels. With `targets`, accumulates the gradient
-    /// into `grads` and returns per level `[sum lossmult·sq, sum sq]`; with `out`, writes the
-    /// rendered pixels.
+    /// Runs all levels over one chunk of whole pixels, step by step as the paper describes them
+    /// (see ARCHITECTURE.md). With `targets`, accumulates the gradient into `grads` and returns
+    /// per level `[sum lossmult·sq, sum sq]`; with `out`, writes the rendered pixels.
     fn run_chunk(
         &self,
         params: &[f32],
@@ -494,169 +496,269 @@ impl Model {
         mut out: Option<&mut [LevelOutput]>,
     ) -> Vec<[f64; 2]> {
         let c = &self.config;
-        let (nr, s) = (rays.len(), c.num_samples);
-        let n = nr * s;
-        let rpp = self.rays_per_pixel();
-        let n_pix = nr / rpp;
-        let inv_rpp = 1.0 / rpp as f32;
-        let (x_dim, v_dim) = (c.x_dim(), c.view_dim());
-        let level_w = self.level_weights();
-        ws.t.resize(nr * (s + 1), 0.0);
-        ws.t_next.resize(nr * (s + 1), 0.0);
-        ws.gauss.resize(s, Gaussian::default());
-        ws.x.resize(n * x_dim, 0.0);
-        ws.view.resize(nr * v_dim, 0.0);
-        ws.rgb.resize(n, [0.0; 3]);
-        ws.density.resize(n, 0.0);
-        ws.weights.resize(n, 0.0);
-        ws.pixel_rgb.resize(n_pix, [0.0; 3]);
+        self.size_workspace(rays.len(), ws);
         let mut sums = vec![[0.0f64; 2]; c.num_levels];
-        for (r, ray) in rays.iter().enumerate() {
-            mip::pos_enc(ray.viewdir, 0, c.deg_view, true, &mut ws.view[r * v_dim..(r + 1) * v_dim]);
-        }
-        let mut per_ray = vec![render::RenderedRay::default(); nr];
+        self.encode_view_directions(rays, ws);
+        let mut per_ray = vec![render::RenderedRay::default(); rays.len()];
         for level in 0..c.num_levels {
-            // Interval edges.
-            for (r, ray) in rays.iter().enumerate() {
-                let gi = (first_ray + r) as u32;
-                let t = &mut ws.t_next[r * (s + 1)..(r + 1) * (s + 1)];
-                if level == 0 {
-                    let jitter = match mode {
-                        Mode::Train { seed, step } => Some(RayRng::new(seed, step, Stream::SampleJitter, gi)),
-                        Mode::Eval => None,
-                    };
-                    sampling::sample_along_rays(ray.near, ray.far, c.lindisp, jitter, t);
-                } else {
-                    let samples = match mode {
-                        Mode::Train { seed, step } => PdfSamples::Stratified(RayRng::new(
-                            seed,
-                            step,
-                            Stream::ResampleOffsets,
-                            crate::rng::ray_level_index(gi, level as u32),
-                        )),
-                        Mode::Eval => PdfSamples::Deterministic,
-                    };
-                    sampling::resample_along_rays(
-                        &ws.t[r * (s + 1)..(r + 1) * (s + 1)],
-                        &ws.weights[r * s..(r + 1) * s],
-                        c.resample_padding,
-                        samples,
-                        t,
-                    );
-                }
-            }
-            std::mem::swap(&mut ws.t, &mut ws.t_next);
-            // Gaussians and their encoding.
-            for (r, ray) in rays.iter().enumerate() {
-                mip::cast_ray(
-                    &ws.t[r * (s + 1)..(r + 1) * (s + 1)],
-                    ray.origin,
-                    ray.direction,
-                    ray.radius,
-                    c.ray_shape,
-                    &mut ws.gauss,
-                );
-                for (i, g) in ws.gauss.iter().enumerate() {
-                    let dst = &mut ws.x[(r * s + i) * x_dim..(r * s + i + 1) * x_dim];
-                    match c.point_encoding {
-                        PointEncoding::Integrated => mip::integrated_pos_enc(g, c.min_deg_point, c.max_deg_point, dst),
-                        PointEncoding::Mean => {
-                            let g0 = Gaussian { mean: g.mean, cov_diag: Vec3::ZERO };
-                            mip::integrated_pos_enc(&g0, c.min_deg_point, c.max_deg_point, dst);
-                        }
-                        PointEncoding::Nerf => mip::pos_enc(g.mean, c.min_deg_point, c.max_deg_point, true, dst),
-                    }
-                }
-            }
-            // MLP and activations.
+            self.sample_intervals(level, rays, first_ray, mode, ws);
+            self.encode_intervals(rays, ws);
             let mlp = self.mlp_for_level(level);
-            mlp.forward(params, &ws.x, &ws.view, nr, s, &mut ws.cache);
-            if let (Mode::Train { seed, step }, true) = (mode, c.density_noise > 0.0) {
-                for r in 0..nr {
-                    let stream = crate::rng::ray_level_index((first_ray + r) as u32, level as u32);
-                    let rng = RayRng::new(seed, step, Stream::DensityNoise, stream);
-                    for i in 0..s {
-                        ws.cache.raw_density[r * s + i] += c.density_noise * rng.normal(i as u32);
-                    }
-                }
-            }
-            for i in 0..n {
-                ws.density[i] = c.density_activation.forward(ws.cache.raw_density[i], c.density_bias);
-                for k in 0..3 {
-                    ws.rgb[i][k] = render::rgb_activation(ws.cache.raw_rgb[i * 3 + k], c.rgb_padding);
-                }
-            }
-            // Rendering, per pixel averaging.
-            ws.pixel_rgb.iter_mut().for_each(|p| *p = [0.0; 3]);
-            for (r, ray) in rays.iter().enumerate() {
-                let sl = r * s..(r + 1) * s;
-                per_ray[r] = render::volumetric_rendering(
-                    &ws.rgb[sl.clone()],
-                    &ws.density[sl.clone()],
-                    &ws.t[r * (s + 1)..(r + 1) * (s + 1)],
-                    ray.direction,
-                    c.white_bkgd,
-                    &mut ws.weights[sl],
-                );
-                for k in 0..3 {
-                    ws.pixel_rgb[r / rpp][k] += per_ray[r].rgb[k] * inv_rpp;
-                }
-            }
+            mlp.forward(params, &ws.x, &ws.view, rays.len(), c.num_samples, &mut ws.cache);
+            self.add_density_noise(level, first_ray, mode, ws);
+            self.apply_activations(ws);
+            self.render_pixels(rays, &mut per_ray, ws);
             if let Some(out) = out.as_deref_mut() {
-                for p in 0..n_pix {
-                    let group = &per_ray[p * rpp..(p + 1) * rpp];
-                    out[p * c.num_levels + level] = LevelOutput {
-                        rgb: ws.pixel_rgb[p],
-                        distance: group.iter().map(|g| g.distance).sum::<f32>() * inv_rpp,
-                        acc: group.iter().map(|g| g.acc).sum::<f32>() * inv_rpp,
-                    };
-                }
+                self.write_level_output(level, &per_ray, ws, out);
             }
             let (Some((tg, norm)), Some(grads)) = (targets, grads.as_deref_mut()) else {
                 continue;
             };
-            // Loss and its gradient with respect to each ray's colour.
-            ws.g_rgb.resize(n, [0.0; 3]);
-            ws.g_density.resize(n, 0.0);
-            ws.d_raw_rgb.resize(n * 3, 0.0);
-            ws.d_raw_density.resize(n, 0.0);
-            for (r, ray) in rays.iter().enumerate() {
-                let p = r / rpp;
-                let lm = self.lossmult(ray);
-                let mut d_rgb = [0.0f32; 3];
-                for k in 0..3 {
-                    let e = ws.pixel_rgb[p][k] - tg[p][k];
-                    if r % rpp == 0 {
-                        sums[level][0] += f64::from(lm) * f64::from(e * e);
-                        sums[level][1] += f64::from(e * e);
-                    }
-                    d_rgb[k] = level_w[level] * 2.0 * lm * e / norm * inv_rpp;
-                }
-                let sl = r * s..(r + 1) * s;
-                render::volumetric_rendering_backward(
-                    &ws.rgb[sl.clone()],
-                    &ws.density[sl.clone()],
-                    &ws.t[r * (s + 1)..(r + 1) * (s + 1)],
-                    ray.direction,
-                    c.white_bkgd,
-                    &ws.weights[sl.clone()],
-                    d_rgb,
-                    0.0,
-                    &mut ws.g_rgb[sl.clone()],
-                    &mut ws.g_density[sl],
-                );
-            }
-            for i in 0..n {
-                let raw = ws.cache.raw_density[i];
-                ws.d_raw_density[i] = ws.g_density[i] * c.density_activation.derivative(raw, c.density_bias);
-                for k in 0..3 {
-                    ws.d_raw_rgb[i * 3 + k] =
-                        ws.g_rgb[i][k] * render::rgb_activation_derivative(ws.cache.raw_rgb[i * 3 + k], c.rgb_padding);
-                }
-            }
+            self.loss_gradient(level, rays, tg, norm, &mut sums[level], ws);
+            self.activations_backward(ws);
             let (x, view, cache) = (&ws.x, &ws.view, &mut ws.cache);
-            mlp.backward(params, x, view, s, cache, &ws.d_raw_rgb, &ws.d_raw_density, grads);
+            mlp.backward(params, x, view, c.num_samples, cache, &ws.d_raw_rgb, &ws.d_raw_density, grads);
         }
         sums
     }
+
+    /// Sizes the workspace for `nr` rays.
+    fn size_workspace(&self, nr: usize, ws: &mut Workspace) {
+        let c = &self.config;
+        let (s, n) = (c.num_samples, nr * c.num_samples);
+        ws.t.resize(nr * (s + 1), 0.0);
+        ws.t_next.resize(nr * (s + 1), 0.0);
+        ws.gauss.resize(s, Gaussian::default());
+        ws.x.resize(n * c.x_dim(), 0.0);
+        ws.view.resize(nr * c.view_dim(), 0.0);
+        ws.rgb.resize(n, [0.0; 3]);
+        ws.density.resize(n, 0.0);
+        ws.weights.resize(n, 0.0);
+        ws.pixel_rgb.resize(nr / self.rays_per_pixel(), [0.0; 3]);
+    }
+
+    /// The positional encoding of each ray's view direction (degrees `0..deg_view`, with the
+    /// identity), the colour branch's input.
+    fn encode_view_directions(&self, rays: &[Ray], ws: &mut Workspace) {
+        let (deg, v_dim) = (self.config.deg_view, self.config.view_dim());
+        for (r, ray) in rays.iter().enumerate() {
+            mip::pos_enc(ray.viewdir, 0, deg, true, &mut ws.view[r * v_dim..(r + 1) * v_dim]);
+        }
+    }
+
+    /// The interval edges `t` of each ray at `level`: stratified between near and far on the
+    /// coarse level ([`sampling::sample_along_rays`]), then drawn from the previous level's
+    /// weights ([`sampling::resample_along_rays`]); jittered by the ray's random streams in
+    /// training.
+    fn sample_intervals(&self, level: usize, rays: &[Ray], first_ray: usize, mode: Mode, ws: &mut Workspace) {
+        let c = &self.config;
+        let s = c.num_samples;
+        for (r, ray) in rays.iter().enumerate() {
+            let gi = (first_ray + r) as u32;
+            let t = &mut ws.t_next[r * (s + 1)..(r + 1) * (s + 1)];
+            if level == 0 {
+                let jitter = match mode {
+                    Mode::Train { seed, step } => Some(RayRng::new(seed, step, Stream::SampleJitter, gi)),
+                    Mode::Eval => None,
+                };
+                sampling::sample_along_rays(ray.near, ray.far, c.lindisp, jitter, t);
+            } else {
+                let samples = match mode {
+                    Mode::Train { seed, step } => PdfSamples::Stratified(RayRng::new(
+                        seed,
+                        step,
+                        Stream::ResampleOffsets,
+                        crate::rng::ray_level_index(gi, level as u32),
+                    )),
+                    Mode::Eval => PdfSamples::Deterministic,
+                };
+                sampling::resample_along_rays(
+                    &ws.t[r * (s + 1)..(r + 1) * (s + 1)],
+                    &ws.weights[r * s..(r + 1) * s],
+                    c.resample_padding,
+                    samples,
+                    t,
+                );
+            }
+        }
+        std::mem::swap(&mut ws.t, &mut ws.t_next);
+    }
+
+    /// Each interval's conical frustum (or cylinder) as a Gaussian ([`mip::cast_ray`]), encoded
+    /// by the configured point encoding: IPE, PE of the mean ("w/o IPE"), or NeRF's PE.
+    fn encode_intervals(&self, rays: &[Ray], ws: &mut Workspace) {
+        let c = &self.config;
+        let (s, x_dim) = (c.num_samples, c.x_dim());
+        for (r, ray) in rays.iter().enumerate() {
+            let t = &ws.t[r * (s + 1)..(r + 1) * (s + 1)];
+            mip::cast_ray(t, ray.origin, ray.direction, ray.radius, c.ray_shape, &mut ws.gauss);
+            for (i, g) in ws.gauss.iter().enumerate() {
+                let dst = &mut ws.x[(r * s + i) * x_dim..(r * s + i + 1) * x_dim];
+                match c.point_encoding {
+                    PointEncoding::Integrated => mip::integrated_pos_enc(g, c.min_deg_point, c.max_deg_point, dst),
+                    PointEncoding::Mean => {
+                        let g0 = Gaussian { mean: g.mean, cov_diag: Vec3::ZERO };
+                        mip::integrated_pos_enc(&g0, c.min_deg_point, c.max_deg_point, dst);
+                    }
+                    PointEncoding::Nerf => mip::pos_enc(g.mean, c.min_deg_point, c.max_deg_point, true, dst),
+                }
+            }
+        }
+    }
+
+    /// Training only: Gaussian noise of standard deviation `density_noise` on the raw density,
+    /// from each ray's `DensityNoise` stream at this level.
+    fn add_density_noise(&self, level: usize, first_ray: usize, mode: Mode, ws: &mut Workspace) {
+        let c = &self.config;
+        let (Mode::Train { seed, step }, true) = (mode, c.density_noise > 0.0) else {
+            return;
+        };
+        let s = c.num_samples;
+        for r in 0..ws.t.len() / (s + 1) {
+            let stream = crate::rng::ray_level_index((first_ray + r) as u32, level as u32);
+            let rng = RayRng::new(seed, step, Stream::DensityNoise, stream);
+            for i in 0..s {
+                ws.cache.raw_density[r * s + i] += c.density_noise * rng.normal(i as u32);
+            }
+        }
+    }
+
+    /// The MLP's raw outputs to density (softplus or ReLU, with the bias) and colour (sigmoid
+    /// with padding).
+    fn apply_activations(&self, ws: &mut Workspace) {
+        let c = &self.config;
+        for i in 0..ws.density.len() {
+            ws.density[i] = c.density_activation.forward(ws.cache.raw_density[i], c.density_bias);
+            for k in 0..3 {
+                ws.rgb[i][k] = render::rgb_activation(ws.cache.raw_rgb[i * 3 + k], c.rgb_padding);
+            }
+        }
+    }
+
+    /// Volume rendering of each ray ([`render::volumetric_rendering`], which also writes the
+    /// weights the next level resamples from), averaged over a pixel's rays.
+    fn render_pixels(&self, rays: &[Ray], per_ray: &mut [render::RenderedRay], ws: &mut Workspace) {
+        let c = &self.config;
+        let s = c.num_samples;
+        let rpp = self.rays_per_pixel();
+        let inv_rpp = 1.0 / rpp as f32;
+        ws.pixel_rgb.iter_mut().for_each(|p| *p = [0.0; 3]);
+        for (r, ray) in rays.iter().enumerate() {
+            let sl = r * s..(r + 1) * s;
+            per_ray[r] = render::volumetric_rendering(
+                &ws.rgb[sl.clone()],
+                &ws.density[sl.clone()],
+                &ws.t[r * (s + 1)..(r + 1) * (s + 1)],
+                ray.direction,
+                c.white_bkgd,
+                &mut ws.weights[sl],
+            );
+            for k in 0..3 {
+                ws.pixel_rgb[r / rpp][k] += per_ray[r].rgb[k] * inv_rpp;
+            }
+        }
+    }
+
+    /// Each pixel's colour, distance and opacity at `level`.
+    fn write_level_output(
+        &self,
+        level: usize,
+        per_ray: &[render::RenderedRay],
+        ws: &Workspace,
+        out: &mut [LevelOutput],
+    ) {
+        let rpp = self.rays_per_pixel();
+        let inv_rpp = 1.0 / rpp as f32;
+        let levels = self.config.num_levels;
+        for (p, group) in per_ray.chunks(rpp).enumerate() {
+            out[p * levels + level] = LevelOutput {
+                rgb: ws.pixel_rgb[p],
+                distance: group.iter().map(|g| g.distance).sum::<f32>() * inv_rpp,
+                acc: group.iter().map(|g| g.acc).sum::<f32>() * inv_rpp,
+            };
+        }
+    }
+
+    /// The level's loss and its gradient back through volume rendering: per pixel,
+    /// [`pixel_loss_gradient`] of the area-weighted squared error (adding the pixel's
+    /// `lossmult · |e|²` and `|e|²` to `sums`), shared by its rays, then
+    /// [`render::volumetric_rendering_backward`] to each sample's colour and density.
+    fn loss_gradient(
+        &self,
+        level: usize,
+        rays: &[Ray],
+        tg: &[[f32; 3]],
+        norm: f32,
+        sums: &mut [f64; 2],
+        ws: &mut Workspace,
+    ) {
+        let c = &self.config;
+        let s = c.num_samples;
+        let n = rays.len() * s;
+        let rpp = self.rays_per_pixel();
+        let inv_rpp = 1.0 / rpp as f32;
+        let level_w = self.level_weights()[level];
+        ws.g_rgb.resize(n, [0.0; 3]);
+        ws.g_density.resize(n, 0.0);
+        ws.d_raw_rgb.resize(n * 3, 0.0);
+        ws.d_raw_density.resize(n, 0.0);
+        for (r, ray) in rays.iter().enumerate() {
+            let p = r / rpp;
+            let lm = self.lossmult(ray);
+            if r % rpp == 0 {
+                for k in 0..3 {
+                    let e = ws.pixel_rgb[p][k] - tg[p][k];
+                    sums[0] += f64::from(lm) * f64::from(e * e);
+                    sums[1] += f64::from(e * e);
+                }
+            }
+            let d_pixel = pixel_loss_gradient(ws.pixel_rgb[p], tg[p], lm, level_w, norm);
+            let d_rgb = d_pixel.map(|d| d * inv_rpp);
+            let sl = r * s..(r + 1) * s;
+            render::volumetric_rendering_backward(
+                &ws.rgb[sl.clone()],
+                &ws.density[sl.clone()],
+                &ws.t[r * (s + 1)..(r + 1) * (s + 1)],
+                ray.direction,
+                c.white_bkgd,
+                &ws.weights[sl.clone()],
+                d_rgb,
+                0.0,
+                &mut ws.g_rgb[sl.clone()],
+                &mut ws.g_density[sl],
+            );
+        }
+    }
+
+    /// The gradients through the activations, to the MLP's raw outputs.
+    fn activations_backward(&self, ws: &mut Workspace) {
+        let c = &self.config;
+        for i in 0..ws.d_raw_density.len() {
+            let raw = ws.cache.raw_density[i];
+            ws.d_raw_density[i] = ws.g_density[i] * c.density_activation.derivative(raw, c.density_bias);
+            for k in 0..3 {
+                ws.d_raw_rgb[i * 3 + k] =
+                    ws.g_rgb[i][k] * render::rgb_activation_derivative(ws.cache.raw_rgb[i * 3 + k], c.rgb_padding);
+            }
+        }
+    }
+}
+
+/// The gradient of one level's loss with respect to a pixel's rendered colour: the loss is
+/// `level_weight · Σ_pixels lossmult · |rendered - target|² / norm` with `norm = 3 Σ lossmult`
+/// over the batch (the official `mse` of each level, weighted by pixel area: the paper's area
+/// loss), so this is `level_weight · 2 · lossmult · (rendered - target) / norm`. The one
+/// statement of the formula: the GPU's `render.wgsl` (`backward_ray`, `pixel_backward`) and
+/// `batch.wgsl` (`norm`) compute the same.
+#[must_use]
+#[inline]
+pub fn pixel_loss_gradient(
+    rendered: [f32; 3],
+    target: [f32; 3],
+    lossmult: f32,
+    level_weight: f32,
+    norm: f32,
+) -> [f32; 3] {
+    debug_assert!(norm > 0.0, "pixel_loss_gradient: norm {norm}");
+    std::array::from_fn(|k| level_weight * 2.0 * lossmult * (rendered[k] - target[k]) / norm)
 }
