@@ -10,8 +10,9 @@ use mipnerf_core::bench::{backend_throughput, synthetic_dataset};
 use mipnerf_core::model::Model;
 use mipnerf_core::train::OptimConfig;
 
-use crate::backend::{self, Setup};
+use crate::backend;
 use crate::config::{Backend, PresetArg};
+use mipnerf_gpu::BackendSetup;
 
 /// Which backends `mipnerf bench` measures.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -72,12 +73,12 @@ pub fn bench(a: &BenchArgs) -> Result<()> {
     );
     let mut rows = Vec::new();
     for &choice in which {
-        let setup = Setup {
+        let setup = BackendSetup {
             model: model.clone(),
             optim: OptimConfig::default(),
             seed: 0,
             state: TrainState::fresh(&model, 0),
-            data: Some((&ds, a.batch)),
+            data: Some((Arc::clone(&ds), a.batch)),
         };
         let mut b = backend::open(choice, setup)?;
         let r = backend_throughput(b.as_mut(), a.batch, a.steps, a.render_side)

@@ -65,7 +65,7 @@ pub fn open_trained(
 ) -> Result<(Box<dyn mipnerf_core::backend::Backend>, u64)> {
     let (model, ck) = load_trained(run, s)?;
     let step = ck.step;
-    let setup = backend::Setup {
+    let setup = mipnerf_gpu::BackendSetup {
         model,
         optim: s.optim_config()?,
         seed: s.seed.unwrap_or(0),
@@ -193,7 +193,7 @@ pub fn train(
         TrainState::fresh(&model, seed)
     };
     let ds = std::sync::Arc::new(ds);
-    let setup = backend::Setup { model, optim, seed, state, data: Some((&ds, batch)) };
+    let setup = mipnerf_gpu::BackendSetup { model, optim, seed, state, data: Some((Arc::clone(&ds), batch)) };
     let mut be = backend::open(s.backend.unwrap_or(Backend::Auto), setup)?;
     s.save(&run_dir.join(CONFIG))?;
     let seconds_before = if resume { train_seconds(run_dir).unwrap_or(0.0) } else { 0.0 };

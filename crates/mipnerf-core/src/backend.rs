@@ -102,6 +102,41 @@ impl ImageSpec {
     }
 }
 
+/// One rendered image: per pixel (raster order) the fine level's and the coarse level's colour,
+/// distance and opacity.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RenderedImage {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// The last (fine) level, the model's output.
+    pub fine: Vec<LevelOutput>,
+    /// The first (coarse) level.
+    pub coarse: Vec<LevelOutput>,
+}
+
+impl RenderedImage {
+    /// Splits [`Backend::render_image`]'s pixel-major outputs of `levels` levels.
+    #[must_use]
+    pub fn from_outputs(width: u32, height: u32, levels: usize, outputs: &[LevelOutput]) -> Self {
+        let levels = levels.max(1);
+        Self {
+            width,
+            height,
+            fine: outputs.chunks(levels).map(|l| l[levels - 1]).collect(),
+            coarse: outputs.chunks(levels).map(|l| l[0]).collect(),
+        }
+    }
+
+    /// The fine level's colour as an 8-bit image (clamped to `[0, 1]`, rounded).
+    #[must_use]
+    pub fn to_rgb_image(&self) -> image::RgbImage {
+        let bytes = self.fine.iter().flat_map(|o| o.rgb.map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8)).collect();
+        image::RgbImage::from_raw(self.width, self.height, bytes).unwrap_or_default()
+    }
+}
+
 /// Trains and renders one model. Implemented by [`CpuBackend`] and by `mipnerf_gpu::GpuBackend`.
 pub trait Backend {
     /// What runs the work, for logs: "CPU (2 threads)", "GPU: NVIDIA H100 (Vulkan)".
@@ -134,6 +169,17 @@ pub trait Backend {
     /// # Errors
     /// [`BackendError::Unsupported`] for what the backend does not render; device failures.
     fn render_image(&mut self, image: &ImageSpec) -> Result<Vec<LevelOutput>, BackendError>;
+
+    /// [`render_image`](Self::render_image) as a [`RenderedImage`]: the fine and coarse levels
+    /// apart, with the image's size.
+    ///
+    /// # Errors
+    /// As [`render_image`](Self::render_image).
+    fn render(&mut self, image: &ImageSpec) -> Result<RenderedImage, BackendError> {
+        let levels = self.model().config.num_levels;
+        let out = self.render_image(image)?;
+        Ok(RenderedImage::from_outputs(image.camera.width, image.camera.height, levels, &out))
+    }
 }
 
 /// Where a training run starts: fresh parameters from the seed, or a checkpoint.

@@ -4,6 +4,10 @@ use std::sync::{Arc, Mutex};
 
 use crate::GpuError;
 
+/// The most storage buffers one kernel binds (`batch.wgsl`: 11), which a device must allow per
+/// shader stage (WebGPU's default is 8).
+pub const MIN_STORAGE_BUFFERS_PER_STAGE: u32 = 11;
+
 /// Which adapters [`GpuContext::new`] may pick.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum AdapterChoice {
@@ -122,6 +126,29 @@ impl GpuContext {
             trace: wgpu::Trace::Off,
         }))
         .map_err(|e| GpuError::Device(format!("{}: {e}", info.name)))?;
+        Self::from_device(&info, device, queue)
+    }
+
+    /// A context on a device and queue an app already owns (made from the adapter `info`
+    /// describes). The context installs its error and device-lost callbacks on the device. The
+    /// kernels need no features, and one limit above WebGPU's defaults: at least
+    /// [`MIN_STORAGE_BUFFERS_PER_STAGE`] storage buffers per shader stage (request it in
+    /// `required_limits`; every Vulkan, Metal and DX12 GPU has it). The other limits the device
+    /// was made with bound the batch (a batch too large for them runs in chunks or is refused
+    /// with the limit).
+    ///
+    /// # Errors
+    /// [`GpuError::Device`] when the device allows too few storage buffers per stage.
+    pub fn from_device(info: &wgpu::AdapterInfo, device: wgpu::Device, queue: wgpu::Queue) -> Result<Self, GpuError> {
+        let have = device.limits().max_storage_buffers_per_shader_stage;
+        if have < MIN_STORAGE_BUFFERS_PER_STAGE {
+            return Err(GpuError::Device(format!(
+                "{}: the device allows {have} storage buffers per shader stage; mipnerf's kernels need \
+                 {MIN_STORAGE_BUFFERS_PER_STAGE}: set required_limits.max_storage_buffers_per_shader_stage when \
+                 requesting it",
+                info.name
+            )));
+        }
         let sink = Arc::new(Mutex::new(ErrorSink::default()));
         let s = Arc::clone(&sink);
         device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
@@ -135,7 +162,7 @@ impl GpuContext {
                 g.lost = Some(format!("{reason:?}: {msg}"));
             }
         });
-        Ok(Self { adapter: AdapterSummary::from_info(&info), device, queue, sink })
+        Ok(Self { adapter: AdapterSummary::from_info(info), device, queue, sink })
     }
 
     /// Returns the first error wgpu reported since the last check, if any, and clears the list.

@@ -15,9 +15,11 @@ pub mod context;
 pub mod kernels;
 pub mod mlp;
 pub mod model;
+pub mod select;
 pub mod trainer;
 
 pub use context::{AdapterChoice, AdapterSummary, GpuContext, list_adapters};
+pub use select::{BackendChoice, BackendSetup, OpenError, OpenedBackend, open_backend};
 pub use trainer::GpuBackend;
 
 /// Errors of the GPU backend. None of them is a panic: a missing or lost device is an error value.

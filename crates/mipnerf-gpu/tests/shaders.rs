@@ -169,3 +169,9 @@ fn the_member_check_catches_two_swapped_fields_of_one_size() {
         ViewEncParams::members().into_iter().map(|m| (m.name.to_string(), m.offset, m.ty.to_string())).collect();
     assert_ne!(rust, wgsl);
 }
+
+#[test]
+fn the_storage_buffer_limit_is_what_the_busiest_kernel_binds() {
+    let most = ALL_SOURCES.iter().map(|(_, src)| src.matches("var<storage").count()).max().unwrap();
+    assert_eq!(most as u32, mipnerf_gpu::context::MIN_STORAGE_BUFFERS_PER_STAGE);
+}

@@ -150,6 +150,15 @@ pub struct View {
     pub scale: u32,
 }
 
+impl View {
+    /// A full-resolution image held in memory (no file): `name` stands for it in messages and
+    /// outputs; loss weight 1, scale 0.
+    #[must_use]
+    pub fn in_memory(name: &str, camera: Camera, pixels: Pixels, near: f32, far: f32) -> Self {
+        Self { file: PathBuf::from(name), camera, pixels, near, far, lossmult: 1.0, scale: 0 }
+    }
+}
+
 /// Maps rays to normalised device coordinates (forward-facing scenes, the official
 /// `convert_to_ndc` with the near plane at 1).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -187,6 +196,15 @@ pub struct Dataset {
 }
 
 impl Dataset {
+    /// A dataset of views held in memory (see [`View::in_memory`]), for apps that bring their own
+    /// images and cameras.
+    ///
+    /// # Errors
+    /// [`DataError::Invalid`] when there are no views.
+    pub fn from_views(split: Split, views: Vec<View>, white_bkgd: bool) -> Result<Self, DataError> {
+        Self::new(Path::new("<memory>"), split, views, white_bkgd)
+    }
+
     /// A dataset of `views`.
     ///
     /// # Errors
