@@ -121,7 +121,9 @@ pub struct TrainOutcome {
     pub last: Option<(f32, f32)>,
 }
 
-/// Trains (or resumes) the run in `run_dir` with `flags_settings` over the file and defaults.
+/// Trains (or resumes) the run in `run_dir` with `flags_settings` over the file and defaults:
+/// settings resolved and checked, the directory locked, the data and the start state loaded, the
+/// backend opened, then the loop of [`TrainLoop`].
 ///
 /// # Errors
 /// Bad settings, data, checkpoints or files.
@@ -132,21 +134,7 @@ pub fn train(
     resume: bool,
     stop: Arc<AtomicBool>,
 ) -> Result<TrainOutcome> {
-    let base = if resume { read_config(run_dir)? } else { file_settings.unwrap_or_default() };
-    let merged = base.overridden_by(&flag_settings);
-    let data_dir = merged.data.clone().context("no dataset: pass --data DIR (or data = \"DIR\" in --config)")?;
-    let format = data::detect_format(&data_dir)?;
-    // The dataset is stored as an absolute path, so that eval, render and --resume work from any
-    // working directory.
-    let data_dir = std::path::absolute(&data_dir).with_context(|| format!("resolving {}", data_dir.display()))?;
-    let mut s = merged.resolved(matches!(format, Format::Llff | Format::Colmap));
-    s.data = Some(data_dir.clone());
-    let model_cfg = s.model_config()?;
-    let optim = s.optim_config()?;
-    let model = Model::new(model_cfg)?;
-    s.validate(mipnerf_gpu::model::ModelBuffers::bytes_per_ray(&model))?;
-    let steps = s.steps.unwrap_or(0);
-    let batch = s.batch_rays.unwrap_or(1024);
+    let (s, format, model) = resolve_settings(run_dir, file_settings, &flag_settings, resume)?;
     std::fs::create_dir_all(run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
     let _lock = lock_run_dir(run_dir)?;
     // Temporary files that a kill during a save left behind (no other writer exists: we hold the
@@ -161,8 +149,51 @@ pub fn train(
             run_dir.display()
         );
     }
+    let ds = Arc::new(load_training_data(&s, format, &model)?);
+    let seed = s.seed.unwrap_or(0);
+    let state = if resume {
+        let ck = load_checkpoint(&ckpt_path, &model)?;
+        eprintln!("resuming from step {} ({})", ck.step, ckpt_path.display());
+        TrainState::from_checkpoint(ck)
+    } else {
+        TrainState::fresh(&model, seed)
+    };
+    let batch = s.batch_rays.unwrap_or(1024);
+    let setup = mipnerf_gpu::BackendSetup { model, optim: s.optim_config()?, seed, state, data: Some((ds, batch)) };
+    let be = backend::open(s.backend.unwrap_or(Backend::Auto), setup)?;
+    s.save(&run_dir.join(CONFIG))?;
+    TrainLoop::new(run_dir, &s, be, resume)?.run(&stop)
+}
+
+/// The settings of a run: the saved ones on `--resume`, else the file's, overridden by the
+/// flags, resolved for the data's format (the dataset made absolute), and checked; with the
+/// model they describe.
+fn resolve_settings(
+    run_dir: &Path,
+    file_settings: Option<TrainSettings>,
+    flag_settings: &TrainSettings,
+    resume: bool,
+) -> Result<(TrainSettings, Format, Model)> {
+    let base = if resume { read_config(run_dir)? } else { file_settings.unwrap_or_default() };
+    let merged = base.overridden_by(flag_settings);
+    let data_dir = merged.data.clone().context("no dataset: pass --data DIR (or data = \"DIR\" in --config)")?;
+    let format = data::detect_format(&data_dir)?;
+    // The dataset is stored as an absolute path, so that eval, render and --resume work from any
+    // working directory.
+    let data_dir = std::path::absolute(&data_dir).with_context(|| format!("resolving {}", data_dir.display()))?;
+    let mut s = merged.resolved(matches!(format, Format::Llff | Format::Colmap));
+    s.data = Some(data_dir);
+    s.optim_config()?;
+    let model = Model::new(s.model_config()?)?;
+    s.validate(mipnerf_gpu::model::ModelBuffers::bytes_per_ray(&model))?;
+    Ok((s, format, model))
+}
+
+/// The training split, said in one line (and the loader's notes), checked against the model.
+fn load_training_data(s: &TrainSettings, format: Format, model: &Model) -> Result<Dataset> {
     let t_load = Instant::now();
-    let ds = load_split(&s, Split::Train)?;
+    let ds = load_split(s, Split::Train)?;
+    let data_dir = s.data.clone().unwrap_or_default();
     eprintln!(
         "data: {} ({format:?}, {} views, {} pixels, scales {:?}, {:.1} MiB of pixels, loaded in {:.1}s)",
         data_dir.display(),
@@ -184,112 +215,148 @@ pub fn train(
         s.preset.unwrap_or(crate::config::PresetArg::Tiny),
         s.model.unwrap_or(crate::config::ModelKind::Mipnerf)
     );
-    let seed = s.seed.unwrap_or(0);
-    let state = if resume {
-        let ck = load_checkpoint(&ckpt_path, &model)?;
-        eprintln!("resuming from step {} ({})", ck.step, ckpt_path.display());
-        TrainState::from_checkpoint(ck)
-    } else {
-        TrainState::fresh(&model, seed)
-    };
-    let ds = std::sync::Arc::new(ds);
-    let setup = mipnerf_gpu::BackendSetup { model, optim, seed, state, data: Some((Arc::clone(&ds), batch)) };
-    let mut be = backend::open(s.backend.unwrap_or(Backend::Auto), setup)?;
-    s.save(&run_dir.join(CONFIG))?;
-    let seconds_before = if resume { train_seconds(run_dir).unwrap_or(0.0) } else { 0.0 };
-    let t0 = Instant::now();
-    let csv_path = run_dir.join(METRICS_CSV);
-    let mut csv = open_csv(&csv_path, be.step())?;
-    let kept = |last_saved: Option<u64>| match last_saved {
-        Some(k) => format!("the checkpoint of step {k} in {} is kept", ckpt_path.display()),
-        None => "no checkpoint was written".to_string(),
-    };
-    // Never writes a non-finite state: the last good checkpoint stays, and the error names the
-    // step at which the state broke and the step that is kept.
-    let save = |b: &mut Box<dyn mipnerf_core::backend::Backend>, last_saved: Option<u64>| -> Result<()> {
-        let ck = b.checkpoint()?;
-        match checkpoint::save(&ckpt_path, b.model(), &ck) {
-            Err(checkpoint::CheckpointError::NonFinite { step, what, .. }) => {
-                bail!(
-                    "the training state became non-finite by step {step} ({what}); not saved: {} \
-                     (try a lower --lr-init or --grad-max-norm)",
-                    kept(last_saved)
-                )
-            }
+    Ok(ds)
+}
+
+/// The training loop of one run directory: steps, a metrics row every `log_every`, a checkpoint
+/// every `checkpoint_every` and at the end (or on a signal), never a non-finite one.
+struct TrainLoop<'a> {
+    run_dir: &'a Path,
+    be: Box<dyn mipnerf_core::backend::Backend>,
+    ckpt_path: PathBuf,
+    csv_path: PathBuf,
+    csv: std::fs::File,
+    steps: u64,
+    batch: usize,
+    log_every: u64,
+    ckpt_every: u64,
+    /// Training time of the earlier segments of a resumed run, and this segment's start.
+    seconds_before: f64,
+    t0: Instant,
+    /// The step of the checkpoint on disk written by this run (or found on resume).
+    last_saved: Option<u64>,
+}
+
+impl<'a> TrainLoop<'a> {
+    fn new(
+        run_dir: &'a Path,
+        s: &TrainSettings,
+        be: Box<dyn mipnerf_core::backend::Backend>,
+        resume: bool,
+    ) -> Result<Self> {
+        let csv_path = run_dir.join(METRICS_CSV);
+        let csv = open_csv(&csv_path, be.step())?;
+        Ok(Self {
+            run_dir,
+            ckpt_path: run_dir.join(CHECKPOINT),
+            csv_path,
+            csv,
+            steps: s.steps.unwrap_or(0),
+            batch: s.batch_rays.unwrap_or(1024),
+            log_every: s.log_every.unwrap_or(10),
+            ckpt_every: s.checkpoint_every.unwrap_or(500),
+            seconds_before: if resume { train_seconds(run_dir).unwrap_or(0.0) } else { 0.0 },
+            t0: Instant::now(),
+            last_saved: resume.then(|| be.step()),
+            be,
+        })
+    }
+
+    /// What stays on disk when the run stops with an error.
+    fn kept(&self) -> String {
+        match self.last_saved {
+            Some(k) => format!("the checkpoint of step {k} in {} is kept", self.ckpt_path.display()),
+            None => "no checkpoint was written".to_string(),
+        }
+    }
+
+    /// Writes the checkpoint and the training time it took; never a non-finite state (the last
+    /// good checkpoint stays, and the error names the step at which the state broke).
+    fn save(&mut self) -> Result<()> {
+        let ck = self.be.checkpoint()?;
+        match checkpoint::save(&self.ckpt_path, self.be.model(), &ck) {
+            Err(checkpoint::CheckpointError::NonFinite { step, what, .. }) => bail!(
+                "the training state became non-finite by step {step} ({what}); not saved: {} \
+                 (try a lower --lr-init or --grad-max-norm)",
+                self.kept()
+            ),
             r => r?,
         }
         // The time it took to reach the saved state: a kill loses at most the time since.
-        let total = seconds_before + t0.elapsed().as_secs_f64();
-        let path = run_dir.join(TRAIN_SECONDS);
+        let total = self.seconds_before + self.t0.elapsed().as_secs_f64();
+        let path = self.run_dir.join(TRAIN_SECONDS);
         checkpoint::write_atomic(&path, format!("{total:.3}\n").as_bytes(), &mut checkpoint::RealFs)?;
+        self.last_saved = Some(self.be.step());
         Ok(())
-    };
-    let mut pb = Progress::new("train", be.step(), steps);
-    let log_every = s.log_every.unwrap_or(10);
-    let ckpt_every = s.checkpoint_every.unwrap_or(500);
-    let mut window = (Instant::now(), 0u64);
-    let mut last = None;
-    let mut interrupted = false;
-    let mut last_saved = resume.then(|| be.step());
-    while be.step() < steps {
-        if stop.load(Ordering::SeqCst) {
-            interrupted = true;
-            break;
-        }
-        let step = be.step();
-        // The losses are read (from the device, for a GPU) only on logged steps.
-        let report = step.is_multiple_of(log_every) || step + 1 == steps;
-        let rep = be.train_step(report)?;
-        window.1 += 1;
-        if let Some(rep) = rep.filter(|_| report) {
-            if !rep.stats.loss.is_finite() {
-                bail!(
-                    "the loss became {} at step {}; {} (try a lower --lr-init or --grad-max-norm)",
-                    rep.stats.loss,
-                    rep.step,
-                    kept(last_saved)
-                );
-            }
-            let dt = window.0.elapsed().as_secs_f64().max(1e-9);
-            let rays_per_s = (window.1 as f64 * batch as f64) / dt;
-            window = (Instant::now(), 0);
-            let psnr = rep.stats.psnr();
-            last = Some((rep.stats.loss, psnr));
-            let losses: Vec<String> = rep.stats.losses.iter().map(|l| format!("{l:.6}")).collect();
-            writeln!(
-                csv,
-                "{},{:.6},{},{:.3},{:.3e},{:.0},{:.1}",
-                rep.step,
+    }
+
+    /// One row of metrics.csv for a step's report; returns the progress message.
+    fn log_row(&mut self, rep: &mipnerf_core::train::StepReport, rays_per_s: f64) -> Result<String> {
+        if !rep.stats.loss.is_finite() {
+            bail!(
+                "the loss became {} at step {}; {} (try a lower --lr-init or --grad-max-norm)",
                 rep.stats.loss,
-                losses.join(";"),
-                psnr,
-                rep.lr,
-                rays_per_s,
-                seconds_before + t0.elapsed().as_secs_f64()
-            )?;
-            csv.flush()?;
-            pb.set_message(format!(
-                "loss {:.5} psnr {psnr:.2} lr {:.2e} {rays_per_s:.0} rays/s",
-                rep.stats.loss, rep.lr
-            ));
+                rep.step,
+                self.kept()
+            );
         }
-        pb.set_position(be.step());
-        if be.step().is_multiple_of(ckpt_every) {
-            save(&mut be, last_saved)?;
-            last_saved = Some(be.step());
+        let psnr = rep.stats.psnr();
+        let losses: Vec<String> = rep.stats.losses.iter().map(|l| format!("{l:.6}")).collect();
+        writeln!(
+            self.csv,
+            "{},{:.6},{},{:.3},{:.3e},{:.0},{:.1}",
+            rep.step,
+            rep.stats.loss,
+            losses.join(";"),
+            psnr,
+            rep.lr,
+            rays_per_s,
+            self.seconds_before + self.t0.elapsed().as_secs_f64()
+        )?;
+        self.csv.flush()?;
+        Ok(format!("loss {:.5} psnr {psnr:.2} lr {:.2e} {rays_per_s:.0} rays/s", rep.stats.loss, rep.lr))
+    }
+
+    /// Steps until `steps` or a signal, then the last checkpoint and the plots.
+    fn run(mut self, stop: &AtomicBool) -> Result<TrainOutcome> {
+        let mut pb = Progress::new("train", self.be.step(), self.steps);
+        let mut window = (Instant::now(), 0u64);
+        let mut last = None;
+        let mut interrupted = false;
+        while self.be.step() < self.steps {
+            if stop.load(Ordering::SeqCst) {
+                interrupted = true;
+                break;
+            }
+            let step = self.be.step();
+            // The losses are read (from the device, for a GPU) only on logged steps.
+            let report = step.is_multiple_of(self.log_every) || step + 1 == self.steps;
+            let rep = self.be.train_step(report)?;
+            window.1 += 1;
+            if let Some(rep) = rep.filter(|_| report) {
+                let dt = window.0.elapsed().as_secs_f64().max(1e-9);
+                let rays_per_s = (window.1 as f64 * self.batch as f64) / dt;
+                window = (Instant::now(), 0);
+                pb.set_message(self.log_row(&rep, rays_per_s)?);
+                last = Some((rep.stats.loss, rep.stats.psnr()));
+            }
+            pb.set_position(self.be.step());
+            if self.be.step().is_multiple_of(self.ckpt_every) {
+                self.save()?;
+            }
         }
+        self.save()?;
+        pb.finish();
+        if interrupted {
+            eprintln!(
+                "interrupted at step {}: checkpoint written to {}; continue with --resume",
+                self.be.step(),
+                self.ckpt_path.display()
+            );
+        }
+        crate::plot::training_curves(&self.csv_path, self.run_dir)?;
+        Ok(TrainOutcome { step: self.be.step(), interrupted, last })
     }
-    save(&mut be, last_saved)?;
-    pb.finish();
-    if interrupted {
-        eprintln!(
-            "interrupted at step {}: checkpoint written to {}; continue with --resume",
-            be.step(),
-            ckpt_path.display()
-        );
-    }
-    crate::plot::training_curves(&csv_path, run_dir)?;
-    Ok(TrainOutcome { step: be.step(), interrupted, last })
 }
 
 /// The lock file of a run directory, held by the `train` that writes it.
