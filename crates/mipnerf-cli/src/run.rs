@@ -206,9 +206,8 @@ fn load_training_data(s: &TrainSettings, format: Format, model: &Model) -> Resul
     for note in &ds.notes {
         eprintln!("note: {note}");
     }
-    if ds.ndc.is_some() && model.config.supersample > 1 {
-        bail!("{}: {}", data_dir.display(), mipnerf_core::backend::NDC_SUPERSAMPLE);
-    }
+    mipnerf_core::backend::check_ndc_supersample(ds.ndc, model.config.supersample)
+        .with_context(|| data_dir.display().to_string())?;
     eprintln!(
         "model: {} parameters ({:?} preset, {:?})",
         model.num_params,

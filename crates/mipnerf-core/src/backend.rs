@@ -85,10 +85,7 @@ impl ImageSpec {
                 self.supersample
             )));
         }
-        if self.ndc.is_some() && k > 1 {
-            return Err(BackendError::Unsupported(NDC_SUPERSAMPLE.into()));
-        }
-        Ok(())
+        check_ndc_supersample(self.ndc, k)
     }
 
     /// Appends the rays of pixels `first..first + count` (raster order), `supersample²` per pixel.
@@ -225,6 +222,18 @@ impl TrainState {
     }
 }
 
+/// The one check that supersampling is not asked of forward-facing (NDC) data, shared by the
+/// CPU and GPU backends, images and the CLI.
+///
+/// # Errors
+/// [`BackendError::Unsupported`] with [`NDC_SUPERSAMPLE`].
+pub fn check_ndc_supersample(ndc: Option<Ndc>, supersample: usize) -> Result<(), BackendError> {
+    if ndc.is_some() && supersample > 1 {
+        return Err(BackendError::Unsupported(NDC_SUPERSAMPLE.into()));
+    }
+    Ok(())
+}
+
 /// Why forward-facing data and supersampling do not mix.
 pub const NDC_SUPERSAMPLE: &str = "supersampling (--supersample) is not defined for forward-facing (NDC) datasets: sub-pixel rays are not mapped to NDC";
 
@@ -285,9 +294,7 @@ impl Backend for CpuBackend {
     fn train_step(&mut self, _report: bool) -> Result<Option<StepReport>, BackendError> {
         let (ds, batch) = self.data.as_ref().ok_or(BackendError::NoData)?;
         let t = &self.trainer;
-        if ds.ndc.is_some() && t.model.config.supersample > 1 {
-            return Err(BackendError::Unsupported(NDC_SUPERSAMPLE.into()));
-        }
+        check_ndc_supersample(ds.ndc, t.model.config.supersample)?;
         ds.sample_batch(*batch, t.seed, t.step as u32, t.model.config.supersample, &mut self.rays, &mut self.targets);
         Ok(Some(self.trainer.train_step(&self.rays, &self.targets)))
     }

@@ -134,9 +134,8 @@ impl GpuBackend {
         if batch_rays == 0 {
             return Err(GpuError::InvalidInput("a batch needs at least one ray".into()));
         }
-        if ds.ndc.is_some() && self.model.config.supersample > 1 {
-            return Err(GpuError::InvalidInput(mipnerf_core::backend::NDC_SUPERSAMPLE.into()));
-        }
+        mipnerf_core::backend::check_ndc_supersample(ds.ndc, self.model.config.supersample)
+            .map_err(|e| GpuError::InvalidInput(e.to_string()))?;
         let images = DeviceImages::upload(&self.ctx, ds)?;
         // Each pixel is `rays_per_pixel` rays.
         let rpp = self.model.rays_per_pixel();
