@@ -4,6 +4,7 @@
 //! kind of damaged model refused with a clear error.
 #![allow(clippy::unwrap_used, missing_docs)]
 
+mod common;
 use std::path::{Path, PathBuf};
 
 use glam::DVec3;
@@ -280,7 +281,7 @@ proptest::proptest! {
     // The three binary files, with bytes replaced, inserted, deleted or cut: the reader returns a
     // model or an error, never panics (PROPTEST_CASES for a long run).
     #![proptest_config(proptest::prelude::ProptestConfig {
-        cases: std::env::var("PROPTEST_CASES").ok().and_then(|c| c.parse().ok()).unwrap_or(48),
+        cases: common::fuzz_cases(),
         failure_persistence: None,
         ..Default::default()
     })]
@@ -292,17 +293,7 @@ proptest::proptest! {
         let dir = tempfile::tempdir().unwrap();
         copy_dir(&scene().join("sparse/0"), dir.path());
         let f = dir.path().join(["cameras.bin", "images.bin", "points3D.bin"][file]);
-        let mut b = std::fs::read(&f).unwrap();
-        for &(kind, at, byte) in &ops {
-            let i = ((at * b.len() as f64) as usize).min(b.len().saturating_sub(1));
-            match kind {
-                0 if !b.is_empty() => b[i] = byte,
-                1 => b.insert(i, byte),
-                2 if !b.is_empty() => drop(b.remove(i)),
-                _ => b.truncate(i),
-            }
-        }
-        std::fs::write(&f, b).unwrap();
+        std::fs::write(&f, common::mutate(std::fs::read(&f).unwrap(), &ops)).unwrap();
         if let Ok(model) = colmap::read_model(dir.path()) {
             let _ = colmap::poses_bounds(&model, dir.path());
         }

@@ -479,26 +479,11 @@ fn multiscale_numbers_are_checked_and_each_error_names_the_key_and_the_index() {
     }
 }
 
-/// Replaces, inserts, deletes or truncates bytes of `bytes` as `ops` say (each op: kind, position
-/// as a fraction of the length, byte).
-fn mutate(mut bytes: Vec<u8>, ops: &[(u8, f64, u8)]) -> Vec<u8> {
-    for &(kind, at, b) in ops {
-        let i = ((at * bytes.len() as f64) as usize).min(bytes.len().saturating_sub(1));
-        match kind % 4 {
-            0 if !bytes.is_empty() => bytes[i] = b,
-            1 => bytes.insert(i, b),
-            2 if !bytes.is_empty() => drop(bytes.remove(i)),
-            _ => bytes.truncate(i),
-        }
-    }
-    bytes
-}
-
 proptest::proptest! {
     // Every parser a user feeds, given mutated bytes of a valid file, returns Ok or an error and
     // never panics. Cases here: 48 per parser (PROPTEST_CASES=100000 for the long run; see README).
     #![proptest_config(proptest::prelude::ProptestConfig {
-        cases: std::env::var("PROPTEST_CASES").ok().and_then(|c| c.parse().ok()).unwrap_or(48),
+        cases: fuzz_cases(),
         failure_persistence: None,
         ..Default::default()
     })]

@@ -92,3 +92,24 @@ impl Mismatches {
         );
     }
 }
+
+/// Replaces, inserts, deletes or truncates bytes of `bytes` as `ops` say (each op: kind, position
+/// as a fraction of the length, byte).
+pub fn mutate(mut bytes: Vec<u8>, ops: &[(u8, f64, u8)]) -> Vec<u8> {
+    for &(kind, at, b) in ops {
+        let i = ((at * bytes.len() as f64) as usize).min(bytes.len().saturating_sub(1));
+        match kind % 4 {
+            0 if !bytes.is_empty() => bytes[i] = b,
+            1 => bytes.insert(i, b),
+            2 if !bytes.is_empty() => drop(bytes.remove(i)),
+            _ => bytes.truncate(i),
+        }
+    }
+    bytes
+}
+
+/// Cases of each fuzzing proptest: 48 in the suite, `PROPTEST_CASES` for a long run.
+#[must_use]
+pub fn fuzz_cases() -> u32 {
+    std::env::var("PROPTEST_CASES").ok().and_then(|c| c.parse().ok()).unwrap_or(48)
+}
