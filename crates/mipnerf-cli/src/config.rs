@@ -343,9 +343,6 @@ impl TrainSettings {
                 bail!("{} must be a finite number >= 0 (0 = off), got {v}", name(key));
             }
         }
-        if self.llff_factor == Some(0) {
-            bail!("{} must be at least 1, got 0", name("llff_factor"));
-        }
         Ok(())
     }
 

@@ -563,6 +563,14 @@ fn a_colmap_scene_trains_directly_and_converts_to_llff() {
         "--backend",
         "cpu",
     ]);
+    // At full size the images go to images/, which the LLFF loader reads with --llff-factor 0.
+    let full = dir.path().join("llff_full");
+    let f = full.to_str().unwrap();
+    let out = run_ok(&["convert", "--input", scene.to_str().unwrap(), "--output", f, "--to", "llff", "--factor", "0"]);
+    assert!(out.contains("--llff-factor 0") && full.join("images").is_dir(), "{out}");
+    let r3 = dir.path().join("run3");
+    let r3 = r3.to_str().unwrap();
+    run_ok(&["train", "--data", f, "--out", r3, "--llff-factor", "0", "--steps", "2", "--backend", "cpu"]);
     // --size belongs to --to multiscale; a Blender folder is no COLMAP scene.
     let bad =
         mipnerf(&["convert", "--input", scene.to_str().unwrap(), "--output", "x", "--to", "llff", "--size", "64"]);
