@@ -4,7 +4,7 @@
 //! (`MLP_{i}/Dense_{k}/kernel` with shape `[fan_in, fan_out]`, `.../bias` with `[fan_out]`), so the
 //! file opens in any safetensors reader; Adam's moments are the same tensors prefixed with
 //! `adam_m/` and `adam_v/`. Metadata holds the format version, the step, Adam's update count and the
-//! SHA-256 of the tensor bytes, verified on every load. Writes are atomic and synced, and refuse
+//! SHA-256 of the content (the other metadata and every tensor), verified on every load. Writes are atomic and synced, and refuse
 //! non-finite state, so the file on disk is always the last good state.
 
 use std::path::Path;
@@ -224,7 +224,7 @@ fn safetensors_bytes(mut tensors: Vec<(String, Vec<u8>, Vec<usize>)>, meta: &[(&
 
 /// Writes `ckpt` for `model` to `path` atomically ([`write_atomic`]): an interrupted or failed
 /// write never damages the previous checkpoint. The file is a function of `ckpt` alone (byte for
-/// byte) and carries the SHA-256 of its tensor bytes.
+/// byte) and carries the SHA-256 of its content ([`CHECKSUM_KEY`]).
 ///
 /// # Errors
 /// [`CheckpointError`] when the file cannot be written, the state does not fit the model, or the
@@ -269,7 +269,7 @@ pub fn save_with(path: &Path, model: &Model, ckpt: &Checkpoint, fs: &mut dyn Fil
     write_atomic(path, &safetensors_bytes(buffers, &meta), fs)
 }
 
-/// Whether a loaded checkpoint's tensor bytes were checked against its stored SHA-256.
+/// Whether a loaded checkpoint's content was checked against its stored SHA-256.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Integrity {
     /// The checksum was present and matched.
@@ -291,7 +291,7 @@ pub fn load(path: &Path, model: &Model) -> Result<Checkpoint, CheckpointError> {
 /// file written before checksums existed).
 ///
 /// # Errors
-/// As [`load`], and a checksum that does not match the tensor bytes (a damaged file).
+/// As [`load`], and a checksum that does not match the content (a damaged file).
 pub fn load_checked(path: &Path, model: &Model) -> Result<(Checkpoint, Integrity), CheckpointError> {
     let bytes = std::fs::read(path).map_err(|e| CheckpointError::Io { path: path.to_path_buf(), error: e })?;
     let st = SafeTensors::deserialize(&bytes).map_err(|e| invalid(path, format!("not a safetensors file: {e}")))?;

@@ -505,7 +505,7 @@ impl Model {
             self.encode_intervals(rays, ws);
             let mlp = self.mlp_for_level(level);
             mlp.forward(params, &ws.x, &ws.view, rays.len(), c.num_samples, &mut ws.cache);
-            self.add_density_noise(level, first_ray, mode, ws);
+            self.add_density_noise(level, rays.len(), first_ray, mode, ws);
             self.apply_activations(ws);
             self.render_pixels(rays, &mut per_ray, ws);
             if let Some(out) = out.as_deref_mut() {
@@ -606,15 +606,15 @@ impl Model {
         }
     }
 
-    /// Training only: Gaussian noise of standard deviation `density_noise` on the raw density,
-    /// from each ray's `DensityNoise` stream at this level.
-    fn add_density_noise(&self, level: usize, first_ray: usize, mode: Mode, ws: &mut Workspace) {
+    /// Training only: Gaussian noise of standard deviation `density_noise` on the raw density of
+    /// the `nr` rays, from each ray's `DensityNoise` stream at this level.
+    fn add_density_noise(&self, level: usize, nr: usize, first_ray: usize, mode: Mode, ws: &mut Workspace) {
         let c = &self.config;
         let (Mode::Train { seed, step }, true) = (mode, c.density_noise > 0.0) else {
             return;
         };
         let s = c.num_samples;
-        for r in 0..ws.t.len() / (s + 1) {
+        for r in 0..nr {
             let stream = crate::rng::ray_level_index((first_ray + r) as u32, level as u32);
             let rng = RayRng::new(seed, step, Stream::DensityNoise, stream);
             for i in 0..s {

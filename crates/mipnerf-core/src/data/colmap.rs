@@ -358,14 +358,11 @@ fn read_cameras_txt(path: &Path) -> Result<Vec<ColmapCamera>, DataError> {
             .ok_or_else(|| DataError::invalid(path, format!("line {line}: unknown camera model {name:?}")))?;
         let (width, height) = (field(path, line, t.next(), "the width")?, field(path, line, t.next(), "the height")?);
         let params: Vec<f64> = t.map(|p| finite(path, line, Some(p), "a parameter")).collect::<Result<_, _>>()?;
-        if params.len() != param_count(path, model_id, id)? {
+        let k = param_count(path, model_id, id)?;
+        if params.len() != k {
             return Err(DataError::invalid(
                 path,
-                format!(
-                    "line {line}: {name} takes {} parameters, found {}",
-                    param_count(path, model_id, id)?,
-                    params.len()
-                ),
+                format!("line {line}: {name} takes {k} parameters, found {}", params.len()),
             ));
         }
         out.push(ColmapCamera { id, model_id, width, height, params });
@@ -422,13 +419,6 @@ fn read_points_txt(path: &Path) -> Result<Vec<ColmapPoint>, DataError> {
         out.push(ColmapPoint { xyz, image_ids });
     }
     Ok(out)
-}
-
-/// numpy's default (linear) percentile of sorted values.
-fn percentile(sorted: &[f64], q: f64) -> f64 {
-    let pos = q / 100.0 * (sorted.len() - 1) as f64;
-    let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
-    sorted[lo] + (sorted[hi] - sorted[lo]) * (pos - lo as f64)
 }
 
 /// The `poses_bounds.npy` rows of `model` as `imgs2poses` computes them (see the module docs),
@@ -517,7 +507,7 @@ pub fn poses_bounds(model: &ColmapModel, model_dir: &Path) -> Result<(Vec<[f64; 
             ));
         }
         d.sort_by(f64::total_cmp);
-        let (near, far) = (percentile(d, 0.1), percentile(d, 99.9));
+        let (near, far) = (llff::percentile(d, 0.1), llff::percentile(d, 99.9));
         let (a, b, c, t) = poses[i];
         let hwf = [h, w, f];
         let mut row = [0.0; 17];
@@ -645,14 +635,31 @@ pub fn read_images(
 /// Every [`DataError`] of [`find_model`], [`read_model`], [`poses_bounds`], [`read_images`] and
 /// the LLFF loader.
 pub fn load(dir: &Path, split: Split, factor: u32, spherical: bool) -> Result<Dataset, DataError> {
-    let (model_dir, model_note) = find_model(dir)?;
-    let model = read_model(&model_dir)?;
-    let (rows, names) = poses_bounds(&model, &model_dir)?;
-    let (images, image_note) = read_images(dir, &names, &model.cameras[0], factor)?;
-    let mut ds = llff::from_rows(dir, &model_dir, &rows, images, factor, split, spherical)?;
-    ds.notes.extend(model_note);
-    ds.notes.extend(image_note);
+    let s = Scene::read(dir, factor)?;
+    let mut ds = llff::from_rows(dir, &s.model_dir, &s.rows, s.images, factor, split, spherical)?;
+    ds.notes.extend(s.notes);
     Ok(ds)
+}
+
+/// A COLMAP scene as the LLFF loader takes it: the model's folder, the `poses_bounds` rows and
+/// image names in name order, the images at the chosen factor, and the notes on the choices made.
+struct Scene {
+    model_dir: PathBuf,
+    rows: Vec<[f64; 17]>,
+    names: Vec<String>,
+    images: Vec<LlffImage>,
+    notes: Vec<String>,
+}
+
+impl Scene {
+    /// [`find_model`], [`read_model`], [`poses_bounds`] and [`read_images`], in that order.
+    fn read(dir: &Path, factor: u32) -> Result<Self, DataError> {
+        let (model_dir, model_note) = find_model(dir)?;
+        let model = read_model(&model_dir)?;
+        let (rows, names) = poses_bounds(&model, &model_dir)?;
+        let (images, image_note) = read_images(dir, &names, &model.cameras[0], factor)?;
+        Ok(Self { model_dir, rows, names, images, notes: model_note.into_iter().chain(image_note).collect() })
+    }
 }
 
 /// `mipnerf convert --to llff`: writes `out/poses_bounds.npy` for the COLMAP scene in `input` and
@@ -662,10 +669,7 @@ pub fn load(dir: &Path, split: Split, factor: u32, spherical: bool) -> Result<Da
 /// # Errors
 /// The errors of [`load`]'s steps, and unwritable files.
 pub fn convert_to_llff(input: &Path, out: &Path, factor: u32) -> Result<Vec<String>, DataError> {
-    let (model_dir, _) = find_model(input)?;
-    let model = read_model(&model_dir)?;
-    let (rows, names) = poses_bounds(&model, &model_dir)?;
-    let (images, _) = read_images(input, &names, &model.cameras[0], factor)?;
+    let Scene { rows, names, images, .. } = Scene::read(input, factor)?;
     let folder = if factor > 1 { out.join(format!("images_{factor}")) } else { out.join("images") };
     std::fs::create_dir_all(&folder).map_err(|e| DataError::io(&folder, e))?;
     for (i, im) in images.iter().enumerate() {

@@ -176,13 +176,15 @@ fn resized_shape(file: &Path, w: u32, h: u32, width: u32) -> Result<(u32, u32), 
     Ok((width, (hh / u64::from(w)) as u32))
 }
 
-/// Writes `metadata.json` atomically (a temporary file renamed into place).
+/// Writes `metadata.json` atomically ([`crate::checkpoint::write_atomic`]).
 pub(crate) fn write_metadata(dir: &Path, meta: &Value) -> Result<(), DataError> {
+    use crate::checkpoint::{CheckpointError, RealFs, write_atomic};
     let path = dir.join("metadata.json");
-    let tmp = dir.join("metadata.json.tmp");
     let text = serde_json::to_string_pretty(meta).map_err(|e| DataError::invalid(&path, e.to_string()))?;
-    std::fs::write(&tmp, text).map_err(|e| DataError::io(&tmp, e))?;
-    std::fs::rename(&tmp, &path).map_err(|e| DataError::io(&path, e))
+    write_atomic(&path, text.as_bytes(), &mut RealFs).map_err(|e| match e {
+        CheckpointError::Io { path, error } => DataError::io(&path, error),
+        other => DataError::invalid(&path, other.to_string()),
+    })
 }
 
 fn list<'a>(
