@@ -4,7 +4,9 @@
 //! samples there, as Mip-NeRF's hierarchical sampling should.
 #![allow(clippy::unwrap_used, missing_docs)]
 
-use mipnerf::core::mip::{self, Gaussian, RayShape};
+use mipnerf::core::RayShape;
+use mipnerf::core::cone;
+use mipnerf::core::mip::{self, Gaussian};
 use mipnerf::core::sampling::{PdfSamples, RESAMPLE_PADDING};
 use mipnerf::core::{Camera, PixelCenters, resample_along_rays, sample_along_rays, volumetric_rendering};
 
@@ -43,7 +45,7 @@ fn a_slab_renders_at_its_depth_and_the_fine_level_samples_it() {
     let rgb = vec![[0.8, 0.2, 0.1]; n];
     for ray in &rays {
         sample_along_rays(ray.near, ray.far, false, None, &mut t);
-        mip::cast_ray(&t, ray.origin, ray.direction, ray.radius, RayShape::Cone, &mut gs);
+        cone::cast_ray(&t, ray.origin, ray.direction, ray.radius, RayShape::Cone, &mut gs);
         for g in &gs {
             mip::integrated_pos_enc(g, 0, 16, &mut enc);
             assert!(enc.iter().all(|x| x.is_finite() && x.abs() <= 1.0));
@@ -58,7 +60,7 @@ fn a_slab_renders_at_its_depth_and_the_fine_level_samples_it() {
         resample_along_rays(&t, &w, RESAMPLE_PADDING, PdfSamples::Deterministic, &mut t_fine);
         let near_slab = t_fine.iter().filter(|&&x| (2.6..3.4).contains(&x)).count();
         assert!(near_slab > n / 2, "fine level put only {near_slab} of {} edges near the slab", n + 1);
-        mip::cast_ray(&t_fine, ray.origin, ray.direction, ray.radius, RayShape::Cone, &mut gs);
+        cone::cast_ray(&t_fine, ray.origin, ray.direction, ray.radius, RayShape::Cone, &mut gs);
         let sigma: Vec<f32> = gs.iter().map(density).collect();
         let fine = volumetric_rendering(&rgb, &sigma, &t_fine, ray.direction, true, &mut w);
         assert!((fine.distance - 2.87).abs() < 0.05, "fine depth {}", fine.distance);

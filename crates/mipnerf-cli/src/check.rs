@@ -37,7 +37,7 @@ pub enum CheckBackend {
 /// # Errors
 /// No adapter (for `gpu`), or a stage whose GPU result is outside its tolerance.
 pub fn check(backend: CheckBackend) -> Result<()> {
-    use mipnerf_core::mip::{self, RayShape};
+    use mipnerf_core::{RayShape, cone};
     let choice = match backend {
         CheckBackend::Cpu => {
             println!("the CPU backend is the reference; nothing to compare it with");
@@ -65,7 +65,7 @@ pub fn check(backend: CheckBackend) -> Result<()> {
     }
     let kernel = mipnerf_gpu::kernels::cast_ipe::CastIpeKernel::new(&ctx)?;
     let gpu = kernel.run(&ctx, &rays, &t, n as u32, RayShape::Cone, 0, 16)?;
-    let cpu = mip::cast_and_encode(&rays, &t, n, RayShape::Cone, 0, 16);
+    let cpu = cone::cast_and_encode(&rays, &t, n, RayShape::Cone, 0, 16);
     let max = gpu
         .iter()
         .zip(&cpu)

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 use mipnerf_core::PixelCenters;
-use mipnerf_core::mip::RayShape;
+use mipnerf_core::RayShape;
 use mipnerf_core::model::{ModelConfig, PointEncoding, Preset};
 use mipnerf_core::schedule::LrSchedule;
 use mipnerf_core::train::OptimConfig;

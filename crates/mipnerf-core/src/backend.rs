@@ -7,8 +7,9 @@
 
 use std::sync::Arc;
 
-use crate::camera::{Camera, PixelCenters, Ray};
+use crate::camera::{Camera, PixelCenters};
 use crate::checkpoint::Checkpoint;
+use crate::cone::Ray;
 use crate::data::{Dataset, Ndc, push_camera_rays};
 use crate::model::{LevelOutput, Model};
 use crate::train::{AdamState, OptimConfig, StepReport, Trainer};

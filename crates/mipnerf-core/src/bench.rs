@@ -7,7 +7,8 @@ use std::time::Instant;
 use std::path::{Path, PathBuf};
 
 use crate::backend::{Backend, BackendError, ImageSpec};
-use crate::camera::{Camera, PixelCenters, Ray};
+use crate::camera::{Camera, PixelCenters};
+use crate::cone::Ray;
 use crate::data::{Dataset, Pixels, Split, View, demo};
 use crate::linalg::{Layout, matmul};
 use crate::model::{Model, ModelConfig};

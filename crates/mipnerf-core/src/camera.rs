@@ -1,4 +1,5 @@
-//! Pinhole cameras and the cones cast through their pixels.
+//! Pinhole cameras: pixels to world-space rays. The cone each ray stands for, and its Gaussians,
+//! live in [`crate::cone`].
 //!
 //! Conventions are OpenGL/Blender's: the camera looks down `-z` with `y` up, and `cam2world` maps
 //! camera coordinates to world coordinates. Directions are *not* normalised, so `t` along a ray is
@@ -7,6 +8,7 @@
 use glam::Vec3;
 
 use crate::Error;
+use crate::cone::{Ray, radius_from_spacing};
 
 /// Where a pixel's ray passes through the pixel.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
@@ -56,26 +58,6 @@ pub fn focal_from_camera_angle_x(width: u32, camera_angle_x: f64) -> f64 {
 pub fn pinhole_pix2cam(width: u32, height: u32, focal: f64) -> [[f64; 3]; 3] {
     let (w, h) = (f64::from(width), f64::from(height));
     [[1.0 / focal, 0.0, -0.5 * w / focal], [0.0, -1.0 / focal, 0.5 * h / focal], [0.0, 0.0, -1.0]]
-}
-
-/// One ray (a cone) through one pixel, in the official code's terms.
-#[derive(Clone, Copy, Debug, PartialEq, Default)]
-pub struct Ray {
-    /// Camera centre in world space.
-    pub origin: Vec3,
-    /// Unnormalised direction: `t = 1` lies on the image plane at unit depth.
-    pub direction: Vec3,
-    /// `direction` normalised.
-    pub viewdir: Vec3,
-    /// Cone radius at `t = 1`: the spacing to the neighbouring pixel's direction times
-    /// `2/sqrt(12)`, so that the cone's cross-section has the pixel footprint's variance.
-    pub radius: f32,
-    /// Loss weight of this ray (`4^j` at scale `j` of a multiscale dataset: its footprint area).
-    pub lossmult: f32,
-    /// Near bound along the ray.
-    pub near: f32,
-    /// Far bound along the ray.
-    pub far: f32,
 }
 
 fn check_finite(what: &str, values: impl IntoIterator<Item = f64>) -> Result<(), Error> {
@@ -175,7 +157,7 @@ impl Camera {
             origin: Vec3::new(o[0] as f32, o[1] as f32, o[2] as f32),
             direction: Vec3::new(d[0] as f32, d[1] as f32, d[2] as f32),
             viewdir: Vec3::new((d[0] / n) as f32, (d[1] / n) as f32, (d[2] / n) as f32),
-            radius: (spacing * 2.0 / 12f64.sqrt()) as f32,
+            radius: radius_from_spacing(spacing),
             lossmult,
             near,
             far,

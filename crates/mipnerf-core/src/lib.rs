@@ -6,7 +6,7 @@
 //! code (see `tests/golden.rs`).
 //!
 //! The data flow of one ray, in the paper's words:
-//! 1. [`camera`]: a pixel becomes a cone ([`camera::Ray`]: origin, direction, radius).
+//! 1. [`camera`] and [`cone`]: a pixel becomes a cone ([`cone::Ray`]: origin, direction, radius).
 //! 2. [`sampling::sample_along_rays`]: interval edges `t` along the cone (stratified in training).
 //! 3. [`mip::conical_frustum_to_gaussian`]: each interval becomes a Gaussian (mean, diagonal
 //!    covariance), and [`mip::integrated_pos_enc`] encodes it (the IPE features fed to the MLP).
@@ -23,6 +23,7 @@ pub mod backend;
 pub mod bench;
 pub mod camera;
 pub mod checkpoint;
+pub mod cone;
 pub mod data;
 pub mod linalg;
 pub mod lpips;
@@ -36,10 +37,11 @@ pub mod sampling;
 pub mod schedule;
 pub mod train;
 
-pub use camera::{Camera, PixelCenters, Ray};
+pub use camera::{Camera, PixelCenters};
+pub use cone::{Ray, RayShape, cast_ray, radius_from_spacing};
 pub use mip::{
-    FrustumMoments, Gaussian, RayShape, cast_ray, conical_frustum_to_gaussian, cylinder_to_gaussian,
-    integrated_pos_enc, lift_gaussian, pos_enc,
+    FrustumMoments, Gaussian, conical_frustum_to_gaussian, cylinder_to_gaussian, integrated_pos_enc, lift_gaussian,
+    pos_enc,
 };
 pub use render::{RenderedRay, volumetric_rendering, volumetric_rendering_backward};
 pub use sampling::{PdfSamples, resample_along_rays, sample_along_rays, sorted_piecewise_constant_pdf};

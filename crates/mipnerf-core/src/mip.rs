@@ -9,18 +9,6 @@
 
 use glam::{Mat3, Vec3};
 
-/// The shape cast through each pixel: a cone (Mip-NeRF) or a cylinder (used with NDC rays).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-#[repr(u32)]
-pub enum RayShape {
-    /// A cone whose radius grows linearly with `t`: radius `t * base_radius`.
-    #[default]
-    Cone = 0,
-    /// A cylinder of constant radius (the official choice for forward-facing NDC scenes).
-    Cylinder = 1,
-}
-
 /// The moments of a frustum along and across its ray, before lifting to world space.
 ///
 /// `t_mean` is the mean distance along the ray (in units of the ray's direction vector),
@@ -134,23 +122,6 @@ pub fn conical_frustum_to_gaussian(d: Vec3, t0: f32, t1: f32, base_radius: f32) 
 #[inline]
 pub fn cylinder_to_gaussian(d: Vec3, t0: f32, t1: f32, radius: f32) -> Gaussian {
     lift_gaussian(d, cylinder_moments(t0, t1, radius))
-}
-
-/// Casts one ray: the Gaussian of every interval between consecutive `t_vals` (`n + 1` edges give
-/// `n` Gaussians, written to `out`), in world space (origin added).
-///
-/// # Panics
-/// If `out.len() + 1 != t_vals.len()`.
-pub fn cast_ray(t_vals: &[f32], origin: Vec3, direction: Vec3, radius: f32, shape: RayShape, out: &mut [Gaussian]) {
-    assert_eq!(out.len() + 1, t_vals.len(), "cast_ray: need one more t value than Gaussians");
-    for (g, t) in out.iter_mut().zip(t_vals.windows(2)) {
-        let mut lifted = match shape {
-            RayShape::Cone => conical_frustum_to_gaussian(direction, t[0], t[1], radius),
-            RayShape::Cylinder => cylinder_to_gaussian(direction, t[0], t[1], radius),
-        };
-        lifted.mean += origin;
-        *g = lifted;
-    }
 }
 
 /// `100 π` in `f32`: the official code reduces sine arguments at or above this magnitude.
@@ -278,42 +249,6 @@ pub fn integrated_pos_enc(g: &Gaussian, min_deg: u32, max_deg: u32, out: &mut [f
         *s = d * safe_sin(*s);
         *c = d * safe_sin(*c);
     }
-}
-
-/// Casts every ray's intervals (`t_vals`: `n_samples + 1` edges per ray, row-major) and encodes
-/// them with [`integrated_pos_enc`]: `rays.len() * n_samples * ipe_len(min_deg, max_deg)` features,
-/// sample after sample. This is what the GPU's `cast_ipe` kernel computes.
-///
-/// # Panics
-/// If `t_vals.len() != rays.len() * (n_samples + 1)`.
-#[must_use]
-pub fn cast_and_encode(
-    rays: &[crate::camera::Ray],
-    t_vals: &[f32],
-    n_samples: usize,
-    shape: RayShape,
-    min_deg: u32,
-    max_deg: u32,
-) -> Vec<f32> {
-    assert_eq!(t_vals.len(), rays.len() * (n_samples + 1), "cast_and_encode: t values");
-    let len = ipe_len(min_deg, max_deg);
-    let mut out = vec![0.0; rays.len() * n_samples * len];
-    let mut gs = vec![Gaussian::default(); n_samples];
-    for (r, ray) in rays.iter().enumerate() {
-        cast_ray(
-            &t_vals[r * (n_samples + 1)..(r + 1) * (n_samples + 1)],
-            ray.origin,
-            ray.direction,
-            ray.radius,
-            shape,
-            &mut gs,
-        );
-        for (s, g) in gs.iter().enumerate() {
-            let i = r * n_samples + s;
-            integrated_pos_enc(g, min_deg, max_deg, &mut out[i * len..(i + 1) * len]);
-        }
-    }
-    out
 }
 
 /// Number of features [`pos_enc`] writes for a 3-D vector.

@@ -13,8 +13,8 @@
 use glam::Vec3;
 use rayon::prelude::*;
 
-use crate::camera::Ray;
-use crate::mip::{self, Gaussian, RayShape};
+use crate::cone::{self, Ray, RayShape};
+use crate::mip::{self, Gaussian};
 use crate::mlp::{MlpCache, MlpConfig, MlpConfigError, MlpShape};
 use crate::render::{self, DensityActivation};
 use crate::rng::{RayRng, Stream};
@@ -584,14 +584,14 @@ impl Model {
         std::mem::swap(&mut ws.t, &mut ws.t_next);
     }
 
-    /// Each interval's conical frustum (or cylinder) as a Gaussian ([`mip::cast_ray`]), encoded
+    /// Each interval's conical frustum (or cylinder) as a Gaussian ([`cone::cast_ray`]), encoded
     /// by the configured point encoding: IPE, PE of the mean ("w/o IPE"), or NeRF's PE.
     fn encode_intervals(&self, rays: &[Ray], ws: &mut Workspace) {
         let c = &self.config;
         let (s, x_dim) = (c.num_samples, c.x_dim());
         for (r, ray) in rays.iter().enumerate() {
             let t = &ws.t[r * (s + 1)..(r + 1) * (s + 1)];
-            mip::cast_ray(t, ray.origin, ray.direction, ray.radius, c.ray_shape, &mut ws.gauss);
+            cone::cast_ray(t, ray.origin, ray.direction, ray.radius, c.ray_shape, &mut ws.gauss);
             for (i, g) in ws.gauss.iter().enumerate() {
                 let dst = &mut ws.x[(r * s + i) * x_dim..(r * s + i + 1) * x_dim];
                 match c.point_encoding {

@@ -2,7 +2,7 @@
 
 use rayon::prelude::*;
 
-use crate::camera::Ray;
+use crate::cone::Ray;
 use crate::model::{GradScratch, LossStats, Mode, Model};
 use crate::schedule::LrSchedule;
 

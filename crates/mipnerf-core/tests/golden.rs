@@ -5,11 +5,12 @@
 mod common;
 use common::*;
 use glam::Vec3;
-use mipnerf_core::mip::{self, FrustumMoments, Gaussian, RayShape};
+use mipnerf_core::mip::{self, FrustumMoments, Gaussian};
 use mipnerf_core::render::volumetric_rendering;
 use mipnerf_core::sampling::{self, PdfSamples, RESAMPLE_PADDING};
 use mipnerf_core::schedule::LrSchedule;
 use mipnerf_core::{Camera, PixelCenters};
+use mipnerf_core::{RayShape, cone};
 
 fn moments_vec(m: FrustumMoments) -> [f32; 3] {
     [m.t_mean, m.t_var, m.r_var]
@@ -79,7 +80,7 @@ fn rows(v: &serde_json::Value) -> Vec<Vec<f32>> {
 
 fn cast(t: &[f32], o: Vec3, d: Vec3, r: f32, shape: RayShape) -> (Vec<f32>, Vec<f32>) {
     let mut gs = vec![Gaussian::default(); t.len() - 1];
-    mip::cast_ray(t, o, d, r, shape, &mut gs);
+    cone::cast_ray(t, o, d, r, shape, &mut gs);
     (gs.iter().flat_map(|g| g.mean.to_array()).collect(), gs.iter().flat_map(|g| g.cov_diag.to_array()).collect())
 }
 

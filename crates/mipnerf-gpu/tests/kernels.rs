@@ -2,10 +2,11 @@
 #![allow(clippy::unwrap_used, missing_docs)]
 
 use glam::Vec3;
-use mipnerf_core::mip::{self, RayShape};
+use mipnerf_core::RayShape;
 use mipnerf_core::rng::{RayRng, Stream};
 use mipnerf_core::sampling::sample_along_rays;
 use mipnerf_core::{Camera, PixelCenters, Ray};
+use mipnerf_core::{cone, mip};
 use mipnerf_gpu::kernels::cast_ipe::CastIpeKernel;
 use mipnerf_gpu::test_support::context_or_skip;
 
@@ -39,7 +40,7 @@ fn cast_ipe_matches_cpu_reference() {
     }
     for shape in [RayShape::Cone, RayShape::Cylinder] {
         let gpu = kernel.run(&ctx, &rays, &t, n as u32, shape, 0, 16).unwrap();
-        let cpu = mip::cast_and_encode(&rays, &t, n, shape, 0, 16);
+        let cpu = cone::cast_and_encode(&rays, &t, n, shape, 0, 16);
         assert_eq!(gpu.len(), cpu.len());
         let bad: Vec<String> = gpu
             .iter()

@@ -14,7 +14,8 @@ use std::path::Path;
 use glam::{DMat3, DVec3};
 
 use super::{DataError, Dataset, Ndc, Pixels, Split, View, read_png_rgba};
-use crate::camera::{Camera, PixelCenters, Ray, pinhole_pix2cam};
+use crate::camera::{Camera, PixelCenters, pinhole_pix2cam};
+use crate::cone::{Ray, radius_from_spacing};
 
 /// Every `LLFF_HOLD`-th image is a test image.
 pub const LLFF_HOLD: usize = 8;
@@ -373,7 +374,7 @@ pub fn ndc_ray(camera: &Camera, x: u32, y: u32, centers: PixelCenters, ndc: Ndc,
         origin: o.as_vec3(),
         direction: d.as_vec3(),
         viewdir: world.direction,
-        radius: (spacing * 2.0 / 12f64.sqrt()) as f32,
+        radius: radius_from_spacing(spacing),
         lossmult: 1.0,
         near: world.near,
         far: world.far,

@@ -21,7 +21,8 @@ pub mod multiscale;
 
 use std::path::{Path, PathBuf};
 
-use crate::camera::{Camera, PixelCenters, Ray};
+use crate::camera::{Camera, PixelCenters};
+use crate::cone::Ray;
 use crate::rng::{RayRng, Stream};
 
 /// A problem with a dataset's files. Every variant names the file and says what is wrong.

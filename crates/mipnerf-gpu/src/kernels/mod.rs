@@ -16,7 +16,7 @@ pub const RNG_SOURCE: &str = include_str!("../../../../shaders/rng.wgsl");
 /// ids and stride, and the pixel formats.
 #[must_use]
 pub fn prelude() -> String {
-    use mipnerf_core::mip::RayShape;
+    use mipnerf_core::RayShape;
     use mipnerf_core::model::PointEncoding;
     use mipnerf_core::render::DensityActivation;
     use mipnerf_core::rng::{RAY_LEVEL_STRIDE, Stream};

@@ -1,0 +1,109 @@
+//! Cone casting (section 3.1 of the Mip-NeRF paper), in one place: a pixel becomes a cone
+//! ([`Ray`]: apex at the camera centre, axis through the pixel, radius at the image plane from the
+//! pixel's footprint, [`radius_from_spacing`]), and the cone's intervals between sample edges
+//! become Gaussians ([`cast_ray`], with the frustum maths of [`crate::mip`]), then IPE features
+//! ([`cast_and_encode`]).
+//!
+//! Where the rays come from: [`crate::camera::Camera::ray_at`] (pinhole cameras),
+//! [`crate::data::llff::ndc_ray`] (forward-facing scenes in NDC) and the sub-pixel cones of
+//! supersampling ([`crate::data`]); all of them take their radius from [`radius_from_spacing`].
+
+use glam::Vec3;
+
+use crate::mip::{Gaussian, conical_frustum_to_gaussian, cylinder_to_gaussian, integrated_pos_enc, ipe_len};
+
+/// One ray (a cone) through one pixel, in the official code's terms.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct Ray {
+    /// Camera centre in world space.
+    pub origin: Vec3,
+    /// Unnormalised direction: `t = 1` lies on the image plane at unit depth.
+    pub direction: Vec3,
+    /// `direction` normalised.
+    pub viewdir: Vec3,
+    /// Cone radius at `t = 1`: the spacing to the neighbouring pixel's direction times
+    /// `2/sqrt(12)`, so that the cone's cross-section has the pixel footprint's variance.
+    pub radius: f32,
+    /// Loss weight of this ray (`4^j` at scale `j` of a multiscale dataset: its footprint area).
+    pub lossmult: f32,
+    /// Near bound along the ray.
+    pub near: f32,
+    /// Far bound along the ray.
+    pub far: f32,
+}
+
+/// The cone's radius at `t = 1` for a pixel whose neighbouring rays' directions are `spacing`
+/// apart at `t = 1` (world units): `spacing * 2/sqrt(12)`, so that the cone's cross-section has the
+/// variance of the pixel's square footprint (the official code's `dx * 2 / sqrt(12)`). Computed in
+/// `f64` and rounded to `f32` once.
+#[must_use]
+#[inline]
+pub fn radius_from_spacing(spacing: f64) -> f32 {
+    debug_assert!(spacing.is_finite(), "radius_from_spacing: non-finite spacing {spacing}");
+    (spacing * 2.0 / 12f64.sqrt()) as f32
+}
+
+/// The shape cast through each pixel: a cone (Mip-NeRF) or a cylinder (used with NDC rays).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+#[repr(u32)]
+pub enum RayShape {
+    /// A cone whose radius grows linearly with `t`: radius `t * base_radius`.
+    #[default]
+    Cone = 0,
+    /// A cylinder of constant radius (the official choice for forward-facing NDC scenes).
+    Cylinder = 1,
+}
+
+/// Casts one ray: the Gaussian of every interval between consecutive `t_vals` (`n + 1` edges give
+/// `n` Gaussians, written to `out`), in world space (origin added).
+///
+/// # Panics
+/// If `out.len() + 1 != t_vals.len()`.
+pub fn cast_ray(t_vals: &[f32], origin: Vec3, direction: Vec3, radius: f32, shape: RayShape, out: &mut [Gaussian]) {
+    assert_eq!(out.len() + 1, t_vals.len(), "cast_ray: need one more t value than Gaussians");
+    for (g, t) in out.iter_mut().zip(t_vals.windows(2)) {
+        let mut lifted = match shape {
+            RayShape::Cone => conical_frustum_to_gaussian(direction, t[0], t[1], radius),
+            RayShape::Cylinder => cylinder_to_gaussian(direction, t[0], t[1], radius),
+        };
+        lifted.mean += origin;
+        *g = lifted;
+    }
+}
+
+/// Casts every ray's intervals (`t_vals`: `n_samples + 1` edges per ray, row-major) and encodes
+/// them with [`integrated_pos_enc`]: `rays.len() * n_samples * ipe_len(min_deg, max_deg)` features,
+/// sample after sample. This is what the GPU's `cast_ipe` kernel computes.
+///
+/// # Panics
+/// If `t_vals.len() != rays.len() * (n_samples + 1)`.
+#[must_use]
+pub fn cast_and_encode(
+    rays: &[Ray],
+    t_vals: &[f32],
+    n_samples: usize,
+    shape: RayShape,
+    min_deg: u32,
+    max_deg: u32,
+) -> Vec<f32> {
+    assert_eq!(t_vals.len(), rays.len() * (n_samples + 1), "cast_and_encode: t values");
+    let len = ipe_len(min_deg, max_deg);
+    let mut out = vec![0.0; rays.len() * n_samples * len];
+    let mut gs = vec![Gaussian::default(); n_samples];
+    for (r, ray) in rays.iter().enumerate() {
+        cast_ray(
+            &t_vals[r * (n_samples + 1)..(r + 1) * (n_samples + 1)],
+            ray.origin,
+            ray.direction,
+            ray.radius,
+            shape,
+            &mut gs,
+        );
+        for (s, g) in gs.iter().enumerate() {
+            let i = r * n_samples + s;
+            integrated_pos_enc(g, min_deg, max_deg, &mut out[i * len..(i + 1) * len]);
+        }
+    }
+    out
+}
