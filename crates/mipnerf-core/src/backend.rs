@@ -18,18 +18,34 @@ use crate::train::{AdamState, OptimConfig, StepReport, Trainer};
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum BackendError {
-    /// The backend does not implement this configuration (e.g. a GPU and NeRF's supersampling).
-    #[error("{0}")]
-    Unsupported(String),
+    /// The backend does not implement this configuration.
+    #[error(transparent)]
+    Unsupported(#[from] Unsupported),
     /// Training was asked of a backend made without training data.
     #[error("this backend holds no training data (it was made for rendering only)")]
     NoData,
     /// The inputs disagree with the model (sizes, parameter counts).
     #[error("{0}")]
     Invalid(String),
-    /// The device failed (validation error, lost device, out of memory).
-    #[error("{0}")]
-    Device(String),
+    /// The device ran out of memory (the device's own error, shown as is).
+    #[error(transparent)]
+    OutOfMemory(Box<dyn std::error::Error + Send + Sync>),
+    /// The device was lost: driver reset, device removed (the device's own error, shown as is).
+    #[error(transparent)]
+    DeviceLost(Box<dyn std::error::Error + Send + Sync>),
+    /// Any other failure of the device (a rejected command, a failed wait or readback), with the
+    /// device's own error as the source.
+    #[error(transparent)]
+    Device(Box<dyn std::error::Error + Send + Sync>),
+}
+
+/// A configuration a backend does not run, named.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum Unsupported {
+    /// Supersampling of forward-facing (NDC) data.
+    #[error("{NDC_SUPERSAMPLE}")]
+    NdcSupersample,
 }
 
 /// A full image to render: its camera and how its pixels become rays.
@@ -227,10 +243,10 @@ impl TrainState {
 /// CPU and GPU backends, images and the CLI.
 ///
 /// # Errors
-/// [`BackendError::Unsupported`] with [`NDC_SUPERSAMPLE`].
+/// [`BackendError::Unsupported`] with [`Unsupported::NdcSupersample`].
 pub fn check_ndc_supersample(ndc: Option<Ndc>, supersample: usize) -> Result<(), BackendError> {
     if ndc.is_some() && supersample > 1 {
-        return Err(BackendError::Unsupported(NDC_SUPERSAMPLE.into()));
+        return Err(Unsupported::NdcSupersample.into());
     }
     Ok(())
 }

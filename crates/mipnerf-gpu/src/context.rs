@@ -77,8 +77,13 @@ pub fn list_adapters() -> Vec<AdapterSummary> {
 /// Errors that wgpu reported asynchronously (validation, out of memory, device loss).
 #[derive(Default)]
 struct ErrorSink {
-    errors: Vec<String>,
-    lost: Option<String>,
+    errors: Vec<wgpu::Error>,
+    lost: Option<(wgpu::DeviceLostReason, String)>,
+}
+
+/// The sink, even if a callback panicked while holding it (its contents are still valid).
+fn lock(sink: &Mutex<ErrorSink>) -> std::sync::MutexGuard<'_, ErrorSink> {
+    sink.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
 /// The device and queue every kernel runs on, with the adapter they came from.
@@ -125,7 +130,7 @@ impl GpuContext {
             memory_hints: wgpu::MemoryHints::Performance,
             trace: wgpu::Trace::Off,
         }))
-        .map_err(|e| GpuError::Device(format!("{}: {e}", info.name)))?;
+        .map_err(|source| GpuError::RequestDevice { adapter: info.name.clone(), source })?;
         Self::from_device(&info, device, queue)
     }
 
@@ -138,47 +143,49 @@ impl GpuContext {
     /// with the limit).
     ///
     /// # Errors
-    /// [`GpuError::Device`] when the device allows too few storage buffers per stage.
+    /// [`GpuError::UnsupportedLimit`] when the device allows too few storage buffers per stage.
     pub fn from_device(info: &wgpu::AdapterInfo, device: wgpu::Device, queue: wgpu::Queue) -> Result<Self, GpuError> {
         let have = device.limits().max_storage_buffers_per_shader_stage;
         if have < MIN_STORAGE_BUFFERS_PER_STAGE {
-            return Err(GpuError::Device(format!(
-                "{}: the device allows {have} storage buffers per shader stage; mipnerf's kernels need \
-                 {MIN_STORAGE_BUFFERS_PER_STAGE}: set required_limits.max_storage_buffers_per_shader_stage when \
-                 requesting it",
-                info.name
-            )));
+            return Err(GpuError::UnsupportedLimit {
+                adapter: info.name.clone(),
+                limit: "storage buffers per shader stage",
+                have: u64::from(have),
+                need: u64::from(MIN_STORAGE_BUFFERS_PER_STAGE),
+            });
         }
         let sink = Arc::new(Mutex::new(ErrorSink::default()));
         let s = Arc::clone(&sink);
         device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
-            if let Ok(mut g) = s.lock() {
-                g.errors.push(e.to_string());
-            }
+            lock(&s).errors.push(e);
         }));
         let s = Arc::clone(&sink);
         device.set_device_lost_callback(move |reason, msg| {
-            if let Ok(mut g) = s.lock() {
-                g.lost = Some(format!("{reason:?}: {msg}"));
-            }
+            lock(&s).lost = Some((reason, msg));
         });
         Ok(Self { adapter: AdapterSummary::from_info(info), device, queue, sink })
     }
 
     /// Returns the first error wgpu reported since the last check, if any, and clears the list.
+    /// A lost device is reported before anything else, then the first out-of-memory error, then
+    /// the first other error.
     ///
     /// # Errors
-    /// [`GpuError::DeviceLost`] or [`GpuError::Validation`].
+    /// [`GpuError::DeviceLost`], [`GpuError::OutOfMemory`] or [`GpuError::Wgpu`].
     pub fn check(&self) -> Result<(), GpuError> {
-        let mut g = self.sink.lock().map_err(|_| GpuError::Validation("error sink poisoned".into()))?;
-        if let Some(l) = &g.lost {
-            return Err(GpuError::DeviceLost(l.clone()));
+        let mut g = lock(&self.sink);
+        if let Some((reason, message)) = &g.lost {
+            return Err(GpuError::DeviceLost { reason: *reason, message: message.clone() });
         }
-        if !g.errors.is_empty() {
-            let all = std::mem::take(&mut g.errors).join("\n");
-            return Err(GpuError::Validation(all));
+        let mut errors = std::mem::take(&mut g.errors);
+        if errors.is_empty() {
+            return Ok(());
         }
-        Ok(())
+        if let Some(i) = errors.iter().position(|e| matches!(e, wgpu::Error::OutOfMemory { .. })) {
+            return Err(GpuError::OutOfMemory(errors.swap_remove(i)));
+        }
+        let more = errors.len() - 1;
+        Err(GpuError::Wgpu { first: errors.swap_remove(0), more })
     }
 
     /// The most bytes one storage buffer binding may hold on this device (the smaller of the
@@ -241,14 +248,11 @@ impl GpuContext {
         staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::DeviceLost(format!("while waiting for the GPU: {e}")))?;
+        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(GpuError::Poll)?;
         self.check()?;
-        rx.recv()
-            .map_err(|_| GpuError::Validation("readback callback never ran".into()))?
-            .map_err(|e| GpuError::Validation(format!("readback map failed: {e}")))?;
-        let view = staging.get_mapped_range(..).map_err(|e| GpuError::Validation(format!("readback range: {e}")))?;
+        // The wait above ran every callback: a missing result means the map was dropped unanswered.
+        rx.recv().unwrap_or(Err(wgpu::BufferAsyncError)).map_err(GpuError::Readback)?;
+        let view = staging.get_mapped_range(..).map_err(|_| GpuError::Readback(wgpu::BufferAsyncError))?;
         let out = bytemuck::cast_slice::<u8, f32>(&view)[..len].to_vec();
         drop(view);
         staging.unmap();

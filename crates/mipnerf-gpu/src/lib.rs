@@ -23,6 +23,8 @@ pub use select::{BackendChoice, BackendSetup, OpenError, OpenedBackend, open_bac
 pub use trainer::GpuBackend;
 
 /// Errors of the GPU backend. None of them is a panic: a missing or lost device is an error value.
+/// Each variant keeps wgpu's own error as its [`source`](std::error::Error::source) where wgpu gave
+/// one, so `{:#}` (or anyhow's chain) prints what the driver said.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum GpuError {
@@ -37,15 +39,57 @@ pub enum GpuError {
         /// Whether software adapters were excluded.
         hardware_only: bool,
     },
-    /// The device could not be created.
-    #[error("could not open the GPU device: {0}")]
-    Device(String),
-    /// The device was lost (driver reset, GPU removed).
-    #[error("the GPU device was lost: {0}")]
-    DeviceLost(String),
-    /// wgpu rejected a shader, pipeline, buffer or command.
-    #[error("GPU validation error: {0}")]
-    Validation(String),
+    /// The adapter refused to create a device.
+    #[error("could not open the GPU device on {adapter}")]
+    RequestDevice {
+        /// The adapter's name.
+        adapter: String,
+        /// What wgpu said.
+        #[source]
+        source: wgpu::RequestDeviceError,
+    },
+    /// The device's limits are below what the kernels need: an unsupported configuration.
+    #[error(
+        "{adapter}: the device allows {have} {limit}; mipnerf's kernels need {need} (when you create the \
+         device yourself, request it in required_limits)"
+    )]
+    UnsupportedLimit {
+        /// The adapter's name.
+        adapter: String,
+        /// The limit, in words (e.g. "storage buffers per shader stage").
+        limit: &'static str,
+        /// What the device allows.
+        have: u64,
+        /// What the kernels need.
+        need: u64,
+    },
+    /// The device was lost (driver reset, GPU removed, device destroyed).
+    #[error("the GPU device was lost ({reason:?}): {message}")]
+    DeviceLost {
+        /// wgpu's reason.
+        reason: wgpu::DeviceLostReason,
+        /// The driver's message.
+        message: String,
+    },
+    /// The device ran out of memory while making a buffer or running work.
+    #[error("the GPU ran out of memory")]
+    OutOfMemory(#[source] wgpu::Error),
+    /// wgpu rejected a shader, pipeline, buffer or command (validation), or failed internally.
+    /// `more` counts further errors reported with it.
+    #[error("wgpu reported an error{}", if *more > 0 { format!(" ({more} more after it)") } else { String::new() })]
+    Wgpu {
+        /// The first error wgpu reported.
+        #[source]
+        first: wgpu::Error,
+        /// How many more it reported since the last check.
+        more: usize,
+    },
+    /// Waiting for the device failed.
+    #[error("waiting for the GPU failed")]
+    Poll(#[source] wgpu::PollError),
+    /// Reading a buffer back to the host failed.
+    #[error("reading a GPU buffer back failed")]
+    Readback(#[source] wgpu::BufferAsyncError),
     /// The caller's inputs are inconsistent.
     #[error("invalid input to a GPU kernel: {0}")]
     InvalidInput(String),

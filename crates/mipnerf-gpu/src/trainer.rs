@@ -40,7 +40,9 @@ impl From<GpuError> for BackendError {
     fn from(e: GpuError) -> Self {
         match e {
             GpuError::InvalidInput(m) => Self::Invalid(m),
-            other => Self::Device(other.to_string()),
+            e @ GpuError::OutOfMemory(_) => Self::OutOfMemory(Box::new(e)),
+            e @ GpuError::DeviceLost { .. } => Self::DeviceLost(Box::new(e)),
+            other => Self::Device(Box::new(other)),
         }
     }
 }
@@ -272,9 +274,7 @@ impl GpuBackend {
         if !report {
             self.in_flight += 1;
             if self.in_flight >= MAX_STEPS_IN_FLIGHT {
-                ctx.device
-                    .poll(wgpu::PollType::wait_indefinitely())
-                    .map_err(|e| GpuError::DeviceLost(format!("while waiting for the GPU: {e}")))?;
+                ctx.device.poll(wgpu::PollType::wait_indefinitely()).map_err(GpuError::Poll)?;
                 self.in_flight = 0;
             }
             ctx.check()?;
@@ -370,5 +370,37 @@ impl Backend for GpuBackend {
     fn render_image(&mut self, image: &ImageSpec) -> Result<Vec<LevelOutput>, BackendError> {
         image.check_for(&self.model)?;
         Ok(self.render_all(image)?)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::error::Error as _;
+
+    use super::*;
+
+    /// A device error becomes the backend error of its kind, and keeps wgpu's error as the source.
+    #[test]
+    fn gpu_errors_map_to_typed_backend_errors_and_keep_their_source() {
+        let oom = GpuError::OutOfMemory(wgpu::Error::OutOfMemory {
+            source: Box::new(std::io::Error::other("vkAllocateMemory failed")),
+        });
+        let e = BackendError::from(oom);
+        assert!(matches!(e, BackendError::OutOfMemory(_)), "{e:?}");
+        assert_eq!(e.to_string(), "the GPU ran out of memory");
+        let wgpu_err = e.source().expect("the wgpu error is kept as the source");
+        assert!(wgpu_err.to_string().contains("Out of Memory") || wgpu_err.source().is_some(), "{wgpu_err}");
+
+        let lost = GpuError::DeviceLost { reason: wgpu::DeviceLostReason::Unknown, message: "reset".into() };
+        let e = BackendError::from(lost);
+        assert!(matches!(e, BackendError::DeviceLost(_)), "{e:?}");
+        assert!(e.to_string().contains("reset"), "{e}");
+
+        let e = BackendError::from(GpuError::InvalidInput("3 rays in buffers for 2".into()));
+        assert!(matches!(e, BackendError::Invalid(ref m) if m == "3 rays in buffers for 2"), "{e:?}");
+
+        let e = BackendError::from(GpuError::Poll(wgpu::PollError::Timeout));
+        assert!(matches!(e, BackendError::Device(_)), "{e:?}");
+        assert!(e.source().is_some(), "the poll error is kept as the source: {e:?}");
     }
 }
