@@ -37,6 +37,7 @@
 //!     optim: OptimConfig::default(),
 //!     seed: 0,
 //!     data: Some((Arc::clone(&data), 64)),
+//!     render_chunk: None,
 //! };
 //! let opened = open_backend(BackendChoice::Auto, setup)?;
 //! if let Some(why) = &opened.fallback {

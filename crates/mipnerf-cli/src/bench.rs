@@ -66,7 +66,7 @@ pub fn bench(a: &BenchArgs) -> Result<()> {
     println!(
         "preset {:?} ({} parameters), batches of {} rays, {} timed steps, render {s}x{s}",
         a.preset,
-        model.num_params,
+        model.num_params(),
         a.batch,
         a.steps,
         s = a.render_side
@@ -79,6 +79,7 @@ pub fn bench(a: &BenchArgs) -> Result<()> {
             seed: 0,
             state: TrainState::fresh(&model, 0),
             data: Some((Arc::clone(&ds), a.batch)),
+            render_chunk: None,
         };
         let mut b = backend::open(choice, setup)?;
         let r = backend_throughput(b.as_mut(), a.batch, a.steps, a.render_side)

@@ -84,7 +84,7 @@ fn model_step(ctx: &GpuContext, rays: &[Ray]) -> Result<()> {
     let params = model.init_params(1);
     let targets: Vec<[f32; 3]> = (0..rays.len()).map(|i| [(i % 5) as f32 / 5.0, 0.5, (i % 3) as f32 / 3.0]).collect();
     let mode = Mode::Train { seed: 1, step: 0 };
-    let mut grads = vec![0.0; model.num_params];
+    let mut grads = vec![0.0; model.num_params()];
     let cpu = model.loss_and_grad(&params, rays, &targets, mode, &mut grads);
     let gpu = mipnerf_gpu::model::GpuModel::new(ctx)?;
     let (stats, g) = gpu.loss_and_grad(ctx, &model, &params, rays, &targets, mode)?;
@@ -99,7 +99,7 @@ fn model_step(ctx: &GpuContext, rays: &[Ray]) -> Result<()> {
         "model step ({} rays, tiny preset, {} parameters): loss cpu {:.6} gpu {:.6} (relative {loss_rel:.1e}); \
          max gradient difference {grad_rel:.1e} of the largest gradient",
         rays.len(),
-        model.num_params,
+        model.num_params(),
         cpu.loss,
         stats.loss
     );
@@ -141,7 +141,7 @@ fn training(ctx: GpuContext) -> Result<()> {
     let mut worst = 0.0f32;
     let mut losses = Vec::new();
     for _ in 0..steps {
-        let c = cpu.train_step(true)?.context("the CPU reports every step")?;
+        let c = cpu.train_step(true)?.context("the CPU reports when asked")?;
         let g = gpu.train_step(true)?.context("the GPU reports when asked")?;
         let rel = (g.stats.loss - c.stats.loss).abs() / c.stats.loss.abs().max(1e-12);
         worst = worst.max(if rel.is_nan() { f32::INFINITY } else { rel });

@@ -130,13 +130,13 @@ pub fn eval(run: &Path, split: Split, backend: Backend, weights: &LpipsWeights) 
     let (mut be, step) = open_trained(run, &s, backend)?;
     let out = run.join("eval");
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-    let k = be.model().config.supersample;
-    let levels = be.model().config.num_levels;
+    let k = be.model().config().supersample;
+    let levels = be.model().config().num_levels;
     let mut per_image = Vec::new();
     let mut entries = Vec::new();
-    let mut pb = crate::progress::Progress::new("eval", 0, ds.views.len() as u64);
-    for v in 0..ds.views.len() {
-        let view = &ds.views[v];
+    let mut pb = crate::progress::Progress::new("eval", 0, ds.views().len() as u64);
+    for v in 0..ds.views().len() {
+        let view = &ds.views()[v];
         let (w, h) = (view.camera.width as usize, view.camera.height as usize);
         let image = ImageSpec::of_view(&ds, v, k);
         let rendered: Vec<[f32; 3]> = be

@@ -304,7 +304,7 @@ fn run_row(
         avg_error_terms: m.avg_error_terms.iter().map(|s| (*s).to_string()).collect(),
         train_seconds: run::train_seconds(run_dir).unwrap_or(f64::NAN),
         eval_seconds: t.elapsed().as_secs_f64(),
-        params: model.num_params,
+        params: model.num_params(),
         steps,
         commit: commit().to_string(),
         cpu: cpu_name(),

@@ -46,7 +46,7 @@ fn path_cameras(train: &Dataset, test: Option<&Dataset>, kind: PathKind, frames:
         let n = t.render_path.len();
         return Ok((0..frames).map(|i| t.render_path[i * n / frames].clone()).collect());
     }
-    let full: Vec<&Camera> = train.views.iter().filter(|v| v.scale == 0).map(|v| &v.camera).collect();
+    let full: Vec<&Camera> = train.views().iter().filter(|v| v.scale == 0).map(|v| &v.camera).collect();
     let n = full.len() as f64;
     let origins: Vec<glam::DVec3> = full.iter().map(|c| glam::DVec3::from_array(c.origin())).collect();
     let radius = origins.iter().map(|o| o.length()).sum::<f64>() / n;
@@ -100,8 +100,8 @@ pub fn render(
     match target {
         Target::Split(split) => {
             let ds = load_split(&s, split)?;
-            for v in 0..ds.views.len() {
-                let view = &ds.views[v];
+            for v in 0..ds.views().len() {
+                let view = &ds.views()[v];
                 let stem = view.file.file_stem().map_or_else(|| format!("{v:04}"), |x| x.to_string_lossy().to_string());
                 let mut image = ImageSpec::of_view(&ds, v, k);
                 if let Some((w, h)) = size {
@@ -135,7 +135,7 @@ pub fn render(
     let (mut be, _) = open_trained(run, &s, backend)?;
     // Only now, with every argument checked and the model open, is anything created.
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let levels = be.model().config.num_levels;
+    let levels = be.model().config().num_levels;
     let mut written = Vec::new();
     let mut preview = Vec::new();
     let mut pb = crate::progress::Progress::new("render", 0, jobs.len() as u64);

@@ -71,6 +71,7 @@ pub fn open_trained(
         seed: s.seed.unwrap_or(0),
         state: TrainState::from_checkpoint(ck),
         data: None,
+        render_chunk: None,
     };
     Ok((backend::open(choice, setup)?, step))
 }
@@ -159,7 +160,14 @@ pub fn train(
         TrainState::fresh(&model, seed)
     };
     let batch = s.batch_rays.unwrap_or(1024);
-    let setup = mipnerf_gpu::BackendSetup { model, optim: s.optim_config()?, seed, state, data: Some((ds, batch)) };
+    let setup = mipnerf_gpu::BackendSetup {
+        model,
+        optim: s.optim_config()?,
+        seed,
+        state,
+        data: Some((ds, batch)),
+        render_chunk: None,
+    };
     let be = backend::open(s.backend.unwrap_or(Backend::Auto), setup)?;
     s.save(&run_dir.join(CONFIG))?;
     TrainLoop::new(run_dir, &s, be, resume)?.run(&stop)
@@ -197,7 +205,7 @@ fn load_training_data(s: &TrainSettings, format: Format, model: &Model) -> Resul
     eprintln!(
         "data: {} ({format:?}, {} views, {} pixels, scales {:?}, {:.1} MiB of pixels, loaded in {:.1}s)",
         data_dir.display(),
-        ds.views.len(),
+        ds.views().len(),
         ds.num_pixels(),
         ds.scales(),
         ds.pixel_bytes() as f64 / (1 << 20) as f64,
@@ -206,11 +214,11 @@ fn load_training_data(s: &TrainSettings, format: Format, model: &Model) -> Resul
     for note in &ds.notes {
         eprintln!("note: {note}");
     }
-    mipnerf_core::backend::check_ndc_supersample(ds.ndc, model.config.supersample)
+    mipnerf_core::backend::check_ndc_supersample(ds.ndc, model.config().supersample)
         .with_context(|| data_dir.display().to_string())?;
     eprintln!(
         "model: {} parameters ({:?} preset, {:?})",
-        model.num_params,
+        model.num_params(),
         s.preset.unwrap_or(crate::config::PresetArg::Tiny),
         s.model.unwrap_or(crate::config::ModelKind::Mipnerf)
     );

@@ -48,12 +48,12 @@ fn constant_psnr_per_scale(data: &std::path::Path) -> std::collections::BTreeMap
     use mipnerf_core::data::{LoadOptions, Split, load};
     let ds = load(data, Split::Test, &LoadOptions::default()).unwrap();
     let mut per_scale: std::collections::BTreeMap<u32, Vec<f64>> = Default::default();
-    for v in 0..ds.views.len() {
+    for v in 0..ds.views().len() {
         let t = ds.view_targets(v);
         let n = t.len() as f64 * 3.0;
         let mean: Vec<f64> = (0..3).map(|c| t.iter().map(|p| f64::from(p[c])).sum::<f64>() / t.len() as f64).collect();
         let mse = t.iter().map(|p| (0..3).map(|c| (f64::from(p[c]) - mean[c]).powi(2)).sum::<f64>()).sum::<f64>() / n;
-        per_scale.entry(ds.views[v].scale).or_default().push(-10.0 * mse.log10());
+        per_scale.entry(ds.views()[v].scale).or_default().push(-10.0 * mse.log10());
     }
     per_scale.into_iter().map(|(s, v)| (s, v.iter().sum::<f64>() / v.len() as f64)).collect()
 }
@@ -426,7 +426,7 @@ fn an_experiment_trains_every_row_resumes_when_interrupted_and_tables_the_json()
         assert_eq!(v["steps"], 600);
         assert!(v["commit"].as_str().unwrap().len() >= 7 && !v["cpu"].as_str().unwrap().is_empty(), "{v}");
         // NeRF has one MLP per level (and PE inputs): its own count.
-        let params = mipnerf_core::model::Model::new(cfg).unwrap().num_params;
+        let params = mipnerf_core::model::Model::new(cfg).unwrap().num_params();
         assert_eq!(v["params"].as_u64().unwrap() as usize, params, "{row}");
     }
     let table = std::fs::read_to_string(exp.join("RESULTS.md")).unwrap();

@@ -20,7 +20,7 @@ fn main() {
     println!("|---|---|---|---|---|---|---|---|");
     let (warm, steps) = if quick { (0, 1) } else { (1, 3) };
     for (name, cfg) in [("paper", Preset::Paper.config()), ("small (4x128, skip 2, 64+64)", Preset::Small.config())] {
-        let flops = Model::new(cfg.clone()).map(|m| m.mlps[0].flops_per_sample()).unwrap_or(f64::NAN);
+        let flops = Model::new(cfg.clone()).map(|m| m.mlps()[0].flops_per_sample()).unwrap_or(f64::NAN);
         let r = train_throughput(name, cfg, if quick { 128 } else { 1024 }, warm, steps);
         let bound = sgemm * 1e9 / flops;
         println!(

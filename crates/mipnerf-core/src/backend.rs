@@ -72,7 +72,7 @@ impl ImageSpec {
     /// If `v` is out of range.
     #[must_use]
     pub fn of_view(ds: &Dataset, v: usize, supersample: usize) -> Self {
-        let view = &ds.views[v];
+        let view = &ds.views()[v];
         Self {
             camera: view.camera.clone(),
             near: view.near,
@@ -95,7 +95,7 @@ impl ImageSpec {
     /// # Errors
     /// [`BackendError::Invalid`] or [`BackendError::Unsupported`] saying which.
     pub fn check_for(&self, model: &Model) -> Result<(), BackendError> {
-        let k = model.config.supersample;
+        let k = model.config().supersample;
         if self.supersample != k {
             return Err(BackendError::Invalid(format!(
                 "the image asks for {0}x{0} rays per pixel; the model renders {k}x{k}",
@@ -190,7 +190,7 @@ pub trait Backend {
     /// # Errors
     /// As [`render_image`](Self::render_image).
     fn render(&mut self, image: &ImageSpec) -> Result<RenderedImage, BackendError> {
-        let levels = self.model().config.num_levels;
+        let levels = self.model().config().num_levels;
         let out = self.render_image(image)?;
         Ok(RenderedImage::from_outputs(image.camera.width, image.camera.height, levels, &out))
     }
@@ -212,7 +212,7 @@ impl TrainState {
     /// starts from).
     #[must_use]
     pub fn fresh(model: &Model, seed: u32) -> Self {
-        Self { params: model.init_params(u64::from(seed)), adam: AdamState::new(model.num_params), step: 0 }
+        Self { params: model.init_params(u64::from(seed)), adam: AdamState::new(model.num_params()), step: 0 }
     }
 
     /// The state saved in `ck`.
@@ -226,7 +226,7 @@ impl TrainState {
     /// # Errors
     /// [`BackendError::Invalid`] naming the mismatch.
     pub fn check(&self, model: &Model) -> Result<(), BackendError> {
-        let n = model.num_params;
+        let n = model.num_params();
         if self.params.len() != n || self.adam.m.len() != n || self.adam.v.len() != n {
             return Err(BackendError::Invalid(format!(
                 "the state holds {} parameters and {}/{} Adam moments; the model has {n}",
@@ -254,7 +254,7 @@ pub fn check_ndc_supersample(ndc: Option<Ndc>, supersample: usize) -> Result<(),
 /// Why forward-facing data and supersampling do not mix.
 pub const NDC_SUPERSAMPLE: &str = "supersampling (--supersample) is not defined for forward-facing (NDC) datasets: sub-pixel rays are not mapped to NDC";
 
-/// Pixels per chunk when the CPU renders an image (bounds the rays held at once).
+/// Rays per chunk when the CPU renders an image, unless set (bounds the rays held at once).
 pub const CPU_RENDER_CHUNK: usize = 16 * 1024;
 
 /// The CPU backend: [`Trainer`] with batches drawn by [`Dataset::sample_batch`], and
@@ -263,6 +263,8 @@ pub const CPU_RENDER_CHUNK: usize = 16 * 1024;
 pub struct CpuBackend {
     trainer: Trainer,
     data: Option<(Arc<Dataset>, usize)>,
+    /// Rays per rendering chunk.
+    render_chunk: usize,
     rays: Vec<Ray>,
     targets: Vec<[f32; 3]>,
 }
@@ -278,7 +280,22 @@ impl CpuBackend {
         trainer.params = state.params;
         trainer.adam = state.adam;
         trainer.step = state.step;
-        Ok(Self { trainer, data: None, rays: Vec::new(), targets: Vec::new() })
+        Ok(Self { trainer, data: None, render_chunk: CPU_RENDER_CHUNK, rays: Vec::new(), targets: Vec::new() })
+    }
+
+    /// Renders in chunks of about `rays` rays (whole pixels, at least one; default
+    /// [`CPU_RENDER_CHUNK`]): the memory a render holds at once. The image is the same bit for bit
+    /// whatever the chunk.
+    #[must_use]
+    pub fn with_render_chunk(mut self, rays: usize) -> Self {
+        self.render_chunk = rays.max(1);
+        self
+    }
+
+    /// Rays per rendering chunk.
+    #[must_use]
+    pub fn render_chunk(&self) -> usize {
+        self.render_chunk
     }
 
     /// Trains on batches of `batch_rays` pixels of `data`.
@@ -308,12 +325,14 @@ impl Backend for CpuBackend {
         self.trainer.step
     }
 
-    fn train_step(&mut self, _report: bool) -> Result<Option<StepReport>, BackendError> {
+    fn train_step(&mut self, report: bool) -> Result<Option<StepReport>, BackendError> {
         let (ds, batch) = self.data.as_ref().ok_or(BackendError::NoData)?;
         let t = &self.trainer;
-        check_ndc_supersample(ds.ndc, t.model.config.supersample)?;
-        ds.sample_batch(*batch, t.seed, t.step as u32, t.model.config.supersample, &mut self.rays, &mut self.targets);
-        Ok(Some(self.trainer.train_step(&self.rays, &self.targets)))
+        check_ndc_supersample(ds.ndc, t.model.config().supersample)?;
+        ds.sample_batch(*batch, t.seed, t.step as u32, t.model.config().supersample, &mut self.rays, &mut self.targets);
+        let rep = self.trainer.train_step(&self.rays, &self.targets);
+        // The CPU has the losses anyway; it returns them only when asked, as the trait says.
+        Ok(report.then_some(rep))
     }
 
     fn checkpoint(&mut self) -> Result<Checkpoint, BackendError> {
@@ -324,11 +343,12 @@ impl Backend for CpuBackend {
     fn render_image(&mut self, image: &ImageSpec) -> Result<Vec<LevelOutput>, BackendError> {
         let model = &self.trainer.model;
         image.check_for(model)?;
-        let mut out = Vec::with_capacity(image.pixels() * model.config.num_levels);
+        let mut out = Vec::with_capacity(image.pixels() * model.config().num_levels);
         let mut rays = Vec::new();
-        for first in (0..image.pixels()).step_by(CPU_RENDER_CHUNK) {
+        let chunk_pixels = (self.render_chunk / model.rays_per_pixel()).max(1);
+        for first in (0..image.pixels()).step_by(chunk_pixels) {
             rays.clear();
-            image.push_rays(first, CPU_RENDER_CHUNK, &mut rays);
+            image.push_rays(first, chunk_pixels, &mut rays);
             out.extend(model.render(&self.trainer.params, &rays));
         }
         Ok(out)

@@ -46,9 +46,9 @@ pub fn synthetic_rays(n: usize) -> Vec<Ray> {
 #[must_use]
 pub fn train_throughput(name: &str, config: ModelConfig, rays: usize, warmup: usize, steps: usize) -> TrainThroughput {
     let model = Model::new(config).unwrap_or_else(|e| panic!("benchmark config: {e}"));
-    let flops_per_sample = model.mlps[0].flops_per_sample();
-    let samples_per_ray = model.config.num_samples * model.config.num_levels;
-    let params = model.num_params;
+    let flops_per_sample = model.mlps()[0].flops_per_sample();
+    let samples_per_ray = model.config().num_samples * model.config().num_levels;
+    let params = model.num_params();
     let mut trainer = Trainer::new(model, OptimConfig::default(), 0);
     let batch = synthetic_rays(rays);
     let targets = vec![[0.5f32, 0.4, 0.3]; rays];
@@ -160,7 +160,7 @@ pub fn backend_throughput(
     steps: usize,
     render_side: u32,
 ) -> Result<BackendThroughput, BackendError> {
-    let c = &b.model().config;
+    let c = &b.model().config();
     let rays_per_step = batch * c.supersample * c.supersample;
     let samples_per_ray = c.num_samples * c.num_levels;
     for _ in 0..2 {
@@ -177,7 +177,7 @@ pub fn backend_throughput(
         Camera::from_camera_angle_x(side.max(1), side.max(1), 0.69, pose)
             .map_err(|e| BackendError::Invalid(e.to_string()))
     };
-    let supersample = b.model().config.supersample;
+    let supersample = b.model().config().supersample;
     let spec =
         |camera| ImageSpec { camera, near: 2.0, far: 6.0, centers: PixelCenters::Centered, ndc: None, supersample };
     b.render_image(&spec(camera(8)?))?;

@@ -66,7 +66,7 @@ fn invalid(path: &Path, problem: impl Into<String>) -> CheckpointError {
 /// `(name, offset, shape)` of every tensor of `model`'s parameters.
 fn tensors(model: &Model) -> Vec<(String, usize, Vec<usize>)> {
     let mut out = Vec::new();
-    for (i, mlp) in model.mlps.iter().enumerate() {
+    for (i, mlp) in model.mlps().iter().enumerate() {
         for l in &mlp.layers {
             out.push((format!("MLP_{i}/{}/kernel", l.name), l.kernel, vec![l.fan_in, l.fan_out]));
             out.push((format!("MLP_{i}/{}/bias", l.name), l.bias, vec![l.fan_out]));
@@ -238,7 +238,7 @@ pub fn save(path: &Path, model: &Model, ckpt: &Checkpoint) -> Result<(), Checkpo
 /// # Errors
 /// As [`save`].
 pub fn save_with(path: &Path, model: &Model, ckpt: &Checkpoint, fs: &mut dyn FileOps) -> Result<(), CheckpointError> {
-    let n = model.num_params;
+    let n = model.num_params();
     if ckpt.params.len() != n || ckpt.adam.m.len() != n || ckpt.adam.v.len() != n {
         return Err(invalid(path, format!("state has {} parameters, the model {n}", ckpt.params.len())));
     }
@@ -325,7 +325,7 @@ pub fn load_checked(path: &Path, model: &Model) -> Result<(Checkpoint, Integrity
             .and_then(|v| v.parse().ok())
             .ok_or_else(|| invalid(path, format!("metadata \"{k}\" is missing or not a number")))
     };
-    let n = model.num_params;
+    let n = model.num_params();
     let mut out = [vec![0.0f32; n], vec![0.0f32; n], vec![0.0f32; n]];
     for (buf, prefix) in out.iter_mut().zip(["", "adam_m/", "adam_v/"]) {
         for (name, off, shape) in tensors(model) {

@@ -23,6 +23,7 @@ pub mod backend;
 pub mod bench;
 pub mod camera;
 pub mod checkpoint;
+pub mod compare;
 pub mod cone;
 pub mod data;
 pub mod linalg;

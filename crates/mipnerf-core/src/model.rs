@@ -228,12 +228,9 @@ pub enum ModelError {
 /// A model: its configuration and the layout of its parameters (one MLP, or one per level).
 #[derive(Clone, Debug)]
 pub struct Model {
-    /// The configuration.
-    pub config: ModelConfig,
-    /// The MLPs, back to back in the flat parameter buffer.
-    pub mlps: Vec<MlpShape>,
-    /// Total parameters.
-    pub num_params: usize,
+    config: ModelConfig,
+    mlps: Vec<MlpShape>,
+    num_params: usize,
 }
 
 /// What one level renders for one pixel.
@@ -342,6 +339,24 @@ impl Model {
             mlps.push(s);
         }
         Ok(Self { config, mlps, num_params: off })
+    }
+
+    /// The configuration (fixed when the model is made: the parameter layout depends on it).
+    #[must_use]
+    pub fn config(&self) -> &ModelConfig {
+        &self.config
+    }
+
+    /// The MLPs, back to back in the flat parameter buffer (one, or one per level).
+    #[must_use]
+    pub fn mlps(&self) -> &[MlpShape] {
+        &self.mlps
+    }
+
+    /// Total parameters of all MLPs.
+    #[must_use]
+    pub fn num_params(&self) -> usize {
+        self.num_params
     }
 
     /// Fresh parameters: Glorot-uniform kernels and zero biases, from `seed`.

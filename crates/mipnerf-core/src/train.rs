@@ -142,7 +142,7 @@ impl Trainer {
     #[must_use]
     pub fn new(model: Model, optim: OptimConfig, seed: u32) -> Self {
         let params = model.init_params(u64::from(seed));
-        let n = model.num_params;
+        let n = model.num_params();
         Self {
             model,
             params,

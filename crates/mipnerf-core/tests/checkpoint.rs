@@ -15,7 +15,7 @@ fn tiny() -> Model {
 
 /// A state whose every value differs, at `step`.
 fn state(model: &Model, step: u64) -> Checkpoint {
-    let n = model.num_params;
+    let n = model.num_params();
     let f = |k: f32| (0..n).map(|i| (i as f32 * 0.37 + k + step as f32).sin()).collect::<Vec<f32>>();
     let v = f(2.0).into_iter().map(f32::abs).collect();
     Checkpoint { step, params: f(0.0), adam: AdamState { m: f(1.0), v, t: step } }
@@ -99,7 +99,7 @@ fn non_finite_state_is_never_written_and_the_previous_file_stays() {
         match k {
             0 => ck.params[123] = bad,
             1 => ck.adam.m[0] = bad,
-            _ => ck.adam.v[model.num_params - 1] = bad,
+            _ => ck.adam.v[model.num_params() - 1] = bad,
         }
         let err = checkpoint::save(&path, &model, &ck).unwrap_err();
         assert!(matches!(err, CheckpointError::NonFinite { step: 15, .. }), "{err}");

@@ -136,16 +136,16 @@ fn a_colmap_folder_loads_as_a_dataset_with_llff_conventions() {
     let test = data::load(&scene(), Split::Test, &opts).unwrap();
     let n = colmap::read_model(&scene().join("sparse/0")).unwrap().images.len();
     // Every 8th image (0, 8, 16, ...) is held out, as LLFF does.
-    assert_eq!(test.views.len(), n.div_ceil(8));
-    assert_eq!(train.views.len() + test.views.len(), n);
-    assert_eq!((train.views[0].camera.width, train.views[0].camera.height), (100, 100));
+    assert_eq!(test.views().len(), n.div_ceil(8));
+    assert_eq!(train.views().len() + test.views().len(), n);
+    assert_eq!((train.views()[0].camera.width, train.views()[0].camera.height), (100, 100));
     assert!(train.notes.iter().any(|n| n.contains("images_2/ is absent")), "{:?}", train.notes);
     // The text model gives the same dataset.
     let dir = tempfile::tempdir().unwrap();
     text_scene(dir.path());
     let t2 = data::load(dir.path(), Split::Train, &opts).unwrap();
-    assert_eq!(t2.views.len(), train.views.len());
-    for (a, b) in t2.views.iter().zip(&train.views) {
+    assert_eq!(t2.views().len(), train.views().len());
+    for (a, b) in t2.views().iter().zip(train.views()) {
         assert_eq!(a.camera, b.camera);
         assert_eq!((a.near, a.far), (b.near, b.far));
     }
@@ -166,8 +166,8 @@ fn convert_to_llff_writes_what_the_llff_loader_reads_back() {
     let opts = LoadOptions { llff_factor: 2, ..LoadOptions::default() };
     let from_llff = data::load(dir.path(), Split::Train, &opts).unwrap();
     let from_colmap = data::load(&scene(), Split::Train, &opts).unwrap();
-    assert_eq!(from_llff.views.len(), from_colmap.views.len());
-    for (a, b) in from_llff.views.iter().zip(&from_colmap.views) {
+    assert_eq!(from_llff.views().len(), from_colmap.views().len());
+    for (a, b) in from_llff.views().iter().zip(from_colmap.views()) {
         assert_eq!(a.camera, b.camera);
         assert_eq!(a.pixels, b.pixels);
     }

@@ -72,8 +72,8 @@ fn multiscale_conversion_matches_the_official_converter() {
 #[test]
 fn blender_scene_loads_with_cameras_and_composited_pixels() {
     let ds = data::load(&lego_tiny(), Split::Train, &LoadOptions::default()).unwrap();
-    assert_eq!(ds.views.len(), 4);
-    assert_eq!((ds.views[0].camera.width, ds.views[0].camera.height), (100, 100));
+    assert_eq!(ds.views().len(), 4);
+    assert_eq!((ds.views()[0].camera.width, ds.views()[0].camera.height), (100, 100));
     assert_eq!(ds.num_pixels(), 4 * 100 * 100);
     // Corners are background: transparent, composited on white.
     assert_eq!(ds.target(0, 0, 0), [1.0, 1.0, 1.0]);
@@ -85,7 +85,7 @@ fn blender_scene_loads_with_cameras_and_composited_pixels() {
     // Half resolution: 2x2 area filter.
     let half =
         data::load(&lego_tiny(), Split::Train, &LoadOptions { half_res: true, ..LoadOptions::default() }).unwrap();
-    assert_eq!(half.views[0].camera.width, 50);
+    assert_eq!(half.views()[0].camera.width, 50);
     let (full, hv) = (&ds, &half);
     let avg: [f32; 3] =
         std::array::from_fn(|c| (0..4).map(|k| full.target(0, 60 + k % 2, 40 + k / 2)[c]).sum::<f32>() / 4.0);
@@ -103,8 +103,8 @@ fn the_real_lego_scene_loads() {
         return;
     }
     let test = data::load(&dir, Split::Test, &LoadOptions::default()).unwrap();
-    assert_eq!(test.views.len(), 13);
-    assert_eq!((test.views[0].camera.width, test.views[0].camera.height), (800, 800));
+    assert_eq!(test.views().len(), 13);
+    assert_eq!((test.views()[0].camera.width, test.views()[0].camera.height), (800, 800));
     assert!(test.num_pixels() == 13 * 640_000);
     // A missing split is an error only when it is asked for.
     let err = data::load(&dir, Split::Val, &LoadOptions::default()).unwrap_err().to_string();
@@ -120,16 +120,16 @@ fn demo_scene_generates_every_scale_and_loads() {
     eprintln!("demo scene generated in {:?}", t.elapsed());
     assert_eq!(data::detect_format(dir.path()).unwrap(), data::Format::Multiscale);
     let train = data::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap();
-    assert_eq!(train.views.len(), 6 * 4);
+    assert_eq!(train.views().len(), 6 * 4);
     assert_eq!(train.scales(), vec![0, 1, 2, 3]);
-    for v in &train.views {
+    for v in train.views() {
         assert_eq!(v.camera.width, 32 >> v.scale);
         assert_eq!(v.lossmult, 4f32.powi(v.scale as i32));
     }
     // Scale 1 is the 2x2 box filter of scale 0's straight RGBA (up to 8-bit quantisation).
     let (v0, v1) = (0, 1);
-    assert_eq!(train.views[v1].scale, 1);
-    let px = |v: usize, x: usize, y: usize| train.views[v].pixels.rgba(y * (32 >> train.views[v].scale) + x);
+    assert_eq!(train.views()[v1].scale, 1);
+    let px = |v: usize, x: usize, y: usize| train.views()[v].pixels.rgba(y * (32 >> train.views()[v].scale) + x);
     for y in 0..16 {
         for x in 0..16 {
             let fine: [f32; 4] =
@@ -231,12 +231,12 @@ fn llff_scene_loads_with_ndc_rays_holdout_and_spiral() {
     let opts = LoadOptions { white_bkgd: false, ..LoadOptions::default() };
     let train = data::load(dir.path(), Split::Train, &opts).unwrap();
     let test = data::load(dir.path(), Split::Test, &opts).unwrap();
-    assert_eq!((train.views.len(), test.views.len()), (7, 2), "every 8th image (0 and 8) is held out");
+    assert_eq!((train.views().len(), test.views().len()), (7, 2), "every 8th image (0 and 8) is held out");
     assert!(!train.white_bkgd && train.ndc.is_some());
     assert_eq!(test.render_path.len(), llff::RENDER_FRAMES);
     // Recentred: the average camera centre is the origin, the average camera looks down -z.
     let mut centre = glam::DVec3::ZERO;
-    for v in train.views.iter().chain(&test.views) {
+    for v in train.views().iter().chain(test.views()) {
         centre += glam::DVec3::from_array(v.camera.origin());
     }
     assert!((centre / 9.0).length() < 1e-9, "average centre {centre:?}");
@@ -399,11 +399,11 @@ fn convert_with_a_size_box_filters_first_and_checks_the_size() {
     let splits = multiscale::convert_resized(&lego_tiny(), out.path(), Some(48)).unwrap();
     assert_eq!(splits, vec![Split::Train, Split::Test]);
     let ds = data::load(out.path(), Split::Train, &LoadOptions::default()).unwrap();
-    let widths: Vec<u32> = ds.views.iter().take(4).map(|v| v.camera.width).collect();
+    let widths: Vec<u32> = ds.views().iter().take(4).map(|v| v.camera.width).collect();
     assert_eq!(widths, vec![48, 24, 12, 6]);
     // The field of view is kept: the focal length scales with the width.
     let full = data::load(&lego_tiny(), Split::Train, &LoadOptions::default()).unwrap();
-    let ratio = full.views[0].camera.pix2cam[0][0] / ds.views[0].camera.pix2cam[0][0];
+    let ratio = full.views()[0].camera.pix2cam[0][0] / ds.views()[0].camera.pix2cam[0][0];
     assert!((ratio - 48.0 / 100.0).abs() < 1e-6, "focal ratio {ratio}");
     // The full scale is the area average of the source image, quantised as the converter does.
     let (w, h, src, _) = {

@@ -40,7 +40,7 @@ fn load(model: &Model, list: &Value, flat_params: &mut [f32]) -> usize {
         let path = p["path"].as_str().unwrap();
         let parts: Vec<&str> = path.split('/').collect();
         assert_eq!(parts[1], "MLP_0", "{path}");
-        let layer = model.mlps[0].layers.iter().find(|l| l.name == parts[2]).unwrap_or_else(|| panic!("{path}"));
+        let layer = model.mlps()[0].layers.iter().find(|l| l.name == parts[2]).unwrap_or_else(|| panic!("{path}"));
         let values = flat(&p["values"]);
         let (off, len) = match parts[3] {
             "kernel" => (layer.kernel, layer.fan_in * layer.fan_out),
@@ -70,13 +70,13 @@ fn rays(g: &Value) -> Vec<Ray> {
 }
 
 fn params(model: &Model, g: &Value, perturbed: bool) -> Vec<f32> {
-    let mut p = vec![f32::NAN; model.num_params];
+    let mut p = vec![f32::NAN; model.num_params()];
     let mut n = load(model, &g["params"], &mut p);
     if perturbed {
         load(model, &g["bias_perturbed"]["biases"], &mut p);
     }
     n = n.max(p.iter().filter(|x| x.is_finite()).count());
-    assert_eq!(n, model.num_params, "golden parameters do not cover the model");
+    assert_eq!(n, model.num_params(), "golden parameters do not cover the model");
     p
 }
 
@@ -102,7 +102,7 @@ fn check_forward(model: &Model, p: &[f32], rays: &[Ray], want: &Value, what: &st
 fn small_model_forward_matches_official() {
     let g = golden("model_small.json");
     let model = small_model();
-    assert_eq!(model.num_params, 24 * 16 + 16 + 16 * 16 + 16 + 40 + 1 + 40 * 16 + 16 + 31 * 8 + 8 + 8 * 3 + 3);
+    assert_eq!(model.num_params(), 24 * 16 + 16 + 16 * 16 + 16 + 40 + 1 + 40 * 16 + 16 + 31 * 8 + 8 + 8 * 3 + 3);
     let rays = rays(&g);
     let mut mm = Mismatches::default();
     check_forward(&model, &params(&model, &g, false), &rays, &g["forward"], "init", &mut mm);
@@ -120,13 +120,13 @@ fn check_loss_and_grads(
     what: &str,
     mm: &mut Mismatches,
 ) {
-    let mut g = vec![0.0; model.num_params];
+    let mut g = vec![0.0; model.num_params()];
     let s = model.loss_and_grad(p, rays, targets, Mode::Eval, &mut g);
     let ours: Vec<f32> = s.losses.iter().map(|l| l * OFFICIAL_LOSS_FACTOR).collect();
     mm.check(&format!("{what} losses"), &ours, &flat(&stats["losses"]), TOL_MODEL);
     mm.check(&format!("{what} loss"), &[s.loss * OFFICIAL_LOSS_FACTOR], &[f(&stats["loss"])], TOL_MODEL);
     let scaled: Vec<f32> = g.iter().map(|x| x * OFFICIAL_LOSS_FACTOR).collect();
-    let mut want = vec![f32::NAN; model.num_params];
+    let mut want = vec![f32::NAN; model.num_params()];
     load(model, grads, &mut want);
     mm.check(&format!("{what} grads"), &scaled, &want, TOL_GRAD);
     let norm = scaled.iter().map(|x| f64::from(*x).powi(2)).sum::<f64>().sqrt() as f32;
@@ -161,7 +161,7 @@ fn small_model_losses_and_gradients_match_official_train_step() {
         &mut mm,
     );
     // Our per-channel losses are the lossmult-weighted MSE the README of the golden files derives.
-    let mut grads = vec![0.0; model.num_params];
+    let mut grads = vec![0.0; model.num_params()];
     let s = model.loss_and_grad(&params(&model, &g, false), &rays, &targets, Mode::Eval, &mut grads);
     for level in 0..2 {
         let d = &g["loss"]["derived_per_level_from_eager_forward"][level];

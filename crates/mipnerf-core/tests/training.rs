@@ -84,16 +84,16 @@ fn whole_loss_gradient_matches_finite_differences_for_every_layer() {
     let mut params = model.init_params(3);
     // Non-zero biases so every term of the gradient is exercised.
     let mut rng = SmallRng::seed_from_u64(4);
-    for l in &model.mlps[0].layers {
+    for l in &model.mlps()[0].layers {
         for b in &mut params[l.bias..l.bias + l.fan_out] {
             *b = rng.random_range(-0.1..0.1);
         }
     }
     let mode = Mode::Train { seed: 1, step: 0 };
-    let mut grads = vec![0.0; model.num_params];
+    let mut grads = vec![0.0; model.num_params()];
     model.loss_and_grad(&params, &rays[..40], &colours[..40], mode, &mut grads);
     let loss = |p: &[f32]| {
-        let mut g = vec![0.0; model.num_params];
+        let mut g = vec![0.0; model.num_params()];
         f64::from(model.loss_and_grad(p, &rays[..40], &colours[..40], mode, &mut g).loss)
     };
     let fd = |p: &mut Vec<f32>, i: usize, h: f32| {
@@ -106,7 +106,7 @@ fn whole_loss_gradient_matches_finite_differences_for_every_layer() {
         (up - down) / (f64::from(x0 + h) - f64::from(x0 - h))
     };
     let (mut bad, mut checked, mut skipped) = (Vec::new(), 0, 0);
-    for l in &model.mlps[0].layers {
+    for l in &model.mlps()[0].layers {
         let mut picks: Vec<usize> = (0..6).map(|_| l.kernel + rng.random_range(0..l.fan_in * l.fan_out)).collect();
         picks.extend((0..2).map(|_| l.bias + rng.random_range(0..l.fan_out)));
         for i in picks {
@@ -128,7 +128,7 @@ fn whole_loss_gradient_matches_finite_differences_for_every_layer() {
 
 #[test]
 fn presets_have_the_documented_parameter_counts() {
-    let n = |c: ModelConfig| Model::new(c).unwrap().num_params;
+    let n = |c: ModelConfig| Model::new(c).unwrap().num_params();
     assert_eq!(n(Preset::Paper.config()), 612_740, "the paper's 612K");
     let nerf = n(Preset::Paper.config().nerf());
     assert!((1_190_000..=1_192_000).contains(&nerf), "NeRF's two MLPs: {nerf}, the paper says 1,191K");

@@ -42,7 +42,7 @@ fn main() {
     let optim = OptimConfig::default();
     println!(
         "preset {preset:?} ({} parameters), batch {batch} rays, {steps} timed steps, render {side}x{side}",
-        model.num_params
+        model.num_params()
     );
     let mut backends: Vec<Box<dyn Backend>> = Vec::new();
     if !flag("--gpu-only") {

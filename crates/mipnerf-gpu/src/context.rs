@@ -149,7 +149,7 @@ impl GpuContext {
         if have < MIN_STORAGE_BUFFERS_PER_STAGE {
             return Err(GpuError::UnsupportedLimit {
                 adapter: info.name.clone(),
-                limit: "storage buffers per shader stage",
+                limit: "max_storage_buffers_per_shader_stage",
                 have: u64::from(have),
                 need: u64::from(MIN_STORAGE_BUFFERS_PER_STAGE),
             });

@@ -5,15 +5,22 @@
 //! against it.
 //!
 //! - [`GpuContext`]: the one device and queue, with adapter discovery and error capture.
-//! - [`kernels`]: one type per kernel, owning its pipeline and bind-group layout; the WGSL sources
-//!   live in the workspace's `shaders/` folder and are compiled in with `include_str!`.
-//! - [`mlp`] and [`model`]: the MLP and the whole two-level model of a batch, forward and backward.
+//! - `kernels` (internal): one type per kernel, owning its pipeline and bind-group layout; the WGSL
+//!   sources live in the workspace's `shaders/` folder and are compiled in with `include_str!`.
+//! - `mlp` and `model` (internal): the MLP and the whole two-level model of a batch, forward and
+//!   backward, from those kernels.
 //! - [`GpuBackend`]: training and chunked rendering entirely on the device, behind
 //!   `mipnerf_core::backend::Backend` (the CPU implements the same trait).
 
 pub mod context;
+// The kernels, the MLP and model passes built from them, and the test helpers are public only so
+// that this workspace's tests and benchmarks can check each kernel against the CPU; they are not
+// part of the API an app should build on (that is `open_backend`, `GpuBackend`, `GpuContext`).
+#[doc(hidden)]
 pub mod kernels;
+#[doc(hidden)]
 pub mod mlp;
+#[doc(hidden)]
 pub mod model;
 pub mod select;
 pub mod trainer;
@@ -50,13 +57,13 @@ pub enum GpuError {
     },
     /// The device's limits are below what the kernels need: an unsupported configuration.
     #[error(
-        "{adapter}: the device allows {have} {limit}; mipnerf's kernels need {need} (when you create the \
+        "{adapter}: the device's {limit} is {have}; mipnerf's kernels need {need} (when you create the \
          device yourself, request it in required_limits)"
     )]
     UnsupportedLimit {
         /// The adapter's name.
         adapter: String,
-        /// The limit, in words (e.g. "storage buffers per shader stage").
+        /// The limit, as `wgpu::Limits` names it (e.g. `max_storage_buffers_per_shader_stage`).
         limit: &'static str,
         /// What the device allows.
         have: u64,
@@ -96,8 +103,33 @@ pub enum GpuError {
 }
 
 /// Support for tests that need a GPU, shared by this crate's and the workspace's tests.
+#[doc(hidden)]
 pub mod test_support {
+    use std::sync::Arc;
+
+    use mipnerf_core::Camera;
+    use mipnerf_core::data::{Dataset, Pixels, Split, View, demo};
+
     use crate::{AdapterChoice, GpuContext};
+
+    /// `n` views of the demo scene held in memory, `side` x `side` pixels each, on an orbit
+    /// (bounds 2 to 6, composited on white): training data that needs no files.
+    ///
+    /// # Panics
+    /// If `n` or `side` is 0.
+    #[must_use]
+    pub fn demo_views(n: usize, side: u32) -> Arc<Dataset> {
+        let views = demo::view_poses(n, 0.0)
+            .into_iter()
+            .enumerate()
+            .map(|(i, pose)| {
+                let camera = Camera::from_camera_angle_x(side, side, 0.69, pose).expect("a valid demo camera");
+                let pixels = Pixels::RgbaF32(demo::render_view(&camera, 1));
+                View::in_memory(&format!("v{i}"), camera, pixels, 2.0, 6.0)
+            })
+            .collect();
+        Arc::new(Dataset::from_views(Split::Train, views, true).expect("at least one view"))
+    }
 
     /// The context GPU tests run on, or `None` (after printing one line saying how to get an
     /// adapter) when this machine has none and the tests do not run in CI.

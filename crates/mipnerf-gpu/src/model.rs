@@ -143,7 +143,7 @@ impl ModelBuffers {
     /// [`GpuError::InvalidInput`] when one buffer would exceed what the device binds (the message
     /// names the largest batch that fits).
     pub fn new(ctx: &GpuContext, model: &Model, n_rays: usize) -> Result<Self, GpuError> {
-        let c = &model.config;
+        let c = &model.config();
         let (s, levels) = (c.num_samples, c.num_levels);
         let n = n_rays * s;
         let limit = ctx.max_binding_bytes();
@@ -161,7 +161,7 @@ impl ModelBuffers {
         Ok(Self {
             n_rays,
             capacity: n_rays,
-            mlp: MlpBuffers::new(ctx, &model.mlps[0], n_rays, s),
+            mlp: MlpBuffers::new(ctx, &model.mlps()[0], n_rays, s),
             t_vals: (0..levels).map(|l| nan(&format!("edges level {l}"), n_rays * (s + 1))).collect(),
             ray_out: (0..levels).map(|l| nan(&format!("ray outputs level {l}"), n_rays * 8)).collect(),
             weights: nan("weights", n),
@@ -173,20 +173,20 @@ impl ModelBuffers {
     /// Device bytes per ray of the largest single buffer (what the binding size limits).
     #[must_use]
     pub fn largest_buffer_bytes_per_ray(model: &Model) -> u64 {
-        Self::widest_row(model) as u64 * 4 * model.config.num_samples as u64
+        Self::widest_row(model) as u64 * 4 * model.config().num_samples as u64
     }
 
     /// Floats per sample of the widest buffer.
     fn widest_row(model: &Model) -> usize {
-        let c = &model.mlps[0].config;
+        let c = &model.mlps()[0].config;
         c.x_dim.max(c.view_dim).max(c.net_width).max(c.net_width_condition).max(3)
     }
 
     /// Device bytes per ray of these buffers, for sizing chunks.
     #[must_use]
     pub fn bytes_per_ray(model: &Model) -> u64 {
-        let c = &model.mlps[0].config;
-        let cfg = &model.config;
+        let c = &model.mlps()[0].config;
+        let cfg = &model.config();
         let s = cfg.num_samples;
         let widest = c.net_width.max(c.net_width_condition).max(3);
         let per_sample = c.x_dim
@@ -277,7 +277,7 @@ impl GpuModel {
                 batch.n_rays, work.n_rays
             )));
         }
-        let c = &model.config;
+        let c = &model.config();
         let (nr, s) = (batch.n_rays, c.num_samples);
         let (seed, step, randomized) = match mode {
             Mode::Train { seed, step } => (seed, step, true),
@@ -317,7 +317,7 @@ impl GpuModel {
             };
             self.cast.encode(ctx, enc, cp, &batch.rays, &t[level], &bufs.x)?;
             // One MLP for all levels, or one per level (the same shape at its own offset).
-            let shape = &model.mlps[if c.separate_mlps { level } else { 0 }];
+            let shape = &model.mlps()[if c.separate_mlps { level } else { 0 }];
             self.mlp.forward(ctx, enc, shape, params, bufs);
             let rb = RenderBuffers {
                 raw_rgb: &bufs.raw_rgb,
@@ -430,21 +430,21 @@ impl GpuModel {
         targets: &[[f32; 3]],
         mode: Mode,
     ) -> Result<(LossStats, Vec<f32>), GpuError> {
-        if params.len() != model.num_params {
+        if params.len() != model.num_params() {
             return Err(GpuError::InvalidInput(format!(
                 "{} parameters for a model of {}",
                 params.len(),
-                model.num_params
+                model.num_params()
             )));
         }
-        let batch = RayBatch::upload(ctx, rays, targets, model.rays_per_pixel(), model.config.area_loss)?;
+        let batch = RayBatch::upload(ctx, rays, targets, model.rays_per_pixel(), model.config().area_loss)?;
         let work = ModelBuffers::new(ctx, model, rays.len())?;
         let params_buf = ctx.storage_buffer("parameters", params, false);
-        let grads = ctx.storage_buffer("gradients", &vec![0.0f32; model.num_params], true);
+        let grads = ctx.storage_buffer("gradients", &vec![0.0f32; model.num_params()], true);
         let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("model step") });
         self.encode(ctx, &mut enc, model, &params_buf, &batch, &work, mode, Some(&grads))?;
         ctx.queue.submit([enc.finish()]);
-        let g = ctx.read_f32(&grads, model.num_params)?;
+        let g = ctx.read_f32(&grads, model.num_params())?;
         Ok((self.read_losses(ctx, model, &batch, &work.ray_out)?, g))
     }
 }

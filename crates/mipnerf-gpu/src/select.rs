@@ -35,6 +35,9 @@ pub struct BackendSetup {
     pub state: TrainState,
     /// Training data and rays per batch (`None`: rendering only).
     pub data: Option<(Arc<Dataset>, usize)>,
+    /// Rays per rendering chunk, the memory a render holds at once (`None`: the backend's
+    /// default, on a GPU sized to the device). Images are the same whatever the chunk.
+    pub render_chunk: Option<usize>,
 }
 
 /// A backend could not be opened.
@@ -57,7 +60,10 @@ pub struct OpenedBackend {
 }
 
 fn open_gpu(ctx: GpuContext, s: &BackendSetup) -> Result<GpuBackend, GpuError> {
-    let b = GpuBackend::new(ctx, s.model.clone(), s.optim.clone(), s.seed, s.state.clone())?;
+    let mut b = GpuBackend::new(ctx, s.model.clone(), s.optim.clone(), s.seed, s.state.clone())?;
+    if let Some(rays) = s.render_chunk {
+        b = b.with_render_chunk(rays);
+    }
     match &s.data {
         Some((ds, batch)) => b.with_data(ds, *batch),
         None => Ok(b),
@@ -66,6 +72,9 @@ fn open_gpu(ctx: GpuContext, s: &BackendSetup) -> Result<GpuBackend, GpuError> {
 
 fn open_cpu(s: BackendSetup) -> Result<Box<dyn Backend>, OpenError> {
     let mut b = CpuBackend::new(s.model, s.optim, s.seed, s.state)?;
+    if let Some(rays) = s.render_chunk {
+        b = b.with_render_chunk(rays);
+    }
     if let Some((ds, batch)) = s.data {
         b = b.with_data(ds, batch);
     }

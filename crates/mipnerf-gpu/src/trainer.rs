@@ -136,7 +136,7 @@ impl GpuBackend {
         if batch_rays == 0 {
             return Err(GpuError::InvalidInput("a batch needs at least one ray".into()));
         }
-        mipnerf_core::backend::check_ndc_supersample(ds.ndc, self.model.config.supersample)
+        mipnerf_core::backend::check_ndc_supersample(ds.ndc, self.model.config().supersample)
             .map_err(|e| GpuError::InvalidInput(e.to_string()))?;
         let images = DeviceImages::upload(&self.ctx, ds)?;
         // Each pixel is `rays_per_pixel` rays.
@@ -147,7 +147,7 @@ impl GpuBackend {
         let (work, chunks) = if chunk >= n_rays {
             (ModelBuffers::new(&self.ctx, &self.model, n_rays)?, None)
         } else {
-            let outs = (0..self.model.config.num_levels)
+            let outs = (0..self.model.config().num_levels)
                 .map(|l| {
                     self.ctx.storage_buffer(&format!("batch ray outputs level {l}"), &vec![f32::NAN; n_rays * 8], true)
                 })
@@ -194,7 +194,7 @@ impl GpuBackend {
     }
 
     fn read_checkpoint(&self) -> Result<Checkpoint, GpuError> {
-        let n = self.model.num_params;
+        let n = self.model.num_params();
         let params = self.ctx.read_f32(&self.state.params, n)?;
         let m = self.ctx.read_f32(&self.state.m, n)?;
         let v = self.ctx.read_f32(&self.state.v, n)?;
@@ -210,7 +210,7 @@ impl GpuBackend {
         let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("train step") });
         enc.clear_buffer(&self.state.grads, 0, None);
         let draw = Draw::Random { seed: self.seed, step: step as u32 };
-        let (area_loss, k) = (self.model.config.area_loss, self.model.config.supersample);
+        let (area_loss, k) = (self.model.config().area_loss, self.model.config().supersample);
         self.batch_kernel.encode(ctx, &mut enc, &data.images, draw, area_loss, k, &data.batch)?;
         let grads = Some(&self.state.grads);
         match &mut data.chunks {
@@ -299,9 +299,9 @@ impl GpuBackend {
             self.render = Some((RayBatch::new(&self.ctx, chunk_pixels * rpp), work));
         }
         let Some((batch, work)) = &mut self.render else { unreachable!("render buffers were just made") };
-        let mut out = Vec::with_capacity(total * self.model.config.num_levels);
+        let mut out = Vec::with_capacity(total * self.model.config().num_levels);
         let ctx = &self.ctx;
-        let k = self.model.config.supersample;
+        let k = self.model.config().supersample;
         for first in (0..total).step_by(chunk_pixels) {
             let n = chunk_pixels.min(total - first) * rpp;
             batch.set_active(n)?;

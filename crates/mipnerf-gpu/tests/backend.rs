@@ -7,6 +7,7 @@ use std::sync::Arc;
 
 use mipnerf_core::backend::{Backend, CpuBackend, ImageSpec, TrainState};
 use mipnerf_core::camera::{Camera, PixelCenters};
+use mipnerf_core::compare::{Tolerance, assert_none, mismatches};
 use mipnerf_core::data::{self, Dataset, LoadOptions, Pixels, Split, View, demo};
 use mipnerf_core::model::{LevelOutput, Model, ModelConfig, Preset};
 use mipnerf_core::train::OptimConfig;
@@ -20,21 +21,6 @@ use mipnerf_gpu::test_support::context_or_skip;
 const TOL_BATCH_DIR_ABS: f32 = 1e-6;
 /// Targets: the same f32 operations (division by 255 may be a reciprocal multiply on the GPU).
 const TOL_BATCH_TARGET_ABS: f32 = 1e-6;
-
-fn mismatches(what: &str, gpu: &[f32], cpu: &[f32], tol: f32) -> Vec<String> {
-    assert_eq!(gpu.len(), cpu.len(), "{what}: lengths");
-    gpu.iter()
-        .zip(cpu)
-        .enumerate()
-        .filter(|(_, (g, c))| g.is_nan() || (*g - *c).abs() > tol)
-        .take(10)
-        .map(|(i, (g, c))| format!("{what}[{i}]: gpu {g} cpu {c}"))
-        .collect()
-}
-
-fn assert_none(bad: &[String]) {
-    assert!(bad.is_empty(), "{} mismatches:\n{}", bad.len(), bad.join("\n"));
-}
 
 /// Views of different sizes, poses, bounds and lossmults (a multiscale-like split), with random
 /// pixels, as RGBA8 or as f32.
@@ -113,18 +99,28 @@ fn device_batches_are_the_cpu_batches() {
                 v.extend(r.direction.extend(r.lossmult).to_array());
                 v
             });
-            bad.extend(mismatches(&format!("{tag} rays"), &rays, &packed, TOL_BATCH_DIR_ABS));
-            bad.extend(mismatches(&format!("{tag} bounds"), &bounds, &col(&|r| vec![r.near, r.far]), 0.0));
+            bad.extend(mismatches(&format!("{tag} rays"), &rays, &packed, Tolerance::abs(TOL_BATCH_DIR_ABS)));
+            bad.extend(mismatches(
+                &format!("{tag} bounds"),
+                &bounds,
+                &col(&|r| vec![r.near, r.far]),
+                Tolerance::abs(0.0),
+            ));
             bad.extend(mismatches(
                 &format!("{tag} viewdirs"),
                 &viewdirs,
                 &col(&|r| r.viewdir.to_array().to_vec()),
-                1e-6,
+                Tolerance::abs(1e-6),
             ));
             let tg: Vec<f32> = cpu_targets.iter().flat_map(|t| [t[0], t[1], t[2], 0.0]).collect();
-            bad.extend(mismatches(&format!("{tag} targets"), &targets, &tg, TOL_BATCH_TARGET_ABS));
+            bad.extend(mismatches(&format!("{tag} targets"), &targets, &tg, Tolerance::abs(TOL_BATCH_TARGET_ABS)));
             let lm: f64 = cpu_rays.iter().map(|r| if area_loss { f64::from(r.lossmult) } else { 1.0 }).sum();
-            bad.extend(mismatches(&format!("{tag} norm"), &norm, &[(3.0 * lm) as f32], 1e-6 * (3.0 * lm) as f32));
+            bad.extend(mismatches(
+                &format!("{tag} norm"),
+                &norm,
+                &[(3.0 * lm) as f32],
+                Tolerance::abs(1e-6 * (3.0 * lm) as f32),
+            ));
         }
     }
     assert_none(&bad);
@@ -188,12 +184,22 @@ fn device_ndc_batches_match_the_cpu() {
         let got = [g[0], g[1], g[2], g[4], g[5], g[6], g[7]];
         worst_ray = want.iter().zip(&got).map(|(a, b)| (a - b).abs()).fold(worst_ray, f32::max);
         worst_radius = worst_radius.max((g[3] - r.radius).abs() / r.radius);
-        bad.extend(mismatches(&format!("ray {i}"), &got, &want, TOL_NDC_RAY_ABS));
+        bad.extend(mismatches(&format!("ray {i}"), &got, &want, Tolerance::abs(TOL_NDC_RAY_ABS)));
         let rel = [(g[3] - r.radius) / r.radius];
-        bad.extend(mismatches(&format!("ray {i} radius (relative)"), &rel, &[0.0], TOL_NDC_RADIUS_REL));
-        bad.extend(mismatches(&format!("ray {i} bounds"), &bounds[2 * i..2 * i + 2], &[r.near, r.far], 0.0));
+        bad.extend(mismatches(&format!("ray {i} radius (relative)"), &rel, &[0.0], Tolerance::abs(TOL_NDC_RADIUS_REL)));
+        bad.extend(mismatches(
+            &format!("ray {i} bounds"),
+            &bounds[2 * i..2 * i + 2],
+            &[r.near, r.far],
+            Tolerance::abs(0.0),
+        ));
         let vd = r.viewdir.to_array();
-        bad.extend(mismatches(&format!("ray {i} viewdir"), &viewdirs[3 * i..3 * i + 3], &vd, TOL_BATCH_DIR_ABS));
+        bad.extend(mismatches(
+            &format!("ray {i} viewdir"),
+            &viewdirs[3 * i..3 * i + 3],
+            &vd,
+            Tolerance::abs(TOL_BATCH_DIR_ABS),
+        ));
     }
     eprintln!("NDC batch: worst |ray - cpu| {worst_ray:e}, worst radius relative {worst_radius:e}");
     assert_none(&bad);
@@ -328,13 +334,13 @@ fn chunked_gpu_render_matches_cpu_with_bounded_memory() {
             &format!("{tag} rgb"),
             &field(&g, |o| o.rgb.to_vec()),
             &field(&c, |o| o.rgb.to_vec()),
-            TOL_RENDER_RGB_ABS,
+            Tolerance::abs(TOL_RENDER_RGB_ABS),
         ));
         bad.extend(mismatches(
             &format!("{tag} acc"),
             &field(&g, |o| vec![o.acc]),
             &field(&c, |o| vec![o.acc]),
-            TOL_RENDER_ACC_ABS,
+            Tolerance::abs(TOL_RENDER_ACC_ABS),
         ));
         let d_rel: Vec<f32> =
             g.iter().zip(&c).map(|(a, b)| (a.distance - b.distance) / b.distance.abs().max(1e-3)).collect();
@@ -342,7 +348,7 @@ fn chunked_gpu_render_matches_cpu_with_bounded_memory() {
             &format!("{tag} distance (relative)"),
             &d_rel,
             &vec![0.0; d_rel.len()],
-            TOL_RENDER_DISTANCE_REL,
+            Tolerance::abs(TOL_RENDER_DISTANCE_REL),
         ));
         bytes.push(gpu.render_buffer_bytes());
     }
@@ -417,46 +423,6 @@ fn supersampling_forward_facing_data_is_a_clear_error() {
     let b = GpuBackend::new(ctx, model.clone(), OptimConfig::default(), 0, TrainState::fresh(&model, 0)).unwrap();
     let err = b.with_data(&ndc_dataset(), 8).unwrap_err().to_string();
     assert!(err.contains("supersampling") && err.contains("NDC"), "{err}");
-}
-
-#[test]
-fn a_gpu_run_resumed_from_its_checkpoint_is_the_same_run_bit_for_bit() {
-    let Some(ctx) = context_or_skip("a_gpu_run_resumed_from_its_checkpoint_is_the_same_run_bit_for_bit") else {
-        return;
-    };
-    let ds = lego_tiny();
-    let model = Model::new(ModelConfig { num_samples: 16, ..Preset::Tiny.config() }).unwrap();
-    let optim = OptimConfig::default();
-    let fresh = TrainState::fresh(&model, 5);
-    let mut straight =
-        GpuBackend::new(ctx, model.clone(), optim.clone(), 5, fresh.clone()).unwrap().with_data(&ds, 32).unwrap();
-    for _ in 0..6 {
-        straight.train_step(false).unwrap();
-    }
-    let want = straight.checkpoint().unwrap();
-    // The same device again: no atomics anywhere, so the same commands give the same bits.
-    let ctx = straight.context();
-    let ctx2 = mipnerf_gpu::GpuContext::new(mipnerf_gpu::AdapterChoice::Any).unwrap();
-    assert_eq!(ctx2.adapter, ctx.adapter);
-    drop(straight);
-    let mut first = GpuBackend::new(ctx2, model.clone(), optim.clone(), 5, fresh).unwrap().with_data(&ds, 32).unwrap();
-    for _ in 0..3 {
-        first.train_step(false).unwrap();
-    }
-    let half = first.checkpoint().unwrap();
-    assert_eq!((half.step, half.adam.t), (3, 3));
-    let ctx3 = mipnerf_gpu::GpuContext::new(mipnerf_gpu::AdapterChoice::Any).unwrap();
-    drop(first);
-    let state = TrainState::from_checkpoint(half);
-    let mut resumed = GpuBackend::new(ctx3, model, optim, 5, state).unwrap().with_data(&ds, 32).unwrap();
-    for _ in 0..3 {
-        resumed.train_step(false).unwrap();
-    }
-    let got = resumed.checkpoint().unwrap();
-    assert_eq!((got.step, got.adam.t), (want.step, want.adam.t));
-    let differ = got.params.iter().zip(&want.params).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
-    let differ_m = got.adam.m.iter().zip(&want.adam.m).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
-    assert_eq!((differ, differ_m), (0, 0), "resumed run differs in {differ} parameters and {differ_m} moments");
 }
 
 #[test]

@@ -3,6 +3,7 @@
 
 use glam::Vec3;
 use mipnerf_core::RayShape;
+use mipnerf_core::compare::{Tolerance, assert_none, mismatches};
 use mipnerf_core::rng::{RayRng, Stream};
 use mipnerf_core::sampling::sample_along_rays;
 use mipnerf_core::{Camera, PixelCenters, Ray};
@@ -73,27 +74,6 @@ const TOL_GPU_MLP_REL: f32 = 2e-4;
 const TOL_GPU_MLP_ABS: f32 = 2e-5;
 
 /// Fails with every mismatch `compare` reported (the first 40 listed).
-fn assert_none_differ(bad: &[String]) {
-    assert!(
-        bad.is_empty(),
-        "{} values differ:\n{}",
-        bad.len(),
-        bad.iter().take(40).cloned().collect::<Vec<_>>().join("\n")
-    );
-}
-
-fn compare(what: &str, gpu: &[f32], cpu: &[f32], rel: f32, abs: f32) -> Vec<String> {
-    assert_eq!(gpu.len(), cpu.len(), "{what}: lengths");
-    let bad: Vec<String> = gpu
-        .iter()
-        .zip(cpu)
-        .enumerate()
-        .filter(|(_, (g, c))| g.is_nan() || (*g - *c).abs() > abs + rel * c.abs())
-        .map(|(i, (g, c))| format!("{what}[{i}]: gpu {g:e} cpu {c:e}"))
-        .collect();
-    bad
-}
-
 #[test]
 fn mlp_forward_and_backward_match_cpu_reference() {
     use mipnerf_core::mlp::{MlpCache, MlpConfig, MlpShape};
@@ -167,18 +147,27 @@ fn mlp_forward_and_backward_match_cpu_reference() {
             let density = ctx.read_f32(&bufs.raw_density, n).unwrap();
             let grads = ctx.read_f32(&g, shape.num_params).unwrap();
             let tag = format!("{variant:?} shape {ci}");
-            bad.extend(compare(&format!("{tag} raw rgb"), &rgb, &cpu_rgb, TOL_GPU_MLP_REL, TOL_GPU_MLP_ABS));
-            bad.extend(compare(
+            bad.extend(mismatches(
+                &format!("{tag} raw rgb"),
+                &rgb,
+                &cpu_rgb,
+                Tolerance::new(TOL_GPU_MLP_ABS, TOL_GPU_MLP_REL),
+            ));
+            bad.extend(mismatches(
                 &format!("{tag} raw density"),
                 &density,
                 &cpu_density,
-                TOL_GPU_MLP_REL,
-                TOL_GPU_MLP_ABS,
+                Tolerance::new(TOL_GPU_MLP_ABS, TOL_GPU_MLP_REL),
             ));
-            bad.extend(compare(&format!("{tag} grads"), &grads, &cpu_grads, TOL_GPU_MLP_REL, TOL_GPU_MLP_ABS));
+            bad.extend(mismatches(
+                &format!("{tag} grads"),
+                &grads,
+                &cpu_grads,
+                Tolerance::new(TOL_GPU_MLP_ABS, TOL_GPU_MLP_REL),
+            ));
         }
     }
-    assert_none_differ(&bad);
+    assert_none(&bad);
 }
 
 /// GPU vs CPU, rendering and its gradients: sums over samples in the same order, but GPU
@@ -302,36 +291,32 @@ fn render_forward_loss_and_backward_match_cpu_reference() {
         kernel.encode(&ctx, &mut enc, RenderParams::new(&cfg, nr, level_weight, true), &rb).unwrap();
         ctx.queue.submit([enc.finish()]);
         let tag = format!("case {ci}");
-        bad.extend(compare(
+        bad.extend(mismatches(
             &format!("{tag} weights"),
             &ctx.read_f32(&b_w, n).unwrap(),
             &w_cpu,
-            TOL_GPU_RENDER_REL,
-            TOL_GPU_RENDER_ABS,
+            Tolerance::new(TOL_GPU_RENDER_ABS, TOL_GPU_RENDER_REL),
         ));
-        bad.extend(compare(
+        bad.extend(mismatches(
             &format!("{tag} ray outputs"),
             &ctx.read_f32(&b_out, nr * 8).unwrap(),
             &out_cpu,
-            TOL_GPU_RENDER_REL,
-            TOL_GPU_RENDER_ABS,
+            Tolerance::new(TOL_GPU_RENDER_ABS, TOL_GPU_RENDER_REL),
         ));
-        bad.extend(compare(
+        bad.extend(mismatches(
             &format!("{tag} d raw rgb"),
             &ctx.read_f32(&b_drgb, n * 3).unwrap(),
             &d_rgb_cpu,
-            TOL_GPU_RENDER_REL,
-            TOL_GPU_RENDER_ABS,
+            Tolerance::new(TOL_GPU_RENDER_ABS, TOL_GPU_RENDER_REL),
         ));
-        bad.extend(compare(
+        bad.extend(mismatches(
             &format!("{tag} d raw density"),
             &ctx.read_f32(&b_dden, n).unwrap(),
             &d_den_cpu,
-            TOL_GPU_RENDER_REL,
-            TOL_GPU_RENDER_ABS,
+            Tolerance::new(TOL_GPU_RENDER_ABS, TOL_GPU_RENDER_REL),
         ));
     }
-    assert_none_differ(&bad);
+    assert_none(&bad);
 }
 
 #[test]
@@ -368,14 +353,29 @@ fn adam_and_gradient_clipping_match_cpu_reference() {
             }
         }
         let tag = format!("max_val {max_val} max_norm {max_norm}");
-        bad.extend(compare(&format!("{tag} params"), &ctx.read_f32(&b.params, n).unwrap(), &params, 1e-6, 1e-7));
-        bad.extend(compare(&format!("{tag} m"), &ctx.read_f32(&b.m, n).unwrap(), &state.m, 1e-6, 1e-9));
-        bad.extend(compare(&format!("{tag} v"), &ctx.read_f32(&b.v, n).unwrap(), &state.v, 1e-5, 1e-12));
+        bad.extend(mismatches(
+            &format!("{tag} params"),
+            &ctx.read_f32(&b.params, n).unwrap(),
+            &params,
+            Tolerance::new(1e-7, 1e-6),
+        ));
+        bad.extend(mismatches(
+            &format!("{tag} m"),
+            &ctx.read_f32(&b.m, n).unwrap(),
+            &state.m,
+            Tolerance::new(1e-9, 1e-6),
+        ));
+        bad.extend(mismatches(
+            &format!("{tag} v"),
+            &ctx.read_f32(&b.v, n).unwrap(),
+            &state.v,
+            Tolerance::new(1e-12, 1e-5),
+        ));
         for (g, c) in norms {
-            bad.extend(compare(&format!("{tag} gradient norm"), &[g], &[c], 1e-5, 0.0));
+            bad.extend(mismatches(&format!("{tag} gradient norm"), &[g], &[c], Tolerance::new(0.0, 1e-5)));
         }
     }
-    assert_none_differ(&bad);
+    assert_none(&bad);
 }
 
 /// GPU vs CPU interval edges: the same f32 operations; GPU division is within 2.5 ulp.
@@ -444,22 +444,20 @@ fn sampling_and_resampling_match_cpu_reference() {
         k.resample(&ctx, &mut enc, params, &b_t, &b_w, &b_f).unwrap();
         ctx.queue.submit([enc.finish()]);
         let tag = format!("lindisp {lindisp} randomized {randomized}");
-        bad.extend(compare(
+        bad.extend(mismatches(
             &format!("{tag} coarse"),
             &ctx.read_f32(&b_t, nr * (s + 1)).unwrap(),
             &t_cpu,
-            TOL_GPU_SAMPLE_REL,
-            0.0,
+            Tolerance::new(0.0, TOL_GPU_SAMPLE_REL),
         ));
-        bad.extend(compare(
+        bad.extend(mismatches(
             &format!("{tag} fine"),
             &ctx.read_f32(&b_f, nr * (s + 1)).unwrap(),
             &f_cpu,
-            TOL_GPU_SAMPLE_REL,
-            1e-6,
+            Tolerance::new(1e-6, TOL_GPU_SAMPLE_REL),
         ));
     }
-    assert_none_differ(&bad);
+    assert_none(&bad);
 }
 
 #[test]
@@ -479,7 +477,12 @@ fn view_direction_encoding_matches_cpu_reference() {
     let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("view enc test") });
     k.encode(&ctx, &mut enc, rays.len(), 4, &b_in, &b_out).unwrap();
     ctx.queue.submit([enc.finish()]);
-    let bad = compare("view encoding", &ctx.read_f32(&b_out, cpu.len()).unwrap(), &cpu, 0.0, TOL_GPU_IPE_ABS);
+    let bad = mismatches(
+        "view encoding",
+        &ctx.read_f32(&b_out, cpu.len()).unwrap(),
+        &cpu,
+        Tolerance::new(TOL_GPU_IPE_ABS, 0.0),
+    );
     assert!(bad.is_empty(), "{}", bad.join("\n"));
 }
 
@@ -527,7 +530,7 @@ fn whole_model_loss_and_gradients_match_cpu_reference() {
         let model = Model::new(cfg).unwrap();
         let params = model.init_params(11);
         // k x k rays per pixel of the same camera for a supersampled model.
-        let k = model.config.supersample;
+        let k = model.config().supersample;
         let rays: Vec<Ray> = if k > 1 {
             let cam = test_camera(8);
             let mut out = Vec::new();
@@ -550,33 +553,36 @@ fn whole_model_loss_and_gradients_match_cpu_reference() {
         } else {
             rays.clone()
         };
-        let mut cpu_grads = vec![0.0; model.num_params];
+        let mut cpu_grads = vec![0.0; model.num_params()];
         let cpu = model.loss_and_grad(&params, &rays, &targets, mode, &mut cpu_grads);
         let (g_stats, g_grads) = gpu.loss_and_grad(&ctx, &model, &params, &rays, &targets, mode).unwrap();
-        if model.config.density_noise > 0.0 {
+        if model.config().density_noise > 0.0 {
             // The case is only meaningful if the noise moves the loss well beyond the tolerance.
-            let quiet = Model::new(ModelConfig { density_noise: 0.0, ..model.config.clone() }).unwrap();
-            let plain = quiet.loss_and_grad(&params, &rays, &targets, mode, &mut vec![0.0; model.num_params]);
+            let quiet = Model::new(ModelConfig { density_noise: 0.0, ..model.config().clone() }).unwrap();
+            let plain = quiet.loss_and_grad(&params, &rays, &targets, mode, &mut vec![0.0; model.num_params()]);
             assert!((plain.loss - cpu.loss).abs() > 20.0 * TOL_GPU_MODEL_REL * cpu.loss, "noise changes nothing");
         }
         eprintln!("case {ci}: cpu losses {:?} gpu {:?}", cpu.losses, g_stats.losses);
-        bad.extend(compare(
+        bad.extend(mismatches(
             &format!("case {ci} losses"),
             &g_stats.losses,
             &cpu.losses,
-            TOL_GPU_MODEL_REL,
-            TOL_GPU_MODEL_ABS,
+            Tolerance::new(TOL_GPU_MODEL_ABS, TOL_GPU_MODEL_REL),
         ));
-        bad.extend(compare(&format!("case {ci} mse"), &g_stats.mse, &cpu.mse, TOL_GPU_MODEL_REL, TOL_GPU_MODEL_ABS));
+        bad.extend(mismatches(
+            &format!("case {ci} mse"),
+            &g_stats.mse,
+            &cpu.mse,
+            Tolerance::new(TOL_GPU_MODEL_ABS, TOL_GPU_MODEL_REL),
+        ));
         // Gradients: compare relative to the gradient's overall scale.
         let scale = cpu_grads.iter().fold(0.0f32, |m, g| m.max(g.abs()));
-        bad.extend(compare(
+        bad.extend(mismatches(
             &format!("case {ci} grads"),
             &g_grads,
             &cpu_grads,
-            TOL_GPU_MODEL_REL,
-            TOL_GPU_MODEL_REL * scale,
+            Tolerance::new(TOL_GPU_MODEL_REL * scale, TOL_GPU_MODEL_REL),
         ));
     }
-    assert_none_differ(&bad);
+    assert_none(&bad);
 }

@@ -4,23 +4,14 @@
 
 use std::sync::Arc;
 
-use mipnerf_core::Camera;
 use mipnerf_core::backend::{ImageSpec, TrainState};
-use mipnerf_core::data::{Dataset, Pixels, Split, View, demo};
+use mipnerf_core::data::Dataset;
 use mipnerf_core::model::{Model, Preset};
 use mipnerf_core::train::OptimConfig;
 use mipnerf_gpu::{BackendChoice, BackendSetup, GpuBackend, GpuContext, open_backend};
 
 fn data() -> Arc<Dataset> {
-    let views = demo::view_poses(3, 0.0)
-        .into_iter()
-        .enumerate()
-        .map(|(i, pose)| {
-            let camera = Camera::from_camera_angle_x(8, 8, 0.69, pose).unwrap();
-            View::in_memory(&format!("v{i}"), camera.clone(), Pixels::RgbaF32(demo::render_view(&camera, 1)), 2.0, 6.0)
-        })
-        .collect();
-    Arc::new(Dataset::from_views(Split::Train, views, true).unwrap())
+    mipnerf_gpu::test_support::demo_views(3, 8)
 }
 
 fn setup(data: &Arc<Dataset>) -> BackendSetup {
@@ -31,6 +22,7 @@ fn setup(data: &Arc<Dataset>) -> BackendSetup {
         optim: OptimConfig::default(),
         seed: 0,
         data: Some((Arc::clone(data), 16)),
+        render_chunk: None,
     }
 }
 
@@ -71,8 +63,13 @@ fn a_context_on_an_apps_own_device_runs_the_backend() {
     let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions::default())).unwrap();
     // A device with WebGPU's default limits is refused with what to ask for...
     let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor::default())).unwrap();
-    let err = GpuContext::from_device(&adapter.get_info(), device, queue).unwrap_err().to_string();
-    assert!(err.contains("max_storage_buffers_per_shader_stage") && err.contains("need 11"), "{err}");
+    let err = GpuContext::from_device(&adapter.get_info(), device, queue).unwrap_err();
+    assert!(
+        matches!(err, mipnerf_gpu::GpuError::UnsupportedLimit { need: 11, have, .. } if have < 11),
+        "a typed error naming the limit: {err:?}"
+    );
+    let msg = err.to_string();
+    assert!(msg.contains("max_storage_buffers_per_shader_stage") && msg.contains("need 11"), "{msg}");
     // ...one that asks for the one limit mipnerf needs above them runs everything.
     let limits = wgpu::Limits {
         max_storage_buffers_per_shader_stage: mipnerf_gpu::context::MIN_STORAGE_BUFFERS_PER_STAGE,

@@ -179,8 +179,9 @@ pub struct Dataset {
     pub root: PathBuf,
     /// Which split.
     pub split: Split,
-    /// The views (all scales of all images for multiscale data).
-    pub views: Vec<View>,
+    /// The views (all scales of all images for multiscale data); private because the pixel
+    /// offsets are derived from them.
+    views: Vec<View>,
     /// Composite RGBA on white (Blender) rather than dropping alpha.
     pub white_bkgd: bool,
     /// Rays through pixel centres or corners.
@@ -232,6 +233,18 @@ impl Dataset {
             notes: Vec::new(),
             offsets,
         })
+    }
+
+    /// The views (all scales of all images for multiscale data), in order.
+    #[must_use]
+    pub fn views(&self) -> &[View] {
+        &self.views
+    }
+
+    /// The dataset's views, taking it apart.
+    #[must_use]
+    pub fn into_views(self) -> Vec<View> {
+        self.views
     }
 
     /// Total pixels over all views.

@@ -141,14 +141,14 @@ impl DeviceImages {
     pub fn upload_with_slot_bytes(ctx: &GpuContext, ds: &Dataset, slot_bytes: u64) -> Result<Self, GpuError> {
         let total = ds.num_pixels();
         let total_u32 = u32::try_from(total).map_err(|_| too_large(&ds.root.display().to_string()))?;
-        let all_u8 = ds.views.iter().all(|v| matches!(v.pixels, Pixels::Rgba8(_)));
+        let all_u8 = ds.views().iter().all(|v| matches!(v.pixels, Pixels::Rgba8(_)));
         let (format, words_per_pixel) = if all_u8 { (PixelFormat::Rgba8, 1u64) } else { (PixelFormat::F32, 4) };
         let slot_bytes = slot_bytes.min(ctx.max_binding_bytes()) / 4 * 4;
         // Assign views to slots greedily, in order.
-        let mut placement = Vec::with_capacity(ds.views.len());
+        let mut placement = Vec::with_capacity(ds.views().len());
         let mut used = [0u64; PIXEL_SLOTS];
         let mut slot = 0usize;
-        for v in &ds.views {
+        for v in ds.views() {
             let bytes = u64::from(v.camera.width) * u64::from(v.camera.height) * words_per_pixel * 4;
             while slot < PIXEL_SLOTS && used[slot] + bytes > slot_bytes {
                 slot += 1;
@@ -174,7 +174,7 @@ impl DeviceImages {
                 mapped_at_creation: false,
             })
         });
-        for (v, &(slot, word)) in ds.views.iter().zip(&placement) {
+        for (v, &(slot, word)) in ds.views().iter().zip(&placement) {
             let offset = u64::from(word) * 4;
             match (&v.pixels, format) {
                 (Pixels::Rgba8(bytes), PixelFormat::Rgba8) => {
@@ -190,7 +190,7 @@ impl DeviceImages {
             }
         }
         let views: Vec<GpuView> = ds
-            .views
+            .views()
             .iter()
             .zip(&placement)
             .map(|(v, &p)| GpuView::new(&v.camera, ds.centers, (v.near, v.far), v.lossmult, p))

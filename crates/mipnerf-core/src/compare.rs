@@ -1,0 +1,130 @@
+//! Comparing numbers under a named tolerance: the one way every test in the workspace (GPU against
+//! the CPU reference, the CPU against the official golden numbers, resumed runs against straight
+//! ones) says "close enough", and reports every mismatch at once.
+//!
+//! ```
+//! use mipnerf_core::compare::{Tolerance, assert_close};
+//! /// Two summation orders of the same f32 sum: a few ulp of the result.
+//! const TOL_SUM: Tolerance = Tolerance::new(0.0, 1e-6);
+//! assert_close("sum", &[1.0, 2.000_000_2], &[1.0, 2.0], TOL_SUM);
+//! ```
+
+use std::fmt::Write as _;
+
+/// How far `got` may be from `want`: `|got - want| <= abs + rel * |want|`. NaN in `got` never
+/// passes; NaN in both passes (both paths agree that the value is undefined).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Tolerance {
+    /// Absolute part.
+    pub abs: f32,
+    /// Part relative to the expected value's magnitude.
+    pub rel: f32,
+}
+
+impl Tolerance {
+    /// Bit for bit: only identical values pass (`-0.0` and `0.0` differ).
+    pub const EXACT: Self = Self { abs: 0.0, rel: 0.0 };
+
+    /// `abs + rel * |want|`.
+    #[must_use]
+    pub const fn new(abs: f32, rel: f32) -> Self {
+        Self { abs, rel }
+    }
+
+    /// Only an absolute bound.
+    #[must_use]
+    pub const fn abs(abs: f32) -> Self {
+        Self { abs, rel: 0.0 }
+    }
+
+    /// Only a relative bound.
+    #[must_use]
+    pub const fn rel(rel: f32) -> Self {
+        Self { abs: 0.0, rel }
+    }
+
+    /// Whether `got` is within this tolerance of `want`.
+    #[must_use]
+    pub fn accepts(&self, got: f32, want: f32) -> bool {
+        if *self == Self::EXACT {
+            return got.to_bits() == want.to_bits() || (got.is_nan() && want.is_nan());
+        }
+        if got.is_nan() || want.is_nan() {
+            return got.is_nan() && want.is_nan();
+        }
+        got == want || (got - want).abs() <= self.abs + self.rel * want.abs()
+    }
+}
+
+/// Every index where `got` is not within `tol` of `want`, as `what[i]: got G want W (off D)`.
+///
+/// # Panics
+/// If the lengths differ.
+#[must_use]
+pub fn mismatches(what: &str, got: &[f32], want: &[f32], tol: Tolerance) -> Vec<String> {
+    assert_eq!(got.len(), want.len(), "{what}: {} values, expected {}", got.len(), want.len());
+    got.iter()
+        .zip(want)
+        .enumerate()
+        .filter(|(_, (g, w))| !tol.accepts(**g, **w))
+        .map(|(i, (g, w))| format!("{what}[{i}]: got {g:e} want {w:e} (off {:e})", (g - w).abs()))
+        .collect()
+}
+
+/// Panics with every mismatch (the first 40 listed, and the count) when `bad` is not empty.
+///
+/// # Panics
+/// When `bad` is not empty.
+pub fn assert_none(bad: &[String]) {
+    if bad.is_empty() {
+        return;
+    }
+    let mut msg = format!("{} values out of tolerance:\n", bad.len());
+    for line in bad.iter().take(40) {
+        let _ = writeln!(msg, "{line}");
+    }
+    if bad.len() > 40 {
+        let _ = writeln!(msg, "... and {} more", bad.len() - 40);
+    }
+    panic!("{msg}");
+}
+
+/// Asserts that `got` is within `tol` of `want` everywhere, naming every mismatch in one message.
+///
+/// # Panics
+/// When the lengths differ or any value is out of tolerance.
+#[track_caller]
+pub fn assert_close(what: &str, got: &[f32], want: &[f32], tol: Tolerance) {
+    assert_none(&mismatches(what, got, want, tol));
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_bound_is_abs_plus_rel_times_want_and_nan_never_passes_alone() {
+        let t = Tolerance::new(1e-3, 1e-2);
+        assert!(t.accepts(101.0, 100.0)); // 1 <= 1e-3 + 1
+        assert!(!t.accepts(101.1, 100.0));
+        assert!(t.accepts(0.0005, 0.0));
+        assert!(!t.accepts(0.002, 0.0));
+        assert!(!t.accepts(f32::NAN, 1.0));
+        assert!(!t.accepts(1.0, f32::NAN));
+        assert!(t.accepts(f32::NAN, f32::NAN));
+        assert!(Tolerance::EXACT.accepts(1.5, 1.5));
+        assert!(!Tolerance::EXACT.accepts(0.0, -0.0));
+        assert!(!Tolerance::EXACT.accepts(1.0, 1.0 + f32::EPSILON));
+        assert!(Tolerance::abs(f32::INFINITY).accepts(1e30, -1e30));
+    }
+
+    #[test]
+    fn every_mismatch_is_reported_in_one_message() {
+        let bad = mismatches("x", &[0.0, 5.0, 2.0, 9.0], &[0.0, 1.0, 2.0, 1.0], Tolerance::abs(0.5));
+        assert_eq!(bad.len(), 2, "{bad:?}");
+        assert!(bad[0].starts_with("x[1]: got 5e0 want 1e0") && bad[1].starts_with("x[3]:"), "{bad:?}");
+        let r = std::panic::catch_unwind(|| assert_close("y", &[1.0, 7.0, 8.0], &[1.0, 1.0, 1.0], Tolerance::EXACT));
+        let msg = r.unwrap_err().downcast::<String>().unwrap();
+        assert!(msg.contains("2 values out of tolerance") && msg.contains("y[1]") && msg.contains("y[2]"), "{msg}");
+    }
+}
