@@ -112,7 +112,7 @@ impl GpuContext {
     ///
     /// # Errors
     /// [`GpuError::NoAdapter`] when no adapter fits (with a hint on how to get one), and
-    /// [`GpuError::Device`] when the device cannot be created.
+    /// [`GpuError::RequestDevice`] when the device cannot be created.
     pub fn new(choice: AdapterChoice) -> Result<Self, GpuError> {
         let inst = instance();
         let mut adapters = pollster::block_on(inst.enumerate_adapters(wgpu::Backends::all()));

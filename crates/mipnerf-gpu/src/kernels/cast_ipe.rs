@@ -42,7 +42,7 @@ impl CastIpeKernel {
     /// Compiles the kernel on `ctx`'s device.
     ///
     /// # Errors
-    /// [`GpuError::Validation`] if the device rejects the shader or pipeline.
+    /// [`GpuError::Wgpu`] if the device rejects the shader or pipeline.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
         let (pipeline, layout) = crate::kernels::build(ctx, "cast_ipe", SOURCE, &[true, true, false])?;
         Ok(Self { pipeline, layout })

@@ -196,7 +196,7 @@ pub fn storage_layout(ctx: &GpuContext, name: &str, read_only: &[bool]) -> wgpu:
 /// read-only where `read_only[i]`), checked by the device: what every single-entry kernel owns.
 ///
 /// # Errors
-/// [`GpuError::Validation`] if the device rejects the shader or pipeline.
+/// [`GpuError::Wgpu`] if the device rejects the shader or pipeline.
 pub fn build(
     ctx: &GpuContext,
     name: &str,
@@ -212,7 +212,7 @@ pub fn build(
 /// kernel type owns.
 ///
 /// # Errors
-/// [`GpuError::Validation`] if the device rejects the shader or a pipeline.
+/// [`GpuError::Wgpu`] if the device rejects the shader or a pipeline.
 pub fn build_entries<const N: usize>(
     ctx: &GpuContext,
     name: &str,
