@@ -52,7 +52,9 @@ impl Tolerance {
         if got.is_nan() || want.is_nan() {
             return got.is_nan() && want.is_nan();
         }
-        got == want || (got - want).abs() <= self.abs + self.rel * want.abs()
+        // In f64, so that the difference and the bound are exact for any f32 inputs.
+        let (g, w) = (f64::from(got), f64::from(want));
+        got == want || (g - w).abs() <= f64::from(self.abs) + f64::from(self.rel) * w.abs()
     }
 }
 

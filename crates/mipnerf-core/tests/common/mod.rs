@@ -14,12 +14,8 @@ pub const TOL_ACCUMULATED: Tol = Tol { rel: 1e-5, abs: 1e-6 };
 /// Rays: ours are computed in f64 and rounded once, the official Blender loader in f32.
 pub const TOL_RAYS: Tol = Tol { rel: 1e-6, abs: 1e-7 };
 
-/// `|a - b| <= abs + rel * |b|`.
-#[derive(Clone, Copy, Debug)]
-pub struct Tol {
-    pub rel: f64,
-    pub abs: f64,
-}
+/// The workspace's one tolerance type (`|got - want| <= abs + rel |want|`).
+pub use mipnerf_core::compare::Tolerance as Tol;
 
 pub fn golden(name: &str) -> Value {
     let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/golden").join(name);
@@ -67,14 +63,7 @@ impl Mismatches {
         }
         for (i, (&g, &w)) in got.iter().zip(want).enumerate() {
             self.checked += 1;
-            let ok = if w.is_nan() {
-                g.is_nan()
-            } else if w.is_infinite() {
-                g == w
-            } else {
-                let (g64, w64) = (f64::from(g), f64::from(w));
-                (g64 - w64).abs() <= tol.abs + tol.rel * w64.abs()
-            };
+            let ok = tol.accepts(g, w);
             if !ok {
                 self.lines.push(format!("{what}[{i}]: got {g:e}, want {w:e}, diff {:e}", g - w));
             }
