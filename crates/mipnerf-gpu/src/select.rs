@@ -36,7 +36,8 @@ pub struct BackendSetup {
     /// Training data and rays per batch (`None`: rendering only).
     pub data: Option<(Arc<Dataset>, usize)>,
     /// Rays per rendering chunk, the memory a render holds at once (`None`: the backend's
-    /// default, on a GPU sized to the device). Images are the same whatever the chunk.
+    /// default, on a GPU sized to the device). Images agree whatever the chunk, on the CPU up to
+    /// rounding (see `CpuBackend::with_render_chunk`).
     pub render_chunk: Option<usize>,
 }
 

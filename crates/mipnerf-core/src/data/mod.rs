@@ -241,12 +241,6 @@ impl Dataset {
         &self.views
     }
 
-    /// The dataset's views, taking it apart.
-    #[must_use]
-    pub fn into_views(self) -> Vec<View> {
-        self.views
-    }
-
     /// Total pixels over all views.
     #[must_use]
     pub fn num_pixels(&self) -> u64 {
