@@ -194,6 +194,44 @@ pub trait Backend {
         let out = self.render_image(image)?;
         Ok(RenderedImage::from_outputs(image.camera.width, image.camera.height, levels, &out))
     }
+
+    /// What the backend has sent to and read from a device so far, for `mipnerf bench`; `None`
+    /// for a backend without a device (the CPU).
+    fn work_counters(&self) -> Option<WorkCounters> {
+        None
+    }
+}
+
+/// Running totals of a device backend's work and allocations since it was made. The difference
+/// of two snapshots is what happened in between (`a - b`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct WorkCounters {
+    /// Compute dispatches recorded.
+    pub dispatches: u64,
+    /// Compute passes recorded.
+    pub compute_passes: u64,
+    /// Command buffers submitted.
+    pub submits: u64,
+    /// Device buffers created (storage, uniform and staging).
+    pub buffers_created: u64,
+    /// Bind groups created.
+    pub bind_groups_created: u64,
+    /// Bytes copied back from the device to the host.
+    pub bytes_read_back: u64,
+}
+
+impl std::ops::Sub for WorkCounters {
+    type Output = Self;
+    fn sub(self, b: Self) -> Self {
+        Self {
+            dispatches: self.dispatches - b.dispatches,
+            compute_passes: self.compute_passes - b.compute_passes,
+            submits: self.submits - b.submits,
+            buffers_created: self.buffers_created - b.buffers_created,
+            bind_groups_created: self.bind_groups_created - b.bind_groups_created,
+            bytes_read_back: self.bytes_read_back - b.bytes_read_back,
+        }
+    }
 }
 
 /// Where a training run starts: fresh parameters from the seed, or a checkpoint.

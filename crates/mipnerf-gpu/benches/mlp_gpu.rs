@@ -8,6 +8,7 @@
 use std::time::Instant;
 
 use mipnerf_core::mlp::{MlpConfig, MlpShape};
+use mipnerf_gpu::kernels::{DispatchCache, Recorder};
 use mipnerf_gpu::mlp::{GpuMlp, MlpBuffers};
 use mipnerf_gpu::{AdapterChoice, GpuContext};
 
@@ -16,14 +17,15 @@ fn arg(name: &str, default: usize) -> usize {
     args.iter().position(|a| a == name).and_then(|i| args.get(i + 1)).and_then(|v| v.parse().ok()).unwrap_or(default)
 }
 
-fn time(ctx: &GpuContext, reps: usize, mut record: impl FnMut(&mut wgpu::CommandEncoder)) -> f64 {
+fn time(ctx: &GpuContext, reps: usize, mut record: impl FnMut(&mut Recorder<'_>)) -> f64 {
+    let mut cache = DispatchCache::default();
     let mut times: Vec<f64> = (0..reps.max(1) + 1)
         .map(|_| {
-            let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("bench") });
-            record(&mut enc);
+            let mut rec = Recorder::with_cache(ctx, "bench", std::mem::take(&mut cache));
+            record(&mut rec);
             let t = Instant::now();
-            ctx.queue.submit([enc.finish()]);
-            ctx.device.poll(wgpu::PollType::wait_indefinitely()).unwrap();
+            cache = rec.submit();
+            ctx.wait().unwrap();
             t.elapsed().as_secs_f64()
         })
         .collect();
@@ -67,8 +69,8 @@ fn main() {
         let g = ctx.storage_buffer("grads", &vec![0.0f32; shape.num_params], false);
         let dr = ctx.storage_buffer("d rgb", &vec![0.01f32; n * 3], false);
         let dd = ctx.storage_buffer("d density", &vec![0.01f32; n], false);
-        let fwd = time(&ctx, reps, |enc| mlp.forward(&ctx, enc, &shape, &p, &bufs));
-        let bwd = time(&ctx, reps, |enc| mlp.backward(&ctx, enc, &shape, &p, &bufs, &dr, &dd, &g));
+        let fwd = time(&ctx, reps, |rec| mlp.forward(rec, &shape, &p, &bufs));
+        let bwd = time(&ctx, reps, |rec| mlp.backward(rec, &shape, &p, &bufs, &dr, &dd, &g));
         let fwd_flops: f64 = shape.layers.iter().map(|l| 2.0 * (l.fan_in * l.fan_out) as f64).sum::<f64>() * n as f64;
         let bwd_flops = shape.flops_per_sample() * n as f64 - fwd_flops;
         println!(

@@ -1,6 +1,9 @@
 //! The one context that holds the wgpu device and queue, adapter discovery, and error capture.
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
+
+use mipnerf_core::backend::WorkCounters;
 
 use crate::GpuError;
 
@@ -8,8 +11,16 @@ use crate::GpuError;
 /// shader stage (WebGPU's default is 8).
 pub const MIN_STORAGE_BUFFERS_PER_STAGE: u32 = 11;
 
+/// The most invocations one workgroup of the kernels has (`matmul.wgsl`'s `tiled`: 256, WebGPU's
+/// default limit), which a device must allow.
+pub const MIN_INVOCATIONS_PER_WORKGROUP: u32 = 256;
+
+/// How long a wait on the device may take before it is an error ([`GpuError::Timeout`]), unless
+/// [`GpuContext::with_timeout`] sets another.
+pub const DEFAULT_DEVICE_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(300);
+
 /// Which adapters [`GpuContext::new`] may pick.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[derive(Clone, Debug, PartialEq, Eq, Default)]
 pub enum AdapterChoice {
     /// The best adapter found: a discrete GPU, else an integrated one, else a virtual one, else a
     /// software rasteriser (lavapipe).
@@ -17,6 +28,74 @@ pub enum AdapterChoice {
     Any,
     /// Only a hardware GPU (never a CPU/software adapter); [`GpuError::NoAdapter`] otherwise.
     HardwareOnly,
+    /// The first adapter (best first) whose name contains this, ignoring case.
+    Named(String),
+    /// The adapter at this index of [`list_adapters`] (what `mipnerf info` numbers).
+    Index(usize),
+}
+
+impl AdapterChoice {
+    /// The variable that names an adapter when no `--adapter` is given (as in wgpu's examples).
+    pub const ENV: &'static str = "WGPU_ADAPTER_NAME";
+
+    /// Reads `--adapter`: a number is an index into [`list_adapters`], anything else a name
+    /// substring.
+    #[must_use]
+    pub fn parse(s: &str) -> Self {
+        let s = s.trim();
+        s.parse::<usize>().map_or_else(|_| Self::Named(s.to_string()), Self::Index)
+    }
+
+    /// The explicit choice of `flag` (`--adapter`), else of [`ENV`](Self::ENV) when it is set
+    /// and not empty; `None` when neither names one.
+    #[must_use]
+    pub fn explicit(flag: Option<&str>) -> Option<Self> {
+        match flag {
+            Some(f) if !f.trim().is_empty() => Some(Self::parse(f)),
+            _ => std::env::var(Self::ENV).ok().filter(|v| !v.trim().is_empty()).map(|v| Self::parse(&v)),
+        }
+    }
+
+    /// Why this choice passes over adapter `index` described by `info`, or `None` if it takes it.
+    fn passes_over(&self, index: usize, info: &wgpu::AdapterInfo) -> Option<String> {
+        match self {
+            Self::Any => None,
+            Self::HardwareOnly => (info.device_type == wgpu::DeviceType::Cpu)
+                .then(|| "a software adapter (the CPU path is faster than it)".to_string()),
+            Self::Named(s) => (!info.name.to_lowercase().contains(&s.to_lowercase()))
+                .then(|| format!("its name does not contain \"{s}\"")),
+            Self::Index(k) => (index != *k).then(|| format!("not adapter {k}")),
+        }
+    }
+}
+
+impl std::fmt::Display for AdapterChoice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Any => f.write_str("any adapter"),
+            Self::HardwareOnly => f.write_str("a hardware GPU"),
+            Self::Named(s) => write!(f, "an adapter named like \"{s}\""),
+            Self::Index(k) => write!(f, "adapter {k}"),
+        }
+    }
+}
+
+/// Why an adapter with `limits` cannot run the kernels, if it cannot.
+fn limits_problem(limits: &wgpu::Limits) -> Option<(&'static str, u64, u64)> {
+    let checks = [
+        (
+            "max_storage_buffers_per_shader_stage",
+            limits.max_storage_buffers_per_shader_stage,
+            MIN_STORAGE_BUFFERS_PER_STAGE,
+        ),
+        (
+            "max_compute_invocations_per_workgroup",
+            limits.max_compute_invocations_per_workgroup,
+            MIN_INVOCATIONS_PER_WORKGROUP,
+        ),
+        ("max_compute_workgroup_size_x", limits.max_compute_workgroup_size_x, MIN_INVOCATIONS_PER_WORKGROUP),
+    ];
+    checks.into_iter().find(|(_, have, need)| have < need).map(|(l, h, n)| (l, u64::from(h), u64::from(n)))
 }
 
 /// What is known about one adapter, for `mipnerf info` and logs.
@@ -63,15 +142,17 @@ fn rank(info: &wgpu::AdapterInfo) -> u8 {
     }
 }
 
-/// Every adapter wgpu can see on this machine, best first.
+/// Every adapter wgpu can see on this machine, best first (the order `--adapter INDEX` counts in).
 #[must_use]
 pub fn list_adapters() -> Vec<AdapterSummary> {
-    let mut infos: Vec<wgpu::AdapterInfo> = pollster::block_on(instance().enumerate_adapters(wgpu::Backends::all()))
-        .iter()
-        .map(wgpu::Adapter::get_info)
-        .collect();
-    infos.sort_by_key(rank);
-    infos.iter().map(AdapterSummary::from_info).collect()
+    sorted_adapters(&instance()).iter().map(|a| AdapterSummary::from_info(&a.get_info())).collect()
+}
+
+fn sorted_adapters(inst: &wgpu::Instance) -> Vec<wgpu::Adapter> {
+    let mut adapters = pollster::block_on(inst.enumerate_adapters(wgpu::Backends::all()));
+    // Stable: adapters of one rank keep wgpu's order.
+    adapters.sort_by_key(|a| rank(&a.get_info()));
+    adapters
 }
 
 /// Errors that wgpu reported asynchronously (validation, out of memory, device loss).
@@ -82,14 +163,27 @@ struct ErrorSink {
 }
 
 /// The sink, even if a callback panicked while holding it (its contents are still valid).
-fn lock(sink: &Mutex<ErrorSink>) -> std::sync::MutexGuard<'_, ErrorSink> {
-    sink.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// The running totals behind [`GpuContext::counters`].
+#[derive(Default)]
+struct Counters {
+    dispatches: AtomicU64,
+    compute_passes: AtomicU64,
+    submits: AtomicU64,
+    buffers_created: AtomicU64,
+    bind_groups_created: AtomicU64,
+    bytes_read_back: AtomicU64,
 }
 
 /// The device and queue every kernel runs on, with the adapter they came from.
 ///
 /// wgpu reports validation errors and device loss through callbacks; the context collects them so
-/// that [`GpuContext::check`] turns them into a [`GpuError`] instead of a panic.
+/// that [`GpuContext::check`] turns them into a [`GpuError`] instead of a panic. It also counts
+/// the work recorded and the resources made ([`GpuContext::counters`]), and keeps one staging
+/// buffer for reading back, grown as needed.
 pub struct GpuContext {
     /// The adapter this context runs on.
     pub adapter: AdapterSummary,
@@ -98,6 +192,10 @@ pub struct GpuContext {
     /// Its queue.
     pub queue: wgpu::Queue,
     sink: Arc<Mutex<ErrorSink>>,
+    counters: Counters,
+    staging: Mutex<Option<wgpu::Buffer>>,
+    timeout: std::time::Duration,
+    memory_budget: Option<u64>,
 }
 
 impl std::fmt::Debug for GpuContext {
@@ -108,19 +206,33 @@ impl std::fmt::Debug for GpuContext {
 
 impl GpuContext {
     /// Opens the best adapter allowed by `choice` and creates a device with the adapter's own
-    /// limits (so large storage buffers are available where the hardware has them).
+    /// limits (so large storage buffers are available where the hardware has them). Adapters
+    /// whose limits are below what the kernels need are passed over.
     ///
     /// # Errors
-    /// [`GpuError::NoAdapter`] when no adapter fits (with a hint on how to get one), and
-    /// [`GpuError::RequestDevice`] when the device cannot be created.
+    /// [`GpuError::NoAdapter`] when no adapter fits (listing every adapter seen and why each was
+    /// passed over, with a hint on how to get one), and [`GpuError::RequestDevice`] when the
+    /// device cannot be created.
     pub fn new(choice: AdapterChoice) -> Result<Self, GpuError> {
         let inst = instance();
-        let mut adapters = pollster::block_on(inst.enumerate_adapters(wgpu::Backends::all()));
-        adapters.sort_by_key(|a| rank(&a.get_info()));
-        let adapter = adapters
-            .into_iter()
-            .find(|a| choice == AdapterChoice::Any || a.get_info().device_type != wgpu::DeviceType::Cpu)
-            .ok_or(GpuError::NoAdapter { hardware_only: choice == AdapterChoice::HardwareOnly })?;
+        let mut passed_over = Vec::new();
+        let mut chosen = None;
+        for (i, a) in sorted_adapters(&inst).into_iter().enumerate() {
+            let info = a.get_info();
+            let why = choice.passes_over(i, &info).or_else(|| {
+                limits_problem(&a.limits()).map(|(l, have, need)| format!("its {l} is {have}, the kernels need {need}"))
+            });
+            match why {
+                Some(w) => {
+                    passed_over.push(format!("[{i}] {} ({:?}, {:?}): {w}", info.name, info.backend, info.device_type))
+                }
+                None => {
+                    chosen = Some(a);
+                    break;
+                }
+            }
+        }
+        let adapter = chosen.ok_or_else(|| GpuError::NoAdapter { wanted: choice.to_string(), passed_over })?;
         let info = adapter.get_info();
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("mipnerf device"),
@@ -143,16 +255,11 @@ impl GpuContext {
     /// with the limit).
     ///
     /// # Errors
-    /// [`GpuError::UnsupportedLimit`] when the device allows too few storage buffers per stage.
+    /// [`GpuError::UnsupportedLimit`] when the device allows too few storage buffers per stage or
+    /// too few invocations per workgroup.
     pub fn from_device(info: &wgpu::AdapterInfo, device: wgpu::Device, queue: wgpu::Queue) -> Result<Self, GpuError> {
-        let have = device.limits().max_storage_buffers_per_shader_stage;
-        if have < MIN_STORAGE_BUFFERS_PER_STAGE {
-            return Err(GpuError::UnsupportedLimit {
-                adapter: info.name.clone(),
-                limit: "max_storage_buffers_per_shader_stage",
-                have: u64::from(have),
-                need: u64::from(MIN_STORAGE_BUFFERS_PER_STAGE),
-            });
+        if let Some((limit, have, need)) = limits_problem(&device.limits()) {
+            return Err(GpuError::UnsupportedLimit { adapter: info.name.clone(), limit, have, need });
         }
         let sink = Arc::new(Mutex::new(ErrorSink::default()));
         let s = Arc::clone(&sink);
@@ -163,7 +270,118 @@ impl GpuContext {
         device.set_device_lost_callback(move |reason, msg| {
             lock(&s).lost = Some((reason, msg));
         });
-        Ok(Self { adapter: AdapterSummary::from_info(info), device, queue, sink })
+        Ok(Self {
+            adapter: AdapterSummary::from_info(info),
+            device,
+            queue,
+            sink,
+            counters: Counters::default(),
+            staging: Mutex::new(None),
+            timeout: DEFAULT_DEVICE_TIMEOUT,
+            memory_budget: None,
+        })
+    }
+
+    /// Sets how long a wait on the device may take ([`DEFAULT_DEVICE_TIMEOUT`] otherwise).
+    #[must_use]
+    pub fn with_timeout(mut self, timeout: std::time::Duration) -> Self {
+        self.timeout = timeout;
+        self
+    }
+
+    /// Sets the device memory the backend's batch and render buffers may take, in bytes
+    /// (`--gpu-memory`), instead of [`memory_budget`](Self::memory_budget)'s default.
+    #[must_use]
+    pub fn with_memory_budget(mut self, bytes: Option<u64>) -> Self {
+        self.memory_budget = bytes.filter(|&b| b > 0);
+        self
+    }
+
+    /// Device bytes the training batch's buffers may take (the render buffers get a quarter):
+    /// what [`with_memory_budget`](Self::with_memory_budget) set, else four of the largest
+    /// buffers the device binds, between 1 and 16 GiB. wgpu does not report a device's memory;
+    /// its binding limit grows with it (lavapipe: 2 GiB, so an 8 GiB budget), and a batch that
+    /// still does not fit is caught as out-of-memory with a message naming the flag.
+    #[must_use]
+    pub fn memory_budget(&self) -> u64 {
+        self.memory_budget.unwrap_or_else(|| (4 * self.max_binding_bytes()).clamp(1 << 30, 16 << 30))
+    }
+
+    /// What has been recorded, submitted, made and read back on this context so far.
+    #[must_use]
+    pub fn counters(&self) -> WorkCounters {
+        let c = &self.counters;
+        let get = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        WorkCounters {
+            dispatches: get(&c.dispatches),
+            compute_passes: get(&c.compute_passes),
+            submits: get(&c.submits),
+            buffers_created: get(&c.buffers_created),
+            bind_groups_created: get(&c.bind_groups_created),
+            bytes_read_back: get(&c.bytes_read_back),
+        }
+    }
+
+    pub(crate) fn count_dispatch(&self, new_pass: bool) {
+        self.counters.dispatches.fetch_add(1, Ordering::Relaxed);
+        if new_pass {
+            self.counters.compute_passes.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    pub(crate) fn count_bind_group(&self) {
+        self.counters.bind_groups_created.fetch_add(1, Ordering::Relaxed);
+    }
+
+    pub(crate) fn count_buffer(&self) {
+        self.counters.buffers_created.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Submits `commands` to the queue (counted).
+    pub fn submit(&self, commands: wgpu::CommandBuffer) {
+        self.counters.submits.fetch_add(1, Ordering::Relaxed);
+        self.queue.submit([commands]);
+    }
+
+    /// Waits for all submitted work, at most the context's timeout, then reports what wgpu
+    /// reported meanwhile.
+    ///
+    /// # Errors
+    /// [`GpuError::Timeout`] when the device does not finish in time; [`GpuError::Poll`] when
+    /// waiting fails otherwise; errors wgpu reported ([`check`](Self::check)).
+    pub fn wait(&self) -> Result<(), GpuError> {
+        match self.device.poll(wgpu::PollType::Wait { submission_index: None, timeout: Some(self.timeout) }) {
+            Ok(_) => {}
+            Err(wgpu::PollError::Timeout) => {
+                return Err(GpuError::Timeout {
+                    adapter: self.adapter.name.clone(),
+                    seconds: self.timeout.as_secs_f64(),
+                });
+            }
+            Err(e) => return Err(GpuError::Poll(e)),
+        }
+        self.check()
+    }
+
+    /// Runs `make` (which creates device buffers of `bytes` in all) inside an out-of-memory
+    /// error scope, so that a device that cannot hold them is reported as such, naming the
+    /// adapter and the size, instead of failing later.
+    ///
+    /// # Errors
+    /// [`GpuError::BatchTooLarge`] when the device runs out of memory; `make`'s own errors.
+    pub fn allocating<T>(&self, bytes: u64, make: impl FnOnce() -> Result<T, GpuError>) -> Result<T, GpuError> {
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let made = make();
+        let oom = pollster::block_on(scope.pop());
+        if let Some(e) = oom {
+            return Err(self.batch_too_large(bytes, e));
+        }
+        made
+    }
+
+    /// The error for `bytes` of buffers that did not fit (wgpu's error `source` kept).
+    pub(crate) fn batch_too_large(&self, bytes: u64, source: wgpu::Error) -> GpuError {
+        GpuError::BatchTooLarge { adapter: self.adapter.name.clone(), mib: bytes as f64 / 1048576.0, source }
     }
 
     /// Returns the first error wgpu reported since the last check, if any, and clears the list.
@@ -196,6 +414,12 @@ impl GpuContext {
         limits.max_storage_buffer_binding_size.min(limits.max_buffer_size)
     }
 
+    /// The most workgroups a dispatch may have along one dimension on this device.
+    #[must_use]
+    pub fn max_groups_per_dim(&self) -> u32 {
+        self.device.limits().max_compute_workgroups_per_dimension
+    }
+
     /// Creates a labelled storage buffer initialised with `data`.
     #[must_use]
     pub fn storage_buffer<T: bytemuck::Pod>(&self, label: &str, data: &[T], copy_src: bool) -> wgpu::Buffer {
@@ -213,6 +437,7 @@ impl GpuContext {
         } else {
             bytes
         };
+        self.count_buffer();
         self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
     }
 
@@ -220,6 +445,7 @@ impl GpuContext {
     #[must_use]
     pub fn uniform_buffer<T: bytemuck::Pod>(&self, label: &str, value: &T) -> wgpu::Buffer {
         use wgpu::util::DeviceExt;
+        self.count_buffer();
         self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some(label),
             contents: bytemuck::bytes_of(value),
@@ -227,35 +453,56 @@ impl GpuContext {
         })
     }
 
-    /// Copies `len` `f32`s from the start of `buffer` (which needs `COPY_SRC`) back to the host,
-    /// waiting for all submitted work.
-    ///
-    /// # Errors
-    /// Any error wgpu reported while the work ran, or a failed map.
-    pub fn read_f32(&self, buffer: &wgpu::Buffer, len: usize) -> Result<Vec<f32>, GpuError> {
-        let size = (len * 4) as u64;
-        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+    /// The staging buffer for reading back at least `size` bytes: the context's own, made (or
+    /// grown to the next power of two) only when too small.
+    fn staging(&self, size: u64) -> wgpu::Buffer {
+        let mut slot = lock(&self.staging);
+        if let Some(b) = slot.as_ref().filter(|b| b.size() >= size) {
+            return b.clone();
+        }
+        self.count_buffer();
+        let b = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("mipnerf readback staging"),
-            size: size.max(4),
+            size: size.max(256).next_power_of_two(),
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
+        *slot = Some(b.clone());
+        b
+    }
+
+    /// Copies `len` `f32`s from the start of `buffer` (which needs `COPY_SRC`) back to the host,
+    /// waiting (at most the timeout) for all submitted work.
+    ///
+    /// # Errors
+    /// Any error wgpu reported while the work ran, a timeout, or a failed map.
+    pub fn read_f32(&self, buffer: &wgpu::Buffer, len: usize) -> Result<Vec<f32>, GpuError> {
+        self.read_f32_at(buffer, 0, len)
+    }
+
+    /// [`read_f32`](Self::read_f32) of `len` floats from element `offset` of `buffer`.
+    ///
+    /// # Errors
+    /// As [`read_f32`](Self::read_f32).
+    pub fn read_f32_at(&self, buffer: &wgpu::Buffer, offset: usize, len: usize) -> Result<Vec<f32>, GpuError> {
+        let size = (len * 4) as u64;
+        let staging = self.staging(size);
         let mut enc =
             self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("mipnerf readback") });
-        enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
-        self.queue.submit([enc.finish()]);
+        enc.copy_buffer_to_buffer(buffer, (offset * 4) as u64, &staging, 0, size);
+        self.submit(enc.finish());
         let (tx, rx) = std::sync::mpsc::channel();
-        staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+        staging.slice(..size.max(4)).map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
-        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(GpuError::Poll)?;
-        self.check()?;
+        self.wait()?;
         // The wait above ran every callback: a missing result means the map was dropped unanswered.
         rx.recv().unwrap_or(Err(wgpu::BufferAsyncError)).map_err(GpuError::Readback)?;
-        let view = staging.get_mapped_range(..).map_err(|_| GpuError::Readback(wgpu::BufferAsyncError))?;
+        let view = staging.get_mapped_range(..size.max(4)).map_err(|_| GpuError::Readback(wgpu::BufferAsyncError))?;
         let out = bytemuck::cast_slice::<u8, f32>(&view)[..len].to_vec();
         drop(view);
         staging.unmap();
+        self.counters.bytes_read_back.fetch_add(size, Ordering::Relaxed);
         Ok(out)
     }
 }

@@ -37,14 +37,16 @@ pub use trainer::GpuBackend;
 pub enum GpuError {
     /// No adapter fits the request.
     #[error(
-        "no {} GPU adapter found. Install a Vulkan driver (for a software one on Debian/Ubuntu: \
-         'apt-get install mesa-vulkan-drivers libvulkan1', or run scripts/ensure-vulkan.sh), \
-         or use the CPU backend (--backend cpu)",
-        if *hardware_only { "hardware" } else { "Vulkan/Metal/DX12" }
+        "no GPU adapter found for {wanted}{}. Install a Vulkan driver (for a software one on Debian/Ubuntu: \
+         'apt-get install mesa-vulkan-drivers libvulkan1', or run scripts/ensure-vulkan.sh), pick another \
+         adapter (--adapter, see 'mipnerf info'), or use the CPU backend (--backend cpu)",
+        if passed_over.is_empty() { "; wgpu saw no adapter".to_string() } else { format!("; passed over: {}", passed_over.join("; ")) }
     )]
     NoAdapter {
-        /// Whether software adapters were excluded.
-        hardware_only: bool,
+        /// What was asked for ("a hardware GPU", "adapter 2", ...).
+        wanted: String,
+        /// Every adapter seen, numbered as `mipnerf info` numbers them, with why it was passed over.
+        passed_over: Vec<String>,
     },
     /// The adapter refused to create a device.
     #[error("could not open the GPU device on {adapter}")]
@@ -90,6 +92,28 @@ pub enum GpuError {
         first: wgpu::Error,
         /// How many more it reported since the last check.
         more: usize,
+    },
+    /// The device did not finish the submitted work within the timeout.
+    #[error(
+        "{adapter} did not finish its work within {seconds:.0} s: the device may hang, or a batch is too \
+         large for it (lower --batch-rays)"
+    )]
+    Timeout {
+        /// The adapter's name.
+        adapter: String,
+        /// The timeout.
+        seconds: f64,
+    },
+    /// Making a batch's buffers ran the device out of memory.
+    #[error("the batch does not fit on {adapter} ({mib:.0} MiB needed): lower --batch-rays (or --gpu-memory)")]
+    BatchTooLarge {
+        /// The adapter's name.
+        adapter: String,
+        /// The buffers' size, in MiB.
+        mib: f64,
+        /// What wgpu said.
+        #[source]
+        source: wgpu::Error,
     },
     /// Waiting for the device failed.
     #[error("waiting for the GPU failed")]

@@ -8,7 +8,8 @@
 
 use mipnerf_core::mlp::{DenseLayer, MlpShape};
 
-use crate::kernels::matmul::{Epilogue, MatmulKernel, MatmulVariant, Operand};
+use crate::kernels::Recorder;
+use crate::kernels::matmul::{Epilogue, MAX_SPLITS, MIN_K_PER_SPLIT, MatmulKernel, MatmulVariant, Operand};
 use crate::kernels::mlp_aux::MlpAuxKernels;
 use crate::{GpuContext, GpuError};
 
@@ -34,6 +35,8 @@ pub struct MlpBuffers {
     pub raw_density: wgpu::Buffer,
     grad: [wgpu::Buffer; 3],
     col_scratch: wgpu::Buffer,
+    /// Partial products of the split weight-gradient products, and its length in floats.
+    split_scratch: (wgpu::Buffer, usize),
 }
 
 fn storage(ctx: &GpuContext, label: &str, len: usize) -> wgpu::Buffer {
@@ -63,7 +66,19 @@ impl MlpBuffers {
             raw_density: storage(ctx, "mlp raw density", n),
             grad: std::array::from_fn(|i| storage(ctx, &format!("mlp gradient scratch {i}"), n * widest)),
             col_scratch: storage(ctx, "mlp bias gradient partial sums", MlpAuxKernels::col_sums_scratch_len(n, widest)),
+            split_scratch: {
+                let len = Self::split_scratch_len(shape, n);
+                (storage(ctx, "mlp weight gradient partial products", len), len)
+            },
         }
+    }
+
+    /// Floats of partial products the split weight gradients of `n` samples use: room for
+    /// [`MAX_SPLITS`] of the largest layer's kernel when `n` is long enough to split.
+    #[must_use]
+    pub fn split_scratch_len(shape: &MlpShape, n: usize) -> usize {
+        let largest = shape.layers.iter().map(|l| l.fan_in * l.fan_out).max().unwrap_or(1);
+        largest * MAX_SPLITS.min(n / MIN_K_PER_SPLIT).max(1)
     }
 
     /// Makes the next passes use the first `n_rays` rays' samples (at most the capacity, which
@@ -80,7 +95,7 @@ impl MlpBuffers {
         let all = [&self.x, &self.view, &self.view_b, &self.bottleneck, &self.raw_rgb, &self.raw_density];
         let mut b: u64 = all.iter().map(|x| x.size()).sum();
         b += self.trunk.iter().chain(&self.cond).chain(&self.grad).map(wgpu::Buffer::size).sum::<u64>();
-        b += self.col_scratch.size();
+        b += self.col_scratch.size() + self.split_scratch.0.size();
         b
     }
 
@@ -98,6 +113,17 @@ pub struct GpuMlp {
 
 /// One input part of a dense layer: a buffer and its width (kernel rows, in order).
 type Part<'a> = (&'a wgpu::Buffer, usize);
+
+/// Where a layer's backward pass puts the gradient of its first input part.
+#[derive(Clone, Copy)]
+struct InputGrad<'a> {
+    /// The gradient buffer.
+    out: &'a wgpu::Buffer,
+    /// Add to it instead of overwriting it.
+    accumulate: bool,
+    /// The first input part is a ReLU output: apply the ReLU backward (after the sum).
+    relu: bool,
+}
 
 impl GpuMlp {
     /// Compiles the kernels.
@@ -119,8 +145,7 @@ impl GpuMlp {
     /// `out = act(sum_p part_p · kernel_rows_p + bias)`.
     fn dense(
         &self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
+        rec: &mut Recorder<'_>,
         params: &wgpu::Buffer,
         l: &DenseLayer,
         parts: &[Part<'_>],
@@ -131,47 +156,56 @@ impl GpuMlp {
         let mut r0 = 0;
         for (k, &(input, width)) in parts.iter().enumerate() {
             let last = k + 1 == parts.len();
-            let epi = Epilogue { accumulate: k > 0, bias: last.then_some(l.bias), relu: last && relu };
+            let epi = Epilogue { accumulate: k > 0, bias: last.then_some(l.bias), relu: last && relu, mask: None };
             let b = Operand::new(params, l.kernel + r0 * l.fan_out);
-            self.matmul.encode(ctx, enc, (n, width, l.fan_out), Operand::new(input, 0), b, Operand::new(out, 0), epi);
+            self.matmul.encode(rec, (n, width, l.fan_out), Operand::new(input, 0), b, Operand::new(out, 0), epi);
             r0 += width;
         }
     }
 
-    /// Adds the layer's weight and bias gradients for output gradient `dz` to `grads`, and writes
-    /// (or adds, with `accumulate_d`) the gradient of the first input part to `d_first`.
+    /// Adds the layer's weight and bias gradients for output gradient `dz` to `grads` (the
+    /// weight gradients split over the samples), and writes (or adds, with `d.accumulate`) the
+    /// gradient of the first input part to `d.out`, masked by the ReLU backward when `d.relu`
+    /// (the first part is then a ReLU output, its own mask).
     #[allow(clippy::too_many_arguments)]
     fn dense_backward(
         &self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
+        rec: &mut Recorder<'_>,
         params: &wgpu::Buffer,
         grads: &wgpu::Buffer,
         l: &DenseLayer,
         parts: &[Part<'_>],
         n: usize,
         dz: &wgpu::Buffer,
-        d_first: Option<(&wgpu::Buffer, bool)>,
-        col_scratch: &wgpu::Buffer,
+        d_first: Option<InputGrad<'_>>,
+        bufs: &MlpBuffers,
     ) {
         let mut r0 = 0;
         for &(input, width) in parts {
             let c = Operand::new(grads, l.kernel + r0 * l.fan_out);
             let epi = Epilogue { accumulate: true, ..Epilogue::default() };
-            self.matmul.encode(ctx, enc, (width, n, l.fan_out), Operand::t(input, 0), Operand::new(dz, 0), c, epi);
+            let (scratch, len) = &bufs.split_scratch;
+            self.matmul.encode_split(
+                rec,
+                (width, n, l.fan_out),
+                Operand::t(input, 0),
+                Operand::new(dz, 0),
+                c,
+                epi,
+                (scratch, *len),
+            );
             r0 += width;
         }
-        self.aux.col_sums(ctx, enc, (dz, 0), (grads, l.bias), n, l.fan_out, true, col_scratch);
-        if let Some((d, accumulate)) = d_first {
-            let width = parts[0].1;
-            let epi = Epilogue { accumulate, ..Epilogue::default() };
+        self.aux.col_sums(rec, (dz, 0), (grads, l.bias), n, l.fan_out, true, &bufs.col_scratch);
+        if let Some(d) = d_first {
+            let (first, width) = parts[0];
+            let epi = Epilogue { accumulate: d.accumulate, mask: d.relu.then_some((first, 0)), ..Epilogue::default() };
             self.matmul.encode(
-                ctx,
-                enc,
+                rec,
                 (n, l.fan_out, width),
                 Operand::new(dz, 0),
                 Operand::t(params, l.kernel),
-                Operand::new(d, 0),
+                Operand::new(d.out, 0),
                 epi,
             );
         }
@@ -179,18 +213,11 @@ impl GpuMlp {
 
     /// Records the forward pass: fills `bufs.raw_rgb` and `bufs.raw_density` from `bufs.x` and
     /// `bufs.view`.
-    pub fn forward(
-        &self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
-        shape: &MlpShape,
-        params: &wgpu::Buffer,
-        bufs: &MlpBuffers,
-    ) {
+    pub fn forward(&self, rec: &mut Recorder<'_>, shape: &MlpShape, params: &wgpu::Buffer, bufs: &MlpBuffers) {
         let c = &shape.config;
         let (n, d) = (bufs.n, c.net_depth);
         let ls = &shape.layers;
-        self.aux.broadcast_rows(ctx, enc, &bufs.view, &bufs.view_b, bufs.n_rays, c.view_dim, bufs.samples_per_ray());
+        self.aux.broadcast_rows(rec, &bufs.view, &bufs.view_b, bufs.n_rays, c.view_dim, bufs.samples_per_ray());
         for i in 0..d {
             let parts: Vec<Part<'_>> = if i == 0 {
                 vec![(&bufs.x, c.x_dim)]
@@ -199,21 +226,21 @@ impl GpuMlp {
             } else {
                 vec![(&bufs.trunk[i - 1], c.net_width)]
             };
-            self.dense(ctx, enc, params, &ls[i], &parts, n, &bufs.trunk[i], true);
+            self.dense(rec, params, &ls[i], &parts, n, &bufs.trunk[i], true);
         }
         let top = self.top_parts(shape, bufs);
-        self.dense(ctx, enc, params, &ls[d], &top, n, &bufs.raw_density, false);
-        self.dense(ctx, enc, params, &ls[d + 1], &top, n, &bufs.bottleneck, false);
+        self.dense(rec, params, &ls[d], &top, n, &bufs.raw_density, false);
+        self.dense(rec, params, &ls[d + 1], &top, n, &bufs.bottleneck, false);
         for j in 0..c.net_depth_condition {
             let parts: Vec<Part<'_>> = if j == 0 {
                 vec![(&bufs.bottleneck, c.net_width), (&bufs.view_b, c.view_dim)]
             } else {
                 vec![(&bufs.cond[j - 1], c.net_width_condition)]
             };
-            self.dense(ctx, enc, params, &ls[d + 2 + j], &parts, n, &bufs.cond[j], true);
+            self.dense(rec, params, &ls[d + 2 + j], &parts, n, &bufs.cond[j], true);
         }
         let last = &bufs.cond[c.net_depth_condition - 1];
-        self.dense(ctx, enc, params, &ls[ls.len() - 1], &[(last, c.net_width_condition)], n, &bufs.raw_rgb, false);
+        self.dense(rec, params, &ls[ls.len() - 1], &[(last, c.net_width_condition)], n, &bufs.raw_rgb, false);
     }
 
     fn top_parts<'a>(&self, shape: &MlpShape, bufs: &'a MlpBuffers) -> Vec<Part<'a>> {
@@ -227,8 +254,7 @@ impl GpuMlp {
     #[allow(clippy::too_many_arguments)]
     pub fn backward(
         &self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
+        rec: &mut Recorder<'_>,
         shape: &MlpShape,
         params: &wgpu::Buffer,
         bufs: &MlpBuffers,
@@ -243,112 +269,39 @@ impl GpuMlp {
         let g = &bufs.grad;
         // Indices into g: `a` holds the gradient of the current layer's output.
         let (mut a, mut b) = (0usize, 1usize);
+        let to = |out, relu| Some(InputGrad { out, accumulate: false, relu });
         let last = &bufs.cond[dc - 1];
-        self.dense_backward(
-            ctx,
-            enc,
-            params,
-            grads,
-            &ls[ls.len() - 1],
-            &[(last, wc)],
-            n,
-            d_raw_rgb,
-            Some((&g[a], false)),
-            &bufs.col_scratch,
-        );
+        self.dense_backward(rec, params, grads, &ls[ls.len() - 1], &[(last, wc)], n, d_raw_rgb, to(&g[a], true), bufs);
+        // g[a] holds the gradient of colour layer j's pre-activation (its ReLU backward done).
         for j in (0..dc).rev() {
-            self.aux.relu_backward(ctx, enc, (&bufs.cond[j], 0), (&g[a], 0), n * wc);
             if j > 0 {
-                self.dense_backward(
-                    ctx,
-                    enc,
-                    params,
-                    grads,
-                    &ls[d + 2 + j],
-                    &[(&bufs.cond[j - 1], wc)],
-                    n,
-                    &g[a],
-                    Some((&g[b], false)),
-                    &bufs.col_scratch,
-                );
+                let parts = [(&bufs.cond[j - 1], wc)];
+                self.dense_backward(rec, params, grads, &ls[d + 2 + j], &parts, n, &g[a], to(&g[b], true), bufs);
                 std::mem::swap(&mut a, &mut b);
             } else {
+                // The bottleneck has no activation.
                 let parts = [(&bufs.bottleneck, w), (&bufs.view_b, c.view_dim)];
-                self.dense_backward(
-                    ctx,
-                    enc,
-                    params,
-                    grads,
-                    &ls[d + 2],
-                    &parts,
-                    n,
-                    &g[a],
-                    Some((&g[b], false)),
-                    &bufs.col_scratch,
-                );
+                self.dense_backward(rec, params, grads, &ls[d + 2], &parts, n, &g[a], to(&g[b], false), bufs);
             }
         }
-        // g[b] = d bottleneck; heads read the top parts; their input gradient goes to g[z].
+        // g[b] = d bottleneck; heads read the top parts; their input gradient goes to g[z], the
+        // ReLU backward applied with the second head's sum.
         let z = 3 - a - b;
         let top = self.top_parts(shape, bufs);
-        self.dense_backward(
-            ctx,
-            enc,
-            params,
-            grads,
-            &ls[d + 1],
-            &top,
-            n,
-            &g[b],
-            Some((&g[z], false)),
-            &bufs.col_scratch,
-        );
-        self.dense_backward(
-            ctx,
-            enc,
-            params,
-            grads,
-            &ls[d],
-            &top,
-            n,
-            d_raw_density,
-            Some((&g[z], true)),
-            &bufs.col_scratch,
-        );
+        self.dense_backward(rec, params, grads, &ls[d + 1], &top, n, &g[b], to(&g[z], false), bufs);
+        let both = Some(InputGrad { out: &g[z], accumulate: true, relu: true });
+        self.dense_backward(rec, params, grads, &ls[d], &top, n, d_raw_density, both, bufs);
         let (mut cur, mut other) = (z, a);
         for i in (0..d).rev() {
-            self.aux.relu_backward(ctx, enc, (&bufs.trunk[i], 0), (&g[cur], 0), n * w);
             if i == 0 {
-                self.dense_backward(
-                    ctx,
-                    enc,
-                    params,
-                    grads,
-                    &ls[0],
-                    &[(&bufs.x, c.x_dim)],
-                    n,
-                    &g[cur],
-                    None,
-                    &bufs.col_scratch,
-                );
+                self.dense_backward(rec, params, grads, &ls[0], &[(&bufs.x, c.x_dim)], n, &g[cur], None, bufs);
             } else {
                 let parts: Vec<Part<'_>> = if shape.concat_after(i - 1) {
                     vec![(&bufs.trunk[i - 1], w), (&bufs.x, c.x_dim)]
                 } else {
                     vec![(&bufs.trunk[i - 1], w)]
                 };
-                self.dense_backward(
-                    ctx,
-                    enc,
-                    params,
-                    grads,
-                    &ls[i],
-                    &parts,
-                    n,
-                    &g[cur],
-                    Some((&g[other], false)),
-                    &bufs.col_scratch,
-                );
+                self.dense_backward(rec, params, grads, &ls[i], &parts, n, &g[cur], to(&g[other], true), bufs);
                 std::mem::swap(&mut cur, &mut other);
             }
         }

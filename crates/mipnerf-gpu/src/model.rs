@@ -13,6 +13,7 @@
 use mipnerf_core::Ray;
 use mipnerf_core::model::{LevelOutput, LossStats, Mode, Model};
 
+use crate::kernels::Recorder;
 use crate::kernels::cast_ipe::{CastIpeKernel, CastIpeParams};
 use crate::kernels::render::{RenderBuffers, RenderKernel, RenderParams};
 use crate::kernels::sample::{SampleKernels, SampleParams};
@@ -205,6 +206,15 @@ impl ModelBuffers {
         per_ray as u64 * 4
     }
 
+    /// Device bytes of these buffers for `n_rays` rays: [`bytes_per_ray`](Self::bytes_per_ray)
+    /// each, and the weight gradients' partial products (at most `MAX_SPLITS` of the largest
+    /// layer's kernel, whatever the batch).
+    #[must_use]
+    pub fn bytes_for(model: &Model, n_rays: usize) -> u64 {
+        let n = n_rays * model.config().num_samples;
+        Self::bytes_per_ray(model) * n_rays as u64 + 4 * MlpBuffers::split_scratch_len(&model.mlps()[0], n) as u64
+    }
+
     /// Makes the next passes use the first `n` rays (a chunk's tail).
     ///
     /// # Errors
@@ -262,8 +272,7 @@ impl GpuModel {
     #[allow(clippy::too_many_arguments)]
     pub fn encode(
         &self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
+        rec: &mut Recorder<'_>,
         model: &Model,
         params: &wgpu::Buffer,
         batch: &RayBatch,
@@ -285,7 +294,7 @@ impl GpuModel {
         };
         let level_w = model.level_weights();
         let bufs = &work.mlp;
-        self.view.encode(ctx, enc, nr, c.deg_view, &batch.viewdirs, &bufs.view)?;
+        self.view.encode(rec, nr, c.deg_view, &batch.viewdirs, &bufs.view)?;
         for level in 0..c.num_levels {
             let sp = SampleParams {
                 n_rays: nr as u32,
@@ -301,9 +310,9 @@ impl GpuModel {
             };
             let t = &work.t_vals;
             if level == 0 {
-                self.sample.stratified(ctx, enc, sp, &batch.bounds, &t[0])?;
+                self.sample.stratified(rec, sp, &batch.bounds, &t[0])?;
             } else {
-                self.sample.resample(ctx, enc, sp, &t[level - 1], &work.weights, &t[level])?;
+                self.sample.resample(rec, sp, &t[level - 1], &work.weights, &t[level])?;
             }
             let cp = CastIpeParams {
                 n_rays: nr as u32,
@@ -315,10 +324,10 @@ impl GpuModel {
                 encoding: c.point_encoding as u32,
                 _pad: 0,
             };
-            self.cast.encode(ctx, enc, cp, &batch.rays, &t[level], &bufs.x)?;
+            self.cast.encode(rec, cp, &batch.rays, &t[level], &bufs.x)?;
             // One MLP for all levels, or one per level (the same shape at its own offset).
             let shape = &model.mlps()[if c.separate_mlps { level } else { 0 }];
-            self.mlp.forward(ctx, enc, shape, params, bufs);
+            self.mlp.forward(rec, shape, params, bufs);
             let rb = RenderBuffers {
                 raw_rgb: &bufs.raw_rgb,
                 raw_density: &bufs.raw_density,
@@ -336,9 +345,9 @@ impl GpuModel {
             if randomized && c.density_noise > 0.0 {
                 rp = rp.with_density_noise(c.density_noise, seed, step, level as u32);
             }
-            self.render.encode(ctx, enc, rp, &rb)?;
+            self.render.encode(rec, rp, &rb)?;
             if let Some(g) = grads {
-                self.mlp.backward(ctx, enc, shape, params, bufs, &work.d_rgb, &work.d_density, g);
+                self.mlp.backward(rec, shape, params, bufs, &work.d_rgb, &work.d_density, g);
             }
         }
         Ok(())
@@ -441,9 +450,9 @@ impl GpuModel {
         let work = ModelBuffers::new(ctx, model, rays.len())?;
         let params_buf = ctx.storage_buffer("parameters", params, false);
         let grads = ctx.storage_buffer("gradients", &vec![0.0f32; model.num_params()], true);
-        let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("model step") });
-        self.encode(ctx, &mut enc, model, &params_buf, &batch, &work, mode, Some(&grads))?;
-        ctx.queue.submit([enc.finish()]);
+        let mut rec = Recorder::new(ctx, "model step");
+        self.encode(&mut rec, model, &params_buf, &batch, &work, mode, Some(&grads))?;
+        let _ = rec.submit();
         let g = ctx.read_f32(&grads, model.num_params())?;
         Ok((self.read_losses(ctx, model, &batch, &work.ray_out)?, g))
     }

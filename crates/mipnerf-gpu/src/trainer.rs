@@ -5,14 +5,15 @@
 //! (`batch.wgsl`, the CPU's pixels for the same seed and step), both levels run forward and
 //! backward ([`GpuModel`]), and Adam updates the parameters (`adam.wgsl`). Nothing is read back
 //! unless the caller asks for the step's losses; checkpoints read the parameters and moments. A
-//! batch whose intermediates would exceed one device binding or [`TRAIN_BUDGET_BYTES`] runs in
+//! batch whose intermediates would exceed one device binding or the device's memory budget
+//! ([`GpuContext::memory_budget`]) runs in
 //! chunks within the step (gradients add up; random numbers are drawn per batch ray), so the
 //! step is the same whatever the device's limits.
 //!
 //! Rendering runs an image in chunks of a fixed number of rays through buffers that are reused
 //! from chunk to chunk, so the device memory it takes is set by the chunk size, not the image.
 
-use mipnerf_core::backend::{Backend, BackendError, ImageSpec, TrainState};
+use mipnerf_core::backend::{Backend, BackendError, ImageSpec, TrainState, WorkCounters};
 use mipnerf_core::checkpoint::Checkpoint;
 use mipnerf_core::data::Dataset;
 use mipnerf_core::model::{LevelOutput, Mode, Model};
@@ -20,11 +21,9 @@ use mipnerf_core::train::{AdamState, OptimConfig, StepReport};
 
 use crate::kernels::adam::{AdamBuffers, AdamKernel, AdamStep};
 use crate::kernels::batch::{BatchKernel, DeviceImages, Draw};
+use crate::kernels::{DispatchCache, Recorder};
 use crate::model::{GpuModel, ModelBuffers, RayBatch};
 use crate::{GpuContext, GpuError};
-
-/// Device memory the render buffers may take when the chunk size is chosen automatically.
-pub const RENDER_BUDGET_BYTES: u64 = 512 << 20;
 
 /// Most rays per render chunk when chosen automatically.
 pub const MAX_RENDER_CHUNK: usize = 16 * 1024;
@@ -32,15 +31,15 @@ pub const MAX_RENDER_CHUNK: usize = 16 * 1024;
 /// Training steps submitted before the host waits for the device (bounds the queued work).
 pub const MAX_STEPS_IN_FLIGHT: u32 = 8;
 
-/// Device memory the model's training buffers may take when the chunk size is chosen
-/// automatically; a larger batch runs in chunks (the gradients add up, so the step is the same).
-pub const TRAIN_BUDGET_BYTES: u64 = 2 << 30;
+/// The share of [`GpuContext::memory_budget`] the render buffers may take when the chunk size
+/// is chosen automatically (the training buffers may take all of it).
+pub const RENDER_BUDGET_SHARE: u64 = 4;
 
 impl From<GpuError> for BackendError {
     fn from(e: GpuError) -> Self {
         match e {
             GpuError::InvalidInput(m) => Self::Invalid(m),
-            e @ GpuError::OutOfMemory(_) => Self::OutOfMemory(Box::new(e)),
+            e @ (GpuError::OutOfMemory(_) | GpuError::BatchTooLarge { .. }) => Self::OutOfMemory(Box::new(e)),
             e @ GpuError::DeviceLost { .. } => Self::DeviceLost(Box::new(e)),
             other => Self::Device(Box::new(other)),
         }
@@ -77,6 +76,9 @@ pub struct GpuBackend {
     render_chunk: usize,
     render: Option<(RayBatch, ModelBuffers)>,
     in_flight: u32,
+    /// Bind groups and uniforms of the training step's dispatches, and of a render chunk's.
+    train_cache: DispatchCache,
+    render_cache: DispatchCache,
 }
 
 impl GpuBackend {
@@ -108,12 +110,14 @@ impl GpuBackend {
             render_chunk,
             render: None,
             in_flight: 0,
+            train_cache: DispatchCache::default(),
+            render_cache: DispatchCache::default(),
         })
     }
 
     /// Uploads the training images and cameras of `ds` and the buffers of batches of
     /// `batch_rays` pixels (`Model::rays_per_pixel` rays each). A batch whose buffers would not
-    /// fit one device binding or [`TRAIN_BUDGET_BYTES`] runs in chunks.
+    /// fit one device binding or [`GpuContext::memory_budget`] runs in chunks.
     ///
     /// # Errors
     /// [`GpuError::InvalidInput`] for data that does not fit the device, or supersampling with
@@ -122,7 +126,7 @@ impl GpuBackend {
         let model = &self.model;
         let bind = self.ctx.max_binding_bytes();
         let by_binding = bind / ModelBuffers::largest_buffer_bytes_per_ray(model).max(1);
-        let by_budget = TRAIN_BUDGET_BYTES / ModelBuffers::bytes_per_ray(model).max(1);
+        let by_budget = self.ctx.memory_budget() / ModelBuffers::bytes_per_ray(model).max(1);
         let chunk = by_binding.min(by_budget).max(1) as usize;
         self.with_data_in_chunks(ds, batch_rays, chunk)
     }
@@ -143,17 +147,20 @@ impl GpuBackend {
         let rpp = self.model.rays_per_pixel();
         let n_rays = batch_rays * rpp;
         let chunk = (chunk_rays / rpp).max(1) * rpp;
-        let batch = RayBatch::new(&self.ctx, n_rays);
-        let (work, chunks) = if chunk >= n_rays {
-            (ModelBuffers::new(&self.ctx, &self.model, n_rays)?, None)
-        } else {
+        let need = ModelBuffers::bytes_for(&self.model, chunk.min(n_rays));
+        let (batch, work, chunks) = self.ctx.allocating(need, || {
+            let batch = RayBatch::new(&self.ctx, n_rays);
+            if chunk >= n_rays {
+                return Ok((batch, ModelBuffers::new(&self.ctx, &self.model, n_rays)?, None));
+            }
             let outs = (0..self.model.config().num_levels)
                 .map(|l| {
                     self.ctx.storage_buffer(&format!("batch ray outputs level {l}"), &vec![f32::NAN; n_rays * 8], true)
                 })
                 .collect();
-            (ModelBuffers::new(&self.ctx, &self.model, chunk)?, Some((RayBatch::new(&self.ctx, chunk), outs)))
-        };
+            let work = ModelBuffers::new(&self.ctx, &self.model, chunk)?;
+            Ok((batch, work, Some((RayBatch::new(&self.ctx, chunk), outs))))
+        })?;
         self.ctx.check()?;
         self.train = Some(TrainData { images, batch, work, chunks });
         Ok(self)
@@ -207,23 +214,16 @@ impl GpuBackend {
         let step = self.step;
         let mode = Mode::Train { seed: self.seed, step: step as u32 };
         let lr = self.optim.lr.lr(step);
-        let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("train step") });
-        enc.clear_buffer(&self.state.grads, 0, None);
+        let mut rec = Recorder::with_cache(ctx, "train step", std::mem::take(&mut self.train_cache));
+        rec.encoder().clear_buffer(&self.state.grads, 0, None);
         let draw = Draw::Random { seed: self.seed, step: step as u32 };
         let (area_loss, k) = (self.model.config().area_loss, self.model.config().supersample);
-        self.batch_kernel.encode(ctx, &mut enc, &data.images, draw, area_loss, k, &data.batch)?;
+        self.batch_kernel.encode(&mut rec, &data.images, draw, area_loss, k, &data.batch)?;
         let grads = Some(&self.state.grads);
         match &mut data.chunks {
-            None => self.kernels.encode(
-                ctx,
-                &mut enc,
-                &self.model,
-                &self.state.params,
-                &data.batch,
-                &data.work,
-                mode,
-                grads,
-            )?,
+            None => {
+                self.kernels.encode(&mut rec, &self.model, &self.state.params, &data.batch, &data.work, mode, grads)?
+            }
             Some((sub, outs)) => {
                 // Each chunk's rays are copied out of the batch; the gradients add up in `grads`.
                 let n = data.batch.n_rays;
@@ -238,24 +238,21 @@ impl GpuBackend {
                         (&b.targets, &sub.targets, 4),
                     ] {
                         let per_ray = floats * 4;
-                        enc.copy_buffer_to_buffer(src, (first * per_ray) as u64, dst, 0, (m * per_ray) as u64);
+                        rec.encoder().copy_buffer_to_buffer(
+                            src,
+                            (first * per_ray) as u64,
+                            dst,
+                            0,
+                            (m * per_ray) as u64,
+                        );
                     }
-                    enc.copy_buffer_to_buffer(&b.norm, 0, &sub.norm, 0, 4);
+                    rec.encoder().copy_buffer_to_buffer(&b.norm, 0, &sub.norm, 0, 4);
                     sub.set_active(m)?;
                     sub.first_ray = first as u32;
                     data.work.set_active(m)?;
-                    self.kernels.encode(
-                        ctx,
-                        &mut enc,
-                        &self.model,
-                        &self.state.params,
-                        sub,
-                        &data.work,
-                        mode,
-                        grads,
-                    )?;
+                    self.kernels.encode(&mut rec, &self.model, &self.state.params, sub, &data.work, mode, grads)?;
                     for (src, dst) in data.work.ray_out.iter().zip(outs.iter()) {
-                        enc.copy_buffer_to_buffer(src, 0, dst, (first * 32) as u64, (m * 32) as u64);
+                        rec.encoder().copy_buffer_to_buffer(src, 0, dst, (first * 32) as u64, (m * 32) as u64);
                     }
                 }
             }
@@ -267,14 +264,14 @@ impl GpuBackend {
             max_val: self.optim.grad_max_val,
             max_norm: self.optim.grad_max_norm,
         };
-        self.adam_kernel.encode(ctx, &mut enc, &adam, &self.state)?;
-        ctx.queue.submit([enc.finish()]);
+        self.adam_kernel.encode(&mut rec, &adam, &self.state)?;
+        self.train_cache = rec.submit();
         self.adam_t += 1;
         self.step += 1;
         if !report {
             self.in_flight += 1;
             if self.in_flight >= MAX_STEPS_IN_FLIGHT {
-                ctx.device.poll(wgpu::PollType::wait_indefinitely()).map_err(GpuError::Poll)?;
+                ctx.wait()?;
                 self.in_flight = 0;
             }
             ctx.check()?;
@@ -295,8 +292,13 @@ impl GpuBackend {
         // Whole pixels per chunk.
         let chunk_pixels = (self.render_chunk / rpp).max(1);
         if self.render.as_ref().is_none_or(|(b, _)| b.capacity() != chunk_pixels * rpp) {
-            let work = ModelBuffers::new(&self.ctx, &self.model, chunk_pixels * rpp)?;
-            self.render = Some((RayBatch::new(&self.ctx, chunk_pixels * rpp), work));
+            let rays = chunk_pixels * rpp;
+            let need = ModelBuffers::bytes_for(&self.model, rays);
+            self.render = None;
+            let made = self.ctx.allocating(need, || {
+                Ok((RayBatch::new(&self.ctx, rays), ModelBuffers::new(&self.ctx, &self.model, rays)?))
+            })?;
+            self.render = Some(made);
         }
         let Some((batch, work)) = &mut self.render else { unreachable!("render buffers were just made") };
         let mut out = Vec::with_capacity(total * self.model.config().num_levels);
@@ -306,26 +308,27 @@ impl GpuBackend {
             let n = chunk_pixels.min(total - first) * rpp;
             batch.set_active(n)?;
             work.set_active(n)?;
-            let mut enc =
-                ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("render chunk") });
+            let mut rec = Recorder::with_cache(ctx, "render chunk", std::mem::take(&mut self.render_cache));
             let draw = Draw::Sequential { first: first as u32 };
-            self.batch_kernel.encode(ctx, &mut enc, &cams, draw, false, k, batch)?;
-            self.kernels.encode(ctx, &mut enc, &self.model, &self.state.params, batch, work, Mode::Eval, None)?;
-            ctx.queue.submit([enc.finish()]);
+            self.batch_kernel.encode(&mut rec, &cams, draw, false, k, batch)?;
+            self.kernels.encode(&mut rec, &self.model, &self.state.params, batch, work, Mode::Eval, None)?;
+            self.render_cache = rec.submit();
             out.extend(self.kernels.read_outputs(ctx, work, n, rpp)?);
         }
         Ok(out)
     }
 }
 
-/// The largest power-of-two chunk (at most [`MAX_RENDER_CHUNK`]) whose buffers fit in
-/// [`RENDER_BUDGET_BYTES`] and the device's binding size.
+/// The largest power-of-two chunk (at most [`MAX_RENDER_CHUNK`]) whose buffers fit in a
+/// [`RENDER_BUDGET_SHARE`]th of the device's memory budget and its binding size.
 fn auto_chunk(ctx: &GpuContext, model: &Model) -> usize {
     let per_ray = ModelBuffers::bytes_per_ray(model).max(1);
     let largest = ModelBuffers::largest_buffer_bytes_per_ray(model).max(1);
     let bind = ctx.max_binding_bytes();
     let mut chunk = MAX_RENDER_CHUNK;
-    while chunk > 1 && (chunk as u64 * per_ray > RENDER_BUDGET_BYTES || chunk as u64 * largest > bind) {
+    while chunk > 1
+        && (chunk as u64 * per_ray > ctx.memory_budget() / RENDER_BUDGET_SHARE || chunk as u64 * largest > bind)
+    {
         chunk /= 2;
     }
     chunk
@@ -370,6 +373,10 @@ impl Backend for GpuBackend {
     fn render_image(&mut self, image: &ImageSpec) -> Result<Vec<LevelOutput>, BackendError> {
         image.check_for(&self.model)?;
         Ok(self.render_all(image)?)
+    }
+
+    fn work_counters(&self) -> Option<WorkCounters> {
+        Some(self.ctx.counters())
     }
 }
 

@@ -2,6 +2,8 @@
 //! whole training steps, chunked rendering, each against the CPU backend.
 #![allow(clippy::unwrap_used, missing_docs)]
 
+use mipnerf_gpu::kernels::Recorder;
+
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -87,9 +89,9 @@ fn device_batches_are_the_cpu_batches() {
         for (seed, step, area_loss) in [(0u32, 0u32, true), (7, 123, false)] {
             let tag = format!("f32 {f32_pixels} white {white} slots {slot_bytes:?} seed {seed} step {step}");
             let batch = RayBatch::new(&ctx, n);
-            let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("batch") });
-            kernel.encode(&ctx, &mut enc, &images, Draw::Random { seed, step }, area_loss, 1, &batch).unwrap();
-            ctx.queue.submit([enc.finish()]);
+            let mut rec = Recorder::new(&ctx, "batch");
+            kernel.encode(&mut rec, &images, Draw::Random { seed, step }, area_loss, 1, &batch).unwrap();
+            let _ = rec.submit();
             let [rays, bounds, viewdirs, targets, norm] = read_batch(&ctx, &batch);
             let (mut cpu_rays, mut cpu_targets) = (Vec::new(), Vec::new());
             ds.sample_batch(n, seed, step, 1, &mut cpu_rays, &mut cpu_targets);
@@ -170,9 +172,9 @@ fn device_ndc_batches_match_the_cpu() {
     let images = DeviceImages::upload(&ctx, &ds).unwrap();
     let n = 400;
     let batch = RayBatch::new(&ctx, n);
-    let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("ndc batch") });
-    kernel.encode(&ctx, &mut enc, &images, Draw::Random { seed: 5, step: 1 }, false, 1, &batch).unwrap();
-    ctx.queue.submit([enc.finish()]);
+    let mut rec = Recorder::new(&ctx, "ndc batch");
+    kernel.encode(&mut rec, &images, Draw::Random { seed: 5, step: 1 }, false, 1, &batch).unwrap();
+    let _ = rec.submit();
     let [rays, bounds, viewdirs, _, _] = read_batch(&ctx, &batch);
     let (mut cpu, mut targets) = (Vec::new(), Vec::new());
     ds.sample_batch(n, 5, 1, 1, &mut cpu, &mut targets);
@@ -357,7 +359,7 @@ fn chunked_gpu_render_matches_cpu_with_bounded_memory() {
     assert_eq!(gpu.render_chunk(), chunk);
     // The per-ray estimate that sizes automatic chunks follows what the buffers really take.
     let work = mipnerf_gpu::model::ModelBuffers::new(gpu.context(), gpu.model(), 1000).unwrap();
-    let estimate = 1000 * mipnerf_gpu::model::ModelBuffers::bytes_per_ray(gpu.model());
+    let estimate = mipnerf_gpu::model::ModelBuffers::bytes_for(gpu.model(), 1000);
     let off = (work.bytes() as f64 / estimate as f64 - 1.0).abs();
     assert!(off < 0.01, "buffers take {} bytes, the estimate says {estimate}", work.bytes());
 }

@@ -1,6 +1,8 @@
 //! Each kernel run on a real adapter (lavapipe in CI) and compared with the CPU reference.
 #![allow(clippy::unwrap_used, missing_docs)]
 
+use mipnerf_gpu::kernels::Recorder;
+
 use glam::Vec3;
 use mipnerf_core::RayShape;
 use mipnerf_core::compare::{Tolerance, assert_none, mismatches};
@@ -77,7 +79,7 @@ const TOL_GPU_MLP_ABS: f32 = 2e-5;
 #[test]
 fn mlp_forward_and_backward_match_cpu_reference() {
     use mipnerf_core::mlp::{MlpCache, MlpConfig, MlpShape};
-    use mipnerf_gpu::kernels::matmul::MatmulVariant;
+    use mipnerf_gpu::kernels::matmul::{MatmulKernel, MatmulVariant};
     use mipnerf_gpu::mlp::{GpuMlp, MlpBuffers};
     use rand::{Rng, SeedableRng, rngs::SmallRng};
     let Some(ctx) = context_or_skip("mlp_forward_and_backward_match_cpu_reference") else { return };
@@ -105,6 +107,17 @@ fn mlp_forward_and_backward_match_cpu_reference() {
                 x_dim: 30,
                 view_dim: 9,
             },
+            // The first shape again with enough samples (2257) that the weight gradients split
+            // over k (several partial products, the last one short).
+            MlpConfig {
+                net_depth: 4,
+                net_width: 32,
+                skip_layer: 2,
+                net_depth_condition: 1,
+                net_width_condition: 16,
+                x_dim: 24,
+                view_dim: 15,
+            },
         ]
         .into_iter()
         .enumerate()
@@ -118,8 +131,14 @@ fn mlp_forward_and_backward_match_cpu_reference() {
                     *b = rng.random_range(-0.2..0.2);
                 }
             }
-            let (n_rays, spr) = (5, 7);
+            let (n_rays, spr) = if ci == 2 { (37, 61) } else { (5, 7) };
             let n = n_rays * spr;
+            if ci == 2 {
+                let plan = MatmulKernel::with_variant(&ctx, variant)
+                    .unwrap()
+                    .split_plan((cfg.net_width, n, cfg.net_width), usize::MAX);
+                assert!(plan.splits > 1 && n % plan.k_chunk != 0, "{variant:?}: {plan:?} does not exercise the split");
+            }
             let x: Vec<f32> = (0..n * cfg.x_dim).map(|_| rng.random_range(-1.0..1.0)).collect();
             let view: Vec<f32> = (0..n_rays * cfg.view_dim).map(|_| rng.random_range(-1.0..1.0)).collect();
             let d_rgb: Vec<f32> = (0..n * 3).map(|_| rng.random_range(-1.0..1.0)).collect();
@@ -138,11 +157,10 @@ fn mlp_forward_and_backward_match_cpu_reference() {
             let g = ctx.storage_buffer("grads", &vec![0.0f32; shape.num_params], true);
             let dr = ctx.storage_buffer("d rgb", &d_rgb, false);
             let dd = ctx.storage_buffer("d density", &d_density, false);
-            let mut enc =
-                ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("mlp test") });
-            gpu.forward(&ctx, &mut enc, &shape, &p, &bufs);
-            gpu.backward(&ctx, &mut enc, &shape, &p, &bufs, &dr, &dd, &g);
-            ctx.queue.submit([enc.finish()]);
+            let mut rec = Recorder::new(&ctx, "mlp test");
+            gpu.forward(&mut rec, &shape, &p, &bufs);
+            gpu.backward(&mut rec, &shape, &p, &bufs, &dr, &dd, &g);
+            let _ = rec.submit();
             let rgb = ctx.read_f32(&bufs.raw_rgb, n * 3).unwrap();
             let density = ctx.read_f32(&bufs.raw_density, n).unwrap();
             let grads = ctx.read_f32(&g, shape.num_params).unwrap();
@@ -275,7 +293,7 @@ fn render_forward_loss_and_backward_match_cpu_reference() {
             buf("d den", &vec![f32::NAN; n], true),
             buf("out", &vec![f32::NAN; nr * 8], true),
         );
-        let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("render test") });
+        let mut rec = Recorder::new(&ctx, "render test");
         let rb = RenderBuffers {
             raw_rgb: &b_rgb,
             raw_density: &b_den,
@@ -288,8 +306,8 @@ fn render_forward_loss_and_backward_match_cpu_reference() {
             ray_out: &b_out,
             norm: &buf("norm", &[norm], false),
         };
-        kernel.encode(&ctx, &mut enc, RenderParams::new(&cfg, nr, level_weight, true), &rb).unwrap();
-        ctx.queue.submit([enc.finish()]);
+        kernel.encode(&mut rec, RenderParams::new(&cfg, nr, level_weight, true), &rb).unwrap();
+        let _ = rec.submit();
         let tag = format!("case {ci}");
         bad.extend(mismatches(
             &format!("{tag} weights"),
@@ -341,11 +359,10 @@ fn adam_and_gradient_clipping_match_cpu_reference() {
         for t in 1..=3u64 {
             let mut grads: Vec<f32> = (0..n).map(|_| rng.random_range(-0.1..0.1)).collect();
             ctx.queue.write_buffer(&b.grads, 0, bytemuck::cast_slice(&grads));
-            let mut enc =
-                ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("adam test") });
+            let mut rec = Recorder::new(&ctx, "adam test");
             let step = AdamStep { cfg, t, lr: 1e-3, max_val, max_norm };
-            kernel.encode(&ctx, &mut enc, &step, &b).unwrap();
-            ctx.queue.submit([enc.finish()]);
+            kernel.encode(&mut rec, &step, &b).unwrap();
+            let _ = rec.submit();
             let cpu_norm = clip_gradients(&mut grads, max_val, max_norm);
             state.update(&cfg, 1e-3, &mut params, &grads);
             if max_norm > 0.0 {
@@ -439,10 +456,10 @@ fn sampling_and_resampling_match_cpu_reference() {
         let b_w = ctx.storage_buffer("weights", &weights, false);
         let b_t = ctx.storage_buffer("t coarse", &vec![f32::NAN; nr * (s + 1)], true);
         let b_f = ctx.storage_buffer("t fine", &vec![f32::NAN; nr * (s + 1)], true);
-        let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("sample test") });
-        k.stratified(&ctx, &mut enc, params, &b_bounds, &b_t).unwrap();
-        k.resample(&ctx, &mut enc, params, &b_t, &b_w, &b_f).unwrap();
-        ctx.queue.submit([enc.finish()]);
+        let mut rec = Recorder::new(&ctx, "sample test");
+        k.stratified(&mut rec, params, &b_bounds, &b_t).unwrap();
+        k.resample(&mut rec, params, &b_t, &b_w, &b_f).unwrap();
+        let _ = rec.submit();
         let tag = format!("lindisp {lindisp} randomized {randomized}");
         bad.extend(mismatches(
             &format!("{tag} coarse"),
@@ -474,9 +491,9 @@ fn view_direction_encoding_matches_cpu_reference() {
     }
     let b_in = ctx.storage_buffer("viewdirs", &dirs, false);
     let b_out = ctx.storage_buffer("view enc", &vec![f32::NAN; cpu.len()], true);
-    let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("view enc test") });
-    k.encode(&ctx, &mut enc, rays.len(), 4, &b_in, &b_out).unwrap();
-    ctx.queue.submit([enc.finish()]);
+    let mut rec = Recorder::new(&ctx, "view enc test");
+    k.encode(&mut rec, rays.len(), 4, &b_in, &b_out).unwrap();
+    let _ = rec.submit();
     let bad = mismatches(
         "view encoding",
         &ctx.read_f32(&b_out, cpu.len()).unwrap(),
@@ -492,9 +509,14 @@ fn a_missing_hardware_gpu_is_an_error_not_a_panic() {
     match GpuContext::new(AdapterChoice::HardwareOnly) {
         Ok(ctx) => assert!(!ctx.adapter.is_software, "HardwareOnly returned {}", ctx.adapter.name),
         Err(e) => {
-            assert!(matches!(e, GpuError::NoAdapter { hardware_only: true }), "{e:?}");
+            let GpuError::NoAdapter { passed_over, .. } = &e else { panic!("{e:?}") };
+            // Every adapter wgpu saw is listed with why it was passed over.
+            assert_eq!(passed_over.len(), mipnerf_gpu::list_adapters().len(), "{e:?}");
             let msg = e.to_string();
-            assert!(msg.contains("no hardware GPU adapter found") && msg.contains("--backend cpu"), "{msg}");
+            assert!(msg.contains("no GPU adapter found for a hardware GPU") && msg.contains("--backend cpu"), "{msg}");
+            for a in mipnerf_gpu::list_adapters() {
+                assert!(msg.contains(&a.name) && msg.contains("a software adapter"), "{a:?} not in: {msg}");
+            }
         }
     }
 }
@@ -584,5 +606,158 @@ fn whole_model_loss_and_gradients_match_cpu_reference() {
             Tolerance::new(TOL_GPU_MODEL_REL * scale, TOL_GPU_MODEL_REL),
         ));
     }
+    assert_none(&bad);
+}
+
+/// One matrix product on the device against f64 on the host: every output must lie within the
+/// worst-case bound of f32 summation, `k u sum_i |a_i b_i|` (Higham's gamma_k, u = 2^-24; it holds
+/// for any order and any fusing of the multiply-adds, split or not), plus one rounding of the
+/// epilogue. Returns every output outside it.
+#[allow(clippy::too_many_arguments)]
+fn check_product(
+    ctx: &mipnerf_gpu::GpuContext,
+    kernel: &mipnerf_gpu::kernels::matmul::MatmulKernel,
+    (m, k, n): (usize, usize, usize),
+    (a_t, b_t): (bool, bool),
+    split: bool,
+    tag: &str,
+) -> Vec<String> {
+    use mipnerf_gpu::kernels::matmul::{Epilogue, Operand};
+    use rand::{Rng, SeedableRng, rngs::SmallRng};
+    let mut rng = SmallRng::seed_from_u64((m * 31 + k * 7 + n) as u64);
+    // Offsets inside the buffers, so that they are honoured too.
+    let (a_off, b_off, bias_off) = (3usize, 5usize, 5 + k * n + 2);
+    let a: Vec<f32> = (0..a_off + m * k).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let b: Vec<f32> = (0..bias_off + n).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let c0: Vec<f32> = (0..m * n).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let mask: Vec<f32> = (0..m * n).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let at = |r: usize, kk: usize| if a_t { a[a_off + kk * m + r] } else { a[a_off + r * k + kk] };
+    let bt = |kk: usize, c: usize| if b_t { b[b_off + c * k + kk] } else { b[b_off + kk * n + c] };
+    let buf_a = ctx.storage_buffer("test a", &a, false);
+    let buf_b = ctx.storage_buffer("test b", &b, false);
+    let buf_mask = ctx.storage_buffer("test mask", &mask, false);
+    let mut bad = Vec::new();
+    // Two epilogues: accumulate + bias + ReLU, and overwrite + ReLU-backward mask.
+    for (e, accumulate) in [(0, true), (1, false)] {
+        let buf_c = ctx.storage_buffer("test c", &c0, true);
+        let scratch_len = 64 * m * n;
+        let scratch = ctx.storage_buffer("test scratch", &vec![f32::NAN; scratch_len], false);
+        let opa = if a_t { Operand::t(&buf_a, a_off) } else { Operand::new(&buf_a, a_off) };
+        let opb = if b_t { Operand::t(&buf_b, b_off) } else { Operand::new(&buf_b, b_off) };
+        let epi = if e == 0 {
+            Epilogue { accumulate, bias: Some(bias_off), relu: true, mask: None }
+        } else {
+            Epilogue { accumulate, mask: Some((&buf_mask, 0)), ..Epilogue::default() }
+        };
+        let mut rec = Recorder::new(ctx, "product test");
+        if split {
+            kernel.encode_split(&mut rec, (m, k, n), opa, opb, Operand::new(&buf_c, 0), epi, (&scratch, scratch_len));
+        } else {
+            kernel.encode(&mut rec, (m, k, n), opa, opb, Operand::new(&buf_c, 0), epi);
+        }
+        let _ = rec.submit();
+        let got = ctx.read_f32(&buf_c, m * n).unwrap();
+        for r in 0..m {
+            for c in 0..n {
+                let (mut sum, mut abs) = (0.0f64, 0.0f64);
+                for kk in 0..k {
+                    let p = f64::from(at(r, kk)) * f64::from(bt(kk, c));
+                    sum += p;
+                    abs += p.abs();
+                }
+                let mut want = sum;
+                if accumulate {
+                    want += f64::from(c0[r * n + c]);
+                }
+                if e == 0 {
+                    want = (want + f64::from(b[bias_off + c])).max(0.0);
+                } else if mask[r * n + c] <= 0.0 {
+                    want = 0.0;
+                }
+                let u = f64::from(f32::EPSILON) / 2.0;
+                let bound = k as f64 * u * abs + 4.0 * u * (want.abs() + 2.0) + 1e-30;
+                let g = f64::from(got[r * n + c]);
+                if g.is_nan() || (g - want).abs() > bound {
+                    bad.push(format!("{tag} epilogue {e} ({r}, {c}): got {g:e} want {want:e} (bound {bound:e})"));
+                }
+            }
+        }
+    }
+    bad
+}
+
+/// Both product kernels, split over k and not, with either operand stored transposed, at sizes
+/// with partial tiles on both sides, several row tiles and an odd k, against f64 under the f32
+/// summation bound; and the split plans those sizes get have several partials, the last short.
+#[test]
+fn matrix_products_split_or_not_match_f64_within_the_summation_bound() {
+    use mipnerf_gpu::kernels::matmul::{MatmulKernel, MatmulVariant};
+    let Some(ctx) = context_or_skip("matrix_products_split_or_not_match_f64_within_the_summation_bound") else {
+        return;
+    };
+    let mut bad = Vec::new();
+    for variant in [MatmulVariant::Tiled, MatmulVariant::Blocked] {
+        let kernel = MatmulKernel::with_variant(&ctx, variant).unwrap();
+        // A weight gradient's shape (few outputs, long k) and a layer's (many rows).
+        let wgrad = (45, 3001, 37);
+        let plan = kernel.split_plan(wgrad, 64 * 45 * 37);
+        assert!(plan.splits >= 4 && wgrad.1 % plan.k_chunk != 0, "{variant:?}: {plan:?}");
+        for (dims, split) in [(wgrad, true), (wgrad, false), ((197, 83, 70), false), ((130, 19, 5), true)] {
+            for trans in [(false, false), (true, false), (false, true), (true, true)] {
+                let tag = format!("{variant:?} {dims:?} split {split} transposed {trans:?}");
+                bad.extend(check_product(&ctx, &kernel, dims, trans, split, &tag));
+            }
+        }
+    }
+    assert_none(&bad);
+}
+
+/// Issue 18, item 6: the product kernels walk row and column tiles in grid-stride loops, so a
+/// dispatch never exceeds the device's workgroups per dimension. Capped at 3 workgroups per
+/// dimension, each kernel still covers every tile of a product 7 row tiles tall and 3 column
+/// tiles wide; and the hardware kernel runs on lavapipe past the old limit of the 16-row tiles
+/// (65535 x 16 rows) against the CPU.
+#[test]
+fn products_cover_any_size_within_the_dispatch_limit() {
+    use mipnerf_gpu::kernels::matmul::{Epilogue, MatmulKernel, MatmulVariant, Operand};
+    let Some(ctx) = context_or_skip("products_cover_any_size_within_the_dispatch_limit") else {
+        return;
+    };
+    let mut bad = Vec::new();
+    for variant in [MatmulVariant::Tiled, MatmulVariant::Blocked] {
+        let kernel = MatmulKernel::with_variant(&ctx, variant).unwrap().with_max_groups_per_dim(3);
+        let t = variant.tile();
+        let dims = (7 * t - 5, 21, 3 * t - 1);
+        bad.extend(check_product(&ctx, &kernel, dims, (false, false), false, &format!("{variant:?} capped")));
+        bad.extend(check_product(
+            &ctx,
+            &kernel,
+            (t + 3, 2000, 9),
+            (true, false),
+            true,
+            &format!("{variant:?} capped split"),
+        ));
+    }
+    // 1,100,000 rows: 17,188 row tiles of the 64-row hardware kernel.
+    let (m, k, n) = (1_100_000usize, 3usize, 2usize);
+    let a: Vec<f32> = (0..m * k).map(|i| ((i % 7) as f32 - 3.0) * 0.25).collect();
+    let b = [0.5f32, -1.0, 0.25, 2.0, -0.75, 1.5];
+    let kernel = MatmulKernel::with_variant(&ctx, MatmulVariant::Tiled).unwrap();
+    let (ba, bb) = (ctx.storage_buffer("big a", &a, false), ctx.storage_buffer("big b", &b, false));
+    let bc = ctx.storage_buffer("big c", &vec![f32::NAN; m * n], true);
+    let mut rec = Recorder::new(&ctx, "big product");
+    kernel.encode(
+        &mut rec,
+        (m, k, n),
+        Operand::new(&ba, 0),
+        Operand::new(&bb, 0),
+        Operand::new(&bc, 0),
+        Epilogue::default(),
+    );
+    let _ = rec.submit();
+    let got = ctx.read_f32(&bc, m * n).unwrap();
+    // Every product is exact in f32 (quarters times small binary fractions), so the sums are too.
+    let want: Vec<f32> = (0..m * n).map(|i| (0..k).map(|kk| a[(i / n) * k + kk] * b[kk * n + i % n]).sum()).collect();
+    bad.extend(mismatches("1.1M-row product", &got, &want, Tolerance::EXACT));
     assert_none(&bad);
 }

@@ -2,6 +2,7 @@
 
 use mipnerf_core::train::AdamConfig;
 
+use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of this kernel.
@@ -121,13 +122,7 @@ impl AdamKernel {
     ///
     /// # Errors
     /// [`GpuError::InvalidInput`] for too many parameters for one dispatch.
-    pub fn encode(
-        &self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
-        step: &AdamStep,
-        b: &AdamBuffers,
-    ) -> Result<(), GpuError> {
+    pub fn encode(&self, rec: &mut Recorder<'_>, step: &AdamStep, b: &AdamBuffers) -> Result<(), GpuError> {
         let t = step.t as i32;
         let cfg = &step.cfg;
         let mut p = AdamParams {
@@ -148,12 +143,12 @@ impl AdamKernel {
         if step.max_norm > 0.0 {
             let (gx, gy) = kernels::dispatch_grid(b.count as u64, NORM_GROUP as u32)?;
             p.groups_x = gx;
-            kernels::dispatch(ctx, enc, "adam norm", &self.sq_partial, &self.layout, &p, &bufs, (gx, gy, 1));
-            kernels::dispatch(ctx, enc, "adam norm finish", &self.norm_finish, &self.layout, &p, &bufs, (1, 1, 1));
+            rec.dispatch("adam norm", &self.sq_partial, &self.layout, &p, &bufs, (gx, gy, 1));
+            rec.dispatch("adam norm finish", &self.norm_finish, &self.layout, &p, &bufs, (1, 1, 1));
         }
         let (gx, gy) = kernels::dispatch_grid(b.count as u64, kernels::WORKGROUP)?;
         p.groups_x = gx;
-        kernels::dispatch(ctx, enc, "adam", &self.update, &self.layout, &p, &bufs, (gx, gy, 1));
+        rec.dispatch("adam", &self.update, &self.layout, &p, &bufs, (gx, gy, 1));
         Ok(())
     }
 }

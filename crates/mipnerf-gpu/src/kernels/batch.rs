@@ -5,6 +5,7 @@ use mipnerf_core::camera::{Camera, PixelCenters};
 use mipnerf_core::data::{Dataset, Ndc, Pixels};
 use mipnerf_core::rng::{RayRng, Stream};
 
+use crate::kernels::Recorder;
 use crate::model::RayBatch;
 use crate::{GpuContext, GpuError, kernels};
 
@@ -289,8 +290,7 @@ impl BatchKernel {
     /// [`GpuError::InvalidInput`] for a sequential start past the last pixel, or a grid too large.
     pub fn encode(
         &self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
+        rec: &mut Recorder<'_>,
         images: &DeviceImages,
         draw: Draw,
         area_loss: bool,
@@ -346,8 +346,8 @@ impl BatchKernel {
             &out.targets,
             &out.norm,
         ];
-        kernels::dispatch(ctx, enc, "batch rays", &self.make_rays, &self.layout, &p, &bufs, (gx, gy, 1));
-        kernels::dispatch(ctx, enc, "batch norm", &self.batch_norm, &self.layout, &p, &bufs, (1, 1, 1));
+        rec.dispatch("batch rays", &self.make_rays, &self.layout, &p, &bufs, (gx, gy, 1));
+        rec.dispatch("batch norm", &self.batch_norm, &self.layout, &p, &bufs, (1, 1, 1));
         Ok(())
     }
 }

@@ -2,6 +2,7 @@
 
 use mipnerf_core::{Ray, RayShape, mip::ipe_len};
 
+use crate::kernels::Recorder;
 use crate::kernels::{WORKGROUP, dispatch_grid};
 use crate::{GpuContext, GpuError};
 
@@ -55,8 +56,7 @@ impl CastIpeKernel {
     /// [`GpuError::InvalidInput`] for a grid too large for one dispatch.
     pub fn encode(
         &self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
+        rec: &mut Recorder<'_>,
         mut params: CastIpeParams,
         rays: &wgpu::Buffer,
         t_vals: &wgpu::Buffer,
@@ -64,16 +64,7 @@ impl CastIpeKernel {
     ) -> Result<(), GpuError> {
         let (gx, gy) = dispatch_grid(u64::from(params.n_rays) * u64::from(params.n_samples), WORKGROUP)?;
         params.groups_x = gx;
-        crate::kernels::dispatch(
-            ctx,
-            enc,
-            "cast_ipe",
-            &self.pipeline,
-            &self.layout,
-            &params,
-            &[rays, t_vals, out],
-            (gx, gy, 1),
-        );
+        rec.dispatch("cast_ipe", &self.pipeline, &self.layout, &params, &[rays, t_vals, out], (gx, gy, 1));
         Ok(())
     }
 
@@ -123,31 +114,12 @@ impl CastIpeKernel {
             .flat_map(|r| [r.origin.extend(r.radius).to_array(), r.direction.extend(0.0).to_array()])
             .collect();
         let out_len = n_items as usize * ipe_len(min_deg, max_deg);
-        let uniform = ctx.uniform_buffer("cast_ipe params", &params);
         let ray_buf = ctx.storage_buffer("cast_ipe rays", &packed, false);
         let t_buf = ctx.storage_buffer("cast_ipe t_vals", t_vals, false);
         let out_buf = ctx.storage_buffer("cast_ipe encoded", &vec![f32::NAN; out_len], true);
-        let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("cast_ipe bind group"),
-            layout: &self.layout,
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: ray_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 2, resource: t_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 3, resource: out_buf.as_entire_binding() },
-            ],
-        });
-        let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("cast_ipe") });
-        {
-            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("cast_ipe pass"),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(&self.pipeline);
-            pass.set_bind_group(0, &bind, &[]);
-            pass.dispatch_workgroups(gx, gy, 1);
-        }
-        ctx.queue.submit([enc.finish()]);
+        let mut rec = Recorder::new(ctx, "cast_ipe");
+        rec.dispatch("cast_ipe", &self.pipeline, &self.layout, &params, &[&ray_buf, &t_buf, &out_buf], (gx, gy, 1));
+        let _ = rec.submit();
         ctx.read_f32(&out_buf, out_len)
     }
 }

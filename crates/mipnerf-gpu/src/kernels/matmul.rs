@@ -1,12 +1,14 @@
-//! `shaders/matmul.wgsl`: matrix products with an optional bias and ReLU epilogue, tiled through
-//! workgroup memory (hardware GPUs) or register-blocked (software adapters).
+//! `shaders/matmul.wgsl`: matrix products with a bias, ReLU or ReLU-backward epilogue, optionally
+//! split over k into partial products added in a fixed order; register-blocked through workgroup
+//! memory (hardware GPUs) or straight from storage (software adapters).
 
+use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of this kernel.
 pub const SOURCE: &str = include_str!("../../../../shaders/matmul.wgsl");
 
-/// The uniform block of `matmul.wgsl` (`struct Params`), 32 bytes.
+/// The uniform block of `matmul.wgsl` (`struct Params`), 48 bytes.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct MatmulParams {
@@ -16,7 +18,8 @@ pub struct MatmulParams {
     pub k: u32,
     /// Columns of C.
     pub n: u32,
-    /// Bit 0: A transposed; 1: B transposed; 2: accumulate; 3: add bias; 4: ReLU.
+    /// Bit 0: A transposed; 1: B transposed; 2: accumulate; 3: add bias; 4: ReLU; 5: ReLU-backward
+    /// mask; 6: write split z's raw partial product.
     pub flags: u32,
     /// Element offset of A in its buffer.
     pub a_off: u32,
@@ -26,6 +29,14 @@ pub struct MatmulParams {
     pub c_off: u32,
     /// Element offset of the bias in B's buffer.
     pub bias_off: u32,
+    /// Entries of k per split (k when unsplit).
+    pub k_chunk: u32,
+    /// Partial products `reduce_splits` adds.
+    pub n_splits: u32,
+    /// Workgroups along x of `reduce_splits`'s grid.
+    pub groups_x: u32,
+    /// Element offset of the mask in its buffer.
+    pub mask_off: u32,
 }
 
 /// One operand: a buffer, the element offset of the matrix in it, and whether it is stored
@@ -53,23 +64,27 @@ impl<'a> Operand<'a> {
     }
 }
 
-/// What happens after the product.
+/// What happens after the product, in this order.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct Epilogue {
+pub struct Epilogue<'a> {
     /// Add to C instead of overwriting it.
     pub accumulate: bool,
     /// Add the bias at this element offset of B's buffer, per column.
     pub bias: Option<usize>,
     /// Then ReLU.
     pub relu: bool,
+    /// Then zero every output whose entry of this m x n matrix (buffer, element offset) is not
+    /// positive: the ReLU backward pass, with the layer's output as the mask.
+    pub mask: Option<(&'a wgpu::Buffer, usize)>,
 }
 
-/// Which entry point of `matmul.wgsl` runs. Both give the same sums in the same order.
+/// Which product entry point of `matmul.wgsl` runs. Both give the same sums in the same order.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum MatmulVariant {
-    /// 16 x 16 tiles through workgroup memory (`main`): for hardware GPUs.
+    /// `tiled`: 64 x 64 output tiles per workgroup of 256 invocations, a 4 x 4 block of outputs
+    /// in registers per invocation, k staged through workgroup memory: for hardware GPUs.
     Tiled,
-    /// 4 x 4 outputs per invocation from storage (`blocked`): for software adapters, where
+    /// `blocked`: 4 x 4 outputs per invocation from storage: for software adapters, where
     /// workgroup memory and barriers are emulated per lane (measured 5-10x faster on lavapipe).
     Blocked,
 }
@@ -80,14 +95,42 @@ impl MatmulVariant {
     pub fn for_adapter(ctx: &GpuContext) -> Self {
         if ctx.adapter.is_software { Self::Blocked } else { Self::Tiled }
     }
+
+    /// Output rows (and columns) one workgroup covers.
+    #[must_use]
+    pub fn tile(self) -> usize {
+        match self {
+            Self::Tiled => 64,
+            Self::Blocked => 32,
+        }
+    }
 }
 
-/// The compiled matmul pipeline of one variant.
+/// How a product is split over k: `splits` partial products of `k_chunk` entries each (the last
+/// one shorter).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SplitPlan {
+    /// Entries of k per split, a multiple of 16.
+    pub k_chunk: usize,
+    /// Partial products.
+    pub splits: usize,
+}
+
+/// Most partial products of one split product.
+pub const MAX_SPLITS: usize = 64;
+/// Fewest entries of k one split sums (shorter splits cost more in the second pass than they
+/// gain).
+pub const MIN_K_PER_SPLIT: usize = 256;
+
+/// The compiled matmul pipelines of one variant.
 #[derive(Debug)]
 pub struct MatmulKernel {
     pipeline: wgpu::ComputePipeline,
+    reduce: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
     variant: MatmulVariant,
+    max_groups: u32,
+    target_groups: usize,
 }
 
 impl MatmulKernel {
@@ -105,11 +148,26 @@ impl MatmulKernel {
     /// If the device rejects it.
     pub fn with_variant(ctx: &GpuContext, variant: MatmulVariant) -> Result<Self, GpuError> {
         let entry = match variant {
-            MatmulVariant::Tiled => "main",
+            MatmulVariant::Tiled => "tiled",
             MatmulVariant::Blocked => "blocked",
         };
-        let ([pipeline], layout) = kernels::build_entries(ctx, "matmul", SOURCE, &[true, true, false], [entry])?;
-        Ok(Self { pipeline, layout, variant })
+        // `tiled` writes all of its workgroup memory before reading it: no zero initialisation.
+        let ([pipeline, reduce], layout) = kernels::build_entries_with(
+            ctx,
+            "matmul",
+            SOURCE,
+            &[true, true, false, true],
+            [entry, "reduce_splits"],
+            false,
+        )?;
+        // Enough workgroups in flight to fill a large GPU several times over; a software adapter
+        // has a few cores, which the products' own tiles already fill.
+        let target_groups = match variant {
+            MatmulVariant::Tiled => 2048,
+            MatmulVariant::Blocked => 256,
+        };
+        let max_groups = ctx.max_groups_per_dim().min(kernels::MAX_GROUPS_PER_DIM);
+        Ok(Self { pipeline, reduce, layout, variant, max_groups, target_groups })
     }
 
     /// The variant this kernel runs.
@@ -118,49 +176,153 @@ impl MatmulKernel {
         self.variant
     }
 
-    /// Records `c (m x n) (+)= a (m x k) · b (k x n)` with `epi` into `enc`. `c` must be another
-    /// buffer than `a` and `b`.
+    /// Caps the workgroups per dispatch dimension below the device's limit (tests use it to
+    /// reach the grid-stride loops at small sizes).
+    #[must_use]
+    pub fn with_max_groups_per_dim(mut self, groups: u32) -> Self {
+        self.max_groups = groups.clamp(1, self.max_groups);
+        self
+    }
+
+    /// How [`encode_split`](Self::encode_split) splits an `m x k x n` product with room for
+    /// `scratch_len` floats of partials: enough splits to keep the device's workgroups busy,
+    /// each at least [`MIN_K_PER_SPLIT`] long, at most [`MAX_SPLITS`]; one split (no split)
+    /// when the output tiles alone are enough.
+    #[must_use]
+    pub fn split_plan(&self, (m, k, n): (usize, usize, usize), scratch_len: usize) -> SplitPlan {
+        let t = self.variant.tile();
+        let tiles = m.div_ceil(t) * n.div_ceil(t);
+        let splits = (self.target_groups / tiles.max(1))
+            .min(k / MIN_K_PER_SPLIT)
+            .min(MAX_SPLITS)
+            .min(scratch_len / (m * n).max(1))
+            .max(1);
+        if splits == 1 {
+            return SplitPlan { k_chunk: k, splits: 1 };
+        }
+        let k_chunk = k.div_ceil(splits).next_multiple_of(16);
+        SplitPlan { k_chunk, splits: k.div_ceil(k_chunk) }
+    }
+
+    fn flags(a: Operand<'_>, b: Operand<'_>, epi: &Epilogue<'_>) -> u32 {
+        u32::from(a.transposed)
+            | (u32::from(b.transposed) << 1)
+            | (u32::from(epi.accumulate) << 2)
+            | (u32::from(epi.bias.is_some()) << 3)
+            | (u32::from(epi.relu) << 4)
+            | (u32::from(epi.mask.is_some()) << 5)
+    }
+
+    fn product_groups(&self, m: usize, n: usize, splits: usize) -> (u32, u32, u32) {
+        let t = self.variant.tile();
+        let cap = |tiles: usize| (tiles.max(1) as u32).min(self.max_groups);
+        (cap(n.div_ceil(t)), cap(m.div_ceil(t)), splits as u32)
+    }
+
+    /// Records `c (m x n) (+)= a (m x k) · b (k x n)` with `epi`. `c` must be another buffer
+    /// than `a`, `b` and the mask.
+    #[allow(clippy::too_many_arguments)]
     pub fn encode(
         &self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
+        rec: &mut Recorder<'_>,
         (m, k, n): (usize, usize, usize),
         a: Operand<'_>,
         b: Operand<'_>,
         c: Operand<'_>,
-        epi: Epilogue,
+        epi: Epilogue<'_>,
     ) {
-        let flags = u32::from(a.transposed)
-            | (u32::from(b.transposed) << 1)
-            | (u32::from(epi.accumulate) << 2)
-            | (u32::from(epi.bias.is_some()) << 3)
-            | (u32::from(epi.relu) << 4);
+        let (mask, mask_off) = epi.mask.map_or((a.buffer, 0), |(buf, off)| (buf, off as u32));
         let params = MatmulParams {
             m: m as u32,
             k: k as u32,
             n: n as u32,
-            flags,
+            flags: Self::flags(a, b, &epi),
             a_off: a.offset,
             b_off: b.offset,
             c_off: c.offset,
             bias_off: epi.bias.unwrap_or(0) as u32,
+            k_chunk: k as u32,
+            n_splits: 1,
+            groups_x: 0,
+            mask_off,
         };
-        let outputs_per_group = match self.variant {
-            MatmulVariant::Tiled => 16,
-            MatmulVariant::Blocked => 32,
+        let groups = self.product_groups(m, n, 1);
+        rec.dispatch("matmul", &self.pipeline, &self.layout, &params, &[a.buffer, b.buffer, c.buffer, mask], groups);
+    }
+
+    /// [`encode`](Self::encode), split over k as [`split_plan`](Self::split_plan) says: the
+    /// partial products go to `scratch` (`scratch_len` floats, another buffer than the
+    /// operands), then a second pass adds them in order into `c` with the epilogue. For products
+    /// with few outputs and a long k: the weight gradients.
+    #[allow(clippy::too_many_arguments)]
+    pub fn encode_split(
+        &self,
+        rec: &mut Recorder<'_>,
+        (m, k, n): (usize, usize, usize),
+        a: Operand<'_>,
+        b: Operand<'_>,
+        c: Operand<'_>,
+        epi: Epilogue<'_>,
+        (scratch, scratch_len): (&wgpu::Buffer, usize),
+    ) {
+        let plan = self.split_plan((m, k, n), scratch_len);
+        if plan.splits == 1 {
+            self.encode(rec, (m, k, n), a, b, c, epi);
+            return;
+        }
+        let partial = MatmulParams {
+            m: m as u32,
+            k: k as u32,
+            n: n as u32,
+            flags: u32::from(a.transposed) | (u32::from(b.transposed) << 1) | 64,
+            a_off: a.offset,
+            b_off: b.offset,
+            c_off: 0,
+            bias_off: 0,
+            k_chunk: plan.k_chunk as u32,
+            n_splits: plan.splits as u32,
+            groups_x: 0,
+            mask_off: 0,
         };
-        let groups = ((n as u32).div_ceil(outputs_per_group), (m as u32).div_ceil(outputs_per_group), 1);
-        kernels::dispatch(
-            ctx,
-            enc,
-            "matmul",
+        let groups = self.product_groups(m, n, plan.splits);
+        rec.dispatch(
+            "matmul split",
             &self.pipeline,
             &self.layout,
-            &params,
-            &[a.buffer, b.buffer, c.buffer],
+            &partial,
+            &[a.buffer, b.buffer, scratch, a.buffer],
             groups,
+        );
+        let (mask, mask_off) = epi.mask.map_or((scratch, 0), |(buf, off)| (buf, off as u32));
+        // m * n is a layer's weight count: far inside one dispatch.
+        let (gx, gy) = kernels::dispatch_grid((m * n) as u64, kernels::WORKGROUP).unwrap_or((1, 1));
+        let reduce = MatmulParams {
+            m: m as u32,
+            k: k as u32,
+            n: n as u32,
+            flags: Self::flags(Operand { transposed: false, ..a }, Operand { transposed: false, ..b }, &epi),
+            a_off: 0,
+            b_off: b.offset,
+            c_off: c.offset,
+            bias_off: epi.bias.unwrap_or(0) as u32,
+            k_chunk: plan.k_chunk as u32,
+            n_splits: plan.splits as u32,
+            groups_x: gx,
+            mask_off,
+        };
+        rec.dispatch(
+            "matmul reduce",
+            &self.reduce,
+            &self.layout,
+            &reduce,
+            &[scratch, b.buffer, c.buffer, mask],
+            (gx, gy, 1),
         );
     }
 }
 
-super::wgsl_struct!(MatmulParams, "Params", [m, k, n, flags, a_off, b_off, c_off, bias_off]);
+super::wgsl_struct!(
+    MatmulParams,
+    "Params",
+    [m, k, n, flags, a_off, b_off, c_off, bias_off, k_chunk, n_splits, groups_x, mask_off]
+);

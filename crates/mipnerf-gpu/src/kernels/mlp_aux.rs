@@ -1,5 +1,6 @@
 //! `shaders/mlp_aux.wgsl`: ReLU backward, column sums (bias gradients), row broadcast.
 
+use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of these kernels.
@@ -51,8 +52,7 @@ impl MlpAuxKernels {
 
     fn run(
         &self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
+        rec: &mut Recorder<'_>,
         which: &wgpu::ComputePipeline,
         items: usize,
         mut params: AuxParams,
@@ -62,20 +62,19 @@ impl MlpAuxKernels {
         // Sizes are validated by the callers (they come from the model's shape).
         let (gx, gy) = kernels::dispatch_grid(items as u64, kernels::WORKGROUP).unwrap_or((1, 1));
         params.groups_x = gx;
-        kernels::dispatch(ctx, enc, "mlp_aux", which, &self.layout, &params, &[x, out], (gx, gy, 1));
+        rec.dispatch("mlp_aux", which, &self.layout, &params, &[x, out], (gx, gy, 1));
     }
 
     /// `g[i] = 0` where the layer output `h[i] <= 0`, over `count` elements (in place on `g`).
     pub fn relu_backward(
         &self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
+        rec: &mut Recorder<'_>,
         h: (&wgpu::Buffer, usize),
         g: (&wgpu::Buffer, usize),
         count: usize,
     ) {
         let params = AuxParams { count: count as u32, x_off: h.1 as u32, out_off: g.1 as u32, ..AuxParams::default() };
-        self.run(ctx, enc, &self.relu_backward, count, params, h.0, g.0);
+        self.run(rec, &self.relu_backward, count, params, h.0, g.0);
     }
 
     /// Rows summed per block by the first pass of [`col_sums`](Self::col_sums).
@@ -93,8 +92,7 @@ impl MlpAuxKernels {
     #[allow(clippy::too_many_arguments)]
     pub fn col_sums(
         &self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
+        rec: &mut Recorder<'_>,
         x: (&wgpu::Buffer, usize),
         out: (&wgpu::Buffer, usize),
         rows: usize,
@@ -111,7 +109,7 @@ impl MlpAuxKernels {
                 ..AuxParams::default()
             };
             let items = Self::col_sums_scratch_len(rows, cols);
-            self.run(ctx, enc, &self.col_sums_partial, items, params, x.0, scratch);
+            self.run(rec, &self.col_sums_partial, items, params, x.0, scratch);
             ((scratch, 0), rows.div_ceil(Self::BLOCK_ROWS))
         } else {
             (x, rows)
@@ -124,14 +122,13 @@ impl MlpAuxKernels {
             accumulate: u32::from(accumulate),
             ..AuxParams::default()
         };
-        self.run(ctx, enc, &self.col_sums, cols, params, x.0, out.0);
+        self.run(rec, &self.col_sums, cols, params, x.0, out.0);
     }
 
     /// `out[r * rep + i, :] = x[r, :]` for `rows` rows of `cols`.
     pub fn broadcast_rows(
         &self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
+        rec: &mut Recorder<'_>,
         x: &wgpu::Buffer,
         out: &wgpu::Buffer,
         rows: usize,
@@ -139,7 +136,7 @@ impl MlpAuxKernels {
         rep: usize,
     ) {
         let params = AuxParams { rows: rows as u32, cols: cols as u32, count: rep as u32, ..AuxParams::default() };
-        self.run(ctx, enc, &self.broadcast_rows, rows * rep * cols, params, x, out);
+        self.run(rec, &self.broadcast_rows, rows * rep * cols, params, x, out);
     }
 }
 

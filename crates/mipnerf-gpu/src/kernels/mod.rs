@@ -142,7 +142,8 @@ pub const ALL_SOURCES: &[(&str, &str)] = &[
     ("batch.wgsl", batch::SOURCE),
 ];
 
-/// Most workgroups a dispatch may have along one dimension.
+/// Most workgroups a dispatch may have along one dimension: WebGPU's default
+/// `max_compute_workgroups_per_dimension`, which every device allows.
 pub const MAX_GROUPS_PER_DIM: u32 = 65_535;
 
 /// A 2-D grid of workgroups covering `n_items` invocations of `workgroup` each: `(x, y)` with
@@ -220,13 +221,32 @@ pub fn build_entries<const N: usize>(
     read_only: &[bool],
     entries: [&str; N],
 ) -> Result<([wgpu::ComputePipeline; N], wgpu::BindGroupLayout), GpuError> {
+    build_entries_with(ctx, name, source, read_only, entries, true)
+}
+
+/// [`build_entries`], with wgpu's zero initialisation of workgroup memory on or off (off for a
+/// kernel that writes all of its workgroup memory before reading it, which saves a pass over it
+/// per workgroup on hardware).
+///
+/// # Errors
+/// As [`build_entries`].
+pub fn build_entries_with<const N: usize>(
+    ctx: &GpuContext,
+    name: &str,
+    source: &str,
+    read_only: &[bool],
+    entries: [&str; N],
+    zero_init_workgroup_memory: bool,
+) -> Result<([wgpu::ComputePipeline; N], wgpu::BindGroupLayout), GpuError> {
     let layout = storage_layout(ctx, name, read_only);
-    let pipelines = entries.map(|e| compute_pipeline_entry(ctx, &format!("{name} {e}"), source, e, &layout));
+    let pipelines = entries
+        .map(|e| compute_pipeline_entry(ctx, &format!("{name} {e}"), source, e, &layout, zero_init_workgroup_memory));
     ctx.check()?;
     Ok((pipelines, layout))
 }
 
-/// A labelled compute pipeline for entry point `entry` of the kernel file `source` ([`compose`]d).
+/// A labelled compute pipeline for entry point `entry` of the kernel file `source` ([`compose`]d),
+/// zero-initialising its workgroup memory or not.
 #[must_use]
 pub fn compute_pipeline_entry(
     ctx: &GpuContext,
@@ -234,6 +254,7 @@ pub fn compute_pipeline_entry(
     source: &str,
     entry: &str,
     layout: &wgpu::BindGroupLayout,
+    zero_init_workgroup_memory: bool,
 ) -> wgpu::ComputePipeline {
     let module = ctx.device.create_shader_module(wgpu::ShaderModuleDescriptor {
         label: Some(name),
@@ -249,32 +270,156 @@ pub fn compute_pipeline_entry(
         layout: Some(&pl),
         module: &module,
         entry_point: Some(entry),
-        compilation_options: wgpu::PipelineCompilationOptions::default(),
+        compilation_options: wgpu::PipelineCompilationOptions {
+            zero_initialize_workgroup_memory: zero_init_workgroup_memory,
+            ..wgpu::PipelineCompilationOptions::default()
+        },
         cache: None,
     })
 }
 
-/// Records one dispatch of `pipeline` with a fresh uniform block `params` at binding 0 and the
-/// storage `buffers` (whole buffers) at bindings 1.., into `enc`.
-pub fn dispatch<P: bytemuck::Pod>(
-    ctx: &GpuContext,
-    enc: &mut wgpu::CommandEncoder,
-    name: &str,
-    pipeline: &wgpu::ComputePipeline,
-    layout: &wgpu::BindGroupLayout,
-    params: &P,
-    buffers: &[&wgpu::Buffer],
-    groups: (u32, u32, u32),
-) {
-    let uniform = ctx.uniform_buffer(&format!("{name} params"), params);
-    let mut entries = vec![wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() }];
-    for (i, b) in buffers.iter().enumerate() {
-        entries.push(wgpu::BindGroupEntry { binding: i as u32 + 1, resource: b.as_entire_binding() });
+/// What a [`Recorder`] keeps of one dispatch slot between recordings: the uniform buffer and bind
+/// group it made, and what they hold.
+#[derive(Debug)]
+struct Slot {
+    layout: wgpu::BindGroupLayout,
+    buffers: Vec<wgpu::Buffer>,
+    params: Vec<u8>,
+    uniform: wgpu::Buffer,
+    bind: wgpu::BindGroup,
+}
+
+/// The bind groups and uniform buffers of a sequence of dispatches, kept from one recording to
+/// the next: the `i`-th dispatch of a recording reuses the `i`-th slot's bind group when it binds
+/// the same buffers with the same layout, and rewrites its uniform only when the parameters
+/// changed (`queue.write_buffer`, which takes effect in order with the submissions). A training
+/// step records the same sequence every step, so after the first one it makes nothing.
+#[derive(Debug, Default)]
+pub struct DispatchCache {
+    slots: Vec<Slot>,
+}
+
+/// Records a sequence of dispatches and copies into one command encoder: consecutive dispatches
+/// share one compute pass (wgpu orders the dispatches of a pass that touch the same buffers), a
+/// copy or clear ends it. Bind groups and uniforms come from a [`DispatchCache`].
+pub struct Recorder<'a> {
+    ctx: &'a GpuContext,
+    // Declared before the encoder: a pass must end before its encoder is used or finished.
+    pass: Option<wgpu::ComputePass<'static>>,
+    enc: wgpu::CommandEncoder,
+    cache: DispatchCache,
+    next: usize,
+}
+
+impl std::fmt::Debug for Recorder<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Recorder").field("next", &self.next).finish_non_exhaustive()
     }
-    let bind =
-        ctx.device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some(name), layout, entries: &entries });
-    let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(name), timestamp_writes: None });
-    pass.set_pipeline(pipeline);
-    pass.set_bind_group(0, &bind, &[]);
-    pass.dispatch_workgroups(groups.0, groups.1, groups.2);
+}
+
+impl<'a> Recorder<'a> {
+    /// A recorder on `ctx` with a fresh cache.
+    #[must_use]
+    pub fn new(ctx: &'a GpuContext, label: &str) -> Self {
+        Self::with_cache(ctx, label, DispatchCache::default())
+    }
+
+    /// A recorder on `ctx` reusing `cache` (from [`finish`](Self::finish) of the last recording
+    /// of the same sequence).
+    #[must_use]
+    pub fn with_cache(ctx: &'a GpuContext, label: &str, cache: DispatchCache) -> Self {
+        let enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
+        Self { ctx, pass: None, enc, cache, next: 0 }
+    }
+
+    /// The encoder, for copies and clears (ends the open compute pass).
+    pub fn encoder(&mut self) -> &mut wgpu::CommandEncoder {
+        self.pass = None;
+        &mut self.enc
+    }
+
+    /// Records one dispatch of `pipeline` with the uniform block `params` at binding 0 and the
+    /// storage `buffers` (whole buffers) at bindings 1...
+    #[allow(clippy::too_many_arguments)]
+    pub fn dispatch<P: bytemuck::Pod>(
+        &mut self,
+        name: &str,
+        pipeline: &wgpu::ComputePipeline,
+        layout: &wgpu::BindGroupLayout,
+        params: &P,
+        buffers: &[&wgpu::Buffer],
+        groups: (u32, u32, u32),
+    ) {
+        let ctx = self.ctx;
+        let bytes: &[u8] = bytemuck::bytes_of(params);
+        let i = self.next;
+        self.next += 1;
+        let reusable = self.cache.slots.get(i).is_some_and(|s| {
+            s.layout == *layout
+                && s.params.len() == bytes.len()
+                && s.buffers.len() == buffers.len()
+                && s.buffers.iter().zip(buffers).all(|(a, b)| a == *b)
+        });
+        if reusable {
+            let slot = &mut self.cache.slots[i];
+            if slot.params != bytes {
+                ctx.queue.write_buffer(&slot.uniform, 0, bytes);
+                slot.params.clear();
+                slot.params.extend_from_slice(bytes);
+            }
+        } else {
+            let uniform = ctx.uniform_buffer(&format!("{name} params"), params);
+            let mut entries = vec![wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() }];
+            for (k, b) in buffers.iter().enumerate() {
+                entries.push(wgpu::BindGroupEntry { binding: k as u32 + 1, resource: b.as_entire_binding() });
+            }
+            ctx.count_bind_group();
+            let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some(name),
+                layout,
+                entries: &entries,
+            });
+            let slot = Slot {
+                layout: layout.clone(),
+                buffers: buffers.iter().map(|b| (*b).clone()).collect(),
+                params: bytes.to_vec(),
+                uniform,
+                bind,
+            };
+            if i < self.cache.slots.len() {
+                self.cache.slots[i] = slot;
+            } else {
+                self.cache.slots.push(slot);
+            }
+        }
+        let new_pass = self.pass.is_none();
+        ctx.count_dispatch(new_pass);
+        let pass = self.pass.get_or_insert_with(|| {
+            self.enc
+                .begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("mipnerf kernels"),
+                    timestamp_writes: None,
+                })
+                .forget_lifetime()
+        });
+        pass.set_pipeline(pipeline);
+        pass.set_bind_group(0, &self.cache.slots[i].bind, &[]);
+        pass.dispatch_workgroups(groups.0, groups.1, groups.2);
+    }
+
+    /// Ends the recording: the command buffer and the cache for the next recording of the same
+    /// sequence.
+    #[must_use]
+    pub fn finish(mut self) -> (wgpu::CommandBuffer, DispatchCache) {
+        self.pass = None;
+        (self.enc.finish(), self.cache)
+    }
+
+    /// Ends the recording and submits it; returns the cache.
+    pub fn submit(self) -> DispatchCache {
+        let ctx = self.ctx;
+        let (commands, cache) = self.finish();
+        ctx.submit(commands);
+        cache
+    }
 }

@@ -1,5 +1,6 @@
 //! `shaders/render.wgsl`: activations, volume rendering, loss and their backward pass per ray.
 
+use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of this kernel.
@@ -137,8 +138,7 @@ impl RenderKernel {
     /// whole number of pixels.
     pub fn encode(
         &self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
+        rec: &mut Recorder<'_>,
         mut params: RenderParams,
         b: &RenderBuffers<'_>,
     ) -> Result<(), GpuError> {
@@ -160,18 +160,9 @@ impl RenderKernel {
             b.ray_out,
             b.norm,
         ];
-        kernels::dispatch(ctx, enc, "render", &self.pipeline, &self.layout, &params, &bufs, (gx, gy, 1));
+        rec.dispatch("render", &self.pipeline, &self.layout, &params, &bufs, (gx, gy, 1));
         if kk > 1 {
-            kernels::dispatch(
-                ctx,
-                enc,
-                "render pixels",
-                &self.pixel_backward,
-                &self.layout,
-                &params,
-                &bufs,
-                (gx, gy, 1),
-            );
+            rec.dispatch("render pixels", &self.pixel_backward, &self.layout, &params, &bufs, (gx, gy, 1));
         }
         Ok(())
     }

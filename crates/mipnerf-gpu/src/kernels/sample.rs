@@ -1,5 +1,6 @@
 //! `shaders/sample.wgsl`: stratified interval edges and inverse-CDF resampling per ray.
 
+use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of these kernels.
@@ -57,8 +58,7 @@ impl SampleKernels {
 
     fn run(
         &self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
+        rec: &mut Recorder<'_>,
         which: &wgpu::ComputePipeline,
         mut params: SampleParams,
         bufs: [&wgpu::Buffer; 3],
@@ -71,7 +71,7 @@ impl SampleKernels {
         }
         let (gx, gy) = kernels::dispatch_grid(u64::from(params.n_rays), kernels::WORKGROUP)?;
         params.groups_x = gx;
-        kernels::dispatch(ctx, enc, "sample", which, &self.layout, &params, &bufs, (gx, gy, 1));
+        rec.dispatch("sample", which, &self.layout, &params, &bufs, (gx, gy, 1));
         Ok(())
     }
 
@@ -81,13 +81,12 @@ impl SampleKernels {
     /// [`GpuError::InvalidInput`] for a sample count out of range.
     pub fn stratified(
         &self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
+        rec: &mut Recorder<'_>,
         params: SampleParams,
         bounds: &wgpu::Buffer,
         t_out: &wgpu::Buffer,
     ) -> Result<(), GpuError> {
-        self.run(ctx, enc, &self.stratified, params, [bounds, bounds, t_out])
+        self.run(rec, &self.stratified, params, [bounds, bounds, t_out])
     }
 
     /// Records the fine edges of every ray from the coarse edges and weights into `t_out`.
@@ -96,14 +95,13 @@ impl SampleKernels {
     /// [`GpuError::InvalidInput`] for a sample count out of range.
     pub fn resample(
         &self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
+        rec: &mut Recorder<'_>,
         params: SampleParams,
         t_coarse: &wgpu::Buffer,
         weights: &wgpu::Buffer,
         t_out: &wgpu::Buffer,
     ) -> Result<(), GpuError> {
-        self.run(ctx, enc, &self.resample, params, [t_coarse, weights, t_out])
+        self.run(rec, &self.resample, params, [t_coarse, weights, t_out])
     }
 }
 

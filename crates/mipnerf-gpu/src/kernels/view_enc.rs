@@ -1,5 +1,6 @@
 //! `shaders/view_enc.wgsl`: the positional encoding of view directions.
 
+use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of this kernel.
@@ -43,8 +44,7 @@ impl ViewEncKernel {
     /// [`GpuError::InvalidInput`] for too many rays for one dispatch or `deg_view > 16`.
     pub fn encode(
         &self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
+        rec: &mut Recorder<'_>,
         n_rays: usize,
         deg_view: u32,
         viewdirs: &wgpu::Buffer,
@@ -55,7 +55,7 @@ impl ViewEncKernel {
         }
         let (gx, gy) = kernels::dispatch_grid(n_rays as u64, kernels::WORKGROUP)?;
         let p = ViewEncParams { n_rays: n_rays as u32, deg_view, groups_x: gx, _pad: 0 };
-        kernels::dispatch(ctx, enc, "view_enc", &self.pipeline, &self.layout, &p, &[viewdirs, out], (gx, gy, 1));
+        rec.dispatch("view_enc", &self.pipeline, &self.layout, &p, &[viewdirs, out], (gx, gy, 1));
         Ok(())
     }
 }
