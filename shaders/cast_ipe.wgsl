@@ -3,7 +3,9 @@
 // One invocation per (ray, sample). The maths mirrors mipnerf-core's `mip.rs` operation by
 // operation: `conical_frustum_moments` (stable form), `lift_gaussian` (diagonal), then
 // `integrated_pos_enc` with the official 100*pi argument guard. Sine arguments are further
-// reduced to [-pi, pi] with a two-part 2*pi (Cody-Waite), because GPU `sin` is only accurate there.
+// reduced to [-pi, pi] with a three-part 2*pi (Cody-Waite), because WGSL only bounds `sin`'s error
+// there (2^-11 absolute). Neither reduction relies on a fused multiply-add: the leading parts of
+// the constants have few enough bits that their products with the quotient are exact.
 //
 // Output layout, per sample: [sin part | cos part], index (deg - min_deg) * 3 + axis inside a part,
 // samples of a ray contiguous: out[(ray * n_samples + sample) * ipe_len + feature]. NeRF's
@@ -33,17 +35,24 @@ struct Params {
 @group(0) @binding(3) var<storage, read_write> encoded: array<f32>;
 
 const SAFE_TRIG_LIMIT: f32 = 314.15927;
+// SAFE_TRIG_LIMIT = LIMIT_HI + LIMIT_LO exactly, LIMIT_HI with 12 significant bits.
+const LIMIT_HI: f32 = 314.125;
+const LIMIT_LO: f32 = 0.034271240234375;
 const HALF_PI: f32 = 1.5707964;
-const TWO_PI_HI: f32 = 6.2831855;
-const TWO_PI_LO: f32 = -1.7484555e-7;
+// 2 pi = TWO_PI_1 + TWO_PI_2 + TWO_PI_3 (to 48 bits), the first two with 12 significant bits.
+const TWO_PI_1: f32 = 6.28125;
+const TWO_PI_2: f32 = 0.0019350051879882812;
+const TWO_PI_3: f32 = 3.0199160e-7;
 
 // The official guard: reduce |x| >= 100 pi modulo 100 pi (Python-style, into [0, 100 pi)).
 fn safe_trig_arg(x: f32) -> f32 {
     if (abs(x) < SAFE_TRIG_LIMIT) {
         return x;
     }
+    // x - q * LIMIT, exactly for |q| < 2^12 (|x| < 1.2e6): both products are exact, the first
+    // difference is exact (Sterbenz), and the true remainder is representable.
     let q = trunc(x / SAFE_TRIG_LIMIT);
-    var r = fma(-q, SAFE_TRIG_LIMIT, x);
+    var r = (x - q * LIMIT_HI) - q * LIMIT_LO;
     if (r < 0.0) {
         r = r + SAFE_TRIG_LIMIT;
     }
@@ -53,10 +62,11 @@ fn safe_trig_arg(x: f32) -> f32 {
     return r;
 }
 
-// sin(x) for |x| < 100 pi, with a precise reduction to [-pi, pi] first.
+// sin(x) for |x| < 2^12 * 2 pi, with a precise reduction to [-pi, pi] first: k * TWO_PI_1 and
+// k * TWO_PI_2 are exact, and so is x - k * TWO_PI_1 (Sterbenz).
 fn sin_reduced(x: f32) -> f32 {
     let k = round(x * (1.0 / 6.2831855));
-    let r = fma(-k, TWO_PI_LO, fma(-k, TWO_PI_HI, x));
+    let r = ((x - k * TWO_PI_1) - k * TWO_PI_2) - k * TWO_PI_3;
     return sin(r);
 }
 

@@ -128,9 +128,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         d_raw_density[k] = exp(-cum);
     }
     acc = min(acc, 1.0);
-    var dist = dist_num / acc;
-    if (!(dist == dist)) {
-        dist = 0.0;
+    // A ray that hit nothing (acc = 0, so dist_num = 0) has the CPU's NaN distance, which it
+    // then maps to 0 and clamps to near. WGSL promises no NaN semantics: guard the division.
+    var dist = 0.0;
+    if (acc > 0.0) {
+        dist = dist_num / acc;
     }
     dist = clamp(dist, t_vals[tb], t_vals[tb + s_n]);
     let bg = select(0.0, 1.0, p.white_bkgd != 0u);

@@ -136,9 +136,14 @@ fn resample(@builtin(global_invocation_id) gid: vec3<u32>) {
         let i1 = min(k, nw);
         let c0 = cdf[i0];
         let c1 = cdf[i1];
-        var t = (u - c0) / (c1 - c0);
-        if (!(t == t)) {
-            t = 0.0;
+        // The CPU's (u - c0) / (c1 - c0) with NaN to 0 and infinities to the largest floats, then
+        // clamped. WGSL promises no NaN or infinity semantics, so the zero denominator (which the
+        // CDF search rules out, c0 <= u < c1) is decided before dividing.
+        let num = u - c0;
+        let den = c1 - c0;
+        var t = select(0.0, 1.0, num > 0.0);
+        if (den > 0.0) {
+            t = num / den;
         }
         t = clamp(t, 0.0, 1.0);
         let b0 = src_a[tb + i0];

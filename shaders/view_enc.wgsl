@@ -15,12 +15,15 @@ struct Params {
 @group(0) @binding(2) var<storage, read_write> encoded: array<f32>;
 
 const HALF_PI: f32 = 1.5707964;
-const TWO_PI_HI: f32 = 6.2831855;
-const TWO_PI_LO: f32 = -1.7484555e-7;
+// 2 pi = TWO_PI_1 + TWO_PI_2 + TWO_PI_3 (to 48 bits), the first two with 12 significant bits, so
+// that the reduction to [-pi, pi] (where WGSL bounds `sin`'s error) needs no fused multiply-add.
+const TWO_PI_1: f32 = 6.28125;
+const TWO_PI_2: f32 = 0.0019350051879882812;
+const TWO_PI_3: f32 = 3.0199160e-7;
 
 fn sin_reduced(x: f32) -> f32 {
     let k = round(x * (1.0 / 6.2831855));
-    return sin(fma(-k, TWO_PI_LO, fma(-k, TWO_PI_HI, x)));
+    return sin(((x - k * TWO_PI_1) - k * TWO_PI_2) - k * TWO_PI_3);
 }
 
 @compute @workgroup_size(WORKGROUP)

@@ -5,10 +5,12 @@ use std::sync::Arc;
 
 use anyhow::{Context, Result};
 use clap::ValueEnum;
-use mipnerf_core::backend::TrainState;
+use mipnerf_core::backend::{ImageSpec, TrainState, WorkCounters};
 use mipnerf_core::bench::{backend_throughput, synthetic_dataset};
+use mipnerf_core::data::demo;
 use mipnerf_core::model::Model;
 use mipnerf_core::train::OptimConfig;
+use mipnerf_core::{Camera, PixelCenters};
 
 use crate::backend;
 use crate::config::{Backend, PresetArg};
@@ -80,19 +82,68 @@ pub fn bench(a: &BenchArgs) -> Result<()> {
             state: TrainState::fresh(&model, 0),
             data: Some((Arc::clone(&ds), a.batch)),
             render_chunk: None,
+            device: crate::backend::device_options(),
         };
         let mut b = backend::open(choice, setup)?;
+        let work = device_work(b.as_mut(), a.render_side).with_context(|| format!("counting {}", b.describe()))?;
         let r = backend_throughput(b.as_mut(), a.batch, a.steps, a.render_side)
             .with_context(|| format!("measuring {}", b.describe()))?;
-        rows.push(r);
+        rows.push((r, work));
     }
     println!("| backend | ms/step | training samples/s | rendering rays/s |");
     println!("|---|---|---|---|");
-    for r in rows {
+    for (r, _) in &rows {
         println!(
             "| {} | {:.1} | {:.0} | {:.0} |",
             r.backend, r.ms_per_step, r.samples_per_second, r.render_rays_per_second
         );
     }
+    for (r, work) in &rows {
+        let Some(work) = work else { continue };
+        println!();
+        println!("device work of {}:", r.backend);
+        println!(
+            "| what | dispatches | compute passes | submits | buffers created | bind groups created | bytes read back |"
+        );
+        println!("|---|---|---|---|---|---|---|");
+        for (what, c) in work {
+            println!(
+                "| {what} | {} | {} | {} | {} | {} | {} |",
+                c.dispatches, c.compute_passes, c.submits, c.buffers_created, c.bind_groups_created, c.bytes_read_back
+            );
+        }
+    }
     Ok(())
+}
+
+/// What a device backend records, makes and reads back: the first training step, a later one,
+/// a step that reports its losses, and rendering one chunk (`render_side`^2 pixels in one
+/// chunk at most, the first render and a later one). `None` for the CPU.
+fn device_work(
+    b: &mut dyn mipnerf_core::backend::Backend,
+    render_side: u32,
+) -> Result<Option<Vec<(String, WorkCounters)>>> {
+    let Some(start) = b.work_counters() else { return Ok(None) };
+    let mut rows = Vec::new();
+    let mut last = start;
+    let mut take = |b: &mut dyn mipnerf_core::backend::Backend, what: &str| {
+        let now = b.work_counters().unwrap_or_default();
+        rows.push((what.to_string(), now - last));
+        last = now;
+    };
+    b.train_step(false)?;
+    take(b, "first training step");
+    b.train_step(false)?;
+    take(b, "training step");
+    b.train_step(true)?;
+    take(b, "training step reporting its losses");
+    // Small enough to be one chunk on any device.
+    let side = render_side.clamp(1, 32);
+    let camera = Camera::from_camera_angle_x(side, side, 0.69, demo::camera_pose(0.3, 0.5))?;
+    let spec = ImageSpec { camera, near: 2.0, far: 6.0, centers: PixelCenters::Centered, ndc: None, supersample: 1 };
+    b.render_image(&spec)?;
+    take(b, &format!("first render chunk ({side}x{side} pixels)"));
+    b.render_image(&spec)?;
+    take(b, &format!("render chunk ({side}x{side} pixels)"));
+    Ok(Some(rows))
 }

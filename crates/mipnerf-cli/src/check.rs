@@ -43,8 +43,10 @@ pub fn check(backend: CheckBackend) -> Result<()> {
             println!("the CPU backend is the reference; nothing to compare it with");
             return Ok(());
         }
-        CheckBackend::Gpu => mipnerf_gpu::AdapterChoice::Any,
-        CheckBackend::Auto => mipnerf_gpu::AdapterChoice::HardwareOnly,
+        CheckBackend::Gpu => crate::backend::device_options().adapter.unwrap_or(mipnerf_gpu::AdapterChoice::Any),
+        CheckBackend::Auto => {
+            crate::backend::device_options().adapter.unwrap_or(mipnerf_gpu::AdapterChoice::HardwareOnly)
+        }
     };
     let ctx = match mipnerf_gpu::GpuContext::new(choice) {
         Ok(c) => c,

@@ -64,6 +64,8 @@ enum Command {
         /// Which backend to check.
         #[arg(long, value_enum, default_value_t = CheckBackend::Gpu)]
         backend: CheckBackend,
+        #[command(flatten)]
+        device: backend::DeviceArgs,
     },
     /// Train a model on a dataset; writes checkpoints, metrics.csv and loss/PSNR plots to --out.
     #[command(after_help = EXAMPLES)]
@@ -79,6 +81,8 @@ enum Command {
         resume: bool,
         #[command(flatten)]
         flags: TrainFlags,
+        #[command(flatten)]
+        device: backend::DeviceArgs,
     },
     /// Render a split of a trained run and write RUN_DIR/eval/metrics.json, metrics.md and a
     /// per-image PSNR chart.
@@ -93,6 +97,8 @@ enum Command {
         /// present, else the CPU).
         #[arg(long, value_enum, default_value_t = Backend::Auto)]
         backend: Backend,
+        #[command(flatten)]
+        device: backend::DeviceArgs,
         #[command(flatten)]
         lpips: lpips::LpipsWeights,
     },
@@ -182,6 +188,8 @@ enum Command {
         /// present, else the CPU).
         #[arg(long, value_enum, default_value_t = Backend::Auto)]
         backend: Backend,
+        #[command(flatten)]
+        device: backend::DeviceArgs,
     },
     /// Measure training samples/s and rendering rays/s of the backends on this machine, on a
     /// synthetic dataset in memory; prints a markdown table.
@@ -189,6 +197,8 @@ enum Command {
         /// Which backends.
         #[arg(long, value_enum, default_value_t = bench::BenchBackends::Both)]
         backend: bench::BenchBackends,
+        #[command(flatten)]
+        device: backend::DeviceArgs,
         /// Model size.
         #[arg(long, value_enum, default_value_t = PresetArg::Tiny)]
         preset: PresetArg,
@@ -242,6 +252,8 @@ enum Command {
         /// Where to run.
         #[arg(long, value_enum, default_value_t = Backend::Auto)]
         backend: Backend,
+        #[command(flatten)]
+        device: backend::DeviceArgs,
         /// Seed of the run.
         #[arg(long, default_value_t = 0)]
         seed: u32,
@@ -301,9 +313,10 @@ fn info() {
         println!("GPU adapters: none found (install a Vulkan driver, e.g. scripts/ensure-vulkan.sh)");
     } else {
         println!("GPU adapters ({}):", adapters.len());
-        for a in &adapters {
-            println!("  - {} | backend {} | type {} | driver {}", a.name, a.backend, a.device_type, a.driver);
+        for (i, a) in adapters.iter().enumerate() {
+            println!("  [{i}] {} | backend {} | type {} | driver {}", a.name, a.backend, a.device_type, a.driver);
         }
+        println!("(choose one with --adapter INDEX or --adapter NAME, or the WGPU_ADAPTER_NAME environment variable)");
     }
     println!("--backend auto would use: {}", auto_choice(&adapters));
 }
@@ -490,19 +503,27 @@ fn main() -> std::process::ExitCode {
             info();
             Ok(())
         }
-        Command::Check { backend } => check::check(backend),
-        Command::Train { out, config, resume, flags } => {
+        Command::Check { backend, device } => {
+            backend::set_device_args(&device);
+            check::check(backend)
+        }
+        Command::Train { out, config, resume, flags, device } => {
+            backend::set_device_args(&device);
             train_cmd(&out, config, resume, &flags, stop_flag()).map(|o| {
                 if o.interrupted {
                     std::process::exit(130);
                 }
             })
         }
-        Command::Eval { run, split, backend, lpips } => eval::eval(&run, split.into(), backend, &lpips).map(|m| {
-            println!("wrote {}", run.join("eval/metrics.json").display());
-            print_eval(&m);
-        }),
-        Command::Render { run, out, split, path, frames, width, height, backend } => {
+        Command::Eval { run, split, backend, device, lpips } => {
+            backend::set_device_args(&device);
+            eval::eval(&run, split.into(), backend, &lpips).map(|m| {
+                println!("wrote {}", run.join("eval/metrics.json").display());
+                print_eval(&m);
+            })
+        }
+        Command::Render { run, out, split, path, frames, width, height, backend, device } => {
+            backend::set_device_args(&device);
             let target = match path {
                 Some(kind) => render::Target::Path(kind, frames),
                 None => render::Target::Split(split.unwrap_or(SplitArg::Test).into()),
@@ -525,7 +546,8 @@ fn main() -> std::process::ExitCode {
         Command::Experiment { dir, data, out, only, table_only, lpips } => {
             experiment::experiment(&experiment::ExperimentArgs { dir, data, out, only, table_only, lpips }, stop_flag())
         }
-        Command::Bench { backend, preset, batch_rays, steps, render_side } => {
+        Command::Bench { backend, device, preset, batch_rays, steps, render_side } => {
+            backend::set_device_args(&device);
             bench::bench(&bench::BenchArgs { backends: backend, preset, batch: batch_rays, steps, render_side })
         }
         Command::Convert { input, output, to: ConvertTo::Multiscale, size, .. } => {
@@ -536,7 +558,8 @@ fn main() -> std::process::ExitCode {
         Command::Convert { input, output, to: ConvertTo::Llff, size, factor } => {
             convert_llff(&input, &output, size, factor)
         }
-        Command::Demo { out, preset, steps, backend, seed, size, views, batch_rays } => {
+        Command::Demo { out, preset, steps, backend, device, seed, size, views, batch_rays } => {
+            backend::set_device_args(&device);
             demo_cmd(&out, &DemoArgs { preset, steps, backend, seed, size, views, batch_rays })
         }
     };

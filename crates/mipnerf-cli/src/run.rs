@@ -72,6 +72,7 @@ pub fn open_trained(
         state: TrainState::from_checkpoint(ck),
         data: None,
         render_chunk: None,
+        device: crate::backend::device_options(),
     };
     Ok((backend::open(choice, setup)?, step))
 }
@@ -167,6 +168,7 @@ pub fn train(
         state,
         data: Some((ds, batch)),
         render_chunk: None,
+        device: crate::backend::device_options(),
     };
     let be = backend::open(s.backend.unwrap_or(Backend::Auto), setup)?;
     s.save(&run_dir.join(CONFIG))?;

@@ -14,8 +14,11 @@ fn info_prints_version_adapters_and_auto_choice() {
     assert!(text.starts_with(&format!("mipnerf {}", env!("CARGO_PKG_VERSION"))), "{text}");
     assert!(text.contains("GPU adapters"), "{text}");
     assert!(text.contains("--backend auto would use: "), "{text}");
-    // Every adapter line names its backend, type and driver.
-    for line in text.lines().filter(|l| l.starts_with("  - ")) {
+    // Every adapter line is numbered (what --adapter INDEX takes) and names its backend, type
+    // and driver.
+    let lines: Vec<&str> = text.lines().filter(|l| l.starts_with("  [")).collect();
+    for (i, line) in lines.iter().enumerate() {
+        assert!(line.starts_with(&format!("  [{i}] ")), "{line}");
         assert!(line.contains("| backend ") && line.contains("| type ") && line.contains("| driver "), "{line}");
     }
 }
@@ -39,8 +42,45 @@ fn check_compares_the_gpu_with_the_cpu_or_says_why_not() {
     } else {
         // No adapter: a clear error, never a panic; CI always has one (lavapipe).
         assert!(std::env::var("CI").is_err(), "CI must have a GPU adapter: {text}");
-        assert!(text.contains("no Vulkan/Metal/DX12 GPU adapter found") && !text.contains("panicked"), "{text}");
+        assert!(text.contains("no GPU adapter found") && !text.contains("panicked"), "{text}");
     }
+}
+
+/// `--adapter` by index and by name, and `WGPU_ADAPTER_NAME`: the adapter asked for is the one
+/// used; one that does not exist is a clear error that lists every adapter seen and why it was
+/// passed over.
+#[test]
+fn the_adapter_is_chosen_by_index_name_or_environment() {
+    let adapters = mipnerf_gpu::list_adapters();
+    let Some(first) = adapters.first() else {
+        assert!(std::env::var("CI").is_err(), "CI must have a GPU adapter");
+        eprintln!("SKIPPED the_adapter_is_chosen_by_index_name_or_environment: no GPU adapter");
+        return;
+    };
+    let word = first.name.split_whitespace().next().unwrap().to_uppercase();
+    for args in
+        [&["check", "--backend", "gpu", "--adapter", "0"][..], &["check", "--backend", "gpu", "--adapter", &word]]
+    {
+        let out = mipnerf(args);
+        let text = String::from_utf8_lossy(&out.stdout).to_string();
+        assert!(out.status.success(), "{args:?}: {out:?}");
+        assert!(text.contains(&format!("checking on {}", first.name)), "{args:?}: {text}");
+    }
+    let missing = |out: std::process::Output, what: &str| {
+        let err = String::from_utf8_lossy(&out.stderr).to_string();
+        assert_eq!(out.status.code(), Some(1), "{what}: {out:?}");
+        assert!(err.contains("no GPU adapter found for") && !err.contains("panicked"), "{what}: {err}");
+        assert!(err.contains(&format!("[0] {}", first.name)), "{what}: every adapter seen is listed: {err}");
+    };
+    let bad_index = adapters.len().to_string();
+    missing(mipnerf(&["check", "--backend", "gpu", "--adapter", &bad_index]), "an index past the list");
+    missing(mipnerf(&["check", "--backend", "gpu", "--adapter", "no-such-gpu"]), "an unknown name");
+    let out = Command::new(env!("CARGO_BIN_EXE_mipnerf"))
+        .args(["check", "--backend", "gpu"])
+        .env("WGPU_ADAPTER_NAME", "no-such-gpu")
+        .output()
+        .unwrap();
+    missing(out, "WGPU_ADAPTER_NAME");
 }
 
 /// PSNR of the best constant colour (the image's mean) for each test image of each scale.

@@ -298,13 +298,15 @@ impl GpuContext {
     }
 
     /// Device bytes the training batch's buffers may take (the render buffers get a quarter):
-    /// what [`with_memory_budget`](Self::with_memory_budget) set, else four of the largest
-    /// buffers the device binds, between 1 and 16 GiB. wgpu does not report a device's memory;
-    /// its binding limit grows with it (lavapipe: 2 GiB, so an 8 GiB budget), and a batch that
-    /// still does not fit is caught as out-of-memory with a message naming the flag.
+    /// what [`with_memory_budget`](Self::with_memory_budget) set, else, on a hardware GPU, four
+    /// of the largest buffers the device binds, between 1 and 16 GiB; on a software adapter,
+    /// whose "device memory" is the host's, one of them. wgpu does not report a device's memory;
+    /// its binding limit grows with it, and a batch that still does not fit is caught as
+    /// out-of-memory with a message naming the flags.
     #[must_use]
     pub fn memory_budget(&self) -> u64 {
-        self.memory_budget.unwrap_or_else(|| (4 * self.max_binding_bytes()).clamp(1 << 30, 16 << 30))
+        let bindings = if self.adapter.is_software { 1 } else { 4 };
+        self.memory_budget.unwrap_or_else(|| (bindings * self.max_binding_bytes()).clamp(1 << 30, 16 << 30))
     }
 
     /// What has been recorded, submitted, made and read back on this context so far.

@@ -26,7 +26,7 @@ pub mod select;
 pub mod trainer;
 
 pub use context::{AdapterChoice, AdapterSummary, GpuContext, list_adapters};
-pub use select::{BackendChoice, BackendSetup, OpenError, OpenedBackend, open_backend};
+pub use select::{BackendChoice, BackendSetup, DeviceOptions, OpenError, OpenedBackend, open_backend};
 pub use trainer::GpuBackend;
 
 /// Errors of the GPU backend. None of them is a panic: a missing or lost device is an error value.

@@ -39,6 +39,19 @@ pub struct BackendSetup {
     /// default, on a GPU sized to the device). Images agree whatever the chunk, on the CPU up to
     /// rounding (see `CpuBackend::with_render_chunk`).
     pub render_chunk: Option<usize>,
+    /// Which GPU adapter, and how much of its memory (ignored by the CPU).
+    pub device: DeviceOptions,
+}
+
+/// The GPU a backend opens and what it may take of it.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct DeviceOptions {
+    /// The adapter (`--adapter`); `None`: the one named by `WGPU_ADAPTER_NAME` if set, else the
+    /// best one the backend choice allows.
+    pub adapter: Option<AdapterChoice>,
+    /// Device bytes the batch buffers may take (`--gpu-memory`); `None`: sized from the
+    /// device's limits ([`GpuContext::memory_budget`]).
+    pub memory_budget: Option<u64>,
 }
 
 /// A backend could not be opened.
@@ -61,6 +74,7 @@ pub struct OpenedBackend {
 }
 
 fn open_gpu(ctx: GpuContext, s: &BackendSetup) -> Result<GpuBackend, GpuError> {
+    let ctx = ctx.with_memory_budget(s.device.memory_budget);
     let mut b = GpuBackend::new(ctx, s.model.clone(), s.optim.clone(), s.seed, s.state.clone())?;
     if let Some(rays) = s.render_chunk {
         b = b.with_render_chunk(rays);
@@ -83,16 +97,21 @@ fn open_cpu(s: BackendSetup) -> Result<Box<dyn Backend>, OpenError> {
 }
 
 /// Opens the backend `choice` for `setup`. `Auto` takes a hardware GPU when there is one and the
-/// GPU path runs the configuration, else the CPU, and says why in [`OpenedBackend::fallback`].
+/// GPU path runs the configuration, else the CPU, and says why in [`OpenedBackend::fallback`]
+/// (naming every adapter it passed over and why). An adapter named in `setup.device` (or by
+/// `WGPU_ADAPTER_NAME`) is the one `Gpu` and `Auto` try, software or not.
 ///
 /// # Errors
 /// `Gpu` without a usable adapter or with a configuration or data the GPU path does not run; a
 /// setup the CPU path refuses.
 pub fn open_backend(choice: BackendChoice, setup: BackendSetup) -> Result<OpenedBackend, OpenError> {
+    let named = setup.device.adapter.clone().or_else(|| AdapterChoice::explicit(None));
     let (backend, fallback): (Box<dyn Backend>, Option<String>) = match choice {
         BackendChoice::Cpu => (open_cpu(setup)?, None),
-        BackendChoice::Gpu => (Box::new(open_gpu(GpuContext::new(AdapterChoice::Any)?, &setup)?), None),
-        BackendChoice::Auto => match GpuContext::new(AdapterChoice::HardwareOnly) {
+        BackendChoice::Gpu => {
+            (Box::new(open_gpu(GpuContext::new(named.unwrap_or(AdapterChoice::Any))?, &setup)?), None)
+        }
+        BackendChoice::Auto => match GpuContext::new(named.unwrap_or(AdapterChoice::HardwareOnly)) {
             Ok(ctx) => {
                 let name = ctx.adapter.name.clone();
                 match open_gpu(ctx, &setup) {
@@ -100,7 +119,15 @@ pub fn open_backend(choice: BackendChoice, setup: BackendSetup) -> Result<Opened
                     Err(e) => (open_cpu(setup)?, Some(format!("{name} cannot run this: {e}"))),
                 }
             }
-            Err(_) => (open_cpu(setup)?, Some("no hardware GPU found".to_string())),
+            Err(GpuError::NoAdapter { wanted, passed_over }) => {
+                let seen = if passed_over.is_empty() {
+                    "wgpu saw no adapter".to_string()
+                } else {
+                    format!("passed over {}", passed_over.join("; "))
+                };
+                (open_cpu(setup)?, Some(format!("no GPU adapter found for {wanted} ({seen})")))
+            }
+            Err(e) => (open_cpu(setup)?, Some(format!("the GPU could not be opened: {e}"))),
         },
     };
     Ok(OpenedBackend { backend, fallback })

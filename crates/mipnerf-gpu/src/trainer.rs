@@ -79,6 +79,8 @@ pub struct GpuBackend {
     /// Bind groups and uniforms of the training step's dispatches, and of a render chunk's.
     train_cache: DispatchCache,
     render_cache: DispatchCache,
+    /// The camera of the image being rendered, rewritten in place for each image.
+    render_cams: Option<DeviceImages>,
 }
 
 impl GpuBackend {
@@ -112,6 +114,7 @@ impl GpuBackend {
             in_flight: 0,
             train_cache: DispatchCache::default(),
             render_cache: DispatchCache::default(),
+            render_cams: None,
         })
     }
 
@@ -287,7 +290,11 @@ impl GpuBackend {
 
     fn render_all(&mut self, image: &ImageSpec) -> Result<Vec<LevelOutput>, GpuError> {
         let rpp = self.model.rays_per_pixel();
-        let cams = DeviceImages::camera_only(&self.ctx, image)?;
+        match &mut self.render_cams {
+            Some(c) => c.set_camera(&self.ctx, image)?,
+            None => self.render_cams = Some(DeviceImages::camera_only(&self.ctx, image)?),
+        }
+        let Some(cams) = &self.render_cams else { unreachable!("the render camera was just set") };
         let total = cams.total_pixels() as usize;
         // Whole pixels per chunk.
         let chunk_pixels = (self.render_chunk / rpp).max(1);

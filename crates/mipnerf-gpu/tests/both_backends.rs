@@ -68,7 +68,15 @@ fn lego_tiny() -> Arc<Dataset> {
 }
 
 fn setup(model: &Model, state: TrainState, data: Option<(Arc<Dataset>, usize)>) -> BackendSetup {
-    BackendSetup { model: model.clone(), optim: OptimConfig::default(), seed: 5, state, data, render_chunk: None }
+    BackendSetup {
+        model: model.clone(),
+        optim: OptimConfig::default(),
+        seed: 5,
+        state,
+        data,
+        render_chunk: None,
+        device: Default::default(),
+    }
 }
 
 /// Every random stream in use: stratified sampling, resampling, and density noise.

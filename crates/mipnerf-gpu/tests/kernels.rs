@@ -15,9 +15,20 @@ use mipnerf_gpu::test_support::context_or_skip;
 
 /// GPU vs CPU, IPE features. Both sides compute the frustum moments in f32 in the same order; the
 /// difference comes from the GPU's `sin`/`exp` and fused multiply-adds. Features are bounded by 1,
-/// so an absolute tolerance is the meaningful one. lavapipe measures < 5e-6; Vulkan only promises
-/// 2^-11 absolute for `sin` on [-pi, pi], which real GPUs beat by far.
+/// so an absolute tolerance is the meaningful one. lavapipe measures < 5e-6.
 const TOL_GPU_IPE_ABS: f32 = 2e-5;
+
+/// WGSL's bound on the absolute error of `sin` on [-pi, pi] (the spec's accuracy table), which a
+/// hardware driver may use (real GPUs do far better: NVIDIA's approximate sine is within 2^-20.9
+/// there). The kernels reduce every argument to [-pi, pi] first, without relying on fused
+/// multiply-adds, so this is the whole of a vendor's latitude on a sine feature.
+const WGSL_SIN_ABS: f32 = 1.0 / 2048.0;
+
+/// The tolerance of a feature computed with one `sin` on `ctx`: what lavapipe measures plus, on
+/// a hardware adapter, the spec's bound.
+fn sin_feature_tolerance(ctx: &mipnerf_gpu::GpuContext) -> f32 {
+    if ctx.adapter.is_software { TOL_GPU_IPE_ABS } else { TOL_GPU_IPE_ABS + WGSL_SIN_ABS }
+}
 
 fn test_camera(n_side: u32) -> Camera {
     let c2w = [[0.8, 0.0, 0.6, 2.4], [0.36, 0.8, -0.48, -1.92], [-0.48, 0.6, 0.64, 2.56]];
@@ -49,7 +60,7 @@ fn cast_ipe_matches_cpu_reference() {
             .iter()
             .zip(&cpu)
             .enumerate()
-            .filter(|(_, (g, c))| g.is_nan() || (*g - *c).abs() > TOL_GPU_IPE_ABS)
+            .filter(|(_, (g, c))| g.is_nan() || (*g - *c).abs() > sin_feature_tolerance(&ctx))
             .take(20)
             .map(|(i, (g, c))| format!("feature {i}: gpu {g} cpu {c}"))
             .collect();
@@ -484,23 +495,27 @@ fn view_direction_encoding_matches_cpu_reference() {
     let k = ViewEncKernel::new(&ctx).unwrap();
     let rays = test_rays(9);
     let dirs: Vec<f32> = rays.iter().flat_map(|r| r.viewdir.to_array()).collect();
-    let len = mip::pos_enc_len(0, 4, true);
-    let mut cpu = vec![0.0; rays.len() * len];
-    for (r, ray) in rays.iter().enumerate() {
-        mip::pos_enc(ray.viewdir, 0, 4, true, &mut cpu[r * len..(r + 1) * len]);
+    let mut bad = Vec::new();
+    // The paper's 4 degrees, and 12 (arguments up to 2^11 = 2048, as NeRF's positions reach):
+    // issue 18, item 9, the argument reduction holds far from [-pi, pi] without fused multiply-adds.
+    for deg in [4u32, 12] {
+        let len = mip::pos_enc_len(0, deg, true);
+        let mut cpu = vec![0.0; rays.len() * len];
+        for (r, ray) in rays.iter().enumerate() {
+            mip::pos_enc(ray.viewdir, 0, deg, true, &mut cpu[r * len..(r + 1) * len]);
+        }
+        let b_in = ctx.storage_buffer("viewdirs", &dirs, false);
+        let b_out = ctx.storage_buffer("view enc", &vec![f32::NAN; cpu.len()], true);
+        let mut rec = Recorder::new(&ctx, "view enc test");
+        k.encode(&mut rec, rays.len(), deg, &b_in, &b_out).unwrap();
+        let _ = rec.submit();
+        let got = ctx.read_f32(&b_out, cpu.len()).unwrap();
+        let max = got.iter().zip(&cpu).map(|(g, c)| (g - c).abs()).fold(0.0f32, f32::max);
+        eprintln!("view encoding, {deg} degrees, on {}: max |gpu - cpu| = {max:e}", ctx.adapter.name);
+        let tol = Tolerance::new(sin_feature_tolerance(&ctx), 0.0);
+        bad.extend(mismatches(&format!("view encoding, {deg} degrees"), &got, &cpu, tol));
     }
-    let b_in = ctx.storage_buffer("viewdirs", &dirs, false);
-    let b_out = ctx.storage_buffer("view enc", &vec![f32::NAN; cpu.len()], true);
-    let mut rec = Recorder::new(&ctx, "view enc test");
-    k.encode(&mut rec, rays.len(), 4, &b_in, &b_out).unwrap();
-    let _ = rec.submit();
-    let bad = mismatches(
-        "view encoding",
-        &ctx.read_f32(&b_out, cpu.len()).unwrap(),
-        &cpu,
-        Tolerance::new(TOL_GPU_IPE_ABS, 0.0),
-    );
-    assert!(bad.is_empty(), "{}", bad.join("\n"));
+    assert_none(&bad);
 }
 
 #[test]

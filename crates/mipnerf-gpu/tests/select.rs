@@ -23,6 +23,7 @@ fn setup(data: &Arc<Dataset>) -> BackendSetup {
         seed: 0,
         data: Some((Arc::clone(data), 16)),
         render_chunk: None,
+        device: mipnerf_gpu::DeviceOptions::default(),
     }
 }
 

@@ -175,3 +175,38 @@ fn the_storage_buffer_limit_is_what_the_busiest_kernel_binds() {
     let most = ALL_SOURCES.iter().map(|(_, src)| src.matches("var<storage").count()).max().unwrap();
     assert_eq!(most as u32, mipnerf_gpu::context::MIN_STORAGE_BUFFERS_PER_STAGE);
 }
+
+/// Issue 18, item 9: numerics that hold on every vendor. WGSL promises no NaN semantics, so no
+/// kernel tests for NaN by comparing a value with itself (`x != x`, `!(x == x)`); and none calls
+/// `fma`, whose fusing a kernel could come to rely on (the sine reductions split their constants
+/// so that the products are exact instead). The check itself is checked on the forms it rejects.
+#[test]
+fn no_kernel_tests_for_nan_by_self_comparison_or_relies_on_fma() {
+    fn offences(src: &str) -> Vec<String> {
+        let mut found = Vec::new();
+        for (i, line) in src.lines().enumerate() {
+            let code = line.split("//").next().unwrap_or("");
+            let words: Vec<&str> = code
+                .split(|c: char| !(c.is_alphanumeric() || c == '_' || c == '.'))
+                .filter(|w| !w.is_empty())
+                .collect();
+            let compact: String = code.chars().filter(|c| !c.is_whitespace()).collect();
+            if words.iter().any(|w| compact.contains(&format!("{w}!={w}")) || compact.contains(&format!("!({w}=={w})")))
+            {
+                found.push(format!("line {}: NaN test by self-comparison: {}", i + 1, line.trim()));
+            }
+            if compact.contains("fma(") {
+                found.push(format!("line {}: fma: {}", i + 1, line.trim()));
+            }
+        }
+        found
+    }
+    let mut bad = Vec::new();
+    for (name, src) in ALL_SOURCES.iter().chain([&("rng.wgsl", RNG_SOURCE)]) {
+        bad.extend(offences(src).into_iter().map(|o| format!("{name} {o}")));
+    }
+    assert!(bad.is_empty(), "{}", bad.join("\n"));
+    for rejected in ["if (!(dist == dist)) {", "let nan = v != v;", "let r = fma(-k, C, x);"] {
+        assert_eq!(offences(rejected).len(), 1, "{rejected}");
+    }
+}

@@ -236,6 +236,25 @@ impl DeviceImages {
         })
     }
 
+    /// Points a [`camera_only`](Self::camera_only) set at another image, rewriting its buffers in
+    /// place (no new buffers, so the dispatches that bind them keep their bind groups).
+    ///
+    /// # Errors
+    /// As [`camera_only`](Self::camera_only); [`GpuError::InvalidInput`] for a set with pixels.
+    pub fn set_camera(&mut self, ctx: &GpuContext, image: &ImageSpec) -> Result<(), GpuError> {
+        if self.format != PixelFormat::None || self.n_views != 1 {
+            return Err(GpuError::InvalidInput("set_camera on training images".into()));
+        }
+        let total_u32 = u32::try_from(image.pixels() as u64).map_err(|_| too_large("the image"))?;
+        let view = GpuView::new(&image.camera, image.centers, (image.near, image.far), 1.0, (0, 0));
+        ctx.queue.write_buffer(&self.views, 0, bytemuck::bytes_of(&view));
+        ctx.queue.write_buffer(&self.offsets, 0, bytemuck::cast_slice(&[0u32, total_u32]));
+        self.total_pixels = total_u32;
+        self.ndc = image.ndc;
+        self.centre_offset = image.centers.offset() as f32;
+        Ok(())
+    }
+
     /// Pixels over all views.
     #[must_use]
     pub fn total_pixels(&self) -> u32 {
