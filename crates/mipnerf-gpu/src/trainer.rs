@@ -317,7 +317,7 @@ impl GpuBackend {
             work.set_active(n)?;
             let mut rec = Recorder::with_cache(ctx, "render chunk", std::mem::take(&mut self.render_cache));
             let draw = Draw::Sequential { first: first as u32 };
-            self.batch_kernel.encode(&mut rec, &cams, draw, false, k, batch)?;
+            self.batch_kernel.encode(&mut rec, cams, draw, false, k, batch)?;
             self.kernels.encode(&mut rec, &self.model, &self.state.params, batch, work, Mode::Eval, None)?;
             self.render_cache = rec.submit();
             out.extend(self.kernels.read_outputs(ctx, work, n, rpp)?);
