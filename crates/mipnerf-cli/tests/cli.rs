@@ -297,6 +297,43 @@ fn bench_prints_throughput_of_each_backend() {
         let numbers: Vec<f64> = cells[1..].iter().map(|c| c.parse().unwrap()).collect();
         assert!(numbers.len() == 3 && numbers.iter().all(|&x| x > 0.0), "{row}");
     }
+    if both {
+        // The device work per step and per render chunk (issue 18): after the first step and the
+        // first chunk, nothing is made; a step reads nothing back unless it reports its losses.
+        let work = |what: &str| -> Vec<u64> {
+            let row = text
+                .lines()
+                .find(|l| l.starts_with(&format!("| {what} |")))
+                .unwrap_or_else(|| panic!("{what}: {text}"));
+            row.split('|').map(str::trim).filter(|c| !c.is_empty()).skip(1).map(|c| c.parse().unwrap()).collect()
+        };
+        // dispatches, compute passes, submits, buffers created, bind groups created, bytes read back
+        let first = work("first training step");
+        let step = work("training step");
+        let report = work("training step reporting its losses");
+        let chunk = work("render chunk (8x8 pixels)");
+        assert!(first[3] > 0 && first[4] > 0, "the first step makes its bind groups: {first:?}");
+        assert!(step[0] > 10 && step[1] >= 1 && step[1] < step[0] / 4 && step[2] == 1, "{step:?}");
+        assert_eq!(&step[3..], &[0, 0, 0], "a later step makes nothing and reads nothing back: {text}");
+        assert!(report[5] > 0 && report[4] == 0, "{report:?}");
+        assert_eq!(&chunk[3..5], &[0, 0], "a later render chunk makes nothing: {text}");
+        assert!(chunk[5] > 0, "{chunk:?}");
+        // --gpu-memory bounds the batch buffers: a 512-ray batch of the tiny preset runs in chunks.
+        let small = run_ok(&[
+            "bench",
+            "--backend",
+            "gpu",
+            "--gpu-memory",
+            "16",
+            "--batch-rays",
+            "512",
+            "--steps",
+            "1",
+            "--render-side",
+            "8",
+        ]);
+        assert!(small.contains("in chunks of"), "{small}");
+    }
     let bad = mipnerf(&["bench", "--steps", "0"]);
     assert_eq!(bad.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&bad.stderr).contains("--steps"));
