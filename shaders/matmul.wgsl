@@ -1,5 +1,6 @@
-// C[m x n] (=|+=) A[m x k] · B[k x n], then an epilogue: + bias[col], ReLU, or the ReLU backward
-// mask (x 1 where mask > 0, else 0).
+// C[m x n] (=|+=) A[m x k] · B[k x n], then an epilogue: + a row of a per-group matrix (row r
+// adds row r / rows_per_group of it: a ray's term to each of its samples), + bias[col], ReLU, or
+// the ReLU backward mask (x 1 where mask > 0, else 0).
 //
 // Operands live anywhere in their buffers (element offsets), stored row-major, each optionally
 // transposed (stored n x k / k x m). Results are deterministic (no atomics): every output sums
@@ -25,7 +26,8 @@ struct Params {
     n: u32,
     // bit 0: A transposed; bit 1: B transposed; bit 2: accumulate into C; bit 3: add bias;
     // bit 4: ReLU after the bias; bit 5: multiply by (mask > 0) after accumulating (ReLU backward);
-    // bit 6: write the raw partial product of split z at c_off + z * m * n (no epilogue).
+    // bit 6: write the raw partial product of split z at c_off + z * m * n (no epilogue);
+    // bit 7: add row (row / rows_per_group) of the per-group matrix in `mask` (before the bias).
     flags: u32,
     a_off: u32,
     b_off: u32,
@@ -37,14 +39,20 @@ struct Params {
     n_splits: u32,
     // Workgroups along x of `reduce_splits`'s grid.
     groups_x: u32,
-    // Offset of the mask (an m x n matrix in `mask`'s buffer).
+    // Offset of the mask (an m x n matrix in `mask`'s buffer), or of the per-group matrix.
     mask_off: u32,
+    // Rows of C per row of the per-group matrix.
+    rows_per_group: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> a: array<f32>;
 @group(0) @binding(2) var<storage, read> b: array<f32>;
 @group(0) @binding(3) var<storage, read_write> c: array<f32>;
+// The ReLU-backward mask or the per-group matrix (one epilogue uses it at a time).
 @group(0) @binding(4) var<storage, read> mask: array<f32>;
 
 const FLAG_A_T: u32 = 1u;
@@ -54,6 +62,7 @@ const FLAG_BIAS: u32 = 8u;
 const FLAG_RELU: u32 = 16u;
 const FLAG_MASK: u32 = 32u;
 const FLAG_PARTIAL: u32 = 64u;
+const FLAG_PER_GROUP: u32 = 128u;
 
 // Element (row, kk) of A, 0 outside rows < m and kk < k_end.
 fn load_a(row: u32, kk: u32, k_end: u32) -> f32 {
@@ -87,6 +96,9 @@ fn store(row: u32, col: u32, z: u32, sum: f32) {
     var acc = sum;
     if ((p.flags & FLAG_ACCUMULATE) != 0u) {
         acc = c[idx] + acc;
+    }
+    if ((p.flags & FLAG_PER_GROUP) != 0u) {
+        acc = acc + mask[p.mask_off + (row / p.rows_per_group) * p.n + col];
     }
     if ((p.flags & FLAG_BIAS) != 0u) {
         acc = acc + b[p.bias_off + col];

@@ -1,16 +1,16 @@
 // Small passes around the MLP's matrix products, one entry point each:
-// - relu_backward: g[i] = h[i] > 0 ? g[i] : 0 over `count` elements;
 // - col_sums: out[col] (+)= sum over rows of g[row, col] (the bias gradient), one invocation per
 //   column summing rows in order, so the result is deterministic;
 // - col_sums_partial: the first of two passes for tall matrices: per block of 256 rows and column,
 //   the block's sum in row order (col_sums then adds the blocks in order), so that a matrix of
 //   a million rows is summed by many invocations, not one per column;
-// - broadcast_rows: out[r * rep + i, :] = src[r, :] (a ray's view encoding to each of its samples).
+// - group_sums: out[r, :] = sum over i < count of x[r * count + i, :] in order (a ray's samples'
+//   gradients, for the view-direction weights, which multiply once per ray).
 
 struct Params {
     rows: u32,
     cols: u32,
-    // relu_backward: elements; broadcast_rows: samples per ray.
+    // group_sums: rows per group (samples per ray).
     count: u32,
     // Offsets of the operands in their buffers.
     x_off: u32,
@@ -27,18 +27,6 @@ struct Params {
 
 fn flat_id(gid: vec3<u32>) -> u32 {
     return gid.y * (p.groups_x * WORKGROUP) + gid.x;
-}
-
-// out = gradient (in place), x = the layer's post-ReLU output.
-@compute @workgroup_size(WORKGROUP)
-fn relu_backward(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let i = flat_id(gid);
-    if (i >= p.count) {
-        return;
-    }
-    if (x[p.x_off + i] <= 0.0) {
-        out[p.out_off + i] = 0.0;
-    }
 }
 
 // x = gradient [rows x cols]; out = bias gradient [cols].
@@ -76,14 +64,18 @@ fn col_sums_partial(@builtin(global_invocation_id) gid: vec3<u32>) {
     out[p.out_off + i] = s;
 }
 
-// x = per-ray rows [rows x cols]; out = per-sample rows [rows * count x cols].
+// x = per-sample rows [rows * count x cols]; out = per-group sums [rows x cols] from out_off.
 @compute @workgroup_size(WORKGROUP)
-fn broadcast_rows(@builtin(global_invocation_id) gid: vec3<u32>) {
+fn group_sums(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = flat_id(gid);
-    if (i >= p.rows * p.count * p.cols) {
+    if (i >= p.rows * p.cols) {
         return;
     }
     let col = i % p.cols;
-    let sample_row = i / p.cols;
-    out[p.out_off + i] = x[p.x_off + (sample_row / p.count) * p.cols + col];
+    let r = i / p.cols;
+    var s = 0.0;
+    for (var j = 0u; j < p.count; j = j + 1u) {
+        s = s + x[p.x_off + (r * p.count + j) * p.cols + col];
+    }
+    out[p.out_off + i] = s;
 }

@@ -2,9 +2,10 @@
 //! `mipnerf_core::mlp::MlpShape`, over the same flat parameter layout, as a sequence of tiled
 //! matrix products (`matmul.wgsl`) and small auxiliary passes (`mlp_aux.wgsl`).
 //!
-//! The one difference in method: the view encoding is broadcast to every sample and multiplied
-//! as part of the first colour layer's input, where the CPU multiplies it once per ray. The
-//! results agree to rounding.
+//! As on the CPU, the view-direction part of the first colour layer is multiplied once per ray
+//! and added to each of the ray's samples in the product's epilogue; its weight gradient sums the
+//! samples' gradients per ray first. The ReLU backward pass rides in the input-gradient
+//! products' epilogue, and the weight gradients are split over blocks of samples.
 
 use mipnerf_core::mlp::{DenseLayer, MlpShape};
 
@@ -24,8 +25,9 @@ pub struct MlpBuffers {
     pub x: wgpu::Buffer,
     /// View encodings, `n_rays x view_dim`.
     pub view: wgpu::Buffer,
-    /// View encodings broadcast to samples, `n x view_dim`.
-    pub view_b: wgpu::Buffer,
+    /// The view encodings times the first colour layer's view rows, `n_rays x net_width_condition`
+    /// (forward), then the per-ray sums of that layer's output gradient (backward).
+    view_rows: wgpu::Buffer,
     trunk: Vec<wgpu::Buffer>,
     bottleneck: wgpu::Buffer,
     cond: Vec<wgpu::Buffer>,
@@ -56,7 +58,7 @@ impl MlpBuffers {
             n_rays,
             x: storage(ctx, "mlp x", n * c.x_dim),
             view: storage(ctx, "mlp view", n_rays * c.view_dim),
-            view_b: storage(ctx, "mlp view per sample", n * c.view_dim),
+            view_rows: storage(ctx, "mlp view rows per ray", n_rays * c.net_width_condition),
             trunk: (0..c.net_depth).map(|i| storage(ctx, &format!("mlp trunk {i}"), n * c.net_width)).collect(),
             bottleneck: storage(ctx, "mlp bottleneck", n * c.net_width),
             cond: (0..c.net_depth_condition)
@@ -92,7 +94,7 @@ impl MlpBuffers {
     /// Device bytes these buffers take.
     #[must_use]
     pub fn bytes(&self) -> u64 {
-        let all = [&self.x, &self.view, &self.view_b, &self.bottleneck, &self.raw_rgb, &self.raw_density];
+        let all = [&self.x, &self.view, &self.view_rows, &self.bottleneck, &self.raw_rgb, &self.raw_density];
         let mut b: u64 = all.iter().map(|x| x.size()).sum();
         b += self.trunk.iter().chain(&self.cond).chain(&self.grad).map(wgpu::Buffer::size).sum::<u64>();
         b += self.col_scratch.size() + self.split_scratch.0.size();
@@ -156,7 +158,8 @@ impl GpuMlp {
         let mut r0 = 0;
         for (k, &(input, width)) in parts.iter().enumerate() {
             let last = k + 1 == parts.len();
-            let epi = Epilogue { accumulate: k > 0, bias: last.then_some(l.bias), relu: last && relu, mask: None };
+            let epi =
+                Epilogue { accumulate: k > 0, bias: last.then_some(l.bias), relu: last && relu, ..Epilogue::default() };
             let b = Operand::new(params, l.kernel + r0 * l.fan_out);
             self.matmul.encode(rec, (n, width, l.fan_out), Operand::new(input, 0), b, Operand::new(out, 0), epi);
             r0 += width;
@@ -217,7 +220,6 @@ impl GpuMlp {
         let c = &shape.config;
         let (n, d) = (bufs.n, c.net_depth);
         let ls = &shape.layers;
-        self.aux.broadcast_rows(rec, &bufs.view, &bufs.view_b, bufs.n_rays, c.view_dim, bufs.samples_per_ray());
         for i in 0..d {
             let parts: Vec<Part<'_>> = if i == 0 {
                 vec![(&bufs.x, c.x_dim)]
@@ -231,12 +233,24 @@ impl GpuMlp {
         let top = self.top_parts(shape, bufs);
         self.dense(rec, params, &ls[d], &top, n, &bufs.raw_density, false);
         self.dense(rec, params, &ls[d + 1], &top, n, &bufs.bottleneck, false);
-        for j in 0..c.net_depth_condition {
-            let parts: Vec<Part<'_>> = if j == 0 {
-                vec![(&bufs.bottleneck, c.net_width), (&bufs.view_b, c.view_dim)]
-            } else {
-                vec![(&bufs.cond[j - 1], c.net_width_condition)]
-            };
+        // The first colour layer: relu(bottleneck · W_b + (view · W_v)[ray] + b), the view part
+        // once per ray.
+        let (l, wc) = (&ls[d + 2], c.net_width_condition);
+        let w_view = Operand::new(params, l.kernel + c.net_width * wc);
+        let rows = Operand::new(&bufs.view_rows, 0);
+        let view = Operand::new(&bufs.view, 0);
+        self.matmul.encode(rec, (bufs.n_rays, c.view_dim, wc), view, w_view, rows, Epilogue::default());
+        let epi = Epilogue {
+            bias: Some(l.bias),
+            relu: true,
+            per_group: Some((&bufs.view_rows, 0, bufs.samples_per_ray())),
+            ..Epilogue::default()
+        };
+        let w_b = Operand::new(params, l.kernel);
+        let cond0 = Operand::new(&bufs.cond[0], 0);
+        self.matmul.encode(rec, (n, c.net_width, wc), Operand::new(&bufs.bottleneck, 0), w_b, cond0, epi);
+        for j in 1..c.net_depth_condition {
+            let parts = [(&bufs.cond[j - 1], wc)];
             self.dense(rec, params, &ls[d + 2 + j], &parts, n, &bufs.cond[j], true);
         }
         let last = &bufs.cond[c.net_depth_condition - 1];
@@ -279,9 +293,22 @@ impl GpuMlp {
                 self.dense_backward(rec, params, grads, &ls[d + 2 + j], &parts, n, &g[a], to(&g[b], true), bufs);
                 std::mem::swap(&mut a, &mut b);
             } else {
-                // The bottleneck has no activation.
-                let parts = [(&bufs.bottleneck, w), (&bufs.view_b, c.view_dim)];
-                self.dense_backward(rec, params, grads, &ls[d + 2], &parts, n, &g[a], to(&g[b], false), bufs);
+                // The bottleneck has no activation. Its rows of the kernel see every sample; the
+                // view rows see each ray once, with the sum of its samples' gradients.
+                let l = &ls[d + 2];
+                let parts = [(&bufs.bottleneck, w)];
+                self.dense_backward(rec, params, grads, l, &parts, n, &g[a], to(&g[b], false), bufs);
+                self.aux.group_sums(rec, &g[a], &bufs.view_rows, bufs.n_rays, wc, bufs.samples_per_ray());
+                let (scratch, len) = &bufs.split_scratch;
+                self.matmul.encode_split(
+                    rec,
+                    (c.view_dim, bufs.n_rays, wc),
+                    Operand::t(&bufs.view, 0),
+                    Operand::new(&bufs.view_rows, 0),
+                    Operand::new(grads, l.kernel + w * wc),
+                    Epilogue { accumulate: true, ..Epilogue::default() },
+                    (scratch, *len),
+                );
             }
         }
         // g[b] = d bottleneck; heads read the top parts; their input gradient goes to g[z], the

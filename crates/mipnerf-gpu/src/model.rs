@@ -191,7 +191,6 @@ impl ModelBuffers {
         let s = cfg.num_samples;
         let widest = c.net_width.max(c.net_width_condition).max(3);
         let per_sample = c.x_dim
-            + c.view_dim
             + c.net_depth * c.net_width
             + c.net_width
             + c.net_depth_condition * c.net_width_condition
@@ -202,7 +201,11 @@ impl ModelBuffers {
             + 3
             + 1;
         // The bias gradients' partial sums: one row of `widest` per 256 samples.
-        let per_ray = s * per_sample + c.view_dim + cfg.num_levels * (s + 1 + 8) + (s * widest).div_ceil(256);
+        let per_ray = s * per_sample
+            + c.view_dim
+            + c.net_width_condition
+            + cfg.num_levels * (s + 1 + 8)
+            + (s * widest).div_ceil(256);
         per_ray as u64 * 4
     }
 

@@ -652,17 +652,20 @@ fn check_product(
     let buf_b = ctx.storage_buffer("test b", &b, false);
     let buf_mask = ctx.storage_buffer("test mask", &mask, false);
     let mut bad = Vec::new();
-    // Two epilogues: accumulate + bias + ReLU, and overwrite + ReLU-backward mask.
-    for (e, accumulate) in [(0, true), (1, false)] {
+    // Three epilogues: accumulate + bias + ReLU; overwrite + ReLU-backward mask; overwrite + a
+    // per-group row (groups of 3 rows) + bias.
+    for (e, accumulate) in [(0, true), (1, false), (2, false)] {
         let buf_c = ctx.storage_buffer("test c", &c0, true);
         let scratch_len = 64 * m * n;
         let scratch = ctx.storage_buffer("test scratch", &vec![f32::NAN; scratch_len], false);
         let opa = if a_t { Operand::t(&buf_a, a_off) } else { Operand::new(&buf_a, a_off) };
         let opb = if b_t { Operand::t(&buf_b, b_off) } else { Operand::new(&buf_b, b_off) };
-        let epi = if e == 0 {
-            Epilogue { accumulate, bias: Some(bias_off), relu: true, mask: None }
-        } else {
-            Epilogue { accumulate, mask: Some((&buf_mask, 0)), ..Epilogue::default() }
+        let epi = match e {
+            0 => Epilogue { accumulate, bias: Some(bias_off), relu: true, ..Epilogue::default() },
+            1 => Epilogue { accumulate, mask: Some((&buf_mask, 0)), ..Epilogue::default() },
+            _ => {
+                Epilogue { accumulate, bias: Some(bias_off), per_group: Some((&buf_mask, 0, 3)), ..Epilogue::default() }
+            }
         };
         let mut rec = Recorder::new(ctx, "product test");
         if split {
@@ -684,10 +687,11 @@ fn check_product(
                 if accumulate {
                     want += f64::from(c0[r * n + c]);
                 }
-                if e == 0 {
-                    want = (want + f64::from(b[bias_off + c])).max(0.0);
-                } else if mask[r * n + c] <= 0.0 {
-                    want = 0.0;
+                match e {
+                    0 => want = (want + f64::from(b[bias_off + c])).max(0.0),
+                    1 if mask[r * n + c] <= 0.0 => want = 0.0,
+                    1 => {}
+                    _ => want += f64::from(mask[(r / 3) * n + c]) + f64::from(b[bias_off + c]),
                 }
                 let u = f64::from(f32::EPSILON) / 2.0;
                 let bound = k as f64 * u * abs + 4.0 * u * (want.abs() + 2.0) + 1e-30;

@@ -8,7 +8,7 @@ use crate::{GpuContext, GpuError, kernels};
 /// The WGSL source of this kernel.
 pub const SOURCE: &str = include_str!("../../../../shaders/matmul.wgsl");
 
-/// The uniform block of `matmul.wgsl` (`struct Params`), 48 bytes.
+/// The uniform block of `matmul.wgsl` (`struct Params`), 64 bytes.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct MatmulParams {
@@ -19,7 +19,7 @@ pub struct MatmulParams {
     /// Columns of C.
     pub n: u32,
     /// Bit 0: A transposed; 1: B transposed; 2: accumulate; 3: add bias; 4: ReLU; 5: ReLU-backward
-    /// mask; 6: write split z's raw partial product.
+    /// mask; 6: write split z's raw partial product; 7: add a per-group row.
     pub flags: u32,
     /// Element offset of A in its buffer.
     pub a_off: u32,
@@ -35,8 +35,12 @@ pub struct MatmulParams {
     pub n_splits: u32,
     /// Workgroups along x of `reduce_splits`'s grid.
     pub groups_x: u32,
-    /// Element offset of the mask in its buffer.
+    /// Element offset of the mask (or per-group matrix) in its buffer.
     pub mask_off: u32,
+    /// Rows of C per row of the per-group matrix.
+    pub rows_per_group: u32,
+    /// Padding to 16 bytes.
+    pub _pad: [u32; 3],
 }
 
 /// One operand: a buffer, the element offset of the matrix in it, and whether it is stored
@@ -76,6 +80,22 @@ pub struct Epilogue<'a> {
     /// Then zero every output whose entry of this m x n matrix (buffer, element offset) is not
     /// positive: the ReLU backward pass, with the layer's output as the mask.
     pub mask: Option<(&'a wgpu::Buffer, usize)>,
+    /// Before the bias, add row `row / rows_per_group` of this matrix (buffer, element offset,
+    /// rows_per_group): a per-ray term added to each of the ray's samples. Not with `mask`.
+    pub per_group: Option<(&'a wgpu::Buffer, usize, usize)>,
+}
+
+impl<'a> Epilogue<'a> {
+    /// The buffer, offset and rows per group bound at binding 4 (the mask or the per-group
+    /// matrix; `fallback` when neither).
+    fn extra(&self, fallback: &'a wgpu::Buffer) -> (&'a wgpu::Buffer, u32, u32) {
+        debug_assert!(self.mask.is_none() || self.per_group.is_none(), "one of mask and per_group");
+        match (self.mask, self.per_group) {
+            (Some((b, off)), _) => (b, off as u32, 1),
+            (None, Some((b, off, rows))) => (b, off as u32, rows.max(1) as u32),
+            (None, None) => (fallback, 0, 1),
+        }
+    }
 }
 
 /// Which product entry point of `matmul.wgsl` runs. Both give the same sums in the same order.
@@ -211,6 +231,7 @@ impl MatmulKernel {
             | (u32::from(epi.bias.is_some()) << 3)
             | (u32::from(epi.relu) << 4)
             | (u32::from(epi.mask.is_some()) << 5)
+            | (u32::from(epi.per_group.is_some()) << 7)
     }
 
     fn product_groups(&self, m: usize, n: usize, splits: usize) -> (u32, u32, u32) {
@@ -231,7 +252,7 @@ impl MatmulKernel {
         c: Operand<'_>,
         epi: Epilogue<'_>,
     ) {
-        let (mask, mask_off) = epi.mask.map_or((a.buffer, 0), |(buf, off)| (buf, off as u32));
+        let (mask, mask_off, rows_per_group) = epi.extra(a.buffer);
         let params = MatmulParams {
             m: m as u32,
             k: k as u32,
@@ -245,6 +266,8 @@ impl MatmulKernel {
             n_splits: 1,
             groups_x: 0,
             mask_off,
+            rows_per_group,
+            _pad: [0; 3],
         };
         let groups = self.product_groups(m, n, 1);
         rec.dispatch("matmul", &self.pipeline, &self.layout, &params, &[a.buffer, b.buffer, c.buffer, mask], groups);
@@ -283,6 +306,8 @@ impl MatmulKernel {
             n_splits: plan.splits as u32,
             groups_x: 0,
             mask_off: 0,
+            rows_per_group: 1,
+            _pad: [0; 3],
         };
         let groups = self.product_groups(m, n, plan.splits);
         rec.dispatch(
@@ -293,7 +318,7 @@ impl MatmulKernel {
             &[a.buffer, b.buffer, scratch, a.buffer],
             groups,
         );
-        let (mask, mask_off) = epi.mask.map_or((scratch, 0), |(buf, off)| (buf, off as u32));
+        let (mask, mask_off, rows_per_group) = epi.extra(scratch);
         // m * n is a layer's weight count: far inside one dispatch.
         let (gx, gy) = kernels::dispatch_grid((m * n) as u64, kernels::WORKGROUP).unwrap_or((1, 1));
         let reduce = MatmulParams {
@@ -309,6 +334,8 @@ impl MatmulKernel {
             n_splits: plan.splits as u32,
             groups_x: gx,
             mask_off,
+            rows_per_group,
+            _pad: [0; 3],
         };
         rec.dispatch(
             "matmul reduce",
@@ -324,5 +351,5 @@ impl MatmulKernel {
 super::wgsl_struct!(
     MatmulParams,
     "Params",
-    [m, k, n, flags, a_off, b_off, c_off, bias_off, k_chunk, n_splits, groups_x, mask_off]
+    [m, k, n, flags, a_off, b_off, c_off, bias_off, k_chunk, n_splits, groups_x, mask_off, rows_per_group]
 );

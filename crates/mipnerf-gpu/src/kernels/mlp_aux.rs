@@ -1,4 +1,4 @@
-//! `shaders/mlp_aux.wgsl`: ReLU backward, column sums (bias gradients), row broadcast.
+//! `shaders/mlp_aux.wgsl`: column sums (bias gradients) and per-ray sums of per-sample rows.
 
 use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
@@ -14,7 +14,7 @@ pub struct AuxParams {
     pub rows: u32,
     /// Columns.
     pub cols: u32,
-    /// Elements (relu_backward) or repetitions per row (broadcast_rows).
+    /// Rows per group (group_sums).
     pub count: u32,
     /// Offset of x.
     pub x_off: u32,
@@ -31,10 +31,9 @@ pub struct AuxParams {
 /// The three pipelines of `mlp_aux.wgsl`.
 #[derive(Debug)]
 pub struct MlpAuxKernels {
-    relu_backward: wgpu::ComputePipeline,
     col_sums: wgpu::ComputePipeline,
     col_sums_partial: wgpu::ComputePipeline,
-    broadcast_rows: wgpu::ComputePipeline,
+    group_sums: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
 }
 
@@ -44,10 +43,10 @@ impl MlpAuxKernels {
     /// # Errors
     /// If the device rejects them.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        let entries = ["relu_backward", "col_sums", "col_sums_partial", "broadcast_rows"];
-        let ([relu_backward, col_sums, col_sums_partial, broadcast_rows], layout) =
+        let entries = ["col_sums", "col_sums_partial", "group_sums"];
+        let ([col_sums, col_sums_partial, group_sums], layout) =
             kernels::build_entries(ctx, "mlp_aux", SOURCE, &[true, false], entries)?;
-        Ok(Self { relu_backward, col_sums, col_sums_partial, broadcast_rows, layout })
+        Ok(Self { col_sums, col_sums_partial, group_sums, layout })
     }
 
     fn run(
@@ -63,18 +62,6 @@ impl MlpAuxKernels {
         let (gx, gy) = kernels::dispatch_grid(items as u64, kernels::WORKGROUP).unwrap_or((1, 1));
         params.groups_x = gx;
         rec.dispatch("mlp_aux", which, &self.layout, &params, &[x, out], (gx, gy, 1));
-    }
-
-    /// `g[i] = 0` where the layer output `h[i] <= 0`, over `count` elements (in place on `g`).
-    pub fn relu_backward(
-        &self,
-        rec: &mut Recorder<'_>,
-        h: (&wgpu::Buffer, usize),
-        g: (&wgpu::Buffer, usize),
-        count: usize,
-    ) {
-        let params = AuxParams { count: count as u32, x_off: h.1 as u32, out_off: g.1 as u32, ..AuxParams::default() };
-        self.run(rec, &self.relu_backward, count, params, h.0, g.0);
     }
 
     /// Rows summed per block by the first pass of [`col_sums`](Self::col_sums).
@@ -125,8 +112,9 @@ impl MlpAuxKernels {
         self.run(rec, &self.col_sums, cols, params, x.0, out.0);
     }
 
-    /// `out[r * rep + i, :] = x[r, :]` for `rows` rows of `cols`.
-    pub fn broadcast_rows(
+    /// `out[r, :] = sum over i < rep of x[r * rep + i, :]`, in order, for `rows` groups of `rep`
+    /// rows of `cols`.
+    pub fn group_sums(
         &self,
         rec: &mut Recorder<'_>,
         x: &wgpu::Buffer,
@@ -136,7 +124,7 @@ impl MlpAuxKernels {
         rep: usize,
     ) {
         let params = AuxParams { rows: rows as u32, cols: cols as u32, count: rep as u32, ..AuxParams::default() };
-        self.run(rec, &self.broadcast_rows, rows * rep * cols, params, x, out);
+        self.run(rec, &self.group_sums, rows * cols, params, x, out);
     }
 }
 
