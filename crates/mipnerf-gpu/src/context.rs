@@ -340,9 +340,59 @@ impl GpuContext {
     }
 
     /// Submits `commands` to the queue (counted).
-    pub fn submit(&self, commands: wgpu::CommandBuffer) {
+    pub fn submit(&self, commands: wgpu::CommandBuffer) -> wgpu::SubmissionIndex {
         self.counters.submits.fetch_add(1, Ordering::Relaxed);
-        self.queue.submit([commands]);
+        self.queue.submit([commands])
+    }
+
+    /// Reads `len` floats from the start of `staging` (a `MAP_READ` buffer that submission
+    /// `after` copies into), waiting for that submission only: work submitted after it keeps the
+    /// device busy meanwhile.
+    ///
+    /// # Errors
+    /// A timeout, errors wgpu reported, or a failed map.
+    pub fn read_staged(
+        &self,
+        staging: &wgpu::Buffer,
+        len: usize,
+        after: wgpu::SubmissionIndex,
+    ) -> Result<Vec<f32>, GpuError> {
+        let size = ((len * 4) as u64).max(4);
+        let (tx, rx) = std::sync::mpsc::channel();
+        staging.slice(..size).map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        let wait = wgpu::PollType::Wait { submission_index: Some(after), timeout: Some(self.timeout) };
+        match self.device.poll(wait) {
+            Ok(_) => {}
+            Err(wgpu::PollError::Timeout) => {
+                return Err(GpuError::Timeout {
+                    adapter: self.adapter.name.clone(),
+                    seconds: self.timeout.as_secs_f64(),
+                });
+            }
+            Err(e) => return Err(GpuError::Poll(e)),
+        }
+        self.check()?;
+        rx.recv().unwrap_or(Err(wgpu::BufferAsyncError)).map_err(GpuError::Readback)?;
+        let view = staging.get_mapped_range(..size).map_err(|_| GpuError::Readback(wgpu::BufferAsyncError))?;
+        let out = bytemuck::cast_slice::<u8, f32>(&view)[..len].to_vec();
+        drop(view);
+        staging.unmap();
+        self.counters.bytes_read_back.fetch_add((len * 4) as u64, Ordering::Relaxed);
+        Ok(out)
+    }
+
+    /// A labelled buffer the host maps to read back `bytes` (counted).
+    #[must_use]
+    pub fn staging_buffer(&self, label: &str, bytes: u64) -> wgpu::Buffer {
+        self.count_buffer();
+        self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: bytes.max(4),
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
     }
 
     /// Waits for all submitted work, at most the context's timeout, then reports what wgpu
@@ -492,7 +542,7 @@ impl GpuContext {
         let mut enc =
             self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("mipnerf readback") });
         enc.copy_buffer_to_buffer(buffer, (offset * 4) as u64, &staging, 0, size);
-        self.submit(enc.finish());
+        let _ = self.submit(enc.finish());
         let (tx, rx) = std::sync::mpsc::channel();
         staging.slice(..size.max(4)).map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);

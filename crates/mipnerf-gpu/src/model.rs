@@ -209,6 +209,12 @@ impl ModelBuffers {
         per_ray as u64 * 4
     }
 
+    /// Rays the buffers hold.
+    #[must_use]
+    pub fn capacity(&self) -> usize {
+        self.capacity
+    }
+
     /// Device bytes of these buffers for `n_rays` rays: [`bytes_per_ray`](Self::bytes_per_ray)
     /// each, and the weight gradients' partial products (at most `MAX_SPLITS` of the largest
     /// layer's kernel, whatever the batch).
@@ -406,25 +412,7 @@ impl GpuModel {
             )));
         }
         let levels: Vec<Vec<f32>> = work.ray_out.iter().map(|b| ctx.read_f32(b, n * 8)).collect::<Result<_, _>>()?;
-        let inv = 1.0 / rpp as f32;
-        let mut out = Vec::with_capacity(n / rpp * levels.len());
-        for p in 0..n / rpp {
-            for l in &levels {
-                let mut o = LevelOutput::default();
-                for r in p * rpp..(p + 1) * rpp {
-                    let v = &l[8 * r..8 * r + 8];
-                    for k in 0..3 {
-                        o.rgb[k] += v[k] * inv;
-                    }
-                    o.distance += v[3];
-                    o.acc += v[4];
-                }
-                o.distance *= inv;
-                o.acc *= inv;
-                out.push(o);
-            }
-        }
-        Ok(out)
+        Ok(level_outputs(&levels, n, rpp))
     }
 
     /// The loss of a batch and the gradient of every parameter, computed on the device from
@@ -459,4 +447,30 @@ impl GpuModel {
         let g = ctx.read_f32(&grads, model.num_params())?;
         Ok((self.read_losses(ctx, model, &batch, &work.ray_out)?, g))
     }
+}
+
+/// Every level's outputs of `n` rays (`rpp` consecutive rays per pixel, averaged), pixel-major,
+/// from each level's `n x 8` ray outputs as `render.wgsl` writes them.
+#[must_use]
+pub fn level_outputs(levels: &[Vec<f32>], n: usize, rpp: usize) -> Vec<LevelOutput> {
+    let rpp = rpp.max(1);
+    let inv = 1.0 / rpp as f32;
+    let mut out = Vec::with_capacity(n / rpp * levels.len());
+    for p in 0..n / rpp {
+        for l in levels {
+            let mut o = LevelOutput::default();
+            for r in p * rpp..(p + 1) * rpp {
+                let v = &l[8 * r..8 * r + 8];
+                for k in 0..3 {
+                    o.rgb[k] += v[k] * inv;
+                }
+                o.distance += v[3];
+                o.acc += v[4];
+            }
+            o.distance *= inv;
+            o.acc *= inv;
+            out.push(o);
+        }
+    }
+    out
 }

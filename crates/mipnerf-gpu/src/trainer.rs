@@ -74,7 +74,8 @@ pub struct GpuBackend {
     state: AdamBuffers,
     train: Option<TrainData>,
     render_chunk: usize,
-    render: Option<(RayBatch, ModelBuffers)>,
+    /// The render chunk's rays and buffers, and two staging buffers its outputs alternate in.
+    render: Option<(RayBatch, ModelBuffers, [wgpu::Buffer; 2])>,
     in_flight: u32,
     /// Bind groups and uniforms of the training step's dispatches, and of a render chunk's.
     train_cache: DispatchCache,
@@ -192,7 +193,7 @@ impl GpuBackend {
     /// Device bytes of the render buffers (0 before the first render): the same for every image.
     #[must_use]
     pub fn render_buffer_bytes(&self) -> u64 {
-        self.render.as_ref().map_or(0, |(b, w)| {
+        self.render.as_ref().map_or(0, |(b, w, _)| {
             w.bytes() + [&b.rays, &b.bounds, &b.viewdirs, &b.targets, &b.norm].iter().map(|x| x.size()).sum::<u64>()
         })
     }
@@ -298,20 +299,32 @@ impl GpuBackend {
         let total = cams.total_pixels() as usize;
         // Whole pixels per chunk.
         let chunk_pixels = (self.render_chunk / rpp).max(1);
-        if self.render.as_ref().is_none_or(|(b, _)| b.capacity() != chunk_pixels * rpp) {
+        let levels = self.model.config().num_levels;
+        if self.render.as_ref().is_none_or(|(b, _, _)| b.capacity() != chunk_pixels * rpp) {
             let rays = chunk_pixels * rpp;
             let need = ModelBuffers::bytes_for(&self.model, rays);
             self.render = None;
-            let made = self.ctx.allocating(need, || {
-                Ok((RayBatch::new(&self.ctx, rays), ModelBuffers::new(&self.ctx, &self.model, rays)?))
+            let ctx = &self.ctx;
+            let made = ctx.allocating(need, || {
+                let staging_bytes = (levels * rays * 32) as u64;
+                let staging = [0, 1].map(|i| ctx.staging_buffer(&format!("render readback {i}"), staging_bytes));
+                Ok((RayBatch::new(ctx, rays), ModelBuffers::new(ctx, &self.model, rays)?, staging))
             })?;
             self.render = Some(made);
         }
-        let Some((batch, work)) = &mut self.render else { unreachable!("render buffers were just made") };
-        let mut out = Vec::with_capacity(total * self.model.config().num_levels);
+        let Some((batch, work, staging)) = &mut self.render else { unreachable!("render buffers were just made") };
+        let mut out = Vec::with_capacity(total * levels);
         let ctx = &self.ctx;
         let k = self.model.config().supersample;
-        for first in (0..total).step_by(chunk_pixels) {
+        // Double buffering: chunk i's outputs are copied to staging[i % 2] in its own command
+        // buffer and read back while chunk i + 1 runs.
+        let read = |slot: usize, n: usize, after: wgpu::SubmissionIndex| -> Result<Vec<LevelOutput>, GpuError> {
+            let all = ctx.read_staged(&staging[slot], levels * n * 8, after)?;
+            let per_level: Vec<Vec<f32>> = all.chunks(n * 8).map(<[f32]>::to_vec).collect();
+            Ok(crate::model::level_outputs(&per_level, n, rpp))
+        };
+        let mut pending: Option<(usize, usize, wgpu::SubmissionIndex)> = None;
+        for (i, first) in (0..total).step_by(chunk_pixels).enumerate() {
             let n = chunk_pixels.min(total - first) * rpp;
             batch.set_active(n)?;
             work.set_active(n)?;
@@ -319,8 +332,19 @@ impl GpuBackend {
             let draw = Draw::Sequential { first: first as u32 };
             self.batch_kernel.encode(&mut rec, cams, draw, false, k, batch)?;
             self.kernels.encode(&mut rec, &self.model, &self.state.params, batch, work, Mode::Eval, None)?;
-            self.render_cache = rec.submit();
-            out.extend(self.kernels.read_outputs(ctx, work, n, rpp)?);
+            let slot = i % 2;
+            for (l, src) in work.ray_out.iter().enumerate() {
+                rec.encoder().copy_buffer_to_buffer(src, 0, &staging[slot], (l * n * 32) as u64, (n * 32) as u64);
+            }
+            let (cache, index) = rec.submit_indexed();
+            self.render_cache = cache;
+            if let Some((s, m, after)) = pending.take() {
+                out.extend(read(s, m, after)?);
+            }
+            pending = Some((slot, n, index));
+        }
+        if let Some((s, m, after)) = pending {
+            out.extend(read(s, m, after)?);
         }
         Ok(out)
     }

@@ -417,9 +417,14 @@ impl<'a> Recorder<'a> {
 
     /// Ends the recording and submits it; returns the cache.
     pub fn submit(self) -> DispatchCache {
+        self.submit_indexed().0
+    }
+
+    /// [`submit`](Self::submit), also returning the submission's index (to wait for it alone).
+    pub fn submit_indexed(self) -> (DispatchCache, wgpu::SubmissionIndex) {
         let ctx = self.ctx;
         let (commands, cache) = self.finish();
-        ctx.submit(commands);
-        cache
+        let index = ctx.submit(commands);
+        (cache, index)
     }
 }
