@@ -43,9 +43,11 @@ struct Params {
     mask_off: u32,
     // Rows of C per row of the per-group matrix.
     rows_per_group: u32,
+    // Elements between rows of A (stored as used) and of C: k and n for packed matrices; more
+    // for a column range of a wider matrix (the fused heads' columns).
+    a_ld: u32,
+    c_ld: u32,
     _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -72,7 +74,7 @@ fn load_a(row: u32, kk: u32, k_end: u32) -> f32 {
     if ((p.flags & FLAG_A_T) != 0u) {
         return a[p.a_off + kk * p.m + row];
     }
-    return a[p.a_off + row * p.k + kk];
+    return a[p.a_off + row * p.a_ld + kk];
 }
 
 // Element (kk, col) of B, 0 outside kk < k_end and col < n.
@@ -92,7 +94,7 @@ fn store(row: u32, col: u32, z: u32, sum: f32) {
         c[p.c_off + z * p.m * p.n + row * p.n + col] = sum;
         return;
     }
-    let idx = p.c_off + row * p.n + col;
+    let idx = p.c_off + row * p.c_ld + col;
     var acc = sum;
     if ((p.flags & FLAG_ACCUMULATE) != 0u) {
         acc = c[idx] + acc;
@@ -200,7 +202,7 @@ fn blocked(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
     let k0 = z * p.k_chunk;
     let k1 = min(p.k, k0 + p.k_chunk);
     // Element (r, kk) of A is at a_off + r * a_rs + kk * a_ks; (kk, col) of B at b_off + kk * b_ks + col * b_cs.
-    var a_rs = p.k;
+    var a_rs = p.a_ld;
     var a_ks = 1u;
     if ((p.flags & FLAG_A_T) != 0u) {
         a_rs = 1u;

@@ -39,12 +39,16 @@ pub struct MatmulParams {
     pub mask_off: u32,
     /// Rows of C per row of the per-group matrix.
     pub rows_per_group: u32,
+    /// Elements between rows of A (stored as used).
+    pub a_ld: u32,
+    /// Elements between rows of C.
+    pub c_ld: u32,
     /// Padding to 16 bytes.
-    pub _pad: [u32; 3],
+    pub _pad: u32,
 }
 
-/// One operand: a buffer, the element offset of the matrix in it, and whether it is stored
-/// transposed.
+/// One operand: a buffer, the element offset of the matrix in it, whether it is stored
+/// transposed, and its row stride.
 #[derive(Clone, Copy, Debug)]
 pub struct Operand<'a> {
     /// The buffer.
@@ -53,19 +57,33 @@ pub struct Operand<'a> {
     pub offset: u32,
     /// Stored transposed.
     pub transposed: bool,
+    /// Elements between consecutive rows; 0: packed (the row length). Honoured for A stored as
+    /// used and for C.
+    pub stride: u32,
 }
 
 impl<'a> Operand<'a> {
     /// The matrix at `offset` of `buffer`, stored as used.
     #[must_use]
     pub fn new(buffer: &'a wgpu::Buffer, offset: usize) -> Self {
-        Self { buffer, offset: offset as u32, transposed: false }
+        Self { buffer, offset: offset as u32, transposed: false, stride: 0 }
     }
     /// The matrix at `offset` of `buffer`, stored transposed.
     #[must_use]
     pub fn t(buffer: &'a wgpu::Buffer, offset: usize) -> Self {
-        Self { buffer, offset: offset as u32, transposed: true }
+        Self { buffer, offset: offset as u32, transposed: true, stride: 0 }
     }
+    /// The columns from `offset` of a wider row-major matrix whose rows are `stride` elements
+    /// apart.
+    #[must_use]
+    pub fn strided(buffer: &'a wgpu::Buffer, offset: usize, stride: usize) -> Self {
+        Self { buffer, offset: offset as u32, transposed: false, stride: stride as u32 }
+    }
+}
+
+/// The row stride of an operand whose packed rows would be `len` long.
+fn ld(op: &Operand<'_>, len: usize) -> u32 {
+    if op.stride == 0 { len as u32 } else { op.stride }
 }
 
 /// What happens after the product, in this order.
@@ -252,6 +270,7 @@ impl MatmulKernel {
         c: Operand<'_>,
         epi: Epilogue<'_>,
     ) {
+        debug_assert!(!(a.transposed && a.stride != 0), "a stride for A stored as used only");
         let (mask, mask_off, rows_per_group) = epi.extra(a.buffer);
         let params = MatmulParams {
             m: m as u32,
@@ -267,7 +286,9 @@ impl MatmulKernel {
             groups_x: 0,
             mask_off,
             rows_per_group,
-            _pad: [0; 3],
+            a_ld: ld(&a, k),
+            c_ld: ld(&c, n),
+            _pad: 0,
         };
         let groups = self.product_groups(m, n, 1);
         rec.dispatch("matmul", &self.pipeline, &self.layout, &params, &[a.buffer, b.buffer, c.buffer, mask], groups);
@@ -307,7 +328,9 @@ impl MatmulKernel {
             groups_x: 0,
             mask_off: 0,
             rows_per_group: 1,
-            _pad: [0; 3],
+            a_ld: ld(&a, k),
+            c_ld: n as u32,
+            _pad: 0,
         };
         let groups = self.product_groups(m, n, plan.splits);
         rec.dispatch(
@@ -335,7 +358,9 @@ impl MatmulKernel {
             groups_x: gx,
             mask_off,
             rows_per_group,
-            _pad: [0; 3],
+            a_ld: k as u32,
+            c_ld: ld(&c, n),
+            _pad: 0,
         };
         rec.dispatch(
             "matmul reduce",
@@ -351,5 +376,5 @@ impl MatmulKernel {
 super::wgsl_struct!(
     MatmulParams,
     "Params",
-    [m, k, n, flags, a_off, b_off, c_off, bias_off, k_chunk, n_splits, groups_x, mask_off, rows_per_group]
+    [m, k, n, flags, a_off, b_off, c_off, bias_off, k_chunk, n_splits, groups_x, mask_off, rows_per_group, a_ld, c_ld]
 );
