@@ -43,8 +43,9 @@ struct Params {
     mask_off: u32,
     // Rows of C per row of the per-group matrix.
     rows_per_group: u32,
-    // Elements between rows of A (stored as used) and of C: k and n for packed matrices; more
-    // for a column range of a wider matrix (the fused heads' columns).
+    // Elements between stored rows of A (k when stored as used, m when transposed) and between
+    // rows of C (n), for packed matrices; more for a column range of a wider matrix (the fused
+    // heads' columns).
     a_ld: u32,
     c_ld: u32,
     _pad0: u32,
@@ -72,7 +73,7 @@ fn load_a(row: u32, kk: u32, k_end: u32) -> f32 {
         return 0.0;
     }
     if ((p.flags & FLAG_A_T) != 0u) {
-        return a[p.a_off + kk * p.m + row];
+        return a[p.a_off + kk * p.a_ld + row];
     }
     return a[p.a_off + row * p.a_ld + kk];
 }
@@ -206,7 +207,7 @@ fn blocked(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
     var a_ks = 1u;
     if ((p.flags & FLAG_A_T) != 0u) {
         a_rs = 1u;
-        a_ks = p.m;
+        a_ks = p.a_ld;
     }
     var b_ks = p.n;
     var b_cs = 1u;

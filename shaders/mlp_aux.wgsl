@@ -4,6 +4,9 @@
 // - col_sums_partial: the first of two passes for tall matrices: per block of 256 rows and column,
 //   the block's sum in row order (col_sums then adds the blocks in order), so that a matrix of
 //   a million rows is summed by many invocations, not one per column;
+// - pack_heads / unpack_heads_add: the density and bottleneck layers' kernels and biases,
+//   (T + 1) x 1 and (T + 1) x W in the flat parameters, as one (T + 1) x (W + 1) matrix
+//   [density | bottleneck] (so that both heads are one product), and its gradient added back;
 // - group_sums: out[r, :] = sum over i < count of x[r * count + i, :] in order (a ray's samples'
 //   gradients, for the view-direction weights, which multiply once per ray).
 
@@ -78,4 +81,42 @@ fn group_sums(@builtin(global_invocation_id) gid: vec3<u32>) {
         s = s + x[p.x_off + (r * p.count + j) * p.cols + col];
     }
     out[p.out_off + i] = s;
+}
+
+// x = parameters; out = the packed heads from out_off: rows x (cols + 1), column 0 from the
+// density layer at x_off ((rows) x 1), columns 1.. from the bottleneck layer at y_off (rows x cols).
+@compute @workgroup_size(WORKGROUP)
+fn pack_heads(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = flat_id(gid);
+    let w = p.cols + 1u;
+    if (i >= p.rows * w) {
+        return;
+    }
+    let r = i / w;
+    let c = i % w;
+    var v = 0.0;
+    if (c == 0u) {
+        v = x[p.x_off + r];
+    } else {
+        v = x[p.y_off + r * p.cols + c - 1u];
+    }
+    out[p.out_off + i] = v;
+}
+
+// x = the packed heads' gradient from x_off (rows x (cols + 1)); out = gradients: column 0 added
+// to the density layer's at out_off, columns 1.. to the bottleneck layer's at y_off.
+@compute @workgroup_size(WORKGROUP)
+fn unpack_heads_add(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = flat_id(gid);
+    let w = p.cols + 1u;
+    if (i >= p.rows * w) {
+        return;
+    }
+    let r = i / w;
+    let c = i % w;
+    var dst = p.out_off + r;
+    if (c != 0u) {
+        dst = p.y_off + r * p.cols + c - 1u;
+    }
+    out[dst] = out[dst] + x[p.x_off + i];
 }

@@ -20,7 +20,9 @@ struct Params {
     rgb_padding: f32,
     // Loss weight of this level.
     level_weight: f32,
-    _pad0: u32,
+    // Elements between consecutive samples' raw densities and their gradients (1, or the fused
+    // heads' row length: density is column 0 of [density | bottleneck]).
+    density_stride: u32,
     train: u32,
     // 1: weight rays by their lossmult (area loss), 0: by 1.
     area_loss: u32,
@@ -87,9 +89,9 @@ fn density_noise_key(r: u32) -> u32 {
 // Raw density of sample k (sample i of its ray), with the training noise when there is any.
 fn raw_den(k: u32, key: u32, i: u32) -> f32 {
     if (p.density_noise > 0.0) {
-        return raw_density[k] + p.density_noise * normal(key, i);
+        return raw_density[k * p.density_stride] + p.density_noise * normal(key, i);
     }
-    return raw_density[k];
+    return raw_density[k * p.density_stride];
 }
 
 @compute @workgroup_size(WORKGROUP)
@@ -125,7 +127,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         acc = acc + w;
         dist_num = dist_num + w * 0.5 * (t0 + t1);
         // Keep T_{i+1} for the backward pass in the density-gradient slot.
-        d_raw_density[k] = exp(-cum);
+        d_raw_density[k * p.density_stride] = exp(-cum);
     }
     acc = min(acc, 1.0);
     // A ray that hit nothing (acc = 0, so dist_num = 0) has the CPU's NaN distance, which it
@@ -169,10 +171,10 @@ fn backward_ray(r: u32, d_col: vec3<f32>) {
         let rgb = sg * (1.0 + 2.0 * p.rgb_padding) - p.rgb_padding;
         let w = weights[k];
         let g = dot(d_col, rgb - vec3<f32>(bg));
-        let ds = g * d_raw_density[k] - suffix;
+        let ds = g * d_raw_density[k * p.density_stride] - suffix;
         suffix = suffix + g * w;
         let delta = (t_vals[tb + i + 1u] - t_vals[tb + i]) * dir_norm;
-        d_raw_density[k] = ds * delta * density_derivative(raw_den(k, noise_key, i));
+        d_raw_density[k * p.density_stride] = ds * delta * density_derivative(raw_den(k, noise_key, i));
         let d_rgb = w * d_col * sg * (1.0 - sg) * (1.0 + 2.0 * p.rgb_padding);
         d_raw_rgb[3u * k] = d_rgb.x;
         d_raw_rgb[3u * k + 1u] = d_rgb.y;

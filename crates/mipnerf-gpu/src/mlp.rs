@@ -29,12 +29,20 @@ pub struct MlpBuffers {
     /// (forward), then the per-ray sums of that layer's output gradient (backward).
     view_rows: wgpu::Buffer,
     trunk: Vec<wgpu::Buffer>,
-    bottleneck: wgpu::Buffer,
+    /// Both heads, one product: `n x (1 + net_width)`, `[raw density | bottleneck]` per sample.
+    heads: wgpu::Buffer,
+    /// Their gradient, the same shape: the density part written by rendering, the bottleneck
+    /// part by the colour branch's backward pass.
+    d_heads: wgpu::Buffer,
+    /// The two heads' kernels and biases packed as one `(top + 1) x (1 + net_width)` matrix, and
+    /// its gradient.
+    heads_w: wgpu::Buffer,
+    heads_g: wgpu::Buffer,
+    /// `1 + net_width`.
+    heads_width: usize,
     cond: Vec<wgpu::Buffer>,
     /// Raw colours, `n x 3`.
     pub raw_rgb: wgpu::Buffer,
-    /// Raw densities, `n`.
-    pub raw_density: wgpu::Buffer,
     grad: [wgpu::Buffer; 3],
     col_scratch: wgpu::Buffer,
     /// Partial products of the split weight-gradient products, and its length in floats.
@@ -53,6 +61,8 @@ impl MlpBuffers {
         let c = &shape.config;
         let n = n_rays * samples_per_ray;
         let widest = c.net_width.max(c.net_width_condition).max(3);
+        let hw = c.net_width + 1;
+        let top = shape.layers[c.net_depth].fan_in;
         Self {
             n,
             n_rays,
@@ -60,14 +70,21 @@ impl MlpBuffers {
             view: storage(ctx, "mlp view", n_rays * c.view_dim),
             view_rows: storage(ctx, "mlp view rows per ray", n_rays * c.net_width_condition),
             trunk: (0..c.net_depth).map(|i| storage(ctx, &format!("mlp trunk {i}"), n * c.net_width)).collect(),
-            bottleneck: storage(ctx, "mlp bottleneck", n * c.net_width),
+            heads: storage(ctx, "mlp heads (density, bottleneck)", n * hw),
+            d_heads: storage(ctx, "mlp heads gradient", n * hw),
+            heads_w: storage(ctx, "mlp heads packed kernel", (top + 1) * hw),
+            heads_g: storage(ctx, "mlp heads packed gradient", (top + 1) * hw),
+            heads_width: hw,
             cond: (0..c.net_depth_condition)
                 .map(|j| storage(ctx, &format!("mlp condition {j}"), n * c.net_width_condition))
                 .collect(),
             raw_rgb: storage(ctx, "mlp raw rgb", n * 3),
-            raw_density: storage(ctx, "mlp raw density", n),
             grad: std::array::from_fn(|i| storage(ctx, &format!("mlp gradient scratch {i}"), n * widest)),
-            col_scratch: storage(ctx, "mlp bias gradient partial sums", MlpAuxKernels::col_sums_scratch_len(n, widest)),
+            col_scratch: storage(
+                ctx,
+                "mlp bias gradient partial sums",
+                MlpAuxKernels::col_sums_scratch_len(n, widest + 1),
+            ),
             split_scratch: {
                 let len = Self::split_scratch_len(shape, n);
                 (storage(ctx, "mlp weight gradient partial products", len), len)
@@ -75,11 +92,31 @@ impl MlpBuffers {
         }
     }
 
+    /// The raw densities: the buffer and the elements between consecutive samples' values (they
+    /// are column 0 of the fused heads).
+    #[must_use]
+    pub fn raw_density(&self) -> (&wgpu::Buffer, usize) {
+        (&self.heads, self.heads_width())
+    }
+
+    /// Where [`GpuMlp::backward`] reads the gradient of the raw densities: the buffer and the
+    /// elements between consecutive samples' values.
+    #[must_use]
+    pub fn d_raw_density(&self) -> (&wgpu::Buffer, usize) {
+        (&self.d_heads, self.heads_width())
+    }
+
+    fn heads_width(&self) -> usize {
+        self.heads_width
+    }
+
     /// Floats of partial products the split weight gradients of `n` samples use: room for
-    /// [`MAX_SPLITS`] of the largest layer's kernel when `n` is long enough to split.
+    /// [`MAX_SPLITS`] of the largest product's output (a layer's kernel, or both heads' kernels)
+    /// when `n` is long enough to split.
     #[must_use]
     pub fn split_scratch_len(shape: &MlpShape, n: usize) -> usize {
-        let largest = shape.layers.iter().map(|l| l.fan_in * l.fan_out).max().unwrap_or(1);
+        let heads = shape.layers[shape.config.net_depth].fan_in * (shape.config.net_width + 1);
+        let largest = shape.layers.iter().map(|l| l.fan_in * l.fan_out).max().unwrap_or(1).max(heads);
         largest * MAX_SPLITS.min(n / MIN_K_PER_SPLIT).max(1)
     }
 
@@ -94,7 +131,16 @@ impl MlpBuffers {
     /// Device bytes these buffers take.
     #[must_use]
     pub fn bytes(&self) -> u64 {
-        let all = [&self.x, &self.view, &self.view_rows, &self.bottleneck, &self.raw_rgb, &self.raw_density];
+        let all = [
+            &self.x,
+            &self.view,
+            &self.view_rows,
+            &self.heads,
+            &self.d_heads,
+            &self.heads_w,
+            &self.heads_g,
+            &self.raw_rgb,
+        ];
         let mut b: u64 = all.iter().map(|x| x.size()).sum();
         b += self.trunk.iter().chain(&self.cond).chain(&self.grad).map(wgpu::Buffer::size).sum::<u64>();
         b += self.col_scratch.size() + self.split_scratch.0.size();
@@ -214,8 +260,8 @@ impl GpuMlp {
         }
     }
 
-    /// Records the forward pass: fills `bufs.raw_rgb` and `bufs.raw_density` from `bufs.x` and
-    /// `bufs.view`.
+    /// Records the forward pass: fills `bufs.raw_rgb` and the raw densities
+    /// ([`MlpBuffers::raw_density`]) from `bufs.x` and `bufs.view`.
     pub fn forward(&self, rec: &mut Recorder<'_>, shape: &MlpShape, params: &wgpu::Buffer, bufs: &MlpBuffers) {
         let c = &shape.config;
         let (n, d) = (bufs.n, c.net_depth);
@@ -230,9 +276,19 @@ impl GpuMlp {
             };
             self.dense(rec, params, &ls[i], &parts, n, &bufs.trunk[i], true);
         }
+        // Both heads as one product: [density | bottleneck] = top · [K_d | K_b] + [b_d | b_b],
+        // with the two layers' kernels and biases packed side by side first.
         let top = self.top_parts(shape, bufs);
-        self.dense(rec, params, &ls[d], &top, n, &bufs.raw_density, false);
-        self.dense(rec, params, &ls[d + 1], &top, n, &bufs.bottleneck, false);
+        let (hw, t) = (bufs.heads_width, ls[d].fan_in);
+        self.aux.pack_heads(rec, params, (ls[d].kernel, ls[d + 1].kernel), &bufs.heads_w, t + 1, c.net_width);
+        let mut r0 = 0;
+        for (k, &(input, width)) in top.iter().enumerate() {
+            let last = k + 1 == top.len();
+            let epi = Epilogue { accumulate: k > 0, bias: last.then_some(t * hw), ..Epilogue::default() };
+            let b = Operand::new(&bufs.heads_w, r0 * hw);
+            self.matmul.encode(rec, (n, width, hw), Operand::new(input, 0), b, Operand::new(&bufs.heads, 0), epi);
+            r0 += width;
+        }
         // The first colour layer: relu(bottleneck · W_b + (view · W_v)[ray] + b), the view part
         // once per ray.
         let (l, wc) = (&ls[d + 2], c.net_width_condition);
@@ -248,7 +304,8 @@ impl GpuMlp {
         };
         let w_b = Operand::new(params, l.kernel);
         let cond0 = Operand::new(&bufs.cond[0], 0);
-        self.matmul.encode(rec, (n, c.net_width, wc), Operand::new(&bufs.bottleneck, 0), w_b, cond0, epi);
+        let bottleneck = Operand::strided(&bufs.heads, 1, hw);
+        self.matmul.encode(rec, (n, c.net_width, wc), bottleneck, w_b, cond0, epi);
         for j in 1..c.net_depth_condition {
             let parts = [(&bufs.cond[j - 1], wc)];
             self.dense(rec, params, &ls[d + 2 + j], &parts, n, &bufs.cond[j], true);
@@ -264,8 +321,8 @@ impl GpuMlp {
     }
 
     /// Records the backward pass of the last forward pass: **adds** every parameter's gradient for
-    /// the output gradients `d_raw_rgb` (`n x 3`) and `d_raw_density` (`n`) to `grads`.
-    #[allow(clippy::too_many_arguments)]
+    /// the output gradients `d_raw_rgb` (`n x 3`) and the raw densities' gradient, which the
+    /// caller (rendering) has written to [`MlpBuffers::d_raw_density`], to `grads`.
     pub fn backward(
         &self,
         rec: &mut Recorder<'_>,
@@ -273,14 +330,15 @@ impl GpuMlp {
         params: &wgpu::Buffer,
         bufs: &MlpBuffers,
         d_raw_rgb: &wgpu::Buffer,
-        d_raw_density: &wgpu::Buffer,
         grads: &wgpu::Buffer,
     ) {
         let c = &shape.config;
         let (n, d, dc) = (bufs.n, c.net_depth, c.net_depth_condition);
-        let (w, wc) = (c.net_width, c.net_width_condition);
+        let (w, wc, hw) = (c.net_width, c.net_width_condition, bufs.heads_width);
         let ls = &shape.layers;
         let g = &bufs.grad;
+        let (scratch, len) = (&bufs.split_scratch.0, bufs.split_scratch.1);
+        let add = Epilogue { accumulate: true, ..Epilogue::default() };
         // Indices into g: `a` holds the gradient of the current layer's output.
         let (mut a, mut b) = (0usize, 1usize);
         let to = |out, relu| Some(InputGrad { out, accumulate: false, relu });
@@ -293,32 +351,58 @@ impl GpuMlp {
                 self.dense_backward(rec, params, grads, &ls[d + 2 + j], &parts, n, &g[a], to(&g[b], true), bufs);
                 std::mem::swap(&mut a, &mut b);
             } else {
-                // The bottleneck has no activation. Its rows of the kernel see every sample; the
-                // view rows see each ray once, with the sum of its samples' gradients.
+                // The first colour layer. Its bottleneck rows see every sample (the bottleneck is
+                // columns 1.. of the heads); its view rows see each ray once, with the sum of the
+                // ray's samples' gradients. The bottleneck has no activation: its gradient goes
+                // to columns 1.. of the heads' gradient as it is.
                 let l = &ls[d + 2];
-                let parts = [(&bufs.bottleneck, w)];
-                self.dense_backward(rec, params, grads, l, &parts, n, &g[a], to(&g[b], false), bufs);
+                let bottleneck_t = Operand::strided_t(&bufs.heads, 1, hw);
+                let dz = Operand::new(&g[a], 0);
+                let wb = Operand::new(grads, l.kernel);
+                self.matmul.encode_split(rec, (w, n, wc), bottleneck_t, dz, wb, add, (scratch, len));
+                self.aux.col_sums(rec, (&g[a], 0), (grads, l.bias), n, wc, true, &bufs.col_scratch);
+                let d_bottleneck = Operand::strided(&bufs.d_heads, 1, hw);
+                let kt = Operand::t(params, l.kernel);
+                self.matmul.encode(rec, (n, wc, w), dz, kt, d_bottleneck, Epilogue::default());
                 self.aux.group_sums(rec, &g[a], &bufs.view_rows, bufs.n_rays, wc, bufs.samples_per_ray());
-                let (scratch, len) = &bufs.split_scratch;
                 self.matmul.encode_split(
                     rec,
                     (c.view_dim, bufs.n_rays, wc),
                     Operand::t(&bufs.view, 0),
                     Operand::new(&bufs.view_rows, 0),
                     Operand::new(grads, l.kernel + w * wc),
-                    Epilogue { accumulate: true, ..Epilogue::default() },
-                    (scratch, *len),
+                    add,
+                    (scratch, len),
                 );
             }
         }
-        // g[b] = d bottleneck; heads read the top parts; their input gradient goes to g[z], the
-        // ReLU backward applied with the second head's sum.
-        let z = 3 - a - b;
+        // Both heads, one product: the gradient [d density | d bottleneck] (the density part
+        // written by rendering) against the packed kernels; the packed gradient is added back to
+        // the two layers'. The input gradient goes to g[z] with the ReLU backward of the trunk.
         let top = self.top_parts(shape, bufs);
-        self.dense_backward(rec, params, grads, &ls[d + 1], &top, n, &g[b], to(&g[z], false), bufs);
-        let both = Some(InputGrad { out: &g[z], accumulate: true, relu: true });
-        self.dense_backward(rec, params, grads, &ls[d], &top, n, d_raw_density, both, bufs);
-        let (mut cur, mut other) = (z, a);
+        let t = ls[d].fan_in;
+        let dz = Operand::new(&bufs.d_heads, 0);
+        let mut r0 = 0;
+        for &(input, width) in &top {
+            let out = Operand::new(&bufs.heads_g, r0 * hw);
+            self.matmul.encode_split(
+                rec,
+                (width, n, hw),
+                Operand::t(input, 0),
+                dz,
+                out,
+                Epilogue::default(),
+                (scratch, len),
+            );
+            r0 += width;
+        }
+        self.aux.col_sums(rec, (&bufs.d_heads, 0), (&bufs.heads_g, t * hw), n, hw, false, &bufs.col_scratch);
+        self.aux.unpack_heads_add(rec, &bufs.heads_g, grads, (ls[d].kernel, ls[d + 1].kernel), (t + 1, w));
+        let z = 0;
+        let relu = Epilogue { mask: Some((top[0].0, 0)), ..Epilogue::default() };
+        let kt = Operand::t(&bufs.heads_w, 0);
+        self.matmul.encode(rec, (n, hw, w), dz, kt, Operand::new(&g[z], 0), relu);
+        let (mut cur, mut other) = (z, 1);
         for i in (0..d).rev() {
             if i == 0 {
                 self.dense_backward(rec, params, grads, &ls[0], &[(&bufs.x, c.x_dim)], n, &g[cur], None, bufs);

@@ -134,7 +134,6 @@ pub struct ModelBuffers {
     pub ray_out: Vec<wgpu::Buffer>,
     weights: wgpu::Buffer,
     d_rgb: wgpu::Buffer,
-    d_density: wgpu::Buffer,
 }
 
 impl ModelBuffers {
@@ -167,7 +166,6 @@ impl ModelBuffers {
             ray_out: (0..levels).map(|l| nan(&format!("ray outputs level {l}"), n_rays * 8)).collect(),
             weights: nan("weights", n),
             d_rgb: nan("d raw rgb", n * 3),
-            d_density: nan("d raw density", n),
         })
     }
 
@@ -190,22 +188,22 @@ impl ModelBuffers {
         let cfg = &model.config();
         let s = cfg.num_samples;
         let widest = c.net_width.max(c.net_width_condition).max(3);
+        // Encodings, trunk, the heads and their gradient, colour layers, raw colours, gradient
+        // scratch, weights, colour gradients.
         let per_sample = c.x_dim
             + c.net_depth * c.net_width
-            + c.net_width
+            + 2 * (c.net_width + 1)
             + c.net_depth_condition * c.net_width_condition
             + 3
-            + 1
             + 3 * widest
             + 1
-            + 3
-            + 1;
-        // The bias gradients' partial sums: one row of `widest` per 256 samples.
+            + 3;
+        // The bias gradients' partial sums: one row of `widest + 1` per 256 samples.
         let per_ray = s * per_sample
             + c.view_dim
             + c.net_width_condition
             + cfg.num_levels * (s + 1 + 8)
-            + (s * widest).div_ceil(256);
+            + (s * (widest + 1)).div_ceil(256);
         per_ray as u64 * 4
     }
 
@@ -221,7 +219,9 @@ impl ModelBuffers {
     #[must_use]
     pub fn bytes_for(model: &Model, n_rays: usize) -> u64 {
         let n = n_rays * model.config().num_samples;
-        Self::bytes_per_ray(model) * n_rays as u64 + 4 * MlpBuffers::split_scratch_len(&model.mlps()[0], n) as u64
+        let shape = &model.mlps()[0];
+        let packed_heads = 2 * (shape.layers[shape.config.net_depth].fan_in + 1) * (shape.config.net_width + 1);
+        Self::bytes_per_ray(model) * n_rays as u64 + 4 * (MlpBuffers::split_scratch_len(shape, n) + packed_heads) as u64
     }
 
     /// Makes the next passes use the first `n` rays (a chunk's tail).
@@ -241,7 +241,7 @@ impl ModelBuffers {
     #[must_use]
     pub fn bytes(&self) -> u64 {
         let mut b = self.mlp.bytes();
-        for buf in self.t_vals.iter().chain(&self.ray_out).chain([&self.weights, &self.d_rgb, &self.d_density]) {
+        for buf in self.t_vals.iter().chain(&self.ray_out).chain([&self.weights, &self.d_rgb]) {
             b += buf.size();
         }
         b
@@ -339,24 +339,25 @@ impl GpuModel {
             self.mlp.forward(rec, shape, params, bufs);
             let rb = RenderBuffers {
                 raw_rgb: &bufs.raw_rgb,
-                raw_density: &bufs.raw_density,
+                raw_density: bufs.raw_density().0,
                 t_vals: &t[level],
                 rays: &batch.rays,
                 targets: &batch.targets,
                 weights: &work.weights,
                 d_raw_rgb: &work.d_rgb,
-                d_raw_density: &work.d_density,
+                d_raw_density: bufs.d_raw_density().0,
                 ray_out: &work.ray_out[level],
                 norm: &batch.norm,
             };
             let mut rp = RenderParams::new(c, nr, level_w[level], grads.is_some());
+            rp.density_stride = bufs.raw_density().1 as u32;
             rp.first_ray = batch.first_ray;
             if randomized && c.density_noise > 0.0 {
                 rp = rp.with_density_noise(c.density_noise, seed, step, level as u32);
             }
             self.render.encode(rec, rp, &rb)?;
             if let Some(g) = grads {
-                self.mlp.backward(rec, shape, params, bufs, &work.d_rgb, &work.d_density, g);
+                self.mlp.backward(rec, shape, params, bufs, &work.d_rgb, g);
             }
         }
         Ok(())

@@ -167,13 +167,21 @@ fn mlp_forward_and_backward_match_cpu_reference() {
             let p = ctx.storage_buffer("params", &params, true);
             let g = ctx.storage_buffer("grads", &vec![0.0f32; shape.num_params], true);
             let dr = ctx.storage_buffer("d rgb", &d_rgb, false);
-            let dd = ctx.storage_buffer("d density", &d_density, false);
+            // The density gradient goes where rendering writes it: column 0 of the heads'
+            // gradient (the other columns stay NaN: the backward pass must write them first).
+            let (dd, stride) = bufs.d_raw_density();
+            let mut strided = vec![f32::NAN; n * stride];
+            for (k, v) in d_density.iter().enumerate() {
+                strided[k * stride] = *v;
+            }
+            ctx.queue.write_buffer(dd, 0, bytemuck::cast_slice(&strided));
             let mut rec = Recorder::new(&ctx, "mlp test");
             gpu.forward(&mut rec, &shape, &p, &bufs);
-            gpu.backward(&mut rec, &shape, &p, &bufs, &dr, &dd, &g);
+            gpu.backward(&mut rec, &shape, &p, &bufs, &dr, &g);
             let _ = rec.submit();
             let rgb = ctx.read_f32(&bufs.raw_rgb, n * 3).unwrap();
-            let density = ctx.read_f32(&bufs.raw_density, n).unwrap();
+            let (heads, stride) = bufs.raw_density();
+            let density: Vec<f32> = ctx.read_f32(heads, n * stride).unwrap().iter().step_by(stride).copied().collect();
             let grads = ctx.read_f32(&g, shape.num_params).unwrap();
             let tag = format!("{variant:?} shape {ci}");
             bad.extend(mismatches(

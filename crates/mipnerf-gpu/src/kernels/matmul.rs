@@ -57,8 +57,8 @@ pub struct Operand<'a> {
     pub offset: u32,
     /// Stored transposed.
     pub transposed: bool,
-    /// Elements between consecutive rows; 0: packed (the row length). Honoured for A stored as
-    /// used and for C.
+    /// Elements between consecutive stored rows; 0: packed (the stored row length). Honoured for
+    /// A and C.
     pub stride: u32,
 }
 
@@ -79,9 +79,14 @@ impl<'a> Operand<'a> {
     pub fn strided(buffer: &'a wgpu::Buffer, offset: usize, stride: usize) -> Self {
         Self { buffer, offset: offset as u32, transposed: false, stride: stride as u32 }
     }
+    /// [`strided`](Self::strided), used transposed.
+    #[must_use]
+    pub fn strided_t(buffer: &'a wgpu::Buffer, offset: usize, stride: usize) -> Self {
+        Self { buffer, offset: offset as u32, transposed: true, stride: stride as u32 }
+    }
 }
 
-/// The row stride of an operand whose packed rows would be `len` long.
+/// The stored row stride of an operand whose packed stored rows would be `len` long.
 fn ld(op: &Operand<'_>, len: usize) -> u32 {
     if op.stride == 0 { len as u32 } else { op.stride }
 }
@@ -270,7 +275,6 @@ impl MatmulKernel {
         c: Operand<'_>,
         epi: Epilogue<'_>,
     ) {
-        debug_assert!(!(a.transposed && a.stride != 0), "a stride for A stored as used only");
         let (mask, mask_off, rows_per_group) = epi.extra(a.buffer);
         let params = MatmulParams {
             m: m as u32,
@@ -286,7 +290,7 @@ impl MatmulKernel {
             groups_x: 0,
             mask_off,
             rows_per_group,
-            a_ld: ld(&a, k),
+            a_ld: ld(&a, if a.transposed { m } else { k }),
             c_ld: ld(&c, n),
             _pad: 0,
         };
@@ -328,7 +332,7 @@ impl MatmulKernel {
             groups_x: 0,
             mask_off: 0,
             rows_per_group: 1,
-            a_ld: ld(&a, k),
+            a_ld: ld(&a, if a.transposed { m } else { k }),
             c_ld: n as u32,
             _pad: 0,
         };

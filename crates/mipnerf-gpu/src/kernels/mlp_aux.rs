@@ -34,6 +34,8 @@ pub struct MlpAuxKernels {
     col_sums: wgpu::ComputePipeline,
     col_sums_partial: wgpu::ComputePipeline,
     group_sums: wgpu::ComputePipeline,
+    pack_heads: wgpu::ComputePipeline,
+    unpack_heads_add: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
 }
 
@@ -43,10 +45,10 @@ impl MlpAuxKernels {
     /// # Errors
     /// If the device rejects them.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        let entries = ["col_sums", "col_sums_partial", "group_sums"];
-        let ([col_sums, col_sums_partial, group_sums], layout) =
+        let entries = ["col_sums", "col_sums_partial", "group_sums", "pack_heads", "unpack_heads_add"];
+        let ([col_sums, col_sums_partial, group_sums, pack_heads, unpack_heads_add], layout) =
             kernels::build_entries(ctx, "mlp_aux", SOURCE, &[true, false], entries)?;
-        Ok(Self { col_sums, col_sums_partial, group_sums, layout })
+        Ok(Self { col_sums, col_sums_partial, group_sums, pack_heads, unpack_heads_add, layout })
     }
 
     fn run(
@@ -125,6 +127,51 @@ impl MlpAuxKernels {
     ) {
         let params = AuxParams { rows: rows as u32, cols: cols as u32, count: rep as u32, ..AuxParams::default() };
         self.run(rec, &self.group_sums, rows * cols, params, x, out);
+    }
+}
+
+impl MlpAuxKernels {
+    /// Packs the density layer (`(rows) x 1` at `density` of `params`, bias last) and the
+    /// bottleneck layer (`rows x cols` at `bottleneck`) into `out` as one `rows x (cols + 1)`
+    /// matrix `[density | bottleneck]`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn pack_heads(
+        &self,
+        rec: &mut Recorder<'_>,
+        params: &wgpu::Buffer,
+        (density, bottleneck): (usize, usize),
+        out: &wgpu::Buffer,
+        rows: usize,
+        cols: usize,
+    ) {
+        let params_ = AuxParams {
+            rows: rows as u32,
+            cols: cols as u32,
+            x_off: density as u32,
+            y_off: bottleneck as u32,
+            ..AuxParams::default()
+        };
+        self.run(rec, &self.pack_heads, rows * (cols + 1), params_, params, out);
+    }
+
+    /// Adds the packed heads' gradient `packed` (`rows x (cols + 1)`) to the density layer's
+    /// gradient at `density` of `grads` and the bottleneck layer's at `bottleneck`.
+    pub fn unpack_heads_add(
+        &self,
+        rec: &mut Recorder<'_>,
+        packed: &wgpu::Buffer,
+        grads: &wgpu::Buffer,
+        (density, bottleneck): (usize, usize),
+        (rows, cols): (usize, usize),
+    ) {
+        let params = AuxParams {
+            rows: rows as u32,
+            cols: cols as u32,
+            out_off: density as u32,
+            y_off: bottleneck as u32,
+            ..AuxParams::default()
+        };
+        self.run(rec, &self.unpack_heads_add, rows * (cols + 1), params, packed, grads);
     }
 }
 

@@ -24,8 +24,9 @@ pub struct RenderParams {
     pub rgb_padding: f32,
     /// Loss weight of the level.
     pub level_weight: f32,
-    /// Padding (the loss's denominator is in [`RenderBuffers::norm`]).
-    pub _pad0: u32,
+    /// Elements between consecutive samples' raw densities (and their gradients): 1, or the row
+    /// length of the fused heads `[density | bottleneck]`.
+    pub density_stride: u32,
     /// 1: compute the loss gradient.
     pub train: u32,
     /// 1: weight rays by lossmult.
@@ -60,7 +61,7 @@ impl RenderParams {
             density_bias: cfg.density_bias,
             rgb_padding: cfg.rgb_padding,
             level_weight,
-            _pad0: 0,
+            density_stride: 1,
             train: u32::from(train),
             area_loss: u32::from(cfg.area_loss),
             groups_x: 0,
@@ -179,6 +180,7 @@ super::wgsl_struct!(
         density_bias,
         rgb_padding,
         level_weight,
+        density_stride,
         train,
         area_loss,
         groups_x,
