@@ -209,3 +209,146 @@ fn pixel_backward(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     backward_ray(r, p.level_weight * 2.0 * lossmult * err / batch_norm[0] * inv);
 }
+
+// `main` with RAY_LANES invocations per ray (one workgroup per ray, for hardware GPUs, where one
+// invocation per ray leaves most of the device idle at a few thousand rays): lane l takes a
+// contiguous block of the ray's samples. The prefix sums of density x delta (forward) and the
+// suffix sums of the colour gradient (backward) are sums within each block plus, in lane order,
+// the blocks before (after) it; lane 0 adds the lanes' partial colours in lane order. The same
+// maths as `main`, with the sums grouped by block.
+const RAY_LANES: u32 = 32u;
+var<workgroup> lane_sum: array<f32, 32>;
+var<workgroup> lane_rgb: array<vec3<f32>, 32>;
+var<workgroup> lane_acc: array<f32, 32>;
+var<workgroup> lane_dist: array<f32, 32>;
+var<workgroup> ray_d_col: vec3<f32>;
+
+// Replaces lane_sum with its exclusive prefix sums (from the first lane, or from the last when
+// `from_end`), summed in lane order by lane 0.
+fn scan_lanes(lane: u32, from_end: bool) {
+    workgroupBarrier();
+    if (lane == 0u) {
+        var run = 0.0;
+        for (var j = 0u; j < RAY_LANES; j = j + 1u) {
+            var l = j;
+            if (from_end) {
+                l = RAY_LANES - 1u - j;
+            }
+            let v = lane_sum[l];
+            lane_sum[l] = run;
+            run = run + v;
+        }
+    }
+    workgroupBarrier();
+}
+
+@compute @workgroup_size(32)
+fn main_wide(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) lane: u32) {
+    let r = wg.y * p.groups_x + wg.x;
+    if (r >= p.n_rays) {
+        return;
+    }
+    let s_n = p.n_samples;
+    let per = (s_n + RAY_LANES - 1u) / RAY_LANES;
+    let i0 = min(lane * per, s_n);
+    let i1 = min(i0 + per, s_n);
+    let base = r * s_n;
+    let tb = r * (s_n + 1u);
+    let dir = rays[2u * r + 1u];
+    let dir_norm = length(dir.xyz);
+    let lossmult = select(1.0, dir.w, p.area_loss != 0u);
+    let noise_key = density_noise_key(r);
+    let bg = select(0.0, 1.0, p.white_bkgd != 0u);
+    var local = 0.0;
+    for (var i = i0; i < i1; i = i + 1u) {
+        let delta = (t_vals[tb + i + 1u] - t_vals[tb + i]) * dir_norm;
+        local = local + density_of(raw_den(base + i, noise_key, i)) * delta;
+    }
+    lane_sum[lane] = local;
+    scan_lanes(lane, false);
+    var cum = lane_sum[lane];
+    var colour = vec3<f32>(0.0);
+    var acc = 0.0;
+    var dist_num = 0.0;
+    for (var i = i0; i < i1; i = i + 1u) {
+        let k = base + i;
+        let t0 = t_vals[tb + i];
+        let t1 = t_vals[tb + i + 1u];
+        let delta = (t1 - t0) * dir_norm;
+        let dd = density_of(raw_den(k, noise_key, i)) * delta;
+        let alpha = 1.0 - exp(-dd);
+        let trans = exp(-cum);
+        cum = cum + dd;
+        let w = alpha * trans;
+        weights[k] = w;
+        let rgb = vec3<f32>(sigmoid(raw_rgb[3u * k]), sigmoid(raw_rgb[3u * k + 1u]), sigmoid(raw_rgb[3u * k + 2u])) * (1.0 + 2.0 * p.rgb_padding) - p.rgb_padding;
+        colour = colour + w * rgb;
+        acc = acc + w;
+        dist_num = dist_num + w * 0.5 * (t0 + t1);
+        // Keep T_{i+1} for the backward pass in the density-gradient slot.
+        d_raw_density[k * p.density_stride] = exp(-cum);
+    }
+    lane_rgb[lane] = colour;
+    lane_acc[lane] = acc;
+    lane_dist[lane] = dist_num;
+    workgroupBarrier();
+    if (lane == 0u) {
+        var col = vec3<f32>(0.0);
+        var ac = 0.0;
+        var dn = 0.0;
+        for (var j = 0u; j < RAY_LANES; j = j + 1u) {
+            col = col + lane_rgb[j];
+            ac = ac + lane_acc[j];
+            dn = dn + lane_dist[j];
+        }
+        ac = min(ac, 1.0);
+        var dist = 0.0;
+        if (ac > 0.0) {
+            dist = dn / ac;
+        }
+        dist = clamp(dist, t_vals[tb], t_vals[tb + s_n]);
+        col = col + bg * (1.0 - ac);
+        ray_out[2u * r] = vec4<f32>(col, dist);
+        if (p.supersample > 1u) {
+            ray_out[2u * r + 1u] = vec4<f32>(ac, 0.0, 0.0, 0.0);
+        } else {
+            let err = col - targets[r].xyz;
+            let se = dot(err, err);
+            ray_out[2u * r + 1u] = vec4<f32>(ac, lossmult * se, se, 0.0);
+            ray_d_col = p.level_weight * 2.0 * lossmult * err / batch_norm[0];
+        }
+    }
+    if (p.supersample > 1u || p.train == 0u) {
+        return;
+    }
+    // Backward: suffix_i = sum over j > i of g_j w_j, with g_j = d_col . (rgb_j - bg).
+    workgroupBarrier();
+    let d_col = ray_d_col;
+    local = 0.0;
+    for (var i = i0; i < i1; i = i + 1u) {
+        let k = base + i;
+        let sg = vec3<f32>(sigmoid(raw_rgb[3u * k]), sigmoid(raw_rgb[3u * k + 1u]), sigmoid(raw_rgb[3u * k + 2u]));
+        let rgb = sg * (1.0 + 2.0 * p.rgb_padding) - p.rgb_padding;
+        local = local + dot(d_col, rgb - vec3<f32>(bg)) * weights[k];
+    }
+    lane_sum[lane] = local;
+    scan_lanes(lane, true);
+    var suffix = lane_sum[lane];
+    for (var j = i0; j < i1; j = j + 1u) {
+        let i = i1 - 1u - (j - i0);
+        let k = base + i;
+        let raw = vec3<f32>(raw_rgb[3u * k], raw_rgb[3u * k + 1u], raw_rgb[3u * k + 2u]);
+        let sg = vec3<f32>(sigmoid(raw.x), sigmoid(raw.y), sigmoid(raw.z));
+        let rgb = sg * (1.0 + 2.0 * p.rgb_padding) - p.rgb_padding;
+        let w = weights[k];
+        let g = dot(d_col, rgb - vec3<f32>(bg));
+        let ds = g * d_raw_density[k * p.density_stride] - suffix;
+        suffix = suffix + g * w;
+        let delta = (t_vals[tb + i + 1u] - t_vals[tb + i]) * dir_norm;
+        d_raw_density[k * p.density_stride] = ds * delta * density_derivative(raw_den(k, noise_key, i));
+        let d_rgb = w * d_col * sg * (1.0 - sg) * (1.0 + 2.0 * p.rgb_padding);
+        d_raw_rgb[3u * k] = d_rgb.x;
+        d_raw_rgb[3u * k + 1u] = d_rgb.y;
+        d_raw_rgb[3u * k + 2u] = d_rgb.z;
+    }
+}

@@ -216,16 +216,23 @@ const TOL_GPU_RENDER_ABS: f32 = 1e-6;
 fn render_forward_loss_and_backward_match_cpu_reference() {
     use mipnerf_core::model::ModelConfig;
     use mipnerf_core::render::{self, DensityActivation};
-    use mipnerf_gpu::kernels::render::{RenderBuffers, RenderKernel, RenderParams};
+    use mipnerf_gpu::kernels::render::{RenderBuffers, RenderKernel, RenderParams, RenderVariant};
     use rand::{Rng, SeedableRng, rngs::SmallRng};
     let Some(ctx) = context_or_skip("render_forward_loss_and_backward_match_cpu_reference") else { return };
-    let kernel = RenderKernel::new(&ctx).unwrap();
     let mut bad = Vec::new();
-    for (ci, (act, white, area)) in
-        [(DensityActivation::Softplus, true, true), (DensityActivation::Relu, false, false)].into_iter().enumerate()
+    // Both entry points, whatever the adapter would pick; 12 samples (fewer than the wide
+    // kernel's 32 lanes: empty blocks) and 75 (blocks of 3, the last lanes short or empty).
+    for (variant, (ci, (act, white, area, samples))) in
+        [RenderVariant::PerRay, RenderVariant::Wide].into_iter().flat_map(|v| {
+            [(DensityActivation::Softplus, true, true, 12), (DensityActivation::Relu, false, false, 75)]
+                .into_iter()
+                .enumerate()
+                .map(move |c| (v, c))
+        })
     {
+        let kernel = RenderKernel::with_variant(&ctx, variant).unwrap();
         let cfg = ModelConfig {
-            num_samples: 12,
+            num_samples: samples,
             density_activation: act,
             density_bias: if act == DensityActivation::Softplus { -1.0 } else { 0.0 },
             white_bkgd: white,
@@ -327,7 +334,7 @@ fn render_forward_loss_and_backward_match_cpu_reference() {
         };
         kernel.encode(&mut rec, RenderParams::new(&cfg, nr, level_weight, true), &rb).unwrap();
         let _ = rec.submit();
-        let tag = format!("case {ci}");
+        let tag = format!("{variant:?} case {ci}");
         bad.extend(mismatches(
             &format!("{tag} weights"),
             &ctx.read_f32(&b_w, n).unwrap(),

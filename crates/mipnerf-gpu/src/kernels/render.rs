@@ -111,12 +111,35 @@ pub struct RenderBuffers<'a> {
     pub norm: &'a wgpu::Buffer,
 }
 
-/// The compiled render pipelines: `main` (per ray) and `pixel_backward` (supersampling).
+/// Which entry point renders the rays. Both compute the same maths; they group the sums over a
+/// ray's samples differently (rounding only).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RenderVariant {
+    /// `main`: one invocation per ray, for software adapters (lavapipe emulates workgroup memory
+    /// and barriers per lane).
+    PerRay,
+    /// `main_wide`: a workgroup of 32 invocations per ray, each a block of its samples, with the
+    /// prefix and suffix sums across blocks in lane order: for hardware GPUs, where a few
+    /// thousand rays of one invocation each would leave most of the device idle.
+    Wide,
+}
+
+impl RenderVariant {
+    /// The variant for `ctx`'s adapter.
+    #[must_use]
+    pub fn for_adapter(ctx: &GpuContext) -> Self {
+        if ctx.adapter.is_software { Self::PerRay } else { Self::Wide }
+    }
+}
+
+/// The compiled render pipelines: `main` or `main_wide` (the rays) and `pixel_backward`
+/// (supersampling).
 #[derive(Debug)]
 pub struct RenderKernel {
     pipeline: wgpu::ComputePipeline,
     pixel_backward: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
+    variant: RenderVariant,
 }
 
 impl RenderKernel {
@@ -125,10 +148,22 @@ impl RenderKernel {
     /// # Errors
     /// If the device rejects it.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
+        Self::with_variant(ctx, RenderVariant::for_adapter(ctx))
+    }
+
+    /// Compiles `variant`.
+    ///
+    /// # Errors
+    /// If the device rejects it.
+    pub fn with_variant(ctx: &GpuContext, variant: RenderVariant) -> Result<Self, GpuError> {
         let read_only = [true, true, true, true, true, false, false, false, false, true];
+        let entry = match variant {
+            RenderVariant::PerRay => "main",
+            RenderVariant::Wide => "main_wide",
+        };
         let ([pipeline, pixel_backward], layout) =
-            kernels::build_entries(ctx, "render", SOURCE, &read_only, ["main", "pixel_backward"])?;
-        Ok(Self { pipeline, pixel_backward, layout })
+            kernels::build_entries(ctx, "render", SOURCE, &read_only, [entry, "pixel_backward"])?;
+        Ok(Self { pipeline, pixel_backward, layout, variant })
     }
 
     /// Records one pass over `params.n_rays` rays; with supersampling, also the per-pixel loss
@@ -147,7 +182,11 @@ impl RenderKernel {
         if !params.n_rays.is_multiple_of(kk) {
             return Err(GpuError::InvalidInput(format!("{} rays in pixels of {kk} rays", params.n_rays)));
         }
-        let (gx, gy) = kernels::dispatch_grid(u64::from(params.n_rays), kernels::WORKGROUP)?;
+        let per_group = match self.variant {
+            RenderVariant::PerRay => kernels::WORKGROUP,
+            RenderVariant::Wide => 1,
+        };
+        let (gx, gy) = kernels::dispatch_grid(u64::from(params.n_rays), per_group)?;
         params.groups_x = gx;
         let bufs = [
             b.raw_rgb,
@@ -163,7 +202,10 @@ impl RenderKernel {
         ];
         rec.dispatch("render", &self.pipeline, &self.layout, &params, &bufs, (gx, gy, 1));
         if kk > 1 {
-            rec.dispatch("render pixels", &self.pixel_backward, &self.layout, &params, &bufs, (gx, gy, 1));
+            // One invocation per ray.
+            let (px, py) = kernels::dispatch_grid(u64::from(params.n_rays), kernels::WORKGROUP)?;
+            let pp = RenderParams { groups_x: px, ..params };
+            rec.dispatch("render pixels", &self.pixel_backward, &self.layout, &pp, &bufs, (px, py, 1));
         }
         Ok(())
     }
