@@ -154,3 +154,135 @@ fn resample(@builtin(global_invocation_id) gid: vec3<u32>) {
         t_out[tb + i] = v;
     }
 }
+
+// `resample` with RESAMPLE_LANES invocations per ray (one workgroup per ray, for hardware GPUs):
+// lane l takes a contiguous block of the coarse weights, then of the outputs. The weights' sum
+// and the CDF's running sums are sums within each block plus, in lane order, the blocks before
+// it; each output's CDF interval is found by binary search (the same count of entries <= u as
+// `resample`'s merge), and the running maximum that keeps the edges sorted is the maximum within
+// the block and over the blocks before it (exact: the same edges as in one pass).
+const RESAMPLE_LANES: u32 = 32u;
+var<workgroup> w_cdf: array<f32, 1025>;
+var<workgroup> w_lane: array<f32, 32>;
+var<workgroup> w_total: f32;
+
+// Replaces w_lane with its exclusive prefix sums, in lane order (by lane 0).
+fn scan_resample_lanes(lane: u32) {
+    workgroupBarrier();
+    if (lane == 0u) {
+        var run = 0.0;
+        for (var j = 0u; j < RESAMPLE_LANES; j = j + 1u) {
+            let v = w_lane[j];
+            w_lane[j] = run;
+            run = run + v;
+        }
+        w_total = run;
+    }
+    workgroupBarrier();
+}
+
+@compute @workgroup_size(32)
+fn resample_wide(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) lane: u32) {
+    let r = wg.y * p.groups_x + wg.x;
+    if (r >= p.n_rays) {
+        return;
+    }
+    let nw = p.n_samples;
+    let n_out = nw + 1u;
+    let tb = r * (nw + 1u);
+    let wb = r * nw;
+    let per = (nw + RESAMPLE_LANES - 1u) / RESAMPLE_LANES;
+    let i0 = min(lane * per, nw);
+    let i1 = min(i0 + per, nw);
+    // Blurred weights into w_cdf[i + 1], and their sum.
+    var local = 0.0;
+    for (var i = i0; i < i1; i = i + 1u) {
+        let ii = i32(i);
+        let m0 = max(coarse_weight(wb, nw, ii - 1), coarse_weight(wb, nw, ii));
+        let m1 = max(coarse_weight(wb, nw, ii), coarse_weight(wb, nw, ii + 1));
+        let blurred = 0.5 * (m0 + m1) + p.resample_padding;
+        w_cdf[i + 1u] = blurred;
+        local = local + blurred;
+    }
+    w_lane[lane] = local;
+    scan_resample_lanes(lane);
+    var weight_sum = w_total;
+    let padding = max(PDF_WEIGHT_EPS - weight_sum, 0.0);
+    let per_weight = padding / f32(nw);
+    weight_sum = weight_sum + padding;
+    // The CDF's running sums over entries 1..nw - 1 (0 first, 1 last).
+    let j1 = min(i1, nw - 1u);
+    local = 0.0;
+    for (var i = i0; i < j1; i = i + 1u) {
+        local = local + (w_cdf[i + 1u] + per_weight) / weight_sum;
+    }
+    // Every lane has read its blurred weights' sum before the scan's first barrier.
+    w_lane[lane] = local;
+    scan_resample_lanes(lane);
+    var acc = w_lane[lane];
+    for (var i = i0; i < j1; i = i + 1u) {
+        acc = acc + (w_cdf[i + 1u] + per_weight) / weight_sum;
+        w_cdf[i + 1u] = min(acc, 1.0);
+    }
+    if (lane == 0u) {
+        w_cdf[0] = 0.0;
+        w_cdf[nw] = 1.0;
+    }
+    workgroupBarrier();
+    // The outputs: this lane's block, each from its own CDF interval.
+    let key = ray_key(STREAM_RESAMPLE_OFFSETS, ray_level_index(p.first_ray + r, p.level));
+    let per_out = (n_out + RESAMPLE_LANES - 1u) / RESAMPLE_LANES;
+    let o0 = min(lane * per_out, n_out);
+    let o1 = min(o0 + per_out, n_out);
+    var run_max = -3.4e38;
+    for (var i = o0; i < o1; i = i + 1u) {
+        var u: f32;
+        if (p.randomized != 0u) {
+            let s = 1.0 / f32(n_out);
+            u = min(f32(i) * s + uniform01(key, i) * (s - F32_EPS), 1.0 - F32_EPS);
+        } else if (i + 1u == n_out) {
+            u = 1.0 - F32_EPS;
+        } else {
+            let s = f32(i) / f32(n_out - 1u);
+            u = (1.0 - F32_EPS) * s;
+        }
+        // k = number of CDF entries <= u (the CDF is sorted): binary search over 0..=nw.
+        var lo = 0u;
+        var hi = nw + 1u;
+        while (lo < hi) {
+            let mid = (lo + hi) / 2u;
+            if (w_cdf[mid] <= u) {
+                lo = mid + 1u;
+            } else {
+                hi = mid;
+            }
+        }
+        let k = lo;
+        let i_lo = max(k, 1u) - 1u;
+        let i_hi = min(k, nw);
+        let c0 = w_cdf[i_lo];
+        let c1 = w_cdf[i_hi];
+        let num = u - c0;
+        let den = c1 - c0;
+        var t = select(0.0, 1.0, num > 0.0);
+        if (den > 0.0) {
+            t = num / den;
+        }
+        t = clamp(t, 0.0, 1.0);
+        let b0 = src_a[tb + i_lo];
+        let b1 = src_a[tb + i_hi];
+        run_max = max(b0 + t * (b1 - b0), run_max);
+        t_out[tb + i] = run_max;
+    }
+    // The running maximum over the blocks before this one, then applied to this block.
+    workgroupBarrier();
+    w_lane[lane] = run_max;
+    workgroupBarrier();
+    var before = -3.4e38;
+    for (var j = 0u; j < lane; j = j + 1u) {
+        before = max(before, w_lane[j]);
+    }
+    for (var i = o0; i < o1; i = i + 1u) {
+        t_out[tb + i] = max(t_out[tb + i], before);
+    }
+}

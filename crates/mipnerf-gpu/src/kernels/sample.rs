@@ -37,12 +37,32 @@ pub struct SampleParams {
     pub _pad: [u32; 2],
 }
 
-/// The two pipelines of `sample.wgsl`.
+/// How the fine edges are resampled. Both give the same edges up to the rounding of the sums
+/// over a ray's weights (grouped by block in `Wide`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ResampleVariant {
+    /// `resample`: one invocation per ray, for software adapters.
+    PerRay,
+    /// `resample_wide`: a workgroup of 32 invocations per ray (blocks of weights and outputs,
+    /// binary searches in a CDF held in workgroup memory), for hardware GPUs.
+    Wide,
+}
+
+impl ResampleVariant {
+    /// The variant for `ctx`'s adapter.
+    #[must_use]
+    pub fn for_adapter(ctx: &GpuContext) -> Self {
+        if ctx.adapter.is_software { Self::PerRay } else { Self::Wide }
+    }
+}
+
+/// The pipelines of `sample.wgsl`.
 #[derive(Debug)]
 pub struct SampleKernels {
     stratified: wgpu::ComputePipeline,
     resample: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
+    variant: ResampleVariant,
 }
 
 impl SampleKernels {
@@ -51,9 +71,21 @@ impl SampleKernels {
     /// # Errors
     /// If the device rejects them.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
+        Self::with_variant(ctx, ResampleVariant::for_adapter(ctx))
+    }
+
+    /// Compiles the kernels with the resampling of `variant`.
+    ///
+    /// # Errors
+    /// If the device rejects them.
+    pub fn with_variant(ctx: &GpuContext, variant: ResampleVariant) -> Result<Self, GpuError> {
+        let entry = match variant {
+            ResampleVariant::PerRay => "resample",
+            ResampleVariant::Wide => "resample_wide",
+        };
         let ([stratified, resample], layout) =
-            kernels::build_entries(ctx, "sample", SOURCE, &[true, true, false], ["stratified", "resample"])?;
-        Ok(Self { stratified, resample, layout })
+            kernels::build_entries(ctx, "sample", SOURCE, &[true, true, false], ["stratified", entry])?;
+        Ok(Self { stratified, resample, layout, variant })
     }
 
     fn run(
@@ -69,7 +101,10 @@ impl SampleKernels {
                 params.n_samples
             )));
         }
-        let (gx, gy) = kernels::dispatch_grid(u64::from(params.n_rays), kernels::WORKGROUP)?;
+        // The wide resampling has one workgroup per ray; the rest one invocation per ray.
+        let wide = self.variant == ResampleVariant::Wide && std::ptr::eq(which, &self.resample);
+        let per_group = if wide { 1 } else { kernels::WORKGROUP };
+        let (gx, gy) = kernels::dispatch_grid(u64::from(params.n_rays), per_group)?;
         params.groups_x = gx;
         rec.dispatch("sample", which, &self.layout, &params, &bufs, (gx, gy, 1));
         Ok(())
