@@ -35,6 +35,15 @@ fn every_choice_opens_a_backend_that_trains_and_renders() {
     let auto = open_backend(BackendChoice::Auto, setup(&d)).unwrap();
     // Auto either runs on a hardware GPU or says why it did not.
     assert_eq!(auto.backend.describe().starts_with("CPU"), auto.fallback.is_some(), "{:?}", auto.fallback);
+    // Falling back for want of a hardware GPU, it names every adapter it saw and why it passed
+    // each over (issue 18, item 8).
+    let adapters = mipnerf_gpu::list_adapters();
+    if std::env::var_os("WGPU_ADAPTER_NAME").is_none() && adapters.iter().all(|a| a.is_software) {
+        let why = auto.fallback.as_deref().unwrap();
+        for (i, a) in adapters.iter().enumerate() {
+            assert!(why.contains(&format!("[{i}] {}", a.name)) && why.contains("a software adapter"), "{why}");
+        }
+    }
     let spec = ImageSpec::of_view(&d, 1, 1);
     let mut chosen = vec![cpu.backend, auto.backend];
     if mipnerf_gpu::test_support::context_or_skip("every_choice_opens_a_backend_that_trains_and_renders").is_some() {
