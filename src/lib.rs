@@ -18,7 +18,7 @@
 //! use mipnerf::core::data::{Dataset, Pixels, Split, View, demo};
 //! use mipnerf::core::model::{Model, Preset};
 //! use mipnerf::core::train::OptimConfig;
-//! use mipnerf::gpu::{BackendChoice, BackendSetup, open_backend};
+//! use mipnerf::gpu::{BackendChoice, BackendSetup, DeviceOptions, open_backend};
 //!
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! // Your images and cameras: here four 16x16 renders of the built-in demo scene, straight RGBA
@@ -38,6 +38,8 @@
 //!     seed: 0,
 //!     data: Some((Arc::clone(&data), 64)),
 //!     render_chunk: None,
+//!     // The best adapter (or the one WGPU_ADAPTER_NAME names), its memory budget from its limits.
+//!     device: DeviceOptions::default(),
 //! };
 //! let opened = open_backend(BackendChoice::Auto, setup)?;
 //! if let Some(why) = &opened.fallback {
