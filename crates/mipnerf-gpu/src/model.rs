@@ -258,19 +258,44 @@ pub struct GpuModel {
     render: RenderKernel,
 }
 
+/// The family of kernel variants a [`GpuModel`] runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum KernelSet {
+    /// Register-blocked products through workgroup memory, 32 invocations per ray for rendering
+    /// and resampling: for hardware GPUs.
+    Hardware,
+    /// Products straight from storage, one invocation per ray: for software adapters.
+    Software,
+}
+
 impl GpuModel {
-    /// Compiles every kernel.
+    /// Compiles the kernels of `set` (tests run the hardware set on lavapipe with it).
+    ///
+    /// # Errors
+    /// If the device rejects one.
+    pub fn with_kernel_set(ctx: &GpuContext, set: KernelSet) -> Result<Self, GpuError> {
+        use crate::kernels::matmul::MatmulVariant;
+        use crate::kernels::render::RenderVariant;
+        use crate::kernels::sample::ResampleVariant;
+        let (m, r, s) = match set {
+            KernelSet::Hardware => (MatmulVariant::Tiled, RenderVariant::Wide, ResampleVariant::Wide),
+            KernelSet::Software => (MatmulVariant::Blocked, RenderVariant::PerRay, ResampleVariant::PerRay),
+        };
+        Ok(Self {
+            sample: SampleKernels::with_variant(ctx, s)?,
+            cast: CastIpeKernel::new(ctx)?,
+            view: ViewEncKernel::new(ctx)?,
+            mlp: GpuMlp::with_variant(ctx, m)?,
+            render: RenderKernel::with_variant(ctx, r)?,
+        })
+    }
+
+    /// Compiles every kernel, the variants suited to the adapter.
     ///
     /// # Errors
     /// If the device rejects one.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        Ok(Self {
-            sample: SampleKernels::new(ctx)?,
-            cast: CastIpeKernel::new(ctx)?,
-            view: ViewEncKernel::new(ctx)?,
-            mlp: GpuMlp::new(ctx)?,
-            render: RenderKernel::new(ctx)?,
-        })
+        Self::with_kernel_set(ctx, if ctx.adapter.is_software { KernelSet::Software } else { KernelSet::Hardware })
     }
 
     /// Records the model on `batch`: every level's outputs into `work.ray_out`; in training

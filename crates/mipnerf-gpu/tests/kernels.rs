@@ -585,82 +585,86 @@ const TOL_GPU_MODEL_ABS: f32 = 2e-6;
 #[test]
 fn whole_model_loss_and_gradients_match_cpu_reference() {
     use mipnerf_core::model::{Mode, Model, ModelConfig, PointEncoding, Preset};
-    use mipnerf_gpu::model::GpuModel;
+    use mipnerf_gpu::model::{GpuModel, KernelSet};
     let Some(ctx) = context_or_skip("whole_model_loss_and_gradients_match_cpu_reference") else { return };
-    let gpu = GpuModel::new(&ctx).unwrap();
     let rays = test_rays(8);
     let targets: Vec<[f32; 3]> = (0..rays.len()).map(|i| [(i % 7) as f32 / 7.0, 0.4, (i % 3) as f32 / 3.0]).collect();
     let mut bad = Vec::new();
     let tiny = ModelConfig { num_samples: 16, ..Preset::Tiny.config() };
-    for (ci, (cfg, mode)) in [
-        (tiny.clone(), Mode::Train { seed: 3, step: 7 }),
-        (ModelConfig { point_encoding: PointEncoding::Mean, ..tiny.clone() }.without_misc(), Mode::Eval),
-        // The NeRF baseline: positional encoding with the identity, one MLP per level.
-        (tiny.clone().nerf(), Mode::Train { seed: 1, step: 2 }),
-        // Noise on raw density in training (the same random numbers on both sides).
-        (ModelConfig { density_noise: 1.0, ..tiny.clone() }, Mode::Train { seed: 4, step: 9 }),
-        // The supersampled NeRF: 2x2 rays per pixel, the loss on their mean.
-        (ModelConfig { supersample: 2, ..tiny.clone().nerf() }, Mode::Train { seed: 6, step: 1 }),
-    ]
-    .into_iter()
-    .enumerate()
-    {
-        let model = Model::new(cfg).unwrap();
-        let params = model.init_params(11);
-        // k x k rays per pixel of the same camera for a supersampled model.
-        let k = model.config().supersample;
-        let rays: Vec<Ray> = if k > 1 {
-            let cam = test_camera(8);
-            let mut out = Vec::new();
-            for p in 0..64u32 {
-                let bounds = (2.0, 6.0);
-                let (x, y) = (p % 8, p / 8);
-                mipnerf_core::data::push_camera_rays(
-                    &cam,
-                    x,
-                    y,
-                    PixelCenters::Centered,
-                    bounds,
-                    1.0,
-                    None,
-                    k,
-                    &mut out,
-                );
+    // Both kernel sets, whatever the adapter would pick: the hardware set runs on lavapipe too.
+    for set in [KernelSet::Software, KernelSet::Hardware] {
+        let gpu = GpuModel::with_kernel_set(&ctx, set).unwrap();
+        for (ci, (cfg, mode)) in [
+            (tiny.clone(), Mode::Train { seed: 3, step: 7 }),
+            (ModelConfig { point_encoding: PointEncoding::Mean, ..tiny.clone() }.without_misc(), Mode::Eval),
+            // The NeRF baseline: positional encoding with the identity, one MLP per level.
+            (tiny.clone().nerf(), Mode::Train { seed: 1, step: 2 }),
+            // Noise on raw density in training (the same random numbers on both sides).
+            (ModelConfig { density_noise: 1.0, ..tiny.clone() }, Mode::Train { seed: 4, step: 9 }),
+            // The supersampled NeRF: 2x2 rays per pixel, the loss on their mean.
+            (ModelConfig { supersample: 2, ..tiny.clone().nerf() }, Mode::Train { seed: 6, step: 1 }),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let model = Model::new(cfg).unwrap();
+            let params = model.init_params(11);
+            // k x k rays per pixel of the same camera for a supersampled model.
+            let k = model.config().supersample;
+            let rays: Vec<Ray> = if k > 1 {
+                let cam = test_camera(8);
+                let mut out = Vec::new();
+                for p in 0..64u32 {
+                    let bounds = (2.0, 6.0);
+                    let (x, y) = (p % 8, p / 8);
+                    mipnerf_core::data::push_camera_rays(
+                        &cam,
+                        x,
+                        y,
+                        PixelCenters::Centered,
+                        bounds,
+                        1.0,
+                        None,
+                        k,
+                        &mut out,
+                    );
+                }
+                out
+            } else {
+                rays.clone()
+            };
+            let mut cpu_grads = vec![0.0; model.num_params()];
+            let cpu = model.loss_and_grad(&params, &rays, &targets, mode, &mut cpu_grads);
+            let (g_stats, g_grads) = gpu.loss_and_grad(&ctx, &model, &params, &rays, &targets, mode).unwrap();
+            if model.config().density_noise > 0.0 {
+                // The case is only meaningful if the noise moves the loss well beyond the tolerance.
+                let quiet = Model::new(ModelConfig { density_noise: 0.0, ..model.config().clone() }).unwrap();
+                let plain = quiet.loss_and_grad(&params, &rays, &targets, mode, &mut vec![0.0; model.num_params()]);
+                assert!((plain.loss - cpu.loss).abs() > 20.0 * TOL_GPU_MODEL_REL * cpu.loss, "noise changes nothing");
             }
-            out
-        } else {
-            rays.clone()
-        };
-        let mut cpu_grads = vec![0.0; model.num_params()];
-        let cpu = model.loss_and_grad(&params, &rays, &targets, mode, &mut cpu_grads);
-        let (g_stats, g_grads) = gpu.loss_and_grad(&ctx, &model, &params, &rays, &targets, mode).unwrap();
-        if model.config().density_noise > 0.0 {
-            // The case is only meaningful if the noise moves the loss well beyond the tolerance.
-            let quiet = Model::new(ModelConfig { density_noise: 0.0, ..model.config().clone() }).unwrap();
-            let plain = quiet.loss_and_grad(&params, &rays, &targets, mode, &mut vec![0.0; model.num_params()]);
-            assert!((plain.loss - cpu.loss).abs() > 20.0 * TOL_GPU_MODEL_REL * cpu.loss, "noise changes nothing");
+            eprintln!("{set:?} case {ci}: cpu losses {:?} gpu {:?}", cpu.losses, g_stats.losses);
+            let ci = format!("{set:?} {ci}");
+            bad.extend(mismatches(
+                &format!("case {ci} losses"),
+                &g_stats.losses,
+                &cpu.losses,
+                Tolerance::new(TOL_GPU_MODEL_ABS, TOL_GPU_MODEL_REL),
+            ));
+            bad.extend(mismatches(
+                &format!("case {ci} mse"),
+                &g_stats.mse,
+                &cpu.mse,
+                Tolerance::new(TOL_GPU_MODEL_ABS, TOL_GPU_MODEL_REL),
+            ));
+            // Gradients: compare relative to the gradient's overall scale.
+            let scale = cpu_grads.iter().fold(0.0f32, |m, g| m.max(g.abs()));
+            bad.extend(mismatches(
+                &format!("case {ci} grads"),
+                &g_grads,
+                &cpu_grads,
+                Tolerance::new(TOL_GPU_MODEL_REL * scale, TOL_GPU_MODEL_REL),
+            ));
         }
-        eprintln!("case {ci}: cpu losses {:?} gpu {:?}", cpu.losses, g_stats.losses);
-        bad.extend(mismatches(
-            &format!("case {ci} losses"),
-            &g_stats.losses,
-            &cpu.losses,
-            Tolerance::new(TOL_GPU_MODEL_ABS, TOL_GPU_MODEL_REL),
-        ));
-        bad.extend(mismatches(
-            &format!("case {ci} mse"),
-            &g_stats.mse,
-            &cpu.mse,
-            Tolerance::new(TOL_GPU_MODEL_ABS, TOL_GPU_MODEL_REL),
-        ));
-        // Gradients: compare relative to the gradient's overall scale.
-        let scale = cpu_grads.iter().fold(0.0f32, |m, g| m.max(g.abs()));
-        bad.extend(mismatches(
-            &format!("case {ci} grads"),
-            &g_grads,
-            &cpu_grads,
-            Tolerance::new(TOL_GPU_MODEL_REL * scale, TOL_GPU_MODEL_REL),
-        ));
     }
     assert_none(&bad);
 }
