@@ -303,7 +303,9 @@ impl GpuBackend {
         if self.render.as_ref().is_none_or(|(b, _, _)| b.capacity() != chunk_pixels * rpp) {
             let rays = chunk_pixels * rpp;
             let need = ModelBuffers::bytes_for(&self.model, rays);
+            // Drop the old buffers, and the bind groups that hold them, before making new ones.
             self.render = None;
+            self.render_cache = DispatchCache::default();
             let ctx = &self.ctx;
             let made = ctx.allocating(need, || {
                 let staging_bytes = (levels * rays * 32) as u64;
