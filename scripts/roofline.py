@@ -80,9 +80,10 @@ for name, f, b, eb, ea in rows:
     tb += x
     ta += y
     print(f"| {name} | {f / 1e9:.0f} | {b_after / 1e6:.0f} | {x * 1e3:.2f} | {y * 1e3:.2f} |")
-# Dispatches per step of the paper preset: 166 after (mipnerf bench counts them); 156 before
-# (no split second passes: -28; separate ReLU-backward passes: +18).
-disp_before, disp_after = 156, 166
+# Dispatches per step of the paper preset, as `mipnerf bench --preset paper` counts them: 156
+# after; about 156 before too (no split second passes, but separate ReLU-backward, broadcast and
+# head passes).
+disp_before, disp_after = 156, 156
 host_b, host_a = disp_before * HOST_PER_DISPATCH_BEFORE, disp_after * HOST_PER_DISPATCH_AFTER
 total_f = sum(r[1] for r in rows) * LEVELS
 print()
