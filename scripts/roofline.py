@@ -60,7 +60,9 @@ cs_b = sum(4 * N * o for _, _, o in layers)
 add("bias gradients", sum(N * o for _, _, o in layers), cs_b, 1.0, 1.0)
 # Encoding: per sample read 2 edges and the ray, write X floats (sin/exp ~ 20 flops per feature).
 add("cast + IPE", 20 * N * X, 4 * N * (X + 2), 1.0, 1.0)
-add("view encoding (+ broadcast)", 10 * R * V, 4 * (R * V + N * V + N * V), 1.0, 1.0)
+# Before, the view encoding was also broadcast to every sample (N x V written and read); after,
+# the first colour layer multiplies it once per ray (in the forward products above).
+add("view encoding", 10 * R * V, 4 * (R * V + R * 3), 1.0, 1.0)
 # Rendering + loss gradient: per sample read 4 raw + 2 edges, write weight, 4 gradients.
 add("render + loss gradient", 60 * N, 4 * N * (4 + 2 + 1 + 4 + 4), 1.0, 1.0)
 add("sample / resample", 30 * N, 4 * (N + R) * 3, 1.0, 1.0)
