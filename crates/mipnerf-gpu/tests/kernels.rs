@@ -825,3 +825,54 @@ fn products_cover_any_size_within_the_dispatch_limit() {
     bad.extend(mismatches("1.1M-row product", &got, &want, Tolerance::EXACT));
     assert_none(&bad);
 }
+
+/// A weight gradient with its bias row riding along (`encode_split_with_sums`): rows 0..m are
+/// the product, row m the column sums of B, added to what C held; split or not, either kernel,
+/// A stored transposed as the weight gradients store it; against f64 under the summation bound.
+#[test]
+fn weight_gradients_carry_the_bias_sums_in_their_last_row() {
+    use mipnerf_gpu::kernels::matmul::{Epilogue, MatmulKernel, MatmulVariant, Operand};
+    use rand::{Rng, SeedableRng, rngs::SmallRng};
+    let Some(ctx) = context_or_skip("weight_gradients_carry_the_bias_sums_in_their_last_row") else { return };
+    let mut bad = Vec::new();
+    for variant in [MatmulVariant::Tiled, MatmulVariant::Blocked] {
+        let kernel = MatmulKernel::with_variant(&ctx, variant).unwrap();
+        // (m, k, n): a long k that splits, and a short one that does not.
+        for (m, k, n) in [(37usize, 2900usize, 45usize), (70, 90, 3)] {
+            let mut rng = SmallRng::seed_from_u64((m + k + n) as u64);
+            let a: Vec<f32> = (0..k * m).map(|_| rng.random_range(-1.0..1.0)).collect(); // k x m (A^T stored)
+            let b: Vec<f32> = (0..k * n).map(|_| rng.random_range(-1.0..1.0)).collect();
+            let c0: Vec<f32> = (0..(m + 1) * n).map(|_| rng.random_range(-1.0..1.0)).collect();
+            let (ba, bb) = (ctx.storage_buffer("a", &a, false), ctx.storage_buffer("b", &b, false));
+            let bc = ctx.storage_buffer("c", &c0, true);
+            let len = 64 * (m + 1) * n;
+            let scratch = ctx.storage_buffer("scratch", &vec![f32::NAN; len], false);
+            let mut rec = Recorder::new(&ctx, "weight gradient");
+            let epi = Epilogue { accumulate: true, ..Epilogue::default() };
+            let (oa, ob, oc) = (Operand::t(&ba, 0), Operand::new(&bb, 0), Operand::new(&bc, 0));
+            kernel.encode_split_with_sums(&mut rec, (m, k, n), oa, ob, oc, epi, (&scratch, len));
+            let _ = rec.submit();
+            let got = ctx.read_f32(&bc, (m + 1) * n).unwrap();
+            let u = f64::from(f32::EPSILON) / 2.0;
+            for r in 0..=m {
+                for c in 0..n {
+                    let (mut sum, mut abs) = (f64::from(c0[r * n + c]), f64::from(c0[r * n + c]).abs());
+                    for kk in 0..k {
+                        let av = if r == m { 1.0 } else { f64::from(a[kk * m + r]) };
+                        let p = av * f64::from(b[kk * n + c]);
+                        sum += p;
+                        abs += p.abs();
+                    }
+                    let bound = (k + 1) as f64 * u * abs + 1e-30;
+                    let g = f64::from(got[r * n + c]);
+                    if g.is_nan() || (g - sum).abs() > bound {
+                        bad.push(format!(
+                            "{variant:?} {m}x{k}x{n} ({r}, {c}): got {g:e} want {sum:e} (bound {bound:e})"
+                        ));
+                    }
+                }
+            }
+        }
+    }
+    assert_none(&bad);
+}
