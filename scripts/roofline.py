@@ -55,10 +55,9 @@ def wg_eff_before():
         t += 2 * N * i * o / (PEAK * 0.125 * busy)
     return wg_f / (PEAK * t)
 add("weight-gradient products", wg_f, wg_b, wg_eff_before(), 0.5)
-# Bias gradients: before, column-sum passes reading each layer's output gradient again; after,
-# a row of ones in the weight-gradient products (their extra FLOPs are counted there: 1/fan_in).
+# Bias gradients (column sums, two passes), both before and after.
 cs_b = sum(4 * N * o for _, _, o in layers)
-add("bias gradients (after: inside the weight-gradient products)", sum(N * o for _, _, o in layers), cs_b, 1.0, 1.0)
+add("bias gradients", sum(N * o for _, _, o in layers), cs_b, 1.0, 1.0)
 # Encoding: per sample read 2 edges and the ray, write X floats (sin/exp ~ 20 flops per feature).
 add("cast + IPE", 20 * N * X, 4 * N * (X + 2), 1.0, 1.0)
 # Before, the view encoding was also broadcast to every sample (N x V written and read); after,
@@ -79,18 +78,14 @@ tb = ta = 0.0
 for name, f, b, eb, ea in rows:
     b_before = b
     b_after = b - (relu_b if name == "input-gradient products" else 0)
-    if name.startswith("bias gradients"):
-        b_after, f_after = 0, 0
-    else:
-        f_after = f
-    x, y = t(f, b_before, eb), t(f_after, b_after, ea)
+    x, y = t(f, b_before, eb), t(f, b_after, ea)
     tb += x
     ta += y
     print(f"| {name} | {f / 1e9:.0f} | {b_after / 1e6:.0f} | {x * 1e3:.2f} | {y * 1e3:.2f} |")
-# Dispatches per step of the paper preset, as `mipnerf bench --preset paper` counts them: 112
-# after; about 156 before (no split second passes, but separate ReLU-backward, broadcast, head and
-# column-sum passes).
-disp_before, disp_after = 156, 112
+# Dispatches per step of the paper preset, as `mipnerf bench --preset paper` counts them: 156
+# after; about 156 before too (no split second passes, but separate ReLU-backward, broadcast and
+# head passes).
+disp_before, disp_after = 156, 156
 host_b, host_a = disp_before * HOST_PER_DISPATCH_BEFORE, disp_after * HOST_PER_DISPATCH_AFTER
 total_f = sum(r[1] for r in rows) * LEVELS
 print()

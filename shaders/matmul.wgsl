@@ -27,9 +27,7 @@ struct Params {
     // bit 0: A transposed; bit 1: B transposed; bit 2: accumulate into C; bit 3: add bias;
     // bit 4: ReLU after the bias; bit 5: multiply by (mask > 0) after accumulating (ReLU backward);
     // bit 6: write the raw partial product of split z at c_off + z * m * n (no epilogue);
-    // bit 7: add row (row / rows_per_group) of the per-group matrix in `mask` (before the bias);
-    // bit 8: A's last row (row m - 1) is all ones, not read: the last output row is then the
-    // column sums of B (a weight gradient's bias gradient, which follows the kernel's rows).
+    // bit 7: add row (row / rows_per_group) of the per-group matrix in `mask` (before the bias).
     flags: u32,
     a_off: u32,
     b_off: u32,
@@ -68,15 +66,11 @@ const FLAG_RELU: u32 = 16u;
 const FLAG_MASK: u32 = 32u;
 const FLAG_PARTIAL: u32 = 64u;
 const FLAG_PER_GROUP: u32 = 128u;
-const FLAG_ONES_ROW: u32 = 256u;
 
 // Element (row, kk) of A, 0 outside rows < m and kk < k_end.
 fn load_a(row: u32, kk: u32, k_end: u32) -> f32 {
     if (row >= p.m || kk >= k_end) {
         return 0.0;
-    }
-    if ((p.flags & FLAG_ONES_ROW) != 0u && row == p.m - 1u) {
-        return 1.0;
     }
     if ((p.flags & FLAG_A_T) != 0u) {
         return a[p.a_off + kk * p.a_ld + row];
@@ -226,14 +220,9 @@ fn blocked(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
     for (var col0 = gid.x * 4u; col0 < p.n; col0 = col0 + cols_per_pass) {
     // Columns past the edge read the last valid one (their results are not stored).
     let cols = min(vec4<u32>(col0, col0 + 1u, col0 + 2u, col0 + 3u), vec4<u32>(p.n - 1u));
-    // With a ones row, the last row is not read (the ones are substituted).
-    let ones = (p.flags & FLAG_ONES_ROW) != 0u;
-    let last_read = p.m - 1u - select(0u, 1u, ones && p.m > 1u);
     for (var row0 = gid.y * 4u; row0 < p.m; row0 = row0 + rows_per_pass) {
         // Rows past the edge read the last valid one likewise, so the loop has no bounds checks.
-        let wanted = vec4<u32>(row0, row0 + 1u, row0 + 2u, row0 + 3u);
-        let rows = min(wanted, vec4<u32>(last_read));
-        let is_one = select(vec4<bool>(false), wanted == vec4<u32>(p.m - 1u), ones);
+        let rows = min(vec4<u32>(row0, row0 + 1u, row0 + 2u, row0 + 3u), vec4<u32>(p.m - 1u));
         var ia = vec4<u32>(p.a_off) + rows * a_rs + vec4<u32>(k0 * a_ks);
         var ib = vec4<u32>(p.b_off) + cols * b_cs + vec4<u32>(k0 * b_ks);
         var acc0 = vec4<f32>(0.0);
@@ -241,7 +230,7 @@ fn blocked(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
         var acc2 = vec4<f32>(0.0);
         var acc3 = vec4<f32>(0.0);
         for (var kk = k0; kk < k1; kk = kk + 1u) {
-            let av = select(vec4<f32>(a[ia.x], a[ia.y], a[ia.z], a[ia.w]), vec4<f32>(1.0), is_one);
+            let av = vec4<f32>(a[ia.x], a[ia.y], a[ia.z], a[ia.w]);
             let bv = vec4<f32>(b[ib.x], b[ib.y], b[ib.z], b[ib.w]);
             acc0 = acc0 + av.x * bv;
             acc1 = acc1 + av.y * bv;

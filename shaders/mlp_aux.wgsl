@@ -1,4 +1,9 @@
 // Small passes around the MLP's matrix products, one entry point each:
+// - col_sums: out[col] (+)= sum over rows of g[row, col] (the bias gradient), one invocation per
+//   column summing rows in order, so the result is deterministic;
+// - col_sums_partial: the first of two passes for tall matrices: per block of 256 rows and column,
+//   the block's sum in row order (col_sums then adds the blocks in order), so that a matrix of
+//   a million rows is summed by many invocations, not one per column;
 // - pack_heads / unpack_heads_add: the density and bottleneck layers' kernels and biases,
 //   (T + 1) x 1 and (T + 1) x W in the flat parameters, as one (T + 1) x (W + 1) matrix
 //   [density | bottleneck] (so that both heads are one product), and its gradient added back;
@@ -14,7 +19,7 @@ struct Params {
     x_off: u32,
     y_off: u32,
     out_off: u32,
-    // Unused (alignment with the other kernels' blocks).
+    // col_sums: 1 to add to `out`, 0 to overwrite.
     accumulate: u32,
     groups_x: u32,
 }
@@ -25,6 +30,41 @@ struct Params {
 
 fn flat_id(gid: vec3<u32>) -> u32 {
     return gid.y * (p.groups_x * WORKGROUP) + gid.x;
+}
+
+// x = gradient [rows x cols]; out = bias gradient [cols].
+@compute @workgroup_size(WORKGROUP)
+fn col_sums(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let col = flat_id(gid);
+    if (col >= p.cols) {
+        return;
+    }
+    var s = 0.0;
+    for (var r = 0u; r < p.rows; r = r + 1u) {
+        s = s + x[p.x_off + r * p.cols + col];
+    }
+    if (p.accumulate != 0u) {
+        s = out[p.out_off + col] + s;
+    }
+    out[p.out_off + col] = s;
+}
+
+// x = gradient [rows x cols]; out = partial sums [ceil(rows / 256) x cols] from out_off.
+@compute @workgroup_size(WORKGROUP)
+fn col_sums_partial(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = flat_id(gid);
+    let blocks = (p.rows + MLP_BLOCK_ROWS - 1u) / MLP_BLOCK_ROWS;
+    if (i >= blocks * p.cols) {
+        return;
+    }
+    let col = i % p.cols;
+    let r0 = (i / p.cols) * MLP_BLOCK_ROWS;
+    let r1 = min(r0 + MLP_BLOCK_ROWS, p.rows);
+    var s = 0.0;
+    for (var r = r0; r < r1; r = r + 1u) {
+        s = s + x[p.x_off + r * p.cols + col];
+    }
+    out[p.out_off + i] = s;
 }
 
 // x = per-sample rows [rows * count x cols]; out = per-group sums [rows x cols] from out_off.

@@ -44,6 +44,7 @@ pub struct MlpBuffers {
     /// Raw colours, `n x 3`.
     pub raw_rgb: wgpu::Buffer,
     grad: [wgpu::Buffer; 3],
+    col_scratch: wgpu::Buffer,
     /// Partial products of the split weight-gradient products, and its length in floats.
     split_scratch: (wgpu::Buffer, usize),
 }
@@ -79,6 +80,11 @@ impl MlpBuffers {
                 .collect(),
             raw_rgb: storage(ctx, "mlp raw rgb", n * 3),
             grad: std::array::from_fn(|i| storage(ctx, &format!("mlp gradient scratch {i}"), n * widest)),
+            col_scratch: storage(
+                ctx,
+                "mlp bias gradient partial sums",
+                MlpAuxKernels::col_sums_scratch_len(n, widest + 1),
+            ),
             split_scratch: {
                 let len = Self::split_scratch_len(shape, n);
                 (storage(ctx, "mlp weight gradient partial products", len), len)
@@ -137,7 +143,7 @@ impl MlpBuffers {
         ];
         let mut b: u64 = all.iter().map(|x| x.size()).sum();
         b += self.trunk.iter().chain(&self.cond).chain(&self.grad).map(wgpu::Buffer::size).sum::<u64>();
-        b += self.split_scratch.0.size();
+        b += self.col_scratch.size() + self.split_scratch.0.size();
         b
     }
 
@@ -223,21 +229,23 @@ impl GpuMlp {
         d_first: Option<InputGrad<'_>>,
         bufs: &MlpBuffers,
     ) {
-        // The weight gradient of each input part's rows; the last part's product also sums dz's
-        // columns into the bias row that follows the kernel.
         let mut r0 = 0;
-        for (k, &(input, width)) in parts.iter().enumerate() {
+        for &(input, width) in parts {
             let c = Operand::new(grads, l.kernel + r0 * l.fan_out);
             let epi = Epilogue { accumulate: true, ..Epilogue::default() };
-            let (scratch, len) = (&bufs.split_scratch.0, bufs.split_scratch.1);
-            let (a, b) = (Operand::t(input, 0), Operand::new(dz, 0));
-            if k + 1 == parts.len() {
-                self.matmul.encode_split_with_sums(rec, (width, n, l.fan_out), a, b, c, epi, (scratch, len));
-            } else {
-                self.matmul.encode_split(rec, (width, n, l.fan_out), a, b, c, epi, (scratch, len));
-            }
+            let (scratch, len) = &bufs.split_scratch;
+            self.matmul.encode_split(
+                rec,
+                (width, n, l.fan_out),
+                Operand::t(input, 0),
+                Operand::new(dz, 0),
+                c,
+                epi,
+                (scratch, *len),
+            );
             r0 += width;
         }
+        self.aux.col_sums(rec, (dz, 0), (grads, l.bias), n, l.fan_out, true, &bufs.col_scratch);
         if let Some(d) = d_first {
             let (first, width) = parts[0];
             let epi = Epilogue { accumulate: d.accumulate, mask: d.relu.then_some((first, 0)), ..Epilogue::default() };
@@ -352,12 +360,12 @@ impl GpuMlp {
                 let dz = Operand::new(&g[a], 0);
                 let wb = Operand::new(grads, l.kernel);
                 self.matmul.encode_split(rec, (w, n, wc), bottleneck_t, dz, wb, add, (scratch, len));
+                self.aux.col_sums(rec, (&g[a], 0), (grads, l.bias), n, wc, true, &bufs.col_scratch);
                 let d_bottleneck = Operand::strided(&bufs.d_heads, 1, hw);
                 let kt = Operand::t(params, l.kernel);
                 self.matmul.encode(rec, (n, wc, w), dz, kt, d_bottleneck, Epilogue::default());
                 self.aux.group_sums(rec, &g[a], &bufs.view_rows, bufs.n_rays, wc, bufs.samples_per_ray());
-                // The view rows, then the bias row after them: the sum of the per-ray sums.
-                self.matmul.encode_split_with_sums(
+                self.matmul.encode_split(
                     rec,
                     (c.view_dim, bufs.n_rays, wc),
                     Operand::t(&bufs.view, 0),
@@ -375,18 +383,20 @@ impl GpuMlp {
         let t = ls[d].fan_in;
         let dz = Operand::new(&bufs.d_heads, 0);
         let mut r0 = 0;
-        // The packed gradient's rows; the last part's product also sums into the bias row (t).
-        for (k, &(input, width)) in top.iter().enumerate() {
+        for &(input, width) in &top {
             let out = Operand::new(&bufs.heads_g, r0 * hw);
-            let a = Operand::t(input, 0);
-            let epi = Epilogue::default();
-            if k + 1 == top.len() {
-                self.matmul.encode_split_with_sums(rec, (width, n, hw), a, dz, out, epi, (scratch, len));
-            } else {
-                self.matmul.encode_split(rec, (width, n, hw), a, dz, out, epi, (scratch, len));
-            }
+            self.matmul.encode_split(
+                rec,
+                (width, n, hw),
+                Operand::t(input, 0),
+                dz,
+                out,
+                Epilogue::default(),
+                (scratch, len),
+            );
             r0 += width;
         }
+        self.aux.col_sums(rec, (&bufs.d_heads, 0), (&bufs.heads_g, t * hw), n, hw, false, &bufs.col_scratch);
         self.aux.unpack_heads_add(rec, &bufs.heads_g, grads, (ls[d].kernel, ls[d + 1].kernel), (t + 1, w));
         let z = 0;
         let relu = Epilogue { mask: Some((top[0].0, 0)), ..Epilogue::default() };

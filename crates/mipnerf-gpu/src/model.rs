@@ -198,7 +198,12 @@ impl ModelBuffers {
             + 3 * widest
             + 1
             + 3;
-        let per_ray = s * per_sample + c.view_dim + c.net_width_condition + cfg.num_levels * (s + 1 + 8);
+        // The bias gradients' partial sums: one row of `widest + 1` per 256 samples.
+        let per_ray = s * per_sample
+            + c.view_dim
+            + c.net_width_condition
+            + cfg.num_levels * (s + 1 + 8)
+            + (s * (widest + 1)).div_ceil(256);
         per_ray as u64 * 4
     }
 

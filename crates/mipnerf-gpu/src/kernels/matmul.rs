@@ -19,8 +19,7 @@ pub struct MatmulParams {
     /// Columns of C.
     pub n: u32,
     /// Bit 0: A transposed; 1: B transposed; 2: accumulate; 3: add bias; 4: ReLU; 5: ReLU-backward
-    /// mask; 6: write split z's raw partial product; 7: add a per-group row; 8: A's last row is
-    /// ones.
+    /// mask; 6: write split z's raw partial product; 7: add a per-group row.
     pub flags: u32,
     /// Element offset of A in its buffer.
     pub a_off: u32,
@@ -270,38 +269,18 @@ impl MatmulKernel {
     pub fn encode(
         &self,
         rec: &mut Recorder<'_>,
-        dims: (usize, usize, usize),
-        a: Operand<'_>,
-        b: Operand<'_>,
-        c: Operand<'_>,
-        epi: Epilogue<'_>,
-    ) {
-        self.record_plain(rec, dims, a, b, c, epi, false);
-    }
-
-    /// The stored row stride of A for a product of `m` output rows, `ones` of them the ones row
-    /// (not stored).
-    fn a_ld(a: &Operand<'_>, m: usize, k: usize, ones: bool) -> u32 {
-        ld(a, if a.transposed { m - usize::from(ones) } else { k })
-    }
-
-    #[allow(clippy::too_many_arguments)]
-    fn record_plain(
-        &self,
-        rec: &mut Recorder<'_>,
         (m, k, n): (usize, usize, usize),
         a: Operand<'_>,
         b: Operand<'_>,
         c: Operand<'_>,
         epi: Epilogue<'_>,
-        ones: bool,
     ) {
         let (mask, mask_off, rows_per_group) = epi.extra(a.buffer);
         let params = MatmulParams {
             m: m as u32,
             k: k as u32,
             n: n as u32,
-            flags: Self::flags(a, b, &epi) | (u32::from(ones) << 8),
+            flags: Self::flags(a, b, &epi),
             a_off: a.offset,
             b_off: b.offset,
             c_off: c.offset,
@@ -311,7 +290,7 @@ impl MatmulKernel {
             groups_x: 0,
             mask_off,
             rows_per_group,
-            a_ld: Self::a_ld(&a, m, k, ones),
+            a_ld: ld(&a, if a.transposed { m } else { k }),
             c_ld: ld(&c, n),
             _pad: 0,
         };
@@ -327,56 +306,23 @@ impl MatmulKernel {
     pub fn encode_split(
         &self,
         rec: &mut Recorder<'_>,
-        dims: (usize, usize, usize),
-        a: Operand<'_>,
-        b: Operand<'_>,
-        c: Operand<'_>,
-        epi: Epilogue<'_>,
-        scratch: (&wgpu::Buffer, usize),
-    ) {
-        self.record_split(rec, dims, a, b, c, epi, scratch, false);
-    }
-
-    /// A weight gradient and its bias gradient in one (split) product: `c (+)= a (m x k) · b
-    /// (k x n)` into `c`'s first `m` rows and the column sums of `b` into row `m`, which follows
-    /// them (the flat parameter layout keeps a layer's bias right after its kernel's rows). The
-    /// sums ride along with the product's own: A gets a row of ones that is never stored.
-    #[allow(clippy::too_many_arguments)]
-    pub fn encode_split_with_sums(
-        &self,
-        rec: &mut Recorder<'_>,
-        (m, k, n): (usize, usize, usize),
-        a: Operand<'_>,
-        b: Operand<'_>,
-        c: Operand<'_>,
-        epi: Epilogue<'_>,
-        scratch: (&wgpu::Buffer, usize),
-    ) {
-        self.record_split(rec, (m + 1, k, n), a, b, c, epi, scratch, true);
-    }
-
-    #[allow(clippy::too_many_arguments)]
-    fn record_split(
-        &self,
-        rec: &mut Recorder<'_>,
         (m, k, n): (usize, usize, usize),
         a: Operand<'_>,
         b: Operand<'_>,
         c: Operand<'_>,
         epi: Epilogue<'_>,
         (scratch, scratch_len): (&wgpu::Buffer, usize),
-        ones: bool,
     ) {
         let plan = self.split_plan((m, k, n), scratch_len);
         if plan.splits == 1 {
-            self.record_plain(rec, (m, k, n), a, b, c, epi, ones);
+            self.encode(rec, (m, k, n), a, b, c, epi);
             return;
         }
         let partial = MatmulParams {
             m: m as u32,
             k: k as u32,
             n: n as u32,
-            flags: u32::from(a.transposed) | (u32::from(b.transposed) << 1) | 64 | (u32::from(ones) << 8),
+            flags: u32::from(a.transposed) | (u32::from(b.transposed) << 1) | 64,
             a_off: a.offset,
             b_off: b.offset,
             c_off: 0,
@@ -386,7 +332,7 @@ impl MatmulKernel {
             groups_x: 0,
             mask_off: 0,
             rows_per_group: 1,
-            a_ld: Self::a_ld(&a, m, k, ones),
+            a_ld: ld(&a, if a.transposed { m } else { k }),
             c_ld: n as u32,
             _pad: 0,
         };

@@ -1,4 +1,4 @@
-//! `shaders/mlp_aux.wgsl`: per-ray sums of per-sample rows, and packing the two heads' kernels.
+//! `shaders/mlp_aux.wgsl`: column sums (bias gradients) and per-ray sums of per-sample rows.
 
 use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
@@ -22,7 +22,7 @@ pub struct AuxParams {
     pub y_off: u32,
     /// Offset of out.
     pub out_off: u32,
-    /// Unused (alignment with other kernels' blocks).
+    /// col_sums: add to out.
     pub accumulate: u32,
     /// Workgroups along x of the dispatch grid.
     pub groups_x: u32,
@@ -31,6 +31,8 @@ pub struct AuxParams {
 /// The three pipelines of `mlp_aux.wgsl`.
 #[derive(Debug)]
 pub struct MlpAuxKernels {
+    col_sums: wgpu::ComputePipeline,
+    col_sums_partial: wgpu::ComputePipeline,
     group_sums: wgpu::ComputePipeline,
     pack_heads: wgpu::ComputePipeline,
     unpack_heads_add: wgpu::ComputePipeline,
@@ -43,10 +45,10 @@ impl MlpAuxKernels {
     /// # Errors
     /// If the device rejects them.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        let entries = ["group_sums", "pack_heads", "unpack_heads_add"];
-        let ([group_sums, pack_heads, unpack_heads_add], layout) =
+        let entries = ["col_sums", "col_sums_partial", "group_sums", "pack_heads", "unpack_heads_add"];
+        let ([col_sums, col_sums_partial, group_sums, pack_heads, unpack_heads_add], layout) =
             kernels::build_entries(ctx, "mlp_aux", SOURCE, &[true, false], entries)?;
-        Ok(Self { group_sums, pack_heads, unpack_heads_add, layout })
+        Ok(Self { col_sums, col_sums_partial, group_sums, pack_heads, unpack_heads_add, layout })
     }
 
     fn run(
@@ -62,6 +64,54 @@ impl MlpAuxKernels {
         let (gx, gy) = kernels::dispatch_grid(items as u64, kernels::WORKGROUP).unwrap_or((1, 1));
         params.groups_x = gx;
         rec.dispatch("mlp_aux", which, &self.layout, &params, &[x, out], (gx, gy, 1));
+    }
+
+    /// Rows summed per block by the first pass of [`col_sums`](Self::col_sums).
+    pub const BLOCK_ROWS: usize = 256;
+
+    /// Floats of scratch [`col_sums`](Self::col_sums) needs for `rows x cols`.
+    #[must_use]
+    pub fn col_sums_scratch_len(rows: usize, cols: usize) -> usize {
+        rows.div_ceil(Self::BLOCK_ROWS) * cols
+    }
+
+    /// `out[col] (+)= sum over rows of x[row, col]`, in a fixed order: for more than
+    /// [`BLOCK_ROWS`](Self::BLOCK_ROWS) rows, blocks of rows are summed first (into `scratch`,
+    /// [`col_sums_scratch_len`](Self::col_sums_scratch_len) floats), then the blocks.
+    #[allow(clippy::too_many_arguments)]
+    pub fn col_sums(
+        &self,
+        rec: &mut Recorder<'_>,
+        x: (&wgpu::Buffer, usize),
+        out: (&wgpu::Buffer, usize),
+        rows: usize,
+        cols: usize,
+        accumulate: bool,
+        scratch: &wgpu::Buffer,
+    ) {
+        let (x, rows) = if rows > Self::BLOCK_ROWS {
+            let params = AuxParams {
+                rows: rows as u32,
+                cols: cols as u32,
+                x_off: x.1 as u32,
+                out_off: 0,
+                ..AuxParams::default()
+            };
+            let items = Self::col_sums_scratch_len(rows, cols);
+            self.run(rec, &self.col_sums_partial, items, params, x.0, scratch);
+            ((scratch, 0), rows.div_ceil(Self::BLOCK_ROWS))
+        } else {
+            (x, rows)
+        };
+        let params = AuxParams {
+            rows: rows as u32,
+            cols: cols as u32,
+            x_off: x.1 as u32,
+            out_off: out.1 as u32,
+            accumulate: u32::from(accumulate),
+            ..AuxParams::default()
+        };
+        self.run(rec, &self.col_sums, cols, params, x.0, out.0);
     }
 
     /// `out[r, :] = sum over i < rep of x[r * rep + i, :]`, in order, for `rows` groups of `rep`
