@@ -81,6 +81,13 @@ fn the_adapter_is_chosen_by_index_name_or_environment() {
         .output()
         .unwrap();
     missing(out, "WGPU_ADAPTER_NAME");
+    // `info` says what auto would take when the variable names an adapter, software or not.
+    let out = Command::new(env!("CARGO_BIN_EXE_mipnerf")).arg("info").env("WGPU_ADAPTER_NAME", &word).output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(
+        text.contains(&format!("would use: gpu ({}", first.name)) && text.contains("named by WGPU_ADAPTER_NAME"),
+        "{text}"
+    );
 }
 
 /// PSNR of the best constant colour (the image's mean) for each test image of each scale.
