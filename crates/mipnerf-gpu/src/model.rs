@@ -175,10 +175,11 @@ impl ModelBuffers {
         Self::widest_row(model) as u64 * 4 * model.config().num_samples as u64
     }
 
-    /// Floats per sample of the widest buffer.
+    /// Floats per sample of the widest per-sample buffer: the encodings, a layer's outputs, or
+    /// the fused heads `[density | bottleneck]` (one wider than the trunk).
     fn widest_row(model: &Model) -> usize {
         let c = &model.mlps()[0].config;
-        c.x_dim.max(c.view_dim).max(c.net_width).max(c.net_width_condition).max(3)
+        c.x_dim.max(c.net_width + 1).max(c.net_width_condition).max(3)
     }
 
     /// Device bytes per ray of these buffers, for sizing chunks.
