@@ -94,24 +94,50 @@ fn raw_den(k: u32, key: u32, i: u32) -> f32 {
     return raw_density[k * p.density_stride];
 }
 
-@compute @workgroup_size(WORKGROUP)
-fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let r = gid.y * (p.groups_x * WORKGROUP) + gid.x;
-    if (r >= p.n_rays) {
-        return;
-    }
-    let s_n = p.n_samples;
-    let base = r * s_n;
-    let tb = r * (s_n + 1u);
-    let dir = rays[2u * r + 1u];
-    let dir_norm = length(dir.xyz);
-    let lossmult = select(1.0, dir.w, p.area_loss != 0u);
+// Sample k's colour before padding: the sigmoid of its raw colour.
+fn sample_sigmoid(k: u32) -> vec3<f32> {
+    return vec3<f32>(sigmoid(raw_rgb[3u * k]), sigmoid(raw_rgb[3u * k + 1u]), sigmoid(raw_rgb[3u * k + 2u]));
+}
+
+fn padded(sg: vec3<f32>) -> vec3<f32> {
+    return sg * (1.0 + 2.0 * p.rgb_padding) - p.rgb_padding;
+}
+
+fn background() -> f32 {
+    return select(0.0, 1.0, p.white_bkgd != 0u);
+}
+
+// Sums over some of a ray's samples of w_i rgb_i, w_i and w_i t_mid_i.
+struct RayPartial {
+    colour: vec3<f32>,
+    acc: f32,
+    dist_num: f32,
+}
+
+// sum over samples i0..i1 of ray r of density_i delta_i.
+fn density_delta_sum(r: u32, i0: u32, i1: u32) -> f32 {
+    let tb = r * (p.n_samples + 1u);
+    let dir_norm = length(rays[2u * r + 1u].xyz);
     let noise_key = density_noise_key(r);
-    var cum = 0.0;
-    var colour = vec3<f32>(0.0);
-    var acc = 0.0;
-    var dist_num = 0.0;
-    for (var i = 0u; i < s_n; i = i + 1u) {
+    var sum = 0.0;
+    for (var i = i0; i < i1; i = i + 1u) {
+        let delta = (t_vals[tb + i + 1u] - t_vals[tb + i]) * dir_norm;
+        sum = sum + density_of(raw_den(r * p.n_samples + i, noise_key, i)) * delta;
+    }
+    return sum;
+}
+
+// Volume rendering of samples i0..i1 of ray r, `cum` the sum of density x delta before i0:
+// writes each sample's weight, keeps T_{i+1} in its density-gradient slot for the backward pass,
+// and returns the samples' sums.
+fn forward_samples(r: u32, i0: u32, i1: u32, cum0: f32) -> RayPartial {
+    let base = r * p.n_samples;
+    let tb = r * (p.n_samples + 1u);
+    let dir_norm = length(rays[2u * r + 1u].xyz);
+    let noise_key = density_noise_key(r);
+    var cum = cum0;
+    var out = RayPartial(vec3<f32>(0.0), 0.0, 0.0);
+    for (var i = i0; i < i1; i = i + 1u) {
         let k = base + i;
         let t0 = t_vals[tb + i];
         let t1 = t_vals[tb + i + 1u];
@@ -122,55 +148,83 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         cum = cum + dd;
         let w = alpha * trans;
         weights[k] = w;
-        let rgb = vec3<f32>(sigmoid(raw_rgb[3u * k]), sigmoid(raw_rgb[3u * k + 1u]), sigmoid(raw_rgb[3u * k + 2u])) * (1.0 + 2.0 * p.rgb_padding) - p.rgb_padding;
-        colour = colour + w * rgb;
-        acc = acc + w;
-        dist_num = dist_num + w * 0.5 * (t0 + t1);
-        // Keep T_{i+1} for the backward pass in the density-gradient slot.
+        out.colour = out.colour + w * padded(sample_sigmoid(k));
+        out.acc = out.acc + w;
+        out.dist_num = out.dist_num + w * 0.5 * (t0 + t1);
         d_raw_density[k * p.density_stride] = exp(-cum);
     }
-    acc = min(acc, 1.0);
+    return out;
+}
+
+// Ray r's outputs from the sums over all its samples: colour, distance, opacity and its loss
+// terms into ray_out. Returns d loss / d colour (zero when supersampling, where `pixel_backward`
+// takes the loss on the pixel).
+fn finish_ray(r: u32, sums: RayPartial) -> vec3<f32> {
+    let tb = r * (p.n_samples + 1u);
+    let acc = min(sums.acc, 1.0);
     // A ray that hit nothing (acc = 0, so dist_num = 0) has the CPU's NaN distance, which it
     // then maps to 0 and clamps to near. WGSL promises no NaN semantics: guard the division.
     var dist = 0.0;
     if (acc > 0.0) {
-        dist = dist_num / acc;
+        dist = sums.dist_num / acc;
     }
-    dist = clamp(dist, t_vals[tb], t_vals[tb + s_n]);
-    let bg = select(0.0, 1.0, p.white_bkgd != 0u);
-    colour = colour + bg * (1.0 - acc);
+    dist = clamp(dist, t_vals[tb], t_vals[tb + p.n_samples]);
+    let colour = sums.colour + background() * (1.0 - acc);
     ray_out[2u * r] = vec4<f32>(colour, dist);
     if (p.supersample > 1u) {
         ray_out[2u * r + 1u] = vec4<f32>(acc, 0.0, 0.0, 0.0);
-        return;
+        return vec3<f32>(0.0);
     }
-    let goal = targets[r].xyz;
-    let err = colour - goal;
+    let lossmult = select(1.0, rays[2u * r + 1u].w, p.area_loss != 0u);
+    let err = colour - targets[r].xyz;
     let se = dot(err, err);
     ray_out[2u * r + 1u] = vec4<f32>(acc, lossmult * se, se, 0.0);
-    if (p.train == 0u) {
+    return p.level_weight * 2.0 * lossmult * err / batch_norm[0];
+}
+
+@compute @workgroup_size(WORKGROUP)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let r = gid.y * (p.groups_x * WORKGROUP) + gid.x;
+    if (r >= p.n_rays) {
         return;
     }
-    backward_ray(r, p.level_weight * 2.0 * lossmult * err / batch_norm[0]);
+    let d_col = finish_ray(r, forward_samples(r, 0u, p.n_samples, 0.0));
+    if (p.supersample > 1u || p.train == 0u) {
+        return;
+    }
+    backward_ray(r, d_col);
 }
 
 // d loss / d colour of ray r is `d_col`: back through rendering and the activations.
 fn backward_ray(r: u32, d_col: vec3<f32>) {
-    let s_n = p.n_samples;
-    let base = r * s_n;
-    let tb = r * (s_n + 1u);
+    backward_samples(r, 0u, p.n_samples, d_col, 0.0);
+}
+
+// sum over samples i0..i1 of ray r of g_i w_i, g_i = d_col . (rgb_i - background).
+fn colour_grad_sum(r: u32, i0: u32, i1: u32, d_col: vec3<f32>) -> f32 {
+    var sum = 0.0;
+    for (var i = i0; i < i1; i = i + 1u) {
+        let k = r * p.n_samples + i;
+        sum = sum + dot(d_col, padded(sample_sigmoid(k)) - vec3<f32>(background())) * weights[k];
+    }
+    return sum;
+}
+
+// The backward pass of samples i1 - 1 down to i0 of ray r, `suffix0` the sum of g_j w_j over
+// the samples after i1.
+fn backward_samples(r: u32, i0: u32, i1: u32, d_col: vec3<f32>, suffix0: f32) {
+    let base = r * p.n_samples;
+    let tb = r * (p.n_samples + 1u);
     let dir_norm = length(rays[2u * r + 1u].xyz);
     let noise_key = density_noise_key(r);
-    let bg = select(0.0, 1.0, p.white_bkgd != 0u);
-    var suffix = 0.0;
-    for (var j = 0u; j < s_n; j = j + 1u) {
-        let i = s_n - 1u - j;
+    let bg = background();
+    var suffix = suffix0;
+    for (var j = i0; j < i1; j = j + 1u) {
+        let i = i1 - 1u - (j - i0);
         let k = base + i;
-        let raw = vec3<f32>(raw_rgb[3u * k], raw_rgb[3u * k + 1u], raw_rgb[3u * k + 2u]);
-        let sg = vec3<f32>(sigmoid(raw.x), sigmoid(raw.y), sigmoid(raw.z));
-        let rgb = sg * (1.0 + 2.0 * p.rgb_padding) - p.rgb_padding;
+        let sg = sample_sigmoid(k);
         let w = weights[k];
-        let g = dot(d_col, rgb - vec3<f32>(bg));
+        let g = dot(d_col, padded(sg) - vec3<f32>(bg));
         let ds = g * d_raw_density[k * p.density_stride] - suffix;
         suffix = suffix + g * w;
         let delta = (t_vals[tb + i + 1u] - t_vals[tb + i]) * dir_norm;
@@ -248,107 +302,32 @@ fn main_wide(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_ind
     if (r >= p.n_rays) {
         return;
     }
-    let s_n = p.n_samples;
-    let per = (s_n + RAY_LANES - 1u) / RAY_LANES;
-    let i0 = min(lane * per, s_n);
-    let i1 = min(i0 + per, s_n);
-    let base = r * s_n;
-    let tb = r * (s_n + 1u);
-    let dir = rays[2u * r + 1u];
-    let dir_norm = length(dir.xyz);
-    let lossmult = select(1.0, dir.w, p.area_loss != 0u);
-    let noise_key = density_noise_key(r);
-    let bg = select(0.0, 1.0, p.white_bkgd != 0u);
-    var local = 0.0;
-    for (var i = i0; i < i1; i = i + 1u) {
-        let delta = (t_vals[tb + i + 1u] - t_vals[tb + i]) * dir_norm;
-        local = local + density_of(raw_den(base + i, noise_key, i)) * delta;
-    }
-    lane_sum[lane] = local;
+    let per = (p.n_samples + RAY_LANES - 1u) / RAY_LANES;
+    let i0 = min(lane * per, p.n_samples);
+    let i1 = min(i0 + per, p.n_samples);
+    lane_sum[lane] = density_delta_sum(r, i0, i1);
     scan_lanes(lane, false);
-    var cum = lane_sum[lane];
-    var colour = vec3<f32>(0.0);
-    var acc = 0.0;
-    var dist_num = 0.0;
-    for (var i = i0; i < i1; i = i + 1u) {
-        let k = base + i;
-        let t0 = t_vals[tb + i];
-        let t1 = t_vals[tb + i + 1u];
-        let delta = (t1 - t0) * dir_norm;
-        let dd = density_of(raw_den(k, noise_key, i)) * delta;
-        let alpha = 1.0 - exp(-dd);
-        let trans = exp(-cum);
-        cum = cum + dd;
-        let w = alpha * trans;
-        weights[k] = w;
-        let rgb = vec3<f32>(sigmoid(raw_rgb[3u * k]), sigmoid(raw_rgb[3u * k + 1u]), sigmoid(raw_rgb[3u * k + 2u])) * (1.0 + 2.0 * p.rgb_padding) - p.rgb_padding;
-        colour = colour + w * rgb;
-        acc = acc + w;
-        dist_num = dist_num + w * 0.5 * (t0 + t1);
-        // Keep T_{i+1} for the backward pass in the density-gradient slot.
-        d_raw_density[k * p.density_stride] = exp(-cum);
-    }
-    lane_rgb[lane] = colour;
-    lane_acc[lane] = acc;
-    lane_dist[lane] = dist_num;
+    let part = forward_samples(r, i0, i1, lane_sum[lane]);
+    lane_rgb[lane] = part.colour;
+    lane_acc[lane] = part.acc;
+    lane_dist[lane] = part.dist_num;
     workgroupBarrier();
     if (lane == 0u) {
-        var col = vec3<f32>(0.0);
-        var ac = 0.0;
-        var dn = 0.0;
+        var sums = RayPartial(vec3<f32>(0.0), 0.0, 0.0);
         for (var j = 0u; j < RAY_LANES; j = j + 1u) {
-            col = col + lane_rgb[j];
-            ac = ac + lane_acc[j];
-            dn = dn + lane_dist[j];
+            sums.colour = sums.colour + lane_rgb[j];
+            sums.acc = sums.acc + lane_acc[j];
+            sums.dist_num = sums.dist_num + lane_dist[j];
         }
-        ac = min(ac, 1.0);
-        var dist = 0.0;
-        if (ac > 0.0) {
-            dist = dn / ac;
-        }
-        dist = clamp(dist, t_vals[tb], t_vals[tb + s_n]);
-        col = col + bg * (1.0 - ac);
-        ray_out[2u * r] = vec4<f32>(col, dist);
-        if (p.supersample > 1u) {
-            ray_out[2u * r + 1u] = vec4<f32>(ac, 0.0, 0.0, 0.0);
-        } else {
-            let err = col - targets[r].xyz;
-            let se = dot(err, err);
-            ray_out[2u * r + 1u] = vec4<f32>(ac, lossmult * se, se, 0.0);
-            ray_d_col = p.level_weight * 2.0 * lossmult * err / batch_norm[0];
-        }
+        ray_d_col = finish_ray(r, sums);
     }
     if (p.supersample > 1u || p.train == 0u) {
         return;
     }
-    // Backward: suffix_i = sum over j > i of g_j w_j, with g_j = d_col . (rgb_j - bg).
+    // Backward: suffix_i = sum over j > i of g_j w_j, across blocks in lane order.
     workgroupBarrier();
     let d_col = ray_d_col;
-    local = 0.0;
-    for (var i = i0; i < i1; i = i + 1u) {
-        let k = base + i;
-        let sg = vec3<f32>(sigmoid(raw_rgb[3u * k]), sigmoid(raw_rgb[3u * k + 1u]), sigmoid(raw_rgb[3u * k + 2u]));
-        let rgb = sg * (1.0 + 2.0 * p.rgb_padding) - p.rgb_padding;
-        local = local + dot(d_col, rgb - vec3<f32>(bg)) * weights[k];
-    }
-    lane_sum[lane] = local;
+    lane_sum[lane] = colour_grad_sum(r, i0, i1, d_col);
     scan_lanes(lane, true);
-    var suffix = lane_sum[lane];
-    for (var j = i0; j < i1; j = j + 1u) {
-        let i = i1 - 1u - (j - i0);
-        let k = base + i;
-        let raw = vec3<f32>(raw_rgb[3u * k], raw_rgb[3u * k + 1u], raw_rgb[3u * k + 2u]);
-        let sg = vec3<f32>(sigmoid(raw.x), sigmoid(raw.y), sigmoid(raw.z));
-        let rgb = sg * (1.0 + 2.0 * p.rgb_padding) - p.rgb_padding;
-        let w = weights[k];
-        let g = dot(d_col, rgb - vec3<f32>(bg));
-        let ds = g * d_raw_density[k * p.density_stride] - suffix;
-        suffix = suffix + g * w;
-        let delta = (t_vals[tb + i + 1u] - t_vals[tb + i]) * dir_norm;
-        d_raw_density[k * p.density_stride] = ds * delta * density_derivative(raw_den(k, noise_key, i));
-        let d_rgb = w * d_col * sg * (1.0 - sg) * (1.0 + 2.0 * p.rgb_padding);
-        d_raw_rgb[3u * k] = d_rgb.x;
-        d_raw_rgb[3u * k + 1u] = d_rgb.y;
-        d_raw_rgb[3u * k + 2u] = d_rgb.z;
-    }
+    backward_samples(r, i0, i1, d_col, lane_sum[lane]);
 }

@@ -83,6 +83,43 @@ fn coarse_weight(base: u32, nw: u32, i: i32) -> f32 {
     return src_b[base + u32(clamp(i, 0, i32(nw) - 1))];
 }
 
+// Coarse weight i of the ray whose weights start at `base`, blurred (the max of each pair of
+// neighbours, averaged) and padded.
+fn blurred_weight(base: u32, nw: u32, i: u32) -> f32 {
+    let ii = i32(i);
+    let m0 = max(coarse_weight(base, nw, ii - 1), coarse_weight(base, nw, ii));
+    let m1 = max(coarse_weight(base, nw, ii), coarse_weight(base, nw, ii + 1));
+    return 0.5 * (m0 + m1) + p.resample_padding;
+}
+
+// Where in [0, 1) output i of `n_out` falls: stratified with the ray's random offsets, or evenly
+// spaced.
+fn resample_u(i: u32, n_out: u32, key: u32) -> f32 {
+    if (p.randomized != 0u) {
+        let s = 1.0 / f32(n_out);
+        return min(f32(i) * s + uniform01(key, i) * (s - F32_EPS), 1.0 - F32_EPS);
+    }
+    if (i + 1u == n_out) {
+        return 1.0 - F32_EPS;
+    }
+    return (1.0 - F32_EPS) * (f32(i) / f32(n_out - 1u));
+}
+
+// The edge at u in the CDF interval [c0, c1] between the coarse edges b0 and b1.
+fn edge_at(u: f32, c0: f32, c1: f32, b0: f32, b1: f32) -> f32 {
+    // The CPU's (u - c0) / (c1 - c0) with NaN to 0 and infinities to the largest floats, then
+    // clamped. WGSL promises no NaN or infinity semantics, so the zero denominator (which the
+    // CDF search rules out, c0 <= u < c1) is decided before dividing.
+    let num = u - c0;
+    let den = c1 - c0;
+    var t = select(0.0, 1.0, num > 0.0);
+    if (den > 0.0) {
+        t = num / den;
+    }
+    t = clamp(t, 0.0, 1.0);
+    return b0 + t * (b1 - b0);
+}
+
 @compute @workgroup_size(WORKGROUP)
 fn resample(@builtin(global_invocation_id) gid: vec3<u32>) {
     let r = ray_index(gid);
@@ -97,10 +134,7 @@ fn resample(@builtin(global_invocation_id) gid: vec3<u32>) {
     var cdf: array<f32, 1025>;
     var weight_sum = 0.0;
     for (var i = 0u; i < nw; i = i + 1u) {
-        let ii = i32(i);
-        let m0 = max(coarse_weight(wb, nw, ii - 1), coarse_weight(wb, nw, ii));
-        let m1 = max(coarse_weight(wb, nw, ii), coarse_weight(wb, nw, ii + 1));
-        let blurred = 0.5 * (m0 + m1) + p.resample_padding;
+        let blurred = blurred_weight(wb, nw, i);
         cdf[i + 1u] = blurred;
         weight_sum = weight_sum + blurred;
     }
@@ -118,37 +152,14 @@ fn resample(@builtin(global_invocation_id) gid: vec3<u32>) {
     var prev = -3.4e38;
     var k = 0u;
     for (var i = 0u; i < n_out; i = i + 1u) {
-        var u: f32;
-        if (p.randomized != 0u) {
-            let s = 1.0 / f32(n_out);
-            u = min(f32(i) * s + uniform01(key, i) * (s - F32_EPS), 1.0 - F32_EPS);
-        } else if (i + 1u == n_out) {
-            u = 1.0 - F32_EPS;
-        } else {
-            let s = f32(i) / f32(n_out - 1u);
-            u = (1.0 - F32_EPS) * s;
-        }
+        let u = resample_u(i, n_out, key);
         // k = number of CDF entries <= u (u increases, so continue from the last k).
         while (k <= nw && cdf[k] <= u) {
             k = k + 1u;
         }
         let i0 = max(k, 1u) - 1u;
         let i1 = min(k, nw);
-        let c0 = cdf[i0];
-        let c1 = cdf[i1];
-        // The CPU's (u - c0) / (c1 - c0) with NaN to 0 and infinities to the largest floats, then
-        // clamped. WGSL promises no NaN or infinity semantics, so the zero denominator (which the
-        // CDF search rules out, c0 <= u < c1) is decided before dividing.
-        let num = u - c0;
-        let den = c1 - c0;
-        var t = select(0.0, 1.0, num > 0.0);
-        if (den > 0.0) {
-            t = num / den;
-        }
-        t = clamp(t, 0.0, 1.0);
-        let b0 = src_a[tb + i0];
-        let b1 = src_a[tb + i1];
-        var v = b0 + t * (b1 - b0);
+        var v = edge_at(u, cdf[i0], cdf[i1], src_a[tb + i0], src_a[tb + i1]);
         v = max(v, prev);
         prev = v;
         t_out[tb + i] = v;
@@ -197,10 +208,7 @@ fn resample_wide(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation
     // Blurred weights into w_cdf[i + 1], and their sum.
     var local = 0.0;
     for (var i = i0; i < i1; i = i + 1u) {
-        let ii = i32(i);
-        let m0 = max(coarse_weight(wb, nw, ii - 1), coarse_weight(wb, nw, ii));
-        let m1 = max(coarse_weight(wb, nw, ii), coarse_weight(wb, nw, ii + 1));
-        let blurred = 0.5 * (m0 + m1) + p.resample_padding;
+        let blurred = blurred_weight(wb, nw, i);
         w_cdf[i + 1u] = blurred;
         local = local + blurred;
     }
@@ -236,16 +244,7 @@ fn resample_wide(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation
     let o1 = min(o0 + per_out, n_out);
     var run_max = -3.4e38;
     for (var i = o0; i < o1; i = i + 1u) {
-        var u: f32;
-        if (p.randomized != 0u) {
-            let s = 1.0 / f32(n_out);
-            u = min(f32(i) * s + uniform01(key, i) * (s - F32_EPS), 1.0 - F32_EPS);
-        } else if (i + 1u == n_out) {
-            u = 1.0 - F32_EPS;
-        } else {
-            let s = f32(i) / f32(n_out - 1u);
-            u = (1.0 - F32_EPS) * s;
-        }
+        let u = resample_u(i, n_out, key);
         // k = number of CDF entries <= u (the CDF is sorted): binary search over 0..=nw.
         var lo = 0u;
         var hi = nw + 1u;
@@ -260,18 +259,8 @@ fn resample_wide(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation
         let k = lo;
         let i_lo = max(k, 1u) - 1u;
         let i_hi = min(k, nw);
-        let c0 = w_cdf[i_lo];
-        let c1 = w_cdf[i_hi];
-        let num = u - c0;
-        let den = c1 - c0;
-        var t = select(0.0, 1.0, num > 0.0);
-        if (den > 0.0) {
-            t = num / den;
-        }
-        t = clamp(t, 0.0, 1.0);
-        let b0 = src_a[tb + i_lo];
-        let b1 = src_a[tb + i_hi];
-        run_max = max(b0 + t * (b1 - b0), run_max);
+        let v = edge_at(u, w_cdf[i_lo], w_cdf[i_hi], src_a[tb + i_lo], src_a[tb + i_hi]);
+        run_max = max(v, run_max);
         t_out[tb + i] = run_max;
     }
     // The running maximum over the blocks before this one, then applied to this block.

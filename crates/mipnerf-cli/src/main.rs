@@ -303,11 +303,7 @@ fn auto_choice(adapters: &[mipnerf_gpu::AdapterSummary]) -> String {
     use mipnerf_gpu::AdapterChoice;
     // An adapter named by WGPU_ADAPTER_NAME is the one auto tries, software or not.
     if let Some(named) = AdapterChoice::explicit(None) {
-        let found = adapters.iter().enumerate().find(|(i, a)| match &named {
-            AdapterChoice::Index(k) => i == k,
-            AdapterChoice::Named(n) => a.name.to_lowercase().contains(&n.to_lowercase()),
-            _ => false,
-        });
+        let found = adapters.iter().enumerate().find(|(i, a)| named.takes(*i, a));
         return match found {
             Some((_, a)) => format!("gpu ({}, {}: named by {})", a.name, a.backend, AdapterChoice::ENV),
             None => format!("cpu ({} names no adapter here)", AdapterChoice::ENV),

@@ -56,13 +56,21 @@ impl AdapterChoice {
         }
     }
 
-    /// Why this choice passes over adapter `index` described by `info`, or `None` if it takes it.
-    fn passes_over(&self, index: usize, info: &wgpu::AdapterInfo) -> Option<String> {
+    /// Whether this choice takes adapter `index` of [`list_adapters`], described by `adapter`
+    /// (its limits aside).
+    #[must_use]
+    pub fn takes(&self, index: usize, adapter: &AdapterSummary) -> bool {
+        self.passes_over(index, adapter).is_none()
+    }
+
+    /// Why this choice passes over adapter `index` described by `adapter`, or `None` if it takes it.
+    fn passes_over(&self, index: usize, adapter: &AdapterSummary) -> Option<String> {
         match self {
             Self::Any => None,
-            Self::HardwareOnly => (info.device_type == wgpu::DeviceType::Cpu)
-                .then(|| "a software adapter (the CPU path is faster than it)".to_string()),
-            Self::Named(s) => (!info.name.to_lowercase().contains(&s.to_lowercase()))
+            Self::HardwareOnly => {
+                adapter.is_software.then(|| "a software adapter (the CPU path is faster than it)".to_string())
+            }
+            Self::Named(s) => (!adapter.name.to_lowercase().contains(&s.to_lowercase()))
                 .then(|| format!("its name does not contain \"{s}\"")),
             Self::Index(k) => (index != *k).then(|| format!("not adapter {k}")),
         }
@@ -219,7 +227,7 @@ impl GpuContext {
         let mut chosen = None;
         for (i, a) in sorted_adapters(&inst).into_iter().enumerate() {
             let info = a.get_info();
-            let why = choice.passes_over(i, &info).or_else(|| {
+            let why = choice.passes_over(i, &AdapterSummary::from_info(&info)).or_else(|| {
                 limits_problem(&a.limits()).map(|(l, have, need)| format!("its {l} is {have}, the kernels need {need}"))
             });
             match why {
@@ -362,18 +370,8 @@ impl GpuContext {
         staging.slice(..size).map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
-        let wait = wgpu::PollType::Wait { submission_index: Some(after), timeout: Some(self.timeout) };
-        match self.device.poll(wait) {
-            Ok(_) => {}
-            Err(wgpu::PollError::Timeout) => {
-                return Err(GpuError::Timeout {
-                    adapter: self.adapter.name.clone(),
-                    seconds: self.timeout.as_secs_f64(),
-                });
-            }
-            Err(e) => return Err(GpuError::Poll(e)),
-        }
-        self.check()?;
+        self.wait_for(Some(after))?;
+        // The wait above ran every callback: a missing result means the map was dropped unanswered.
         rx.recv().unwrap_or(Err(wgpu::BufferAsyncError)).map_err(GpuError::Readback)?;
         let view = staging.get_mapped_range(..size).map_err(|_| GpuError::Readback(wgpu::BufferAsyncError))?;
         let out = bytemuck::cast_slice::<u8, f32>(&view)[..len].to_vec();
@@ -402,7 +400,13 @@ impl GpuContext {
     /// [`GpuError::Timeout`] when the device does not finish in time; [`GpuError::Poll`] when
     /// waiting fails otherwise; errors wgpu reported ([`check`](Self::check)).
     pub fn wait(&self) -> Result<(), GpuError> {
-        match self.device.poll(wgpu::PollType::Wait { submission_index: None, timeout: Some(self.timeout) }) {
+        self.wait_for(None)
+    }
+
+    /// Waits for submission `index` (all submitted work when `None`), at most the timeout, then
+    /// reports what wgpu reported meanwhile.
+    fn wait_for(&self, index: Option<wgpu::SubmissionIndex>) -> Result<(), GpuError> {
+        match self.device.poll(wgpu::PollType::Wait { submission_index: index, timeout: Some(self.timeout) }) {
             Ok(_) => {}
             Err(wgpu::PollError::Timeout) => {
                 return Err(GpuError::Timeout {
@@ -542,19 +546,7 @@ impl GpuContext {
         let mut enc =
             self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("mipnerf readback") });
         enc.copy_buffer_to_buffer(buffer, (offset * 4) as u64, &staging, 0, size);
-        let _ = self.submit(enc.finish());
-        let (tx, rx) = std::sync::mpsc::channel();
-        staging.slice(..size.max(4)).map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        self.wait()?;
-        // The wait above ran every callback: a missing result means the map was dropped unanswered.
-        rx.recv().unwrap_or(Err(wgpu::BufferAsyncError)).map_err(GpuError::Readback)?;
-        let view = staging.get_mapped_range(..size.max(4)).map_err(|_| GpuError::Readback(wgpu::BufferAsyncError))?;
-        let out = bytemuck::cast_slice::<u8, f32>(&view)[..len].to_vec();
-        drop(view);
-        staging.unmap();
-        self.counters.bytes_read_back.fetch_add(size, Ordering::Relaxed);
-        Ok(out)
+        let index = self.submit(enc.finish());
+        self.read_staged(&staging, len, index)
     }
 }

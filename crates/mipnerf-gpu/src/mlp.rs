@@ -96,18 +96,14 @@ impl MlpBuffers {
     /// are column 0 of the fused heads).
     #[must_use]
     pub fn raw_density(&self) -> (&wgpu::Buffer, usize) {
-        (&self.heads, self.heads_width())
+        (&self.heads, self.heads_width)
     }
 
     /// Where [`GpuMlp::backward`] reads the gradient of the raw densities: the buffer and the
     /// elements between consecutive samples' values.
     #[must_use]
     pub fn d_raw_density(&self) -> (&wgpu::Buffer, usize) {
-        (&self.d_heads, self.heads_width())
-    }
-
-    fn heads_width(&self) -> usize {
-        self.heads_width
+        (&self.d_heads, self.heads_width)
     }
 
     /// Floats of partial products the split weight gradients of `n` samples use: room for

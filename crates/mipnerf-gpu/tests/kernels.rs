@@ -100,41 +100,28 @@ fn mlp_forward_and_backward_match_cpu_reference() {
     // Both matrix-product kernels, whatever the adapter would pick.
     for variant in [MatmulVariant::Tiled, MatmulVariant::Blocked] {
         let gpu = GpuMlp::with_variant(&ctx, variant).unwrap();
-        // Two shapes: a skip concatenation inside the trunk and one before the heads; 1 and 2 colour layers.
-        for (ci, cfg) in [
-            MlpConfig {
-                net_depth: 4,
-                net_width: 32,
-                skip_layer: 2,
-                net_depth_condition: 1,
-                net_width_condition: 16,
-                x_dim: 24,
-                view_dim: 15,
-            },
-            MlpConfig {
-                net_depth: 2,
-                net_width: 20,
-                skip_layer: 1,
-                net_depth_condition: 2,
-                net_width_condition: 12,
-                x_dim: 30,
-                view_dim: 9,
-            },
-            // The first shape again with enough samples (2257) that the weight gradients split
-            // over k (several partial products, the last one short).
-            MlpConfig {
-                net_depth: 4,
-                net_width: 32,
-                skip_layer: 2,
-                net_depth_condition: 1,
-                net_width_condition: 16,
-                x_dim: 24,
-                view_dim: 15,
-            },
-        ]
-        .into_iter()
-        .enumerate()
-        {
+        // Two shapes: a skip concatenation inside the trunk and one before the heads; 1 and 2
+        // colour layers. The first again with enough samples (2257) that the weight gradients
+        // split over k (several partial products, the last one short).
+        let inside = MlpConfig {
+            net_depth: 4,
+            net_width: 32,
+            skip_layer: 2,
+            net_depth_condition: 1,
+            net_width_condition: 16,
+            x_dim: 24,
+            view_dim: 15,
+        };
+        let before_heads = MlpConfig {
+            net_depth: 2,
+            net_width: 20,
+            skip_layer: 1,
+            net_depth_condition: 2,
+            net_width_condition: 12,
+            x_dim: 30,
+            view_dim: 9,
+        };
+        for (ci, cfg) in [inside, before_heads, inside].into_iter().enumerate() {
             let shape = MlpShape::new(cfg, 0).unwrap();
             let mut rng = SmallRng::seed_from_u64(ci as u64);
             let mut params = vec![0.0; shape.num_params];

@@ -263,24 +263,22 @@ impl MatmulKernel {
         (cap(n.div_ceil(t)), cap(m.div_ceil(t)), splits as u32)
     }
 
-    /// Records `c (m x n) (+)= a (m x k) · b (k x n)` with `epi`. `c` must be another buffer
-    /// than `a`, `b` and the mask.
-    #[allow(clippy::too_many_arguments)]
-    pub fn encode(
-        &self,
-        rec: &mut Recorder<'_>,
+    /// The uniform block of the unsplit product `c (+)= a · b` with `epi`, and the buffer bound
+    /// at binding 4 (the epilogue's mask or per-group matrix, else `fallback`).
+    fn params<'x>(
         (m, k, n): (usize, usize, usize),
-        a: Operand<'_>,
+        a: Operand<'x>,
         b: Operand<'_>,
         c: Operand<'_>,
-        epi: Epilogue<'_>,
-    ) {
-        let (mask, mask_off, rows_per_group) = epi.extra(a.buffer);
+        epi: &Epilogue<'x>,
+        fallback: &'x wgpu::Buffer,
+    ) -> (MatmulParams, &'x wgpu::Buffer) {
+        let (extra, mask_off, rows_per_group) = epi.extra(fallback);
         let params = MatmulParams {
             m: m as u32,
             k: k as u32,
             n: n as u32,
-            flags: Self::flags(a, b, &epi),
+            flags: Self::flags(a, b, epi),
             a_off: a.offset,
             b_off: b.offset,
             c_off: c.offset,
@@ -294,8 +292,24 @@ impl MatmulKernel {
             c_ld: ld(&c, n),
             _pad: 0,
         };
+        (params, extra)
+    }
+
+    /// Records `c (m x n) (+)= a (m x k) · b (k x n)` with `epi`. `c` must be another buffer
+    /// than `a`, `b` and the mask.
+    #[allow(clippy::too_many_arguments)]
+    pub fn encode(
+        &self,
+        rec: &mut Recorder<'_>,
+        (m, k, n): (usize, usize, usize),
+        a: Operand<'_>,
+        b: Operand<'_>,
+        c: Operand<'_>,
+        epi: Epilogue<'_>,
+    ) {
+        let (params, extra) = Self::params((m, k, n), a, b, c, &epi, a.buffer);
         let groups = self.product_groups(m, n, 1);
-        rec.dispatch("matmul", &self.pipeline, &self.layout, &params, &[a.buffer, b.buffer, c.buffer, mask], groups);
+        rec.dispatch("matmul", &self.pipeline, &self.layout, &params, &[a.buffer, b.buffer, c.buffer, extra], groups);
     }
 
     /// [`encode`](Self::encode), split over k as [`split_plan`](Self::split_plan) says: the
@@ -318,62 +332,38 @@ impl MatmulKernel {
             self.encode(rec, (m, k, n), a, b, c, epi);
             return;
         }
+        let (whole, extra) = Self::params((m, k, n), a, b, c, &epi, scratch);
+        let (k_chunk, n_splits) = (plan.k_chunk as u32, plan.splits as u32);
+        // First pass: split z's raw sums into scratch (only the operands' layout flags).
         let partial = MatmulParams {
-            m: m as u32,
-            k: k as u32,
-            n: n as u32,
-            flags: u32::from(a.transposed) | (u32::from(b.transposed) << 1) | 64,
-            a_off: a.offset,
-            b_off: b.offset,
+            flags: (whole.flags & 3) | 64,
             c_off: 0,
             bias_off: 0,
-            k_chunk: plan.k_chunk as u32,
-            n_splits: plan.splits as u32,
-            groups_x: 0,
+            k_chunk,
+            n_splits,
             mask_off: 0,
             rows_per_group: 1,
-            a_ld: ld(&a, if a.transposed { m } else { k }),
             c_ld: n as u32,
-            _pad: 0,
+            ..whole
         };
         let groups = self.product_groups(m, n, plan.splits);
-        rec.dispatch(
-            "matmul split",
-            &self.pipeline,
-            &self.layout,
-            &partial,
-            &[a.buffer, b.buffer, scratch, a.buffer],
-            groups,
-        );
-        let (mask, mask_off, rows_per_group) = epi.extra(scratch);
+        let bufs = [a.buffer, b.buffer, scratch, a.buffer];
+        rec.dispatch("matmul split", &self.pipeline, &self.layout, &partial, &bufs, groups);
+        // Second pass: the partials (packed m x n matrices in scratch) added in order, then the
+        // epilogue.
         // m * n is a layer's weight count: far inside one dispatch.
         let (gx, gy) = kernels::dispatch_grid((m * n) as u64, kernels::WORKGROUP).unwrap_or((1, 1));
         let reduce = MatmulParams {
-            m: m as u32,
-            k: k as u32,
-            n: n as u32,
-            flags: Self::flags(Operand { transposed: false, ..a }, Operand { transposed: false, ..b }, &epi),
+            flags: whole.flags & !3,
             a_off: 0,
-            b_off: b.offset,
-            c_off: c.offset,
-            bias_off: epi.bias.unwrap_or(0) as u32,
-            k_chunk: plan.k_chunk as u32,
-            n_splits: plan.splits as u32,
+            k_chunk,
+            n_splits,
             groups_x: gx,
-            mask_off,
-            rows_per_group,
             a_ld: k as u32,
-            c_ld: ld(&c, n),
-            _pad: 0,
+            ..whole
         };
-        rec.dispatch(
-            "matmul reduce",
-            &self.reduce,
-            &self.layout,
-            &reduce,
-            &[scratch, b.buffer, c.buffer, mask],
-            (gx, gy, 1),
-        );
+        let bufs = [scratch, b.buffer, c.buffer, extra];
+        rec.dispatch("matmul reduce", &self.reduce, &self.layout, &reduce, &bufs, (gx, gy, 1));
     }
 }
 
