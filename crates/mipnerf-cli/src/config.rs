@@ -45,6 +45,9 @@ pub enum PresetArg {
     Small,
     /// The paper's 8 x 256 trunk, 128 + 128 samples (612K parameters).
     Paper,
+    /// Time to quality: the small trunk with 32 + 32 samples, occupancy-guided sampling, and the
+    /// batch and learning rates measured fastest to a sharp picture (CPU backend).
+    Fast,
 }
 
 impl PresetArg {
@@ -55,8 +58,49 @@ impl PresetArg {
             Self::Tiny => Preset::Tiny,
             Self::Small => Preset::Small,
             Self::Paper => Preset::Paper,
+            Self::Fast => Preset::Fast,
         }
     }
+}
+
+/// Rays per batch of the fast preset (drawn pixels; those an occupancy grid finds empty cost no
+/// MLP work).
+pub const FAST_BATCH_RAYS: usize = 1024;
+/// Initial and final learning rates of the fast preset.
+pub const FAST_LR: (f32, f32) = (2e-3, 2e-5);
+/// Learning-rate warm-up steps of the fast preset.
+pub const FAST_LR_DELAY_STEPS: u64 = 100;
+
+/// A duration: `90`, `90s`, `30m`, `1h`, `1h30m`, `2.5m` (seconds when no unit is given).
+///
+/// # Errors
+/// Anything else, or a duration that is not positive and finite.
+pub fn parse_duration(text: &str) -> Result<f64> {
+    let t = text.trim();
+    let mut total = 0.0;
+    let mut num = String::new();
+    for ch in t.chars() {
+        if ch.is_ascii_digit() || ch == '.' {
+            num.push(ch);
+            continue;
+        }
+        let unit = match ch {
+            'h' => 3600.0,
+            'm' => 60.0,
+            's' => 1.0,
+            _ => bail!("not a duration: {t:?} (write e.g. 90s, 30m, 1h30m)"),
+        };
+        let v: f64 = num.parse().map_err(|_| anyhow::anyhow!("not a duration: {t:?} (write e.g. 90s, 30m, 1h30m)"))?;
+        total += v * unit;
+        num.clear();
+    }
+    if !num.is_empty() {
+        total += num.parse::<f64>().map_err(|_| anyhow::anyhow!("not a duration: {t:?} (write e.g. 90s, 30m)"))?;
+    }
+    if !(total.is_finite() && total > 0.0) {
+        bail!("not a positive duration: {t:?} (write e.g. 90s, 30m, 1h30m)");
+    }
+    Ok(total)
 }
 
 /// The most training steps a run can take: the step number seeds the random numbers as a `u32`.
@@ -125,6 +169,22 @@ pub struct TrainSettings {
     pub llff_factor: Option<u32>,
     /// LLFF: spherical poses instead of NDC [default: false].
     pub spherify: Option<bool>,
+    /// Occupancy-guided sampling [default: true for the fast preset, else false].
+    pub occupancy: Option<bool>,
+    /// Cells along each axis of the occupancy grid [default: 64].
+    pub occupancy_resolution: Option<usize>,
+    /// Half the side of the occupancy grid's cube, centred on the origin [default: from the
+    /// cameras: the nearest camera's distance to the origin less its near bound].
+    pub occupancy_bound: Option<f32>,
+    /// Seed the occupancy grid with the visual hull of the training images' alpha masks, where
+    /// they have transparency [default: true].
+    pub occupancy_masks: Option<bool>,
+    /// Train for this long (`90s`, `30m`, `1h30m`; training time over every resumed segment)
+    /// instead of a step count, with the learning-rate schedule stretched to the steps that fit.
+    pub time_budget: Option<String>,
+    /// Copy the run (checkpoint, config, training time) to `snapshots/NNNNNs/` when the training
+    /// time passes each of these marks (`2m`, `5m`, ...), for evaluation at fixed times.
+    pub snapshots: Option<Vec<String>>,
 }
 
 macro_rules! merge_fields {
@@ -164,7 +224,13 @@ impl TrainSettings {
             white_bkgd,
             half_res,
             llff_factor,
-            spherify
+            spherify,
+            occupancy,
+            occupancy_resolution,
+            occupancy_bound,
+            occupancy_masks,
+            time_budget,
+            snapshots
         )
     }
 
@@ -195,20 +261,28 @@ impl TrainSettings {
     pub fn resolved(&self, llff: bool) -> Self {
         let kind = self.model.unwrap_or(ModelKind::Mipnerf);
         let mip = kind == ModelKind::Mipnerf;
-        let steps = self.steps.unwrap_or(2000);
+        let preset = self.preset.unwrap_or(PresetArg::Tiny);
+        let fast = preset == PresetArg::Fast;
+        // A time budget ends the run, so the step count only caps it when given.
+        let steps = self.steps.unwrap_or(if self.time_budget.is_some() { MAX_STEPS } else { 2000 });
+        let occupancy = self.occupancy.unwrap_or(fast);
         Self {
             data: self.data.clone(),
-            preset: Some(self.preset.unwrap_or(PresetArg::Tiny)),
+            preset: Some(preset),
             model: Some(kind),
             steps: Some(steps),
-            batch_rays: Some(self.batch_rays.unwrap_or(1024)),
+            batch_rays: Some(self.batch_rays.unwrap_or(if fast { FAST_BATCH_RAYS } else { 1024 })),
             seed: Some(self.seed.unwrap_or(0)),
-            backend: Some(self.backend.unwrap_or(Backend::Auto)),
+            backend: Some(self.backend.unwrap_or(if fast { Backend::Cpu } else { Backend::Auto })),
             checkpoint_every: Some(self.checkpoint_every.unwrap_or(500)),
             log_every: Some(self.log_every.unwrap_or(10)),
-            lr_init: Some(self.lr_init.unwrap_or(5e-4)),
-            lr_final: Some(self.lr_final.unwrap_or(5e-6)),
-            lr_delay_steps: Some(self.lr_delay_steps.unwrap_or(2500.min(steps / 10))),
+            lr_init: Some(self.lr_init.unwrap_or(if fast { FAST_LR.0 } else { 5e-4 })),
+            lr_final: Some(self.lr_final.unwrap_or(if fast { FAST_LR.1 } else { 5e-6 })),
+            lr_delay_steps: Some(self.lr_delay_steps.unwrap_or(if fast {
+                FAST_LR_DELAY_STEPS
+            } else {
+                2500.min(steps / 10)
+            })),
             lr_delay_mult: Some(self.lr_delay_mult.unwrap_or(0.01)),
             grad_max_norm: Some(self.grad_max_norm.unwrap_or(0.0)),
             grad_max_val: Some(self.grad_max_val.unwrap_or(0.0)),
@@ -228,7 +302,39 @@ impl TrainSettings {
             half_res: Some(self.half_res.unwrap_or(false)),
             llff_factor: Some(self.llff_factor.unwrap_or(4)),
             spherify: Some(self.spherify.unwrap_or(false)),
+            occupancy: Some(occupancy),
+            occupancy_resolution: occupancy.then(|| self.occupancy_resolution.unwrap_or(64)),
+            occupancy_bound: self.occupancy_bound,
+            occupancy_masks: occupancy.then(|| self.occupancy_masks.unwrap_or(true)),
+            time_budget: self.time_budget.clone(),
+            snapshots: self.snapshots.clone(),
         }
+    }
+
+    /// The time budget in seconds, if one is set.
+    ///
+    /// # Errors
+    /// A malformed duration, named.
+    pub fn time_budget_seconds(&self) -> Result<Option<f64>> {
+        self.time_budget
+            .as_deref()
+            .map(|t| parse_duration(t).with_context(|| format!("--time-budget {t:?}")))
+            .transpose()
+    }
+
+    /// The snapshot marks in seconds, sorted.
+    ///
+    /// # Errors
+    /// A malformed duration, named.
+    pub fn snapshot_seconds(&self) -> Result<Vec<f64>> {
+        let mut v = self
+            .snapshots
+            .iter()
+            .flatten()
+            .map(|t| parse_duration(t).with_context(|| format!("--snapshots {t:?}")))
+            .collect::<Result<Vec<_>>>()?;
+        v.sort_by(f64::total_cmp);
+        Ok(v)
     }
 
     /// The model configuration of resolved settings.
@@ -336,6 +442,29 @@ impl TrainSettings {
                 need(batch as u64)
             );
         }
+        self.time_budget_seconds()?;
+        self.snapshot_seconds()?;
+        if let Some(b) = self.occupancy_bound
+            && !(b.is_finite() && b > 0.0)
+        {
+            bail!("{} must be a positive number, got {b}", name("occupancy_bound"));
+        }
+        if let Some(r) = self.occupancy_resolution
+            && !(2..=256).contains(&r)
+        {
+            bail!("{} must be between 2 and 256, got {r}", name("occupancy_resolution"));
+        }
+        if self.occupancy == Some(true) {
+            if self.supersample.unwrap_or(1) > 1 {
+                bail!("occupancy-guided sampling (--occupancy) does not guide supersampled pixels: drop --supersample");
+            }
+            if self.backend == Some(Backend::Gpu) {
+                bail!(
+                    "occupancy-guided sampling (--occupancy, the fast preset) runs on the CPU backend only so far: \
+                     pass --backend cpu (or --no-occupancy)"
+                );
+            }
+        }
         for (key, v) in [("grad_max_norm", self.grad_max_norm), ("grad_max_val", self.grad_max_val)] {
             if let Some(v) = v
                 && !(v.is_finite() && v >= 0.0)
@@ -441,6 +570,29 @@ pub struct TrainFlags {
     /// LLFF: spherical poses and world-space rays instead of NDC.
     #[arg(long)]
     pub spherify: bool,
+    /// Occupancy-guided sampling: skip empty space, learnt from the model's densities (on by
+    /// default with --preset fast; CPU backend).
+    #[arg(long, conflicts_with = "no_occupancy")]
+    pub occupancy: bool,
+    /// The paper's sampler, even with --preset fast.
+    #[arg(long)]
+    pub no_occupancy: bool,
+    /// Cells along each axis of the occupancy grid [default: 64].
+    #[arg(long, value_name = "N")]
+    pub occupancy_resolution: Option<usize>,
+    /// Half the side of the occupancy grid's cube around the origin [default: from the cameras].
+    #[arg(long, value_name = "B")]
+    pub occupancy_bound: Option<f32>,
+    /// Do not seed the occupancy grid with the visual hull of the training masks.
+    #[arg(long)]
+    pub no_occupancy_masks: bool,
+    /// Train for this long instead of a step count (`90s`, `30m`, `1h30m`), the learning-rate
+    /// schedule stretched to the steps that fit; then checkpoint and stop.
+    #[arg(long, value_name = "DURATION")]
+    pub time_budget: Option<String>,
+    /// Copy the run to snapshots/NNNNNs/ as the training time passes each mark (`2m,5m,10m`).
+    #[arg(long, value_name = "DURATION,...", value_delimiter = ',')]
+    pub snapshots: Option<Vec<String>>,
 }
 
 /// `--ray-shape` values.
@@ -489,6 +641,12 @@ impl TrainFlags {
             half_res: yes(self.half_res),
             llff_factor: self.llff_factor,
             spherify: yes(self.spherify),
+            occupancy: yes(self.occupancy).or(no(self.no_occupancy)),
+            occupancy_resolution: self.occupancy_resolution,
+            occupancy_bound: self.occupancy_bound,
+            occupancy_masks: no(self.no_occupancy_masks),
+            time_budget: self.time_budget.clone(),
+            snapshots: self.snapshots.clone(),
         }
     }
 }

@@ -115,6 +115,38 @@ pub struct RowResult {
     pub backend: String,
     /// The resolved training settings (without the data path).
     pub settings: TrainSettings,
+    /// The SHA-256 of the checkpoint these numbers were measured on: the run they belong to. A
+    /// row whose run directory holds another checkpoint is evaluated again.
+    #[serde(default)]
+    pub checkpoint_sha256: Option<String>,
+    /// Evaluations at fixed training times (the run's `snapshots`), earliest first.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub marks: Vec<MarkResult>,
+}
+
+/// The test split evaluated on a snapshot of a run taken at a fixed training time.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct MarkResult {
+    /// The mark (seconds of training time) the snapshot was taken at.
+    pub mark_seconds: f64,
+    /// The training time the snapshot holds (the first step past the mark).
+    pub train_seconds: f64,
+    /// Training steps done by then.
+    pub steps: u64,
+    /// Mean test PSNR per scale, full resolution to 1/8.
+    pub psnr: Vec<f64>,
+    /// Mean of `psnr` over the scales.
+    pub mean_psnr: f64,
+    /// Mean test SSIM per scale.
+    pub ssim: Vec<f64>,
+    /// Mean test LPIPS per scale, or `null` without the weights.
+    pub lpips: Option<Vec<f64>>,
+    /// The average error over the scales.
+    pub avg_error: f64,
+    /// Wall-clock seconds of this evaluation (not counted in the training time).
+    pub eval_seconds: f64,
+    /// The SHA-256 of the snapshot's checkpoint.
+    pub checkpoint_sha256: String,
 }
 
 /// The flags of `mipnerf experiment`.
@@ -255,7 +287,8 @@ fn run_row(
     lpips: &LpipsWeights,
     stop: &Arc<AtomicBool>,
 ) -> Result<bool> {
-    let steps = settings.steps.unwrap_or(2000);
+    let steps = settings.resolved(false).steps.unwrap_or(2000);
+    let budget = settings.time_budget_seconds()?;
     let ckpt = run_dir.join(run::CHECKPOINT);
     let mut done_steps = 0;
     if ckpt.is_file() {
@@ -270,8 +303,16 @@ fn run_row(
         }
         done_steps = run::load_trained(run_dir, &saved)?.1.step;
     }
-    if done_steps < steps {
-        println!("== row {id} ({}): training, {} of {steps} steps done", row.label, done_steps);
+    let trained = done_steps >= steps || budget.is_some_and(|b| run::train_seconds(run_dir).is_some_and(|t| t >= b));
+    if !trained {
+        match budget {
+            Some(b) => println!(
+                "== row {id} ({}): training, {:.0} of {b:.0} s done",
+                row.label,
+                if done_steps > 0 { run::train_seconds(run_dir).unwrap_or(0.0) } else { 0.0 }
+            ),
+            None => println!("== row {id} ({}): training, {} of {steps} steps done", row.label, done_steps),
+        }
         let outcome =
             run::train(run_dir, Some(settings.clone()), TrainSettings::default(), done_steps > 0, Arc::clone(stop))?;
         if outcome.interrupted {
@@ -280,19 +321,29 @@ fn run_row(
     }
     let json_path = results.join(format!("{id}.json"));
     let have_lpips = lpips.open()?.is_ok();
-    if let Ok(text) = std::fs::read_to_string(&json_path)
-        && let Ok(old) = serde_json::from_str::<RowResult>(&text)
-        && old.steps == steps
+    let sha = mipnerf_core::checkpoint::file_sha256(&ckpt)?;
+    let old = std::fs::read_to_string(&json_path).ok().and_then(|t| serde_json::from_str::<RowResult>(&t).ok());
+    let marks = evaluate_marks(id, run_dir, old.as_ref().map_or(&[][..], |o| &o.marks), lpips)?;
+    if let Some(old) = &old
+        && old.checkpoint_sha256.as_deref() == Some(sha.as_str())
         && (old.lpips.is_some() || !have_lpips)
+        && marks.iter().map(|m| &m.checkpoint_sha256).eq(old.marks.iter().map(|m| &m.checkpoint_sha256))
     {
-        println!("== row {id} ({}): done ({})", row.label, json_path.display());
+        println!("== row {id} ({}): done ({}, measured on this run's checkpoint)", row.label, json_path.display());
         return Ok(true);
+    }
+    if old.is_some() {
+        println!(
+            "== row {id} ({}): {} holds another run's numbers (or an incomplete row); evaluating this run",
+            row.label,
+            json_path.display()
+        );
     }
     println!("== row {id} ({}): evaluating", row.label);
     let t = Instant::now();
     let saved = run::read_config(run_dir)?;
     let m = crate::eval::eval(run_dir, Split::Test, saved.backend.unwrap_or(crate::config::Backend::Cpu), lpips)?;
-    let (model, _) = run::load_trained(run_dir, &saved)?;
+    let (model, ck) = run::load_trained(run_dir, &saved)?;
     let r = RowResult {
         row: id.to_string(),
         label: row.label.clone(),
@@ -305,12 +356,14 @@ fn run_row(
         train_seconds: run::train_seconds(run_dir).unwrap_or(f64::NAN),
         eval_seconds: t.elapsed().as_secs_f64(),
         params: model.num_params(),
-        steps,
+        steps: ck.step,
         commit: commit().to_string(),
         cpu: cpu_name(),
         threads: rayon::current_num_threads(),
         backend: format!("{:?}", saved.backend.unwrap_or(crate::config::Backend::Cpu)).to_lowercase(),
         settings: TrainSettings { data: None, ..saved },
+        checkpoint_sha256: Some(sha),
+        marks,
     };
     std::fs::write(&json_path, serde_json::to_string_pretty(&r)? + "\n")
         .with_context(|| json_path.display().to_string())?;
@@ -321,6 +374,54 @@ fn run_row(
         json_path.display()
     );
     Ok(true)
+}
+
+/// Evaluates the test split on each of the run's snapshots (`RUN/snapshots/*/`, see
+/// `train --snapshots`), reusing a result of `known` measured on the same checkpoint.
+fn evaluate_marks(id: &str, run_dir: &Path, known: &[MarkResult], lpips: &LpipsWeights) -> Result<Vec<MarkResult>> {
+    let dir = run_dir.join("snapshots");
+    let mut snaps: Vec<PathBuf> = match std::fs::read_dir(&dir) {
+        Ok(entries) => entries.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.is_dir()).collect(),
+        Err(_) => return Ok(Vec::new()),
+    };
+    snaps.sort();
+    let mut out = Vec::new();
+    for snap in snaps {
+        let mark_seconds: f64 = snap
+            .file_name()
+            .and_then(|n| n.to_str())
+            .and_then(|n| n.strip_suffix('s'))
+            .and_then(|n| n.parse().ok())
+            .with_context(|| format!("{}: not a snapshot folder (NNNNNs)", snap.display()))?;
+        let sha = mipnerf_core::checkpoint::file_sha256(&snap.join(run::CHECKPOINT))?;
+        if let Some(k) = known.iter().find(|k| k.checkpoint_sha256 == sha) {
+            out.push(k.clone());
+            continue;
+        }
+        println!("== row {id}: evaluating the snapshot at {mark_seconds:.0} s");
+        let t = Instant::now();
+        let saved = run::read_config(&snap)?;
+        let m = crate::eval::eval(&snap, Split::Test, saved.backend.unwrap_or(crate::config::Backend::Cpu), lpips)?;
+        let psnr = m.column(|s| s.psnr);
+        out.push(MarkResult {
+            mark_seconds,
+            train_seconds: run::train_seconds(&snap).unwrap_or(f64::NAN),
+            steps: m.step,
+            mean_psnr: psnr.iter().sum::<f64>() / psnr.len().max(1) as f64,
+            psnr,
+            ssim: m.column(|s| s.ssim),
+            lpips: m.lpips_column(),
+            avg_error: m.avg_error,
+            eval_seconds: t.elapsed().as_secs_f64(),
+            checkpoint_sha256: sha,
+        });
+        println!(
+            "== row {id}: at {mark_seconds:.0} s (step {}): mean PSNR {:.2}",
+            m.step,
+            out.last().map_or(f64::NAN, |m| m.mean_psnr)
+        );
+    }
+    Ok(out)
 }
 
 const BEGIN: &str = "<!-- BEGIN GENERATED TABLE";

@@ -11,6 +11,7 @@ use mipnerf_core::backend::TrainState;
 use mipnerf_core::checkpoint::{self, Checkpoint};
 use mipnerf_core::data::{self, Dataset, Format, LoadOptions, Split};
 use mipnerf_core::model::Model;
+use mipnerf_core::occupancy::{OccupancyConfig, OccupancyGrid};
 
 use crate::backend;
 use crate::config::{Backend, TrainSettings};
@@ -153,13 +154,16 @@ pub fn train(
     }
     let ds = Arc::new(load_training_data(&s, format, &model)?);
     let seed = s.seed.unwrap_or(0);
-    let state = if resume {
+    let mut state = if resume {
         let ck = load_checkpoint(&ckpt_path, &model)?;
         eprintln!("resuming from step {} ({})", ck.step, ckpt_path.display());
         TrainState::from_checkpoint(ck)
     } else {
         TrainState::fresh(&model, seed)
     };
+    if s.occupancy == Some(true) && state.occupancy.is_none() {
+        state.occupancy = Some(new_occupancy_grid(&s, &ds)?);
+    }
     let batch = s.batch_rays.unwrap_or(1024);
     let setup = mipnerf_gpu::BackendSetup {
         model,
@@ -173,6 +177,38 @@ pub fn train(
     let be = backend::open(s.backend.unwrap_or(Backend::Auto), setup)?;
     s.save(&run_dir.join(CONFIG))?;
     TrainLoop::new(run_dir, &s, be, resume)?.run(&stop)
+}
+
+/// A run's occupancy grid before training: its cube from the settings or the cameras, seeded
+/// with the visual hull of the training masks where the data has transparency (and the settings
+/// allow it), said in one line.
+fn new_occupancy_grid(s: &TrainSettings, ds: &Dataset) -> Result<OccupancyGrid> {
+    if ds.ndc.is_some() {
+        bail!(
+            "occupancy-guided sampling (--occupancy) needs a bounded scene; this forward-facing dataset trains in NDC \
+             space: drop --occupancy (or use --spherify for photos all around an object)"
+        );
+    }
+    let bound = match s.occupancy_bound {
+        Some(b) => b,
+        None => mipnerf_core::occupancy::auto_bound(ds).context(
+            "the occupancy grid's cube cannot be taken from the cameras (a camera's near bound reaches the \
+             origin): pass --occupancy-bound B (half the side of a cube around the origin that holds the scene)",
+        )?,
+    };
+    let config =
+        OccupancyConfig { resolution: s.occupancy_resolution.unwrap_or(64), bound, ..OccupancyConfig::default() };
+    let mut grid = OccupancyGrid::new(config)?;
+    let t = Instant::now();
+    let carved = if s.occupancy_masks.unwrap_or(true) { grid.carve_with_masks(ds) } else { 0 };
+    eprintln!(
+        "occupancy: {r}^3 cells over [-{bound:.3}, {bound:.3}]^3; {} ({:.1}% of cells left, {:.1}s)",
+        if carved > 0 { format!("{carved} carved by the training masks") } else { "no masks carved".to_string() },
+        100.0 * grid.occupied_fraction(),
+        t.elapsed().as_secs_f64(),
+        r = config.resolution,
+    );
+    Ok(grid)
 }
 
 /// The settings of a run: the saved ones on `--resume`, else the file's, overridden by the
@@ -244,6 +280,12 @@ struct TrainLoop<'a> {
     t0: Instant,
     /// The step of the checkpoint on disk written by this run (or found on resume).
     last_saved: Option<u64>,
+    /// `--time-budget` in seconds of training time, and the schedule it stretches.
+    budget: Option<(f64, mipnerf_core::schedule::LrSchedule)>,
+    /// `--snapshots` marks (seconds of training time) not yet passed.
+    snapshots: Vec<f64>,
+    /// The steps and seconds this segment has run, for the budget's step estimate.
+    segment_steps: u64,
 }
 
 impl<'a> TrainLoop<'a> {
@@ -255,6 +297,12 @@ impl<'a> TrainLoop<'a> {
     ) -> Result<Self> {
         let csv_path = run_dir.join(METRICS_CSV);
         let csv = open_csv(&csv_path, be.step())?;
+        let seconds_before = if resume { train_seconds(run_dir).unwrap_or(0.0) } else { 0.0 };
+        let budget = match s.time_budget_seconds()? {
+            Some(b) => Some((b, s.optim_config()?.lr)),
+            None => None,
+        };
+        let snapshots = s.snapshot_seconds()?.into_iter().filter(|&m| m > seconds_before).collect();
         Ok(Self {
             run_dir,
             ckpt_path: run_dir.join(CHECKPOINT),
@@ -264,9 +312,12 @@ impl<'a> TrainLoop<'a> {
             batch: s.batch_rays.unwrap_or(1024),
             log_every: s.log_every.unwrap_or(10),
             ckpt_every: s.checkpoint_every.unwrap_or(500),
-            seconds_before: if resume { train_seconds(run_dir).unwrap_or(0.0) } else { 0.0 },
+            seconds_before,
             t0: Instant::now(),
             last_saved: resume.then(|| be.step()),
+            budget,
+            snapshots,
+            segment_steps: 0,
             be,
         })
     }
@@ -299,6 +350,37 @@ impl<'a> TrainLoop<'a> {
         Ok(())
     }
 
+    /// Training time so far, over every segment of the run.
+    fn elapsed(&self) -> f64 {
+        self.seconds_before + self.t0.elapsed().as_secs_f64()
+    }
+
+    /// `--time-budget`: the schedule's decay stretched over the steps that the budget allows at
+    /// this segment's speed so far (the warm-up keeps its step count).
+    fn stretch_schedule(&mut self, budget: f64, lr: mipnerf_core::schedule::LrSchedule) {
+        let step = self.be.step();
+        let secs = self.t0.elapsed().as_secs_f64();
+        let per_step = if self.segment_steps > 0 { secs / self.segment_steps as f64 } else { f64::INFINITY };
+        let left = ((budget - self.elapsed()) / per_step).max(0.0);
+        // Before the first step is timed, the decay has not started: a horizon far away.
+        let total = if per_step.is_finite() { step + left.ceil() as u64 } else { u64::from(u32::MAX) };
+        self.be.set_lr_schedule(mipnerf_core::schedule::LrSchedule { max_steps: total.max(step + 1), ..lr });
+    }
+
+    /// Saves the run and copies it (checkpoint, configuration, training time) to
+    /// `snapshots/NNNNNs/` for the mark `mark` (seconds), a run directory `eval` reads.
+    fn snapshot(&mut self, mark: f64) -> Result<()> {
+        self.save()?;
+        let dir = self.run_dir.join("snapshots").join(format!("{:05}s", mark.round() as u64));
+        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+        for name in [CHECKPOINT, CONFIG, TRAIN_SECONDS] {
+            std::fs::copy(self.run_dir.join(name), dir.join(name))
+                .with_context(|| format!("copying {name} to {}", dir.display()))?;
+        }
+        eprintln!("snapshot at {:.0} s of training (step {}): {}", self.elapsed(), self.be.step(), dir.display());
+        Ok(())
+    }
+
     /// One row of metrics.csv for a step's report; returns the progress message.
     fn log_row(&mut self, rep: &mipnerf_core::train::StepReport, rays_per_s: f64) -> Result<String> {
         if !rep.stats.loss.is_finite() {
@@ -328,7 +410,11 @@ impl<'a> TrainLoop<'a> {
 
     /// Steps until `steps` or a signal, then the last checkpoint and the plots.
     fn run(mut self, stop: &AtomicBool) -> Result<TrainOutcome> {
-        let mut pb = Progress::new("train", self.be.step(), self.steps);
+        // With a time budget the bar counts seconds of training, and the message the steps.
+        let mut pb = match self.budget {
+            Some((b, _)) => Progress::new("train (s)", self.elapsed() as u64, b.ceil() as u64),
+            None => Progress::new("train", self.be.step(), self.steps),
+        };
         let mut window = (Instant::now(), 0u64);
         let mut last = None;
         let mut interrupted = false;
@@ -338,6 +424,13 @@ impl<'a> TrainLoop<'a> {
                 break;
             }
             let step = self.be.step();
+            if let Some((budget, lr)) = self.budget {
+                let done = self.elapsed();
+                if done >= budget {
+                    break;
+                }
+                self.stretch_schedule(budget, lr);
+            }
             // The losses are read (from the device, for a GPU) only on logged steps.
             let report = step.is_multiple_of(self.log_every) || step + 1 == self.steps;
             let rep = self.be.train_step(report)?;
@@ -346,12 +439,18 @@ impl<'a> TrainLoop<'a> {
                 let dt = window.0.elapsed().as_secs_f64().max(1e-9);
                 let rays_per_s = (window.1 as f64 * self.batch as f64) / dt;
                 window = (Instant::now(), 0);
-                pb.set_message(self.log_row(&rep, rays_per_s)?);
+                let msg = self.log_row(&rep, rays_per_s)?;
+                pb.set_message(if self.budget.is_some() { format!("step {} {msg}", rep.step) } else { msg });
                 last = Some((rep.stats.loss, rep.stats.psnr()));
             }
-            pb.set_position(self.be.step());
+            self.segment_steps += 1;
+            pb.set_position(if self.budget.is_some() { self.elapsed() as u64 } else { self.be.step() });
             if self.be.step().is_multiple_of(self.ckpt_every) {
                 self.save()?;
+            }
+            while self.snapshots.first().is_some_and(|&m| self.elapsed() >= m) {
+                let mark = self.snapshots.remove(0);
+                self.snapshot(mark)?;
             }
         }
         self.save()?;

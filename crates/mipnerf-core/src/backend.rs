@@ -12,6 +12,8 @@ use crate::checkpoint::Checkpoint;
 use crate::cone::Ray;
 use crate::data::{Dataset, Ndc, push_camera_rays};
 use crate::model::{LevelOutput, Model};
+use crate::occupancy::OccupancyGrid;
+use crate::schedule::LrSchedule;
 use crate::train::{AdamState, OptimConfig, StepReport, Trainer};
 
 /// Why a backend could not do what was asked.
@@ -46,6 +48,11 @@ pub enum Unsupported {
     /// Supersampling of forward-facing (NDC) data.
     #[error("{NDC_SUPERSAMPLE}")]
     NdcSupersample,
+    /// Occupancy-guided sampling (the GPU kernels do not run it yet).
+    #[error(
+        "occupancy-guided sampling (--occupancy, the fast preset) runs on the CPU backend only so far: pass --backend cpu"
+    )]
+    Occupancy,
 }
 
 /// A full image to render: its camera and how its pixels become rays.
@@ -170,6 +177,10 @@ pub trait Backend {
     /// [`BackendError::NoData`] without training data; device failures.
     fn train_step(&mut self, report: bool) -> Result<Option<StepReport>, BackendError>;
 
+    /// Replaces the learning-rate schedule from the next step on (`train --time-budget` stretches
+    /// it to the steps the budget allows as the run learns its speed).
+    fn set_lr_schedule(&mut self, lr: LrSchedule);
+
     /// The parameters, Adam state and step, as a checkpoint (read back from a device).
     ///
     /// # Errors
@@ -243,6 +254,8 @@ pub struct TrainState {
     pub adam: AdamState,
     /// The next step.
     pub step: u64,
+    /// The occupancy grid guiding sampling, if the run uses one.
+    pub occupancy: Option<OccupancyGrid>,
 }
 
 impl TrainState {
@@ -250,13 +263,18 @@ impl TrainState {
     /// starts from).
     #[must_use]
     pub fn fresh(model: &Model, seed: u32) -> Self {
-        Self { params: model.init_params(u64::from(seed)), adam: AdamState::new(model.num_params()), step: 0 }
+        Self {
+            params: model.init_params(u64::from(seed)),
+            adam: AdamState::new(model.num_params()),
+            step: 0,
+            occupancy: None,
+        }
     }
 
     /// The state saved in `ck`.
     #[must_use]
     pub fn from_checkpoint(ck: Checkpoint) -> Self {
-        Self { params: ck.params, adam: ck.adam, step: ck.step }
+        Self { params: ck.params, adam: ck.adam, step: ck.step, occupancy: ck.occupancy }
     }
 
     /// Checks the lengths against `model`.
@@ -318,6 +336,7 @@ impl CpuBackend {
         trainer.params = state.params;
         trainer.adam = state.adam;
         trainer.step = state.step;
+        trainer.occupancy = state.occupancy;
         Ok(Self { trainer, data: None, render_chunk: CPU_RENDER_CHUNK, rays: Vec::new(), targets: Vec::new() })
     }
 
@@ -368,9 +387,13 @@ impl Backend for CpuBackend {
         Ok(report.then_some(rep))
     }
 
+    fn set_lr_schedule(&mut self, lr: LrSchedule) {
+        self.trainer.optim.lr = lr;
+    }
+
     fn checkpoint(&mut self) -> Result<Checkpoint, BackendError> {
         let t = &self.trainer;
-        Ok(Checkpoint { step: t.step, params: t.params.clone(), adam: t.adam.clone() })
+        Ok(Checkpoint { step: t.step, params: t.params.clone(), adam: t.adam.clone(), occupancy: t.occupancy.clone() })
     }
 
     fn render_image(&mut self, image: &ImageSpec) -> Result<Vec<LevelOutput>, BackendError> {
@@ -382,7 +405,7 @@ impl Backend for CpuBackend {
         for first in (0..image.pixels()).step_by(chunk_pixels) {
             rays.clear();
             image.push_rays(first, chunk_pixels, &mut rays);
-            out.extend(model.render(&self.trainer.params, &rays));
+            out.extend(model.render_guided(&self.trainer.params, &rays, self.trainer.occupancy.as_ref()));
         }
         Ok(out)
     }

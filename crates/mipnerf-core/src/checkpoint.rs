@@ -12,7 +12,11 @@ use std::path::Path;
 use safetensors::tensor::{Dtype, SafeTensors};
 
 use crate::model::Model;
+use crate::occupancy::OccupancyGrid;
 use crate::train::AdamState;
+
+/// The tensor holding an occupancy grid's per-cell opacity.
+pub const OCCUPANCY_TENSOR: &str = "occupancy/opacity";
 
 /// The `format` metadata value this version writes and reads.
 pub const FORMAT: &str = "mipnerf-checkpoint-v1";
@@ -26,6 +30,9 @@ pub struct Checkpoint {
     pub params: Vec<f32>,
     /// Adam's state.
     pub adam: AdamState,
+    /// The occupancy grid of a run that uses one (tensor `occupancy/opacity`, `[R, R, R]` with x
+    /// fastest, its settings in the `occupancy` metadata as JSON).
+    pub occupancy: Option<OccupancyGrid>,
 }
 
 /// A checkpoint could not be written or read.
@@ -260,13 +267,31 @@ pub fn save_with(path: &Path, model: &Model, ckpt: &Checkpoint, fs: &mut dyn Fil
             buffers.push((format!("{prefix}{name}"), le_bytes(&source[off..off + len]), shape));
         }
     }
-    let meta = [
+    let mut meta = vec![
         ("format", FORMAT.to_string()),
         ("step", ckpt.step.to_string()),
         ("adam_t", ckpt.adam.t.to_string()),
         ("num_params", n.to_string()),
     ];
+    if let Some(g) = &ckpt.occupancy {
+        let r = g.resolution();
+        buffers.push((OCCUPANCY_TENSOR.to_string(), le_bytes(&g.opacity), vec![r, r, r]));
+        let cfg = serde_json::to_string(&g.config).map_err(|e| invalid(path, e.to_string()))?;
+        meta.push(("occupancy", cfg));
+        meta.push(("occupancy_warmed_up", g.warmed_up.to_string()));
+    }
     write_atomic(path, &safetensors_bytes(buffers, &meta), fs)
+}
+
+/// The SHA-256 (lower-case hex) of a file's bytes: what identifies the checkpoint a result came
+/// from.
+///
+/// # Errors
+/// An unreadable file.
+pub fn file_sha256(path: &Path) -> Result<String, CheckpointError> {
+    use sha2::Digest;
+    let bytes = std::fs::read(path).map_err(|e| CheckpointError::Io { path: path.to_path_buf(), error: e })?;
+    Ok(sha2::Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect())
 }
 
 /// Whether a loaded checkpoint's content was checked against its stored SHA-256.
@@ -348,5 +373,20 @@ pub fn load_checked(path: &Path, model: &Model) -> Result<(Checkpoint, Integrity
     if params.iter().chain(&m).chain(&v).any(|x| !x.is_finite()) {
         return Err(invalid(path, "holds non-finite values"));
     }
-    Ok((Checkpoint { step: num("step")?, params, adam: AdamState { m, v, t: num("adam_t")? } }, integrity))
+    let occupancy = match (meta.get("occupancy"), st.tensor(OCCUPANCY_TENSOR)) {
+        (None, Err(_)) => None,
+        (Some(cfg), Ok(t)) => {
+            let config = serde_json::from_str(cfg)
+                .map_err(|e| invalid(path, format!("the occupancy grid's settings are not readable: {e}")))?;
+            if t.dtype() != Dtype::F32 {
+                return Err(invalid(path, format!("{OCCUPANCY_TENSOR} is {:?}, not F32", t.dtype())));
+            }
+            let opacity = t.data().chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+            let warmed_up = meta.get("occupancy_warmed_up").is_some_and(|v| v == "true");
+            Some(OccupancyGrid::from_state(config, opacity, warmed_up).map_err(|e| invalid(path, e.to_string()))?)
+        }
+        _ => return Err(invalid(path, "holds half an occupancy grid (its tensor or its settings are missing)")),
+    };
+    let adam = AdamState { m, v, t: num("adam_t")? };
+    Ok((Checkpoint { step: num("step")?, params, adam, occupancy }, integrity))
 }

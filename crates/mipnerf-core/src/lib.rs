@@ -32,6 +32,7 @@ pub mod metrics;
 pub mod mip;
 pub mod mlp;
 pub mod model;
+pub mod occupancy;
 pub mod render;
 pub mod rng;
 pub mod sampling;

@@ -16,6 +16,7 @@ use rayon::prelude::*;
 use crate::cone::{self, Ray, RayShape};
 use crate::mip::{self, Gaussian};
 use crate::mlp::{MlpCache, MlpConfig, MlpConfigError, MlpShape};
+use crate::occupancy::OccupancyGrid;
 use crate::render::{self, DensityActivation};
 use crate::rng::{RayRng, Stream};
 use crate::sampling::{self, PdfSamples};
@@ -118,6 +119,9 @@ impl Default for ModelConfig {
     }
 }
 
+/// Samples per level of [`Preset::Fast`].
+pub const FAST_SAMPLES: usize = 32;
+
 /// Named model sizes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -130,6 +134,10 @@ pub enum Preset {
     /// 3 x 64 trunk, skip after layer 2, 32-wide colour branch, 32 + 32 samples, IPE degrees
     /// 0..10 (23,392 parameters): trains in minutes on 2 cores.
     Tiny,
+    /// The shape of the `fast` training preset (chosen by measurement on lego, see
+    /// `docs/RESULTS.md`, "Time to quality"): the small trunk with fewer samples per level, meant
+    /// to run with occupancy-guided sampling, which puts them where the scene is.
+    Fast,
 }
 
 impl Preset {
@@ -156,6 +164,7 @@ impl Preset {
                 max_deg_point: 10,
                 ..base
             },
+            Self::Fast => ModelConfig { num_samples: FAST_SAMPLES, ..Self::Small.config() },
         }
     }
 }
@@ -387,20 +396,90 @@ impl Model {
     /// If `rays.len()` is not a multiple of the rays per pixel, or `params` has the wrong length.
     #[must_use]
     pub fn render(&self, params: &[f32], rays: &[Ray]) -> Vec<LevelOutput> {
+        self.render_guided(params, rays, None)
+    }
+
+    /// [`render`](Self::render) with occupancy-guided sampling: with a `grid` that is not full
+    /// (and one ray per pixel), rays that meet no occupied cell render the background (opacity 0,
+    /// distance `near`) without running the MLP, and the others sample only their occupied spans.
+    /// A full grid, or none, renders exactly as [`render`](Self::render).
+    ///
+    /// # Panics
+    /// As [`render`](Self::render).
+    #[must_use]
+    pub fn render_guided(&self, params: &[f32], rays: &[Ray], grid: Option<&OccupancyGrid>) -> Vec<LevelOutput> {
         let rpp = self.rays_per_pixel();
         assert_eq!(rays.len() % rpp, 0, "render: rays per pixel");
         assert_eq!(params.len(), self.num_params, "render: parameter count");
-        let chunk = CHUNK_RAYS.div_ceil(rpp) * rpp;
-        rays.par_chunks(chunk)
-            .map(|rays| {
-                let mut out = vec![LevelOutput::default(); rays.len() / rpp * self.config.num_levels];
+        let levels = self.config.num_levels;
+        let Some(guide) = self.guide(grid, rays) else {
+            let chunk = CHUNK_RAYS.div_ceil(rpp) * rpp;
+            return rays
+                .par_chunks(chunk)
+                .map(|rays| {
+                    let mut out = vec![LevelOutput::default(); rays.len() / rpp * levels];
+                    WORKSPACE.with(|ws| {
+                        let ws = &mut ws.borrow_mut();
+                        self.run_chunk(params, rays, RayIds::From(0), None, None, Mode::Eval, ws, None, Some(&mut out))
+                    });
+                    out
+                })
+                .collect::<Vec<_>>()
+                .concat();
+        };
+        let active_rays: Vec<Ray> = guide.active.iter().map(|&i| rays[i as usize]).collect();
+        let rendered: Vec<Vec<LevelOutput>> = active_rays
+            .par_chunks(CHUNK_RAYS)
+            .enumerate()
+            .map(|(ci, chunk)| {
+                let mut out = vec![LevelOutput::default(); chunk.len() * levels];
+                let first = ci * CHUNK_RAYS;
+                let ids = RayIds::List(&guide.active[first..first + chunk.len()]);
+                let spans = guide.spans(first, chunk.len());
                 WORKSPACE.with(|ws| {
-                    self.run_chunk(params, rays, 0, None, Mode::Eval, &mut ws.borrow_mut(), None, Some(&mut out))
+                    let ws = &mut ws.borrow_mut();
+                    self.run_chunk(params, chunk, ids, Some(spans), None, Mode::Eval, ws, None, Some(&mut out))
                 });
                 out
             })
-            .collect::<Vec<_>>()
-            .concat()
+            .collect();
+        let mut out: Vec<LevelOutput> =
+            rays.iter().flat_map(|r| std::iter::repeat_n(self.background_output(r), levels)).collect();
+        for (&i, o) in guide.active.iter().zip(rendered.concat().chunks(levels)) {
+            out[i as usize * levels..(i as usize + 1) * levels].copy_from_slice(o);
+        }
+        out
+    }
+
+    /// What a ray that meets no occupied cell renders at every level: the background, no
+    /// opacity, and `near` as its distance (what [`render::volumetric_rendering`] reports for a
+    /// ray with no opacity: its first edge).
+    fn background_output(&self, ray: &Ray) -> LevelOutput {
+        let bg = if self.config.white_bkgd { 1.0 } else { 0.0 };
+        LevelOutput { rgb: [bg; 3], distance: ray.near, acc: 0.0 }
+    }
+
+    /// The occupied spans of each ray under `grid`, or `None` when the grid changes nothing (no
+    /// grid, a full one, or supersampled pixels, which it does not guide).
+    fn guide(&self, grid: Option<&OccupancyGrid>, rays: &[Ray]) -> Option<Guide> {
+        let grid = grid.filter(|g| !g.is_full() && self.rays_per_pixel() == 1)?;
+        let per_ray: Vec<Vec<[f32; 2]>> = rays
+            .par_iter()
+            .map(|r| {
+                let mut spans = Vec::new();
+                grid.ray_segments(r.origin, r.direction, r.near, r.far, &mut spans);
+                spans
+            })
+            .collect();
+        let mut guide = Guide { active: Vec::new(), starts: vec![0], spans: Vec::new() };
+        for (i, spans) in per_ray.into_iter().enumerate() {
+            if !spans.is_empty() {
+                guide.active.push(i as u32);
+                guide.spans.extend(spans);
+                guide.starts.push(guide.spans.len() as u32);
+            }
+        }
+        Some(guide)
     }
 
     /// The loss of a batch and, added to `grads` (zeroed by the caller), its gradient with
@@ -434,6 +513,27 @@ impl Model {
         grads: &mut [f32],
         scratch: &mut GradScratch,
     ) -> LossStats {
+        self.loss_and_grad_guided(params, rays, targets, mode, grads, scratch, None)
+    }
+
+    /// [`loss_and_grad_with`](Self::loss_and_grad_with) with occupancy-guided sampling (see
+    /// [`render_guided`](Self::render_guided)): rays that meet no occupied cell add their
+    /// background's error to the loss and nothing to the gradient. A full grid, or none, gives
+    /// exactly [`loss_and_grad_with`](Self::loss_and_grad_with)'s result.
+    ///
+    /// # Panics
+    /// If the lengths disagree.
+    #[allow(clippy::too_many_arguments)]
+    pub fn loss_and_grad_guided(
+        &self,
+        params: &[f32],
+        rays: &[Ray],
+        targets: &[[f32; 3]],
+        mode: Mode,
+        grads: &mut [f32],
+        scratch: &mut GradScratch,
+        grid: Option<&OccupancyGrid>,
+    ) -> LossStats {
         let rpp = self.rays_per_pixel();
         assert_eq!(rays.len(), targets.len() * rpp, "loss_and_grad: rays per pixel");
         assert_eq!(params.len(), self.num_params, "loss_and_grad: parameter count");
@@ -441,22 +541,56 @@ impl Model {
         let lm_sum: f64 = rays.chunks(rpp).map(|r| f64::from(self.lossmult(&r[0]))).sum();
         let norm = (3.0 * lm_sum) as f32;
         let n_pix = targets.len() as f32;
+        let guide = self.guide(grid, rays);
+        // With a guide, only the rays that meet occupied cells run, compacted; the others add
+        // their background's error to the sums below.
+        let compacted = guide.as_ref().map(|g| {
+            let r: Vec<Ray> = g.active.iter().map(|&i| rays[i as usize]).collect();
+            let t: Vec<[f32; 3]> = g.active.iter().map(|&i| targets[i as usize]).collect();
+            (r, t)
+        });
+        let (run_rays, run_targets) = compacted.as_ref().map_or((rays, targets), |(r, t)| (r.as_slice(), t.as_slice()));
         let chunk_pix = CHUNK_RAYS.div_ceil(rpp);
-        let n_chunks = targets.len().div_ceil(chunk_pix);
+        let n_chunks = run_targets.len().div_ceil(chunk_pix);
         scratch.chunk_grads.resize_with(n_chunks, Vec::new);
-        let sums: Vec<Vec<[f64; 2]>> = scratch.chunk_grads[..n_chunks]
+        let mut sums: Vec<Vec<[f64; 2]>> = scratch.chunk_grads[..n_chunks]
             .par_iter_mut()
-            .zip(rays.par_chunks(chunk_pix * rpp).zip(targets.par_chunks(chunk_pix)))
+            .zip(run_rays.par_chunks(chunk_pix * rpp).zip(run_targets.par_chunks(chunk_pix)))
             .enumerate()
             .map(|(ci, (g, (rays, tg)))| {
                 g.clear();
                 g.resize(self.num_params, 0.0);
+                let first = ci * chunk_pix * rpp;
+                let (ids, spans) = match &guide {
+                    Some(guide) => {
+                        (RayIds::List(&guide.active[first..first + rays.len()]), Some(guide.spans(first, rays.len())))
+                    }
+                    None => (RayIds::From(first), None),
+                };
                 WORKSPACE.with(|ws| {
                     let ws = &mut ws.borrow_mut();
-                    self.run_chunk(params, rays, ci * chunk_pix * rpp, Some((tg, norm)), mode, ws, Some(g), None)
+                    self.run_chunk(params, rays, ids, spans, Some((tg, norm)), mode, ws, Some(g), None)
                 })
             })
             .collect();
+        if let Some(guide) = &guide {
+            let mut empty = vec![[0.0f64; 2]; self.config.num_levels];
+            let mut next_active = guide.active.iter().peekable();
+            for (i, (ray, tg)) in rays.iter().zip(targets).enumerate() {
+                if next_active.next_if(|&&a| a as usize == i).is_some() {
+                    continue;
+                }
+                let (bg, lm) = (self.background_output(ray).rgb, f64::from(self.lossmult(ray)));
+                for level in &mut empty {
+                    for k in 0..3 {
+                        let e = f64::from(bg[k] - tg[k]);
+                        level[0] += lm * e * e;
+                        level[1] += e * e;
+                    }
+                }
+            }
+            sums.push(empty);
+        }
         // Sum the chunks' gradients in chunk order, element by element: the same result whatever
         // the number of threads.
         let chunk_grads = &scratch.chunk_grads[..n_chunks];
@@ -499,11 +633,13 @@ impl Model {
     /// Runs all levels over one chunk of whole pixels, step by step as the paper describes them
     /// (see ARCHITECTURE.md). With `targets`, accumulates the gradient into `grads` and returns
     /// per level `[sum lossmult·sq, sum sq]`; with `out`, writes the rendered pixels.
+    #[allow(clippy::too_many_arguments)]
     fn run_chunk(
         &self,
         params: &[f32],
         rays: &[Ray],
-        first_ray: usize,
+        ids: RayIds<'_>,
+        spans: Option<ChunkSpans<'_>>,
         targets: Option<(&[[f32; 3]], f32)>,
         mode: Mode,
         ws: &mut Workspace,
@@ -516,11 +652,11 @@ impl Model {
         self.encode_view_directions(rays, ws);
         let mut per_ray = vec![render::RenderedRay::default(); rays.len()];
         for level in 0..c.num_levels {
-            self.sample_intervals(level, rays, first_ray, mode, ws);
+            self.sample_intervals(level, rays, ids, spans, mode, ws);
             self.encode_intervals(rays, ws);
             let mlp = self.mlp_for_level(level);
             mlp.forward(params, &ws.x, &ws.view, rays.len(), c.num_samples, &mut ws.cache);
-            self.add_density_noise(level, rays.len(), first_ray, mode, ws);
+            self.add_density_noise(level, rays.len(), ids, mode, ws);
             self.apply_activations(ws);
             self.render_pixels(rays, &mut per_ray, ws);
             if let Some(out) = out.as_deref_mut() {
@@ -565,18 +701,29 @@ impl Model {
     /// coarse level ([`sampling::sample_along_rays`]), then drawn from the previous level's
     /// weights ([`sampling::resample_along_rays`]); jittered by the ray's random streams in
     /// training.
-    fn sample_intervals(&self, level: usize, rays: &[Ray], first_ray: usize, mode: Mode, ws: &mut Workspace) {
+    fn sample_intervals(
+        &self,
+        level: usize,
+        rays: &[Ray],
+        ids: RayIds<'_>,
+        spans: Option<ChunkSpans<'_>>,
+        mode: Mode,
+        ws: &mut Workspace,
+    ) {
         let c = &self.config;
         let s = c.num_samples;
         for (r, ray) in rays.iter().enumerate() {
-            let gi = (first_ray + r) as u32;
+            let gi = ids.get(r);
             let t = &mut ws.t_next[r * (s + 1)..(r + 1) * (s + 1)];
             if level == 0 {
                 let jitter = match mode {
                     Mode::Train { seed, step } => Some(RayRng::new(seed, step, Stream::SampleJitter, gi)),
                     Mode::Eval => None,
                 };
-                sampling::sample_along_rays(ray.near, ray.far, c.lindisp, jitter, t);
+                match spans {
+                    Some(sp) => sampling::sample_along_segments(sp.of(r), c.lindisp, jitter, t),
+                    None => sampling::sample_along_rays(ray.near, ray.far, c.lindisp, jitter, t),
+                }
             } else {
                 let samples = match mode {
                     Mode::Train { seed, step } => PdfSamples::Stratified(RayRng::new(
@@ -608,29 +755,35 @@ impl Model {
             let t = &ws.t[r * (s + 1)..(r + 1) * (s + 1)];
             cone::cast_ray(t, ray.origin, ray.direction, ray.radius, c.ray_shape, &mut ws.gauss);
             for (i, g) in ws.gauss.iter().enumerate() {
-                let dst = &mut ws.x[(r * s + i) * x_dim..(r * s + i + 1) * x_dim];
-                match c.point_encoding {
-                    PointEncoding::Integrated => mip::integrated_pos_enc(g, c.min_deg_point, c.max_deg_point, dst),
-                    PointEncoding::Mean => {
-                        let g0 = Gaussian { mean: g.mean, cov_diag: Vec3::ZERO };
-                        mip::integrated_pos_enc(&g0, c.min_deg_point, c.max_deg_point, dst);
-                    }
-                    PointEncoding::Nerf => mip::pos_enc(g.mean, c.min_deg_point, c.max_deg_point, true, dst),
-                }
+                self.encode_point(g, &mut ws.x[(r * s + i) * x_dim..(r * s + i + 1) * x_dim]);
             }
+        }
+    }
+
+    /// One Gaussian encoded by the configured point encoding into `dst` (`x_dim` values): IPE,
+    /// PE of the mean ("w/o IPE"), or NeRF's PE.
+    pub fn encode_point(&self, g: &Gaussian, dst: &mut [f32]) {
+        let c = &self.config;
+        match c.point_encoding {
+            PointEncoding::Integrated => mip::integrated_pos_enc(g, c.min_deg_point, c.max_deg_point, dst),
+            PointEncoding::Mean => {
+                let g0 = Gaussian { mean: g.mean, cov_diag: Vec3::ZERO };
+                mip::integrated_pos_enc(&g0, c.min_deg_point, c.max_deg_point, dst);
+            }
+            PointEncoding::Nerf => mip::pos_enc(g.mean, c.min_deg_point, c.max_deg_point, true, dst),
         }
     }
 
     /// Training only: Gaussian noise of standard deviation `density_noise` on the raw density of
     /// the `nr` rays, from each ray's `DensityNoise` stream at this level.
-    fn add_density_noise(&self, level: usize, nr: usize, first_ray: usize, mode: Mode, ws: &mut Workspace) {
+    fn add_density_noise(&self, level: usize, nr: usize, ids: RayIds<'_>, mode: Mode, ws: &mut Workspace) {
         let c = &self.config;
         let (Mode::Train { seed, step }, true) = (mode, c.density_noise > 0.0) else {
             return;
         };
         let s = c.num_samples;
         for r in 0..nr {
-            let stream = crate::rng::ray_level_index((first_ray + r) as u32, level as u32);
+            let stream = crate::rng::ray_level_index(ids.get(r), level as u32);
             let rng = RayRng::new(seed, step, Stream::DensityNoise, stream);
             for i in 0..s {
                 ws.cache.raw_density[r * s + i] += c.density_noise * rng.normal(i as u32);
@@ -756,6 +909,52 @@ impl Model {
                     ws.g_rgb[i][k] * render::rgb_activation_derivative(ws.cache.raw_rgb[i * 3 + k], c.rgb_padding);
             }
         }
+    }
+}
+
+/// Where a chunk's rays stand in the batch: the index each draws its random numbers with.
+#[derive(Clone, Copy)]
+enum RayIds<'a> {
+    /// Consecutive rays from this index.
+    From(usize),
+    /// The listed indices (the rays an occupancy grid let through).
+    List(&'a [u32]),
+}
+
+impl RayIds<'_> {
+    fn get(self, r: usize) -> u32 {
+        match self {
+            Self::From(first) => (first + r) as u32,
+            Self::List(ids) => ids[r],
+        }
+    }
+}
+
+/// The rays of a batch that meet occupied cells (indices into the batch, ascending) and each
+/// one's occupied spans (`spans[starts[k]..starts[k + 1]]` for the `k`-th).
+struct Guide {
+    active: Vec<u32>,
+    starts: Vec<u32>,
+    spans: Vec<[f32; 2]>,
+}
+
+impl Guide {
+    /// The spans of the `len` active rays from the `first`-th.
+    fn spans(&self, first: usize, len: usize) -> ChunkSpans<'_> {
+        ChunkSpans { starts: &self.starts[first..=first + len], spans: &self.spans }
+    }
+}
+
+/// The occupied spans of one chunk's rays.
+#[derive(Clone, Copy)]
+struct ChunkSpans<'a> {
+    starts: &'a [u32],
+    spans: &'a [[f32; 2]],
+}
+
+impl ChunkSpans<'_> {
+    fn of(&self, r: usize) -> &[[f32; 2]] {
+        &self.spans[self.starts[r] as usize..self.starts[r + 1] as usize]
     }
 }
 

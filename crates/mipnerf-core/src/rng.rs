@@ -41,6 +41,8 @@ pub enum Stream {
     RayBatch = 4,
     /// Anything else (tests, initialisation).
     Other = 5,
+    /// The random point of each cell at which an occupancy-grid update evaluates the density.
+    OccupancyUpdate = 6,
 }
 
 /// A random stream for one ray (or one draw site) of one training step.

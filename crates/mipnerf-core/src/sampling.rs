@@ -46,6 +46,38 @@ pub fn sample_along_rays(near: f32, far: f32, lindisp: bool, jitter: Option<RayR
     }
 }
 
+/// Fills `t_vals` for the coarse level of a ray cut to the occupied `spans` (sorted, disjoint
+/// `[t0, t1]`, at least one): the stratified edges of [`sample_along_rays`] laid over the spans'
+/// total length, as if the spans were joined end to end, then mapped back into them. An interval
+/// whose edges fall in two spans also covers the gap between them (the frustums are built on the
+/// actual edges, which need not be uniform).
+///
+/// With one span `[near, far]` this is exactly [`sample_along_rays`]`(near, far, ...)`, bit for
+/// bit. `lindisp` applies only then (several spans are joined linearly in depth).
+///
+/// # Panics
+/// If `spans` is empty or `t_vals.len() < 2`.
+pub fn sample_along_segments(spans: &[[f32; 2]], lindisp: bool, jitter: Option<RayRng>, t_vals: &mut [f32]) {
+    assert!(!spans.is_empty(), "sample_along_segments: no span");
+    if let [[near, far]] = *spans {
+        sample_along_rays(near, far, lindisp, jitter, t_vals);
+        return;
+    }
+    let total: f32 = spans.iter().map(|s| s[1] - s[0]).sum();
+    sample_along_rays(0.0, total, false, jitter, t_vals);
+    // Map each joined coordinate back to its span; edges are sorted, so walk the spans once.
+    let mut k = 0;
+    let mut start = 0.0f32; // joined coordinate where span k begins
+    let last = spans.len() - 1;
+    for t in t_vals.iter_mut() {
+        while k < last && *t > start + (spans[k][1] - spans[k][0]) {
+            start += spans[k][1] - spans[k][0];
+            k += 1;
+        }
+        *t = (spans[k][0] + (*t - start)).clamp(spans[k][0], spans[k][1]);
+    }
+}
+
 /// Where the inverse-CDF samples come from.
 #[derive(Clone, Copy, Debug)]
 pub enum PdfSamples {

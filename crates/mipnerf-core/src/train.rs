@@ -4,6 +4,7 @@ use rayon::prelude::*;
 
 use crate::cone::Ray;
 use crate::model::{GradScratch, LossStats, Mode, Model};
+use crate::occupancy::OccupancyGrid;
 use crate::schedule::LrSchedule;
 
 /// Adam's settings (the official defaults: 0.9, 0.999, 1e-8).
@@ -133,6 +134,9 @@ pub struct Trainer {
     pub step: u64,
     /// Seed of the run's random numbers.
     pub seed: u32,
+    /// The occupancy grid that guides sampling, updated from the model as it trains (`None`: the
+    /// paper's sampler).
+    pub occupancy: Option<OccupancyGrid>,
     grads: Vec<f32>,
     scratch: GradScratch,
 }
@@ -150,20 +154,28 @@ impl Trainer {
             optim,
             step: 0,
             seed,
+            occupancy: None,
             grads: vec![0.0; n],
             scratch: GradScratch::default(),
         }
     }
 
-    /// One training step on a batch: loss, gradient, clipping, Adam update.
+    /// One training step on a batch: the occupancy grid's update when one is due (before the
+    /// step, from the current parameters), loss, gradient, clipping, Adam update.
     ///
     /// # Panics
     /// If the batch's lengths disagree (see [`Model::loss_and_grad`]).
     pub fn train_step(&mut self, rays: &[Ray], targets: &[[f32; 3]]) -> StepReport {
+        if let Some(grid) = &mut self.occupancy
+            && grid.updates_at(self.step)
+        {
+            grid.update(&self.model, &self.params, self.seed, self.step);
+        }
         self.grads.fill(0.0);
         let mode = Mode::Train { seed: self.seed, step: self.step as u32 };
-        let stats =
-            self.model.loss_and_grad_with(&self.params, rays, targets, mode, &mut self.grads, &mut self.scratch);
+        let (params, grads, scratch) = (&self.params, &mut self.grads, &mut self.scratch);
+        let grid = self.occupancy.as_ref();
+        let stats = self.model.loss_and_grad_guided(params, rays, targets, mode, grads, scratch, grid);
         let grad_norm = clip_gradients(&mut self.grads, self.optim.grad_max_val, self.optim.grad_max_norm);
         let lr = self.optim.lr.lr(self.step);
         self.adam.update(&self.optim.adam, lr, &mut self.params, &self.grads);

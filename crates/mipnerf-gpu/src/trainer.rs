@@ -97,6 +97,9 @@ impl GpuBackend {
         state: TrainState,
     ) -> Result<Self, GpuError> {
         state.check(&model).map_err(|e| GpuError::InvalidInput(e.to_string()))?;
+        if state.occupancy.is_some() {
+            return Err(GpuError::InvalidInput(mipnerf_core::backend::Unsupported::Occupancy.to_string()));
+        }
         let render_chunk = auto_chunk(&ctx, &model);
         Ok(Self {
             kernels: GpuModel::new(&ctx)?,
@@ -209,7 +212,7 @@ impl GpuBackend {
         let params = self.ctx.read_f32(&self.state.params, n)?;
         let m = self.ctx.read_f32(&self.state.m, n)?;
         let v = self.ctx.read_f32(&self.state.v, n)?;
-        Ok(Checkpoint { step: self.step, params, adam: AdamState { m, v, t: self.adam_t } })
+        Ok(Checkpoint { step: self.step, params, adam: AdamState { m, v, t: self.adam_t }, occupancy: None })
     }
 
     fn run_step(&mut self, report: bool) -> Result<Option<StepReport>, GpuError> {
@@ -397,6 +400,10 @@ impl Backend for GpuBackend {
             return Err(BackendError::NoData);
         }
         Ok(self.run_step(report)?)
+    }
+
+    fn set_lr_schedule(&mut self, lr: mipnerf_core::schedule::LrSchedule) {
+        self.optim.lr = lr;
     }
 
     fn checkpoint(&mut self) -> Result<Checkpoint, BackendError> {

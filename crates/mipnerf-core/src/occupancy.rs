@@ -1,0 +1,446 @@
+//! Occupancy-guided sampling: a grid over the scene's bounds that says where the model's density
+//! is worth sampling, kept up to date from the model's own densities during training.
+//!
+//! The grid is an accelerator, not part of the model: with every cell occupied the sampler is the
+//! paper's (stratified between near and far, bit for bit). Otherwise each ray is cut to the
+//! occupied cells it crosses ([`OccupancyGrid::ray_segments`], a voxel traversal); the coarse
+//! samples are stratified inside those segments ([`crate::sampling::sample_along_segments`]), the
+//! fine level resamples from the coarse weights as always, and a ray that meets no occupied cell
+//! runs no MLP at all and renders the background.
+//!
+//! How the grid learns (as nerfacc's `OccupancyGrid`): every `update_every` steps the density of
+//! every candidate cell is evaluated at a random point inside the cell, at the cell's own scale (an
+//! isotropic Gaussian of the cell's variance, encoded by IPE), turned into the opacity of one cell
+//! length, `1 - exp(-σ h)`, and kept as `max(decay · old, new)`. A cell is occupied when that
+//! exceeds `min(threshold, mean)`. During the warm-up every candidate cell counts as occupied.
+//! For data with alpha masks the grid can be seeded with the visual hull of the training masks
+//! ([`OccupancyGrid::carve_with_masks`]): a cell whose footprint is transparent in some view that
+//! sees all of it is never a candidate.
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+use crate::data::Dataset;
+use crate::mip::Gaussian;
+use crate::mlp::MlpCache;
+use crate::model::Model;
+use crate::rng::{RayRng, Stream};
+
+/// A cell's stored value meaning "outside the visual hull of the masks: never occupied".
+pub const CARVED: f32 = -1.0;
+
+/// How the grid is laid out and updated. Defaults follow nerfacc's occupancy grid at the
+/// resolution a 2-core CPU updates in a fraction of a step.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct OccupancyConfig {
+    /// Cells along each axis.
+    pub resolution: usize,
+    /// Half the side of the cube the grid covers, centred on the origin (world units); space
+    /// outside it is empty.
+    pub bound: f32,
+    /// Steps between updates of the grid from the model's densities.
+    pub update_every: u64,
+    /// Steps during which every candidate cell counts as occupied.
+    pub warmup_steps: u64,
+    /// Decay of a cell's remembered opacity at each update.
+    pub decay: f32,
+    /// A cell is occupied when its opacity over one cell length exceeds this (or the mean of the
+    /// candidate cells, if lower).
+    pub threshold: f32,
+}
+
+impl Default for OccupancyConfig {
+    fn default() -> Self {
+        Self { resolution: 64, bound: 1.5, update_every: 16, warmup_steps: 256, decay: 0.95, threshold: 0.01 }
+    }
+}
+
+/// An occupancy grid: `resolution³` cells over `[-bound, bound]³`, x fastest.
+#[derive(Clone, Debug, PartialEq)]
+pub struct OccupancyGrid {
+    /// Layout and update settings.
+    pub config: OccupancyConfig,
+    /// Per cell: the remembered opacity (`>= 0`), or [`CARVED`].
+    pub opacity: Vec<f32>,
+    /// Whether the warm-up is over (cells are then occupied by their opacity, not all).
+    pub warmed_up: bool,
+    occupied: Vec<bool>,
+}
+
+/// Errors in occupancy settings or state.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("occupancy grid: {0}")]
+pub struct OccupancyError(pub String);
+
+impl OccupancyGrid {
+    /// A grid whose cells are all candidates (nothing carved), in warm-up: every cell occupied.
+    ///
+    /// # Errors
+    /// A resolution outside `2..=256`, a non-positive or non-finite bound, decay or threshold.
+    pub fn new(config: OccupancyConfig) -> Result<Self, OccupancyError> {
+        let r = config.resolution;
+        if !(2..=256).contains(&r) {
+            return Err(OccupancyError(format!("resolution must be between 2 and 256, got {r}")));
+        }
+        for (name, v) in [("bound", config.bound), ("threshold", config.threshold)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(OccupancyError(format!("{name} must be a positive number, got {v}")));
+            }
+        }
+        if !(config.decay.is_finite() && (0.0..=1.0).contains(&config.decay)) {
+            return Err(OccupancyError(format!("decay must be in [0, 1], got {}", config.decay)));
+        }
+        if config.update_every == 0 {
+            return Err(OccupancyError("update_every must be at least 1".into()));
+        }
+        let n = r * r * r;
+        Ok(Self { config, opacity: vec![0.0; n], warmed_up: false, occupied: vec![true; n] })
+    }
+
+    /// A grid restored from saved state (see [`opacity`](Self::opacity) and
+    /// [`warmed_up`](Self::warmed_up)).
+    ///
+    /// # Errors
+    /// As [`new`](Self::new), a length that is not `resolution³`, or a value that is neither a
+    /// finite opacity nor [`CARVED`].
+    pub fn from_state(config: OccupancyConfig, opacity: Vec<f32>, warmed_up: bool) -> Result<Self, OccupancyError> {
+        let mut g = Self::new(config)?;
+        if opacity.len() != g.opacity.len() {
+            return Err(OccupancyError(format!("{} cells, the layout needs {}", opacity.len(), g.opacity.len())));
+        }
+        if let Some(v) = opacity.iter().find(|v| !(v.is_finite() && (**v >= 0.0 || **v == CARVED))) {
+            return Err(OccupancyError(format!("a cell holds {v}, neither an opacity nor the carved mark")));
+        }
+        g.opacity = opacity;
+        g.warmed_up = warmed_up;
+        g.refresh();
+        Ok(g)
+    }
+
+    /// Cells along each axis.
+    #[must_use]
+    pub fn resolution(&self) -> usize {
+        self.config.resolution
+    }
+
+    /// The side of one cell (world units).
+    #[must_use]
+    pub fn cell_size(&self) -> f32 {
+        2.0 * self.config.bound / self.config.resolution as f32
+    }
+
+    /// Whether every cell is occupied: the sampler is then exactly the paper's.
+    #[must_use]
+    pub fn is_full(&self) -> bool {
+        self.occupied.iter().all(|&o| o)
+    }
+
+    /// The fraction of cells occupied.
+    #[must_use]
+    pub fn occupied_fraction(&self) -> f32 {
+        self.occupied.iter().filter(|&&o| o).count() as f32 / self.occupied.len() as f32
+    }
+
+    /// Whether cell `(x, y, z)` is occupied.
+    #[must_use]
+    pub fn is_occupied(&self, x: usize, y: usize, z: usize) -> bool {
+        let r = self.config.resolution;
+        self.occupied[(z * r + y) * r + x]
+    }
+
+    /// The world-space centre of cell `i` (x fastest).
+    #[must_use]
+    pub fn cell_center(&self, i: usize) -> Vec3 {
+        let r = self.config.resolution;
+        let (x, y, z) = (i % r, (i / r) % r, i / (r * r));
+        let h = self.cell_size();
+        let b = self.config.bound;
+        Vec3::new(-b + (x as f32 + 0.5) * h, -b + (y as f32 + 0.5) * h, -b + (z as f32 + 0.5) * h)
+    }
+
+    /// Recomputes which cells are occupied from the stored opacities.
+    fn refresh(&mut self) {
+        let candidates: Vec<f32> = self.opacity.iter().copied().filter(|&v| v != CARVED).collect();
+        let mean = if candidates.is_empty() {
+            0.0
+        } else {
+            (candidates.iter().map(|&v| f64::from(v)).sum::<f64>() / candidates.len() as f64) as f32
+        };
+        let thr = self.config.threshold.min(mean);
+        let warm = self.warmed_up;
+        for (o, &v) in self.occupied.iter_mut().zip(&self.opacity) {
+            *o = v != CARVED && (!warm || v > thr);
+        }
+    }
+
+    /// Marks as [`CARVED`] every cell that some training view with an alpha mask shows as
+    /// entirely transparent: the cell's eight corners project in front of the camera and inside
+    /// the image, and every pixel of the rectangle they span has alpha below `0.5 / 255`. Only
+    /// full-resolution views (scale 0) are used. Returns the number of cells carved; a dataset
+    /// without transparency carves nothing.
+    pub fn carve_with_masks(&mut self, ds: &Dataset) -> usize {
+        let masks: Vec<Mask> = ds.views().iter().filter(|v| v.scale == 0).filter_map(Mask::of_view).collect();
+        if masks.is_empty() {
+            return 0;
+        }
+        let h = self.cell_size();
+        let carved: Vec<bool> = (0..self.opacity.len())
+            .into_par_iter()
+            .map(|i| {
+                let c = self.cell_center(i);
+                let corners: [Vec3; 8] =
+                    std::array::from_fn(|k| c + 0.5 * h * Vec3::new(sign(k & 1), sign(k & 2), sign(k & 4)));
+                masks.iter().any(|m| m.transparent(&corners))
+            })
+            .collect();
+        let mut n = 0;
+        for (v, c) in self.opacity.iter_mut().zip(carved) {
+            if c && *v != CARVED {
+                *v = CARVED;
+                n += 1;
+            }
+        }
+        self.refresh();
+        n
+    }
+
+    /// Whether step `step` updates the grid (every `update_every` steps).
+    #[must_use]
+    pub fn updates_at(&self, step: u64) -> bool {
+        step.is_multiple_of(self.config.update_every)
+    }
+
+    /// Updates every candidate cell from the model's density at a random point of the cell (from
+    /// `(seed, step)`), at the cell's scale, and ends the warm-up once `step >= warmup_steps`.
+    ///
+    /// # Panics
+    /// If `params` does not fit `model`.
+    pub fn update(&mut self, model: &Model, params: &[f32], seed: u32, step: u64) {
+        let cells: Vec<usize> = (0..self.opacity.len()).filter(|&i| self.opacity[i] != CARVED).collect();
+        let dens = self.densities(model, params, &cells, seed, step as u32);
+        let h = self.cell_size();
+        let decay = self.config.decay;
+        for (&i, &sigma) in cells.iter().zip(&dens) {
+            let alpha = 1.0 - (-sigma.max(0.0) * h).exp();
+            let alpha = if alpha.is_finite() { alpha } else { 1.0 };
+            self.opacity[i] = (self.opacity[i] * decay).max(alpha);
+        }
+        if step >= self.config.warmup_steps {
+            self.warmed_up = true;
+        }
+        self.refresh();
+    }
+
+    /// The model's density (after its activation) at a random point of each of `cells`, with
+    /// the cell's variance (`h² / 12` per axis, a uniform cube's), through the first MLP.
+    fn densities(&self, model: &Model, params: &[f32], cells: &[usize], seed: u32, step: u32) -> Vec<f32> {
+        const CHUNK: usize = 1024;
+        let c = model.config();
+        let mlp = &model.mlps()[0];
+        let h = self.cell_size();
+        let var = h * h / 12.0;
+        let x_dim = c.x_dim();
+        let view = vec![0.0f32; CHUNK * c.view_dim()];
+        cells
+            .par_chunks(CHUNK)
+            .flat_map_iter(|chunk| {
+                let mut x = vec![0.0f32; chunk.len() * x_dim];
+                for (k, &i) in chunk.iter().enumerate() {
+                    let rng = RayRng::new(seed, step, Stream::OccupancyUpdate, i as u32);
+                    let jitter = Vec3::new(rng.uniform(0), rng.uniform(1), rng.uniform(2)) - 0.5;
+                    let g = Gaussian { mean: self.cell_center(i) + h * jitter, cov_diag: Vec3::splat(var) };
+                    model.encode_point(&g, &mut x[k * x_dim..(k + 1) * x_dim]);
+                }
+                let mut cache = MlpCache::default();
+                mlp.forward(params, &x, &view[..chunk.len() * c.view_dim()], chunk.len(), 1, &mut cache);
+                cache
+                    .raw_density
+                    .iter()
+                    .map(|&raw| c.density_activation.forward(raw, c.density_bias))
+                    .collect::<Vec<_>>()
+            })
+            .collect()
+    }
+
+    /// The occupied parts of the ray `origin + t direction`, `t` in `[near, far]`, as sorted,
+    /// disjoint `[t0, t1]` spans (`t` in units of `direction`, which need not be unit length):
+    /// a voxel traversal (Amanatides and Woo) of the cells the ray crosses inside the grid's cube,
+    /// consecutive occupied cells merged. Space outside the cube is empty. Appends to `out`.
+    pub fn ray_segments(&self, origin: Vec3, direction: Vec3, near: f32, far: f32, out: &mut Vec<[f32; 2]>) {
+        let b = self.config.bound;
+        let r = self.config.resolution as i32;
+        let h = self.cell_size();
+        // The slab test: where the ray is inside the cube.
+        let (mut t0, mut t1) = (near, far);
+        for a in 0..3 {
+            let (o, d) = (origin[a], direction[a]);
+            if d == 0.0 {
+                if o < -b || o > b {
+                    return;
+                }
+                continue;
+            }
+            let (ta, tb) = ((-b - o) / d, (b - o) / d);
+            t0 = t0.max(ta.min(tb));
+            t1 = t1.min(ta.max(tb));
+        }
+        if !(t0 < t1) {
+            return;
+        }
+        // The entry cell; a point on a face rounds to the cell inside through the clamp.
+        let p = origin + direction * t0;
+        let mut cell = [0i32; 3];
+        let mut step = [0i32; 3];
+        let mut t_max = [f32::INFINITY; 3];
+        let mut t_delta = [f32::INFINITY; 3];
+        for a in 0..3 {
+            cell[a] = (((p[a] + b) / h).floor() as i32).clamp(0, r - 1);
+            let d = direction[a];
+            if d > 0.0 {
+                step[a] = 1;
+                t_max[a] = (-b + (cell[a] + 1) as f32 * h - origin[a]) / d;
+                t_delta[a] = h / d;
+            } else if d < 0.0 {
+                step[a] = -1;
+                t_max[a] = (-b + cell[a] as f32 * h - origin[a]) / d;
+                t_delta[a] = -h / d;
+            }
+        }
+        let mut t = t0;
+        let mut open: Option<f32> = None;
+        let res = r as usize;
+        while t < t1 {
+            let a = if t_max[0] <= t_max[1] && t_max[0] <= t_max[2] {
+                0
+            } else if t_max[1] <= t_max[2] {
+                1
+            } else {
+                2
+            };
+            let t_next = t_max[a].min(t1).max(t);
+            let occ = self.occupied[((cell[2] as usize * res) + cell[1] as usize) * res + cell[0] as usize];
+            match (occ, open) {
+                (true, None) => open = Some(t),
+                (false, Some(s)) => {
+                    if t > s {
+                        out.push([s, t]);
+                    }
+                    open = None;
+                }
+                _ => {}
+            }
+            t = t_next;
+            cell[a] += step[a];
+            t_max[a] += t_delta[a];
+            if cell[a] < 0 || cell[a] >= r {
+                break;
+            }
+        }
+        if let Some(s) = open
+            && t > s
+        {
+            out.push([s, t]);
+        }
+    }
+}
+
+fn sign(bit: usize) -> f32 {
+    if bit != 0 { 1.0 } else { -1.0 }
+}
+
+/// A view's transparency as a summed-area table of "pixel has alpha", with the camera's
+/// world-to-pixel projection.
+struct Mask {
+    width: usize,
+    height: usize,
+    /// `(width + 1) x (height + 1)` prefix counts of opaque-ish pixels.
+    sat: Vec<u32>,
+    /// World-to-camera rotation (rows) and the camera centre.
+    rot_t: [[f64; 3]; 3],
+    origin: [f64; 3],
+    /// Inverse of the camera's `pix2cam`.
+    cam2pix: [[f64; 3]; 3],
+}
+
+impl Mask {
+    fn of_view(v: &crate::data::View) -> Option<Self> {
+        let (w, h) = (v.camera.width as usize, v.camera.height as usize);
+        let mut sat = vec![0u32; (w + 1) * (h + 1)];
+        let mut any_transparent = false;
+        for y in 0..h {
+            let mut row = 0u32;
+            for x in 0..w {
+                let a = v.pixels.rgba(y * w + x)[3];
+                let solid = a >= 0.5 / 255.0;
+                any_transparent |= !solid;
+                row += u32::from(solid);
+                sat[(y + 1) * (w + 1) + x + 1] = sat[y * (w + 1) + x + 1] + row;
+            }
+        }
+        if !any_transparent {
+            return None;
+        }
+        let c2w = &v.camera.cam2world;
+        let rot_t = std::array::from_fn(|r| std::array::from_fn(|c| c2w[c][r]));
+        Some(Self { width: w, height: h, sat, rot_t, origin: v.camera.origin(), cam2pix: invert3(&v.camera.pix2cam)? })
+    }
+
+    /// Whether the rectangle spanned by `corners`' projections lies inside the image, in front of
+    /// the camera, and holds no opaque pixel.
+    fn transparent(&self, corners: &[Vec3; 8]) -> bool {
+        let (mut x0, mut y0, mut x1, mut y1) = (f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY);
+        for p in corners {
+            let d = [f64::from(p.x) - self.origin[0], f64::from(p.y) - self.origin[1], f64::from(p.z) - self.origin[2]];
+            let cam: [f64; 3] = std::array::from_fn(|r| (0..3).map(|c| self.rot_t[r][c] * d[c]).sum());
+            let pix: [f64; 3] = std::array::from_fn(|r| (0..3).map(|c| self.cam2pix[r][c] * cam[c]).sum());
+            // pix2cam maps (x, y, 1) to a direction; in front of the camera the third pixel
+            // coordinate comes back positive.
+            if pix[2] <= 1e-9 {
+                return false;
+            }
+            let (x, y) = (pix[0] / pix[2], pix[1] / pix[2]);
+            x0 = x0.min(x);
+            y0 = y0.min(y);
+            x1 = x1.max(x);
+            y1 = y1.max(y);
+        }
+        if x0 < 0.0 || y0 < 0.0 || x1 >= self.width as f64 || y1 >= self.height as f64 {
+            return false;
+        }
+        let (xa, ya, xb, yb) =
+            (x0.floor() as usize, y0.floor() as usize, x1.floor() as usize + 1, y1.floor() as usize + 1);
+        let w1 = self.width + 1;
+        let count = self.sat[yb * w1 + xb] + self.sat[ya * w1 + xa] - self.sat[ya * w1 + xb] - self.sat[yb * w1 + xa];
+        count == 0
+    }
+}
+
+/// The inverse of a 3x3 matrix, `None` when singular.
+fn invert3(m: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
+    let c = |r: usize, k: usize| {
+        m[(r + 1) % 3][(k + 1) % 3] * m[(r + 2) % 3][(k + 2) % 3]
+            - m[(r + 1) % 3][(k + 2) % 3] * m[(r + 2) % 3][(k + 1) % 3]
+    };
+    let det = m[0][0] * c(0, 0) + m[0][1] * c(0, 1) + m[0][2] * c(0, 2);
+    if det.abs() < 1e-300 {
+        return None;
+    }
+    Some(std::array::from_fn(|r| std::array::from_fn(|k| c(k, r) / det)))
+}
+
+/// The cube's half side for a dataset of cameras looking in at an object: the smallest distance
+/// from the origin to a camera's centre, less its near bound, so that no camera's near plane
+/// cuts into the cube. `None` when that is not positive (cameras inside the scene).
+#[must_use]
+pub fn auto_bound(ds: &Dataset) -> Option<f32> {
+    let b = ds
+        .views()
+        .iter()
+        .map(|v| {
+            let o = v.camera.origin();
+            (o[0] * o[0] + o[1] * o[1] + o[2] * o[2]).sqrt() as f32 - v.near
+        })
+        .fold(f32::INFINITY, f32::min);
+    (b.is_finite() && b > 0.0).then_some(b)
+}
