@@ -68,7 +68,7 @@ impl PresetArg {
 pub const FAST_BATCH_RAYS: usize = 1024;
 /// Initial and final learning rates of the fast preset.
 pub const FAST_LR: (f32, f32) = (2e-3, 2e-5);
-/// Learning-rate warm-up steps of the fast preset.
+/// Learning-rate warm-up steps of the fast preset (and of any run with a time budget).
 pub const FAST_LR_DELAY_STEPS: u64 = 100;
 
 /// A duration: `90`, `90s`, `30m`, `1h`, `1h30m`, `2.5m` (seconds when no unit is given).
@@ -137,7 +137,8 @@ pub struct TrainSettings {
     pub lr_init: Option<f32>,
     /// Final learning rate [default: 5e-6].
     pub lr_final: Option<f32>,
-    /// Warm-up steps of the learning rate [default: 2500, or steps/10 if shorter].
+    /// Warm-up steps of the learning rate [default: 2500, or steps/10 if shorter; 100 for the fast
+    /// preset or a time budget].
     pub lr_delay_steps: Option<u64>,
     /// Learning-rate factor at step 0 of the warm-up [default: 0.01].
     pub lr_delay_mult: Option<f32>,
@@ -278,7 +279,7 @@ impl TrainSettings {
             log_every: Some(self.log_every.unwrap_or(10)),
             lr_init: Some(self.lr_init.unwrap_or(if fast { FAST_LR.0 } else { 5e-4 })),
             lr_final: Some(self.lr_final.unwrap_or(if fast { FAST_LR.1 } else { 5e-6 })),
-            lr_delay_steps: Some(self.lr_delay_steps.unwrap_or(if fast {
+            lr_delay_steps: Some(self.lr_delay_steps.unwrap_or(if fast || self.time_budget.is_some() {
                 FAST_LR_DELAY_STEPS
             } else {
                 2500.min(steps / 10)
@@ -522,7 +523,8 @@ pub struct TrainFlags {
     /// Final learning rate [default: 5e-6].
     #[arg(long)]
     pub lr_final: Option<f32>,
-    /// Learning-rate warm-up steps [default: min(2500, steps/10)].
+    /// Learning-rate warm-up steps [default: min(2500, steps/10); 100 for the fast preset or a
+    /// time budget].
     #[arg(long)]
     pub lr_delay_steps: Option<u64>,
     /// Learning-rate factor at the start of the warm-up [default: 0.01].

@@ -735,3 +735,147 @@ fn eval_writes_a_page_that_a_real_browser_loads_with_every_image() {
     colours.dedup();
     assert!(colours.len() > 500, "the screenshot looks empty: {} colours", colours.len());
 }
+
+/// The learning rates of a run's metrics.csv, in step order.
+fn logged_lrs(run: &std::path::Path) -> Vec<f64> {
+    let csv = std::fs::read_to_string(run.join("metrics.csv")).unwrap();
+    csv.lines().skip(1).map(|l| l.split(',').nth(4).unwrap().parse().unwrap()).collect()
+}
+
+#[test]
+fn a_time_budget_trains_until_it_is_spent_with_the_schedule_stretched_to_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_demo_scene(dir.path(), 2);
+    let run = dir.path().join("run");
+    let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
+    let common = [
+        "--data",
+        d,
+        "--out",
+        r,
+        "--batch-rays",
+        "32",
+        "--backend",
+        "cpu",
+        "--log-every",
+        "1",
+        "--lr-delay-steps",
+        "10",
+    ];
+    let text = run_ok(&[&["train", "--time-budget", "4s", "--snapshots", "1s,2s"][..], &common[..]].concat());
+    assert!(text.contains("snapshot at"), "{text}");
+    let seconds: f64 = std::fs::read_to_string(run.join("train_seconds.txt")).unwrap().trim().parse().unwrap();
+    assert!((4.0..60.0).contains(&seconds), "trained for {seconds} s on a 4 s budget");
+    for snap in ["00001s", "00002s"] {
+        let s = run.join("snapshots").join(snap);
+        for f in ["checkpoint.safetensors", "config.toml", "train_seconds.txt"] {
+            assert!(s.join(f).is_file(), "{}", s.join(f).display());
+        }
+        let at: f64 = std::fs::read_to_string(s.join("train_seconds.txt")).unwrap().trim().parse().unwrap();
+        assert!(at >= snap[..5].parse::<f64>().unwrap() && at < seconds, "{snap}: {at} s");
+    }
+    // After the warm-up the schedule decays to lr_final at the end of the budget (the horizon is
+    // re-estimated from the speed so far, so a step may rise by a little as the speed varies).
+    let lrs = logged_lrs(&run);
+    let (lr_init, lr_final) = (5e-4, 5e-6);
+    assert!(lrs.len() > 20, "{} steps in 4 s", lrs.len());
+    let decay = &lrs[10..];
+    assert!(decay.windows(2).all(|w| w[1] <= w[0] * 1.05), "not decaying: {lrs:?}");
+    let last = *lrs.last().unwrap();
+    assert!(last < lr_init / 20.0 && last >= lr_final * 0.99 && last <= lr_final * 2.0, "last lr {last}: {lrs:?}");
+    assert!(decay[0] > 10.0 * last, "no decay to speak of: {lrs:?}");
+    // The snapshot is a run directory that eval reads.
+    run_ok(&[
+        "eval",
+        "--run",
+        run.join("snapshots/00001s").to_str().unwrap(),
+        "--backend",
+        "cpu",
+        "--lpips-weights=/nonexistent",
+    ]);
+    // A budget already spent trains no further step; bad durations are clear errors.
+    let csv_before = std::fs::read_to_string(run.join("metrics.csv")).unwrap();
+    run_ok(&["train", "--out", r, "--resume"]);
+    assert_eq!(std::fs::read_to_string(run.join("metrics.csv")).unwrap(), csv_before);
+    for bad in ["5x", "-3m", "0s", "m"] {
+        let flag = format!("--time-budget={bad}");
+        let o = mipnerf(&["train", "--data", d, "--out", dir.path().join("bad").to_str().unwrap(), &flag]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && err.contains("--time-budget") && err.contains("duration"), "{bad}: {err}");
+    }
+}
+
+#[test]
+fn the_fast_preset_skips_empty_space_and_its_grid_reaches_eval_and_render() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_demo_scene(dir.path(), 3);
+    let run = dir.path().join("run");
+    let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
+    let text = run_ok(&["train", "--data", d, "--out", r, "--preset", "fast", "--steps", "20", "--batch-rays", "64"]);
+    assert!(text.contains("occupancy: 64^3 cells") && text.contains("carved by the training masks"), "{text}");
+    assert!(text.contains("backend: CPU"), "{text}");
+    let cfg = std::fs::read_to_string(run.join("config.toml")).unwrap();
+    assert!(cfg.contains("occupancy = true") && cfg.contains("preset = \"fast\""), "{cfg}");
+    let model = mipnerf_core::model::Model::new(mipnerf_core::model::Preset::Fast.config()).unwrap();
+    let ck = mipnerf_core::checkpoint::load(&run.join("checkpoint.safetensors"), &model).unwrap();
+    let grid = ck.occupancy.expect("the checkpoint holds the grid");
+    assert!(!grid.is_full() && grid.occupied_fraction() < 0.9, "{}", grid.occupied_fraction());
+    // Eval and render run with the grid: rays through transparent pixels come out white.
+    run_ok(&["eval", "--run", r, "--lpips-weights=/nonexistent"]);
+    let out = dir.path().join("render");
+    run_ok(&["render", "--run", r, "--out", out.to_str().unwrap(), "--split", "test"]);
+    // The GPU does not run the grid yet: asked for explicitly, a clear error before anything runs.
+    let o = mipnerf(&[
+        "train",
+        "--data",
+        d,
+        "--out",
+        dir.path().join("g").to_str().unwrap(),
+        "--preset",
+        "fast",
+        "--backend",
+        "gpu",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("CPU backend only") && !err.contains("panicked"), "{err}");
+}
+
+#[test]
+fn an_experiment_row_is_evaluated_again_when_its_json_came_from_another_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_demo_scene(dir.path(), 2);
+    let exp = small_experiment(dir.path(), 5);
+    let out = dir.path().join("runs");
+    let args = [
+        "experiment",
+        exp.to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--only",
+        "mipnerf",
+        "--lpips-weights=/nonexistent",
+    ];
+    run_ok(&args);
+    let json = exp.join("results/mipnerf.json");
+    let read = || serde_json::from_str::<serde_json::Value>(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let v = read();
+    let sha = mipnerf_core::checkpoint::file_sha256(&out.join("mipnerf/checkpoint.safetensors")).unwrap();
+    assert_eq!(v["checkpoint_sha256"], sha.as_str(), "{v}");
+    // Bound to this run's checkpoint: done.
+    assert!(run_ok(&args).contains("row mipnerf (Mip-NeRF): done"));
+    // The same step count from another run (another checkpoint, or none recorded): evaluated again,
+    // and the numbers are this run's.
+    for planted in [serde_json::json!("0".repeat(64)), serde_json::Value::Null] {
+        let mut other = v.clone();
+        other["checkpoint_sha256"] = planted;
+        other["psnr"] = serde_json::json!([99.0, 99.0, 99.0, 99.0]);
+        std::fs::write(&json, other.to_string()).unwrap();
+        let text = run_ok(&args);
+        assert!(text.contains("holds another run's numbers") && text.contains("evaluating"), "{text}");
+        let now = read();
+        assert_eq!(now["checkpoint_sha256"], sha.as_str());
+        assert_eq!(now["psnr"], v["psnr"], "re-evaluated numbers are the run's own");
+    }
+}

@@ -18,7 +18,7 @@ fn state(model: &Model, step: u64) -> Checkpoint {
     let n = model.num_params();
     let f = |k: f32| (0..n).map(|i| (i as f32 * 0.37 + k + step as f32).sin()).collect::<Vec<f32>>();
     let v = f(2.0).into_iter().map(f32::abs).collect();
-    Checkpoint { step, params: f(0.0), adam: AdamState { m: f(1.0), v, t: step } }
+    Checkpoint { step, params: f(0.0), adam: AdamState { m: f(1.0), v, t: step }, occupancy: None }
 }
 
 #[test]

@@ -511,7 +511,7 @@ proptest::proptest! {
         let ck = tempfile::tempdir().unwrap();
         let path = ck.path().join("checkpoint.safetensors");
         let state = mipnerf_core::backend::TrainState::fresh(&model, 0);
-        let c = checkpoint::Checkpoint { step: 1, params: state.params.clone(), adam: state.adam.clone() };
+        let c = checkpoint::Checkpoint { step: 1, params: state.params.clone(), adam: state.adam.clone(), occupancy: None };
         checkpoint::save(&path, &model, &c).unwrap();
         let mutated = mutate(std::fs::read(&path).unwrap(), &ops);
         let changed = mutated != std::fs::read(&path).unwrap();

@@ -1,0 +1,302 @@
+//! Occupancy-guided sampling on the CPU: a full grid is the paper's sampler bit for bit, the voxel
+//! traversal finds exactly the occupied cells along a ray, coarse samples stay in the occupied
+//! spans, empty rays render the background and add no gradient, the masks' visual hull keeps
+//! every opaque training pixel, the grid learns where the density is, and it survives a
+//! checkpoint.
+#![allow(clippy::unwrap_used, missing_docs)]
+
+mod common;
+use common::scene::{BALL_RADIUS, ball_scene};
+use glam::Vec3;
+use mipnerf_core::checkpoint::{self, Checkpoint};
+use mipnerf_core::compare::{Tolerance, assert_close};
+use mipnerf_core::data::{self, LoadOptions, Split};
+use mipnerf_core::model::{GradScratch, LevelOutput, Mode, Model, ModelConfig, Preset};
+use mipnerf_core::occupancy::{CARVED, OccupancyConfig, OccupancyGrid, auto_bound};
+use mipnerf_core::rng::{RayRng, Stream};
+use mipnerf_core::sampling::{sample_along_rays, sample_along_segments};
+use mipnerf_core::schedule::LrSchedule;
+use mipnerf_core::train::{AdamState, OptimConfig, Trainer};
+use rand::{Rng, SeedableRng, rngs::SmallRng};
+
+/// Rays rendered in chunks of different composition agree to the matrix product's rounding (the
+/// same bound as chunked rendering elsewhere: about 1e-5 relative).
+const TOL_CHUNKING: Tolerance = Tolerance::new(1e-6, 1e-5);
+
+/// How far (world units) a test point must be from a cell face before its cell is trusted: the
+/// traversal computes face crossings in `f32`.
+const FACE_MARGIN: f32 = 1e-4;
+
+fn model() -> Model {
+    Model::new(ModelConfig { num_samples: 16, ..Preset::Tiny.config() }).unwrap()
+}
+
+/// A warmed-up grid over `[-1.5, 1.5]³` whose cell `i` is occupied when `occupied(centre)`.
+fn grid_where(resolution: usize, mut occupied: impl FnMut(Vec3) -> bool) -> OccupancyGrid {
+    let config = OccupancyConfig { resolution, ..OccupancyConfig::default() };
+    let probe = OccupancyGrid::new(config).unwrap();
+    let opacity = (0..resolution.pow(3)).map(|i| if occupied(probe.cell_center(i)) { 1.0 } else { 0.0 }).collect();
+    OccupancyGrid::from_state(config, opacity, true).unwrap()
+}
+
+fn outputs_flat(o: &[LevelOutput]) -> Vec<f32> {
+    o.iter().flat_map(|l| [l.rgb[0], l.rgb[1], l.rgb[2], l.distance, l.acc]).collect()
+}
+
+#[test]
+fn a_full_grid_samples_renders_and_trains_exactly_as_the_paper() {
+    let m = model();
+    let (rays, colours) = ball_scene(4, 8);
+    let params = m.init_params(3);
+    let full = OccupancyGrid::new(OccupancyConfig::default()).unwrap();
+    assert!(full.is_full());
+    let mode = Mode::Train { seed: 7, step: 11 };
+    let mut g_paper = vec![0.0; m.num_params()];
+    let mut g_full = vec![0.0; m.num_params()];
+    let paper = m.loss_and_grad(&params, &rays, &colours, mode, &mut g_paper);
+    let guided =
+        m.loss_and_grad_guided(&params, &rays, &colours, mode, &mut g_full, &mut GradScratch::default(), Some(&full));
+    assert_eq!(paper, guided);
+    assert_eq!(
+        g_paper.iter().map(|g| g.to_bits()).collect::<Vec<_>>(),
+        g_full.iter().map(|g| g.to_bits()).collect::<Vec<_>>()
+    );
+    assert_eq!(m.render(&params, &rays), m.render_guided(&params, &rays, Some(&full)));
+    // Training with a grid still in its warm-up (every cell occupied) is training without one.
+    let optim = OptimConfig::default();
+    let mut plain = Trainer::new(m.clone(), optim.clone(), 1);
+    let mut with_grid = Trainer::new(m.clone(), optim, 1);
+    with_grid.occupancy =
+        Some(OccupancyGrid::new(OccupancyConfig { warmup_steps: 100, ..OccupancyConfig::default() }).unwrap());
+    for _ in 0..3 {
+        assert_eq!(plain.train_step(&rays, &colours), with_grid.train_step(&rays, &colours));
+    }
+    assert_eq!(plain.params, with_grid.params);
+}
+
+#[test]
+fn the_traversal_finds_exactly_the_occupied_cells_along_each_ray() {
+    let mut rng = SmallRng::seed_from_u64(11);
+    let grid = grid_where(16, |_| rng.random_bool(0.3));
+    let (rays, _) = ball_scene(6, 6);
+    let h = grid.cell_size();
+    let b = grid.config.bound;
+    let mut bad = Vec::new();
+    let mut checked = 0;
+    for (k, r) in rays.iter().enumerate() {
+        let mut spans = Vec::new();
+        grid.ray_segments(r.origin, r.direction, r.near, r.far, &mut spans);
+        for w in spans.windows(2) {
+            assert!(w[0][1] < w[1][0], "ray {k}: spans overlap or touch: {spans:?}");
+        }
+        let n = 4000;
+        for i in 0..n {
+            let t = r.near + (r.far - r.near) * (i as f32 + 0.5) / n as f32;
+            let p = r.origin + r.direction * t;
+            let q = (p + Vec3::splat(b)) / h;
+            let frac = q - q.floor();
+            let dir_len = r.direction.length();
+            if (0..3).any(|a| frac[a].min(1.0 - frac[a]) * h < FACE_MARGIN * dir_len.max(1.0)) {
+                continue;
+            }
+            let inside = p.abs().max_element() < b;
+            let want = inside && grid.is_occupied(q.x as usize, q.y as usize, q.z as usize);
+            let got = spans.iter().any(|s| s[0] <= t && t <= s[1]);
+            checked += 1;
+            if got != want {
+                bad.push(format!("ray {k} t {t}: in spans {got}, occupied {want} ({spans:?})"));
+            }
+        }
+    }
+    assert!(checked > 10_000, "only {checked} points checked");
+    assert!(bad.is_empty(), "{} of {checked} points disagree:\n{}", bad.len(), bad[..bad.len().min(20)].join("\n"));
+}
+
+#[test]
+fn coarse_samples_are_stratified_inside_the_occupied_spans() {
+    let jitter = Some(RayRng::new(1, 2, Stream::SampleJitter, 3));
+    for j in [None, jitter] {
+        let (mut a, mut b) = (vec![0.0; 17], vec![0.0; 17]);
+        sample_along_rays(2.0, 6.0, false, j, &mut a);
+        sample_along_segments(&[[2.0, 6.0]], false, j, &mut b);
+        assert_eq!(a, b, "one span is the paper's sampler");
+    }
+    let spans = [[2.0f32, 2.5], [3.0, 3.25], [4.0, 5.25]];
+    let total: f32 = spans.iter().map(|s| s[1] - s[0]).sum();
+    for j in [None, jitter] {
+        let mut t = vec![0.0; 33];
+        sample_along_segments(&spans, false, j, &mut t);
+        assert!(t.windows(2).all(|w| w[0] <= w[1]), "sorted: {t:?}");
+        if j.is_none() {
+            assert_eq!((t[0], t[32]), (2.0, 5.25), "ends");
+        }
+        for (i, x) in t.iter().enumerate() {
+            assert!(spans.iter().any(|s| s[0] <= *x && *x <= s[1]), "edge {i} = {x} outside {spans:?}");
+        }
+        if j.is_none() {
+            // Evenly spaced along the joined length: within a span, every step is total / 32.
+            for w in t.windows(2) {
+                let same = spans.iter().any(|s| s[0] <= w[0] && w[1] <= s[1]);
+                if same {
+                    assert!((w[1] - w[0] - total / 32.0).abs() < 1e-5, "step {w:?}");
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn rays_that_meet_no_occupied_cell_render_the_background_and_add_no_gradient() {
+    let m = model();
+    let params = m.init_params(5);
+    let grid = grid_where(32, |c| c.length() < BALL_RADIUS + 0.1);
+    let (rays, colours) = ball_scene(4, 12);
+    let mut spans = Vec::new();
+    let (hit, miss): (Vec<usize>, Vec<usize>) = (0..rays.len()).partition(|&i| {
+        spans.clear();
+        grid.ray_segments(rays[i].origin, rays[i].direction, rays[i].near, rays[i].far, &mut spans);
+        !spans.is_empty()
+    });
+    assert!(hit.len() > 50 && miss.len() > 50, "{} rays hit, {} miss", hit.len(), miss.len());
+    let out = m.render_guided(&params, &rays, Some(&grid));
+    for &i in &miss {
+        for level in &out[2 * i..2 * i + 2] {
+            assert_eq!(*level, LevelOutput { rgb: [1.0; 3], distance: rays[i].near, acc: 0.0 }, "ray {i}");
+        }
+    }
+    // The rays that hit render the same alone as among the empty ones.
+    let hit_rays: Vec<_> = hit.iter().map(|&i| rays[i]).collect();
+    let alone = m.render_guided(&params, &hit_rays, Some(&grid));
+    let among: Vec<LevelOutput> = hit.iter().flat_map(|&i| out[2 * i..2 * i + 2].to_vec()).collect();
+    assert_close("hit rays", &outputs_flat(&among), &outputs_flat(&alone), TOL_CHUNKING);
+    // A batch of empty rays: the background's error, and no gradient at all.
+    let miss_rays: Vec<_> = miss.iter().map(|&i| rays[i]).collect();
+    let miss_targets: Vec<_> = miss.iter().map(|&i| colours[i]).collect();
+    let mut g = vec![0.0; m.num_params()];
+    let mode = Mode::Train { seed: 0, step: 0 };
+    let stats = m.loss_and_grad_guided(
+        &params,
+        &miss_rays,
+        &miss_targets,
+        mode,
+        &mut g,
+        &mut GradScratch::default(),
+        Some(&grid),
+    );
+    assert!(g.iter().all(|&x| x == 0.0), "empty rays moved the parameters");
+    let want: f64 = miss_targets.iter().flat_map(|c| c.map(|x| f64::from(1.0 - x).powi(2))).sum::<f64>()
+        / (3.0 * miss_targets.len() as f64);
+    for (l, mse) in stats.mse.iter().enumerate() {
+        assert!((f64::from(*mse) - want).abs() <= 1e-6 * want.max(1e-6), "level {l}: mse {mse}, want {want}");
+    }
+}
+
+#[test]
+fn the_visual_hull_of_the_masks_keeps_every_opaque_training_pixel() {
+    let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/lego_tiny");
+    let ds = data::load(&dir, Split::Train, &LoadOptions::default()).unwrap();
+    let bound = auto_bound(&ds).unwrap();
+    let mut grid = OccupancyGrid::new(OccupancyConfig { resolution: 48, bound, ..OccupancyConfig::default() }).unwrap();
+    let carved = grid.carve_with_masks(&ds);
+    let cells = 48usize.pow(3);
+    assert!(carved * 2 > cells, "only {carved} of {cells} cells carved");
+    assert_eq!(grid.opacity.iter().filter(|&&v| v == CARVED).count(), carved);
+    let mut spans = Vec::new();
+    let mut lost = Vec::new();
+    let mut opaque = 0;
+    for (v, view) in ds.views().iter().enumerate() {
+        for y in 0..view.camera.height {
+            for x in 0..view.camera.width {
+                let i = (y * view.camera.width + x) as usize;
+                if view.pixels.rgba(i)[3] < 0.5 / 255.0 {
+                    continue;
+                }
+                opaque += 1;
+                let r = ds.ray(v, x, y);
+                spans.clear();
+                grid.ray_segments(r.origin, r.direction, r.near, r.far, &mut spans);
+                if spans.is_empty() {
+                    lost.push(format!("view {v} pixel ({x}, {y})"));
+                }
+            }
+        }
+    }
+    assert!(opaque > 1000, "{opaque} opaque pixels");
+    assert!(
+        lost.is_empty(),
+        "{} of {opaque} opaque pixels see no occupied cell: {:?}",
+        lost.len(),
+        &lost[..lost.len().min(10)]
+    );
+}
+
+#[test]
+fn the_grid_learns_where_the_density_is() {
+    let (rays, colours) = ball_scene(8, 16);
+    let steps = 300;
+    let optim = OptimConfig {
+        lr: LrSchedule { lr_init: 5e-3, lr_final: 5e-4, max_steps: steps, lr_delay_steps: 0, lr_delay_mult: 1.0 },
+        ..OptimConfig::default()
+    };
+    let mut trainer = Trainer::new(Model::new(Preset::Tiny.config()).unwrap(), optim, 1);
+    // A threshold of 0.1 over a cell (σ > 0.56 here): the default, 0.01, keeps cells whose
+    // density the model has only begun to lower, and on this scene without masks keeps most.
+    let config = OccupancyConfig {
+        resolution: 16,
+        warmup_steps: 100,
+        update_every: 10,
+        threshold: 0.1,
+        ..OccupancyConfig::default()
+    };
+    trainer.occupancy = Some(OccupancyGrid::new(config).unwrap());
+    let mut rng = SmallRng::seed_from_u64(5);
+    for _ in 0..steps {
+        let idx: Vec<usize> = (0..256).map(|_| rng.random_range(0..rays.len())).collect();
+        let r: Vec<_> = idx.iter().map(|&i| rays[i]).collect();
+        let c: Vec<_> = idx.iter().map(|&i| colours[i]).collect();
+        trainer.train_step(&r, &c);
+    }
+    let grid = trainer.occupancy.as_ref().unwrap();
+    assert!(grid.warmed_up && !grid.is_full());
+    let (mut core, mut core_occ, mut far, mut far_empty) = (0, 0, 0, 0);
+    for i in 0..16usize.pow(3) {
+        let c = grid.cell_center(i);
+        let (x, y, z) = (i % 16, (i / 16) % 16, i / 256);
+        if c.length() < 0.5 * BALL_RADIUS {
+            core += 1;
+            core_occ += usize::from(grid.is_occupied(x, y, z));
+        } else if c.length() > BALL_RADIUS + 0.4 && c.z.abs() < 1.0 {
+            far += 1;
+            far_empty += usize::from(!grid.is_occupied(x, y, z));
+        }
+    }
+    eprintln!("ball core: {core_occ}/{core} occupied; far from the ball: {far_empty}/{far} empty");
+    assert_eq!(core_occ, core, "cells inside the ball were dropped");
+    assert!(far_empty * 2 > far, "only {far_empty} of {far} cells far from the ball were found empty");
+}
+
+#[test]
+fn the_grid_round_trips_through_a_checkpoint() {
+    let m = model();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("ck.safetensors");
+    let mut rng = SmallRng::seed_from_u64(2);
+    let config = OccupancyConfig { resolution: 8, bound: 1.25, ..OccupancyConfig::default() };
+    let opacity: Vec<f32> =
+        (0..512).map(|_| if rng.random_bool(0.3) { CARVED } else { rng.random_range(0.0..1.0) }).collect();
+    let grid = OccupancyGrid::from_state(config, opacity, true).unwrap();
+    let n = m.num_params();
+    let ck = Checkpoint { step: 9, params: m.init_params(1), adam: AdamState::new(n), occupancy: Some(grid) };
+    checkpoint::save(&path, &m, &ck).unwrap();
+    assert_eq!(checkpoint::load(&path, &m).unwrap(), ck);
+    let plain = Checkpoint { occupancy: None, ..ck };
+    checkpoint::save(&path, &m, &plain).unwrap();
+    assert_eq!(checkpoint::load(&path, &m).unwrap().occupancy, None);
+    // Bad saved state is refused with what is wrong.
+    let e = OccupancyGrid::from_state(config, vec![f32::NAN; 512], true).unwrap_err().to_string();
+    assert!(e.contains("NaN"), "{e}");
+    let e = OccupancyGrid::from_state(config, vec![0.0; 500], true).unwrap_err().to_string();
+    assert!(e.contains("500 cells") && e.contains("512"), "{e}");
+    let e = OccupancyGrid::new(OccupancyConfig { bound: -1.0, ..config }).unwrap_err().to_string();
+    assert!(e.contains("bound"), "{e}");
+}
