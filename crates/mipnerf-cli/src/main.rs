@@ -80,7 +80,7 @@ enum Command {
         #[arg(long)]
         resume: bool,
         #[command(flatten)]
-        flags: TrainFlags,
+        flags: Box<TrainFlags>,
         #[command(flatten)]
         device: backend::DeviceArgs,
     },

@@ -285,7 +285,8 @@ impl OccupancyGrid {
             t0 = t0.max(ta.min(tb));
             t1 = t1.min(ta.max(tb));
         }
-        if !(t0 < t1) {
+        // Nothing inside the cube (or a NaN from a degenerate ray).
+        if t0.partial_cmp(&t1) != Some(std::cmp::Ordering::Less) {
             return;
         }
         // The entry cell; a point on a face rounds to the cell inside through the clamp.
