@@ -468,6 +468,9 @@ fn table_markdown(dir: &Path, exp: &Experiment) -> Result<String> {
     if !missing.is_empty() {
         s += &format!("\nNot run yet: {}.\n", missing.join(", "));
     }
+    // The chart is linked where the table sits beside it.
+    let beside = exp.table.parent() == Some(exp.results.as_path());
+    s += &marks_markdown(&results, &exp.rows, beside)?;
     if two_term {
         s += "\n\\* Without LPIPS: the two-term average error (MSE and sqrt(1 - SSIM)), not the paper's.\n";
     }
@@ -489,6 +492,54 @@ fn table_markdown(dir: &Path, exp: &Experiment) -> Result<String> {
         }
     }
     s += END;
+    Ok(s)
+}
+
+/// The rows that were evaluated at fixed training times: a table of every mark (and the final
+/// checkpoint), and `RESULTS/psnr-vs-time.png` of mean PSNR against minutes. Empty when no row
+/// has marks.
+fn marks_markdown(results: &Path, rows: &[String], link_chart: bool) -> Result<String> {
+    let mut curves = Vec::new();
+    let mut s = String::new();
+    for id in rows {
+        let Ok(text) = std::fs::read_to_string(results.join(format!("{id}.json"))) else { continue };
+        let r: RowResult = serde_json::from_str(&text)?;
+        if r.marks.is_empty() {
+            continue;
+        }
+        if s.is_empty() {
+            s += "\n**At fixed training times** (test split, 4 scales; evaluation time not counted):\n\n\
+                  | row | minutes | steps | PSNR full | 1/2 | 1/4 | 1/8 | mean PSNR | mean SSIM | mean LPIPS |\n\
+                  |---|---|---|---|---|---|---|---|---|---|\n";
+        }
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+        let mut pts = Vec::new();
+        let finals = (r.train_seconds, r.steps, r.psnr.clone(), r.ssim.clone(), r.lpips.clone());
+        let marks = r.marks.iter().map(|m| (m.train_seconds, m.steps, m.psnr.clone(), m.ssim.clone(), m.lpips.clone()));
+        for (secs, steps, psnr, ssim, lpips) in marks.chain(std::iter::once(finals)) {
+            let lp = lpips.as_deref().map_or_else(|| "n/a".to_string(), |l| format!("{:.4}", mean(l)));
+            s += &format!(
+                "| {} | {:.1} | {steps} |{} {:.2} | {:.4} | {lp} |\n",
+                r.label,
+                secs / 60.0,
+                fmt_list(&psnr, 2),
+                mean(&psnr),
+                mean(&ssim)
+            );
+            pts.push((secs / 60.0, mean(&psnr)));
+        }
+        curves.push((r.label.clone(), pts));
+    }
+    if curves.is_empty() {
+        return Ok(s);
+    }
+    let png = results.join("psnr-vs-time.png");
+    crate::plot::quality_vs_time(&png, &curves, None)?;
+    if link_chart {
+        s += "\n![Mean test PSNR against training time](psnr-vs-time.png)\n";
+    } else {
+        s += &format!("\nChart: {}\n", png.display());
+    }
     Ok(s)
 }
 

@@ -91,3 +91,58 @@ pub fn psnr_bars(path: &Path, bars: &[(String, u32, f64)]) -> Result<()> {
     root.present().map_err(&err)?;
     Ok(())
 }
+
+/// Mean test PSNR against minutes of training, one curve per run (points marked), with a dashed
+/// horizontal reference line.
+///
+/// # Errors
+/// Unwritable PNG.
+pub fn quality_vs_time(
+    path: &Path,
+    curves: &[(String, Vec<(f64, f64)>)],
+    reference: Option<(f64, &str)>,
+) -> Result<()> {
+    ensure_font();
+    let err = plot_err(path);
+    let root = BitMapBackend::new(path, (900, 540)).into_drawing_area();
+    root.fill(&WHITE).map_err(&err)?;
+    let all = curves.iter().flat_map(|c| c.1.iter().copied()).filter(|p| p.0.is_finite() && p.1.is_finite());
+    let (x1, lo, hi) =
+        all.fold((1.0f64, f64::INFINITY, f64::NEG_INFINITY), |(x, a, b), p| (x.max(p.0), a.min(p.1), b.max(p.1)));
+    let (lo, hi) = if lo.is_finite() { (lo.floor() - 1.0, hi.ceil() + 1.0) } else { (0.0, 1.0) };
+    let mut c = ChartBuilder::on(&root)
+        .caption("Mean test PSNR over the 4 scales against training time", ("sans-serif", 22))
+        .margin(14)
+        .x_label_area_size(44)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0.0..x1 * 1.04, lo..hi)
+        .map_err(&err)?;
+    c.configure_mesh().x_desc("minutes of training (2 CPU cores)").y_desc("mean PSNR (dB)").draw().map_err(&err)?;
+    let colours = [RED, BLUE, GREEN, MAGENTA, CYAN];
+    for (k, (label, pts)) in curves.iter().enumerate() {
+        let col = colours[k % colours.len()];
+        c.draw_series(LineSeries::new(pts.iter().copied(), col.stroke_width(2)))
+            .map_err(&err)?
+            .label(label.as_str())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], col.stroke_width(2)));
+        c.draw_series(pts.iter().map(|&p| Circle::new(p, 4, col.filled()))).map_err(&err)?;
+    }
+    if let Some((y, label)) = reference {
+        let dashes = (0..60).map(|i| {
+            let (a, b) = (x1 * 1.04 * f64::from(i) / 60.0, x1 * 1.04 * (f64::from(i) + 0.5) / 60.0);
+            PathElement::new(vec![(a, y), (b, y)], BLACK.stroke_width(1))
+        });
+        c.draw_series(dashes)
+            .map_err(&err)?
+            .label(label)
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK));
+    }
+    c.configure_series_labels()
+        .position(SeriesLabelPosition::LowerRight)
+        .background_style(WHITE.mix(0.9))
+        .border_style(BLACK)
+        .draw()
+        .map_err(&err)?;
+    root.present().map_err(&err)?;
+    Ok(())
+}
