@@ -467,7 +467,7 @@ impl Model {
             .par_iter()
             .map(|r| {
                 let mut spans = Vec::new();
-                grid.ray_segments(r.origin, r.direction, r.near, r.far, &mut spans);
+                grid.ray_segments(r, &mut spans);
                 spans
             })
             .collect();

@@ -20,6 +20,7 @@
 use glam::Vec3;
 use rayon::prelude::*;
 
+use crate::cone::Ray;
 use crate::data::Dataset;
 use crate::mip::Gaussian;
 use crate::mlp::MlpCache;
@@ -66,7 +67,13 @@ pub struct OccupancyGrid {
     /// Whether the warm-up is over (cells are then occupied by their opacity, not all).
     pub warmed_up: bool,
     occupied: Vec<bool>,
+    /// `dilated[k - 1]`: a cell is set when an occupied cell lies within `k` cells of it (along
+    /// each axis), for the cones that are wider than a cell.
+    dilated: Vec<Vec<bool>>,
 }
+
+/// The widest dilation (in cells) a cone's footprint is given.
+pub const MAX_DILATION: usize = 4;
 
 /// Errors in occupancy settings or state.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -95,7 +102,8 @@ impl OccupancyGrid {
             return Err(OccupancyError("update_every must be at least 1".into()));
         }
         let n = r * r * r;
-        Ok(Self { config, opacity: vec![0.0; n], warmed_up: false, occupied: vec![true; n] })
+        let dilated = vec![vec![true; n]; MAX_DILATION];
+        Ok(Self { config, opacity: vec![0.0; n], warmed_up: false, occupied: vec![true; n], dilated })
     }
 
     /// A grid restored from saved state (see [`opacity`](Self::opacity) and
@@ -171,6 +179,12 @@ impl OccupancyGrid {
         let warm = self.warmed_up;
         for (o, &v) in self.occupied.iter_mut().zip(&self.opacity) {
             *o = v != CARVED && (!warm || v > thr);
+        }
+        let r = self.config.resolution;
+        let mut prev = self.occupied.clone();
+        for d in &mut self.dilated {
+            *d = dilate(&prev, r);
+            prev.clone_from(d);
         }
     }
 
@@ -263,11 +277,19 @@ impl OccupancyGrid {
             .collect()
     }
 
-    /// The occupied parts of the ray `origin + t direction`, `t` in `[near, far]`, as sorted,
-    /// disjoint `[t0, t1]` spans (`t` in units of `direction`, which need not be unit length):
-    /// a voxel traversal (Amanatides and Woo) of the cells the ray crosses inside the grid's cube,
-    /// consecutive occupied cells merged. Space outside the cube is empty. Appends to `out`.
-    pub fn ray_segments(&self, origin: Vec3, direction: Vec3, near: f32, far: f32, out: &mut Vec<[f32; 2]>) {
+    /// The parts of `ray` (`origin + t direction`, `t` in `[near, far]`, in units of the
+    /// direction, which need not be unit length) that its cone may see occupied, as sorted,
+    /// disjoint `[t0, t1]` spans: a voxel traversal (Amanatides and Woo) of the cells the ray's
+    /// axis crosses inside the grid's cube, consecutive hits merged. Space outside the cube is
+    /// empty. Appends to `out`.
+    ///
+    /// A cone is wider than its axis: a cell counts as hit when an occupied cell lies within `k`
+    /// cells of it, with `k = ceil(2 r / h)` for the cone's radius `r` (`radius · t`) where it
+    /// leaves the cube and the cell side `h` (at most [`MAX_DILATION`]; `k = 0`, the axis alone,
+    /// for a ray of zero radius). So a coarse pixel whose footprint covers the object but whose
+    /// centre line misses it still samples it.
+    pub fn ray_segments(&self, ray: &Ray, out: &mut Vec<[f32; 2]>) {
+        let (origin, direction, near, far) = (ray.origin, ray.direction, ray.near, ray.far);
         let b = self.config.bound;
         let r = self.config.resolution as i32;
         let h = self.cell_size();
@@ -289,6 +311,11 @@ impl OccupancyGrid {
         if t0.partial_cmp(&t1) != Some(std::cmp::Ordering::Less) {
             return;
         }
+        let reach = 2.0 * ray.radius * t1.abs() / h;
+        let occupied = match reach.ceil() {
+            k if k >= 1.0 => &self.dilated[(k as usize).min(MAX_DILATION) - 1],
+            _ => &self.occupied,
+        };
         // The entry cell; a point on a face rounds to the cell inside through the clamp.
         let p = origin + direction * t0;
         let mut cell = [0i32; 3];
@@ -320,7 +347,7 @@ impl OccupancyGrid {
                 2
             };
             let t_next = t_max[a].min(t1).max(t);
-            let occ = self.occupied[((cell[2] as usize * res) + cell[1] as usize) * res + cell[0] as usize];
+            let occ = occupied[((cell[2] as usize * res) + cell[1] as usize) * res + cell[0] as usize];
             match (occ, open) {
                 (true, None) => open = Some(t),
                 (false, Some(s)) => {
@@ -344,6 +371,20 @@ impl OccupancyGrid {
             out.push([s, t]);
         }
     }
+}
+
+/// `cells` (`r³`, x fastest) dilated by one cell along each axis: a 3x3x3 maximum, as three
+/// passes of a 3-tap maximum.
+fn dilate(cells: &[bool], r: usize) -> Vec<bool> {
+    let mut cur = cells.to_vec();
+    for stride in [1, r, r * r] {
+        let src = cur.clone();
+        for (i, c) in cur.iter_mut().enumerate() {
+            let pos = (i / stride) % r;
+            *c = src[i] || (pos > 0 && src[i - stride]) || (pos + 1 < r && src[i + stride]);
+        }
+    }
+    cur
 }
 
 fn sign(bit: usize) -> f32 {

@@ -85,7 +85,8 @@ fn the_traversal_finds_exactly_the_occupied_cells_along_each_ray() {
     let mut checked = 0;
     for (k, r) in rays.iter().enumerate() {
         let mut spans = Vec::new();
-        grid.ray_segments(r.origin, r.direction, r.near, r.far, &mut spans);
+        // The axis alone (a ray of zero radius): exactly the cells it crosses.
+        grid.ray_segments(&mipnerf_core::Ray { radius: 0.0, ..*r }, &mut spans);
         for w in spans.windows(2) {
             assert!(w[0][1] < w[1][0], "ray {k}: spans overlap or touch: {spans:?}");
         }
@@ -110,6 +111,40 @@ fn the_traversal_finds_exactly_the_occupied_cells_along_each_ray() {
     }
     assert!(checked > 10_000, "only {checked} points checked");
     assert!(bad.is_empty(), "{} of {checked} points disagree:\n{}", bad.len(), bad[..bad.len().min(20)].join("\n"));
+}
+
+#[test]
+fn a_cone_wider_than_a_cell_samples_the_cells_its_footprint_covers() {
+    // A 2x2x2 block of occupied cells at the centre of a 16³ grid over [-1.5, 1.5]³ (cells h =
+    // 0.1875 wide, the block's y cells are 7 and 8).
+    let grid = grid_where(16, |c| c.abs().max_element() < 0.1);
+    let h = grid.cell_size();
+    // Rays along x at height y, in the cube for t in [1.5, 4.5].
+    let spans = |y: f32, radius: f32| {
+        let ray = mipnerf_core::Ray {
+            origin: Vec3::new(-3.0, y, 0.05),
+            direction: Vec3::X,
+            viewdir: Vec3::X,
+            radius,
+            lossmult: 1.0,
+            near: 0.5,
+            far: 5.5,
+        };
+        let mut s = Vec::new();
+        grid.ray_segments(&ray, &mut s);
+        s
+    };
+    let (beside, two_away) = (1.5 * h, 2.5 * h); // y cells 9 and 10
+    assert!(spans(beside, 0.0).is_empty(), "the axis alone meets no occupied cell");
+    // A thin cone (a full-scale pixel's) is dilated by one cell: beside the block, it sees it.
+    assert_eq!(spans(beside, 1e-4).len(), 1, "{:?}", spans(beside, 1e-4));
+    assert!(spans(two_away, 1e-4).is_empty(), "{:?}", spans(two_away, 1e-4));
+    // A footprint of two cells where it leaves the cube (2 r / h = 2 at t = 4.5): two cells of
+    // reach, so the x cells 5 to 10 around the block.
+    let wide = spans(two_away, h / 4.5);
+    assert_eq!(wide.len(), 1, "{wide:?}");
+    let [t0, t1] = wide[0];
+    assert!((t1 - t0 - 6.0 * h).abs() < 1e-4 && (t0 + t1) / 2.0 > 2.9 && (t0 + t1) / 2.0 < 3.1, "{wide:?}");
 }
 
 #[test]
@@ -149,12 +184,13 @@ fn coarse_samples_are_stratified_inside_the_occupied_spans() {
 fn rays_that_meet_no_occupied_cell_render_the_background_and_add_no_gradient() {
     let m = model();
     let params = m.init_params(5);
-    let grid = grid_where(32, |c| c.length() < BALL_RADIUS + 0.1);
-    let (rays, colours) = ball_scene(4, 12);
+    // Occupied: the middle of the ball. The 24-pixel views' cones reach two cells beyond it.
+    let grid = grid_where(32, |c| c.length() < 0.5 * BALL_RADIUS);
+    let (rays, colours) = ball_scene(4, 24);
     let mut spans = Vec::new();
     let (hit, miss): (Vec<usize>, Vec<usize>) = (0..rays.len()).partition(|&i| {
         spans.clear();
-        grid.ray_segments(rays[i].origin, rays[i].direction, rays[i].near, rays[i].far, &mut spans);
+        grid.ray_segments(&rays[i], &mut spans);
         !spans.is_empty()
     });
     assert!(hit.len() > 50 && miss.len() > 50, "{} rays hit, {} miss", hit.len(), miss.len());
@@ -214,7 +250,7 @@ fn the_visual_hull_of_the_masks_keeps_every_opaque_training_pixel() {
                 opaque += 1;
                 let r = ds.ray(v, x, y);
                 spans.clear();
-                grid.ray_segments(r.origin, r.direction, r.near, r.far, &mut spans);
+                grid.ray_segments(&r, &mut spans);
                 if spans.is_empty() {
                     lost.push(format!("view {v} pixel ({x}, {y})"));
                 }
