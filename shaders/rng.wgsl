@@ -1,4 +1,5 @@
-// mipnerf-core's counter-based random numbers (crates/mipnerf-core/src/rng.rs), the one WGSL copy:
+// mipnerf-core's counter-based random numbers (crates/mipnerf-core/src/rng.rs) and the stratified
+// draws built on them (crates/mipnerf-core/src/sampling.rs), the one WGSL copy:
 // composed in front of every kernel's own source, after the generated constants (STREAM_*,
 // RAY_LEVEL_STRIDE) that come from the Rust definitions.
 
@@ -38,4 +39,33 @@ fn normal(key: u32, i: u32) -> f32 {
         a = a - 6.2831855;
     }
     return sqrt(-2.0 * log(u1)) * cos(a);
+}
+
+// Edge i of the n + 1 evenly spaced edges between near and far (or evenly in disparity):
+// `sampling::sample_along_rays` before its jitter.
+fn linspace_edge(i: u32, n: u32, near: f32, far: f32, lindisp: bool) -> f32 {
+    let s = f32(i) / f32(n);
+    if (lindisp) {
+        return 1.0 / (1.0 / near * (1.0 - s) + 1.0 / far * s);
+    }
+    return near * (1.0 - s) + far * s;
+}
+
+// Edge i of `sampling::sample_along_rays(near, far, lindisp, jitter)`: the even edge, or in
+// training (`jitter`) a uniform draw of the ray's stream `key` between the midpoints of the even
+// edges on either side (the edge itself at either end).
+fn stratified_edge(i: u32, n: u32, near: f32, far: f32, lindisp: bool, jitter: bool, key: u32) -> f32 {
+    let cur = linspace_edge(i, n, near, far, lindisp);
+    if (!jitter) {
+        return cur;
+    }
+    var lower = cur;
+    if (i > 0u) {
+        lower = 0.5 * (cur + linspace_edge(i - 1u, n, near, far, lindisp));
+    }
+    var upper = cur;
+    if (i < n) {
+        upper = 0.5 * (linspace_edge(i + 1u, n, near, far, lindisp) + cur);
+    }
+    return lower + (upper - lower) * uniform01(key, i);
 }

@@ -51,31 +51,9 @@ fn stratified(@builtin(global_invocation_id) gid: vec3<u32>) {
     let far = src_a[2u * r + 1u];
     let n = p.n_samples;
     let base = r * (n + 1u);
-    for (var i = 0u; i <= n; i = i + 1u) {
-        let s = f32(i) / f32(n);
-        if (p.lindisp != 0u) {
-            t_out[base + i] = 1.0 / (1.0 / near * (1.0 - s) + 1.0 / far * s);
-        } else {
-            t_out[base + i] = near * (1.0 - s) + far * s;
-        }
-    }
-    if (p.randomized == 0u) {
-        return;
-    }
     let key = ray_key(STREAM_SAMPLE_JITTER, p.first_ray + r);
-    var prev_old = t_out[base];
     for (var i = 0u; i <= n; i = i + 1u) {
-        let cur = t_out[base + i];
-        var lower = cur;
-        if (i > 0u) {
-            lower = 0.5 * (cur + prev_old);
-        }
-        var upper = cur;
-        if (i < n) {
-            upper = 0.5 * (t_out[base + i + 1u] + cur);
-        }
-        prev_old = cur;
-        t_out[base + i] = lower + (upper - lower) * uniform01(key, i);
+        t_out[base + i] = stratified_edge(i, n, near, far, p.lindisp != 0u, p.randomized != 0u, key);
     }
 }
 

@@ -459,12 +459,6 @@ impl TrainSettings {
             if self.supersample.unwrap_or(1) > 1 {
                 bail!("occupancy-guided sampling (--occupancy) does not guide supersampled pixels: drop --supersample");
             }
-            if self.backend == Some(Backend::Gpu) {
-                bail!(
-                    "occupancy-guided sampling (--occupancy, the fast preset) runs on the CPU backend only so far: \
-                     pass --backend cpu (or --no-occupancy)"
-                );
-            }
         }
         for (key, v) in [("grad_max_norm", self.grad_max_norm), ("grad_max_val", self.grad_max_val)] {
             if let Some(v) = v

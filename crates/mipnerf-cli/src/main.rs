@@ -243,12 +243,17 @@ enum Command {
         /// Run directory (created).
         #[arg(long, value_name = "RUN_DIR")]
         out: PathBuf,
-        /// Model size.
-        #[arg(long, value_enum, default_value_t = PresetArg::Tiny)]
+        /// Model size and sampler: by default the fast preset (occupancy-guided sampling, the
+        /// small trunk); tiny, small and paper sample every ray from near to far.
+        #[arg(long, value_enum, default_value_t = PresetArg::Fast)]
         preset: PresetArg,
-        /// Training steps of each system (Mip-NeRF, then the NeRF baseline).
-        #[arg(long, default_value_t = 800)]
-        steps: u64,
+        /// Training time of each system (Mip-NeRF, then the NeRF baseline), e.g. 2m or 90s; the
+        /// learning-rate schedule is stretched to it.
+        #[arg(long, value_name = "DURATION", default_value = "2m")]
+        time_budget: String,
+        /// Train each system for exactly this many steps instead of for --time-budget.
+        #[arg(long)]
+        steps: Option<u64>,
         /// Where to run.
         #[arg(long, value_enum, default_value_t = Backend::Auto)]
         backend: Backend,
@@ -410,25 +415,31 @@ fn demo_cmd(out: &Path, d: &DemoArgs) -> Result<()> {
         demo::write_demo_scene(&data_dir, &cfg)?;
         println!("generated the demo scene in {} ({:.1}s)", data_dir.display(), t.elapsed().as_secs_f64());
     }
-    // Mip-NeRF in RUN_DIR, the NeRF baseline in RUN_DIR/nerf: the same data, steps, batch,
-    // learning rates and seed.
+    // Mip-NeRF in RUN_DIR, the NeRF baseline in RUN_DIR/nerf: the same data, sampler, budget,
+    // batch, learning rates and seed.
     let nerf_dir = out.join("nerf");
     let weights = lpips::LpipsWeights::default();
     let mut scores = Vec::new();
     for (name, dir, model) in
         [("Mip-NeRF", out, config::ModelKind::Mipnerf), ("NeRF", nerf_dir.as_path(), config::ModelKind::Nerf)]
     {
-        println!("== training {name} ({} steps)", d.steps);
+        match d.steps {
+            Some(n) => println!("== training {name} ({n} steps)"),
+            None => println!("== training {name} ({} of training)", d.time_budget),
+        }
+        // The fast preset brings its own learning rates; the others keep the demo's.
+        let fast = d.preset == PresetArg::Fast;
         let flags = TrainFlags {
             data: Some(data_dir.clone()),
             preset: Some(d.preset),
             model: Some(model),
-            steps: Some(d.steps),
+            steps: d.steps,
+            time_budget: d.steps.is_none().then(|| d.time_budget.clone()),
             backend: Some(d.backend),
             seed: Some(d.seed),
             batch_rays: Some(d.batch_rays),
-            lr_init: Some(2e-3),
-            lr_final: Some(2e-4),
+            lr_init: (!fast).then_some(2e-3),
+            lr_final: (!fast).then_some(2e-4),
             ..TrainFlags::default()
         };
         let resume = dir.join(run::CHECKPOINT).is_file();
@@ -496,7 +507,8 @@ fn demo_cmd(out: &Path, d: &DemoArgs) -> Result<()> {
 /// The flags of `mipnerf demo`, gathered.
 struct DemoArgs {
     preset: PresetArg,
-    steps: u64,
+    time_budget: String,
+    steps: Option<u64>,
     backend: Backend,
     seed: u32,
     size: u32,
@@ -567,9 +579,9 @@ fn main() -> std::process::ExitCode {
         Command::Convert { input, output, to: ConvertTo::Llff, size, factor } => {
             convert_llff(&input, &output, size, factor)
         }
-        Command::Demo { out, preset, steps, backend, device, seed, size, views, batch_rays } => {
+        Command::Demo { out, preset, time_budget, steps, backend, device, seed, size, views, batch_rays } => {
             backend::set_device_args(&device);
-            demo_cmd(&out, &DemoArgs { preset, steps, backend, seed, size, views, batch_rays })
+            demo_cmd(&out, &DemoArgs { preset, time_budget, steps, backend, seed, size, views, batch_rays })
         }
     };
     match result {

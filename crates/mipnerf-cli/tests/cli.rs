@@ -114,6 +114,8 @@ fn the_demo_produces_every_promised_file_and_beats_a_constant_image() {
         "demo",
         "--out",
         r,
+        "--preset",
+        "tiny",
         "--steps",
         "250",
         "--size",

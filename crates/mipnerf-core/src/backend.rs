@@ -48,11 +48,6 @@ pub enum Unsupported {
     /// Supersampling of forward-facing (NDC) data.
     #[error("{NDC_SUPERSAMPLE}")]
     NdcSupersample,
-    /// Occupancy-guided sampling (the GPU kernels do not run it yet).
-    #[error(
-        "occupancy-guided sampling (--occupancy, the fast preset) runs on the CPU backend only so far: pass --backend cpu"
-    )]
-    Occupancy,
 }
 
 /// A full image to render: its camera and how its pixels become rays.

@@ -167,6 +167,23 @@ impl OccupancyGrid {
         Vec3::new(-b + (x as f32 + 0.5) * h, -b + (y as f32 + 0.5) * h, -b + (z as f32 + 0.5) * h)
     }
 
+    /// The occupied cells and their dilations as bits, what the GPU sampler reads
+    /// (`shaders/occupancy.wgsl`): layer 0 is the occupied cells, layer `k` (1 to
+    /// [`MAX_DILATION`]) the cells within `k` cells of an occupied one; cell `i` (x fastest) of
+    /// layer `k` is bit `j % 32` of word `j / 32`, with `j = k · resolution³ + i`.
+    #[must_use]
+    pub fn packed_layers(&self) -> Vec<u32> {
+        let n = self.occupied.len();
+        let mut words = vec![0u32; ((MAX_DILATION + 1) * n).div_ceil(32)];
+        for (k, layer) in std::iter::once(&self.occupied).chain(&self.dilated).enumerate() {
+            for (i, _) in layer.iter().enumerate().filter(|(_, o)| **o) {
+                let j = k * n + i;
+                words[j / 32] |= 1 << (j % 32);
+            }
+        }
+        words
+    }
+
     /// Recomputes which cells are occupied from the stored opacities.
     fn refresh(&mut self) {
         let candidates: Vec<f32> = self.opacity.iter().copied().filter(|&v| v != CARVED).collect();

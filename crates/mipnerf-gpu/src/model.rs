@@ -12,9 +12,11 @@
 
 use mipnerf_core::Ray;
 use mipnerf_core::model::{LevelOutput, LossStats, Mode, Model};
+use mipnerf_core::occupancy::OccupancyGrid;
 
 use crate::kernels::Recorder;
 use crate::kernels::cast_ipe::{CastIpeKernel, CastIpeParams};
+use crate::kernels::occupancy::{DeviceGrid, OccupancyKernel, OccupancyParams};
 use crate::kernels::render::{RenderBuffers, RenderKernel, RenderParams};
 use crate::kernels::sample::{SampleKernels, SampleParams};
 use crate::kernels::view_enc::ViewEncKernel;
@@ -253,6 +255,7 @@ impl ModelBuffers {
 #[derive(Debug)]
 pub struct GpuModel {
     sample: SampleKernels,
+    occupancy: OccupancyKernel,
     cast: CastIpeKernel,
     view: ViewEncKernel,
     mlp: GpuMlp,
@@ -284,6 +287,7 @@ impl GpuModel {
         };
         Ok(Self {
             sample: SampleKernels::with_variant(ctx, s)?,
+            occupancy: OccupancyKernel::new(ctx)?,
             cast: CastIpeKernel::new(ctx)?,
             view: ViewEncKernel::new(ctx)?,
             mlp: GpuMlp::with_variant(ctx, m)?,
@@ -315,6 +319,32 @@ impl GpuModel {
         mode: Mode,
         grads: Option<&wgpu::Buffer>,
     ) -> Result<(), GpuError> {
+        self.encode_guided(rec, model, params, batch, work, mode, grads, None)
+    }
+
+    /// [`encode`](Self::encode) with occupancy-guided coarse sampling (`occupancy.wgsl`, the
+    /// CPU's `Model::loss_and_grad_guided` and `render_guided`): with a `grid` that is not full
+    /// (and one ray per pixel), the coarse edges lie in each ray's occupied spans, and a ray that
+    /// meets no occupied cell renders the background (no opacity, distance `near`) and adds its
+    /// background's error to the loss and nothing to the gradient. Such a ray still runs the
+    /// MLP here (on intervals of zero length); the CPU skips it. A full grid, or none, records
+    /// exactly [`encode`](Self::encode).
+    ///
+    /// # Errors
+    /// As [`encode`](Self::encode).
+    #[allow(clippy::too_many_arguments)]
+    pub fn encode_guided(
+        &self,
+        rec: &mut Recorder<'_>,
+        model: &Model,
+        params: &wgpu::Buffer,
+        batch: &RayBatch,
+        work: &ModelBuffers,
+        mode: Mode,
+        grads: Option<&wgpu::Buffer>,
+        grid: Option<&DeviceGrid>,
+    ) -> Result<(), GpuError> {
+        let grid = grid.filter(|g| !g.is_full() && model.rays_per_pixel() == 1);
         if batch.n_rays != work.n_rays || batch.n_rays == 0 {
             return Err(GpuError::InvalidInput(format!(
                 "a batch of {} rays with buffers for {}",
@@ -345,7 +375,22 @@ impl GpuModel {
             };
             let t = &work.t_vals;
             if level == 0 {
-                self.sample.stratified(rec, sp, &batch.bounds, &t[0])?;
+                match grid {
+                    Some(g) => {
+                        let op = OccupancyParams {
+                            n_rays: sp.n_rays,
+                            n_samples: sp.n_samples,
+                            lindisp: sp.lindisp,
+                            randomized: sp.randomized,
+                            seed,
+                            step,
+                            first_ray: batch.first_ray,
+                            ..OccupancyParams::default()
+                        };
+                        self.occupancy.sample(rec, op, g, &batch.rays, &batch.bounds, &t[0])?;
+                    }
+                    None => self.sample.stratified(rec, sp, &batch.bounds, &t[0])?,
+                }
             } else {
                 self.sample.resample(rec, sp, &t[level - 1], &work.weights, &t[level])?;
             }
@@ -457,6 +502,26 @@ impl GpuModel {
         targets: &[[f32; 3]],
         mode: Mode,
     ) -> Result<(LossStats, Vec<f32>), GpuError> {
+        self.loss_and_grad_guided(ctx, model, params, rays, targets, mode, None)
+    }
+
+    /// [`loss_and_grad`](Self::loss_and_grad) with occupancy-guided sampling under `grid` (see
+    /// [`encode_guided`](Self::encode_guided)): the device's counterpart of the CPU's
+    /// `Model::loss_and_grad_guided`.
+    ///
+    /// # Errors
+    /// As [`loss_and_grad`](Self::loss_and_grad), and a grid the kernel does not take.
+    #[allow(clippy::too_many_arguments)]
+    pub fn loss_and_grad_guided(
+        &self,
+        ctx: &GpuContext,
+        model: &Model,
+        params: &[f32],
+        rays: &[Ray],
+        targets: &[[f32; 3]],
+        mode: Mode,
+        grid: Option<&OccupancyGrid>,
+    ) -> Result<(LossStats, Vec<f32>), GpuError> {
         if params.len() != model.num_params() {
             return Err(GpuError::InvalidInput(format!(
                 "{} parameters for a model of {}",
@@ -468,8 +533,9 @@ impl GpuModel {
         let work = ModelBuffers::new(ctx, model, rays.len())?;
         let params_buf = ctx.storage_buffer("parameters", params, false);
         let grads = ctx.storage_buffer("gradients", &vec![0.0f32; model.num_params()], true);
+        let grid = grid.map(|g| DeviceGrid::new(ctx, g)).transpose()?;
         let mut rec = Recorder::new(ctx, "model step");
-        self.encode(&mut rec, model, &params_buf, &batch, &work, mode, Some(&grads))?;
+        self.encode_guided(&mut rec, model, &params_buf, &batch, &work, mode, Some(&grads), grid.as_ref())?;
         let _ = rec.submit();
         let g = ctx.read_f32(&grads, model.num_params())?;
         Ok((self.read_losses(ctx, model, &batch, &work.ray_out)?, g))

@@ -10,6 +10,10 @@
 //! chunks within the step (gradients add up; random numbers are drawn per batch ray), so the
 //! step is the same whatever the device's limits.
 //!
+//! With an occupancy grid (the fast preset), the coarse edges come from `occupancy.wgsl` on the
+//! grid's copy on the device; the grid itself is updated on the host every few steps from
+//! parameters read back then (the CPU backend's code, so both backends keep the same grid).
+//!
 //! Rendering runs an image in chunks of a fixed number of rays through buffers that are reused
 //! from chunk to chunk, so the device memory it takes is set by the chunk size, not the image.
 
@@ -17,10 +21,12 @@ use mipnerf_core::backend::{Backend, BackendError, ImageSpec, TrainState, WorkCo
 use mipnerf_core::checkpoint::Checkpoint;
 use mipnerf_core::data::Dataset;
 use mipnerf_core::model::{LevelOutput, Mode, Model};
+use mipnerf_core::occupancy::OccupancyGrid;
 use mipnerf_core::train::{AdamState, OptimConfig, StepReport};
 
 use crate::kernels::adam::{AdamBuffers, AdamKernel, AdamStep};
 use crate::kernels::batch::{BatchKernel, DeviceImages, Draw};
+use crate::kernels::occupancy::DeviceGrid;
 use crate::kernels::{DispatchCache, Recorder};
 use crate::model::{GpuModel, ModelBuffers, RayBatch};
 use crate::{GpuContext, GpuError};
@@ -82,6 +88,9 @@ pub struct GpuBackend {
     render_cache: DispatchCache,
     /// The camera of the image being rendered, rewritten in place for each image.
     render_cams: Option<DeviceImages>,
+    /// The occupancy grid guiding sampling (kept and updated on the host, as the CPU backend
+    /// does, from parameters read back when an update is due) and its copy on the device.
+    occupancy: Option<(OccupancyGrid, DeviceGrid)>,
 }
 
 impl GpuBackend {
@@ -97,9 +106,13 @@ impl GpuBackend {
         state: TrainState,
     ) -> Result<Self, GpuError> {
         state.check(&model).map_err(|e| GpuError::InvalidInput(e.to_string()))?;
-        if state.occupancy.is_some() {
-            return Err(GpuError::InvalidInput(mipnerf_core::backend::Unsupported::Occupancy.to_string()));
-        }
+        let occupancy = match state.occupancy {
+            Some(grid) => {
+                let on_device = DeviceGrid::new(&ctx, &grid)?;
+                Some((grid, on_device))
+            }
+            None => None,
+        };
         let render_chunk = auto_chunk(&ctx, &model);
         Ok(Self {
             kernels: GpuModel::new(&ctx)?,
@@ -119,6 +132,7 @@ impl GpuBackend {
             train_cache: DispatchCache::default(),
             render_cache: DispatchCache::default(),
             render_cams: None,
+            occupancy,
         })
     }
 
@@ -212,11 +226,26 @@ impl GpuBackend {
         let params = self.ctx.read_f32(&self.state.params, n)?;
         let m = self.ctx.read_f32(&self.state.m, n)?;
         let v = self.ctx.read_f32(&self.state.v, n)?;
-        Ok(Checkpoint { step: self.step, params, adam: AdamState { m, v, t: self.adam_t }, occupancy: None })
+        let occupancy = self.occupancy.as_ref().map(|(grid, _)| grid.clone());
+        Ok(Checkpoint { step: self.step, params, adam: AdamState { m, v, t: self.adam_t }, occupancy })
     }
 
     fn run_step(&mut self, report: bool) -> Result<Option<StepReport>, GpuError> {
-        let data = self.train.as_mut().ok_or_else(|| GpuError::InvalidInput("no training data".into()))?;
+        if self.train.is_none() {
+            return Err(GpuError::InvalidInput("no training data".into()));
+        }
+        // The grid's update when one is due, before the step, from the current parameters (the
+        // CPU trainer's order): the same host code, on parameters read back from the device.
+        if let Some((grid, on_device)) = &mut self.occupancy
+            && grid.updates_at(self.step)
+        {
+            let params = self.ctx.read_f32(&self.state.params, self.model.num_params())?;
+            grid.update(&self.model, &params, self.seed, self.step);
+            on_device.update(&self.ctx, grid)?;
+            self.in_flight = 0;
+        }
+        let grid = self.occupancy.as_ref().map(|(_, g)| g);
+        let Some(data) = self.train.as_mut() else { unreachable!("checked above") };
         let ctx = &self.ctx;
         let step = self.step;
         let mode = Mode::Train { seed: self.seed, step: step as u32 };
@@ -228,9 +257,16 @@ impl GpuBackend {
         self.batch_kernel.encode(&mut rec, &data.images, draw, area_loss, k, &data.batch)?;
         let grads = Some(&self.state.grads);
         match &mut data.chunks {
-            None => {
-                self.kernels.encode(&mut rec, &self.model, &self.state.params, &data.batch, &data.work, mode, grads)?
-            }
+            None => self.kernels.encode_guided(
+                &mut rec,
+                &self.model,
+                &self.state.params,
+                &data.batch,
+                &data.work,
+                mode,
+                grads,
+                grid,
+            )?,
             Some((sub, outs)) => {
                 // Each chunk's rays are copied out of the batch; the gradients add up in `grads`.
                 let n = data.batch.n_rays;
@@ -257,7 +293,16 @@ impl GpuBackend {
                     sub.set_active(m)?;
                     sub.first_ray = first as u32;
                     data.work.set_active(m)?;
-                    self.kernels.encode(&mut rec, &self.model, &self.state.params, sub, &data.work, mode, grads)?;
+                    self.kernels.encode_guided(
+                        &mut rec,
+                        &self.model,
+                        &self.state.params,
+                        sub,
+                        &data.work,
+                        mode,
+                        grads,
+                        grid,
+                    )?;
                     for (src, dst) in data.work.ray_out.iter().zip(outs.iter()) {
                         rec.encoder().copy_buffer_to_buffer(src, 0, dst, (first * 32) as u64, (m * 32) as u64);
                     }
@@ -336,7 +381,17 @@ impl GpuBackend {
             let mut rec = Recorder::with_cache(ctx, "render chunk", std::mem::take(&mut self.render_cache));
             let draw = Draw::Sequential { first: first as u32 };
             self.batch_kernel.encode(&mut rec, cams, draw, false, k, batch)?;
-            self.kernels.encode(&mut rec, &self.model, &self.state.params, batch, work, Mode::Eval, None)?;
+            let grid = self.occupancy.as_ref().map(|(_, g)| g);
+            self.kernels.encode_guided(
+                &mut rec,
+                &self.model,
+                &self.state.params,
+                batch,
+                work,
+                Mode::Eval,
+                None,
+                grid,
+            )?;
             let slot = i % 2;
             for (l, src) in work.ray_out.iter().enumerate() {
                 rec.encoder().copy_buffer_to_buffer(src, 0, &staging[slot], (l * n * 32) as u64, (n * 32) as u64);

@@ -452,3 +452,50 @@ fn the_real_lego_scene_trains_alike_on_both_backends() {
     }
     assert_none(&bad);
 }
+
+#[test]
+fn occupancy_guided_training_follows_the_cpu_in_chunks() {
+    use mipnerf_core::occupancy::{OccupancyConfig, OccupancyGrid, auto_bound};
+    let Some(ctx) = context_or_skip("occupancy_guided_training_follows_the_cpu_in_chunks") else { return };
+    let ds = Arc::new(lego_tiny());
+    let model = Model::new(ModelConfig { num_samples: 16, ..Preset::Tiny.config() }).unwrap();
+    // A grid seeded by the masks, with a short warm-up so that it is updated from the model
+    // (on each backend from its own parameters) within the run.
+    let config = OccupancyConfig {
+        resolution: 16,
+        bound: auto_bound(&ds).unwrap(),
+        update_every: 4,
+        warmup_steps: 8,
+        ..OccupancyConfig::default()
+    };
+    let mut grid = OccupancyGrid::new(config).unwrap();
+    let carved = grid.carve_with_masks(&ds);
+    assert!(carved > 0, "lego_tiny's masks carve nothing");
+    let (seed, batch, steps) = (4u32, 64usize, 16u64);
+    let optim = OptimConfig::default();
+    let state = TrainState { occupancy: Some(grid.clone()), ..TrainState::fresh(&model, seed) };
+    let mut cpu =
+        CpuBackend::new(model.clone(), optim.clone(), seed, state.clone()).unwrap().with_data(Arc::clone(&ds), batch);
+    // 64 rays in chunks of 24, 24 and 16: the chunks' rays keep their place in the batch.
+    let mut gpu =
+        GpuBackend::new(ctx, model.clone(), optim, seed, state).unwrap().with_data_in_chunks(&ds, batch, 24).unwrap();
+    let mut bad = Vec::new();
+    for step in 0..steps {
+        let c = cpu.train_step(true).unwrap().unwrap();
+        let g = gpu.train_step(true).unwrap().unwrap();
+        for (what, gv, cv) in [("loss", g.stats.loss, c.stats.loss), ("fine mse", g.stats.mse[1], c.stats.mse[1])] {
+            compare_loss(&mut bad, &format!("step {step} {what}"), gv, cv);
+        }
+    }
+    assert_none(&bad);
+    let (ck_c, ck_g) = (cpu.checkpoint().unwrap(), gpu.checkpoint().unwrap());
+    let (grid_c, grid_g) = (ck_c.occupancy.unwrap(), ck_g.occupancy.unwrap());
+    assert!(grid_g.warmed_up && !grid_g.is_full(), "the GPU run's grid was not updated past its warm-up");
+    let worst = grid_c.opacity.iter().zip(&grid_g.opacity).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+    assert!(worst < 1e-3, "the backends' grids differ by {worst:e} in a cell's opacity");
+    let image = ImageSpec::of_view(&ds, 0, 1);
+    let (r_cpu, r_gpu) = (cpu.render_image(&image).unwrap(), gpu.render_image(&image).unwrap());
+    let psnr = psnr_between(&r_cpu, &r_gpu);
+    eprintln!("guided renders after {steps} steps: CPU vs GPU PSNR {psnr:.1} dB");
+    assert!(psnr >= MIN_RENDER_AGREEMENT_PSNR, "CPU and GPU guided renders differ: {psnr:.1} dB");
+}

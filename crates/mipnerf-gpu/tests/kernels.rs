@@ -812,3 +812,158 @@ fn products_cover_any_size_within_the_dispatch_limit() {
     bad.extend(mismatches("1.1M-row product", &got, &want, Tolerance::EXACT));
     assert_none(&bad);
 }
+
+/// A grid over [-1.5, 1.5]³ of `r` cells per axis with two separate blobs occupied (so that
+/// rays through both have two spans or more), a slab carved, and the warm-up over.
+fn two_blob_grid(r: usize) -> mipnerf_core::occupancy::OccupancyGrid {
+    use mipnerf_core::occupancy::{CARVED, OccupancyConfig, OccupancyGrid};
+    let config = OccupancyConfig { resolution: r, bound: 1.5, ..OccupancyConfig::default() };
+    let empty = OccupancyGrid::new(config).unwrap();
+    let opacity: Vec<f32> = (0..r * r * r)
+        .map(|i| {
+            let c = empty.cell_center(i);
+            if c.z > 1.2 {
+                CARVED
+            } else if c.distance(Vec3::new(-0.6, 0.0, 0.0)) < 0.45 || c.distance(Vec3::new(0.6, 0.3, -0.2)) < 0.35 {
+                1.0
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    OccupancyGrid::from_state(config, opacity, true).unwrap()
+}
+
+/// `test_rays(n_side)` looking at the origin, repeated with each cone radius scaled by each of
+/// `scales`.
+fn rays_scaled(n_side: u32, scales: &[f32]) -> Vec<Ray> {
+    let rays = test_rays(n_side);
+    scales.iter().flat_map(|&k| rays.iter().map(move |r| Ray { radius: r.radius * k, ..*r })).collect()
+}
+
+#[test]
+fn occupancy_guided_edges_match_cpu_reference() {
+    use mipnerf_core::sampling::sample_along_segments;
+    use mipnerf_gpu::kernels::occupancy::{DeviceGrid, OccupancyKernel, OccupancyParams};
+    use mipnerf_gpu::model::RayBatch;
+    let Some(ctx) = context_or_skip("occupancy_guided_edges_match_cpu_reference") else { return };
+    let kernel = OccupancyKernel::new(&ctx).unwrap();
+    let grid = two_blob_grid(24);
+    assert!(!grid.is_full());
+    // A 16-pixel camera's cones reach about 2 cells of this grid where they leave it: scaled by
+    // 0 (the axis alone), 0.2, 1 and 3, they use every layer (no dilation to the widest).
+    let rays = rays_scaled(16, &[0.0, 0.2, 1.0, 3.0]);
+    let nr = rays.len();
+    let (s, first_ray, seed, step) = (24usize, 40u32, 5u32, 9u32);
+    // The CPU's spans: the test must see rays with none, one, and several.
+    let spans: Vec<Vec<[f32; 2]>> = rays
+        .iter()
+        .map(|r| {
+            let mut v = Vec::new();
+            grid.ray_segments(r, &mut v);
+            v
+        })
+        .collect();
+    let count = |f: &dyn Fn(usize) -> bool| spans.iter().filter(|v| f(v.len())).count();
+    let (none, one, several) = (count(&|n| n == 0), count(&|n| n == 1), count(&|n| n >= 2));
+    eprintln!("{nr} rays: {none} meet no occupied cell, {one} one span, {several} several");
+    assert!(none > 0 && one > 0 && several > 0, "the rays must cover every case: {none} / {one} / {several}");
+    let targets = vec![[0.0f32; 3]; nr];
+    let batch = RayBatch::upload(&ctx, &rays, &targets, 1, false).unwrap();
+    let on_device = DeviceGrid::new(&ctx, &grid).unwrap();
+    let mut bad = Vec::new();
+    for (lindisp, randomized) in [(false, false), (true, false), (false, true), (true, true)] {
+        let mut cpu = vec![0.0f32; nr * (s + 1)];
+        for (r, (ray, sp)) in rays.iter().zip(&spans).enumerate() {
+            let t = &mut cpu[r * (s + 1)..(r + 1) * (s + 1)];
+            if sp.is_empty() {
+                t.fill(ray.near);
+            } else {
+                let jitter = randomized.then(|| RayRng::new(seed, step, Stream::SampleJitter, first_ray + r as u32));
+                sample_along_segments(sp, lindisp, jitter, t);
+            }
+        }
+        let t_out = ctx.storage_buffer("t coarse", &vec![f32::NAN; nr * (s + 1)], true);
+        let params = OccupancyParams {
+            n_rays: nr as u32,
+            n_samples: s as u32,
+            lindisp: u32::from(lindisp),
+            randomized: u32::from(randomized),
+            seed,
+            step,
+            first_ray,
+            ..OccupancyParams::default()
+        };
+        let mut rec = Recorder::new(&ctx, "occupancy test");
+        kernel.sample(&mut rec, params, &on_device, &batch.rays, &batch.bounds, &t_out).unwrap();
+        let _ = rec.submit();
+        bad.extend(mismatches(
+            &format!("lindisp {lindisp} randomized {randomized}"),
+            &ctx.read_f32(&t_out, nr * (s + 1)).unwrap(),
+            &cpu,
+            Tolerance::new(1e-6, TOL_GPU_SAMPLE_REL),
+        ));
+    }
+    assert_none(&bad);
+}
+
+#[test]
+fn occupancy_guided_model_matches_cpu_reference() {
+    use mipnerf_core::model::{GradScratch, Mode, Model, ModelConfig, Preset};
+    use mipnerf_core::occupancy::{OccupancyConfig, OccupancyGrid};
+    use mipnerf_gpu::model::{GpuModel, KernelSet};
+    let Some(ctx) = context_or_skip("occupancy_guided_model_matches_cpu_reference") else { return };
+    let rays = rays_scaled(8, &[0.3, 1.0]);
+    let targets: Vec<[f32; 3]> = (0..rays.len()).map(|i| [(i % 7) as f32 / 7.0, 0.4, (i % 3) as f32 / 3.0]).collect();
+    let grid = two_blob_grid(16);
+    let model = Model::new(ModelConfig { num_samples: 16, ..Preset::Tiny.config() }).unwrap();
+    let params = model.init_params(11);
+    let active = rays
+        .iter()
+        .filter(|r| {
+            let mut v = Vec::new();
+            grid.ray_segments(r, &mut v);
+            !v.is_empty()
+        })
+        .count();
+    assert!(0 < active && active < rays.len(), "{active} of {} rays meet occupied cells", rays.len());
+    let mut bad = Vec::new();
+    for set in [KernelSet::Software, KernelSet::Hardware] {
+        let gpu = GpuModel::with_kernel_set(&ctx, set).unwrap();
+        for mode in [Mode::Train { seed: 3, step: 7 }, Mode::Eval] {
+            let mut cpu_grads = vec![0.0; model.num_params()];
+            let mut scratch = GradScratch::default();
+            let cpu =
+                model.loss_and_grad_guided(&params, &rays, &targets, mode, &mut cpu_grads, &mut scratch, Some(&grid));
+            let (g_stats, g_grads) =
+                gpu.loss_and_grad_guided(&ctx, &model, &params, &rays, &targets, mode, Some(&grid)).unwrap();
+            let tag = format!("{set:?} {mode:?}");
+            eprintln!("{tag}: cpu losses {:?} gpu {:?}", cpu.losses, g_stats.losses);
+            bad.extend(mismatches(
+                &format!("{tag} losses"),
+                &g_stats.losses,
+                &cpu.losses,
+                Tolerance::new(TOL_GPU_MODEL_ABS, TOL_GPU_MODEL_REL),
+            ));
+            let scale = cpu_grads.iter().fold(0.0f32, |m, g| m.max(g.abs()));
+            let worst = g_grads.iter().zip(&cpu_grads).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+            eprintln!("{tag}: gradient scale {scale:e}, worst |gpu - cpu| {worst:e}");
+            bad.extend(mismatches(
+                &format!("{tag} grads"),
+                &g_grads,
+                &cpu_grads,
+                Tolerance::new(TOL_GPU_MODEL_REL * scale, TOL_GPU_MODEL_REL),
+            ));
+        }
+        // A full grid (the warm-up's) records exactly the paper's sampler: bit for bit.
+        let full =
+            OccupancyGrid::new(OccupancyConfig { resolution: 16, bound: 1.5, ..OccupancyConfig::default() }).unwrap();
+        assert!(full.is_full());
+        let mode = Mode::Train { seed: 3, step: 7 };
+        let plain = gpu.loss_and_grad(&ctx, &model, &params, &rays, &targets, mode).unwrap();
+        let guided = gpu.loss_and_grad_guided(&ctx, &model, &params, &rays, &targets, mode, Some(&full)).unwrap();
+        assert_eq!(plain.1, guided.1, "{set:?}: a full grid changes the GPU's gradient");
+        assert_eq!(plain.0.losses, guided.0.losses, "{set:?}: a full grid changes the GPU's losses");
+    }
+    assert_none(&bad);
+}

@@ -12,6 +12,7 @@ use mipnerf_gpu::kernels::{
     compose,
     matmul::MatmulParams,
     mlp_aux::AuxParams,
+    occupancy::OccupancyParams,
     prelude,
     render::RenderParams,
     sample::SampleParams,
@@ -149,6 +150,7 @@ fn uniform_structs_match_wgsl_member_by_member() {
     check::<RenderParams>("render.wgsl", &mut mismatches);
     check::<AdamParams>("adam.wgsl", &mut mismatches);
     check::<SampleParams>("sample.wgsl", &mut mismatches);
+    check::<OccupancyParams>("occupancy.wgsl", &mut mismatches);
     check::<ViewEncParams>("view_enc.wgsl", &mut mismatches);
     check::<BatchParams>("batch.wgsl", &mut mismatches);
     // The per-view camera record of batch.wgsl, read from a storage array.

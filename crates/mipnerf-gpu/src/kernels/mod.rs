@@ -125,6 +125,7 @@ pub mod batch;
 pub mod cast_ipe;
 pub mod matmul;
 pub mod mlp_aux;
+pub mod occupancy;
 pub mod render;
 pub mod sample;
 pub mod view_enc;
@@ -138,6 +139,7 @@ pub const ALL_SOURCES: &[(&str, &str)] = &[
     ("render.wgsl", render::SOURCE),
     ("adam.wgsl", adam::SOURCE),
     ("sample.wgsl", sample::SOURCE),
+    ("occupancy.wgsl", occupancy::SOURCE),
     ("view_enc.wgsl", view_enc::SOURCE),
     ("batch.wgsl", batch::SOURCE),
 ];

@@ -1,0 +1,169 @@
+//! `shaders/occupancy.wgsl`: occupancy-guided coarse edges per ray, and the grid on the device.
+
+use mipnerf_core::occupancy::OccupancyGrid;
+
+use crate::kernels::Recorder;
+use crate::{GpuContext, GpuError, kernels};
+
+/// The WGSL source of this kernel.
+pub const SOURCE: &str = include_str!("../../../../shaders/occupancy.wgsl");
+
+/// Most spans one ray keeps in the kernel (WGSL: `MAX_SPANS`).
+pub const MAX_SPANS: usize = 256;
+
+/// The finest grid the kernel takes: a ray crosses at most `3 r` cells of a grid of `r` cells per
+/// axis, so at most `3 r / 2 + 1` spans, which must fit in [`MAX_SPANS`].
+pub const MAX_RESOLUTION: usize = 2 * (MAX_SPANS - 1) / 3;
+
+/// The uniform block of `occupancy.wgsl` (`struct Params`), 48 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct OccupancyParams {
+    /// Rays.
+    pub n_rays: u32,
+    /// Samples per ray.
+    pub n_samples: u32,
+    /// 1: linear in disparity (a ray with one span).
+    pub lindisp: u32,
+    /// 1: training (jitter).
+    pub randomized: u32,
+    /// Run seed.
+    pub seed: u32,
+    /// Step.
+    pub step: u32,
+    /// Global index of the first ray.
+    pub first_ray: u32,
+    /// Cells along each axis.
+    pub resolution: u32,
+    /// Half the side of the grid's cube (world units).
+    pub bound: f32,
+    /// The side of one cell (world units).
+    pub cell_size: f32,
+    /// Workgroups along x.
+    pub groups_x: u32,
+    /// Padding.
+    pub _pad0: u32,
+}
+
+/// An [`OccupancyGrid`]'s layers on the device ([`OccupancyGrid::packed_layers`]), with its
+/// layout; [`update`](Self::update) after each change of the grid.
+#[derive(Debug)]
+pub struct DeviceGrid {
+    bits: wgpu::Buffer,
+    resolution: u32,
+    bound: f32,
+    cell_size: f32,
+    full: bool,
+}
+
+impl DeviceGrid {
+    /// Uploads `grid`.
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for a grid finer than [`MAX_RESOLUTION`].
+    pub fn new(ctx: &GpuContext, grid: &OccupancyGrid) -> Result<Self, GpuError> {
+        let r = grid.resolution();
+        if r > MAX_RESOLUTION {
+            return Err(GpuError::InvalidInput(format!(
+                "an occupancy grid of {r} cells per axis: the GPU sampler takes at most {MAX_RESOLUTION}"
+            )));
+        }
+        let bits = ctx.storage_buffer("occupancy grid layers", &grid.packed_layers(), false);
+        Ok(Self {
+            bits,
+            resolution: r as u32,
+            bound: grid.config.bound,
+            cell_size: grid.cell_size(),
+            full: grid.is_full(),
+        })
+    }
+
+    /// Writes `grid`'s current cells (the same layout as the grid this was made from).
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for a grid of another layout.
+    pub fn update(&mut self, ctx: &GpuContext, grid: &OccupancyGrid) -> Result<(), GpuError> {
+        if grid.resolution() as u32 != self.resolution || grid.config.bound != self.bound {
+            return Err(GpuError::InvalidInput(format!(
+                "an occupancy grid of {} cells over ±{} in place of {} cells over ±{}",
+                grid.resolution(),
+                grid.config.bound,
+                self.resolution,
+                self.bound
+            )));
+        }
+        ctx.queue.write_buffer(&self.bits, 0, bytemuck::cast_slice(&grid.packed_layers()));
+        self.full = grid.is_full();
+        Ok(())
+    }
+
+    /// Whether every cell is occupied: the sampler is then the paper's (`sample.wgsl`'s
+    /// `stratified`), as on the CPU.
+    #[must_use]
+    pub fn is_full(&self) -> bool {
+        self.full
+    }
+}
+
+/// The pipeline of `occupancy.wgsl`.
+#[derive(Debug)]
+pub struct OccupancyKernel {
+    pipeline: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+}
+
+impl OccupancyKernel {
+    /// Compiles the kernel.
+    ///
+    /// # Errors
+    /// If the device rejects it.
+    pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
+        let ([pipeline], layout) =
+            kernels::build_entries(ctx, "occupancy", SOURCE, &[true, true, true, false], ["sample_occupied"])?;
+        Ok(Self { pipeline, layout })
+    }
+
+    /// Records the coarse edges of every ray (`rays`: two vec4 per ray, `bounds`: (near, far)
+    /// per ray) inside `grid`'s occupied spans into `t_out`. `params`' grid fields are filled
+    /// from `grid`.
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for a sample count out of range.
+    pub fn sample(
+        &self,
+        rec: &mut Recorder<'_>,
+        mut params: OccupancyParams,
+        grid: &DeviceGrid,
+        rays: &wgpu::Buffer,
+        bounds: &wgpu::Buffer,
+        t_out: &wgpu::Buffer,
+    ) -> Result<(), GpuError> {
+        if params.n_samples == 0 || params.n_samples as usize > kernels::sample::MAX_SAMPLES {
+            return Err(GpuError::InvalidInput(format!(
+                "occupancy: {} samples per ray (1..={})",
+                params.n_samples,
+                kernels::sample::MAX_SAMPLES
+            )));
+        }
+        let (gx, gy) = kernels::dispatch_grid(u64::from(params.n_rays), kernels::WORKGROUP)?;
+        params.groups_x = gx;
+        params.resolution = grid.resolution;
+        params.bound = grid.bound;
+        params.cell_size = grid.cell_size;
+        rec.dispatch(
+            "occupancy",
+            &self.pipeline,
+            &self.layout,
+            &params,
+            &[rays, bounds, &grid.bits, t_out],
+            (gx, gy, 1),
+        );
+        Ok(())
+    }
+}
+
+super::wgsl_struct!(
+    OccupancyParams,
+    "Params",
+    [n_rays, n_samples, lindisp, randomized, seed, step, first_ray, resolution, bound, cell_size, groups_x,]
+);
