@@ -455,10 +455,8 @@ impl TrainSettings {
         {
             bail!("{} must be between 2 and 256, got {r}", name("occupancy_resolution"));
         }
-        if self.occupancy == Some(true) {
-            if self.supersample.unwrap_or(1) > 1 {
-                bail!("occupancy-guided sampling (--occupancy) does not guide supersampled pixels: drop --supersample");
-            }
+        if self.occupancy == Some(true) && self.supersample.unwrap_or(1) > 1 {
+            bail!("occupancy-guided sampling (--occupancy) does not guide supersampled pixels: drop --supersample");
         }
         for (key, v) in [("grad_max_norm", self.grad_max_norm), ("grad_max_val", self.grad_max_val)] {
             if let Some(v) = v
