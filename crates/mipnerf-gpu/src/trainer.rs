@@ -231,9 +231,7 @@ impl GpuBackend {
     }
 
     fn run_step(&mut self, report: bool) -> Result<Option<StepReport>, GpuError> {
-        if self.train.is_none() {
-            return Err(GpuError::InvalidInput("no training data".into()));
-        }
+        let data = self.train.as_mut().ok_or_else(|| GpuError::InvalidInput("no training data".into()))?;
         // The grid's update when one is due, before the step, from the current parameters (the
         // CPU trainer's order): the same host code, on parameters read back from the device.
         if let Some((grid, on_device)) = &mut self.occupancy
@@ -245,7 +243,6 @@ impl GpuBackend {
             self.in_flight = 0;
         }
         let grid = self.occupancy.as_ref().map(|(_, g)| g);
-        let Some(data) = self.train.as_mut() else { unreachable!("checked above") };
         let ctx = &self.ctx;
         let step = self.step;
         let mode = Mode::Train { seed: self.seed, step: step as u32 };
@@ -366,6 +363,7 @@ impl GpuBackend {
         let mut out = Vec::with_capacity(total * levels);
         let ctx = &self.ctx;
         let k = self.model.config().supersample;
+        let grid = self.occupancy.as_ref().map(|(_, g)| g);
         // Double buffering: chunk i's outputs are copied to staging[i % 2] in its own command
         // buffer and read back while chunk i + 1 runs.
         let read = |slot: usize, n: usize, after: wgpu::SubmissionIndex| -> Result<Vec<LevelOutput>, GpuError> {
@@ -381,7 +379,6 @@ impl GpuBackend {
             let mut rec = Recorder::with_cache(ctx, "render chunk", std::mem::take(&mut self.render_cache));
             let draw = Draw::Sequential { first: first as u32 };
             self.batch_kernel.encode(&mut rec, cams, draw, false, k, batch)?;
-            let grid = self.occupancy.as_ref().map(|(_, g)| g);
             self.kernels.encode_guided(
                 &mut rec,
                 &self.model,

@@ -834,6 +834,13 @@ fn two_blob_grid(r: usize) -> mipnerf_core::occupancy::OccupancyGrid {
     OccupancyGrid::from_state(config, opacity, true).unwrap()
 }
 
+/// The CPU's occupied spans of `ray` under `grid`.
+fn spans_of(grid: &mipnerf_core::occupancy::OccupancyGrid, ray: &Ray) -> Vec<[f32; 2]> {
+    let mut v = Vec::new();
+    grid.ray_segments(ray, &mut v);
+    v
+}
+
 /// `test_rays(n_side)` looking at the origin, repeated with each cone radius scaled by each of
 /// `scales`.
 fn rays_scaled(n_side: u32, scales: &[f32]) -> Vec<Ray> {
@@ -856,14 +863,7 @@ fn occupancy_guided_edges_match_cpu_reference() {
     let nr = rays.len();
     let (s, first_ray, seed, step) = (24usize, 40u32, 5u32, 9u32);
     // The CPU's spans: the test must see rays with none, one, and several.
-    let spans: Vec<Vec<[f32; 2]>> = rays
-        .iter()
-        .map(|r| {
-            let mut v = Vec::new();
-            grid.ray_segments(r, &mut v);
-            v
-        })
-        .collect();
+    let spans: Vec<Vec<[f32; 2]>> = rays.iter().map(|r| spans_of(&grid, r)).collect();
     let count = |f: &dyn Fn(usize) -> bool| spans.iter().filter(|v| f(v.len())).count();
     let (none, one, several) = (count(&|n| n == 0), count(&|n| n == 1), count(&|n| n >= 2));
     eprintln!("{nr} rays: {none} meet no occupied cell, {one} one span, {several} several");
@@ -918,14 +918,7 @@ fn occupancy_guided_model_matches_cpu_reference() {
     let grid = two_blob_grid(16);
     let model = Model::new(ModelConfig { num_samples: 16, ..Preset::Tiny.config() }).unwrap();
     let params = model.init_params(11);
-    let active = rays
-        .iter()
-        .filter(|r| {
-            let mut v = Vec::new();
-            grid.ray_segments(r, &mut v);
-            !v.is_empty()
-        })
-        .count();
+    let active = rays.iter().filter(|r| !spans_of(&grid, r).is_empty()).count();
     assert!(0 < active && active < rays.len(), "{active} of {} rays meet occupied cells", rays.len());
     let mut bad = Vec::new();
     for set in [KernelSet::Software, KernelSet::Hardware] {
