@@ -6,14 +6,22 @@ use std::sync::OnceLock;
 use anyhow::{Context, Result};
 use mipnerf_gpu::{AdapterChoice, BackendChoice, BackendSetup, DeviceOptions, open_backend};
 
-use crate::config::Backend;
+use mipnerf_core::bf16::{Bf16Support, Precision};
 
-/// Opens the backend `choice` for `setup` and prints which one runs (and, for `auto`, why it
-/// fell back to the CPU).
+use crate::config::{Backend, PrecisionArg};
+
+/// Opens the backend `choice` for `setup` with its MLP products in `precision`, and prints which
+/// backend and precision run (and, for `auto`, why it fell back to the CPU or to f32). Returns
+/// the backend and the precision that runs.
 ///
 /// # Errors
-/// `gpu` without a usable adapter, or with a configuration or data the GPU path does not support.
-pub fn open(choice: Backend, setup: BackendSetup) -> Result<Box<dyn mipnerf_core::backend::Backend>> {
+/// `gpu` without a usable adapter, or with a configuration or data the GPU path does not support;
+/// `--precision bf16` where it cannot run (a device backend, or a CPU without AMX-BF16).
+pub fn open(
+    choice: Backend,
+    setup: BackendSetup,
+    precision: PrecisionArg,
+) -> Result<(Box<dyn mipnerf_core::backend::Backend>, Precision)> {
     let c = match choice {
         Backend::Cpu => BackendChoice::Cpu,
         Backend::Gpu => BackendChoice::Gpu,
@@ -24,8 +32,33 @@ pub fn open(choice: Backend, setup: BackendSetup) -> Result<Box<dyn mipnerf_core
     if let Some(why) = &opened.fallback {
         eprintln!("backend auto: {why}; using the CPU");
     }
-    eprintln!("backend: {}", opened.backend.describe());
-    Ok(opened.backend)
+    let mut be = opened.backend;
+    let ran = match precision {
+        PrecisionArg::F32 => Precision::F32,
+        PrecisionArg::Bf16 => {
+            be.set_precision(Precision::Bf16)
+                .with_context(|| format!("--precision bf16 on {} (use --precision f32 or auto)", be.describe()))?;
+            Precision::Bf16
+        }
+        PrecisionArg::Auto => match Bf16Support::detect() {
+            Bf16Support::Unavailable(why) => {
+                eprintln!("precision auto: f32 ({why})");
+                Precision::F32
+            }
+            Bf16Support::Amx => match be.set_precision(Precision::Bf16) {
+                Ok(()) => {
+                    eprintln!("precision auto: bf16 (AMX-BF16 present)");
+                    Precision::Bf16
+                }
+                Err(e) => {
+                    eprintln!("precision auto: f32 ({e})");
+                    Precision::F32
+                }
+            },
+        },
+    };
+    eprintln!("backend: {}", be.describe());
+    Ok((be, ran))
 }
 
 /// The GPU flags of every command that takes `--backend`.

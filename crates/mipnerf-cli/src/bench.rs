@@ -13,7 +13,7 @@ use mipnerf_core::train::OptimConfig;
 use mipnerf_core::{Camera, PixelCenters};
 
 use crate::backend;
-use crate::config::{Backend, PresetArg};
+use crate::config::{Backend, PrecisionArg, PresetArg};
 use mipnerf_gpu::BackendSetup;
 
 /// Which backends `mipnerf bench` measures.
@@ -30,7 +30,7 @@ pub enum BenchBackends {
 }
 
 /// The settings of one measurement.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct BenchArgs {
     /// Which backends.
     pub backends: BenchBackends,
@@ -42,6 +42,8 @@ pub struct BenchArgs {
     pub steps: usize,
     /// Side of the rendered image.
     pub render_side: u32,
+    /// Precisions to measure (one row each on the CPU; a device backend runs f32 once).
+    pub precisions: Vec<PrecisionArg>,
 }
 
 /// Measures and prints the table.
@@ -73,8 +75,12 @@ pub fn bench(a: &BenchArgs) -> Result<()> {
         a.steps,
         s = a.render_side
     );
+    anyhow::ensure!(!a.precisions.is_empty(), "--precision needs at least one value");
     let mut rows = Vec::new();
-    for &choice in which {
+    for (&choice, &precision) in which.iter().flat_map(|c| a.precisions.iter().map(move |p| (c, p))) {
+        if choice == Backend::Gpu && precision != PrecisionArg::F32 {
+            continue;
+        }
         let setup = BackendSetup {
             model: model.clone(),
             optim: OptimConfig::default(),
@@ -84,7 +90,7 @@ pub fn bench(a: &BenchArgs) -> Result<()> {
             render_chunk: None,
             device: crate::backend::device_options(),
         };
-        let mut b = backend::open(choice, setup)?;
+        let (mut b, _) = backend::open(choice, setup, precision)?;
         let work = device_work(b.as_mut(), a.render_side).with_context(|| format!("counting {}", b.describe()))?;
         let r = backend_throughput(b.as_mut(), a.batch, a.steps, a.render_side)
             .with_context(|| format!("measuring {}", b.describe()))?;

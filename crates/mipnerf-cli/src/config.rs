@@ -25,6 +25,19 @@ pub enum Backend {
     Auto,
 }
 
+/// The precision of the MLP's matrix products (`--precision`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PrecisionArg {
+    /// f32 throughout: the paper's precision, the reference and every golden test's.
+    F32,
+    /// bf16 operands with f32 accumulation (Intel AMX; CPU backend only). Parameters, Adam and
+    /// checkpoints stay f32.
+    Bf16,
+    /// bf16 where the CPU backend runs on a CPU with AMX-BF16, else f32.
+    Auto,
+}
+
 /// Which of the paper's two systems.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -186,6 +199,9 @@ pub struct TrainSettings {
     /// Copy the run (checkpoint, config, training time) to `snapshots/NNNNNs/` when the training
     /// time passes each of these marks (`2m`, `5m`, ...), for evaluation at fixed times.
     pub snapshots: Option<Vec<String>>,
+    /// Precision of the MLP's matrix products: f32, bf16 or auto [default: f32]. A saved run
+    /// records the precision that ran (f32 or bf16).
+    pub precision: Option<PrecisionArg>,
 }
 
 macro_rules! merge_fields {
@@ -231,7 +247,8 @@ impl TrainSettings {
             occupancy_bound,
             occupancy_masks,
             time_budget,
-            snapshots
+            snapshots,
+            precision
         )
     }
 
@@ -309,6 +326,7 @@ impl TrainSettings {
             occupancy_masks: occupancy.then(|| self.occupancy_masks.unwrap_or(true)),
             time_budget: self.time_budget.clone(),
             snapshots: self.snapshots.clone(),
+            precision: Some(self.precision.unwrap_or(PrecisionArg::F32)),
         }
     }
 
@@ -587,6 +605,11 @@ pub struct TrainFlags {
     /// Copy the run to snapshots/NNNNNs/ as the training time passes each mark (`2m,5m,10m`).
     #[arg(long, value_name = "DURATION,...", value_delimiter = ',')]
     pub snapshots: Option<Vec<String>>,
+    /// Precision of the MLP's matrix products [default: f32; a resumed run keeps its own]:
+    /// bf16 (operands rounded to bf16, f32 sums; Intel AMX, CPU backend) or auto (bf16 where
+    /// available). May change on --resume.
+    #[arg(long, value_enum)]
+    pub precision: Option<PrecisionArg>,
 }
 
 /// `--ray-shape` values.
@@ -641,6 +664,7 @@ impl TrainFlags {
             occupancy_masks: no(self.no_occupancy_masks),
             time_budget: self.time_budget.clone(),
             snapshots: self.snapshots.clone(),
+            precision: self.precision,
         }
     }
 }

@@ -9,7 +9,9 @@ use mipnerf_core::data::Split;
 use mipnerf_core::metrics::{SsimConfig, average_error, mse_to_psnr, ssim};
 use serde::Serialize;
 
-use crate::config::Backend;
+use mipnerf_core::bf16::Precision;
+
+use crate::config::{Backend, PrecisionArg};
 use crate::images::{rgb_to_png, write_png};
 use crate::lpips::LpipsWeights;
 use crate::run::{load_split, open_trained, read_config};
@@ -72,6 +74,8 @@ pub struct Metrics {
     pub split: Split,
     /// The training step of the checkpoint.
     pub step: u64,
+    /// The precision of the MLP's products in this evaluation.
+    pub precision: Precision,
 }
 
 impl Metrics {
@@ -115,7 +119,13 @@ fn pixel_scores(a: &[f32], b: &[f32], w: usize, h: usize) -> (f64, f64, f64) {
 ///
 /// # Errors
 /// Missing run files or data, or weights that are present but unusable.
-pub fn eval(run: &Path, split: Split, backend: Backend, weights: &LpipsWeights) -> Result<Metrics> {
+pub fn eval(
+    run: &Path,
+    split: Split,
+    backend: Backend,
+    precision: Option<PrecisionArg>,
+    weights: &LpipsWeights,
+) -> Result<Metrics> {
     let s = read_config(run)?;
     let (lpips, lpips_absent) = match weights.open()? {
         Ok(l) => (Some(l), None),
@@ -127,7 +137,7 @@ pub fn eval(run: &Path, split: Split, backend: Backend, weights: &LpipsWeights) 
     let lpips = lpips.as_ref();
     let lpips_absent = lpips_absent.as_deref();
     let ds = load_split(&s, split)?;
-    let (mut be, step) = open_trained(run, &s, backend)?;
+    let (mut be, step, precision) = open_trained(run, &s, backend, precision)?;
     let out = run.join("eval");
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     let k = be.model().config().supersample;
@@ -220,6 +230,7 @@ pub fn eval(run: &Path, split: Split, backend: Backend, weights: &LpipsWeights) 
                         channels; images smaller than 11 px use the largest odd filter that fits, sigma scaled alike",
         split,
         step,
+        precision,
     };
     let json = serde_json::to_string_pretty(&metrics)?;
     std::fs::write(out.join("metrics.json"), json).context("writing metrics.json")?;

@@ -342,7 +342,7 @@ fn run_row(
     println!("== row {id} ({}): evaluating", row.label);
     let t = Instant::now();
     let saved = run::read_config(run_dir)?;
-    let m = crate::eval::eval(run_dir, Split::Test, saved.backend.unwrap_or(crate::config::Backend::Cpu), lpips)?;
+    let m = crate::eval::eval(run_dir, Split::Test, saved.backend.unwrap_or(crate::config::Backend::Cpu), None, lpips)?;
     let (model, ck) = run::load_trained(run_dir, &saved)?;
     let r = RowResult {
         row: id.to_string(),
@@ -401,7 +401,8 @@ fn evaluate_marks(id: &str, run_dir: &Path, known: &[MarkResult], lpips: &LpipsW
         println!("== row {id}: evaluating the snapshot at {mark_seconds:.0} s");
         let t = Instant::now();
         let saved = run::read_config(&snap)?;
-        let m = crate::eval::eval(&snap, Split::Test, saved.backend.unwrap_or(crate::config::Backend::Cpu), lpips)?;
+        let m =
+            crate::eval::eval(&snap, Split::Test, saved.backend.unwrap_or(crate::config::Backend::Cpu), None, lpips)?;
         let psnr = m.column(|s| s.psnr);
         out.push(MarkResult {
             mark_seconds,

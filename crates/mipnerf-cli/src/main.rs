@@ -25,7 +25,7 @@ use clap::{Parser, Subcommand, ValueEnum};
 use mipnerf_core::data::{self, Split, demo};
 
 use check::CheckBackend;
-use config::{Backend, PresetArg, TrainFlags, TrainSettings};
+use config::{Backend, PrecisionArg, PresetArg, TrainFlags, TrainSettings};
 
 const EXAMPLES: &str = "Examples:
   mipnerf demo --out runs/demo                       # the built-in scene, end to end, in minutes
@@ -99,6 +99,10 @@ enum Command {
         backend: Backend,
         #[command(flatten)]
         device: backend::DeviceArgs,
+        /// Precision of the MLP's matrix products: f32, bf16 (Intel AMX, CPU backend) or auto
+        /// [default: the precision the run trained with].
+        #[arg(long, value_enum)]
+        precision: Option<PrecisionArg>,
         #[command(flatten)]
         lpips: lpips::LpipsWeights,
     },
@@ -190,6 +194,10 @@ enum Command {
         backend: Backend,
         #[command(flatten)]
         device: backend::DeviceArgs,
+        /// Precision of the MLP's matrix products: f32, bf16 (Intel AMX, CPU backend) or auto
+        /// [default: the precision the run trained with].
+        #[arg(long, value_enum)]
+        precision: Option<PrecisionArg>,
     },
     /// Measure training samples/s and rendering rays/s of the backends on this machine, on a
     /// synthetic dataset in memory; prints a markdown table.
@@ -211,6 +219,10 @@ enum Command {
         /// Side of the rendered square image, in pixels.
         #[arg(long, default_value_t = 64)]
         render_side: u32,
+        /// Precisions to measure on the CPU backend, one row each (`f32,bf16`); a device backend
+        /// runs f32 only.
+        #[arg(long, value_enum, value_delimiter = ',', default_value = "f32")]
+        precision: Vec<PrecisionArg>,
     },
     /// Convert a Blender scene into the multiscale format (4 scales, metadata.json), exactly as
     /// the official convert_blender_data.py (byte for byte, without --size).
@@ -447,14 +459,14 @@ fn demo_cmd(out: &Path, d: &DemoArgs) -> Result<()> {
         if outcome.interrupted {
             return Ok(());
         }
-        let metrics = eval::eval(dir, Split::Test, d.backend, &weights)?;
+        let metrics = eval::eval(dir, Split::Test, d.backend, None, &weights)?;
         println!("{name} test metrics:");
         print_eval(&metrics);
         scores.push((name, metrics));
     }
-    let renders = render::render(out, &out.join("render"), render::Target::Split(Split::Test), None, d.backend)?;
+    let renders = render::render(out, &out.join("render"), render::Target::Split(Split::Test), None, d.backend, None)?;
     let orbit = render::Target::Path(render::PathKind::Orbit, 36);
-    let path = render::render(out, &out.join("render_orbit"), orbit, None, d.backend)?;
+    let path = render::render(out, &out.join("render_orbit"), orbit, None, d.backend, None)?;
     let fig_path = out.join("antialiasing.png");
     let fig = figure::FigureArgs {
         runs: vec![nerf_dir.clone(), out.to_path_buf()],
@@ -536,20 +548,20 @@ fn main() -> std::process::ExitCode {
                 }
             })
         }
-        Command::Eval { run, split, backend, device, lpips } => {
+        Command::Eval { run, split, backend, device, precision, lpips } => {
             backend::set_device_args(&device);
-            eval::eval(&run, split.into(), backend, &lpips).map(|m| {
+            eval::eval(&run, split.into(), backend, precision, &lpips).map(|m| {
                 println!("wrote {}", run.join("eval/metrics.json").display());
                 print_eval(&m);
             })
         }
-        Command::Render { run, out, split, path, frames, width, height, backend, device } => {
+        Command::Render { run, out, split, path, frames, width, height, backend, device, precision } => {
             backend::set_device_args(&device);
             let target = match path {
                 Some(kind) => render::Target::Path(kind, frames),
                 None => render::Target::Split(split.unwrap_or(SplitArg::Test).into()),
             };
-            render::render(&run, &out, target, width.zip(height), backend)
+            render::render(&run, &out, target, width.zip(height), backend, precision)
                 .map(|files| println!("wrote {} files to {}", files.len(), out.display()))
         }
         Command::Figure { runs, labels, view, cell, crop, out } => {
@@ -567,9 +579,16 @@ fn main() -> std::process::ExitCode {
         Command::Experiment { dir, data, out, only, table_only, lpips } => {
             experiment::experiment(&experiment::ExperimentArgs { dir, data, out, only, table_only, lpips }, stop_flag())
         }
-        Command::Bench { backend, device, preset, batch_rays, steps, render_side } => {
+        Command::Bench { backend, device, preset, batch_rays, steps, render_side, precision } => {
             backend::set_device_args(&device);
-            bench::bench(&bench::BenchArgs { backends: backend, preset, batch: batch_rays, steps, render_side })
+            bench::bench(&bench::BenchArgs {
+                backends: backend,
+                preset,
+                batch: batch_rays,
+                steps,
+                render_side,
+                precisions: precision,
+            })
         }
         Command::Convert { input, output, to: ConvertTo::Multiscale, size, .. } => {
             data::multiscale::convert_resized(&input, &output, size)

@@ -9,7 +9,7 @@ use mipnerf_core::Camera;
 use mipnerf_core::backend::ImageSpec;
 use mipnerf_core::data::{Dataset, Split};
 
-use crate::config::{Backend, TrainSettings};
+use crate::config::{Backend, PrecisionArg, TrainSettings};
 use crate::images::{depth_to_png, rgb_to_png, write_exr, write_gif, write_png};
 use crate::run::{load_split, open_trained, read_config};
 
@@ -87,6 +87,7 @@ pub fn render(
     target: Target,
     size: Option<(u32, u32)>,
     backend: Backend,
+    precision: Option<PrecisionArg>,
 ) -> Result<Vec<std::path::PathBuf>> {
     let s = read_config(run)?;
     if let Some((w, h)) = size
@@ -132,7 +133,7 @@ pub fn render(
         }
     }
     // Load the data first: a bad split fails before the device is opened.
-    let (mut be, _) = open_trained(run, &s, backend)?;
+    let (mut be, _, _) = open_trained(run, &s, backend, precision)?;
     // Only now, with every argument checked and the model open, is anything created.
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let levels = be.model().config().num_levels;

@@ -8,13 +8,14 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use mipnerf_core::backend::TrainState;
+use mipnerf_core::bf16::Precision;
 use mipnerf_core::checkpoint::{self, Checkpoint};
 use mipnerf_core::data::{self, Dataset, Format, LoadOptions, Split};
 use mipnerf_core::model::Model;
 use mipnerf_core::occupancy::{OccupancyConfig, OccupancyGrid};
 
 use crate::backend;
-use crate::config::{Backend, TrainSettings};
+use crate::config::{Backend, PrecisionArg, TrainSettings};
 use crate::progress::Progress;
 
 /// File names inside a run directory.
@@ -63,7 +64,8 @@ pub fn open_trained(
     run: &Path,
     s: &TrainSettings,
     choice: Backend,
-) -> Result<(Box<dyn mipnerf_core::backend::Backend>, u64)> {
+    precision: Option<PrecisionArg>,
+) -> Result<(Box<dyn mipnerf_core::backend::Backend>, u64, Precision)> {
     let (model, ck) = load_trained(run, s)?;
     let step = ck.step;
     let setup = mipnerf_gpu::BackendSetup {
@@ -75,7 +77,17 @@ pub fn open_trained(
         render_chunk: None,
         device: crate::backend::device_options(),
     };
-    Ok((backend::open(choice, setup)?, step))
+    let (be, ran) = backend::open(choice, setup, precision.or(s.precision).unwrap_or(PrecisionArg::F32))?;
+    Ok((be, step, ran))
+}
+
+/// The `--precision` value of a precision that ran.
+#[must_use]
+pub fn precision_arg(p: Precision) -> PrecisionArg {
+    match p {
+        Precision::F32 => PrecisionArg::F32,
+        Precision::Bf16 => PrecisionArg::Bf16,
+    }
 }
 
 /// The model and trained parameters of a run.
@@ -174,7 +186,10 @@ pub fn train(
         render_chunk: None,
         device: crate::backend::device_options(),
     };
-    let be = backend::open(s.backend.unwrap_or(Backend::Auto), setup)?;
+    let (be, precision) =
+        backend::open(s.backend.unwrap_or(Backend::Auto), setup, s.precision.unwrap_or(PrecisionArg::F32))?;
+    // The saved configuration records the precision that ran.
+    let s = TrainSettings { precision: Some(precision_arg(precision)), ..s };
     s.save(&run_dir.join(CONFIG))?;
     TrainLoop::new(run_dir, &s, be, resume)?.run(&stop)
 }

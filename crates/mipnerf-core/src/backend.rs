@@ -7,6 +7,7 @@
 
 use std::sync::Arc;
 
+use crate::bf16::Precision;
 use crate::camera::{Camera, PixelCenters};
 use crate::checkpoint::Checkpoint;
 use crate::cone::Ray;
@@ -48,6 +49,9 @@ pub enum Unsupported {
     /// Supersampling of forward-facing (NDC) data.
     #[error("{NDC_SUPERSAMPLE}")]
     NdcSupersample,
+    /// bf16 matrix products, which only the CPU backend runs.
+    #[error("bf16 precision runs on the CPU backend only; this backend computes in f32")]
+    Bf16,
 }
 
 /// A full image to render: its camera and how its pixels become rays.
@@ -160,6 +164,19 @@ pub trait Backend {
 
     /// The model.
     fn model(&self) -> &Model;
+
+    /// Sets the precision of the MLP's matrix products for the steps and renders that follow.
+    /// The default accepts only [`Precision::F32`] (a device backend's precision).
+    ///
+    /// # Errors
+    /// [`BackendError::Unsupported`] with [`Unsupported::Bf16`] where the backend does not run
+    /// bf16, [`BackendError::Invalid`] where the CPU lacks the feature (named).
+    fn set_precision(&mut self, precision: Precision) -> Result<(), BackendError> {
+        match precision {
+            Precision::F32 => Ok(()),
+            Precision::Bf16 => Err(Unsupported::Bf16.into()),
+        }
+    }
 
     /// The number of the next training step (the steps done so far).
     fn step(&self) -> u64;
@@ -361,11 +378,18 @@ impl CpuBackend {
 
 impl Backend for CpuBackend {
     fn describe(&self) -> String {
-        format!("CPU ({} threads)", rayon::current_num_threads())
+        match self.trainer.model.precision() {
+            Precision::F32 => format!("CPU ({} threads)", rayon::current_num_threads()),
+            Precision::Bf16 => format!("CPU ({} threads, bf16 on AMX)", rayon::current_num_threads()),
+        }
     }
 
     fn model(&self) -> &Model {
         &self.trainer.model
+    }
+
+    fn set_precision(&mut self, precision: Precision) -> Result<(), BackendError> {
+        self.trainer.model.set_precision(precision).map_err(|e| BackendError::Invalid(e.to_string()))
     }
 
     fn step(&self) -> u64 {

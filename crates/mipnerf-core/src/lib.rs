@@ -21,6 +21,7 @@
 
 pub mod backend;
 pub mod bench;
+pub mod bf16;
 pub mod camera;
 pub mod checkpoint;
 pub mod compare;

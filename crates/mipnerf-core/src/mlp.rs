@@ -20,6 +20,7 @@
 
 use rand::{Rng, SeedableRng, rngs::SmallRng};
 
+use crate::bf16::{Precision, matmul_bf16};
 use crate::linalg::{Layout, matmul};
 
 /// The shape of the MLP. Defaults are the official ones (the paper's 612K-parameter network).
@@ -97,6 +98,8 @@ pub struct MlpShape {
     pub layers: Vec<DenseLayer>,
     /// Total number of parameters.
     pub num_params: usize,
+    /// The precision of the matrix products ([`Precision::F32`] unless set).
+    pub precision: Precision,
 }
 
 /// Errors in an MLP configuration.
@@ -137,7 +140,7 @@ impl MlpShape {
             push(fan_in, c.net_width_condition);
         }
         push(c.net_width_condition, 3);
-        Ok(Self { config: c, layers, num_params: off - base })
+        Ok(Self { config: c, layers, num_params: off - base, precision: Precision::F32 })
     }
 
     /// Whether the encoded input is concatenated after trunk layer `i`.
@@ -220,12 +223,32 @@ fn resize(v: &mut Vec<f32>, len: usize) {
 /// `out (n x fan_out) = sum over parts of input_p · (the kernel rows of part p)`: a dense layer
 /// without its bias, whose input is the concatenation of the parts `(input, width)` (the first
 /// rows of the kernel, in order).
-fn dense(params: &[f32], l: &DenseLayer, parts: &[(&[f32], usize)], n: usize, out: &mut [f32]) {
+fn dense(p: Precision, params: &[f32], l: &DenseLayer, parts: &[(&[f32], usize)], n: usize, out: &mut [f32]) {
     let mut r0 = 0;
     for (k, &(input, width)) in parts.iter().enumerate() {
         let rows = l.kernel_rows(params, r0, width);
-        matmul(out, input, Layout::Normal, rows, Layout::Normal, n, width, l.fan_out, k > 0);
+        product(p, out, input, Layout::Normal, rows, Layout::Normal, n, width, l.fan_out, k > 0);
         r0 += width;
+    }
+}
+
+/// [`matmul`] or [`matmul_bf16`], as `precision` says.
+#[allow(clippy::too_many_arguments)]
+fn product(
+    precision: Precision,
+    c: &mut [f32],
+    a: &[f32],
+    la: Layout,
+    b: &[f32],
+    lb: Layout,
+    m: usize,
+    k: usize,
+    n: usize,
+    accumulate: bool,
+) {
+    match precision {
+        Precision::F32 => matmul(c, a, la, b, lb, m, k, n, accumulate),
+        Precision::Bf16 => matmul_bf16(c, a, la, b, lb, m, k, n, accumulate),
     }
 }
 
@@ -296,11 +319,11 @@ impl MlpShape {
             resize(out, n * w);
             let l = self.trunk(i);
             if i == 0 {
-                dense(params, l, &[(x, c.x_dim)], n, out);
+                dense(self.precision, params, l, &[(x, c.x_dim)], n, out);
             } else if self.concat_after(i - 1) {
-                dense(params, l, &[(&before[i - 1], w), (x, c.x_dim)], n, out);
+                dense(self.precision, params, l, &[(&before[i - 1], w), (x, c.x_dim)], n, out);
             } else {
-                dense(params, l, &[(&before[i - 1], w)], n, out);
+                dense(self.precision, params, l, &[(&before[i - 1], w)], n, out);
             }
             add_bias(out, l.bias(params), true);
         }
@@ -309,10 +332,10 @@ impl MlpShape {
         let top_parts: &[(&[f32], usize)] =
             if self.concat_after(c.net_depth - 1) { &[(top, w), (x, c.x_dim)] } else { &[(top, w)] };
         resize(&mut cache.raw_density, n);
-        dense(params, self.density_head(), top_parts, n, &mut cache.raw_density);
+        dense(self.precision, params, self.density_head(), top_parts, n, &mut cache.raw_density);
         add_bias(&mut cache.raw_density, self.density_head().bias(params), false);
         resize(&mut cache.bottleneck, n * w);
-        dense(params, self.bottleneck(), top_parts, n, &mut cache.bottleneck);
+        dense(self.precision, params, self.bottleneck(), top_parts, n, &mut cache.bottleneck);
         add_bias(&mut cache.bottleneck, self.bottleneck().bias(params), false);
         // Condition layers. The first takes [bottleneck, view]; its view part, with the bias, is the
         // same for all samples of a ray, so it is computed once per ray and added to each sample.
@@ -320,7 +343,18 @@ impl MlpShape {
         let l0 = self.condition(0);
         resize(&mut cache.view_proj, n_rays * wc);
         let view_rows = l0.kernel_rows(params, w, c.view_dim);
-        matmul(&mut cache.view_proj, view, Layout::Normal, view_rows, Layout::Normal, n_rays, c.view_dim, wc, false);
+        product(
+            self.precision,
+            &mut cache.view_proj,
+            view,
+            Layout::Normal,
+            view_rows,
+            Layout::Normal,
+            n_rays,
+            c.view_dim,
+            wc,
+            false,
+        );
         add_bias(&mut cache.view_proj, l0.bias(params), false);
         for j in 0..c.net_depth_condition {
             let (before, rest) = cache.cond.split_at_mut(j);
@@ -328,18 +362,18 @@ impl MlpShape {
             resize(out, n * wc);
             let l = self.condition(j);
             if j == 0 {
-                dense(params, l, &[(&cache.bottleneck, w)], n, out);
+                dense(self.precision, params, l, &[(&cache.bottleneck, w)], n, out);
                 for (r, rows) in out.chunks_exact_mut(samples_per_ray * wc).enumerate() {
                     add_bias(rows, &cache.view_proj[r * wc..(r + 1) * wc], true);
                 }
             } else {
-                dense(params, l, &[(&before[j - 1], wc)], n, out);
+                dense(self.precision, params, l, &[(&before[j - 1], wc)], n, out);
                 add_bias(out, l.bias(params), true);
             }
         }
         resize(&mut cache.raw_rgb, n * 3);
         let l = self.rgb_head();
-        dense(params, l, &[(&cache.cond[c.net_depth_condition - 1], wc)], n, &mut cache.raw_rgb);
+        dense(self.precision, params, l, &[(&cache.cond[c.net_depth_condition - 1], wc)], n, &mut cache.raw_rgb);
         add_bias(&mut cache.raw_rgb, l.bias(params), false);
     }
 
@@ -372,7 +406,7 @@ impl MlpShape {
         let weight_grad =
             |grads: &mut [f32], l: &DenseLayer, r0: usize, input: &[f32], in_w: usize, dz: &[f32], rows: usize| {
                 let k = &mut grads[l.kernel + r0 * l.fan_out..l.kernel + (r0 + in_w) * l.fan_out];
-                matmul(k, input, Layout::Transposed, dz, Layout::Normal, in_w, rows, l.fan_out, true);
+                product(self.precision, k, input, Layout::Transposed, dz, Layout::Normal, in_w, rows, l.fan_out, true);
             };
 
         // rgb head.
@@ -381,7 +415,18 @@ impl MlpShape {
         weight_grad(grads, l, 0, last, wc, d_raw_rgb, n);
         add_col_sums(&mut grads[l.bias..l.bias + 3], d_raw_rgb);
         resize(grad_a, n * wc);
-        matmul(grad_a, d_raw_rgb, Layout::Normal, l.kernel(params), Layout::Transposed, n, 3, wc, false);
+        product(
+            self.precision,
+            grad_a,
+            d_raw_rgb,
+            Layout::Normal,
+            l.kernel(params),
+            Layout::Transposed,
+            n,
+            3,
+            wc,
+            false,
+        );
         // Condition layers, top down. grad_a holds d(output of layer j).
         for j in (0..c.net_depth_condition).rev() {
             let l = self.condition(j);
@@ -389,7 +434,18 @@ impl MlpShape {
             if j > 0 {
                 weight_grad(grads, l, 0, &cond[j - 1], wc, grad_a, n);
                 resize(grad_b, n * wc);
-                matmul(grad_b, grad_a, Layout::Normal, l.kernel(params), Layout::Transposed, n, wc, wc, false);
+                product(
+                    self.precision,
+                    grad_b,
+                    grad_a,
+                    Layout::Normal,
+                    l.kernel(params),
+                    Layout::Transposed,
+                    n,
+                    wc,
+                    wc,
+                    false,
+                );
                 std::mem::swap(grad_a, grad_b);
             } else {
                 weight_grad(grads, l, 0, bottleneck, w, grad_a, n);
@@ -402,7 +458,8 @@ impl MlpShape {
                 weight_grad(grads, l, w, view, c.view_dim, grad_ray, n_rays);
                 // d bottleneck.
                 resize(grad_b, n * w);
-                matmul(
+                product(
+                    self.precision,
                     grad_b,
                     grad_a,
                     Layout::Normal,
@@ -425,7 +482,8 @@ impl MlpShape {
                 weight_grad(grads, l, w, x, c.x_dim, dz, n);
             }
             add_col_sums(&mut grads[l.bias..l.bias + l.fan_out], dz);
-            matmul(
+            product(
+                self.precision,
                 grad_z,
                 dz,
                 Layout::Normal,
@@ -449,7 +507,18 @@ impl MlpShape {
                     weight_grad(grads, l, w, x, c.x_dim, grad_z, n);
                 }
                 resize(grad_a, n * w);
-                matmul(grad_a, grad_z, Layout::Normal, l.kernel_rows(params, 0, w), Layout::Transposed, n, w, w, false);
+                product(
+                    self.precision,
+                    grad_a,
+                    grad_z,
+                    Layout::Normal,
+                    l.kernel_rows(params, 0, w),
+                    Layout::Transposed,
+                    n,
+                    w,
+                    w,
+                    false,
+                );
                 std::mem::swap(grad_a, grad_z);
             }
         }

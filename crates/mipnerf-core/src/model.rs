@@ -13,6 +13,7 @@
 use glam::Vec3;
 use rayon::prelude::*;
 
+use crate::bf16::{Bf16Support, Precision};
 use crate::cone::{self, Ray, RayShape};
 use crate::mip::{self, Gaussian};
 use crate::mlp::{MlpCache, MlpConfig, MlpConfigError, MlpShape};
@@ -354,6 +355,29 @@ impl Model {
     #[must_use]
     pub fn config(&self) -> &ModelConfig {
         &self.config
+    }
+
+    /// Sets the precision of the MLP's matrix products (on the CPU; a device backend runs f32).
+    ///
+    /// # Errors
+    /// [`ModelError::Config`] for [`Precision::Bf16`] on a CPU without AMX-BF16, naming the
+    /// missing feature ([`Bf16Support::detect`]); the precision is then unchanged.
+    pub fn set_precision(&mut self, precision: Precision) -> Result<(), ModelError> {
+        if precision == Precision::Bf16 {
+            if let Bf16Support::Unavailable(why) = Bf16Support::detect() {
+                return Err(ModelError::Config(format!("bf16 precision is not available: {why}")));
+            }
+        }
+        for m in &mut self.mlps {
+            m.precision = precision;
+        }
+        Ok(())
+    }
+
+    /// The precision of the MLP's matrix products.
+    #[must_use]
+    pub fn precision(&self) -> Precision {
+        self.mlps[0].precision
     }
 
     /// The MLPs, back to back in the flat parameter buffer (one, or one per level).

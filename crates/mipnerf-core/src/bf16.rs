@@ -1,0 +1,670 @@
+//! Mixed-precision matrix products: operands rounded to bf16, products accumulated in f32.
+//!
+//! bf16 keeps f32's 8-bit exponent and 7 of its 23 mantissa bits (8 significant bits with the
+//! implicit one), so rounding an operand to it changes it by at most `2^-8` relatively
+//! ([`BF16_UNIT_ROUNDOFF`]). The products run on Intel's AMX tiles (`tdpbf16ps`: a 16 x 16 f32
+//! block += a 16 x 32 bf16 block times a 32 x 16 bf16 block, accumulated in f32), which on the
+//! Xeons these runs use do 33 times the f32 FMA rate of one core (3.7 TFLOP/s against 112 GFLOP/s,
+//! measured by `mipnerf bench --peak`). AVX-512's `vdpbf16ps` alone was measured at the *same*
+//! flop rate as f32 FMA on this processor, so it is not used: without AMX, [`Precision::Bf16`] is
+//! refused ([`Bf16Support::detect`] says which feature is missing).
+//!
+//! What stays f32 (the parameters, Adam's state, the checkpoints, every non-matrix operation,
+//! and the products too small to gain: fewer than [`MIN_BF16_DIM`] rows or columns, such as the
+//! density and colour heads) is listed in [`matmul_bf16`]'s docs.
+//!
+//! [`matmul_bf16_emulated`] computes the same rounding on any CPU (operands rounded to bf16 as
+//! f32 values, then the f32 product); it is the reference the AMX kernel is tested against.
+#![allow(unsafe_code)]
+
+use std::cell::RefCell;
+use std::sync::OnceLock;
+
+use crate::linalg::{Layout, matmul};
+
+/// Relative rounding error of one f32 -> bf16 conversion (round to nearest even): `2^-8`.
+pub const BF16_UNIT_ROUNDOFF: f64 = 1.0 / 256.0;
+
+/// Relative rounding error of one f32 operation: `2^-24`.
+pub const F32_UNIT_ROUNDOFF: f64 = 1.0 / 16_777_216.0;
+
+/// Products with fewer rows or output columns than this, or a shorter inner dimension, run in f32:
+/// one 16 x 16 tile is the smallest unit of AMX work, and for these the packing costs more than
+/// the product.
+pub const MIN_BF16_DIM: usize = 16;
+
+/// The precision of the MLP's matrix products on the CPU.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Precision {
+    /// f32 throughout: the paper's precision and the reference.
+    #[default]
+    F32,
+    /// bf16 operands and f32 accumulation for the MLP's matrix products (forward, input gradient
+    /// and weight gradient); f32 everywhere else.
+    Bf16,
+}
+
+impl std::fmt::Display for Precision {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::F32 => "f32",
+            Self::Bf16 => "bf16",
+        })
+    }
+}
+
+/// Whether this CPU runs [`Precision::Bf16`] products, and if not, why.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Bf16Support {
+    /// AMX tiles with bf16 are present and the operating system granted their use.
+    Amx,
+    /// Not available; the reason names the missing CPU feature or the refusal.
+    Unavailable(String),
+}
+
+impl Bf16Support {
+    /// Detects AMX-BF16 (CPUID leaf 7: `amx-tile`, `amx-bf16`) and asks Linux for the tile state
+    /// (`arch_prctl(ARCH_REQ_XCOMP_PERM, XTILEDATA)`, once per process). Cached.
+    #[must_use]
+    pub fn detect() -> &'static Self {
+        static SUPPORT: OnceLock<Bf16Support> = OnceLock::new();
+        SUPPORT.get_or_init(amx::detect)
+    }
+
+    /// True for [`Bf16Support::Amx`].
+    #[must_use]
+    pub fn available(&self) -> bool {
+        matches!(self, Self::Amx)
+    }
+}
+
+/// `x` rounded to bf16 (round to nearest, ties to even), as its 16 bits. Subnormal inputs become a
+/// signed zero, as in `vcvtneps2bf16` and the AMX instructions; NaN stays NaN.
+#[must_use]
+#[inline]
+pub fn f32_to_bf16_bits(x: f32) -> u16 {
+    let bits = x.to_bits();
+    if x.is_nan() {
+        return ((bits >> 16) | 0x0040) as u16;
+    }
+    if bits & 0x7f80_0000 == 0 {
+        // Zero exponent: zero or subnormal, read as a signed zero (as `vcvtneps2bf16` does).
+        return ((bits >> 16) & 0x8000) as u16;
+    }
+    // A normal input rounds to a normal value or to infinity.
+    (bits.wrapping_add(0x7fff + ((bits >> 16) & 1)) >> 16) as u16
+}
+
+/// The f32 value of a bf16 bit pattern (exact).
+#[must_use]
+#[inline]
+pub fn bf16_bits_to_f32(b: u16) -> f32 {
+    f32::from_bits(u32::from(b) << 16)
+}
+
+/// `x` rounded to bf16 and back: the value a bf16 product sees.
+#[must_use]
+#[inline]
+pub fn round_to_bf16(x: f32) -> f32 {
+    bf16_bits_to_f32(f32_to_bf16_bits(x))
+}
+
+/// The error bound of one output element of a bf16 product with inner dimension `k`, relative to
+/// `sum_p |a_ip| |b_pj|` (the exact sum of absolute products, computed in f64 by a test):
+/// each operand is rounded once (`(1 + u)^2 - 1` for the product, `u` = [`BF16_UNIT_ROUNDOFF`]),
+/// and the `k` products are summed in f32 in some order with one rounding per addition
+/// (`gamma_k = k u32 / (1 - k u32)`, `u32` = [`F32_UNIT_ROUNDOFF`]). Valid for any summation
+/// order, as long as no value is subnormal.
+#[must_use]
+pub fn bf16_product_relative_bound(k: usize) -> f64 {
+    let u = BF16_UNIT_ROUNDOFF;
+    let operands = (1.0 + u) * (1.0 + u) - 1.0;
+    let ku = k as f64 * F32_UNIT_ROUNDOFF;
+    let gamma = ku / (1.0 - ku);
+    operands + gamma * (1.0 + operands)
+}
+
+/// Whether a product of this shape runs in bf16 (see [`MIN_BF16_DIM`]).
+#[must_use]
+pub fn uses_bf16(m: usize, k: usize, n: usize) -> bool {
+    m >= MIN_BF16_DIM && n >= MIN_BF16_DIM && k >= MIN_BF16_DIM
+}
+
+/// `c (m x n) = [c +] a (m x k) · b (k x n)` as [`matmul`], with `a` and `b` rounded to bf16 and
+/// the products accumulated in f32 on AMX tiles. Shapes below [`MIN_BF16_DIM`] run [`matmul`]
+/// in f32.
+///
+/// # Panics
+/// If a slice is shorter than its shape needs, or if the CPU lacks AMX-BF16
+/// ([`Bf16Support::detect`]): callers choose [`Precision::Bf16`] only after checking it.
+#[allow(clippy::too_many_arguments)]
+pub fn matmul_bf16(
+    c: &mut [f32],
+    a: &[f32],
+    la: Layout,
+    b: &[f32],
+    lb: Layout,
+    m: usize,
+    k: usize,
+    n: usize,
+    accumulate: bool,
+) {
+    if !uses_bf16(m, k, n) {
+        matmul(c, a, la, b, lb, m, k, n, accumulate);
+        return;
+    }
+    assert!(c.len() >= m * n, "matmul_bf16: c has {} < {m}x{n}", c.len());
+    assert!(a.len() >= m * k, "matmul_bf16: a has {} < {m}x{k}", a.len());
+    assert!(b.len() >= k * n, "matmul_bf16: b has {} < {k}x{n}", b.len());
+    assert!(Bf16Support::detect().available(), "matmul_bf16 on a CPU without AMX-BF16: {:?}", Bf16Support::detect());
+    PACKED.with(|p| {
+        let p = &mut *p.borrow_mut();
+        let (mp, kp, np) =
+            (m.next_multiple_of(amx::BLOCK), k.next_multiple_of(amx::K_STEP), n.next_multiple_of(amx::BLOCK));
+        simd::pack_rows(&mut p.a, a, la, m, k, mp, kp);
+        simd::pack_pairs(&mut p.b, b, lb, k, n, kp, np);
+        amx::product(c, &p.a, &p.b, m, n, mp, kp, np, accumulate);
+    });
+}
+
+/// The same rounding as [`matmul_bf16`] on any CPU: `a` and `b` rounded to bf16 (as f32 values),
+/// then the f32 product. Differs from the AMX kernel only in the order of the f32 additions.
+#[allow(clippy::too_many_arguments)]
+pub fn matmul_bf16_emulated(
+    c: &mut [f32],
+    a: &[f32],
+    la: Layout,
+    b: &[f32],
+    lb: Layout,
+    m: usize,
+    k: usize,
+    n: usize,
+    accumulate: bool,
+) {
+    if !uses_bf16(m, k, n) {
+        matmul(c, a, la, b, lb, m, k, n, accumulate);
+        return;
+    }
+    let a: Vec<f32> = a[..m * k].iter().map(|&x| round_to_bf16(x)).collect();
+    let b: Vec<f32> = b[..k * n].iter().map(|&x| round_to_bf16(x)).collect();
+    matmul(c, &a, la, &b, lb, m, k, n, accumulate);
+}
+
+/// Per-thread packing buffers, kept between products.
+#[derive(Default)]
+struct Packed {
+    /// `a` as bf16, `mp x kp` row-major, zero-padded.
+    a: Vec<u16>,
+    /// `b` as pairs of bf16 along k (AMX's "VNNI" layout): `kp / 2` rows of `np` 32-bit pairs.
+    b: Vec<u32>,
+}
+
+thread_local! {
+    static PACKED: RefCell<Packed> = RefCell::new(Packed::default());
+}
+
+/// Where element `(i, p)` of `a` goes in the packed `a` (`mp x kp`, bf16): tile after tile, each
+/// tile 16 rows x 32 values of k, 64 contiguous bytes per row, the k tiles of a 16-row block
+/// in order. One tile is 1 KiB read at a stride of 64 bytes, which keeps the tiles of a product
+/// in distinct cache sets.
+#[inline]
+fn a_index(i: usize, p: usize, kp: usize) -> usize {
+    ((i / 16) * (kp / 32) + p / 32) * 512 + (i % 16) * 32 + p % 32
+}
+
+/// Where pair row `q` (k = 2q, 2q + 1), column `j` of `b` goes in the packed `b` (`kp/2 x np`
+/// 32-bit pairs): blocks of 16 columns, each `kp / 2` rows of 64 bytes, so that one tile (16
+/// pair rows x 16 columns) is 1 KiB contiguous.
+#[inline]
+fn b_index(q: usize, j: usize, kp: usize) -> usize {
+    ((j / 16) * (kp / 2) + q) * 16 + j % 16
+}
+
+/// Packs `a (m x k)` into `out` as bf16 at [`a_index`], zero-padded to `mp x kp`. The scalar
+/// reference of [`simd::pack_rows`].
+#[cfg_attr(not(test), allow(dead_code))]
+fn pack_rows(out: &mut Vec<u16>, a: &[f32], la: Layout, m: usize, k: usize, mp: usize, kp: usize) {
+    out.clear();
+    out.resize(mp * kp, 0);
+    for i in 0..m {
+        for p in 0..k {
+            let x = if la == Layout::Normal { a[i * k + p] } else { a[p * m + i] };
+            out[a_index(i, p, kp)] = f32_to_bf16_bits(x);
+        }
+    }
+}
+
+/// Packs `b (k x n)` into `out`: pairs `(b[2q][j], b[2q + 1][j])`, the first in the low 16 bits,
+/// at [`b_index`], zero-padded to `kp/2 x np`. The scalar reference of [`simd::pack_pairs`],
+/// which uses it for the transposed case (a layer's kernel: small).
+fn pack_pairs(out: &mut Vec<u32>, b: &[f32], lb: Layout, k: usize, n: usize, kp: usize, np: usize) {
+    out.clear();
+    out.resize(kp / 2 * np, 0);
+    for p in 0..k {
+        for j in 0..n {
+            let x = if lb == Layout::Normal { b[p * n + j] } else { b[j * k + p] };
+            out[b_index(p / 2, j, kp)] |= u32::from(f32_to_bf16_bits(x)) << (16 * (p % 2));
+        }
+    }
+}
+
+/// The packing with AVX-512 (`vcvtneps2bf16`), which every AMX-BF16 processor has
+/// ([`Bf16Support::detect`] checks it): the same bits as the scalar [`pack_rows`] and
+/// [`pack_pairs`] (a test compares them).
+mod simd {
+    #[cfg(target_arch = "x86_64")]
+    use std::arch::x86_64::{
+        __m256i, __m512i, _mm256_storeu_si256, _mm512_cvtepu16_epi32, _mm512_cvtneps_pbh, _mm512_i32gather_epi32,
+        _mm512_loadu_ps, _mm512_or_si512, _mm512_setr_epi32, _mm512_slli_epi32, _mm512_storeu_si512,
+    };
+
+    use super::{Layout, a_index, b_index, f32_to_bf16_bits};
+
+    const FEATURES_CHECKED: &str = "bf16 packing needs AVX-512 BF16 (checked by Bf16Support::detect)";
+
+    /// [`super::pack_rows`], vectorised.
+    pub(super) fn pack_rows(out: &mut Vec<u16>, a: &[f32], la: Layout, m: usize, k: usize, mp: usize, kp: usize) {
+        assert!(super::Bf16Support::detect().available(), "{FEATURES_CHECKED}");
+        assert!(a.len() >= m * k && mp >= m && kp >= k && kp % 32 == 0);
+        out.clear();
+        out.resize(mp * kp, 0);
+        // SAFETY: the CPU has AVX-512 F/BW/VL/BF16 (asserted above: `detect` requires them).
+        unsafe {
+            match la {
+                Layout::Normal => rows_normal(out, a, m, k, kp),
+                Layout::Transposed => rows_transposed(out, a, m, k, kp),
+            }
+        }
+    }
+
+    /// [`super::pack_pairs`], vectorised where `b` is stored `k x n` (the large operands: weight
+    /// gradients' `dz`); the transposed case (a layer's kernel, small) is the scalar reference.
+    pub(super) fn pack_pairs(out: &mut Vec<u32>, b: &[f32], lb: Layout, k: usize, n: usize, kp: usize, np: usize) {
+        assert!(super::Bf16Support::detect().available(), "{FEATURES_CHECKED}");
+        assert!(b.len() >= k * n && kp >= k && np >= n && kp % 2 == 0);
+        match lb {
+            Layout::Normal => {
+                out.clear();
+                out.resize(kp / 2 * np, 0);
+                // SAFETY: as in `pack_rows`.
+                unsafe { pairs_normal(out, b, k, n, kp) }
+            }
+            Layout::Transposed => super::pack_pairs(out, b, lb, k, n, kp, np),
+        }
+    }
+
+    /// 16 f32 from `src[..16]` as 16 bf16 in the low halves of 32-bit lanes.
+    #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512bf16")]
+    fn bf16_lanes(src: &[f32]) -> __m512i {
+        assert!(src.len() >= 16);
+        // SAFETY: 16 f32 are in bounds (asserted); unaligned load.
+        let v = unsafe { _mm512_loadu_ps(src.as_ptr()) };
+        // SAFETY: __m256bh and __m256i are both 256 plain bits.
+        let h: __m256i = unsafe { std::mem::transmute(_mm512_cvtneps_pbh(v)) };
+        _mm512_cvtepu16_epi32(h)
+    }
+
+    #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512bf16")]
+    fn rows_normal(out: &mut [u16], a: &[f32], m: usize, k: usize, kp: usize) {
+        let full = k / 16 * 16;
+        for (i, src) in a.chunks_exact(k).take(m).enumerate() {
+            for c in (0..full).step_by(16) {
+                // SAFETY: 16 f32 in bounds (c + 16 <= k); unaligned load.
+                let v = unsafe { _mm512_loadu_ps(src[c..c + 16].as_ptr()) };
+                // SAFETY: __m256bh and __m256i are both 256 plain bits.
+                let h: __m256i = unsafe { std::mem::transmute(_mm512_cvtneps_pbh(v)) };
+                // Values c..c + 16 of row i are contiguous in the packing (c % 32 is 0 or 16).
+                let at = a_index(i, c, kp);
+                // SAFETY: out[at..at + 16] is in bounds (the slice is checked); unaligned store.
+                unsafe { _mm256_storeu_si256(out[at..at + 16].as_mut_ptr().cast(), h) };
+            }
+            for c in full..k {
+                out[a_index(i, c, kp)] = f32_to_bf16_bits(src[c]);
+            }
+        }
+    }
+
+    /// `a` stored `k x m`; `out[i][p] = a[p][i]`. Blocks of 16 columns x 32 rows: pairs of rows
+    /// become 16 32-bit pairs (lane i holds rows 2q and 2q + 1 of column i), written to a 16 x 16
+    /// scratch and gathered column by column into the 64 bytes of each output row.
+    #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512bf16")]
+    fn rows_transposed(out: &mut [u16], a: &[f32], m: usize, k: usize, kp: usize) {
+        let (m_full, k_full) = (m / 16 * 16, k / 32 * 32);
+        let mut scratch = [0u32; 256];
+        // Lane q of `index` is q * 16: element i of row q of the scratch, offset by i below.
+        let index = _mm512_setr_epi32(0, 16, 32, 48, 64, 80, 96, 112, 128, 144, 160, 176, 192, 208, 224, 240);
+        for i0 in (0..m_full).step_by(16) {
+            for p0 in (0..k_full).step_by(32) {
+                for q in 0..16 {
+                    let lo = bf16_lanes(&a[(p0 + 2 * q) * m + i0..]);
+                    let hi = bf16_lanes(&a[(p0 + 2 * q + 1) * m + i0..]);
+                    let pair = _mm512_or_si512(lo, _mm512_slli_epi32::<16>(hi));
+                    // SAFETY: 16 u32 at scratch[16q..16q + 16], in bounds.
+                    unsafe { _mm512_storeu_si512(scratch[16 * q..].as_mut_ptr().cast(), pair) };
+                }
+                for i in 0..16 {
+                    // SAFETY: gathers scratch[q * 16 + i] for q < 16: indices < 256, in bounds.
+                    let col = unsafe { _mm512_i32gather_epi32::<4>(index, scratch[i..].as_ptr().cast()) };
+                    let at = a_index(i0 + i, p0, kp);
+                    // SAFETY: out[at..at + 32] is in bounds (the slice is checked).
+                    unsafe { _mm512_storeu_si512(out[at..at + 32].as_mut_ptr().cast(), col) };
+                }
+            }
+        }
+        // The ragged edges: columns past m_full (every row), rows past k_full (every column).
+        for p in 0..k {
+            let cols = if p < k_full { m_full..m } else { 0..m };
+            for i in cols {
+                out[a_index(i, p, kp)] = f32_to_bf16_bits(a[p * m + i]);
+            }
+        }
+    }
+
+    /// `b` stored `k x n`: `out[q][j] = b[2q][j] | b[2q + 1][j] << 16`.
+    #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512bf16")]
+    fn pairs_normal(out: &mut [u32], b: &[f32], k: usize, n: usize, kp: usize) {
+        let n_full = n / 16 * 16;
+        for q in 0..k / 2 {
+            let (r0, r1) = (&b[2 * q * n..(2 * q + 1) * n], &b[(2 * q + 1) * n..(2 * q + 2) * n]);
+            for j in (0..n_full).step_by(16) {
+                let pair = _mm512_or_si512(bf16_lanes(&r0[j..]), _mm512_slli_epi32::<16>(bf16_lanes(&r1[j..])));
+                let at = b_index(q, j, kp);
+                // SAFETY: out[at..at + 16] is in bounds (the slice is checked).
+                unsafe { _mm512_storeu_si512(out[at..at + 16].as_mut_ptr().cast(), pair) };
+            }
+            for j in n_full..n {
+                out[b_index(q, j, kp)] = u32::from(f32_to_bf16_bits(r0[j])) | u32::from(f32_to_bf16_bits(r1[j])) << 16;
+            }
+        }
+        if k % 2 == 1 {
+            let last = &b[(k - 1) * n..k * n];
+            for (j, &x) in last.iter().enumerate() {
+                out[b_index(k / 2, j, kp)] = u32::from(f32_to_bf16_bits(x));
+            }
+        }
+    }
+
+    #[cfg(test)]
+    mod tests {
+        use super::super::{Bf16Support, Layout};
+
+        #[test]
+        fn vectorised_packing_gives_the_scalar_bits() {
+            if !Bf16Support::detect().available() {
+                eprintln!("no AMX-BF16 here: {:?}", Bf16Support::detect());
+                return;
+            }
+            let vals = |len: usize| -> Vec<f32> {
+                (0..len)
+                    .map(|i| match i % 11 {
+                        0 => 0.0,
+                        1 => -1e-40,
+                        2 => f32::NAN,
+                        3 => 1.0 + 1.0 / 256.0,
+                        _ => ((i * 7919 % 1000) as f32 - 500.0) * 0.0137,
+                    })
+                    .collect()
+            };
+            for (m, k) in [(16, 32), (48, 64), (37, 45), (129, 96), (5, 7)] {
+                let a = vals(m * k);
+                let (mp, kp) = (m.next_multiple_of(32), k.next_multiple_of(32));
+                for la in [Layout::Normal, Layout::Transposed] {
+                    let (mut want, mut got) = (Vec::new(), vec![7u16; 3]);
+                    super::super::pack_rows(&mut want, &a, la, m, k, mp, kp);
+                    super::pack_rows(&mut got, &a, la, m, k, mp, kp);
+                    assert_eq!(got, want, "pack_rows {la:?} {m}x{k}");
+                }
+                let (kp, np) = (m.next_multiple_of(32), k.next_multiple_of(32));
+                for lb in [Layout::Normal, Layout::Transposed] {
+                    let (mut want, mut got) = (Vec::new(), vec![7u32; 3]);
+                    super::super::pack_pairs(&mut want, &a, lb, m, k, kp, np);
+                    super::pack_pairs(&mut got, &a, lb, m, k, kp, np);
+                    assert_eq!(got, want, "pack_pairs {lb:?} {m}x{k}");
+                }
+            }
+        }
+    }
+}
+
+/// The AMX kernel. Every `unsafe` block is here and justified where it is.
+mod amx {
+    use std::arch::asm;
+
+    /// Output block per step: 2 x 2 tiles of 16 x 16.
+    pub(super) const BLOCK: usize = 32;
+    /// bf16 values of k per tile multiply-add.
+    pub(super) const K_STEP: usize = 32;
+
+    pub(super) fn detect() -> super::Bf16Support {
+        use super::Bf16Support::{Amx, Unavailable};
+        #[cfg(target_arch = "x86_64")]
+        {
+            // CPUID leaf 7 exists when leaf 0 reports a maximum leaf of at least 7.
+            let edx =
+                if std::arch::x86_64::__cpuid(0).eax >= 7 { std::arch::x86_64::__cpuid_count(7, 0).edx } else { 0 };
+            let (tile, bf16) = (edx & (1 << 24) != 0, edx & (1 << 22) != 0);
+            if !tile || !bf16 {
+                return Unavailable(format!(
+                    "this CPU lacks {} (Intel AMX; bf16 products need it)",
+                    if tile { "amx-bf16" } else { "amx-tile" }
+                ));
+            }
+            for feature in ["avx512f", "avx512bw", "avx512vl", "avx512bf16"] {
+                let present = match feature {
+                    "avx512f" => std::arch::is_x86_feature_detected!("avx512f"),
+                    "avx512bw" => std::arch::is_x86_feature_detected!("avx512bw"),
+                    "avx512vl" => std::arch::is_x86_feature_detected!("avx512vl"),
+                    _ => std::arch::is_x86_feature_detected!("avx512bf16"),
+                };
+                if !present {
+                    return Unavailable(format!("this CPU has AMX but lacks {feature} (used to convert to bf16)"));
+                }
+            }
+            if !cfg!(target_os = "linux") {
+                return Unavailable("AMX tiles are only enabled on Linux in this build".into());
+            }
+            let ret = request_tile_permission();
+            if ret != 0 {
+                return Unavailable(format!(
+                    "the operating system refused the AMX tile state (arch_prctl returned {ret}; Linux 5.16 or later \
+                     is needed)"
+                ));
+            }
+            Amx
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        Unavailable("bf16 products need an x86_64 CPU with AMX-BF16".into())
+    }
+
+    /// `arch_prctl(ARCH_REQ_XCOMP_PERM, XFEATURE_XTILEDATA)`: Linux grants the process the AMX
+    /// tile data state (required before the first tile instruction, or the process is killed).
+    #[cfg(all(target_arch = "x86_64", target_os = "linux"))]
+    fn request_tile_permission() -> i64 {
+        const SYS_ARCH_PRCTL: i64 = 158;
+        const ARCH_REQ_XCOMP_PERM: i64 = 0x1023;
+        const XFEATURE_XTILEDATA: i64 = 18;
+        let ret: i64;
+        // SAFETY: a raw Linux system call that takes two integers and touches no memory of ours;
+        // rcx and r11 are clobbered by `syscall` and declared so.
+        unsafe {
+            asm!(
+                "syscall",
+                inlateout("rax") SYS_ARCH_PRCTL => ret,
+                in("rdi") ARCH_REQ_XCOMP_PERM,
+                in("rsi") XFEATURE_XTILEDATA,
+                lateout("rcx") _,
+                lateout("r11") _,
+                options(nostack),
+            );
+        }
+        ret
+    }
+    #[cfg(all(target_arch = "x86_64", not(target_os = "linux")))]
+    fn request_tile_permission() -> i64 {
+        -1
+    }
+
+    /// Tile configuration (palette 1): 8 tiles of 16 rows x 64 bytes.
+    #[repr(C, align(64))]
+    struct TileConfig([u8; 64]);
+
+    impl TileConfig {
+        fn all_16x64() -> Self {
+            let mut c = [0u8; 64];
+            c[0] = 1;
+            for t in 0..8 {
+                c[16 + 2 * t] = 64;
+                c[48 + t] = 16;
+            }
+            Self(c)
+        }
+    }
+
+    /// `c (m x n, row-major) = [c +] A · B` from the packed operands ([`super::a_index`],
+    /// [`super::b_index`]). Tiles: tmm0..3 accumulate a 32 x 32 block of `c`, tmm4/5 hold two
+    /// 16-row tiles of `a`, tmm6/7 two 16-column tiles of `b`. A block inside `c` is loaded
+    /// (when accumulating) and stored in place; a block on the ragged edge goes through a
+    /// scratch block.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn product(
+        c: &mut [f32],
+        a: &[u16],
+        b: &[u32],
+        m: usize,
+        n: usize,
+        mp: usize,
+        kp: usize,
+        np: usize,
+        accumulate: bool,
+    ) {
+        assert!(super::Bf16Support::detect().available());
+        assert!(mp % BLOCK == 0 && np % BLOCK == 0 && kp % K_STEP == 0);
+        assert!(a.len() >= mp * kp && b.len() >= kp / 2 * np && c.len() >= m * n);
+        let cfg = TileConfig::all_16x64();
+        let k_tiles = kp / K_STEP;
+        let mut scratch = [0f32; BLOCK * BLOCK];
+        // SAFETY: the process holds the tile permission (`detect` checked above), and the
+        // configuration is a valid palette-1 layout; no other code in this program uses tiles.
+        unsafe { asm!("ldtilecfg [{}]", in(reg) cfg.0.as_ptr(), options(nostack, readonly)) };
+        for i0 in (0..mp).step_by(BLOCK) {
+            for j0 in (0..np).step_by(BLOCK) {
+                let inside = i0 + BLOCK <= m && j0 + BLOCK <= n;
+                // The block's top-left f32 and row stride in bytes: in `c`, or in the scratch.
+                let (base, stride) = if inside {
+                    (c[i0 * n + j0..].as_mut_ptr(), n * 4)
+                } else {
+                    if accumulate {
+                        for r in 0..BLOCK.min(m - i0.min(m)) {
+                            let cols = BLOCK.min(n - j0.min(n));
+                            scratch[r * BLOCK..r * BLOCK + cols].copy_from_slice(&c[(i0 + r) * n + j0..][..cols]);
+                        }
+                    }
+                    (scratch.as_mut_ptr(), BLOCK * 4)
+                };
+                // SAFETY: 32 rows x 32 f32 at `stride` from `base` lie inside `c` (the block is
+                // inside: i0 + 32 <= m, j0 + 32 <= n) or inside the 32 x 32 scratch.
+                unsafe {
+                    if accumulate {
+                        asm!(
+                            "tileloadd tmm0, [{p0} + {s}]",
+                            "tileloadd tmm1, [{p1} + {s}]",
+                            "tileloadd tmm2, [{p2} + {s}]",
+                            "tileloadd tmm3, [{p3} + {s}]",
+                            p0 = in(reg) base,
+                            p1 = in(reg) base.add(16),
+                            p2 = in(reg) base.add(16 * stride / 4),
+                            p3 = in(reg) base.add(16 * stride / 4 + 16),
+                            s = in(reg) stride,
+                            options(nostack, readonly),
+                        );
+                    } else {
+                        asm!(
+                            "tilezero tmm0",
+                            "tilezero tmm1",
+                            "tilezero tmm2",
+                            "tilezero tmm3",
+                            options(nostack, nomem)
+                        );
+                    }
+                }
+                for kt in 0..k_tiles {
+                    let pa = a[super::a_index(i0, kt * K_STEP, kp)..].as_ptr();
+                    let pa1 = a[super::a_index(i0 + 16, kt * K_STEP, kp)..].as_ptr();
+                    let pb = b[super::b_index(kt * K_STEP / 2, j0, kp)..].as_ptr();
+                    let pb1 = b[super::b_index(kt * K_STEP / 2, j0 + 16, kp)..].as_ptr();
+                    // SAFETY: each load reads one packed tile, 16 rows of 64 contiguous bytes
+                    // (1 KiB) from its first element: a tiles (rows i0.. and i0 + 16.., k tile
+                    // kt) and b tiles (pair rows 16 kt.., columns j0.. and j0 + 16..) lie inside
+                    // the packed buffers, whose sizes are asserted above.
+                    unsafe {
+                        asm!(
+                            "tileloadd tmm4, [{pa} + {s}]",
+                            "tileloadd tmm6, [{pb} + {s}]",
+                            "tdpbf16ps tmm0, tmm4, tmm6",
+                            "tileloadd tmm7, [{pb1} + {s}]",
+                            "tdpbf16ps tmm1, tmm4, tmm7",
+                            "tileloadd tmm5, [{pa1} + {s}]",
+                            "tdpbf16ps tmm2, tmm5, tmm6",
+                            "tdpbf16ps tmm3, tmm5, tmm7",
+                            pa = in(reg) pa,
+                            pa1 = in(reg) pa1,
+                            pb = in(reg) pb,
+                            pb1 = in(reg) pb1,
+                            s = in(reg) 64usize,
+                            options(nostack, readonly),
+                        );
+                    }
+                }
+                // SAFETY: as for the loads of the block above.
+                unsafe {
+                    asm!(
+                        "tilestored [{p0} + {s}], tmm0",
+                        "tilestored [{p1} + {s}], tmm1",
+                        "tilestored [{p2} + {s}], tmm2",
+                        "tilestored [{p3} + {s}], tmm3",
+                        p0 = in(reg) base,
+                        p1 = in(reg) base.add(16),
+                        p2 = in(reg) base.add(16 * stride / 4),
+                        p3 = in(reg) base.add(16 * stride / 4 + 16),
+                        s = in(reg) stride,
+                        options(nostack),
+                    );
+                }
+                if !inside {
+                    let cols = BLOCK.min(n.saturating_sub(j0));
+                    for r in 0..BLOCK.min(m.saturating_sub(i0)) {
+                        c[(i0 + r) * n + j0..][..cols].copy_from_slice(&scratch[r * BLOCK..r * BLOCK + cols]);
+                    }
+                }
+            }
+        }
+        // SAFETY: returns the tile state to its initial configuration.
+        unsafe { asm!("tilerelease", options(nostack, nomem)) };
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rounding_is_to_nearest_even_with_subnormals_flushed() {
+        assert_eq!(round_to_bf16(1.0), 1.0);
+        // 1 + 2^-8 is halfway between 1 and 1 + 2^-7: ties to the even (1).
+        assert_eq!(round_to_bf16(1.0 + 1.0 / 256.0), 1.0);
+        // 1 + 3 * 2^-8 is halfway between 1 + 2^-7 and 1 + 2^-6: ties to even (1 + 2^-6).
+        assert_eq!(round_to_bf16(1.0 + 3.0 / 256.0), 1.0 + 1.0 / 64.0);
+        assert_eq!(round_to_bf16(1.0 + 1.0 / 256.0 + 1e-6), 1.0 + 1.0 / 128.0);
+        assert_eq!(round_to_bf16(-2.5), -2.5);
+        assert_eq!(round_to_bf16(1e-39).to_bits(), 0);
+        assert_eq!(round_to_bf16(-1e-39).to_bits(), (-0.0f32).to_bits());
+        assert!(round_to_bf16(f32::NAN).is_nan());
+        assert_eq!(round_to_bf16(f32::INFINITY), f32::INFINITY);
+        assert_eq!(round_to_bf16(f32::MAX), f32::INFINITY);
+        for x in [0.1f32, 3.7, -1234.5, 6.02e23, 1.5e-30] {
+            let r = round_to_bf16(x);
+            assert!((f64::from(r) - f64::from(x)).abs() <= BF16_UNIT_ROUNDOFF * f64::from(x).abs(), "{x} -> {r}");
+        }
+    }
+}
