@@ -34,8 +34,8 @@ pub enum BenchBackends {
 pub struct BenchArgs {
     /// Which backends.
     pub backends: BenchBackends,
-    /// Model size.
-    pub preset: PresetArg,
+    /// Model sizes, measured one after the other.
+    pub presets: Vec<PresetArg>,
     /// Pixels per batch.
     pub batch: usize,
     /// Timed steps.
@@ -59,7 +59,8 @@ pub fn bench(a: &BenchArgs) -> Result<()> {
         a.batch
     );
     anyhow::ensure!((1..=4096).contains(&a.render_side), "--render-side must be between 1 and 4096");
-    let model = Model::new(a.preset.preset().config())?;
+    anyhow::ensure!(!a.precisions.is_empty(), "--precision needs at least one value");
+    anyhow::ensure!(!a.presets.is_empty(), "--preset needs at least one value");
     let ds = Arc::new(synthetic_dataset(20, 64));
     let which: &[Backend] = match a.backends {
         BenchBackends::Cpu => &[Backend::Cpu],
@@ -68,43 +69,45 @@ pub fn bench(a: &BenchArgs) -> Result<()> {
         BenchBackends::Both => &[Backend::Cpu, Backend::Gpu],
     };
     println!(
-        "preset {:?} ({} parameters), batches of {} rays, {} timed steps, render {s}x{s}",
-        a.preset,
-        model.num_params(),
+        "batches of {} rays, {} timed steps, render {s}x{s}; {}",
         a.batch,
         a.steps,
+        mipnerf_core::bf16::Bf16Support::detect().describe(),
         s = a.render_side
     );
-    anyhow::ensure!(!a.precisions.is_empty(), "--precision needs at least one value");
     let mut rows = Vec::new();
-    for (&choice, &precision) in which.iter().flat_map(|c| a.precisions.iter().map(move |p| (c, p))) {
-        if choice == Backend::Gpu && precision != PrecisionArg::F32 {
-            continue;
+    for &preset in &a.presets {
+        let model = Model::new(preset.preset().config())?;
+        let shape = format!("{preset:?} ({} parameters)", model.num_params()).to_lowercase();
+        for (&choice, &precision) in which.iter().flat_map(|c| a.precisions.iter().map(move |p| (c, p))) {
+            if choice == Backend::Gpu && precision != PrecisionArg::F32 {
+                continue;
+            }
+            let setup = BackendSetup {
+                model: model.clone(),
+                optim: OptimConfig::default(),
+                seed: 0,
+                state: TrainState::fresh(&model, 0),
+                data: Some((Arc::clone(&ds), a.batch)),
+                render_chunk: None,
+                device: crate::backend::device_options(),
+            };
+            let (mut b, _) = backend::open(choice, setup, precision)?;
+            let work = device_work(b.as_mut(), a.render_side).with_context(|| format!("counting {}", b.describe()))?;
+            let r = backend_throughput(b.as_mut(), a.batch, a.steps, a.render_side)
+                .with_context(|| format!("measuring {}", b.describe()))?;
+            rows.push((shape.clone(), r, work));
         }
-        let setup = BackendSetup {
-            model: model.clone(),
-            optim: OptimConfig::default(),
-            seed: 0,
-            state: TrainState::fresh(&model, 0),
-            data: Some((Arc::clone(&ds), a.batch)),
-            render_chunk: None,
-            device: crate::backend::device_options(),
-        };
-        let (mut b, _) = backend::open(choice, setup, precision)?;
-        let work = device_work(b.as_mut(), a.render_side).with_context(|| format!("counting {}", b.describe()))?;
-        let r = backend_throughput(b.as_mut(), a.batch, a.steps, a.render_side)
-            .with_context(|| format!("measuring {}", b.describe()))?;
-        rows.push((r, work));
     }
-    println!("| backend | ms/step | training samples/s | rendering rays/s |");
-    println!("|---|---|---|---|");
-    for (r, _) in &rows {
+    println!("| model | backend | ms/step | training samples/s | rendering rays/s |");
+    println!("|---|---|---|---|---|");
+    for (shape, r, _) in &rows {
         println!(
-            "| {} | {:.1} | {:.0} | {:.0} |",
+            "| {shape} | {} | {:.1} | {:.0} | {:.0} |",
             r.backend, r.ms_per_step, r.samples_per_second, r.render_rays_per_second
         );
     }
-    for (r, work) in &rows {
+    for (_, r, work) in &rows {
         let Some(work) = work else { continue };
         println!();
         println!("device work of {}:", r.backend);

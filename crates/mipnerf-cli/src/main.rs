@@ -207,9 +207,9 @@ enum Command {
         backend: bench::BenchBackends,
         #[command(flatten)]
         device: backend::DeviceArgs,
-        /// Model size.
-        #[arg(long, value_enum, default_value_t = PresetArg::Tiny)]
-        preset: PresetArg,
+        /// Model sizes, one table section each (`small,paper`).
+        #[arg(long, value_enum, value_delimiter = ',', default_value = "tiny")]
+        preset: Vec<PresetArg>,
         /// Rays (pixels) per training batch.
         #[arg(long, default_value_t = 1024)]
         batch_rays: usize,
@@ -583,7 +583,7 @@ fn main() -> std::process::ExitCode {
             backend::set_device_args(&device);
             bench::bench(&bench::BenchArgs {
                 backends: backend,
-                preset,
+                presets: preset,
                 batch: batch_rays,
                 steps,
                 render_side,

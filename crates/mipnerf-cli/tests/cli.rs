@@ -298,14 +298,33 @@ fn bench_prints_throughput_of_each_backend() {
     let both =
         mipnerf_gpu::test_support::context_or_skip("bench_prints_throughput_of_each_backend (GPU row)").is_some();
     let which = if both { "both" } else { "cpu" };
-    let text = run_ok(&["bench", "--backend", which, "--batch-rays", "16", "--steps", "1", "--render-side", "8"]);
-    let rows: Vec<&str> = text.lines().filter(|l| l.starts_with("| CPU") || l.starts_with("| GPU")).collect();
-    assert_eq!(rows.len(), if both { 2 } else { 1 }, "{text}");
-    for row in rows {
+    let amx = mipnerf_core::bf16::Bf16Support::detect().available();
+    let precision = if amx { "f32,bf16" } else { "f32" };
+    let text = run_ok(&[
+        "bench",
+        "--backend",
+        which,
+        "--batch-rays",
+        "16",
+        "--steps",
+        "1",
+        "--render-side",
+        "8",
+        "--preset",
+        "tiny,small",
+        "--precision",
+        precision,
+    ]);
+    let rows: Vec<&str> = text.lines().filter(|l| l.starts_with("| tiny") || l.starts_with("| small")).collect();
+    // Per preset: the CPU in each precision, and the GPU once (f32).
+    let per_preset = if amx { 2 } else { 1 } + usize::from(both);
+    assert_eq!(rows.len(), 2 * per_preset, "{text}");
+    for row in &rows {
         let cells: Vec<&str> = row.split('|').map(str::trim).filter(|c| !c.is_empty()).collect();
-        let numbers: Vec<f64> = cells[1..].iter().map(|c| c.parse().unwrap()).collect();
+        let numbers: Vec<f64> = cells[2..].iter().map(|c| c.parse().unwrap()).collect();
         assert!(numbers.len() == 3 && numbers.iter().all(|&x| x > 0.0), "{row}");
     }
+    assert_eq!(rows.iter().filter(|r| r.contains("bf16 on AMX")).count(), if amx { 2 } else { 0 }, "{text}");
     if both {
         // The device work per step and per render chunk (issue 18): after the first step and the
         // first chunk, nothing is made; a step reads nothing back unless it reports its losses.
@@ -876,4 +895,104 @@ fn an_experiment_row_is_evaluated_again_when_its_json_came_from_another_run() {
         assert_eq!(now["checkpoint_sha256"], sha.as_str());
         assert_eq!(now["psnr"], v["psnr"], "re-evaluated numbers are the run's own");
     }
+}
+
+#[test]
+fn precision_flag_runs_bf16_where_amx_is_and_says_clearly_where_it_cannot() {
+    use mipnerf_core::bf16::{Bf16Support, DISABLE_AMX_ENV};
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_demo_scene(dir.path(), 2);
+    let d = data.to_str().unwrap();
+    let with_env = |args: &[&str], env: Option<(&str, &str)>| {
+        let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_mipnerf"));
+        c.args(args).env("XDG_RUNTIME_DIR", "/tmp").env_remove(DISABLE_AMX_ENV);
+        if let Some((k, v)) = env {
+            c.env(k, v);
+        }
+        let out = c.output().unwrap();
+        (out.status.code(), String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr))
+    };
+    let train = |name: &str, precision: &str, env| {
+        let run = dir.path().join(name);
+        let r = run.to_str().unwrap().to_string();
+        let out = with_env(
+            &[
+                "train",
+                "--data",
+                d,
+                "--out",
+                &r,
+                "--steps",
+                "4",
+                "--batch-rays",
+                "64",
+                "--backend",
+                "cpu",
+                "--precision",
+                precision,
+            ],
+            env,
+        );
+        (run, out)
+    };
+    let no_amx = Some((DISABLE_AMX_ENV, "1"));
+    // Without AMX: bf16 is refused, naming the feature, and nothing is written; auto says f32.
+    let (run, (code, text)) = train("refused", "bf16", no_amx);
+    assert_eq!(code, Some(1), "{text}");
+    assert!(text.contains("--precision bf16") && text.contains("amx-bf16"), "{text}");
+    assert!(!run.join("checkpoint.safetensors").exists(), "a refused run wrote a checkpoint");
+    let (run, (code, text)) = train("auto-f32", "auto", no_amx);
+    assert_eq!(code, Some(0), "{text}");
+    assert!(text.contains("precision auto: f32 (AMX (amx-bf16) is switched off"), "{text}");
+    let cfg = std::fs::read_to_string(run.join("config.toml")).unwrap();
+    assert!(cfg.contains("precision = \"f32\""), "the config records what ran:\n{cfg}");
+    // A device backend runs f32 only.
+    if mipnerf_gpu::test_support::context_or_skip("precision_flag::gpu").is_some() {
+        let r = dir.path().join("gpu");
+        let (code, text) = with_env(
+            &[
+                "train",
+                "--data",
+                d,
+                "--out",
+                r.to_str().unwrap(),
+                "--steps",
+                "2",
+                "--backend",
+                "gpu",
+                "--precision",
+                "bf16",
+            ],
+            None,
+        );
+        assert_eq!(code, Some(1), "{text}");
+        assert!(text.contains("bf16 precision runs on the CPU backend only"), "{text}");
+    }
+    if !Bf16Support::detect().available() {
+        eprintln!("bf16 runs not made on this CPU: {:?}", Bf16Support::detect());
+        return;
+    }
+    // With AMX: bf16 trains, is recorded, and eval and render use it (or the flag's choice).
+    let (run, (code, text)) = train("bf16", "bf16", None);
+    assert_eq!(code, Some(0), "{text}");
+    assert!(text.contains("backend: CPU (") && text.contains("bf16 on AMX"), "{text}");
+    let cfg = std::fs::read_to_string(run.join("config.toml")).unwrap();
+    assert!(cfg.contains("precision = \"bf16\""), "{cfg}");
+    let r = run.to_str().unwrap();
+    let metrics = |args: &[&str]| {
+        let (code, text) = with_env(args, None);
+        assert_eq!(code, Some(0), "{text}");
+        let m: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(run.join("eval/metrics.json")).unwrap()).unwrap();
+        (m["precision"].as_str().unwrap().to_string(), m["per_scale"][0]["psnr"].as_f64().unwrap())
+    };
+    let (p16, psnr16) = metrics(&["eval", "--run", r, "--lpips-weights=/nonexistent"]);
+    let (p32, psnr32) = metrics(&["eval", "--run", r, "--lpips-weights=/nonexistent", "--precision", "f32"]);
+    assert_eq!((p16.as_str(), p32.as_str()), ("bf16", "f32"));
+    assert!((psnr16 - psnr32).abs() < 0.1, "bf16 eval {psnr16} dB vs f32 {psnr32} dB");
+    // Resuming may change the precision.
+    let (code, text) =
+        with_env(&["train", "--out", r, "--resume", "--steps", "6", "--precision", "f32", "--backend", "cpu"], None);
+    assert_eq!(code, Some(0), "{text}");
+    assert!(std::fs::read_to_string(run.join("config.toml")).unwrap().contains("precision = \"f32\""));
 }

@@ -33,6 +33,9 @@ pub const F32_UNIT_ROUNDOFF: f64 = 1.0 / 16_777_216.0;
 /// the product.
 pub const MIN_BF16_DIM: usize = 16;
 
+/// Set to `1`, this environment variable makes [`Bf16Support::detect`] report AMX as absent.
+pub const DISABLE_AMX_ENV: &str = "MIPNERF_DISABLE_AMX";
+
 /// The precision of the MLP's matrix products on the CPU.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -64,12 +67,31 @@ pub enum Bf16Support {
 }
 
 impl Bf16Support {
-    /// Detects AMX-BF16 (CPUID leaf 7: `amx-tile`, `amx-bf16`) and asks Linux for the tile state
-    /// (`arch_prctl(ARCH_REQ_XCOMP_PERM, XTILEDATA)`, once per process). Cached.
+    /// Detects AMX-BF16 (CPUID leaf 7: `amx-tile`, `amx-bf16`; and AVX-512 BF16 for the
+    /// conversions) and asks Linux for the tile state (`arch_prctl(ARCH_REQ_XCOMP_PERM,
+    /// XTILEDATA)`), once per process. The environment variable [`DISABLE_AMX_ENV`] set to `1`
+    /// reports AMX as absent (to compare, or to avoid a hypervisor's faulty AMX). Cached.
     #[must_use]
     pub fn detect() -> &'static Self {
         static SUPPORT: OnceLock<Bf16Support> = OnceLock::new();
-        SUPPORT.get_or_init(amx::detect)
+        SUPPORT.get_or_init(|| {
+            if std::env::var(DISABLE_AMX_ENV).is_ok_and(|v| v == "1") {
+                return Self::Unavailable(format!("AMX (amx-bf16) is switched off by {DISABLE_AMX_ENV}=1"));
+            }
+            #[cfg(target_arch = "x86_64")]
+            return amx::detect();
+            #[cfg(not(target_arch = "x86_64"))]
+            Self::Unavailable("bf16 products need an x86_64 CPU with Intel AMX (amx-bf16)".into())
+        })
+    }
+
+    /// One line for logs: `bf16: AMX-BF16` or `bf16: unavailable (why)`.
+    #[must_use]
+    pub fn describe(&self) -> String {
+        match self {
+            Self::Amx => "bf16: AMX-BF16 present".into(),
+            Self::Unavailable(why) => format!("bf16: unavailable ({why})"),
+        }
     }
 
     /// True for [`Bf16Support::Amx`].
@@ -158,6 +180,9 @@ pub fn matmul_bf16(
     assert!(a.len() >= m * k, "matmul_bf16: a has {} < {m}x{k}", a.len());
     assert!(b.len() >= k * n, "matmul_bf16: b has {} < {k}x{n}", b.len());
     assert!(Bf16Support::detect().available(), "matmul_bf16 on a CPU without AMX-BF16: {:?}", Bf16Support::detect());
+    #[cfg(not(target_arch = "x86_64"))]
+    unreachable!("Bf16Support::detect reports no AMX off x86_64");
+    #[cfg(target_arch = "x86_64")]
     PACKED.with(|p| {
         let p = &mut *p.borrow_mut();
         let (mp, kp, np) =
@@ -252,11 +277,12 @@ fn pack_pairs(out: &mut Vec<u32>, b: &[f32], lb: Layout, k: usize, n: usize, kp:
 /// The packing with AVX-512 (`vcvtneps2bf16`), which every AMX-BF16 processor has
 /// ([`Bf16Support::detect`] checks it): the same bits as the scalar [`pack_rows`] and
 /// [`pack_pairs`] (a test compares them).
+#[cfg(target_arch = "x86_64")]
 mod simd {
-    #[cfg(target_arch = "x86_64")]
     use std::arch::x86_64::{
-        __m256i, __m512i, _mm256_storeu_si256, _mm512_cvtepu16_epi32, _mm512_cvtneps_pbh, _mm512_i32gather_epi32,
-        _mm512_loadu_ps, _mm512_or_si512, _mm512_setr_epi32, _mm512_slli_epi32, _mm512_storeu_si512,
+        __m256i, __m512i, _mm256_storeu_si256, _mm512_cvtepu16_epi32, _mm512_cvtneps_pbh, _mm512_loadu_ps,
+        _mm512_or_si512, _mm512_shuffle_i32x4, _mm512_slli_epi32, _mm512_storeu_si512, _mm512_unpackhi_epi32,
+        _mm512_unpackhi_epi64, _mm512_unpacklo_epi32, _mm512_unpacklo_epi64,
     };
 
     use super::{Layout, a_index, b_index, f32_to_bf16_bits};
@@ -266,9 +292,15 @@ mod simd {
     /// [`super::pack_rows`], vectorised.
     pub(super) fn pack_rows(out: &mut Vec<u16>, a: &[f32], la: Layout, m: usize, k: usize, mp: usize, kp: usize) {
         assert!(super::Bf16Support::detect().available(), "{FEATURES_CHECKED}");
-        assert!(a.len() >= m * k && mp >= m && kp >= k && kp % 32 == 0);
-        out.clear();
+        assert!(a.len() >= m * k && mp >= m && kp >= k && kp.is_multiple_of(32) && mp.is_multiple_of(16));
+        // Every element below (m, k) is written; only the padding is zeroed.
         out.resize(mp * kp, 0);
+        for i in 0..mp {
+            let from = if i < m { k } else { 0 };
+            for p in from..kp {
+                out[a_index(i, p, kp)] = 0;
+            }
+        }
         // SAFETY: the CPU has AVX-512 F/BW/VL/BF16 (asserted above: `detect` requires them).
         unsafe {
             match la {
@@ -282,11 +314,18 @@ mod simd {
     /// gradients' `dz`); the transposed case (a layer's kernel, small) is the scalar reference.
     pub(super) fn pack_pairs(out: &mut Vec<u32>, b: &[f32], lb: Layout, k: usize, n: usize, kp: usize, np: usize) {
         assert!(super::Bf16Support::detect().available(), "{FEATURES_CHECKED}");
-        assert!(b.len() >= k * n && kp >= k && np >= n && kp % 2 == 0);
+        assert!(b.len() >= k * n && kp >= k && np >= n && kp.is_multiple_of(2));
         match lb {
             Layout::Normal => {
-                out.clear();
+                // Every pair row below k (the last one's high half zero when k is odd) and column
+                // below n is written; only the padding is zeroed.
                 out.resize(kp / 2 * np, 0);
+                for q in 0..kp / 2 {
+                    let from = if q < k.div_ceil(2) { n } else { 0 };
+                    for j in from..np {
+                        out[b_index(q, j, kp)] = 0;
+                    }
+                }
                 // SAFETY: as in `pack_rows`.
                 unsafe { pairs_normal(out, b, k, n, kp) }
             }
@@ -325,30 +364,55 @@ mod simd {
         }
     }
 
+    /// The transpose of 16 rows of 16 32-bit values, in registers: interleave 32-bit, then
+    /// 64-bit values within 128-bit lanes, then move the lanes.
+    #[target_feature(enable = "avx512f")]
+    fn transpose_16x16(r: [__m512i; 16]) -> [__m512i; 16] {
+        let mut t = r;
+        for g in 0..8 {
+            t[2 * g] = _mm512_unpacklo_epi32(r[2 * g], r[2 * g + 1]);
+            t[2 * g + 1] = _mm512_unpackhi_epi32(r[2 * g], r[2 * g + 1]);
+        }
+        // u[4g + c], lane L: column 4L + c of rows 4g..4g + 4.
+        let mut u = t;
+        for g in 0..4 {
+            let (a0, a1, b0, b1) = (t[4 * g], t[4 * g + 1], t[4 * g + 2], t[4 * g + 3]);
+            u[4 * g] = _mm512_unpacklo_epi64(a0, b0);
+            u[4 * g + 1] = _mm512_unpackhi_epi64(a0, b0);
+            u[4 * g + 2] = _mm512_unpacklo_epi64(a1, b1);
+            u[4 * g + 3] = _mm512_unpackhi_epi64(a1, b1);
+        }
+        let mut out = u;
+        for c in 0..4 {
+            let x = _mm512_shuffle_i32x4::<0x44>(u[c], u[4 + c]);
+            let y = _mm512_shuffle_i32x4::<0x44>(u[8 + c], u[12 + c]);
+            let x2 = _mm512_shuffle_i32x4::<0xEE>(u[c], u[4 + c]);
+            let y2 = _mm512_shuffle_i32x4::<0xEE>(u[8 + c], u[12 + c]);
+            out[c] = _mm512_shuffle_i32x4::<0x88>(x, y);
+            out[4 + c] = _mm512_shuffle_i32x4::<0xDD>(x, y);
+            out[8 + c] = _mm512_shuffle_i32x4::<0x88>(x2, y2);
+            out[12 + c] = _mm512_shuffle_i32x4::<0xDD>(x2, y2);
+        }
+        out
+    }
+
     /// `a` stored `k x m`; `out[i][p] = a[p][i]`. Blocks of 16 columns x 32 rows: pairs of rows
-    /// become 16 32-bit pairs (lane i holds rows 2q and 2q + 1 of column i), written to a 16 x 16
-    /// scratch and gathered column by column into the 64 bytes of each output row.
+    /// become 16 32-bit pairs (lane i holds rows 2q and 2q + 1 of column i); transposed, vector
+    /// i holds the 32 values of column i, the 64 bytes of one row of a packed tile.
     #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512bf16")]
     fn rows_transposed(out: &mut [u16], a: &[f32], m: usize, k: usize, kp: usize) {
         let (m_full, k_full) = (m / 16 * 16, k / 32 * 32);
-        let mut scratch = [0u32; 256];
-        // Lane q of `index` is q * 16: element i of row q of the scratch, offset by i below.
-        let index = _mm512_setr_epi32(0, 16, 32, 48, 64, 80, 96, 112, 128, 144, 160, 176, 192, 208, 224, 240);
         for i0 in (0..m_full).step_by(16) {
             for p0 in (0..k_full).step_by(32) {
-                for q in 0..16 {
+                let pairs: [__m512i; 16] = std::array::from_fn(|q| {
                     let lo = bf16_lanes(&a[(p0 + 2 * q) * m + i0..]);
                     let hi = bf16_lanes(&a[(p0 + 2 * q + 1) * m + i0..]);
-                    let pair = _mm512_or_si512(lo, _mm512_slli_epi32::<16>(hi));
-                    // SAFETY: 16 u32 at scratch[16q..16q + 16], in bounds.
-                    unsafe { _mm512_storeu_si512(scratch[16 * q..].as_mut_ptr().cast(), pair) };
-                }
-                for i in 0..16 {
-                    // SAFETY: gathers scratch[q * 16 + i] for q < 16: indices < 256, in bounds.
-                    let col = unsafe { _mm512_i32gather_epi32::<4>(index, scratch[i..].as_ptr().cast()) };
+                    _mm512_or_si512(lo, _mm512_slli_epi32::<16>(hi))
+                });
+                for (i, row) in transpose_16x16(pairs).into_iter().enumerate() {
                     let at = a_index(i0 + i, p0, kp);
                     // SAFETY: out[at..at + 32] is in bounds (the slice is checked).
-                    unsafe { _mm512_storeu_si512(out[at..at + 32].as_mut_ptr().cast(), col) };
+                    unsafe { _mm512_storeu_si512(out[at..at + 32].as_mut_ptr().cast(), row) };
                 }
             }
         }
@@ -410,14 +474,15 @@ mod simd {
                 let a = vals(m * k);
                 let (mp, kp) = (m.next_multiple_of(32), k.next_multiple_of(32));
                 for la in [Layout::Normal, Layout::Transposed] {
-                    let (mut want, mut got) = (Vec::new(), vec![7u16; 3]);
+                    // A reused buffer holds garbage: the padding must be zeroed.
+                    let (mut want, mut got) = (Vec::new(), vec![0x7777u16; mp * kp + 5]);
                     super::super::pack_rows(&mut want, &a, la, m, k, mp, kp);
                     super::pack_rows(&mut got, &a, la, m, k, mp, kp);
                     assert_eq!(got, want, "pack_rows {la:?} {m}x{k}");
                 }
                 let (kp, np) = (m.next_multiple_of(32), k.next_multiple_of(32));
                 for lb in [Layout::Normal, Layout::Transposed] {
-                    let (mut want, mut got) = (Vec::new(), vec![7u32; 3]);
+                    let (mut want, mut got) = (Vec::new(), vec![0x7777_7777u32; kp / 2 * np]);
                     super::super::pack_pairs(&mut want, &a, lb, m, k, kp, np);
                     super::pack_pairs(&mut got, &a, lb, m, k, kp, np);
                     assert_eq!(got, want, "pack_pairs {lb:?} {m}x{k}");
@@ -428,6 +493,7 @@ mod simd {
 }
 
 /// The AMX kernel. Every `unsafe` block is here and justified where it is.
+#[cfg(target_arch = "x86_64")]
 mod amx {
     use std::arch::asm;
 
@@ -438,7 +504,6 @@ mod amx {
 
     pub(super) fn detect() -> super::Bf16Support {
         use super::Bf16Support::{Amx, Unavailable};
-        #[cfg(target_arch = "x86_64")]
         {
             // CPUID leaf 7 exists when leaf 0 reports a maximum leaf of at least 7.
             let edx =
@@ -473,8 +538,6 @@ mod amx {
             }
             Amx
         }
-        #[cfg(not(target_arch = "x86_64"))]
-        Unavailable("bf16 products need an x86_64 CPU with AMX-BF16".into())
     }
 
     /// `arch_prctl(ARCH_REQ_XCOMP_PERM, XFEATURE_XTILEDATA)`: Linux grants the process the AMX
@@ -539,7 +602,7 @@ mod amx {
         accumulate: bool,
     ) {
         assert!(super::Bf16Support::detect().available());
-        assert!(mp % BLOCK == 0 && np % BLOCK == 0 && kp % K_STEP == 0);
+        assert!(mp.is_multiple_of(BLOCK) && np.is_multiple_of(BLOCK) && kp.is_multiple_of(K_STEP));
         assert!(a.len() >= mp * kp && b.len() >= kp / 2 * np && c.len() >= m * n);
         let cfg = TileConfig::all_16x64();
         let k_tiles = kp / K_STEP;

@@ -363,10 +363,8 @@ impl Model {
     /// [`ModelError::Config`] for [`Precision::Bf16`] on a CPU without AMX-BF16, naming the
     /// missing feature ([`Bf16Support::detect`]); the precision is then unchanged.
     pub fn set_precision(&mut self, precision: Precision) -> Result<(), ModelError> {
-        if precision == Precision::Bf16 {
-            if let Bf16Support::Unavailable(why) = Bf16Support::detect() {
-                return Err(ModelError::Config(format!("bf16 precision is not available: {why}")));
-            }
+        if let (Precision::Bf16, Bf16Support::Unavailable(why)) = (precision, Bf16Support::detect()) {
+            return Err(ModelError::Config(format!("bf16 precision is not available: {why}")));
         }
         for m in &mut self.mlps {
             m.precision = precision;

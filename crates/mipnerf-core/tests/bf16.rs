@@ -110,3 +110,115 @@ fn amx_bf16_product_stays_within_the_bf16_bound_and_matches_the_emulation() {
         }
     }
 }
+
+mod common;
+use common::scene::ball_scene;
+use mipnerf_core::bf16::Precision;
+use mipnerf_core::model::{Mode, Model, Preset};
+use mipnerf_core::schedule::LrSchedule;
+use mipnerf_core::train::{OptimConfig, Trainer};
+
+/// The whole model's loss in bf16 against f32, relative: half of bf16's unit roundoff (2^-9).
+/// The loss averages thousands of pixels whose colour errors are independent, so it moves far
+/// less than one operand's rounding (seen: 5.6e-4 on the small model).
+const TOL_MODEL_LOSS_REL: f64 = 2e-3;
+/// Each layer's kernel gradient in bf16 against f32: `|g_bf16 - g_f32| / |g_f32|` (L2 norms),
+/// at most 5 bf16 unit roundoffs (5 x 2^-8): the gradient of a layer passes through the
+/// rounded operands of the forward products below it and the backward products above it
+/// (seen: 2e-3 to 7.6e-3, the first layer the worst).
+const TOL_MODEL_GRAD_REL: f64 = 5.0 / 256.0;
+
+fn norm(v: &[f32]) -> f64 {
+    v.iter().map(|&x| f64::from(x) * f64::from(x)).sum::<f64>().sqrt()
+}
+
+#[test]
+fn bf16_model_loss_and_gradients_follow_the_f32_model() {
+    let Bf16Support::Amx = Bf16Support::detect() else {
+        let mut m = Model::new(Preset::Small.config()).unwrap();
+        let err = m.set_precision(Precision::Bf16).unwrap_err().to_string();
+        assert!(err.contains("amx") || err.contains("AMX") || err.contains("avx512"), "{err}");
+        eprintln!("bf16 model not run on this CPU: {err}");
+        return;
+    };
+    let (rays, colours) = ball_scene(4, 16);
+    let (rays, colours) = (&rays[..512], &colours[..512]);
+    let f32_model = Model::new(Preset::Small.config()).unwrap();
+    let mut bf16_model = f32_model.clone();
+    bf16_model.set_precision(Precision::Bf16).unwrap();
+    assert_eq!(bf16_model.precision(), Precision::Bf16);
+    // Parameters after a few f32 steps, so that every layer carries signal.
+    let optim = OptimConfig {
+        lr: LrSchedule { lr_init: 5e-3, lr_final: 5e-3, max_steps: 10, lr_delay_steps: 0, lr_delay_mult: 1.0 },
+        ..OptimConfig::default()
+    };
+    let mut warm = Trainer::new(f32_model.clone(), optim, 3);
+    for _ in 0..10 {
+        warm.train_step(rays, colours);
+    }
+    let params = warm.params;
+    let mode = Mode::Train { seed: 1, step: 11 };
+    let run = |m: &Model| {
+        let mut g = vec![0.0; m.num_params()];
+        let stats = m.loss_and_grad(&params, rays, colours, mode, &mut g);
+        (stats, g)
+    };
+    let ((s32, g32), (s16, g16)) = (run(&f32_model), run(&bf16_model));
+    let loss_rel = (f64::from(s16.loss) - f64::from(s32.loss)).abs() / f64::from(s32.loss);
+    let mut report = vec![format!("loss {} vs {} (rel {loss_rel:.2e})", s16.loss, s32.loss)];
+    let mut bad = Vec::new();
+    if loss_rel > TOL_MODEL_LOSS_REL {
+        bad.push(report[0].clone());
+    }
+    let mut saw_rounding = false;
+    for l in &f32_model.mlps()[0].layers {
+        let (a, b) = (l.kernel(&g16), l.kernel(&g32));
+        let diff: Vec<f32> = a.iter().zip(b).map(|(x, y)| x - y).collect();
+        let rel = norm(&diff) / norm(b).max(1e-30);
+        saw_rounding |= rel > 1e-4;
+        let line = format!("{} ({}x{}): gradient rel {rel:.2e}", l.name, l.fan_in, l.fan_out);
+        if rel > TOL_MODEL_GRAD_REL {
+            bad.push(line.clone());
+        }
+        report.push(line);
+    }
+    eprintln!("{}", report.join("\n"));
+    assert!(bad.is_empty(), "bf16 model off the f32 model:\n{}", bad.join("\n"));
+    assert!(saw_rounding, "bf16 gradients equal the f32 ones: was bf16 used?");
+}
+
+/// Over 120 steps from one seed, the bf16 run's loss (means of 20 steps) stays within this
+/// relative band of the f32 run's (seen: at most 3.5%; the runs drift apart as their parameters
+/// do, by rounding, not by a bias).
+const TOL_RUN_LOSS_BAND: f64 = 0.10;
+
+#[test]
+fn a_bf16_run_follows_the_f32_run_from_one_seed() {
+    if !Bf16Support::detect().available() {
+        eprintln!("bf16 run not made on this CPU: {:?}", Bf16Support::detect());
+        return;
+    }
+    let (rays, colours) = ball_scene(8, 16);
+    let steps = 120u64;
+    let optim = OptimConfig {
+        lr: LrSchedule { lr_init: 5e-3, lr_final: 5e-4, max_steps: steps, lr_delay_steps: 0, lr_delay_mult: 1.0 },
+        ..OptimConfig::default()
+    };
+    let curve = |precision: Precision| {
+        let mut model = Model::new(Preset::Small.config()).unwrap();
+        model.set_precision(precision).unwrap();
+        let mut t = Trainer::new(model, optim.clone(), 1);
+        let mut losses = Vec::new();
+        for s in 0..steps as usize {
+            let first = (s * 256) % (rays.len() - 256);
+            losses.push(f64::from(t.train_step(&rays[first..first + 256], &colours[first..first + 256]).stats.loss));
+        }
+        losses.chunks(20).map(|c| c.iter().sum::<f64>() / c.len() as f64).collect::<Vec<f64>>()
+    };
+    let (a, b) = (curve(Precision::F32), curve(Precision::Bf16));
+    eprintln!("f32  {a:.5?}\nbf16 {b:.5?}");
+    for (i, (x, y)) in a.iter().zip(&b).enumerate() {
+        assert!((x - y).abs() <= TOL_RUN_LOSS_BAND * x, "steps {}..{}: f32 {x} vs bf16 {y}", 20 * i, 20 * i + 20);
+    }
+    assert!(a[a.len() - 1] * 5.0 < a[0] && b[b.len() - 1] * 5.0 < b[0], "the losses did not fall: {a:?} {b:?}");
+}

@@ -18,7 +18,7 @@ const TOL_GRAD: Tol = Tol { rel: 1e-4, abs: 1e-6 };
 const OFFICIAL_LOSS_FACTOR: f32 = 3.0;
 
 fn small_model() -> Model {
-    Model::new(ModelConfig {
+    let model = Model::new(ModelConfig {
         num_samples: 8,
         min_deg_point: 0,
         max_deg_point: 4,
@@ -30,7 +30,10 @@ fn small_model() -> Model {
         skip_layer: 1,
         ..ModelConfig::default()
     })
-    .unwrap()
+    .unwrap();
+    // The golden numbers pin the f32 path (bf16 is an opt-in on the CPU, checked in bf16.rs).
+    assert_eq!(model.precision(), mipnerf_core::bf16::Precision::F32);
+    model
 }
 
 /// Writes every `params/MLP_0/Dense_k/{kernel,bias}` entry of `list` into the flat layout.
