@@ -53,7 +53,9 @@ pub fn read_config(run: &Path) -> Result<TrainSettings> {
     if !path.is_file() {
         bail!("{}: no such file; is {} a run directory made by `mipnerf train`?", path.display(), run.display());
     }
-    TrainSettings::from_file(&path)
+    let s = TrainSettings::from_file(&path)?;
+    // A run saved before `precision` existed ran in f32.
+    Ok(TrainSettings { precision: s.precision.or(Some(PrecisionArg::F32)), ..s })
 }
 
 /// A backend holding a run's trained parameters, for rendering.
