@@ -396,14 +396,16 @@ mod simd {
         out
     }
 
-    /// `a` stored `k x m`; `out[i][p] = a[p][i]`. Blocks of 16 columns x 32 rows: pairs of rows
+    /// `a` stored `k x m`; `out[i][p] = a[p][i]`. Blocks of 32 rows x 16 columns: pairs of rows
     /// become 16 32-bit pairs (lane i holds rows 2q and 2q + 1 of column i); transposed, vector
     /// i holds the 32 values of column i, the 64 bytes of one row of a packed tile.
     #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512bf16")]
     fn rows_transposed(out: &mut [u16], a: &[f32], m: usize, k: usize, kp: usize) {
         let (m_full, k_full) = (m / 16 * 16, k / 32 * 32);
-        for i0 in (0..m_full).step_by(16) {
-            for p0 in (0..k_full).step_by(32) {
+        // Rows outer: `a` is read in storage order (32 whole rows at a time), each block's
+        // output is one contiguous 1 KiB tile.
+        for p0 in (0..k_full).step_by(32) {
+            for i0 in (0..m_full).step_by(16) {
                 let pairs: [__m512i; 16] = std::array::from_fn(|q| {
                     let lo = bf16_lanes(&a[(p0 + 2 * q) * m + i0..]);
                     let hi = bf16_lanes(&a[(p0 + 2 * q + 1) * m + i0..]);

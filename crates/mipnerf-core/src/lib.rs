@@ -18,6 +18,10 @@
 //! analytic and checked against finite differences.
 //!
 //! Randomness is counter-based ([`rng`]) so that the CPU and the GPU draw the same numbers.
+//!
+//! The MLP's matrix products run in `f32` ([`linalg`]) unless a model is set to
+//! [`bf16::Precision::Bf16`]: operands rounded to bf16, sums in `f32`, on Intel AMX tiles
+//! ([`bf16`]), about twice the training throughput where the CPU has them.
 
 pub mod backend;
 pub mod bench;
