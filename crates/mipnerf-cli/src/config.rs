@@ -204,6 +204,26 @@ pub struct TrainSettings {
     pub precision: Option<PrecisionArg>,
 }
 
+/// The settings that may change when a run is resumed: how long and how fast it trains, where,
+/// and how often it logs. Every other setting is part of what the run is (its model, sampler,
+/// data and seed) and is refused on `--resume` when it differs from the saved one.
+pub const RESUMABLE: &[&str] = &[
+    "steps",
+    "time_budget",
+    "batch_rays",
+    "backend",
+    "precision",
+    "lr_init",
+    "lr_final",
+    "lr_delay_steps",
+    "lr_delay_mult",
+    "grad_max_norm",
+    "grad_max_val",
+    "checkpoint_every",
+    "log_every",
+    "snapshots",
+];
+
 macro_rules! merge_fields {
     ($base:expr, $over:expr, $($f:ident),*) => { TrainSettings { $($f: $over.$f.clone().or($base.$f.clone()),)* } };
 }
@@ -259,6 +279,30 @@ impl TrainSettings {
     pub fn from_file(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
         toml::from_str(&text).with_context(|| format!("{}: invalid configuration", path.display()))
+    }
+
+    /// The first setting `flags` gives on `--resume` that would change what this saved run is:
+    /// `(key, saved value, given value)`. Settings in [`RESUMABLE`] may change; the dataset is
+    /// compared by the caller (paths need resolving).
+    ///
+    /// # Errors
+    /// Settings that do not serialise (never for valid settings).
+    pub fn resume_conflict(&self, flags: &Self) -> Result<Option<(String, String, String)>> {
+        let saved = toml::Value::try_from(self)?;
+        let given = toml::Value::try_from(flags)?;
+        let Some(given) = given.as_table() else { return Ok(None) };
+        for (key, value) in given {
+            if key == "data" || RESUMABLE.contains(&key.as_str()) {
+                continue;
+            }
+            let before = saved.get(key);
+            if before != Some(value) {
+                let show = |v: &toml::Value| v.as_str().map_or_else(|| v.to_string(), str::to_owned);
+                let shown = before.map_or_else(|| "unset (its default)".to_owned(), show);
+                return Ok(Some((key.clone(), shown, show(value))));
+            }
+        }
+        Ok(None)
     }
 
     /// Writes these settings as TOML, atomically.

@@ -233,8 +233,8 @@ pub fn eval(
         precision,
     };
     let json = serde_json::to_string_pretty(&metrics)?;
-    std::fs::write(out.join("metrics.json"), json).context("writing metrics.json")?;
-    std::fs::write(out.join("metrics.md"), markdown(&metrics)).context("writing metrics.md")?;
+    save_keeping_the_old(&out.join("metrics.json"), json.as_bytes())?;
+    save_keeping_the_old(&out.join("metrics.md"), markdown(&metrics).as_bytes())?;
     let bars: Vec<(String, u32, f64)> = metrics.per_image.iter().map(|i| (i.file.clone(), i.scale, i.psnr)).collect();
     crate::plot::psnr_bars(&out.join("psnr_per_image.png"), &bars)?;
     crate::html::write_index(&out, run, &metrics, &entries)?;
@@ -308,11 +308,24 @@ pub struct Comparison {
     pub lpips_net: &'static str,
 }
 
+/// Writes a result file atomically (a temporary file renamed over it): on a full disk or any
+/// other failure the previous file stays whole, and the error says so.
+///
+/// # Errors
+/// The failure, naming the file.
+pub fn save_keeping_the_old(path: &Path, bytes: &[u8]) -> Result<()> {
+    mipnerf_core::checkpoint::write_atomic(path, bytes, &mut mipnerf_core::checkpoint::RealFs).map_err(|e| {
+        let kept = if path.exists() { "the previous one is unchanged" } else { "nothing was written" };
+        anyhow::anyhow!("{e} ({kept})")
+    })
+}
+
 /// `mipnerf compare A B`: PSNR, SSIM and LPIPS of two images of one size.
 ///
 /// # Errors
-/// Unreadable files, different sizes, or missing LPIPS weights (after PSNR and SSIM are printed).
-pub fn compare(a: &Path, b: &Path, json: bool, weights: &LpipsWeights) -> Result<()> {
+/// Unreadable files, different sizes, unusable LPIPS weights, or (with `require_lpips`) missing
+/// ones, after PSNR and SSIM are printed.
+pub fn compare(a: &Path, b: &Path, json: bool, weights: &LpipsWeights, require_lpips: bool) -> Result<()> {
     let (wa, ha, ia) = read_rgb(a)?;
     let (wb, hb, ib) = read_rgb(b)?;
     if (wa, ha) != (wb, hb) {
@@ -336,7 +349,11 @@ pub fn compare(a: &Path, b: &Path, json: bool, weights: &LpipsWeights) -> Result
         }
     }
     match absent {
-        Some(why) => anyhow::bail!("LPIPS not computed: {why}"),
+        Some(why) if require_lpips => anyhow::bail!("LPIPS not computed (--require-lpips): {why}"),
+        Some(why) => {
+            eprintln!("LPIPS skipped: {why}");
+            Ok(())
+        }
         None => Ok(()),
     }
 }

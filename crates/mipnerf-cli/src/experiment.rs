@@ -294,6 +294,19 @@ fn run_row(
     if ckpt.is_file() {
         let saved = run::read_config(run_dir)?;
         let now = settings.resolved(false);
+        // The row's JSON is bound to this checkpoint (its SHA-256), and the checkpoint to the data
+        // it trained on: a run on other data is never reported as this row's.
+        if let (Some(theirs), Some(ours)) = (&saved.data, &now.data)
+            && !run::same_path(theirs, ours)
+        {
+            bail!(
+                "{}: this run trained on {}, not on --data {}; move it away (or pass another --out) to train the row \
+                 on this data",
+                run_dir.display(),
+                theirs.display(),
+                ours.display()
+            );
+        }
         if comparable(&saved) != comparable(&now) {
             bail!(
                 "{}: this run was made with other settings than {id}.toml and the protocol now give; \
@@ -365,8 +378,7 @@ fn run_row(
         checkpoint_sha256: Some(sha),
         marks,
     };
-    std::fs::write(&json_path, serde_json::to_string_pretty(&r)? + "\n")
-        .with_context(|| json_path.display().to_string())?;
+    crate::eval::save_keeping_the_old(&json_path, (serde_json::to_string_pretty(&r)? + "\n").as_bytes())?;
     println!(
         "== row {id}: PSNR {} | avg error {:.4} -> {}",
         r.psnr.iter().map(|p| format!("{p:.2}")).collect::<Vec<_>>().join(" / "),

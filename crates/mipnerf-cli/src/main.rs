@@ -11,6 +11,7 @@ mod figure;
 mod html;
 mod images;
 mod lpips;
+mod outputs;
 mod plot;
 mod progress;
 mod render;
@@ -52,6 +53,38 @@ struct Cli {
     /// No progress bars or progress lines (results and errors are still printed).
     #[arg(long, global = true)]
     quiet: bool,
+    /// Read checkpoints that carry no checksum (written before checksums existed, or edited)
+    /// instead of refusing them; the next save adds one.
+    #[arg(long, global = true)]
+    allow_unverified: bool,
+}
+
+/// The most threads per core `RAYON_NUM_THREADS` may ask for; more only adds switching and
+/// memory (each thread has its own stack and buffers).
+const MAX_THREADS_PER_CORE: usize = 4;
+
+/// Builds the thread pool from `RAYON_NUM_THREADS`, capped at [`MAX_THREADS_PER_CORE`] per core
+/// (said once); an unreadable value is an error.
+fn init_threads() -> Result<()> {
+    let Some(v) = std::env::var_os("RAYON_NUM_THREADS") else { return Ok(()) };
+    let text = v.to_string_lossy();
+    let asked: usize = text.trim().parse().map_err(|_| {
+        anyhow::anyhow!("RAYON_NUM_THREADS={text:?} is not a whole number of threads (0: one per core)")
+    })?;
+    let cores = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
+    let cap = cores * MAX_THREADS_PER_CORE;
+    let threads = if asked > cap {
+        eprintln!(
+            "note: RAYON_NUM_THREADS={asked} is more than {MAX_THREADS_PER_CORE} per core on this machine's {cores} core(s); using {cap} threads"
+        );
+        cap
+    } else {
+        asked
+    };
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build_global()
+        .map_err(|e| anyhow::anyhow!("starting {threads} threads (RAYON_NUM_THREADS={text}): {e}"))
 }
 
 #[derive(Subcommand, Debug)]
@@ -76,7 +109,12 @@ enum Command {
         /// A TOML file of settings (keys as the flags, with underscores); flags override it.
         #[arg(long, value_name = "FILE.toml")]
         config: Option<PathBuf>,
-        /// Continue the run in --out from its last checkpoint, with its saved configuration.
+        /// Continue the run in --out from its last checkpoint, with its saved configuration. Flags
+        /// that may change on resume: --steps, --time-budget, --batch-rays, --backend,
+        /// --precision, --lr-init, --lr-final, --lr-delay-steps, --lr-delay-mult,
+        /// --grad-max-norm, --grad-max-val, --checkpoint-every, --log-every, --snapshots; any
+        /// other flag (model, preset, sampler, seed, data) that differs from the saved run is
+        /// refused.
         #[arg(long)]
         resume: bool,
         #[command(flatten)]
@@ -118,6 +156,10 @@ enum Command {
         json: bool,
         #[command(flatten)]
         lpips: lpips::LpipsWeights,
+        /// Fail (exit 1) when the LPIPS weights are not installed, instead of printing PSNR and
+        /// SSIM alone.
+        #[arg(long, conflicts_with = "no_lpips")]
+        require_lpips: bool,
     },
     /// Run an experiment folder (experiment.toml and one TOML per row): train every row that has
     /// not finished (resuming an interrupted one), evaluate it, write one JSON per row and rebuild
@@ -163,6 +205,9 @@ enum Command {
         /// The PNG to write.
         #[arg(long, value_name = "FILE.png")]
         out: PathBuf,
+        /// Replace --out even when mipnerf did not write it; without it such a file is refused.
+        #[arg(long)]
+        overwrite: bool,
     },
     /// Render a trained run: colour PNGs, depth and opacity EXRs, colour-mapped depth PNGs, and an
     /// animated preview (preview.gif) for camera paths.
@@ -198,6 +243,10 @@ enum Command {
         /// [default: the precision the run trained with].
         #[arg(long, value_enum)]
         precision: Option<PrecisionArg>,
+        /// Write into --out even when it holds files mipnerf did not write (files of the same
+        /// name are replaced); without it such a folder is refused.
+        #[arg(long)]
+        overwrite: bool,
     },
     /// Measure training samples/s and rendering rays/s of the backends on this machine, on a
     /// synthetic dataset in memory; prints a markdown table.
@@ -464,9 +513,10 @@ fn demo_cmd(out: &Path, d: &DemoArgs) -> Result<()> {
         print_eval(&metrics);
         scores.push((name, metrics));
     }
-    let renders = render::render(out, &out.join("render"), render::Target::Split(Split::Test), None, d.backend, None)?;
+    let renders =
+        render::render(out, &out.join("render"), render::Target::Split(Split::Test), None, d.backend, None, false)?;
     let orbit = render::Target::Path(render::PathKind::Orbit, 36);
-    let path = render::render(out, &out.join("render_orbit"), orbit, None, d.backend, None)?;
+    let path = render::render(out, &out.join("render_orbit"), orbit, None, d.backend, None, false)?;
     let fig_path = out.join("antialiasing.png");
     let fig = figure::FigureArgs {
         runs: vec![nerf_dir.clone(), out.to_path_buf()],
@@ -475,6 +525,7 @@ fn demo_cmd(out: &Path, d: &DemoArgs) -> Result<()> {
         cell: 192,
         crop: None,
         out: fig_path.clone(),
+        overwrite: false,
     };
     figure::figure(&fig)?;
     println!("\nEverything is in {}:", out.display());
@@ -531,6 +582,11 @@ struct DemoArgs {
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     progress::set_quiet(cli.quiet);
+    run::set_allow_unverified(cli.allow_unverified);
+    if let Err(e) = init_threads() {
+        eprintln!("error: {e:#}");
+        return std::process::ExitCode::FAILURE;
+    }
     let result = match cli.command {
         Command::Info => {
             info();
@@ -555,18 +611,18 @@ fn main() -> std::process::ExitCode {
                 print_eval(&m);
             })
         }
-        Command::Render { run, out, split, path, frames, width, height, backend, device, precision } => {
+        Command::Render { run, out, split, path, frames, width, height, backend, device, precision, overwrite } => {
             backend::set_device_args(&device);
             let target = match path {
                 Some(kind) => render::Target::Path(kind, frames),
                 None => render::Target::Split(split.unwrap_or(SplitArg::Test).into()),
             };
-            render::render(&run, &out, target, width.zip(height), backend, precision)
+            render::render(&run, &out, target, width.zip(height), backend, precision, overwrite)
                 .map(|files| println!("wrote {} files to {}", files.len(), out.display()))
         }
-        Command::Figure { runs, labels, view, cell, crop, out } => {
+        Command::Figure { runs, labels, view, cell, crop, out, overwrite } => {
             let crop = crop.map(|c| (c[0], c[1], c[2]));
-            let args = figure::FigureArgs { runs, labels, view, cell: cell.clamp(32, 1024), crop, out };
+            let args = figure::FigureArgs { runs, labels, view, cell: cell.clamp(32, 1024), crop, out, overwrite };
             figure::figure(&args).map(|s| {
                 for (label, psnr) in s.runs {
                     let p: Vec<String> = psnr.iter().map(|p| format!("{p:.2}")).collect();
@@ -575,7 +631,7 @@ fn main() -> std::process::ExitCode {
                 println!("wrote {}", args.out.display());
             })
         }
-        Command::Compare { a, b, json, lpips } => eval::compare(&a, &b, json, &lpips),
+        Command::Compare { a, b, json, lpips, require_lpips } => eval::compare(&a, &b, json, &lpips, require_lpips),
         Command::Experiment { dir, data, out, only, table_only, lpips } => {
             experiment::experiment(&experiment::ExperimentArgs { dir, data, out, only, table_only, lpips }, stop_flag())
         }

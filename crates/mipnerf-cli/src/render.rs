@@ -88,6 +88,7 @@ pub fn render(
     size: Option<(u32, u32)>,
     backend: Backend,
     precision: Option<PrecisionArg>,
+    overwrite: bool,
 ) -> Result<Vec<std::path::PathBuf>> {
     let s = read_config(run)?;
     if let Some((w, h)) = size
@@ -132,10 +133,25 @@ pub fn render(
             }
         }
     }
+    // Never into a folder of files mipnerf did not write (a dataset's images, say).
+    crate::outputs::check_dir(out, "--out", overwrite)?;
     // Load the data first: a bad split fails before the device is opened.
     let (mut be, _, _) = open_trained(run, &s, backend, precision)?;
-    // Only now, with every argument checked and the model open, is anything created.
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    // Only now, with every argument checked and the model open, is anything created. The
+    // manifest names every file before any is written, so an interrupted render can be redone.
+    let mut names: Vec<String> = jobs
+        .iter()
+        .flat_map(|(n, _)| {
+            ["", "_depth", "_acc", "_depth"]
+                .into_iter()
+                .zip([".png", ".exr", ".exr", ".png"])
+                .map(move |(s, e)| format!("{n}{s}{e}"))
+        })
+        .collect();
+    if matches!(target, Target::Path(..)) {
+        names.push("preview.gif".to_owned());
+    }
+    crate::outputs::record(out, names)?;
     let levels = be.model().config().num_levels;
     let mut written = Vec::new();
     let mut preview = Vec::new();

@@ -102,18 +102,33 @@ pub fn load_trained(run: &Path, s: &TrainSettings) -> Result<(Model, Checkpoint)
     Ok((model, ck))
 }
 
-/// Reads a checkpoint, verifying its checksum; a file written before checksums existed is read
-/// as it is, and that is said once per process.
+static ALLOW_UNVERIFIED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// `--allow-unverified`: read checkpoints without a checksum instead of refusing them.
+pub fn set_allow_unverified(allow: bool) {
+    ALLOW_UNVERIFIED.store(allow, std::sync::atomic::Ordering::Relaxed);
+}
+
+/// Reads a checkpoint, verifying its checksum; a file without one (written before checksums
+/// existed, or edited) is refused unless `--allow-unverified`, then read as it is, which is said
+/// once per process.
 ///
 /// # Errors
-/// A missing, damaged or mismatched checkpoint.
+/// A missing, damaged, unverifiable or mismatched checkpoint.
 pub fn load_checkpoint(path: &Path, model: &Model) -> Result<Checkpoint> {
     static SAID: std::sync::Once = std::sync::Once::new();
     let (ck, integrity) = checkpoint::load_checked(path, model)?;
     if integrity == checkpoint::Integrity::Unchecked {
+        if !ALLOW_UNVERIFIED.load(std::sync::atomic::Ordering::Relaxed) {
+            bail!(
+                "{} has no checksum, so whether it is intact cannot be verified (it was written before checksums \
+                 existed, or edited); pass --allow-unverified to read it anyway (the next save adds a checksum)",
+                path.display()
+            );
+        }
         SAID.call_once(|| {
             eprintln!(
-                "note: {} predates checkpoint checksums and was read unverified (the next save adds one)",
+                "note: {} has no checksum and was read unverified (--allow-unverified; the next save adds one)",
                 path.display()
             );
         });
@@ -190,6 +205,13 @@ pub fn train(
     };
     let (be, precision) =
         backend::open(s.backend.unwrap_or(Backend::Auto), setup, s.precision.unwrap_or(PrecisionArg::F32))?;
+    // Before the first step allocates it: does a step's memory fit?
+    let need = be.host_training_bytes(batch);
+    if let Err(e) = mipnerf_core::memory::check(need, &format!("a training step of --batch-rays {batch}")) {
+        let per_ray = need / batch.max(1) as u64;
+        let fits = mipnerf_core::memory::available().map_or(0, |a| a.bytes / per_ray.max(1));
+        bail!("{e}; lower --batch-rays (about {per_ray} bytes a ray here: at most about {fits} rays fit)");
+    }
     // The saved configuration records the precision that ran.
     let s = TrainSettings { precision: Some(precision_arg(precision)), ..s };
     s.save(&run_dir.join(CONFIG))?;
@@ -238,6 +260,9 @@ fn resolve_settings(
     resume: bool,
 ) -> Result<(TrainSettings, Format, Model)> {
     let base = if resume { read_config(run_dir)? } else { file_settings.unwrap_or_default() };
+    if resume {
+        check_resume_flags(run_dir, &base, flag_settings)?;
+    }
     let merged = base.overridden_by(flag_settings);
     let data_dir = merged.data.clone().context("no dataset: pass --data DIR (or data = \"DIR\" in --config)")?;
     let format = data::detect_format(&data_dir)?;
@@ -250,6 +275,38 @@ fn resolve_settings(
     let model = Model::new(s.model_config()?)?;
     s.validate(mipnerf_gpu::model::ModelBuffers::bytes_per_ray(&model))?;
     Ok((s, format, model))
+}
+
+/// Whether two paths name the same file or folder (resolved through links, `..` and the working
+/// directory; compared as absolute paths when one does not exist).
+#[must_use]
+pub fn same_path(a: &Path, b: &Path) -> bool {
+    let resolve = |p: &Path| std::fs::canonicalize(p).or_else(|_| std::path::absolute(p)).unwrap_or(p.to_path_buf());
+    resolve(a) == resolve(b)
+}
+
+/// Refuses `--resume` flags that change what the saved run is (its model, sampler, seed or
+/// dataset), naming the flag and how to start a new run instead.
+fn check_resume_flags(run_dir: &Path, saved: &TrainSettings, flags: &TrainSettings) -> Result<()> {
+    let flag = |key: &str| format!("--{}", key.replace('_', "-"));
+    let may_change: Vec<String> = crate::config::RESUMABLE.iter().map(|k| flag(k)).collect();
+    let new_run = |what: String| {
+        anyhow::anyhow!(
+            "{what}; --resume continues a run as it was saved ({}). To train with it, start a new run: \
+             mipnerf train --out NEW_DIR with the flags you want. Flags that may change on --resume: {}",
+            run_dir.join(CONFIG).display(),
+            may_change.join(", ")
+        )
+    };
+    if let (Some(given), Some(ours)) = (&flags.data, &saved.data)
+        && !same_path(given, ours)
+    {
+        return Err(new_run(format!("--data {} is not this run's dataset ({})", given.display(), ours.display())));
+    }
+    if let Some((key, before, after)) = saved.resume_conflict(flags)? {
+        return Err(new_run(format!("{} {after} would change this run, which has {key} = {before}", flag(&key))));
+    }
+    Ok(())
 }
 
 /// The training split, said in one line (and the loader's notes), checked against the model.

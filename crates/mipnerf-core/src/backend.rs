@@ -223,6 +223,14 @@ pub trait Backend {
     fn work_counters(&self) -> Option<WorkCounters> {
         None
     }
+
+    /// Host memory a training step of `batch_rays` rays takes, in bytes, for checking it against
+    /// the memory available before the first step; 0 for a device backend, whose batch lives on
+    /// the device (and is sized against the device's limits).
+    fn host_training_bytes(&self, batch_rays: usize) -> u64 {
+        let _ = batch_rays;
+        0
+    }
 }
 
 /// Running totals of a device backend's work and allocations since it was made. The difference
@@ -413,6 +421,10 @@ impl Backend for CpuBackend {
     fn checkpoint(&mut self) -> Result<Checkpoint, BackendError> {
         let t = &self.trainer;
         Ok(Checkpoint { step: t.step, params: t.params.clone(), adam: t.adam.clone(), occupancy: t.occupancy.clone() })
+    }
+
+    fn host_training_bytes(&self, batch_rays: usize) -> u64 {
+        self.trainer.model.training_bytes(batch_rays)
     }
 
     fn render_image(&mut self, image: &ImageSpec) -> Result<Vec<LevelOutput>, BackendError> {

@@ -60,6 +60,22 @@ pub fn pinhole_pix2cam(width: u32, height: u32, focal: f64) -> [[f64; 3]; 3] {
     [[1.0 / focal, 0.0, -0.5 * w / focal], [0.0, -1.0 / focal, 0.5 * h / focal], [0.0, 0.0, -1.0]]
 }
 
+/// The narrowest horizontal or vertical field of view a camera may have, in degrees (a 1000 mm
+/// lens on a full-frame sensor has 2 degrees; 0.01 is a telescope's).
+pub const MIN_FIELD_OF_VIEW_DEG: f64 = 0.01;
+
+/// The widest field of view a pinhole camera may have, in degrees (180 is a pinhole's limit).
+pub const MAX_FIELD_OF_VIEW_DEG: f64 = 179.0;
+
+/// The largest magnitude of a camera position or a near/far distance, in scene units. The
+/// integrated positional encoding multiplies positions by up to 2^15 in `f32`; beyond this the
+/// features carry no information and products of distances approach `f32`'s range.
+pub const MAX_SCENE_COORDINATE: f64 = 1e6;
+
+/// The accepted lengths of a pose's rotation columns (the camera axes in world units): a pose is
+/// a rotation and a translation, so each is 1 up to rounding; these bounds allow sloppy exports.
+pub const AXIS_LENGTH_RANGE: (f64, f64) = (0.5, 2.0);
+
 fn check_finite(what: &str, values: impl IntoIterator<Item = f64>) -> Result<(), Error> {
     if values.into_iter().all(f64::is_finite) {
         Ok(())
@@ -80,9 +96,11 @@ impl Camera {
         camera_angle_x: f64,
         cam2world: [[f64; 4]; 3],
     ) -> Result<Self, Error> {
-        if !(camera_angle_x.is_finite() && camera_angle_x > 0.0 && camera_angle_x < std::f64::consts::PI) {
+        let (lo, hi) = (MIN_FIELD_OF_VIEW_DEG.to_radians(), MAX_FIELD_OF_VIEW_DEG.to_radians());
+        if !(camera_angle_x.is_finite() && (lo..=hi).contains(&camera_angle_x)) {
             return Err(Error::InvalidCamera(format!(
-                "camera_angle_x must be in (0, pi) radians, got {camera_angle_x}"
+                "camera_angle_x must be between {lo:.3e} and {hi:.4} radians ({MIN_FIELD_OF_VIEW_DEG} to \
+                 {MAX_FIELD_OF_VIEW_DEG} degrees of horizontal field of view), got {camera_angle_x}"
             )));
         }
         let focal = focal_from_camera_angle_x(width, camera_angle_x);
@@ -92,7 +110,10 @@ impl Camera {
     /// A camera from a full `pix2cam` matrix (the multiscale format's intrinsics).
     ///
     /// # Errors
-    /// [`Error::InvalidCamera`] for a zero size or a non-finite or singular matrix.
+    /// [`Error::InvalidCamera`] for a zero size, a non-finite or singular matrix, a field of view
+    /// outside [`MIN_FIELD_OF_VIEW_DEG`]..[`MAX_FIELD_OF_VIEW_DEG`], a camera position beyond
+    /// [`MAX_SCENE_COORDINATE`], or rotation columns whose lengths are outside
+    /// [`AXIS_LENGTH_RANGE`].
     pub fn from_pix2cam(
         width: u32,
         height: u32,
@@ -110,6 +131,36 @@ impl Camera {
         let det = det3(|r, c| cam2world[r][c]);
         if det.abs() < 1e-6 {
             return Err(Error::InvalidCamera(format!("cam2world rotation is singular (determinant {det:e})")));
+        }
+        if pix2cam[2][2] == 0.0 {
+            return Err(Error::InvalidCamera("pix2cam[2][2] is 0: not a pinhole camera's intrinsics".into()));
+        }
+        for (axis, side, p) in [("horizontal", width, pix2cam[0][0]), ("vertical", height, pix2cam[1][1])] {
+            // The angle the image spans along this axis: 2 atan(side/2 / focal).
+            let fov = (2.0 * (0.5 * f64::from(side) * (p / pix2cam[2][2]).abs()).atan()).to_degrees();
+            if !(MIN_FIELD_OF_VIEW_DEG..=MAX_FIELD_OF_VIEW_DEG).contains(&fov) {
+                let focal = (pix2cam[2][2] / p).abs();
+                return Err(Error::InvalidCamera(format!(
+                    "the {axis} field of view is {fov:.3e} degrees (focal length {focal:.4e} pixels for {side} \
+                     pixels); accepted: {MIN_FIELD_OF_VIEW_DEG} to {MAX_FIELD_OF_VIEW_DEG} degrees"
+                )));
+            }
+        }
+        for (c, name) in ["x", "y", "z"].iter().enumerate() {
+            let len = (0..3).map(|r| cam2world[r][c] * cam2world[r][c]).sum::<f64>().sqrt();
+            if !(AXIS_LENGTH_RANGE.0..=AXIS_LENGTH_RANGE.1).contains(&len) {
+                return Err(Error::InvalidCamera(format!(
+                    "cam2world's {name} axis (column {c}) has length {len:.4e}; a pose's rotation columns are unit \
+                     vectors (accepted lengths {} to {})",
+                    AXIS_LENGTH_RANGE.0, AXIS_LENGTH_RANGE.1
+                )));
+            }
+            let t = cam2world[c][3];
+            if t.abs() > MAX_SCENE_COORDINATE {
+                return Err(Error::InvalidCamera(format!(
+                    "cam2world's position [{c}][3] is {t:e}; accepted: at most {MAX_SCENE_COORDINATE:e} in magnitude"
+                )));
+            }
         }
         Ok(Self { width, height, pix2cam, cam2world })
     }
@@ -236,6 +287,31 @@ mod tests {
             (Camera::from_camera_angle_x(0, 4, 0.9, IDENTITY_POSE), "empty"),
             (Camera::from_camera_angle_x(4, 4, f64::NAN, IDENTITY_POSE), "camera_angle_x"),
             (Camera::from_camera_angle_x(4, 4, 4.0, IDENTITY_POSE), "camera_angle_x"),
+            (Camera::from_camera_angle_x(4, 4, 1e-30, IDENTITY_POSE), "camera_angle_x"),
+            (Camera::from_pix2cam(4, 4, pinhole_pix2cam(4, 4, 1e-30), IDENTITY_POSE), "horizontal field of view"),
+            (Camera::from_pix2cam(4, 4, pinhole_pix2cam(4, 4, 1e30), IDENTITY_POSE), "horizontal field of view"),
+            (
+                Camera::from_pix2cam(8, 4, [[0.1, 0.0, -0.4], [0.0, -1e-30, 0.2], [0.0, 0.0, -1.0]], IDENTITY_POSE),
+                "vertical",
+            ),
+            (
+                Camera::from_camera_angle_x(
+                    4,
+                    4,
+                    0.9,
+                    [[1e20, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]],
+                ),
+                "x axis",
+            ),
+            (
+                Camera::from_camera_angle_x(
+                    4,
+                    4,
+                    0.9,
+                    [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, -1e20], [0.0, 0.0, 1.0, 0.0]],
+                ),
+                "[1][3]",
+            ),
         ];
         for (res, needle) in cases {
             let msg = res.unwrap_err().to_string();

@@ -33,6 +33,7 @@ pub mod cone;
 pub mod data;
 pub mod linalg;
 pub mod lpips;
+pub mod memory;
 pub mod metrics;
 pub mod mip;
 pub mod mlp;

@@ -177,6 +177,8 @@ struct Act {
 #[derive(Clone, Debug)]
 pub struct Lpips {
     net: Net,
+    /// The weights file, for errors.
+    source: PathBuf,
     layers: Vec<Layer>,
     /// The five linear layers' per-channel weights.
     lin: Vec<Vec<f32>>,
@@ -252,7 +254,20 @@ impl Lpips {
             .enumerate()
             .map(|(l, &c)| tensor(&st, path, &format!("NetLinLayer_{l}/Conv_0/kernel"), &[1, 1, c, 1]))
             .collect::<Result<Vec<_>, _>>()?;
-        Ok(Self { net, layers, lin })
+        // LPIPS v0.1 trains its linear layers with their weights clamped at zero, so that the
+        // distance is a weighted sum of squares; a negative weight means other weights.
+        for (l, w) in lin.iter().enumerate() {
+            if let Some(x) = w.iter().find(|x| **x < 0.0) {
+                return Err(LpipsError::Weights {
+                    path: path.to_path_buf(),
+                    problem: format!(
+                        "tensor \"NetLinLayer_{l}/Conv_0/kernel\" has the negative weight {x}; LPIPS v0.1's linear \
+                         layers are non-negative: these are not its weights"
+                    ),
+                });
+            }
+        }
+        Ok(Self { net, source: path.to_path_buf(), layers, lin })
     }
 
     /// The backbone.
@@ -266,7 +281,8 @@ impl Lpips {
     ///
     /// # Errors
     /// [`LpipsError::Images`] for lengths that do not match the size, non-finite values, or an
-    /// image too small for the backbone (VGG16 needs at least 16 x 16 pixels, AlexNet 31 x 31).
+    /// image too small for the backbone (VGG16 needs at least 16 x 16 pixels, AlexNet 31 x 31);
+    /// [`LpipsError::Weights`] naming the weights file when the distance is not finite.
     pub fn distance(&self, a: &[f32], b: &[f32], width: usize, height: usize) -> Result<f64, LpipsError> {
         for (name, img) in [("first", a), ("second", b)] {
             if img.len() != width * height * 3 {
@@ -287,15 +303,27 @@ impl Lpips {
                 self.net.name()
             )));
         }
-        let taps_a = self.taps(a, width, height, &mut |_, t| Some(t));
+        let (taps_a, finite_a) = self.taps(a, width, height, &mut |_, t| Some(t));
         let mut taps_a = taps_a.into_iter();
         let mut total = 0.0f64;
-        let _ = self.taps(b, width, height, &mut |l, tb| {
+        let (_, finite_b) = self.taps(b, width, height, &mut |l, tb| {
             if let Some(ta) = taps_a.next() {
                 total += tap_distance(&ta, &tb, &self.lin[l]);
             }
             None
         });
+        // A feature vector whose length overflows normalises to zeros, so overflow can give a
+        // finite, meaningless distance: it is refused like a non-finite one.
+        if !(total.is_finite() && finite_a && finite_b) {
+            return Err(LpipsError::Weights {
+                path: self.source.clone(),
+                problem: format!(
+                    "the LPIPS-{} features overflow f32 on these images (distance {total}): these are not LPIPS \
+                     v0.1's weights",
+                    self.net.name()
+                ),
+            });
+        }
         Ok(total)
     }
 
@@ -315,14 +343,14 @@ impl Lpips {
     }
 
     /// Runs the backbone on one image and hands each tap's normalised features to `on_tap`,
-    /// keeping what it returns.
+    /// keeping what it returns; and whether every feature vector's length was finite.
     fn taps(
         &self,
         img: &[f32],
         width: usize,
         height: usize,
         on_tap: &mut dyn FnMut(usize, Act) -> Option<Act>,
-    ) -> Vec<Act> {
+    ) -> (Vec<Act>, bool) {
         let mut x = Act {
             h: height,
             w: width,
@@ -334,19 +362,22 @@ impl Lpips {
         };
         let mut kept = Vec::new();
         let mut tap = 0;
+        let mut finite = true;
         for layer in &self.layers {
             match layer {
                 Layer::Conv(c) => x = conv_relu(&x, c),
                 Layer::Pool { k, stride } => x = max_pool(&x, *k, *stride),
                 Layer::Tap => {
-                    if let Some(t) = on_tap(tap, normalise(&x)) {
+                    let (t, ok) = normalise(&x);
+                    finite &= ok;
+                    if let Some(t) = on_tap(tap, t) {
                         kept.push(t);
                     }
                     tap += 1;
                 }
             }
         }
-        kept
+        (kept, finite)
     }
 }
 
@@ -410,15 +441,19 @@ fn max_pool(x: &Act, k: usize, stride: usize) -> Act {
 }
 
 /// Every pixel's feature vector divided by its norm plus [`NORM_EPS`].
-fn normalise(x: &Act) -> Act {
+fn normalise(x: &Act) -> (Act, bool) {
     let mut v = x.v.clone();
+    let finite = std::sync::atomic::AtomicBool::new(true);
     v.par_chunks_mut(x.c).for_each(|f| {
         let norm = f.iter().map(|a| a * a).sum::<f32>().sqrt() + NORM_EPS;
+        if !norm.is_finite() {
+            finite.store(false, std::sync::atomic::Ordering::Relaxed);
+        }
         for a in f {
             *a /= norm;
         }
     });
-    Act { v, ..*x }
+    (Act { v, ..*x }, finite.into_inner())
 }
 
 /// The linear layer's weighted squared difference, averaged over the tap's pixels.

@@ -3,6 +3,20 @@
 
 use glam::Vec3;
 
+/// `x` limited to `[lo, hi]`, as `f32::clamp` for ordered bounds, without its panic when the
+/// bounds are NaN or reversed (values at the edge of `f32`'s range): then `x` passes through
+/// whichever test it fails first.
+#[must_use]
+pub(crate) fn clamp_to(x: f32, lo: f32, hi: f32) -> f32 {
+    if x < lo {
+        lo
+    } else if x > hi {
+        hi
+    } else {
+        x
+    }
+}
+
 /// What [`volumetric_rendering`] returns for one ray.
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
 pub struct RenderedRay {
@@ -67,7 +81,7 @@ pub fn volumetric_rendering(
     } else {
         d
     };
-    out.distance = d.clamp(t_vals[0], t_vals[n]);
+    out.distance = clamp_to(d, t_vals[0], t_vals[n]);
     if white_bkgd {
         for c in &mut out.rgb {
             *c += 1.0 - out.acc;

@@ -74,7 +74,7 @@ pub fn sample_along_segments(spans: &[[f32; 2]], lindisp: bool, jitter: Option<R
             start += spans[k][1] - spans[k][0];
             k += 1;
         }
-        *t = (spans[k][0] + (*t - start)).clamp(spans[k][0], spans[k][1]);
+        *t = crate::render::clamp_to(spans[k][0] + (*t - start), spans[k][0], spans[k][1]);
     }
 }
 

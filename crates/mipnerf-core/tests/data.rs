@@ -456,7 +456,7 @@ fn multiscale_numbers_are_checked_and_each_error_names_the_key_and_the_index() {
                 v["train"].as_object_mut().unwrap().remove("pix2cam");
                 v["train"]["focal"][4] = json!(-20.0);
             }),
-            "train entry 4 \"focal\" must be positive, got -20",
+            "train entry 4 \"focal\" is -20 pixels",
         ),
         (Box::new(|v| v["train"]["lossmult"][6] = json!(-4.0)), "train entry 6 \"lossmult\" must be positive"),
         (Box::new(|v| v["train"]["lossmult"][0] = json!(0.0)), "train entry 0 \"lossmult\" must be positive"),

@@ -5,7 +5,16 @@ use std::process::Command;
 
 /// Runs the binary with `args` and returns what it did.
 pub fn mipnerf(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_mipnerf")).args(args).env("XDG_RUNTIME_DIR", "/tmp").output().unwrap()
+    command().args(args).output().unwrap()
+}
+
+/// The binary as a new user on a clean machine has it: no LPIPS weights in the per-user cache
+/// (it points to an empty folder) and none named by the environment.
+pub fn command() -> Command {
+    let empty_cache = std::env::temp_dir().join("mipnerf-tests-empty-cache");
+    let mut c = Command::new(env!("CARGO_BIN_EXE_mipnerf"));
+    c.env("XDG_RUNTIME_DIR", "/tmp").env("XDG_CACHE_HOME", empty_cache).env_remove("MIPNERF_LPIPS_WEIGHTS");
+    c
 }
 
 /// A 16-pixel demo scene of `train_views` training views and one test view in `dir/data`.

@@ -6,7 +6,10 @@
 
 use std::path::{Path, PathBuf};
 
-use super::{DataError, Dataset, Pixels, Split, View, down2, pose_from_json, read_json, read_png_rgba};
+use super::{
+    DataError, Dataset, Pixels, Split, View, check_pixel_memory, down2, image_pixels, pose_from_json, read_json,
+    read_png_rgba,
+};
 use crate::camera::Camera;
 
 /// Near bound of the Blender scenes.
@@ -71,6 +74,11 @@ pub fn read_transforms(dir: &Path, split: Split) -> Result<(f64, Vec<Frame>), Da
 pub fn load(dir: &Path, split: Split, white_bkgd: bool, half_res: bool) -> Result<Dataset, DataError> {
     let (angle, frames) = read_transforms(dir, split)?;
     let json = dir.join(format!("transforms_{split}.json"));
+    let mut pixels = 0u64;
+    for fr in &frames {
+        pixels += image_pixels(&fr.file)?;
+    }
+    check_pixel_memory(&json, pixels, frames.len())?;
     let mut views = Vec::with_capacity(frames.len());
     let mut size = None;
     for (i, fr) in frames.iter().enumerate() {

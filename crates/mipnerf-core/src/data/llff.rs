@@ -13,7 +13,7 @@ use std::path::Path;
 
 use glam::{DMat3, DVec3};
 
-use super::{DataError, Dataset, Ndc, Pixels, Split, View, read_png_rgba};
+use super::{DataError, Dataset, Ndc, Pixels, Split, View, check_pixel_memory, image_pixels, read_png_rgba};
 use crate::camera::{Camera, PixelCenters, pinhole_pix2cam};
 use crate::cone::{Ray, radius_from_spacing};
 
@@ -220,6 +220,11 @@ pub fn load(dir: &Path, split: Split, factor: u32, spherical: bool) -> Result<Da
             format!("{} images but poses_bounds.npy has {} poses", files.len(), rows.len()),
         ));
     }
+    let mut pixels = 0u64;
+    for f in &files {
+        pixels += image_pixels(f)?;
+    }
+    check_pixel_memory(&imgdir, pixels, files.len())?;
     let mut images: Vec<LlffImage> = Vec::with_capacity(files.len());
     for f in files {
         let (w, h, rgba, _) = read_png_rgba(&f)?;

@@ -67,7 +67,15 @@ impl DataError {
 }
 
 /// Reads and parses a JSON file, with errors naming the file (and the line for syntax errors).
+/// Bytes of parsed JSON (`serde_json::Value`s, 32 bytes each, and their lists) per byte of
+/// text, at most: a list of one-digit numbers is 2 bytes of text a value. The text itself is one
+/// more.
+const JSON_BYTES_PER_TEXT_BYTE: u64 = 17;
+
 pub(crate) fn read_json(path: &Path) -> Result<serde_json::Value, DataError> {
+    let len = std::fs::metadata(path).map_err(|e| DataError::io(path, e))?.len();
+    crate::memory::check(len.saturating_mul(JSON_BYTES_PER_TEXT_BYTE), &format!("parsing this {len}-byte file"))
+        .map_err(|e| DataError::invalid(path, e))?;
     let text = std::fs::read_to_string(path).map_err(|e| DataError::io(path, e))?;
     serde_json::from_str(&text).map_err(|e| DataError::invalid(path, format!("malformed JSON: {e}")))
 }
@@ -486,6 +494,22 @@ pub(crate) fn read_png_rgba(path: &Path) -> Result<(u32, u32, Vec<u8>, u8), Data
     Ok((rgba.width(), rgba.height(), rgba.into_raw(), channels))
 }
 
+/// Checks that `pixels` images' worth of straight RGBA8 (4 bytes a pixel, as loaded) fits in
+/// memory before any is decoded; `path` names the dataset file in the error.
+pub(crate) fn check_pixel_memory(path: &Path, pixels: u64, images: usize) -> Result<(), DataError> {
+    crate::memory::check(pixels.saturating_mul(4), &format!("loading {images} images of {pixels} pixels in all"))
+        .map_err(|e| {
+            DataError::invalid(path, format!("{e}; train on fewer or smaller images (`mipnerf convert --size`)"))
+        })
+}
+
+/// The pixel count of an image from its header, without decoding it.
+pub(crate) fn image_pixels(path: &Path) -> Result<u64, DataError> {
+    let (w, h) = image::image_dimensions(path)
+        .map_err(|e| DataError::invalid(path, format!("cannot decode the image (reading its size): {e}")))?;
+    Ok(u64::from(w) * u64::from(h))
+}
+
 /// Writes straight RGBA8 as a PNG.
 pub(crate) fn write_png_rgba(path: &Path, width: u32, height: u32, rgba: &[u8]) -> Result<(), DataError> {
     image::save_buffer(path, rgba, width, height, image::ExtendedColorType::Rgba8)
@@ -493,6 +517,13 @@ pub(crate) fn write_png_rgba(path: &Path, width: u32, height: u32, rgba: &[u8]) 
 }
 
 /// A 3x4 camera-to-world matrix from a JSON 4x4 (or 3x4) array, checked for finiteness.
+/// A number as an error message shows it: plainly between 1e-3 and 1e7 (and 0), else in
+/// scientific notation (`3e38`, not 39 digits).
+#[must_use]
+pub(crate) fn show(x: f64) -> String {
+    if x == 0.0 || (1e-3..1e7).contains(&x.abs()) { format!("{x}") } else { format!("{x:e}") }
+}
+
 pub(crate) fn pose_from_json(v: &serde_json::Value, path: &Path, what: &str) -> Result<[[f64; 4]; 3], DataError> {
     let rows = v.as_array().filter(|r| r.len() == 4 || r.len() == 3);
     let rows = rows.ok_or_else(|| DataError::invalid(path, format!("{what}: expected a 4x4 matrix")))?;

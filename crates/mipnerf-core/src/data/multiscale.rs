@@ -10,9 +10,10 @@ use std::path::Path;
 use serde_json::{Value, json};
 
 use super::{
-    DataError, Dataset, Pixels, Split, View, blender, down2, pose_from_json, read_json, read_png_rgba, write_png_rgba,
+    DataError, Dataset, Pixels, Split, View, blender, check_pixel_memory, down2, pose_from_json, read_json,
+    read_png_rgba, show, write_png_rgba,
 };
-use crate::camera::{Camera, pinhole_pix2cam};
+use crate::camera::{Camera, MAX_FIELD_OF_VIEW_DEG, MAX_SCENE_COORDINATE, MIN_FIELD_OF_VIEW_DEG, pinhole_pix2cam};
 
 /// Scales the official converter writes.
 pub const NUM_SCALES: u32 = 4;
@@ -222,6 +223,28 @@ fn integer(v: &Value, path: &Path, what: &str, lo: u32, hi: u32) -> Result<u32, 
     Ok(x as u32)
 }
 
+/// The largest `lossmult` accepted: the area weight `4^j` of scale 10 (the format has 4 scales);
+/// larger weights overflow the loss's `f32` sums.
+pub const MAX_LOSSMULT: f64 = 1_048_576.0;
+
+/// `focal` (pixels) if positive and giving a field of view within the camera's accepted range.
+fn checked_focal(focal: f64, width: u32, path: &Path, what: &str) -> Result<f64, DataError> {
+    let fov = (2.0 * (0.5 * f64::from(width) / focal).atan()).to_degrees();
+    if focal > 0.0 && (MIN_FIELD_OF_VIEW_DEG..=MAX_FIELD_OF_VIEW_DEG).contains(&fov) {
+        return Ok(focal);
+    }
+    let lo = 0.5 * f64::from(width) / (0.5 * MAX_FIELD_OF_VIEW_DEG.to_radians()).tan();
+    let hi = 0.5 * f64::from(width) / (0.5 * MIN_FIELD_OF_VIEW_DEG.to_radians()).tan();
+    Err(DataError::invalid(
+        path,
+        format!(
+            "{what} is {} pixels; for a {width}-pixel-wide image it must be between {lo:.4} and {hi:.4e} \
+             ({MAX_FIELD_OF_VIEW_DEG} to {MIN_FIELD_OF_VIEW_DEG} degrees of field of view)",
+            show(focal)
+        ),
+    ))
+}
+
 fn number(v: &Value, path: &Path, what: &str) -> Result<f64, DataError> {
     v.as_f64()
         .filter(|x| x.is_finite())
@@ -256,6 +279,15 @@ pub fn load(dir: &Path, split: Split, white_bkgd: bool) -> Result<Dataset, DataE
         if meta.get(key).is_some() { list(meta, key, n, &path, split).map(Some) } else { Ok(None) }
     };
     let (labels, pix2cams, focals) = (optional("label")?, optional("pix2cam")?, optional("focal")?);
+    // Every image's size is in the metadata: check that they fit in memory before decoding any.
+    let mut pixels = 0u64;
+    for i in 0..files.len() {
+        let what = |k: &str| format!("{split} entry {i} \"{k}\"");
+        let w = integer(&widths[i], &path, &what("width"), 1, MAX_SIDE)?;
+        let h = integer(&heights[i], &path, &what("height"), 1, MAX_SIDE)?;
+        pixels += u64::from(w) * u64::from(h);
+    }
+    check_pixel_memory(&path, pixels, files.len())?;
     let mut views = Vec::with_capacity(files.len());
     for i in 0..files.len() {
         let what = |k: &str| format!("{split} entry {i} \"{k}\"");
@@ -266,7 +298,12 @@ pub fn load(dir: &Path, split: Split, white_bkgd: bool) -> Result<Dataset, DataE
         let w = integer(&widths[i], &path, &what("width"), 1, MAX_SIDE)?;
         let h = integer(&heights[i], &path, &what("height"), 1, MAX_SIDE)?;
         let pose = pose_from_json(&c2w[i], &path, &what("cam2world"))?;
-        let pix2cam = match (pix2cams.and_then(|p| p.get(i)), focals.and_then(|f| f.get(i))) {
+        // "focal" is checked wherever it is given, even when "pix2cam" (which wins) makes it unused.
+        let focal = match focals.and_then(|f| f.get(i)) {
+            Some(f) => Some(checked_focal(number(f, &path, &what("focal"))?, w, &path, &what("focal"))?),
+            None => None,
+        };
+        let pix2cam = match (pix2cams.and_then(|p| p.get(i)), focal) {
             (Some(p), _) => {
                 let rows = p
                     .as_array()
@@ -284,13 +321,7 @@ pub fn load(dir: &Path, split: Split, white_bkgd: bool) -> Result<Dataset, DataE
                 }
                 m
             }
-            (None, Some(f)) => {
-                let focal = number(f, &path, &what("focal"))?;
-                if focal <= 0.0 {
-                    return Err(DataError::invalid(&path, format!("{} must be positive, got {focal}", what("focal"))));
-                }
-                pinhole_pix2cam(w, h, focal)
-            }
+            (None, Some(focal)) => pinhole_pix2cam(w, h, focal),
             (None, None) => return Err(DataError::invalid(&path, format!("{split}: needs \"pix2cam\" or \"focal\""))),
         };
         let camera = Camera::from_pix2cam(w, h, pix2cam, pose)
@@ -310,17 +341,26 @@ pub fn load(dir: &Path, split: Split, white_bkgd: bool) -> Result<Dataset, DataE
             None => 0,
         };
         let (near, far) = (number(&nears[i], &path, &what("near"))?, number(&fars[i], &path, &what("far"))?);
-        if near <= 0.0 || far <= near {
+        if near <= 0.0 || far <= near || far > MAX_SCENE_COORDINATE {
             return Err(DataError::invalid(
                 &path,
-                format!("{split} entry {i}: \"near\" {near} and \"far\" {far}: need 0 < near < far"),
+                format!(
+                    "{split} entry {i}: \"near\" {} and \"far\" {}: need 0 < near < far <= {MAX_SCENE_COORDINATE:e}",
+                    show(near),
+                    show(far)
+                ),
             ));
         }
         let lossmult = number(&lossmults[i], &path, &what("lossmult"))?;
-        if lossmult <= 0.0 {
+        if !(lossmult > 0.0 && lossmult <= MAX_LOSSMULT) {
             return Err(DataError::invalid(
                 &path,
-                format!("{} must be positive (a pixel's weight in the loss), got {lossmult}", what("lossmult")),
+                format!(
+                    "{} must be positive and at most {MAX_LOSSMULT:e} (a pixel's weight in the loss: its area, 4^scale), \
+                     got {}",
+                    what("lossmult"),
+                    show(lossmult)
+                ),
             ));
         }
         views.push(View {

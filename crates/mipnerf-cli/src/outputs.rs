@@ -1,0 +1,140 @@
+//! Output folders that never replace a user's files: `render --out DIR` and `figure --out FILE`
+//! write only where mipnerf wrote before, or where nothing is.
+//!
+//! Every folder mipnerf writes outputs into gets a manifest ([`MANIFEST`]): the names of the files
+//! it wrote there, recorded before they are written (so an interrupted render can be redone).
+//! A folder that holds any file not in its manifest, such as a dataset's ground-truth images, is
+//! refused unless `--overwrite` is given.
+
+use std::collections::BTreeSet;
+use std::path::Path;
+
+use anyhow::{Context, Result, bail};
+
+/// The manifest's file name, in the output folder.
+pub const MANIFEST: &str = ".mipnerf-outputs";
+
+/// How many foreign names an error lists.
+const NAMES_SHOWN: usize = 5;
+
+/// The names the manifest of `dir` lists (none when it has no manifest).
+fn recorded(dir: &Path) -> Result<BTreeSet<String>> {
+    let path = dir.join(MANIFEST);
+    match std::fs::read_to_string(&path) {
+        Ok(text) => Ok(text.lines().filter(|l| !l.is_empty()).map(str::to_owned).collect()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(BTreeSet::new()),
+        Err(e) => Err(e).with_context(|| format!("reading {}", path.display())),
+    }
+}
+
+fn list(names: &[String]) -> String {
+    let mut shown: Vec<&str> = names.iter().take(NAMES_SHOWN).map(String::as_str).collect();
+    if names.len() > NAMES_SHOWN {
+        shown.push("...");
+    }
+    shown.join(", ")
+}
+
+/// Checks that `dir` may receive outputs: it does not exist, or everything in it was written by
+/// mipnerf (its manifest lists it), or `overwrite` is set.
+///
+/// # Errors
+/// A folder holding files mipnerf did not write (naming some of them and the way out), or an
+/// unreadable folder.
+pub fn check_dir(dir: &Path, flag: &str, overwrite: bool) -> Result<()> {
+    if overwrite || !dir.exists() {
+        return Ok(());
+    }
+    if !dir.is_dir() {
+        bail!("{flag} {} is a file, not a folder", dir.display());
+    }
+    let ours = recorded(dir)?;
+    let mut foreign = Vec::new();
+    for entry in std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))? {
+        let name =
+            entry.with_context(|| format!("reading {}", dir.display()))?.file_name().to_string_lossy().to_string();
+        if name != MANIFEST && !ours.contains(&name) {
+            foreign.push(name);
+        }
+    }
+    foreign.sort();
+    if !foreign.is_empty() {
+        bail!(
+            "{flag} {} holds {} file(s) that mipnerf did not write ({}); writing there could replace them. \
+             Choose a new or empty folder, or pass --overwrite to write there anyway (files of the same name are replaced)",
+            dir.display(),
+            foreign.len(),
+            list(&foreign)
+        );
+    }
+    Ok(())
+}
+
+/// Checks that the file `path` may be written: it does not exist, or mipnerf wrote it (its
+/// folder's manifest lists it), or `overwrite` is set.
+///
+/// # Errors
+/// An existing file mipnerf did not write, or an unreadable manifest.
+pub fn check_file(path: &Path, flag: &str, overwrite: bool) -> Result<()> {
+    if overwrite || !path.exists() {
+        return Ok(());
+    }
+    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let name = path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
+    if path.is_dir() || !recorded(dir)?.contains(&name) {
+        bail!(
+            "{flag} {} already exists and mipnerf did not write it; choose another name, or pass --overwrite to replace it",
+            path.display()
+        );
+    }
+    Ok(())
+}
+
+/// Adds `names` to the manifest of `dir` (created if needed), written to a temporary file and
+/// renamed so that a crash never leaves a half-written manifest.
+///
+/// # Errors
+/// An unwritable folder.
+pub fn record(dir: &Path, names: impl IntoIterator<Item = String>) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let mut all = recorded(dir)?;
+    let before = all.len();
+    all.extend(names);
+    if all.len() == before && dir.join(MANIFEST).exists() {
+        return Ok(());
+    }
+    let text: String = all.iter().map(|n| format!("{n}\n")).collect();
+    let path = dir.join(MANIFEST);
+    let tmp = dir.join(format!("{MANIFEST}.tmp"));
+    std::fs::write(&tmp, text).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, &path).with_context(|| format!("writing {}", path.display()))?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+
+    #[test]
+    fn a_folder_is_ours_only_when_its_manifest_lists_everything_in_it() {
+        let t = tempfile::tempdir().unwrap();
+        let dir = t.path().join("out");
+        check_dir(&dir, "--out", false).unwrap();
+        record(&dir, ["a.png".to_owned(), "b.exr".to_owned()]).unwrap();
+        std::fs::write(dir.join("a.png"), b"x").unwrap();
+        check_dir(&dir, "--out", false).unwrap();
+        check_file(&dir.join("a.png"), "--out", false).unwrap();
+        std::fs::write(dir.join("photo.jpg"), b"mine").unwrap();
+        let e = check_dir(&dir, "--out", false).unwrap_err().to_string();
+        assert!(e.contains("photo.jpg") && e.contains("--overwrite"), "{e}");
+        check_dir(&dir, "--out", true).unwrap();
+        let e = check_file(&dir.join("photo.jpg"), "--out", false).unwrap_err().to_string();
+        assert!(e.contains("photo.jpg") && e.contains("did not write"), "{e}");
+        check_file(&dir.join("photo.jpg"), "--out", true).unwrap();
+        // Recording is a union, and the manifest holds no temporary file afterwards.
+        record(&dir, ["c.png".to_owned()]).unwrap();
+        assert_eq!(recorded(&dir).unwrap().len(), 3);
+        assert!(!dir.join(format!("{MANIFEST}.tmp")).exists());
+    }
+}
