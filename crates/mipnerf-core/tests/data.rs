@@ -524,3 +524,65 @@ proptest::proptest! {
         }
     }
 }
+
+/// A value at an extreme of `f64`: 0, a subnormal, `f64::MAX`, or `±10^e` for `e` in -320..=308.
+fn extreme() -> impl proptest::strategy::Strategy<Value = f64> {
+    use proptest::prelude::*;
+    prop_oneof![
+        Just(0.0),
+        Just(f64::MAX),
+        Just(f64::MIN_POSITIVE / 4.0),
+        (any::<bool>(), -320i32..=308).prop_map(|(neg, e)| if neg { -(10f64.powi(e)) } else { 10f64.powi(e) }),
+    ]
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig {
+        cases: fuzz_cases(),
+        failure_persistence: None,
+        ..Default::default()
+    })]
+    // Property (issue 29): a numeric field of metadata.json set to an extreme finite value either
+    // fails to load with an error naming metadata.json, or the scene trains a step and renders a
+    // view without panicking.
+    #[test]
+    fn extreme_numbers_in_metadata_are_refused_or_train_and_render_without_panic(
+        field in 0usize..6,
+        entry in 0usize..4,
+        slot in 0usize..12,
+        value in extreme(),
+    ) {
+        use std::sync::Arc;
+        use mipnerf_core::backend::{Backend, CpuBackend, ImageSpec, TrainState};
+        use mipnerf_core::model::{Model, Preset};
+        let dir = tempfile::tempdir().unwrap();
+        demo::write_demo_scene(dir.path(), &demo::DemoConfig { size: 16, train_views: 1, test_views: 1, supersample: 1 })
+            .unwrap();
+        let path = dir.path().join("metadata.json");
+        let mut m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        let e = &mut m["train"];
+        let key = ["near", "far", "focal", "lossmult", "cam2world", "pix2cam"][field];
+        match key {
+            "cam2world" => e[key][entry][slot / 4][slot % 4] = serde_json::json!(value),
+            "pix2cam" => e[key][entry][slot % 3][slot / 4 % 3] = serde_json::json!(value),
+            _ => e[key][entry] = serde_json::json!(value),
+        }
+        std::fs::write(&path, m.to_string()).unwrap();
+        let ds = match data::load(dir.path(), Split::Train, &LoadOptions::default()) {
+            Ok(ds) => ds,
+            Err(err) => {
+                let msg = err.to_string();
+                proptest::prop_assert!(msg.contains("metadata.json"), "{key} = {value}: {msg}");
+                return Ok(());
+            }
+        };
+        let model = Model::new(Preset::Tiny.config()).unwrap();
+        let state = TrainState::fresh(&model, 0);
+        let image = ImageSpec::of_view(&ds, entry.min(ds.views().len() - 1), 1);
+        let mut be = CpuBackend::new(model, mipnerf_core::train::OptimConfig::default(), 0, state)
+            .unwrap()
+            .with_data(Arc::new(ds), 16);
+        let _ = be.train_step(true);
+        let _ = be.render_image(&image);
+    }
+}
