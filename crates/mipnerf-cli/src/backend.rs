@@ -30,7 +30,7 @@ pub fn open(
     let opened =
         open_backend(c, setup).with_context(|| format!("--backend {}", format!("{choice:?}").to_lowercase()))?;
     if let Some(why) = &opened.fallback {
-        eprintln!("backend auto: {why}; using the CPU");
+        say_once(format!("backend auto: {why}; using the CPU"));
     }
     let mut be = opened.backend;
     let ran = match precision {
@@ -57,8 +57,19 @@ pub fn open(
             },
         },
     };
-    eprintln!("backend: {}", be.describe());
+    say_once(format!("backend: {}", be.describe()));
     Ok((be, ran))
+}
+
+/// Prints `line` to standard error unless this process has printed it already (the demo opens a
+/// backend for each of its phases; the choice is said once).
+fn say_once(line: String) {
+    static SAID: std::sync::Mutex<Vec<String>> = std::sync::Mutex::new(Vec::new());
+    let mut said = SAID.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    if !said.contains(&line) {
+        eprintln!("{line}");
+        said.push(line);
+    }
 }
 
 /// The GPU flags of every command that takes `--backend`.

@@ -138,7 +138,12 @@ pub fn eval(
     let lpips_absent = lpips_absent.as_deref();
     let ds = load_split(&s, split)?;
     let (mut be, step, precision) = open_trained(run, &s, backend, precision)?;
-    let out = run.join("eval");
+    // Everything goes to eval.partial/, renamed to eval/ once whole: an interrupted or failed
+    // eval leaves the previous results as they were and nothing that looks complete.
+    let out = run.join(EVAL_PARTIAL);
+    if out.is_dir() {
+        std::fs::remove_dir_all(&out).with_context(|| format!("removing the unfinished {}", out.display()))?;
+    }
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     let k = be.model().config().supersample;
     let levels = be.model().config().num_levels;
@@ -237,8 +242,47 @@ pub fn eval(
     save_keeping_the_old(&out.join("metrics.md"), markdown(&metrics).as_bytes())?;
     let bars: Vec<(String, u32, f64)> = metrics.per_image.iter().map(|i| (i.file.clone(), i.scale, i.psnr)).collect();
     crate::plot::psnr_bars(&out.join("psnr_per_image.png"), &bars)?;
+    crate::plot::colour_bar(
+        &out.join("error_scale.png"),
+        "error |render - truth|",
+        0.0,
+        f64::from(crate::html::ERROR_MAP_MAX),
+        crate::images::turbo,
+    )?;
     crate::html::write_index(&out, run, &metrics, &entries)?;
+    swap_in(&out, &run.join(EVAL))?;
     Ok(metrics)
+}
+
+/// The folder `eval` writes.
+pub const EVAL: &str = "eval";
+
+/// Where `eval` writes until it has finished.
+const EVAL_PARTIAL: &str = "eval.partial";
+
+/// Puts the finished `partial` folder in place of `dest`: `dest` is renamed aside (`.old`),
+/// `partial` renamed to `dest`, and the old one removed. A failure before the second rename
+/// leaves `dest` as it was, and the error says so.
+///
+/// # Errors
+/// A rename that fails.
+fn swap_in(partial: &Path, dest: &Path) -> Result<()> {
+    let mut old = dest.as_os_str().to_owned();
+    old.push(".old");
+    let old = std::path::PathBuf::from(old);
+    let unchanged =
+        || format!("{} (the previous results) is unchanged; the new ones are in {}", dest.display(), partial.display());
+    if old.is_dir() {
+        std::fs::remove_dir_all(&old).with_context(|| format!("removing {}; {}", old.display(), unchanged()))?;
+    }
+    if dest.exists() {
+        std::fs::rename(dest, &old).with_context(|| format!("moving {} aside; {}", dest.display(), unchanged()))?;
+    }
+    std::fs::rename(partial, dest).with_context(|| format!("renaming {} to {}", partial.display(), dest.display()))?;
+    if old.is_dir() {
+        std::fs::remove_dir_all(&old).with_context(|| format!("removing {}", old.display()))?;
+    }
+    Ok(())
 }
 
 /// The paper's table layout: PSNR, SSIM and LPIPS per scale, then the average error.

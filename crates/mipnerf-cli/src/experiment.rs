@@ -11,8 +11,6 @@
 //! table.
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
-use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
@@ -237,7 +235,7 @@ fn comparable(s: &TrainSettings) -> TrainSettings {
 /// # Errors
 /// Bad experiment files, data of the wrong size, a run directory made with other settings, and
 /// every error of training and evaluation.
-pub fn experiment(args: &ExperimentArgs, stop: Arc<AtomicBool>) -> Result<()> {
+pub fn experiment(args: &ExperimentArgs) -> Result<()> {
     let (exp, rows) = read(&args.dir)?;
     for o in &args.only {
         if !exp.rows.contains(o) {
@@ -265,9 +263,9 @@ pub fn experiment(args: &ExperimentArgs, stop: Arc<AtomicBool>) -> Result<()> {
         std::fs::create_dir_all(&results).with_context(|| results.display().to_string())?;
         for (id, row) in rows.iter().filter(|(id, _)| args.only.is_empty() || args.only.contains(id)) {
             let settings = TrainSettings { data: Some(data.clone()), ..exp.protocol.overridden_by(&row.settings) };
-            if !run_row(id, row, &settings, &out.join(id), &results, &args.lpips, &stop)? {
+            if !run_row(id, row, &settings, &out.join(id), &results, &args.lpips)? {
                 eprintln!("experiment interrupted in row {id}; run the same command again to continue");
-                std::process::exit(130);
+                std::process::exit(crate::signals::EXIT_INTERRUPTED);
             }
             write_table(&args.dir, &exp)?;
         }
@@ -285,7 +283,6 @@ fn run_row(
     run_dir: &Path,
     results: &Path,
     lpips: &LpipsWeights,
-    stop: &Arc<AtomicBool>,
 ) -> Result<bool> {
     let steps = settings.resolved(false).steps.unwrap_or(2000);
     let budget = settings.time_budget_seconds()?;
@@ -326,8 +323,7 @@ fn run_row(
             ),
             None => println!("== row {id} ({}): training, {} of {steps} steps done", row.label, done_steps),
         }
-        let outcome =
-            run::train(run_dir, Some(settings.clone()), TrainSettings::default(), done_steps > 0, Arc::clone(stop))?;
+        let outcome = run::train(run_dir, Some(settings.clone()), TrainSettings::default(), done_steps > 0)?;
         if outcome.interrupted {
             return Ok(false);
         }

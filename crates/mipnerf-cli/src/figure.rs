@@ -66,7 +66,7 @@ fn read_metrics(run: &Path) -> Result<serde_json::Value> {
 }
 
 /// The chosen view's entry at every scale: `(data file, scale, psnr)`.
-fn view_entries(m: &serde_json::Value, view: usize, path: &Path) -> Result<Vec<(String, Option<f64>)>> {
+fn view_entries(m: &serde_json::Value, view: usize, path: &Path) -> Result<Vec<(String, u64, Option<f64>)>> {
     let per_image = m["per_image"].as_array().with_context(|| format!("{}: no per_image list", path.display()))?;
     let mut scales: Vec<u64> = per_image.iter().filter_map(|i| i["scale"].as_u64()).collect();
     scales.sort_unstable();
@@ -79,13 +79,14 @@ fn view_entries(m: &serde_json::Value, view: usize, path: &Path) -> Result<Vec<(
                 format!("{}: view {view} does not exist at scale {s} ({} views)", path.display(), at.len())
             })?;
             let file = e["file"].as_str().with_context(|| format!("{}: an image without a file", path.display()))?;
-            Ok((file.to_string(), e["psnr"].as_f64()))
+            Ok((file.to_string(), s, e["psnr"].as_f64()))
         })
         .collect()
 }
 
-/// The crop window (fractions) where `a`'s squared error exceeds `b`'s the most.
-fn pick_crop(gt: &Img, a: &Img, b: &Img, side: f64) -> (f64, f64, f64) {
+/// The crop window (fractions) where `a`'s squared error exceeds `b`'s the most, or without `b`
+/// where `a`'s is largest.
+fn pick_crop(gt: &Img, a: &Img, b: Option<&Img>, side: f64) -> (f64, f64, f64) {
     let win = ((gt.w.min(gt.h) as f64 * side).round() as usize).max(1);
     let err = |img: &Img, x: usize, y: usize| -> f32 {
         let (p, q) = (img.px(x, y), gt.px(x, y));
@@ -97,7 +98,7 @@ fn pick_crop(gt: &Img, a: &Img, b: &Img, side: f64) -> (f64, f64, f64) {
             let mut s = 0.0;
             for y in y0..y0 + win {
                 for x in x0..x0 + win {
-                    s += err(a, x, y) - err(b, x, y);
+                    s += err(a, x, y) - b.map_or(0.0, |b| err(b, x, y));
                 }
             }
             if s > best.0 {
@@ -128,10 +129,12 @@ pub fn figure(args: &FigureArgs) -> Result<FigureSummary> {
     let mut columns = Vec::new();
     let mut summary = Vec::new();
     let mut gt_files: Option<Vec<String>> = None;
+    let mut scales = Vec::new();
     for (k, run) in args.runs.iter().enumerate() {
         let m = read_metrics(run)?;
         let entries = view_entries(&m, args.view, &run.join("eval/metrics.json"))?;
         let files: Vec<String> = entries.iter().map(|e| e.0.clone()).collect();
+        scales = entries.iter().map(|e| e.1).collect();
         match &gt_files {
             None => gt_files = Some(files.clone()),
             Some(g) if *g != files => {
@@ -152,7 +155,7 @@ pub fn figure(args: &FigureArgs) -> Result<FigureSummary> {
         let per_scale =
             m["per_scale"].as_array().map_or_else(Vec::new, |a| a.iter().filter_map(|s| s["psnr"].as_f64()).collect());
         summary.push((title.clone(), per_scale));
-        columns.push(Column { title, images, psnr: entries.iter().map(|e| e.1).collect() });
+        columns.push(Column { title, images, psnr: entries.iter().map(|e| e.2).collect() });
     }
     let gt_files = gt_files.unwrap_or_default();
     let gt = Column {
@@ -163,10 +166,11 @@ pub fn figure(args: &FigureArgs) -> Result<FigureSummary> {
     let coarsest = gt_files.len() - 1;
     let crop = args.crop.unwrap_or_else(|| {
         let (a, b) = (&columns[0].images[coarsest], &columns[columns.len() - 1].images[coarsest]);
-        pick_crop(&gt.images[coarsest], a, b, 0.3)
+        // With one run, where its error is largest (the detail it has not learnt yet).
+        pick_crop(&gt.images[coarsest], a, (columns.len() > 1).then_some(b), 0.3)
     });
     columns.insert(0, gt);
-    draw(args, &columns, crop)?;
+    draw(args, &columns, &scales, crop)?;
     Ok(FigureSummary { runs: summary })
 }
 
@@ -174,7 +178,7 @@ const HEADER: u32 = 34;
 const ROW_LABEL: u32 = 30;
 const GAP: u32 = 4;
 
-fn draw(args: &FigureArgs, columns: &[Column], crop: (f64, f64, f64)) -> Result<()> {
+fn draw(args: &FigureArgs, columns: &[Column], scales: &[u64], crop: (f64, f64, f64)) -> Result<()> {
     crate::plot::ensure_font();
     let n_cols = columns.len() as u32 * 2;
     let n_rows = columns[0].images.len() as u32;
@@ -235,9 +239,13 @@ fn draw(args: &FigureArgs, columns: &[Column], crop: (f64, f64, f64)) -> Result<
                 }
             }
         }
-        for (r, img) in columns[0].images.iter().enumerate() {
+        // Each row's scale and the size of the renders shown in it (the first run's column).
+        for (r, img) in columns[1].images.iter().enumerate() {
             let y0 = (HEADER + r as u32 * (cell + GAP) + cell / 2) as i32;
-            let scale = if r == 0 { "full".to_string() } else { format!("1/{}", 1 << r) };
+            let scale = match scales.get(r).copied().unwrap_or(0) {
+                0 => "full".to_string(),
+                s => format!("1/{}", 1u64 << s.min(63)),
+            };
             let style = small.clone().transform(FontTransform::Rotate270);
             root.draw(&Text::new(format!("{scale}, {} px", img.w), (6, y0 + 40), style)).map_err(|e| err(&e))?;
         }

@@ -32,16 +32,20 @@ fn scale_name(s: u32) -> String {
     if s == 0 { "full".to_string() } else { format!("1/{}", 1u32 << s) }
 }
 
+/// The error an error map's top colour stands for (and above).
+pub const ERROR_MAP_MAX: f32 = 0.25;
+
 /// The error map of a render: per pixel, the mean absolute difference over the channels, 0 to
 /// 0.25 (and above) mapped through the turbo colour map; RGB8.
 #[must_use]
 pub fn error_map(render: &[f32], truth: &[f32]) -> Vec<u8> {
+    let max = ERROR_MAP_MAX;
     render
         .chunks_exact(3)
         .zip(truth.chunks_exact(3))
         .flat_map(|(a, b)| {
             let e = a.iter().zip(b).map(|(x, y)| (x - y).abs()).sum::<f32>() / 3.0;
-            crate::images::turbo((e / 0.25).clamp(0.0, 1.0))
+            crate::images::turbo((e / max).clamp(0.0, 1.0))
         })
         .collect()
 }
@@ -95,6 +99,7 @@ pub fn write_index(out: &Path, run: &Path, metrics: &Metrics, entries: &[Entry])
     }
     h += "</p>\n<p><img src=\"psnr_per_image.png\" alt=\"PSNR per image\" style=\"max-width:96%\"></p>\n";
     h += "<h2>Test images: ground truth | render | error (|render - truth|, 0 to 0.25, turbo)</h2>\n\
+          <p><img src=\"error_scale.png\" alt=\"error colour scale: 0 to 0.25\"></p>\n\
           <table><tr><th class=\"n\">image</th><th>scale</th><th>PSNR</th><th>SSIM</th><th>LPIPS</th>\
           <th>ground truth</th><th>render</th><th>error</th></tr>\n";
     for e in entries {

@@ -10,13 +10,31 @@ pub fn rgb_to_png(img: &[[f32; 3]]) -> Vec<u8> {
     img.iter().flat_map(|p| p.map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8)).collect()
 }
 
-/// Writes 8-bit RGB as PNG.
+/// The prefix of the temporary name a picture is written under before it is renamed into place
+/// (the extension is kept, so that the encoder is chosen by it).
+pub const PARTIAL_PREFIX: &str = ".mipnerf-partial-";
+
+/// Runs `write` on a temporary name beside `path` ([`PARTIAL_PREFIX`]) and renames the result
+/// over `path`: a picture on disk is always whole, even when the process is killed mid-write.
+fn atomically(path: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+    let name = path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
+    let tmp = path.with_file_name(format!("{PARTIAL_PREFIX}{name}"));
+    if let Err(e) = write(&tmp) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(e);
+    }
+    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))
+}
+
+/// Writes 8-bit RGB as PNG, whole or not at all.
 ///
 /// # Errors
 /// Unwritable file.
 pub fn write_png(path: &Path, w: u32, h: u32, rgb: &[u8]) -> Result<()> {
-    image::save_buffer(path, rgb, w, h, image::ExtendedColorType::Rgb8)
-        .with_context(|| format!("writing {}", path.display()))
+    atomically(path, |tmp| {
+        image::save_buffer(tmp, rgb, w, h, image::ExtendedColorType::Rgb8)
+            .with_context(|| format!("writing {}", path.display()))
+    })
 }
 
 /// Writes one float channel (named `channel`, e.g. "Z" or "A") as an uncompressed-float EXR.
@@ -28,7 +46,7 @@ pub fn write_exr(path: &Path, w: usize, h: usize, channel: &str, values: &[f32])
     let channels =
         AnyChannels::sort(SmallVec::from_vec(vec![AnyChannel::new(channel, FlatSamples::F32(values.to_vec()))]));
     let image = Image::from_channels((w, h), channels);
-    image.write().to_file(path).map_err(|e| anyhow!("writing {}: {e}", path.display()))
+    atomically(path, |tmp| image.write().to_file(tmp).map_err(|e| anyhow!("writing {}: {e}", path.display())))
 }
 
 /// The "turbo" colour map (Mikhailov 2019), polynomial approximation, `t` in `[0, 1]`.
@@ -56,14 +74,16 @@ pub fn depth_to_png(depth: &[f32], acc: &[f32], lo: f32, hi: f32) -> Vec<u8> {
 /// Unwritable file or encoder failure.
 pub fn write_gif(path: &Path, w: u32, h: u32, frames: &[Vec<u8>], delay_ms: u32) -> Result<()> {
     use image::codecs::gif::{GifEncoder, Repeat};
-    let file = std::fs::File::create(path).with_context(|| format!("writing {}", path.display()))?;
-    let mut enc = GifEncoder::new_with_speed(std::io::BufWriter::new(file), 10);
-    enc.set_repeat(Repeat::Infinite).map_err(|e| anyhow!("{}: {e}", path.display()))?;
-    for rgb in frames {
-        let rgba: Vec<u8> = rgb.chunks(3).flat_map(|p| [p[0], p[1], p[2], 255]).collect();
-        let buf = image::RgbaImage::from_raw(w, h, rgba).ok_or_else(|| anyhow!("frame size"))?;
-        let frame = image::Frame::from_parts(buf, 0, 0, image::Delay::from_numer_denom_ms(delay_ms, 1));
-        enc.encode_frame(frame).map_err(|e| anyhow!("{}: {e}", path.display()))?;
-    }
-    Ok(())
+    atomically(path, |tmp| {
+        let file = std::fs::File::create(tmp).with_context(|| format!("writing {}", path.display()))?;
+        let mut enc = GifEncoder::new_with_speed(std::io::BufWriter::new(file), 10);
+        enc.set_repeat(Repeat::Infinite).map_err(|e| anyhow!("{}: {e}", path.display()))?;
+        for rgb in frames {
+            let rgba: Vec<u8> = rgb.chunks(3).flat_map(|p| [p[0], p[1], p[2], 255]).collect();
+            let buf = image::RgbaImage::from_raw(w, h, rgba).ok_or_else(|| anyhow!("frame size"))?;
+            let frame = image::Frame::from_parts(buf, 0, 0, image::Delay::from_numer_denom_ms(delay_ms, 1));
+            enc.encode_frame(frame).map_err(|e| anyhow!("{}: {e}", path.display()))?;
+        }
+        Ok(())
+    })
 }

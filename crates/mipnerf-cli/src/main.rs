@@ -16,10 +16,9 @@ mod plot;
 mod progress;
 mod render;
 mod run;
+mod signals;
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::{Result, bail};
 use clap::{Parser, Subcommand, ValueEnum};
@@ -128,7 +127,7 @@ enum Command {
         /// The run directory.
         #[arg(long, value_name = "RUN_DIR")]
         run: PathBuf,
-        /// Which split [default: test].
+        /// Which split.
         #[arg(long, value_enum, default_value_t = SplitArg::Test)]
         split: SplitArg,
         /// Where to render: cpu, gpu (any adapter, software included), or auto (a hardware GPU if
@@ -224,7 +223,7 @@ enum Command {
         /// Render a camera path instead.
         #[arg(long, value_enum)]
         path: Option<render::PathKind>,
-        /// Frames of the path [default: 60].
+        /// Frames of the path.
         #[arg(long, default_value_t = 60)]
         frames: usize,
         /// Output width in pixels (with --height) [default: the data's].
@@ -396,18 +395,6 @@ fn info() {
     println!("--backend auto would use: {}", auto_choice(&adapters));
 }
 
-fn stop_flag() -> Arc<AtomicBool> {
-    let stop = Arc::new(AtomicBool::new(false));
-    let s = Arc::clone(&stop);
-    // Ctrl-C (SIGINT), SIGTERM (kill, systemd, Docker, Slurm, CI) and SIGHUP (a closed terminal)
-    // alike: a second one while the checkpoint is written is ignored; the flag is checked every step.
-    let _ = ctrlc::set_handler(move || {
-        eprintln!("\ninterrupted (Ctrl-C, SIGTERM or SIGHUP): finishing this step and writing a checkpoint...");
-        s.store(true, Ordering::SeqCst);
-    });
-    stop
-}
-
 fn print_eval(m: &eval::Metrics) {
     for s in &m.per_scale {
         let lp = s.lpips.map_or("LPIPS n/a".to_string(), |l| format!("LPIPS {l:.4}"));
@@ -420,13 +407,7 @@ fn print_eval(m: &eval::Metrics) {
     println!("  average error over the scales ({terms}): {:.4}", m.avg_error);
 }
 
-fn train_cmd(
-    out: &Path,
-    config: Option<PathBuf>,
-    resume: bool,
-    flags: &TrainFlags,
-    stop: Arc<AtomicBool>,
-) -> Result<run::TrainOutcome> {
+fn train_cmd(out: &Path, config: Option<PathBuf>, resume: bool, flags: &TrainFlags) -> Result<run::TrainOutcome> {
     if resume && let Some(p) = &config {
         bail!(
             "--config {} with --resume: a resumed run keeps its own config.toml; pass the settings to change \
@@ -435,7 +416,7 @@ fn train_cmd(
         );
     }
     let file = config.map(|p| TrainSettings::from_file(&p)).transpose()?;
-    let outcome = run::train(out, file, flags.settings(), resume, stop)?;
+    let outcome = run::train(out, file, flags.settings(), resume)?;
     if let Some((loss, psnr)) = outcome.last {
         println!(
             "trained to step {}: loss {loss:.5}, training PSNR {psnr:.2} dB; run in {}",
@@ -504,9 +485,10 @@ fn demo_cmd(out: &Path, d: &DemoArgs) -> Result<()> {
             ..TrainFlags::default()
         };
         let resume = dir.join(run::CHECKPOINT).is_file();
-        let outcome = train_cmd(dir, None, resume, &flags, stop_flag())?;
+        let outcome = train_cmd(dir, None, resume, &flags)?;
         if outcome.interrupted {
-            return Ok(());
+            eprintln!("demo interrupted while training {name}; run the same command again to continue");
+            std::process::exit(signals::EXIT_INTERRUPTED);
         }
         let metrics = eval::eval(dir, Split::Test, d.backend, None, &weights)?;
         println!("{name} test metrics:");
@@ -582,6 +564,7 @@ struct DemoArgs {
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     progress::set_quiet(cli.quiet);
+    signals::install();
     run::set_allow_unverified(cli.allow_unverified);
     if let Err(e) = init_threads() {
         eprintln!("error: {e:#}");
@@ -598,9 +581,9 @@ fn main() -> std::process::ExitCode {
         }
         Command::Train { out, config, resume, flags, device } => {
             backend::set_device_args(&device);
-            train_cmd(&out, config, resume, &flags, stop_flag()).map(|o| {
+            train_cmd(&out, config, resume, &flags).map(|o| {
                 if o.interrupted {
-                    std::process::exit(130);
+                    std::process::exit(signals::EXIT_INTERRUPTED);
                 }
             })
         }
@@ -633,7 +616,7 @@ fn main() -> std::process::ExitCode {
         }
         Command::Compare { a, b, json, lpips, require_lpips } => eval::compare(&a, &b, json, &lpips, require_lpips),
         Command::Experiment { dir, data, out, only, table_only, lpips } => {
-            experiment::experiment(&experiment::ExperimentArgs { dir, data, out, only, table_only, lpips }, stop_flag())
+            experiment::experiment(&experiment::ExperimentArgs { dir, data, out, only, table_only, lpips })
         }
         Command::Bench { backend, device, preset, batch_rays, steps, render_side, precision } => {
             backend::set_device_args(&device);
@@ -661,6 +644,10 @@ fn main() -> std::process::ExitCode {
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) if e.downcast_ref::<signals::Interrupted>().is_some() => {
+            eprintln!("{e:#}");
+            std::process::ExitCode::from(signals::EXIT_INTERRUPTED as u8)
+        }
         Err(e) => {
             eprintln!("error: {e:#}");
             std::process::ExitCode::FAILURE

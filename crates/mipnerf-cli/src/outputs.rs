@@ -53,7 +53,8 @@ pub fn check_dir(dir: &Path, flag: &str, overwrite: bool) -> Result<()> {
     for entry in std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))? {
         let name =
             entry.with_context(|| format!("reading {}", dir.display()))?.file_name().to_string_lossy().to_string();
-        if name != MANIFEST && !ours.contains(&name) {
+        // A picture killed mid-write is left under its temporary name, which is ours too.
+        if name != MANIFEST && !name.starts_with(crate::images::PARTIAL_PREFIX) && !ours.contains(&name) {
             foreign.push(name);
         }
     }

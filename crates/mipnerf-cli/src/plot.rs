@@ -33,14 +33,30 @@ fn line_chart(path: &Path, title: &str, y_label: &str, points: &[(f64, f64)], lo
     let mut chart = ChartBuilder::on(&root);
     chart.caption(title, ("sans-serif", 22)).margin(12).x_label_area_size(40).y_label_area_size(70);
     let series = points.iter().copied().filter(|p| p.1.is_finite() && (!log_y || p.1 > 0.0));
+    let step_label = |x: &f64| format!("{}", x.round() as i64);
     if log_y {
         let mut c = chart.build_cartesian_2d(x0..x1, (lo..hi).log_scale()).map_err(&err)?;
-        c.configure_mesh().x_desc("step").y_desc(y_label).draw().map_err(&err)?;
+        c.configure_mesh()
+            .x_desc("step")
+            .y_desc(y_label)
+            .x_labels(8)
+            .x_label_formatter(&step_label)
+            .y_labels(8)
+            .y_label_formatter(&|y| format!("{y:.1e}"))
+            .draw()
+            .map_err(&err)?;
         c.draw_series(LineSeries::new(series, BLUE.stroke_width(2))).map_err(&err)?;
     } else {
         let pad = 0.05 * (hi - lo);
         let mut c = chart.build_cartesian_2d(x0..x1, (lo - pad)..(hi + pad)).map_err(&err)?;
-        c.configure_mesh().x_desc("step").y_desc(y_label).draw().map_err(&err)?;
+        c.configure_mesh()
+            .x_desc("step")
+            .y_desc(y_label)
+            .x_labels(8)
+            .x_label_formatter(&step_label)
+            .y_label_formatter(&|y| format!("{y:.1}"))
+            .draw()
+            .map_err(&err)?;
         c.draw_series(LineSeries::new(series, RED.stroke_width(2))).map_err(&err)?;
     }
     root.present().map_err(&err)?;
@@ -74,7 +90,7 @@ pub fn psnr_bars(path: &Path, bars: &[(String, u32, f64)]) -> Result<()> {
     root.fill(&WHITE).map_err(&err)?;
     let hi = bars.iter().map(|b| b.2).filter(|v| v.is_finite()).fold(10.0, f64::max) * 1.1;
     let mut chart = ChartBuilder::on(&root)
-        .caption("PSNR per test image (colour = scale)", ("sans-serif", 22))
+        .caption("PSNR per test image", ("sans-serif", 22))
         .margin(12)
         .x_label_area_size(30)
         .y_label_area_size(60)
@@ -82,11 +98,28 @@ pub fn psnr_bars(path: &Path, bars: &[(String, u32, f64)]) -> Result<()> {
         .map_err(&err)?;
     chart.configure_mesh().disable_x_mesh().x_desc("image").y_desc("PSNR (dB)").draw().map_err(&err)?;
     let palette = [BLUE, RED, GREEN, MAGENTA, CYAN];
+    let mut scales: Vec<u32> = bars.iter().map(|b| b.1).collect();
+    scales.sort_unstable();
+    scales.dedup();
+    // One series per scale, so that the legend names each colour.
+    for scale in scales {
+        let c = palette[scale as usize % palette.len()];
+        let name =
+            if scale == 0 { "full resolution".to_string() } else { format!("1/{} resolution", 1u64 << scale.min(63)) };
+        chart
+            .draw_series(bars.iter().enumerate().filter(|(_, b)| b.1 == scale).map(|(i, (_, _, v))| {
+                Rectangle::new([(i as f64 + 0.1, 0.0), (i as f64 + 0.9, v.max(0.0))], c.filled())
+            }))
+            .map_err(&err)?
+            .label(name)
+            .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 12, y + 5)], c.filled()));
+    }
     chart
-        .draw_series(bars.iter().enumerate().map(|(i, (_, scale, v))| {
-            let c = palette[*scale as usize % palette.len()];
-            Rectangle::new([(i as f64 + 0.1, 0.0), (i as f64 + 0.9, v.max(0.0))], c.filled())
-        }))
+        .configure_series_labels()
+        .position(SeriesLabelPosition::LowerRight)
+        .background_style(WHITE.mix(0.9))
+        .border_style(BLACK)
+        .draw()
         .map_err(&err)?;
     root.present().map_err(&err)?;
     Ok(())
@@ -143,6 +176,35 @@ pub fn quality_vs_time(
         .border_style(BLACK)
         .draw()
         .map_err(&err)?;
+    root.present().map_err(&err)?;
+    Ok(())
+}
+
+/// A colour bar for a colour map: `ticks` labels from `lo` (bottom) to `hi` (top), with a title,
+/// as a small PNG beside the images it explains.
+///
+/// # Errors
+/// Unwritable PNG.
+pub fn colour_bar(path: &Path, title: &str, lo: f64, hi: f64, map: impl Fn(f32) -> [u8; 3]) -> Result<()> {
+    ensure_font();
+    let err = plot_err(path);
+    let (w, h) = (220u32, 320u32);
+    let root = BitMapBackend::new(path, (w, h)).into_drawing_area();
+    root.fill(&WHITE).map_err(&err)?;
+    root.draw(&Text::new(title.to_string(), (10, 8), ("sans-serif", 15).into_font())).map_err(&err)?;
+    let (top, bottom, x0, x1) = (36i32, h as i32 - 16, 14i32, 44i32);
+    for y in top..bottom {
+        let t = (bottom - 1 - y) as f32 / (bottom - top - 1).max(1) as f32;
+        let [r, g, b] = map(t);
+        root.draw(&PathElement::new(vec![(x0, y), (x1, y)], RGBColor(r, g, b))).map_err(&err)?;
+    }
+    for k in 0..=4 {
+        let t = f64::from(k) / 4.0;
+        let y = bottom - 1 - (t * f64::from(bottom - top - 1)).round() as i32;
+        root.draw(&PathElement::new(vec![(x1, y), (x1 + 6, y)], BLACK)).map_err(&err)?;
+        let v = lo + t * (hi - lo);
+        root.draw(&Text::new(format!("{v:.3}"), (x1 + 10, y - 7), ("sans-serif", 14).into_font())).map_err(&err)?;
+    }
     root.present().map_err(&err)?;
     Ok(())
 }

@@ -77,6 +77,9 @@ fn read_supersample(s: &TrainSettings) -> Result<usize> {
     Ok(s.model_config()?.supersample)
 }
 
+/// The colour bar of the depth PNGs, in the render folder.
+const DEPTH_SCALE: &str = "depth_scale.png";
+
 /// Renders `target` of the run into `out`; returns the files written.
 ///
 /// # Errors
@@ -151,12 +154,32 @@ pub fn render(
     if matches!(target, Target::Path(..)) {
         names.push("preview.gif".to_owned());
     }
+    names.push(DEPTH_SCALE.to_owned());
     crate::outputs::record(out, names)?;
+    // The depth PNGs' colours, explained once for the folder.
+    if let Some((_, first)) = jobs.first() {
+        let title = "depth (transparent: white)";
+        crate::plot::colour_bar(&out.join(DEPTH_SCALE), title, f64::from(first.near), f64::from(first.far), |t| {
+            crate::images::turbo(t)
+        })?;
+    }
     let levels = be.model().config().num_levels;
     let mut written = Vec::new();
     let mut preview = Vec::new();
     let mut pb = crate::progress::Progress::new("render", 0, jobs.len() as u64);
-    for (name, image) in &jobs {
+    // A signal stops the render between images; every file on disk is whole.
+    let _cooperation = crate::signals::Cooperation::start();
+    for (i, (name, image)) in jobs.iter().enumerate() {
+        if crate::signals::stop_requested() {
+            crate::signals::acted_on();
+            pb.finish();
+            return Err(crate::signals::Interrupted(format!(
+                "{i} of {} images rendered into {} (each whole); run the same command again to render them all",
+                jobs.len(),
+                out.display()
+            ))
+            .into());
+        }
         let (w, h) = (&image.camera.width, &image.camera.height);
         let outs: Vec<_> = be
             .render_image(image)

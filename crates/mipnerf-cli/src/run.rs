@@ -3,7 +3,6 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
@@ -79,8 +78,19 @@ pub fn open_trained(
         render_chunk: None,
         device: crate::backend::device_options(),
     };
-    let (be, ran) = backend::open(choice, setup, precision.or(s.precision).unwrap_or(PrecisionArg::F32))?;
+    let (be, ran) = backend::open(choice, setup, precision_for(s.precision, precision))?;
     Ok((be, step, ran))
+}
+
+/// The precision to open a saved run with: the flag when given, else the run's own, where bf16
+/// means auto (bf16 where the backend and CPU run it, f32 elsewhere, said in the header).
+#[must_use]
+pub fn precision_for(saved: Option<PrecisionArg>, flag: Option<PrecisionArg>) -> PrecisionArg {
+    flag.unwrap_or(match saved {
+        Some(PrecisionArg::Bf16) => PrecisionArg::Auto,
+        Some(p) => p,
+        None => PrecisionArg::F32,
+    })
 }
 
 /// The `--precision` value of a precision that ran.
@@ -164,7 +174,6 @@ pub fn train(
     file_settings: Option<TrainSettings>,
     flag_settings: TrainSettings,
     resume: bool,
-    stop: Arc<AtomicBool>,
 ) -> Result<TrainOutcome> {
     let (s, format, model) = resolve_settings(run_dir, file_settings, &flag_settings, resume)?;
     std::fs::create_dir_all(run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
@@ -185,6 +194,27 @@ pub fn train(
     let seed = s.seed.unwrap_or(0);
     let mut state = if resume {
         let ck = load_checkpoint(&ckpt_path, &model)?;
+        let steps = s.steps.unwrap_or(0);
+        let budget = s.time_budget_seconds()?;
+        let spent = train_seconds(run_dir).unwrap_or(0.0);
+        let done = match budget {
+            Some(b) => (spent >= b).then(|| {
+                format!(
+                    "it has trained for {spent:.0} s of its {b:.0} s budget; pass a longer --time-budget to train on"
+                )
+            }),
+            None => (ck.step >= steps).then(|| {
+                format!(
+                    "it is at step {} of --steps {steps}; pass a higher --steps (e.g. --steps {}) to train on",
+                    ck.step,
+                    (ck.step * 2).max(1)
+                )
+            }),
+        };
+        if let Some(why) = done {
+            eprintln!("nothing to do: {} is finished: {why}", run_dir.display());
+            return Ok(TrainOutcome { step: ck.step, interrupted: false, last: None });
+        }
         eprintln!("resuming from step {} ({})", ck.step, ckpt_path.display());
         TrainState::from_checkpoint(ck)
     } else {
@@ -203,8 +233,14 @@ pub fn train(
         render_chunk: None,
         device: crate::backend::device_options(),
     };
-    let (be, precision) =
-        backend::open(s.backend.unwrap_or(Backend::Auto), setup, s.precision.unwrap_or(PrecisionArg::F32))?;
+    // A resumed run keeps its precision where it can: bf16 becomes auto, so that a run trained
+    // on an AMX CPU continues on a GPU (or another CPU) in f32, said in the header.
+    let precision = if resume {
+        precision_for(s.precision, flag_settings.precision)
+    } else {
+        s.precision.unwrap_or(PrecisionArg::F32)
+    };
+    let (be, precision) = backend::open(s.backend.unwrap_or(Backend::Auto), setup, precision)?;
     // Before the first step allocates it: does a step's memory fit?
     let need = be.host_training_bytes(batch);
     if let Err(e) = mipnerf_core::memory::check(need, &format!("a training step of --batch-rays {batch}")) {
@@ -215,7 +251,7 @@ pub fn train(
     // The saved configuration records the precision that ran.
     let s = TrainSettings { precision: Some(precision_arg(precision)), ..s };
     s.save(&run_dir.join(CONFIG))?;
-    TrainLoop::new(run_dir, &s, be, resume)?.run(&stop)
+    TrainLoop::new(run_dir, &s, be, resume)?.run()
 }
 
 /// A run's occupancy grid before training: its cube from the settings or the cameras, seeded
@@ -483,7 +519,9 @@ impl<'a> TrainLoop<'a> {
     }
 
     /// Steps until `steps` or a signal, then the last checkpoint and the plots.
-    fn run(mut self, stop: &AtomicBool) -> Result<TrainOutcome> {
+    fn run(mut self) -> Result<TrainOutcome> {
+        // A signal now lets the step finish and the checkpoint be written.
+        let _cooperation = crate::signals::Cooperation::start();
         // With a time budget the bar counts seconds of training, and the message the steps.
         let mut pb = match self.budget {
             Some((b, _)) => Progress::new("train (s)", self.elapsed() as u64, b.ceil() as u64),
@@ -493,7 +531,8 @@ impl<'a> TrainLoop<'a> {
         let mut last = None;
         let mut interrupted = false;
         while self.be.step() < self.steps {
-            if stop.load(Ordering::SeqCst) {
+            if crate::signals::stop_requested() {
+                crate::signals::acted_on();
                 interrupted = true;
                 break;
             }

@@ -137,6 +137,8 @@ fn the_demo_produces_every_promised_file_and_beats_a_constant_image() {
         "eval/metrics.json",
         "eval/metrics.md",
         "eval/psnr_per_image.png",
+        "eval/error_scale.png",
+        "render/depth_scale.png",
         "render/000_d0.png",
         "render/000_d0_depth.exr",
         "render/000_d0_acc.exr",
@@ -151,6 +153,9 @@ fn the_demo_produces_every_promised_file_and_beats_a_constant_image() {
         assert!(p.is_file() && std::fs::metadata(&p).unwrap().len() > 0, "{f} missing; output:\n{text}");
     }
     assert!(text.contains("Everything is in"), "{text}");
+    // The backend is said once in the whole demo, however many phases open one.
+    assert_eq!(text.matches("backend: CPU").count(), 1, "{text}");
+    assert!(!run.join("eval.partial").exists() && !run.join("eval.old").exists());
     // The last lines: both systems' PSNR per scale, and what the figure shows and where it is.
     assert!(text.contains("| Mip-NeRF |") && text.contains("| NeRF |"), "{text}");
     let last = text.lines().rev().find(|l| l.contains("antialiasing.png shows")).unwrap_or_default();

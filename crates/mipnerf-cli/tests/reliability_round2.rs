@@ -397,16 +397,21 @@ fn memory_is_checked_before_it_is_taken_and_a_failed_eval_keeps_the_previous_res
     assert_no_panic(&out, &args);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.code() == Some(1) && err.contains("metadata.json") && err.contains("memory"), "{err}");
-    // eval on a disk that refuses the write: the previous metrics.json is kept, and it says so.
+    // eval whose results cannot be put in place (here a file where the previous results would be
+    // moved aside; a full disk fails earlier, inside eval.partial/): the previous eval/ is kept
+    // whole, and the error says so.
     let run = dir.path().join("run");
     train(&data, &run, "2");
     let r = run.to_str().unwrap();
     run_ok(&["eval", "--run", r, "--backend", "cpu", "--no-lpips"]);
-    let before = std::fs::read(run.join("eval/metrics.json")).unwrap();
-    std::fs::create_dir_all(run.join("eval/metrics.json.tmp/blocked")).unwrap();
+    let before = snapshot(&run.join("eval"));
+    std::fs::write(run.join("eval.old"), b"in the way").unwrap();
     let (_, err) = fails(&["eval", "--run", r, "--backend", "cpu", "--no-lpips"]);
-    assert!(err.contains("metrics.json") && err.contains("previous one is unchanged"), "{err}");
-    assert_eq!(std::fs::read(run.join("eval/metrics.json")).unwrap(), before);
+    assert!(err.contains("previous results) is unchanged"), "{err}");
+    assert!(snapshot(&run.join("eval")) == before, "the previous eval/ changed");
+    std::fs::remove_file(run.join("eval.old")).unwrap();
+    run_ok(&["eval", "--run", r, "--backend", "cpu", "--no-lpips"]);
+    assert!(!run.join("eval.partial").exists() && !run.join("eval.old").exists());
 }
 
 /// Finding 7: `mipnerf experiment --data OTHER` reported every row done from the old JSON.

@@ -672,11 +672,16 @@ pub fn convert_to_llff(input: &Path, out: &Path, factor: u32) -> Result<Vec<Stri
     let Scene { rows, names, images, .. } = Scene::read(input, factor)?;
     let folder = if factor > 1 { out.join(format!("images_{factor}")) } else { out.join("images") };
     std::fs::create_dir_all(&folder).map_err(|e| DataError::io(&folder, e))?;
+    // poses_bounds.npy is written last, so a conversion that stops part-way never looks complete.
+    let npy = out.join("poses_bounds.npy");
+    if npy.is_file() {
+        std::fs::remove_file(&npy).map_err(|e| DataError::io(&npy, e))?;
+    }
     for (i, im) in images.iter().enumerate() {
         // Numbered in name order, so any reader that sorts the folder finds them in the rows' order.
         let stem = Path::new(&names[i]).file_stem().map_or_else(String::new, |s| s.to_string_lossy().into_owned());
         super::write_png_rgba(&folder.join(format!("{i:04}_{stem}.png")), im.width, im.height, &im.rgba)?;
     }
-    llff::write_poses_bounds(&out.join("poses_bounds.npy"), &rows)?;
+    llff::write_poses_bounds(&npy, &rows)?;
     Ok(names)
 }

@@ -127,6 +127,11 @@ pub fn convert_resized(input: &Path, output: &Path, width: Option<u32>) -> Resul
         ));
     }
     std::fs::create_dir_all(output).map_err(|e| DataError::io(output, e))?;
+    // metadata.json is written last, so a conversion that stops part-way never looks complete.
+    let meta_path = output.join("metadata.json");
+    if meta_path.is_file() {
+        std::fs::remove_file(&meta_path).map_err(|e| DataError::io(&meta_path, e))?;
+    }
     let mut all = serde_json::Map::new();
     let mut done = Vec::new();
     for split in [Split::Train, Split::Val, Split::Test] {
@@ -153,7 +158,16 @@ pub fn convert_resized(input: &Path, output: &Path, width: Option<u32>) -> Resul
         done.push(split);
     }
     if done.is_empty() {
-        return Err(DataError::invalid(input, "no transforms_{train,val,test}.json to convert"));
+        let why = if input.join("sparse").is_dir() {
+            "no transforms_{train,val,test}.json: this is a COLMAP workspace (sparse/); convert it with --to llff"
+        } else if input.join("metadata.json").is_file() {
+            "no transforms_{train,val,test}.json: this is already a multiscale dataset (metadata.json); train on it \
+             as it is"
+        } else {
+            "no transforms_{train,val,test}.json to convert (a Blender scene has them; a COLMAP workspace has \
+             sparse/ and converts with --to llff)"
+        };
+        return Err(DataError::invalid(input, why));
     }
     write_metadata(output, &Value::Object(all))?;
     Ok(done)
