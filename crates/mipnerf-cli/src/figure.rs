@@ -257,3 +257,31 @@ fn draw(args: &FigureArgs, columns: &[Column], scales: &[u64], crop: (f64, f64, 
     image::save_buffer(&args.out, &buf, w, h, image::ExtendedColorType::Rgb8)
         .with_context(|| format!("writing {}", args.out.display()))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A `side x side` image, black but for a white square at `(x0, y0)` of `s` pixels.
+    fn square(side: usize, x0: usize, y0: usize, s: usize) -> Img {
+        let mut rgb = vec![0.0; side * side * 3];
+        for y in y0..y0 + s {
+            for x in x0..x0 + s {
+                rgb[(y * side + x) * 3..(y * side + x) * 3 + 3].copy_from_slice(&[1.0; 3]);
+            }
+        }
+        Img { w: side, h: side, rgb }
+    }
+
+    #[test]
+    fn one_run_is_cropped_where_it_errs_two_where_the_first_errs_more() {
+        // The truth has detail at the bottom right; a blank render misses it there.
+        let gt = square(40, 26, 26, 12);
+        let blank = square(40, 0, 0, 0);
+        let (x, y, side) = pick_crop(&gt, &blank, None, 0.3);
+        assert!(x > 0.3 && y > 0.3 && (side - 0.3).abs() < 1e-9, "crop ({x}, {y}, {side}) misses the detail");
+        // Two runs: where the first errs more than the second (the second got the detail).
+        let (x, y, _) = pick_crop(&gt, &blank, Some(&gt), 0.3);
+        assert!(x > 0.3 && y > 0.3, "crop ({x}, {y}) misses where the runs differ");
+    }
+}

@@ -146,6 +146,21 @@ impl Camera {
                 )));
             }
         }
+        // Every ray within the image must point into the camera's half-space, no further from the
+        // axis than half the widest field of view (off-diagonal intrinsics included).
+        let max_tan = (0.5 * MAX_FIELD_OF_VIEW_DEG).to_radians().tan();
+        for (x, y) in [(0, 0), (width, 0), (0, height), (width, height)] {
+            let p = [f64::from(x), f64::from(y), 1.0];
+            let d: [f64; 3] = std::array::from_fn(|r| (0..3).map(|c| pix2cam[r][c] * p[c]).sum::<f64>());
+            let off = d[0].abs().max(d[1].abs()) / d[2].abs();
+            if off.is_nan() || off > max_tan {
+                return Err(Error::InvalidCamera(format!(
+                    "pix2cam sends the image corner ({x}, {y}) {:.2} degrees off the camera axis; accepted: up to {}",
+                    off.atan().to_degrees(),
+                    0.5 * MAX_FIELD_OF_VIEW_DEG
+                )));
+            }
+        }
         for (c, name) in ["x", "y", "z"].iter().enumerate() {
             let len = (0..3).map(|r| cam2world[r][c] * cam2world[r][c]).sum::<f64>().sqrt();
             if !(AXIS_LENGTH_RANGE.0..=AXIS_LENGTH_RANGE.1).contains(&len) {
