@@ -254,8 +254,7 @@ fn draw(args: &FigureArgs, columns: &[Column], scales: &[u64], crop: (f64, f64, 
     let parent = args.out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     let name = args.out.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
     crate::outputs::record(parent, [name])?;
-    image::save_buffer(&args.out, &buf, w, h, image::ExtendedColorType::Rgb8)
-        .with_context(|| format!("writing {}", args.out.display()))
+    crate::images::write_png(&args.out, w, h, &buf)
 }
 
 #[cfg(test)]

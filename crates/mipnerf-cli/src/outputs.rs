@@ -91,8 +91,8 @@ pub fn check_file(path: &Path, flag: &str, overwrite: bool) -> Result<()> {
     Ok(())
 }
 
-/// Adds `names` to the manifest of `dir` (created if needed), written to a temporary file and
-/// renamed so that a crash never leaves a half-written manifest.
+/// Adds `names` to the manifest of `dir` (created if needed), written atomically
+/// (`checkpoint::write_atomic`) so that a crash never leaves a half-written manifest.
 ///
 /// # Errors
 /// An unwritable folder.
@@ -105,10 +105,11 @@ pub fn record(dir: &Path, names: impl IntoIterator<Item = String>) -> Result<()>
         return Ok(());
     }
     let text: String = all.iter().map(|n| format!("{n}\n")).collect();
-    let path = dir.join(MANIFEST);
-    let tmp = dir.join(format!("{MANIFEST}.tmp"));
-    std::fs::write(&tmp, text).with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::rename(&tmp, &path).with_context(|| format!("writing {}", path.display()))?;
+    mipnerf_core::checkpoint::write_atomic(
+        &dir.join(MANIFEST),
+        text.as_bytes(),
+        &mut mipnerf_core::checkpoint::RealFs,
+    )?;
     Ok(())
 }
 

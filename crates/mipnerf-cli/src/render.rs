@@ -159,9 +159,13 @@ pub fn render(
     // The depth PNGs' colours, explained once for the folder.
     if let Some((_, first)) = jobs.first() {
         let title = "depth (transparent: white)";
-        crate::plot::colour_bar(&out.join(DEPTH_SCALE), title, f64::from(first.near), f64::from(first.far), |t| {
-            crate::images::turbo(t)
-        })?;
+        crate::plot::colour_bar(
+            &out.join(DEPTH_SCALE),
+            title,
+            f64::from(first.near),
+            f64::from(first.far),
+            crate::images::turbo,
+        )?;
     }
     let levels = be.model().config().num_levels;
     let mut written = Vec::new();
