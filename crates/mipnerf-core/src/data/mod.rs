@@ -18,6 +18,8 @@ pub mod colmap;
 pub mod demo;
 pub mod llff;
 pub mod multiscale;
+pub mod process;
+pub mod undistort;
 
 use std::path::{Path, PathBuf};
 

@@ -1,0 +1,309 @@
+//! The process step (`mipnerf colmap`): from a COLMAP workspace (the photos in `images/`, the
+//! mapper's models in `sparse/N/`) to a dataset the trainer reads.
+//!
+//! 1. Every model in `sparse/` is counted and the one with the most registered photos is taken
+//!    (COLMAP numbers its models as it finds them, not by size).
+//! 2. Fewer registered photos than [`ProcessOptions::min_views`] is an error, fewer than
+//!    [`ProcessOptions::recommended_views`] a warning.
+//! 3. The photos are undistorted in Rust ([`super::undistort`]) to one centred pinhole.
+//! 4. They are box-filtered by the integer factor that brings their longer side to at most
+//!    [`ProcessOptions::max_size`], and written as PNGs to `images_{factor}/`, numbered in name
+//!    order, with LLFF's `poses_bounds.npy` for the undistorted camera (LLFF's `imgs2poses`,
+//!    [`super::colmap::poses_bounds`]), so `train --data OUT --llff-factor {factor}` reads them,
+//!    holding out every 8th photo for testing as LLFF does.
+//!
+//! A step that stops part-way leaves no `poses_bounds.npy`, so a half-written dataset never loads:
+//! the images go to a temporary folder renamed into place, and the index file is written last.
+
+use std::path::{Path, PathBuf};
+
+use rayon::prelude::*;
+
+use super::DataError;
+use super::colmap::{self, ColmapCamera};
+use super::llff::LLFF_HOLD;
+use super::undistort::{self, LensCamera, Pinhole};
+
+/// Registered photos below which the step refuses: a radiance field from fewer views is a guess.
+pub const MIN_REGISTERED_VIEWS: usize = 8;
+/// Registered photos below which the step warns (NeRF papers' own object captures have 50 to 100).
+pub const RECOMMENDED_VIEWS: usize = 25;
+/// The longest side, in pixels, of the processed images when none is asked for.
+pub const DEFAULT_MAX_SIZE: u32 = 800;
+/// The mean resultant length of the cameras' viewing directions below which a capture counts as
+/// "all around the object" and `--spherify` is recommended (1 when all look the same way; a
+/// half circle of cameras gives 2/π ≈ 0.64).
+pub const ALL_AROUND_BELOW: f64 = 0.9;
+
+/// The share of the photos' border pixels that must be near white (or near black) for the
+/// photos to count as taken on a plain backdrop of that colour.
+pub const BACKDROP_SHARE: f64 = 0.9;
+/// How near: every channel at least this fraction of full scale (white), or at most one minus it
+/// (black).
+pub const BACKDROP_LEVEL: f64 = 0.9;
+
+/// A plain backdrop the photos were taken on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Backdrop {
+    /// White.
+    White,
+    /// Black.
+    Black,
+}
+
+/// What the process step is asked to do.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ProcessOptions {
+    /// The longest side of the written images, at most (pixels; 0: full size).
+    pub max_size: u32,
+    /// Refuse below this many registered photos.
+    pub min_views: usize,
+    /// Warn below this many registered photos.
+    pub recommended_views: usize,
+    /// Replace a dataset already in the output folder.
+    pub overwrite: bool,
+}
+
+impl Default for ProcessOptions {
+    fn default() -> Self {
+        Self {
+            max_size: DEFAULT_MAX_SIZE,
+            min_views: MIN_REGISTERED_VIEWS,
+            recommended_views: RECOMMENDED_VIEWS,
+            overwrite: false,
+        }
+    }
+}
+
+/// What the process step did, for the user.
+#[derive(Clone, Debug)]
+pub struct ProcessReport {
+    /// Every model found: `(N, registered photos)`.
+    pub models: Vec<(u32, usize)>,
+    /// The model taken.
+    pub model_dir: PathBuf,
+    /// Its registered photos.
+    pub registered: usize,
+    /// The photos in the workspace's `images/`.
+    pub photos: usize,
+    /// The camera's COLMAP model name.
+    pub camera_model: &'static str,
+    /// The camera as COLMAP estimated it.
+    pub lens: LensCamera,
+    /// The undistorted pinhole at full size.
+    pub pinhole: Pinhole,
+    /// The factor the images were box-filtered by (the trainer's `--llff-factor`).
+    pub factor: u32,
+    /// The written images' size.
+    pub size: (u32, u32),
+    /// The nearest near bound and the farthest far bound of the photos, in COLMAP's units.
+    pub bounds: (f64, f64),
+    /// Whether the cameras surround the scene ([`ALL_AROUND_BELOW`]).
+    pub all_around: bool,
+    /// The photos held out for testing (every 8th in name order).
+    pub held_out: Vec<String>,
+    /// The plain backdrop the photos' borders show, if they show one ([`BACKDROP_SHARE`]).
+    pub backdrop: Option<Backdrop>,
+    /// The shares of the border pixels that are near white and near black.
+    pub border_shares: (f64, f64),
+    /// Warnings for the user.
+    pub warnings: Vec<String>,
+}
+
+fn is_image(p: &Path) -> bool {
+    p.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| matches!(e.to_ascii_lowercase().as_str(), "png" | "jpg" | "jpeg" | "tif" | "tiff" | "bmp"))
+}
+
+/// Runs the process step on the workspace `input`, writing the dataset to `output`.
+///
+/// # Errors
+/// [`DataError`] naming the file: no model, too few registered photos, several different
+/// cameras, a camera model that cannot be undistorted, a missing, undecodable or wrongly sized
+/// photo, a non-empty output folder (without `overwrite`), unwritable files; and every error of
+/// [`colmap::read_model`] and [`colmap::poses_bounds`].
+pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<ProcessReport, DataError> {
+    let images_dir = input.join("images");
+    if !images_dir.is_dir() {
+        return Err(DataError::invalid(
+            input,
+            "no images/ folder: a COLMAP workspace holds the photos in images/ and the models in sparse/",
+        ));
+    }
+    let models = colmap::list_models(input)?;
+    let best =
+        models.iter().max_by_key(|(k, _, c)| (*c, std::cmp::Reverse(*k))).cloned().unwrap_or_else(|| models[0].clone());
+    let photos = std::fs::read_dir(&images_dir)
+        .map_err(|e| DataError::io(&images_dir, e))?
+        .filter_map(Result::ok)
+        .filter(|e| is_image(&e.path()))
+        .count();
+    let mut model = colmap::read_model(&best.1)?;
+    let registered = model.images.len();
+    let mut warnings = Vec::new();
+    if registered < opts.min_views {
+        return Err(DataError::invalid(
+            &best.1,
+            format!(
+                "the largest COLMAP model registers {registered} of {photos} photos, fewer than the minimum of {} \
+                 (--min-views): take more photos with more overlap between neighbours, or try COLMAP's mapper \
+                 with looser settings (the README's own-photos section gives them)",
+                opts.min_views
+            ),
+        ));
+    }
+    if registered < opts.recommended_views {
+        warnings.push(format!(
+            "only {registered} photos are registered; {} or more give a much better model",
+            opts.recommended_views
+        ));
+    }
+    let cams = best.1.join("cameras");
+    let first = model.cameras.first().cloned().ok_or_else(|| DataError::invalid(&cams, "no cameras"))?;
+    let used: std::collections::HashSet<u32> = model.images.iter().map(|im| im.camera_id).collect();
+    if let Some(c) = model.cameras.iter().find(|c| {
+        used.contains(&c.id)
+            && (c.model_id, c.width, c.height, &c.params) != (first.model_id, first.width, first.height, &first.params)
+    }) {
+        return Err(DataError::invalid(
+            &cams,
+            format!(
+                "camera {} differs from camera {}: the photos must share one camera (one lens, one zoom); \
+                 reconstruct with COLMAP's --ImageReader.single_camera 1 (pycolmap: camera_mode=CameraMode.SINGLE)",
+                c.id, first.id
+            ),
+        ));
+    }
+    let lens = LensCamera::from_colmap(&first).map_err(|e| DataError::invalid(&cams, e))?;
+    let pinhole = undistort::undistorted_pinhole(&lens);
+    let long = pinhole.width.max(pinhole.height);
+    let factor = if opts.max_size == 0 { 1 } else { long.div_ceil(opts.max_size).max(1) };
+    let size = ((pinhole.width / factor).max(1), (pinhole.height / factor).max(1));
+    // The poses and bounds of the undistorted camera: the same extrinsics and points, a pinhole.
+    let id = first.id;
+    model.cameras = vec![ColmapCamera {
+        id,
+        model_id: 0,
+        width: u64::from(pinhole.width),
+        height: u64::from(pinhole.height),
+        params: vec![pinhole.focal, f64::from(pinhole.width) / 2.0, f64::from(pinhole.height) / 2.0],
+    }];
+    for im in &mut model.images {
+        im.camera_id = id;
+    }
+    let (rows, names) = colmap::poses_bounds(&model, &best.1)?;
+
+    // The output folder: new, empty, or (with overwrite) a dataset this step wrote.
+    let npy = output.join("poses_bounds.npy");
+    if output.exists() {
+        let mut entries = std::fs::read_dir(output).map_err(|e| DataError::io(output, e))?;
+        if entries.next().is_some() && !opts.overwrite {
+            return Err(DataError::invalid(
+                output,
+                "is not empty; choose a new folder, or pass --overwrite to replace the dataset in it",
+            ));
+        }
+    }
+    std::fs::create_dir_all(output).map_err(|e| DataError::io(output, e))?;
+    if npy.is_file() {
+        std::fs::remove_file(&npy).map_err(|e| DataError::io(&npy, e))?;
+    }
+    let folder = output.join(format!("images_{factor}"));
+    let partial = output.join(format!(".mipnerf-partial-images_{factor}"));
+    if partial.exists() {
+        std::fs::remove_dir_all(&partial).map_err(|e| DataError::io(&partial, e))?;
+    }
+    std::fs::create_dir_all(&partial).map_err(|e| DataError::io(&partial, e))?;
+    let target = LensCamera::from(pinhole);
+    let counts = names.par_iter().enumerate().map(|(i, name)| -> Result<[u64; 3], DataError> {
+        let file = images_dir.join(name);
+        if !file.is_file() {
+            return Err(DataError::invalid(&file, "registered in the COLMAP model but missing from images/"));
+        }
+        let (w, h, rgba, _) = super::read_png_rgba(&file)?;
+        if (w, h) != (lens.width, lens.height) {
+            return Err(DataError::invalid(
+                &file,
+                format!("is {w}x{h}, the COLMAP camera is {}x{} (resized after COLMAP ran?)", lens.width, lens.height),
+            ));
+        }
+        let und = undistort::warp(&rgba, 4, &lens, &target);
+        let (nw, nh) = size;
+        let out = if factor > 1 {
+            let f: Vec<f32> = und.iter().map(|&b| f32::from(b) / 255.0).collect();
+            let r = super::box_resize(&f, target.width as usize, target.height as usize, nw as usize, nh as usize);
+            r.iter().map(|&x| (x * 255.0).round().clamp(0.0, 255.0) as u8).collect()
+        } else {
+            und
+        };
+        let stem = Path::new(name).file_stem().map_or_else(String::new, |s| s.to_string_lossy().into_owned());
+        super::write_png_rgba(&partial.join(format!("{i:04}_{stem}.png")), nw, nh, &out)?;
+        Ok(border_counts(&out, nw as usize, nh as usize))
+    });
+    let counts = counts.collect::<Result<Vec<_>, _>>()?;
+    let total = counts.iter().map(|c| c[2]).sum::<u64>().max(1) as f64;
+    let white = counts.iter().map(|c| c[0]).sum::<u64>() as f64 / total;
+    let black = counts.iter().map(|c| c[1]).sum::<u64>() as f64 / total;
+    let backdrop = if white >= BACKDROP_SHARE {
+        Some(Backdrop::White)
+    } else if black >= BACKDROP_SHARE {
+        Some(Backdrop::Black)
+    } else {
+        None
+    };
+    if folder.exists() {
+        std::fs::remove_dir_all(&folder).map_err(|e| DataError::io(&folder, e))?;
+    }
+    std::fs::rename(&partial, &folder).map_err(|e| DataError::io(&folder, e))?;
+    super::llff::write_poses_bounds(&npy, &rows)?;
+
+    let near = rows.iter().map(|r| r[15]).fold(f64::INFINITY, f64::min);
+    let far = rows.iter().map(|r| r[16]).fold(f64::NEG_INFINITY, f64::max);
+    // Viewing directions: minus the "back" column of each pose.
+    let mut mean = [0.0f64; 3];
+    for r in &rows {
+        for (k, m) in mean.iter_mut().enumerate() {
+            *m -= r[k * 5 + 2] / rows.len() as f64;
+        }
+    }
+    let resultant = mean.iter().map(|m| m * m).sum::<f64>().sqrt();
+    let held_out = names.iter().enumerate().filter(|(i, _)| i % LLFF_HOLD == 0).map(|(_, n)| n.clone()).collect();
+    Ok(ProcessReport {
+        models: models.iter().map(|(k, _, c)| (*k, *c)).collect(),
+        model_dir: best.1,
+        registered,
+        photos,
+        camera_model: undistort::model_name(first.model_id),
+        lens,
+        pinhole,
+        factor,
+        size,
+        bounds: (near, far),
+        all_around: resultant < ALL_AROUND_BELOW,
+        held_out,
+        backdrop,
+        border_shares: (white, black),
+        warnings,
+    })
+}
+
+/// `[near white, near black, all]` counts of the pixels on the outermost two-pixel ring of an
+/// RGBA8 image ([`BACKDROP_LEVEL`]).
+fn border_counts(rgba: &[u8], w: usize, h: usize) -> [u64; 3] {
+    let hi = (BACKDROP_LEVEL * 255.0) as u8;
+    let lo = ((1.0 - BACKDROP_LEVEL) * 255.0) as u8;
+    let mut c = [0u64; 3];
+    for y in 0..h {
+        for x in 0..w {
+            if x >= 2 && y >= 2 && x + 2 < w && y + 2 < h {
+                continue;
+            }
+            let p = &rgba[(y * w + x) * 4..(y * w + x) * 4 + 3];
+            c[0] += u64::from(p.iter().all(|&v| v >= hi));
+            c[1] += u64::from(p.iter().all(|&v| v <= lo));
+            c[2] += 1;
+        }
+    }
+    c
+}
