@@ -296,13 +296,19 @@ fn run_row(
     results: &Path,
     lpips: &LpipsWeights,
 ) -> Result<bool> {
-    let steps = settings.resolved(false).steps.unwrap_or(2000);
+    // Defaults that depend on the kind of data (LLFF and COLMAP against the rest) as `train` resolves them.
+    let llff = settings
+        .data
+        .as_deref()
+        .and_then(|d| mipnerf_core::data::detect_format(d).ok())
+        .is_some_and(|f| matches!(f, mipnerf_core::data::Format::Llff | mipnerf_core::data::Format::Colmap));
+    let steps = settings.resolved(llff).steps.unwrap_or(2000);
     let budget = settings.time_budget_seconds()?;
     let ckpt = run_dir.join(run::CHECKPOINT);
     let mut done_steps = 0;
     if ckpt.is_file() {
         let saved = run::read_config(run_dir)?;
-        let now = settings.resolved(false);
+        let now = settings.resolved(llff);
         // The row's JSON is bound to this checkpoint (its SHA-256), and the checkpoint to the data
         // it trained on: a run on other data is never reported as this row's.
         if let (Some(theirs), Some(ours)) = (&saved.data, &now.data)

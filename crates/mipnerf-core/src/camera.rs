@@ -72,6 +72,12 @@ pub const MAX_FIELD_OF_VIEW_DEG: f64 = 179.0;
 /// features carry no information and products of distances approach `f32`'s range.
 pub const MAX_SCENE_COORDINATE: f64 = 1e6;
 
+/// The lengths a ray direction may have at the image's corners (`pix2cam · [x, y, 1]`, camera
+/// units): the directions scale every distance along the rays (near, far, the samples), and are
+/// stored in f32, so a pix2cam that overflows or vanishes there is refused (a camera's own is
+/// about 1 to 2).
+pub const DIRECTION_LENGTH_RANGE: (f64, f64) = (1e-6, 1e6);
+
 /// The accepted lengths of a pose's rotation columns (the camera axes in world units): a pose is
 /// a rotation and a translation, so each is 1 up to rounding; these bounds allow sloppy exports.
 pub const AXIS_LENGTH_RANGE: (f64, f64) = (0.5, 2.0);
@@ -152,6 +158,14 @@ impl Camera {
         for (x, y) in [(0, 0), (width, 0), (0, height), (width, height)] {
             let p = [f64::from(x), f64::from(y), 1.0];
             let d: [f64; 3] = std::array::from_fn(|r| (0..3).map(|c| pix2cam[r][c] * p[c]).sum::<f64>());
+            let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            if !(DIRECTION_LENGTH_RANGE.0..=DIRECTION_LENGTH_RANGE.1).contains(&len) {
+                return Err(Error::InvalidCamera(format!(
+                    "pix2cam sends the image corner ({x}, {y}) along a direction of length {len:.4e}; accepted: {:e} \
+                     to {:e} (the directions scale every distance along the rays)",
+                    DIRECTION_LENGTH_RANGE.0, DIRECTION_LENGTH_RANGE.1
+                )));
+            }
             let off = d[0].abs().max(d[1].abs()) / d[2].abs();
             if off.is_nan() || off > max_tan {
                 return Err(Error::InvalidCamera(format!(

@@ -586,3 +586,22 @@ proptest::proptest! {
         let _ = be.render_image(&image);
     }
 }
+
+/// Found by the property test above: a pix2cam entry of f64::MAX in the row that makes the
+/// direction's z overflows to infinity at a corner, which the off-axis angle alone (x / inf = 0)
+/// let through, and the ray's cone radius became NaN. The direction's length is now checked.
+#[test]
+fn a_pix2cam_whose_corner_direction_overflows_is_refused() {
+    let pose = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 4.0]];
+    let mut pix2cam = [[1.0 / 40.0, 0.0, -0.5], [0.0, -1.0 / 40.0, 0.5], [0.0, 0.0, -1.0]];
+    pix2cam[2][0] = f64::MAX;
+    let e = mipnerf_core::camera::Camera::from_pix2cam(32, 32, pix2cam, pose).unwrap_err().to_string();
+    assert!(e.contains("along a direction of length") && e.contains("accepted: 1e-6 to 1e6"), "{e}");
+    // Scaled by 1e-9 the directions vanish in f32: refused too; a camera's own passes.
+    let tiny = pix2cam.map(|r| r.map(|v| v * 1e-9));
+    let mut fine = pix2cam;
+    fine[2][0] = 0.0;
+    let tiny = [[tiny[0][0], 0.0, tiny[0][2]], [0.0, tiny[1][1], tiny[1][2]], [0.0, 0.0, tiny[2][2]]];
+    assert!(mipnerf_core::camera::Camera::from_pix2cam(32, 32, tiny, pose).is_err());
+    assert!(mipnerf_core::camera::Camera::from_pix2cam(32, 32, fine, pose).is_ok());
+}
