@@ -333,6 +333,10 @@ impl TrainSettings {
         // A time budget ends the run, so the step count only caps it when given.
         let steps = self.steps.unwrap_or(if self.time_budget.is_some() { MAX_STEPS } else { 2000 });
         let occupancy = self.occupancy.unwrap_or(fast);
+        // On photos (LLFF, COLMAP) the tiny preset learns at the fast preset's rate: 21.86 dB
+        // against 19.10 dB at the official 5e-4 after 5 minutes on 40 lego photos
+        // (docs/results/own-photos/lr); small and paper keep the paper's rate everywhere.
+        let lr = if fast || (llff && preset == PresetArg::Tiny) { FAST_LR } else { (5e-4, 5e-6) };
         Self {
             data: self.data.clone(),
             preset: Some(preset),
@@ -343,19 +347,8 @@ impl TrainSettings {
             backend: Some(self.backend.unwrap_or(if fast { Backend::Cpu } else { Backend::Auto })),
             checkpoint_every: Some(self.checkpoint_every.unwrap_or(500)),
             log_every: Some(self.log_every.unwrap_or(10)),
-            // On photos (LLFF, COLMAP) the tiny preset learns at the fast preset's rate: 21.86 dB
-            // against 19.10 dB at the official 5e-4 after 5 minutes on 40 lego photos
-            // (docs/results/own-photos/lr); small and paper keep the paper's rate everywhere.
-            lr_init: Some(self.lr_init.unwrap_or(if fast || (llff && preset == PresetArg::Tiny) {
-                FAST_LR.0
-            } else {
-                5e-4
-            })),
-            lr_final: Some(self.lr_final.unwrap_or(if fast || (llff && preset == PresetArg::Tiny) {
-                FAST_LR.1
-            } else {
-                5e-6
-            })),
+            lr_init: Some(self.lr_init.unwrap_or(lr.0)),
+            lr_final: Some(self.lr_final.unwrap_or(lr.1)),
             lr_delay_steps: Some(self.lr_delay_steps.unwrap_or(if fast || self.time_budget.is_some() {
                 FAST_LR_DELAY_STEPS
             } else {

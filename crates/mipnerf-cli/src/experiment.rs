@@ -301,7 +301,7 @@ fn run_row(
         .data
         .as_deref()
         .and_then(|d| mipnerf_core::data::detect_format(d).ok())
-        .is_some_and(|f| matches!(f, mipnerf_core::data::Format::Llff | mipnerf_core::data::Format::Colmap));
+        .is_some_and(mipnerf_core::data::Format::is_photos);
     let steps = settings.resolved(llff).steps.unwrap_or(2000);
     let budget = settings.time_budget_seconds()?;
     let ckpt = run_dir.join(run::CHECKPOINT);

@@ -514,21 +514,16 @@ fn colmap_cmd(input: &Path, output: &Path, max_size: u32, min_views: usize, over
         }
     );
     let (white, black) = r.border_shares;
-    let background = match r.backdrop {
-        Some(data::process::Backdrop::White) => " --background white",
-        Some(data::process::Backdrop::Black) => " --background black",
-        None => "",
-    };
-    println!(
-        "photo borders: {:.0}% near white, {:.0}% near black: {}",
-        100.0 * white,
-        100.0 * black,
-        match r.backdrop {
-            Some(data::process::Backdrop::White) => "a white backdrop, composited on white (--background white)",
-            Some(data::process::Backdrop::Black) => "a black backdrop, composited on black (--background black)",
-            None => "no plain backdrop (the surroundings are learnt)",
+    let (background, backdrop) = match r.backdrop {
+        Some(data::process::Backdrop::White) => {
+            (" --background white", "a white backdrop, composited on white (--background white)")
         }
-    );
+        Some(data::process::Backdrop::Black) => {
+            (" --background black", "a black backdrop, composited on black (--background black)")
+        }
+        None => ("", "no plain backdrop (the surroundings are learnt)"),
+    };
+    println!("photo borders: {:.0}% near white, {:.0}% near black: {backdrop}", 100.0 * white, 100.0 * black);
     let name = output.file_name().map_or_else(|| "scene".to_owned(), |n| n.to_string_lossy().into_owned());
     println!(
         "train with:\n  mipnerf train --data {} --llff-factor {}{}{background} {COLMAP_FIRST_RUN} --out runs/{name}",

@@ -305,7 +305,7 @@ fn resolve_settings(
     // The dataset is stored as an absolute path, so that eval, render and --resume work from any
     // working directory.
     let data_dir = std::path::absolute(&data_dir).with_context(|| format!("resolving {}", data_dir.display()))?;
-    let mut s = merged.resolved(matches!(format, Format::Llff | Format::Colmap));
+    let mut s = merged.resolved(format.is_photos());
     s.data = Some(data_dir);
     s.optim_config()?;
     let model = Model::new(s.model_config()?)?;

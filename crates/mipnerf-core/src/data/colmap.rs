@@ -58,7 +58,30 @@ const MODELS: [(i32, &str, usize); 11] = [
     (10, "THIN_PRISM_FISHEYE", 12),
 ];
 
-fn model_of(id: i32) -> Option<CameraModel> {
+/// COLMAP's name of a camera model id (`unknown` for an id COLMAP does not have).
+#[must_use]
+pub fn model_name(id: i32) -> &'static str {
+    MODELS.iter().find(|m| m.0 == id).map_or("unknown", |m| m.1)
+}
+
+/// The number of parameters of a camera model id, if COLMAP has it.
+pub(crate) fn model_param_count(id: i32) -> Option<usize> {
+    MODELS.iter().find(|m| m.0 == id).map(|m| m.2)
+}
+
+/// `(fx, fy, cx, cy, distortion coefficients)` from a camera's parameters in COLMAP's order for
+/// `model`; `p` holds the model's count ([`model_param_count`]).
+pub(crate) fn intrinsics(model: CameraModel, p: &[f64]) -> (f64, f64, f64, f64, &[f64]) {
+    match model {
+        CameraModel::SimplePinhole => (p[0], p[0], p[1], p[2], &[]),
+        CameraModel::Pinhole => (p[0], p[1], p[2], p[3], &[]),
+        CameraModel::SimpleRadial | CameraModel::Radial => (p[0], p[0], p[1], p[2], &p[3..]),
+        CameraModel::Opencv => (p[0], p[1], p[2], p[3], &p[4..]),
+    }
+}
+
+/// The camera model of an id this module reads (the fisheye and exotic ones are `None`).
+pub(crate) fn model_of(id: i32) -> Option<CameraModel> {
     Some(match id {
         0 => CameraModel::SimplePinhole,
         1 => CameraModel::Pinhole,
@@ -167,8 +190,8 @@ pub fn list_models(dir: &Path) -> Result<Vec<(u32, PathBuf, usize)>, DataError> 
         .collect())
 }
 
-/// The model with the most registered images (ties: the lowest `N`).
-fn largest(models: &[(u32, PathBuf, usize)]) -> &(u32, PathBuf, usize) {
+/// The model with the most registered images (ties: the lowest `N`) of [`list_models`]'s list.
+pub(crate) fn largest(models: &[(u32, PathBuf, usize)]) -> &(u32, PathBuf, usize) {
     models.iter().max_by_key(|(k, _, c)| (*c, std::cmp::Reverse(*k))).unwrap_or(&models[0])
 }
 
@@ -280,7 +303,7 @@ fn read_bytes(path: &Path) -> Result<Vec<u8>, DataError> {
 }
 
 fn param_count(path: &Path, model_id: i32, camera: u32) -> Result<usize, DataError> {
-    MODELS.iter().find(|m| m.0 == model_id).map(|m| m.2).ok_or_else(|| {
+    model_param_count(model_id).ok_or_else(|| {
         DataError::invalid(path, format!("camera {camera}: unknown camera model id {model_id} (COLMAP's are 0 to 10)"))
     })
 }
@@ -537,7 +560,7 @@ pub fn poses_bounds(model: &ColmapModel, model_dir: &Path) -> Result<(Vec<[f64; 
 
 /// Refuses a camera the LLFF format cannot hold, with what to do instead.
 fn check_camera(c: &ColmapCamera, path: &Path) -> Result<(), DataError> {
-    let name = MODELS.iter().find(|m| m.0 == c.model_id).map_or("?", |m| m.1);
+    let name = model_name(c.model_id);
     let Some(model) = model_of(c.model_id) else {
         return Err(DataError::invalid(
             path,
@@ -548,13 +571,7 @@ fn check_camera(c: &ColmapCamera, path: &Path) -> Result<(), DataError> {
             ),
         ));
     };
-    let p = &c.params;
-    let (fx, fy, cx, cy, distortion) = match model {
-        CameraModel::SimplePinhole => (p[0], p[0], p[1], p[2], &[][..]),
-        CameraModel::Pinhole => (p[0], p[1], p[2], p[3], &[][..]),
-        CameraModel::SimpleRadial | CameraModel::Radial => (p[0], p[0], p[1], p[2], &p[3..]),
-        CameraModel::Opencv => (p[0], p[1], p[2], p[3], &p[4..]),
-    };
+    let (fx, fy, cx, cy, distortion) = intrinsics(model, &c.params);
     if distortion.iter().any(|&k| k != 0.0) {
         return Err(DataError::invalid(
             path,
@@ -628,9 +645,7 @@ pub fn read_images(
             }
             if factor > 1 {
                 let (nw, nh) = ((w / factor).max(1), (h / factor).max(1));
-                let f: Vec<f32> = im.rgba.iter().map(|&b| f32::from(b) / 255.0).collect();
-                let r = super::box_resize(&f, w as usize, h as usize, nw as usize, nh as usize);
-                im.rgba = r.iter().map(|&x| (x * 255.0).round().clamp(0.0, 255.0) as u8).collect();
+                im.rgba = super::box_resize_rgba8(&im.rgba, w, h, nw, nh);
                 (im.width, im.height) = (nw, nh);
             }
         }

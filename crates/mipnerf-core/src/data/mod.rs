@@ -421,6 +421,16 @@ pub enum Format {
     Colmap,
 }
 
+impl Format {
+    /// Photos with poses from LLFF or COLMAP (forward-facing or spherified), whose training
+    /// defaults differ from the Blender formats' (no compositing, cylinders in NDC, the tiny
+    /// preset's learning rate).
+    #[must_use]
+    pub fn is_photos(self) -> bool {
+        matches!(self, Self::Llff | Self::Colmap)
+    }
+}
+
 /// Detects the format of the dataset in `dir`.
 ///
 /// # Errors
@@ -561,6 +571,13 @@ pub fn down2(rgba: &[f32], w: usize, h: usize) -> Vec<f32> {
         }
     }
     out
+}
+
+/// [`box_resize`] of 8-bit RGBA: to [0, 1], box-filtered, back to the nearest 8-bit value.
+pub(crate) fn box_resize_rgba8(rgba: &[u8], w: u32, h: u32, nw: u32, nh: u32) -> Vec<u8> {
+    let f: Vec<f32> = rgba.iter().map(|&b| f32::from(b) / 255.0).collect();
+    let r = box_resize(&f, w as usize, h as usize, nw as usize, nh as usize);
+    r.iter().map(|&x| (x * 255.0).round().clamp(0.0, 255.0) as u8).collect()
 }
 
 /// Area-average resampling of straight RGBA `f32` pixels from `w x h` to `nw x nh` (any ratio,

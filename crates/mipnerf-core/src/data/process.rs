@@ -132,8 +132,7 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
         ));
     }
     let models = colmap::list_models(input)?;
-    let best =
-        models.iter().max_by_key(|(k, _, c)| (*c, std::cmp::Reverse(*k))).cloned().unwrap_or_else(|| models[0].clone());
+    let best = colmap::largest(&models).clone();
     let photos = std::fs::read_dir(&images_dir)
         .map_err(|e| DataError::io(&images_dir, e))?
         .filter_map(Result::ok)
@@ -230,13 +229,7 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
         }
         let und = undistort::warp(&rgba, 4, &lens, &target);
         let (nw, nh) = size;
-        let out = if factor > 1 {
-            let f: Vec<f32> = und.iter().map(|&b| f32::from(b) / 255.0).collect();
-            let r = super::box_resize(&f, target.width as usize, target.height as usize, nw as usize, nh as usize);
-            r.iter().map(|&x| (x * 255.0).round().clamp(0.0, 255.0) as u8).collect()
-        } else {
-            und
-        };
+        let out = if factor > 1 { super::box_resize_rgba8(&und, target.width, target.height, nw, nh) } else { und };
         let stem = Path::new(name).file_stem().map_or_else(String::new, |s| s.to_string_lossy().into_owned());
         super::write_png_rgba(&partial.join(format!("{i:04}_{stem}.png")), nw, nh, &out)?;
         Ok(border_counts(&out, nw as usize, nh as usize))
@@ -274,7 +267,7 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
         model_dir: best.1,
         registered,
         photos,
-        camera_model: undistort::model_name(first.model_id),
+        camera_model: colmap::model_name(first.model_id),
         lens,
         pinhole,
         factor,

@@ -17,7 +17,7 @@
 //! resolution) and the principal point at the image centre, cropped to the largest such image
 //! with no blank pixels (COLMAP keeps `fx != fy` and the principal point where it was).
 
-use super::colmap::ColmapCamera;
+use super::colmap::{CameraModel, ColmapCamera, intrinsics, model_name, model_of, model_param_count};
 
 /// COLMAP's lens distortion models, with their coefficients.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -138,25 +138,6 @@ pub struct LensCamera {
     pub distortion: Distortion,
 }
 
-/// COLMAP's name of a camera model id.
-#[must_use]
-pub fn model_name(id: i32) -> &'static str {
-    match id {
-        0 => "SIMPLE_PINHOLE",
-        1 => "PINHOLE",
-        2 => "SIMPLE_RADIAL",
-        3 => "RADIAL",
-        4 => "OPENCV",
-        5 => "OPENCV_FISHEYE",
-        6 => "FULL_OPENCV",
-        7 => "FOV",
-        8 => "SIMPLE_RADIAL_FISHEYE",
-        9 => "RADIAL_FISHEYE",
-        10 => "THIN_PRISM_FISHEYE",
-        _ => "unknown",
-    }
-}
-
 impl LensCamera {
     /// The camera of a COLMAP camera record.
     ///
@@ -165,35 +146,24 @@ impl LensCamera {
     /// are supported), a parameter count that does not fit the model, or a size or focal length
     /// that is not positive and finite.
     pub fn from_colmap(c: &ColmapCamera) -> Result<Self, String> {
-        let p = &c.params;
-        let want = match c.model_id {
-            0 => 3,
-            1 | 2 => 4,
-            3 => 5,
-            4 => 8,
-            _ => {
-                return Err(format!(
-                    "camera {} is {}, which mipnerf cannot undistort (supported: SIMPLE_PINHOLE, PINHOLE, \
-                     SIMPLE_RADIAL, RADIAL, OPENCV); undistort it with COLMAP first (colmap image_undistorter)",
-                    c.id,
-                    model_name(c.model_id)
-                ));
-            }
-        };
-        if p.len() != want {
+        let name = model_name(c.model_id);
+        let Some(model) = model_of(c.model_id) else {
             return Err(format!(
-                "camera {} ({}) has {} parameters, the model has {want}",
-                c.id,
-                model_name(c.model_id),
-                p.len()
+                "camera {} is {name}, which mipnerf cannot undistort (supported: SIMPLE_PINHOLE, PINHOLE, \
+                 SIMPLE_RADIAL, RADIAL, OPENCV); undistort it with COLMAP first (colmap image_undistorter)",
+                c.id
             ));
+        };
+        let want = model_param_count(c.model_id).unwrap_or(0);
+        if c.params.len() != want {
+            return Err(format!("camera {} ({name}) has {} parameters, the model has {want}", c.id, c.params.len()));
         }
-        let (fx, fy, cx, cy, distortion) = match c.model_id {
-            0 => (p[0], p[0], p[1], p[2], Distortion::None),
-            1 => (p[0], p[1], p[2], p[3], Distortion::None),
-            2 => (p[0], p[0], p[1], p[2], Distortion::SimpleRadial { k: p[3] }),
-            3 => (p[0], p[0], p[1], p[2], Distortion::Radial { k1: p[3], k2: p[4] }),
-            _ => (p[0], p[1], p[2], p[3], Distortion::Opencv { k1: p[4], k2: p[5], p1: p[6], p2: p[7] }),
+        let (fx, fy, cx, cy, k) = intrinsics(model, &c.params);
+        let distortion = match model {
+            CameraModel::SimplePinhole | CameraModel::Pinhole => Distortion::None,
+            CameraModel::SimpleRadial => Distortion::SimpleRadial { k: k[0] },
+            CameraModel::Radial => Distortion::Radial { k1: k[0], k2: k[1] },
+            CameraModel::Opencv => Distortion::Opencv { k1: k[0], k2: k[1], p1: k[2], p2: k[3] },
         };
         let (width, height) = (u32::try_from(c.width).unwrap_or(0), u32::try_from(c.height).unwrap_or(0));
         if !(fx > 0.0 && fy > 0.0 && fx.is_finite() && fy.is_finite() && width > 0 && height > 0)
