@@ -31,7 +31,9 @@ struct Params {
     key: u32,
     // 0: RGBA8 packed in one u32 per pixel, 1: four f32 per pixel, 2: no pixels (no targets).
     pixel_format: u32,
-    white_bkgd: u32,
+    // What the targets are composited on: BACKGROUND_BLACK (alpha dropped), BACKGROUND_WHITE,
+    // or BACKGROUND_RANDOM (training: each pixel on its own random colour, `random_background`).
+    background: u32,
     // 1: weight rays by their lossmult in the loss's denominator.
     area_loss: u32,
     groups_x: u32,
@@ -43,8 +45,9 @@ struct Params {
     supersample: u32,
     // The pixel-centre offset included in each view's `dir0` (0.5 or 0).
     centre_offset: f32,
-    _pad0: u32,
-    _pad1: u32,
+    // Run seed and step (random backgrounds).
+    seed: u32,
+    step: u32,
 }
 
 struct View {
@@ -225,8 +228,10 @@ fn make_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
         );
     }
     var rgb = rgba.xyz;
-    if (p.white_bkgd != 0u) {
+    if (p.background == BACKGROUND_WHITE) {
         rgb = rgb * rgba.w + (1.0 - rgba.w);
+    } else if (p.background == BACKGROUND_RANDOM) {
+        rgb = rgb * rgba.w + random_background(p.seed, p.step, pix) * (1.0 - rgba.w);
     }
     targets[i] = vec4<f32>(rgb, 0.0);
 }

@@ -5,7 +5,8 @@
 // Per ray r with samples i (n = n_rays * n_samples):
 //   rgb_i = sigmoid(raw_rgb_i) (1 + 2 pad) - pad;  density_i = act(raw_density_i + bias)
 //   w_i = (1 - exp(-density_i delta_i)) exp(-sum_{j<i} density_j delta_j)
-//   colour = sum w_i rgb_i (+ 1 - acc with a white background)
+//   colour = sum w_i rgb_i + (1 - acc) background (white, black, or in training with random
+//   backgrounds the ray's pixel's `random_background`)
 // With `train` set, the loss level_weight * lossmult |colour - target|^2 / batch_norm[0] is differentiated
 // (its gradient is mipnerf_core::model::pixel_loss_gradient, the formula's one statement):
 // d_raw_rgb and d_raw_density are written for the MLP's backward pass.
@@ -13,7 +14,8 @@
 struct Params {
     n_rays: u32,
     n_samples: u32,
-    white_bkgd: u32,
+    // BACKGROUND_BLACK, BACKGROUND_WHITE or BACKGROUND_RANDOM (training; seed, step, first_ray).
+    background: u32,
     // DENSITY_SOFTPLUS or DENSITY_RELU
     density_activation: u32,
     density_bias: f32,
@@ -103,8 +105,12 @@ fn padded(sg: vec3<f32>) -> vec3<f32> {
     return sg * (1.0 + 2.0 * p.rgb_padding) - p.rgb_padding;
 }
 
-fn background() -> f32 {
-    return select(0.0, 1.0, p.white_bkgd != 0u);
+// The background colour behind ray r: mipnerf-core's `Model::ray_background`.
+fn background(r: u32) -> vec3<f32> {
+    if (p.background == BACKGROUND_RANDOM) {
+        return random_background(p.seed, p.step, (p.first_ray + r) / (p.supersample * p.supersample));
+    }
+    return vec3<f32>(select(0.0, 1.0, p.background == BACKGROUND_WHITE));
 }
 
 // Sums over some of a ray's samples of w_i rgb_i, w_i and w_i t_mid_i.
@@ -169,7 +175,7 @@ fn finish_ray(r: u32, sums: RayPartial) -> vec3<f32> {
         dist = sums.dist_num / acc;
     }
     dist = clamp(dist, t_vals[tb], t_vals[tb + p.n_samples]);
-    let colour = sums.colour + background() * (1.0 - acc);
+    let colour = sums.colour + background(r) * (1.0 - acc);
     ray_out[2u * r] = vec4<f32>(colour, dist);
     if (p.supersample > 1u) {
         ray_out[2u * r + 1u] = vec4<f32>(acc, 0.0, 0.0, 0.0);
@@ -202,10 +208,11 @@ fn backward_ray(r: u32, d_col: vec3<f32>) {
 
 // sum over samples i0..i1 of ray r of g_i w_i, g_i = d_col . (rgb_i - background).
 fn colour_grad_sum(r: u32, i0: u32, i1: u32, d_col: vec3<f32>) -> f32 {
+    let bg = background(r);
     var sum = 0.0;
     for (var i = i0; i < i1; i = i + 1u) {
         let k = r * p.n_samples + i;
-        sum = sum + dot(d_col, padded(sample_sigmoid(k)) - vec3<f32>(background())) * weights[k];
+        sum = sum + dot(d_col, padded(sample_sigmoid(k)) - bg) * weights[k];
     }
     return sum;
 }
@@ -217,14 +224,14 @@ fn backward_samples(r: u32, i0: u32, i1: u32, d_col: vec3<f32>, suffix0: f32) {
     let tb = r * (p.n_samples + 1u);
     let dir_norm = length(rays[2u * r + 1u].xyz);
     let noise_key = density_noise_key(r);
-    let bg = background();
+    let bg = background(r);
     var suffix = suffix0;
     for (var j = i0; j < i1; j = j + 1u) {
         let i = i1 - 1u - (j - i0);
         let k = base + i;
         let sg = sample_sigmoid(k);
         let w = weights[k];
-        let g = dot(d_col, padded(sg) - vec3<f32>(bg));
+        let g = dot(d_col, padded(sg) - bg);
         let ds = g * d_raw_density[k * p.density_stride] - suffix;
         suffix = suffix + g * w;
         let delta = (t_vals[tb + i + 1u] - t_vals[tb + i]) * dir_norm;

@@ -30,6 +30,12 @@ fn uniform01(key: u32, i: u32) -> f32 {
     return f32(stream_bits(key, i) >> 8u) * (1.0 / 16777216.0);
 }
 
+// The random background colour of batch pixel `pixel`: `rng::random_background`.
+fn random_background(seed: u32, step: u32, pixel: u32) -> vec3<f32> {
+    let key = stream_key(seed, step, STREAM_BACKGROUND, pixel);
+    return vec3<f32>(uniform01(key, 0u), uniform01(key, 1u), uniform01(key, 2u));
+}
+
 // `RayRng::normal`: Box-Muller on uniforms 2i and 2i + 1; the cosine's argument is brought into
 // [-pi, pi], where GPU `cos` is accurate.
 fn normal(key: u32, i: u32) -> f32 {

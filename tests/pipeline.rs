@@ -51,7 +51,8 @@ fn a_slab_renders_at_its_depth_and_the_fine_level_samples_it() {
             assert!(enc.iter().all(|x| x.is_finite() && x.abs() <= 1.0));
         }
         let sigma: Vec<f32> = gs.iter().map(density).collect();
-        let coarse = volumetric_rendering(&rgb, &sigma, &t, ray.direction, true, &mut w);
+        let coarse =
+            volumetric_rendering(&rgb, &sigma, &t, ray.direction, mipnerf::core::render::background(true), &mut w);
         // Front face at depth 2.85 along the camera axis (t is depth since direction.z = -1).
         assert!(coarse.acc > 0.99, "slab not opaque: acc {}", coarse.acc);
         assert!((coarse.distance - 2.9).abs() < 0.1, "coarse depth {}", coarse.distance);
@@ -62,7 +63,8 @@ fn a_slab_renders_at_its_depth_and_the_fine_level_samples_it() {
         assert!(near_slab > n / 2, "fine level put only {near_slab} of {} edges near the slab", n + 1);
         cone::cast_ray(&t_fine, ray.origin, ray.direction, ray.radius, RayShape::Cone, &mut gs);
         let sigma: Vec<f32> = gs.iter().map(density).collect();
-        let fine = volumetric_rendering(&rgb, &sigma, &t_fine, ray.direction, true, &mut w);
+        let fine =
+            volumetric_rendering(&rgb, &sigma, &t_fine, ray.direction, mipnerf::core::render::background(true), &mut w);
         assert!((fine.distance - 2.87).abs() < 0.05, "fine depth {}", fine.distance);
     }
 }

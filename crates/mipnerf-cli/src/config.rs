@@ -182,6 +182,10 @@ pub struct TrainSettings {
     /// Composite on white (`--background white`) or not (`black`) [default: true, false for LLFF
     /// and COLMAP].
     pub white_bkgd: Option<bool>,
+    /// Training only: composite each pixel on a random colour, its target too
+    /// (`--background random`; evaluation and renders use `white_bkgd`). Needs images with alpha
+    /// [default: false].
+    pub random_bkgd: Option<bool>,
     /// Blender: load at half resolution [default: false].
     pub half_res: Option<bool>,
     /// LLFF: image folder factor, images_N [default: 4].
@@ -264,6 +268,7 @@ impl TrainSettings {
             supersample,
             ray_shape,
             white_bkgd,
+            random_bkgd,
             half_res,
             llff_factor,
             spherify,
@@ -370,6 +375,7 @@ impl TrainSettings {
                 RayShape::Cone
             })),
             white_bkgd: Some(self.white_bkgd.unwrap_or(!llff)),
+            random_bkgd: Some(self.random_bkgd.unwrap_or(false)),
             half_res: Some(self.half_res.unwrap_or(false)),
             llff_factor: Some(self.llff_factor.unwrap_or(4)),
             spherify: Some(self.spherify.unwrap_or(false)),
@@ -446,6 +452,7 @@ impl TrainSettings {
         m.supersample = self.supersample.unwrap_or(1);
         m.ray_shape = self.ray_shape.unwrap_or(RayShape::Cone);
         m.white_bkgd = self.white_bkgd.unwrap_or(true);
+        m.random_bkgd = self.random_bkgd.unwrap_or(false);
         if m.supersample == 0 || m.supersample > 16 {
             bail!("--supersample must be between 1 and 16, got {}", m.supersample);
         }
@@ -641,7 +648,9 @@ pub struct TrainFlags {
     /// What the renders are composited on where the rays meet nothing [default: white for
     /// Blender and multiscale data, black (no compositing) for LLFF and COLMAP]. White or black
     /// suits an object photographed on a plain backdrop of that colour (the backdrop then need
-    /// not be learnt); Blender images' alpha is composited on the same colour.
+    /// not be learnt); Blender images' alpha is composited on the same colour. Random trains each
+    /// pixel on its own random colour (images with alpha only) and evaluates and renders on
+    /// white.
     #[arg(long, value_enum)]
     pub background: Option<BackgroundArg>,
     /// Occupancy-guided sampling: skip empty space, learnt from the model's densities (on by
@@ -683,6 +692,10 @@ pub enum BackgroundArg {
     /// Black (no compositing: the official code's LLFF setting, and the default for LLFF and
     /// COLMAP data).
     Black,
+    /// In training, each pixel on its own random colour (its target composited on the same), so
+    /// that the model learns where the object is transparent rather than the backdrop's colour;
+    /// evaluation and renders on white. Needs images with alpha (Blender, multiscale).
+    Random,
 }
 
 /// `--ray-shape` values.
@@ -727,7 +740,8 @@ impl TrainFlags {
                 RayShapeArg::Cone => RayShape::Cone,
                 RayShapeArg::Cylinder => RayShape::Cylinder,
             }),
-            white_bkgd: self.background.map(|b| b == BackgroundArg::White),
+            white_bkgd: self.background.map(|b| b != BackgroundArg::Black),
+            random_bkgd: self.background.map(|b| b == BackgroundArg::Random),
             half_res: yes(self.half_res),
             llff_factor: self.llff_factor,
             spherify: yes(self.spherify),

@@ -364,6 +364,15 @@ fn load_training_data(s: &TrainSettings, format: Format, model: &Model) -> Resul
     }
     mipnerf_core::backend::check_ndc_supersample(ds.ndc, model.config().supersample)
         .with_context(|| data_dir.display().to_string())?;
+    if model.config().random_bkgd && !ds.has_transparency() {
+        bail!(
+            "--background random needs images with transparent pixels (alpha below 1), as Blender scenes have, \
+             but none of the {} training images in {} has any{}; use --background white or black",
+            ds.views().len(),
+            data_dir.display(),
+            if format.is_photos() { " (photos from COLMAP or LLFF have no alpha)" } else { "" }
+        );
+    }
     eprintln!(
         "model: {} parameters ({:?} preset, {:?})",
         model.num_params(),

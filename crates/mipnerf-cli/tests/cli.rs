@@ -1057,3 +1057,36 @@ fn train_prints_its_estimate_after_the_first_seconds() {
     // the budget gave.
     assert!(steps * 2 > trained && steps < trained * 2, "estimated {steps}, trained {trained}");
 }
+
+#[test]
+fn random_backgrounds_train_on_images_with_alpha_and_are_refused_for_photos() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    let blender = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/lego_tiny");
+    let args = |data: &std::path::Path, out: &std::path::Path| {
+        ["train", "--data", data.to_str().unwrap(), "--out", out.to_str().unwrap(), "--background", "random"]
+            .map(String::from)
+            .to_vec()
+    };
+    let mut a = args(&blender, &run);
+    a.extend(["--steps", "4", "--batch-rays", "64", "--backend", "cpu"].map(String::from));
+    run_ok(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    // Trained on random colours, evaluated and rendered on white: both recorded.
+    let config = std::fs::read_to_string(run.join("config.toml")).unwrap();
+    assert!(config.contains("random_bkgd = true") && config.contains("white_bkgd = true"), "{config}");
+    // Photos have no alpha: a clear error naming the folder, before any training.
+    let photos = dir.path().join("photos");
+    let mut a = args(&colmap_scene(), &photos);
+    a.extend(["--steps", "4", "--backend", "cpu"].map(String::from));
+    let out = mipnerf(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains("--background random needs images with transparent pixels")
+            && err.contains("colmap_lego")
+            && err.contains("no alpha")
+            && !err.contains("panicked"),
+        "{err}"
+    );
+    assert!(!photos.join("checkpoint.bin").exists());
+}

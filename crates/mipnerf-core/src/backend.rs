@@ -407,8 +407,9 @@ impl Backend for CpuBackend {
     fn train_step(&mut self, report: bool) -> Result<Option<StepReport>, BackendError> {
         let (ds, batch) = self.data.as_ref().ok_or(BackendError::NoData)?;
         let t = &self.trainer;
-        check_ndc_supersample(ds.ndc, t.model.config().supersample)?;
-        ds.sample_batch(*batch, t.seed, t.step as u32, t.model.config().supersample, &mut self.rays, &mut self.targets);
+        let c = t.model.config();
+        check_ndc_supersample(ds.ndc, c.supersample)?;
+        ds.sample_batch(*batch, t.seed, t.step as u32, c.supersample, c.random_bkgd, &mut self.rays, &mut self.targets);
         let rep = self.trainer.train_step(&self.rays, &self.targets);
         // The CPU has the losses anyway; it returns them only when asked, as the trait says.
         Ok(report.then_some(rep))

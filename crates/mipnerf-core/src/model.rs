@@ -79,8 +79,15 @@ pub struct ModelConfig {
     pub rgb_padding: f32,
     /// Standard deviation of Gaussian noise added to raw density in training.
     pub density_noise: f32,
-    /// Composite on a white background.
+    /// Composite on a white background (else black): in evaluation and rendering always, and in
+    /// training unless `random_bkgd`.
     pub white_bkgd: bool,
+    /// Training only: composite each pixel on its own random colour
+    /// ([`rng::random_background`](crate::rng::random_background) of its place in the batch), on
+    /// which its target is composited too (`Dataset::sample_batch`), so that the model must learn
+    /// where the object is transparent instead of painting the backdrop's colour into the scene.
+    /// Needs images with alpha.
+    pub random_bkgd: bool,
     /// Weight of every level but the last in the loss.
     pub coarse_loss_mult: f32,
     /// Weight each ray by its `lossmult` (its pixel's area; the paper's "area loss").
@@ -113,6 +120,7 @@ impl Default for ModelConfig {
             rgb_padding: 0.001,
             density_noise: 0.0,
             white_bkgd: true,
+            random_bkgd: false,
             coarse_loss_mult: 0.1,
             area_loss: true,
             supersample: 1,
@@ -494,8 +502,18 @@ impl Model {
     /// opacity, and `near` as its distance (what [`render::volumetric_rendering`] reports for a
     /// ray with no opacity: its first edge).
     fn background_output(&self, ray: &Ray) -> LevelOutput {
-        let bg = if self.config.white_bkgd { 1.0 } else { 0.0 };
-        LevelOutput { rgb: [bg; 3], distance: ray.near, acc: 0.0 }
+        LevelOutput { rgb: self.ray_background(Mode::Eval, 0), distance: ray.near, acc: 0.0 }
+    }
+
+    /// The background colour behind the ray with batch index `ray` in `mode`: in training with
+    /// `random_bkgd`, the random colour of its pixel; otherwise white or black (`white_bkgd`).
+    fn ray_background(&self, mode: Mode, ray: u32) -> [f32; 3] {
+        match mode {
+            Mode::Train { seed, step } if self.config.random_bkgd => {
+                crate::rng::random_background(seed, step, ray / self.rays_per_pixel() as u32)
+            }
+            _ => render::background(self.config.white_bkgd),
+        }
     }
 
     /// The occupied spans of each ray under `grid`, or `None` when the grid changes nothing (no
@@ -619,7 +637,7 @@ impl Model {
                 if next_active.next_if(|&&a| a as usize == i).is_some() {
                     continue;
                 }
-                let (bg, lm) = (self.background_output(ray).rgb, f64::from(self.lossmult(ray)));
+                let (bg, lm) = (self.ray_background(mode, i as u32), f64::from(self.lossmult(ray)));
                 for level in &mut empty {
                     for k in 0..3 {
                         let e = f64::from(bg[k] - tg[k]);
@@ -697,14 +715,14 @@ impl Model {
             mlp.forward(params, &ws.x, &ws.view, rays.len(), c.num_samples, &mut ws.cache);
             self.add_density_noise(level, rays.len(), ids, mode, ws);
             self.apply_activations(ws);
-            self.render_pixels(rays, &mut per_ray, ws);
+            self.render_pixels(rays, ids, mode, &mut per_ray, ws);
             if let Some(out) = out.as_deref_mut() {
                 self.write_level_output(level, &per_ray, ws, out);
             }
             let (Some((tg, norm)), Some(grads)) = (targets, grads.as_deref_mut()) else {
                 continue;
             };
-            self.loss_gradient(level, rays, tg, norm, &mut sums[level], ws);
+            self.loss_gradient(level, rays, ids, mode, tg, norm, &mut sums[level], ws);
             self.activations_backward(ws);
             let (x, view, cache) = (&ws.x, &ws.view, &mut ws.cache);
             mlp.backward(params, x, view, c.num_samples, cache, &ws.d_raw_rgb, &ws.d_raw_density, grads);
@@ -844,7 +862,14 @@ impl Model {
 
     /// Volume rendering of each ray ([`render::volumetric_rendering`], which also writes the
     /// weights the next level resamples from), averaged over a pixel's rays.
-    fn render_pixels(&self, rays: &[Ray], per_ray: &mut [render::RenderedRay], ws: &mut Workspace) {
+    fn render_pixels(
+        &self,
+        rays: &[Ray],
+        ids: RayIds<'_>,
+        mode: Mode,
+        per_ray: &mut [render::RenderedRay],
+        ws: &mut Workspace,
+    ) {
         let c = &self.config;
         let s = c.num_samples;
         let rpp = self.rays_per_pixel();
@@ -857,7 +882,7 @@ impl Model {
                 &ws.density[sl.clone()],
                 &ws.t[r * (s + 1)..(r + 1) * (s + 1)],
                 ray.direction,
-                c.white_bkgd,
+                self.ray_background(mode, ids.get(r)),
                 &mut ws.weights[sl],
             );
             for k in 0..3 {
@@ -890,10 +915,13 @@ impl Model {
     /// [`pixel_loss_gradient`] of the area-weighted squared error (adding the pixel's
     /// `lossmult · |e|²` and `|e|²` to `sums`), shared by its rays, then
     /// [`render::volumetric_rendering_backward`] to each sample's colour and density.
+    #[allow(clippy::too_many_arguments)]
     fn loss_gradient(
         &self,
         level: usize,
         rays: &[Ray],
+        ids: RayIds<'_>,
+        mode: Mode,
         tg: &[[f32; 3]],
         norm: f32,
         sums: &mut [f64; 2],
@@ -927,7 +955,7 @@ impl Model {
                 &ws.density[sl.clone()],
                 &ws.t[r * (s + 1)..(r + 1) * (s + 1)],
                 ray.direction,
-                c.white_bkgd,
+                self.ray_background(mode, ids.get(r)),
                 &ws.weights[sl.clone()],
                 d_rgb,
                 0.0,

@@ -33,8 +33,9 @@ pub struct RenderedRay {
 /// interval edges `t_vals` (`n + 1`), writing the per-interval weights to `weights`.
 ///
 /// `delta_i = (t_{i+1} - t_i) |dir|`, `alpha_i = 1 - exp(-density_i delta_i)`,
-/// `T_i = exp(-sum_{j<i} density_j delta_j)`, `w_i = alpha_i T_i`. With `white_bkgd` the
-/// colour becomes `rgb + (1 - acc)` (Blender scenes are composited on white).
+/// `T_i = exp(-sum_{j<i} density_j delta_j)`, `w_i = alpha_i T_i`. The colour is composited on
+/// the background colour `bg`: `rgb + (1 - acc) bg` (the official `white_bkgd` is
+/// `bg = [1, 1, 1]`, see [`background`]; Blender scenes are composited on white).
 ///
 /// # Panics
 /// If the lengths disagree.
@@ -43,7 +44,7 @@ pub fn volumetric_rendering(
     density: &[f32],
     t_vals: &[f32],
     dir: Vec3,
-    white_bkgd: bool,
+    bg: [f32; 3],
     weights: &mut [f32],
 ) -> RenderedRay {
     let n = density.len();
@@ -82,19 +83,24 @@ pub fn volumetric_rendering(
         d
     };
     out.distance = clamp_to(d, t_vals[0], t_vals[n]);
-    if white_bkgd {
-        for c in &mut out.rgb {
-            *c += 1.0 - out.acc;
-        }
+    for (c, b) in out.rgb.iter_mut().zip(bg) {
+        *c += (1.0 - out.acc) * b;
     }
     out
+}
+
+/// The official background flag as a colour: white (`[1, 1, 1]`) with `white_bkgd`, else black.
+#[must_use]
+#[inline]
+pub const fn background(white_bkgd: bool) -> [f32; 3] {
+    if white_bkgd { [1.0; 3] } else { [0.0; 3] }
 }
 
 /// The backward pass of [`volumetric_rendering`] with respect to the colours and densities.
 ///
 /// Given the upstream gradients `d_rgb` (of the composited colour) and `d_acc` (of the accumulated
 /// opacity), writes `dL/d rgb_i = w_i d_rgb` to `grad_rgb` and `dL/d density_i` to `grad_density`:
-/// with `g_i = d_rgb · (rgb_i - bg) + d_acc` (`bg = 1` with `white_bkgd`, else 0),
+/// with `g_i = d_rgb · (rgb_i - bg) + d_acc` (`bg` the background colour of the forward pass),
 /// `dL/d s_k = g_k T_{k+1} - sum_{i>k} g_i w_i` and `dL/d density_k = delta_k dL/d s_k`,
 /// where `s_k = density_k delta_k`. `weights` must be the forward pass's. The edges `t_vals` get
 /// no gradient (they are sampled, not learnt).
@@ -107,7 +113,7 @@ pub fn volumetric_rendering_backward(
     density: &[f32],
     t_vals: &[f32],
     dir: Vec3,
-    white_bkgd: bool,
+    bg: [f32; 3],
     weights: &[f32],
     d_rgb: [f32; 3],
     d_acc: f32,
@@ -119,7 +125,6 @@ pub fn volumetric_rendering_backward(
         rgb.len() == n && t_vals.len() == n + 1 && weights.len() == n && grad_rgb.len() == n && grad_density.len() == n,
         "volumetric_rendering_backward: shapes"
     );
-    let bg = if white_bkgd { 1.0 } else { 0.0 };
     let dir_norm = dir.length();
     // Forward prefix sums again, to get T_{k+1} = exp(-sum_{j<=k} s_j).
     let mut cum = 0.0f32;
@@ -133,7 +138,8 @@ pub fn volumetric_rendering_backward(
     }
     let mut suffix = 0.0f32; // sum_{i>k} g_i w_i
     for k in (0..n).rev() {
-        let g = d_rgb[0] * (rgb[k][0] - bg) + d_rgb[1] * (rgb[k][1] - bg) + d_rgb[2] * (rgb[k][2] - bg) + d_acc;
+        let g =
+            d_rgb[0] * (rgb[k][0] - bg[0]) + d_rgb[1] * (rgb[k][1] - bg[1]) + d_rgb[2] * (rgb[k][2] - bg[2]) + d_acc;
         let ds = g * trans_next[k] - suffix;
         suffix += g * weights[k];
         grad_density[k] = ds * deltas[k];

@@ -43,6 +43,20 @@ pub enum Stream {
     Other = 5,
     /// The random point of each cell at which an occupancy-grid update evaluates the density.
     OccupancyUpdate = 6,
+    /// The random background colour of each training pixel (`ModelConfig::random_bkgd`).
+    Background = 7,
+}
+
+/// The background colour of pixel `pixel` of the batch of training step `step` when training on
+/// random backgrounds (`ModelConfig::random_bkgd`): uniforms 0, 1 and 2 of the pixel's
+/// [`Stream::Background`] stream, each in `[0, 1)`. The model renders the pixel on this colour and
+/// `Dataset::sample_batch` composites its target on it; `shaders/rng.wgsl`'s `random_background`
+/// draws the same.
+#[must_use]
+#[inline]
+pub fn random_background(seed: u32, step: u32, pixel: u32) -> [f32; 3] {
+    let rng = RayRng::new(seed, step, Stream::Background, pixel);
+    [rng.uniform(0), rng.uniform(1), rng.uniform(2)]
 }
 
 /// A random stream for one ray (or one draw site) of one training step.

@@ -4,7 +4,8 @@
 
 use glam::Vec3;
 use mipnerf_core::render::{
-    DensityActivation, rgb_activation, rgb_activation_derivative, volumetric_rendering, volumetric_rendering_backward,
+    DensityActivation, background, rgb_activation, rgb_activation_derivative, volumetric_rendering,
+    volumetric_rendering_backward,
 };
 use rand::{Rng, SeedableRng, rngs::SmallRng};
 
@@ -46,9 +47,9 @@ fn random_ray(rng: &mut SmallRng, n: usize) -> RayCase {
 }
 
 /// The scalar the checks differentiate: L = c · rgb_out + a acc.
-fn loss(r: &RayCase, white: bool, c: [f32; 3], a: f32) -> f64 {
+fn loss(r: &RayCase, bg: [f32; 3], c: [f32; 3], a: f32) -> f64 {
     let mut w = vec![0.0; r.density.len()];
-    let out = volumetric_rendering(&r.rgb, &r.density, &r.t, r.dir, white, &mut w);
+    let out = volumetric_rendering(&r.rgb, &r.density, &r.t, r.dir, bg, &mut w);
     (0..3).map(|k| f64::from(c[k]) * f64::from(out.rgb[k])).sum::<f64>() + f64::from(a) * f64::from(out.acc)
 }
 
@@ -59,22 +60,27 @@ fn volumetric_rendering_backward_matches_finite_differences() {
     let mut checked = 0;
     for case in 0..12 {
         let n = [1, 2, 5, 16][case % 4];
-        let white = case % 2 == 0;
+        // White, black, and a colour (random backgrounds), each with every sample count.
+        let bg = match case % 3 {
+            0 => background(true),
+            1 => background(false),
+            _ => [rng.random_range(0.0..1.0), rng.random_range(0.0..1.0), rng.random_range(0.0..1.0)],
+        };
         let mut r = random_ray(&mut rng, n);
         let c = [rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)];
         let a = rng.random_range(-1.0..1.0);
         let mut w = vec![0.0; n];
-        volumetric_rendering(&r.rgb, &r.density, &r.t, r.dir, white, &mut w);
+        volumetric_rendering(&r.rgb, &r.density, &r.t, r.dir, bg, &mut w);
         let mut g_rgb = vec![[0.0; 3]; n];
         let mut g_den = vec![0.0; n];
-        volumetric_rendering_backward(&r.rgb, &r.density, &r.t, r.dir, white, &w, c, a, &mut g_rgb, &mut g_den);
+        volumetric_rendering_backward(&r.rgb, &r.density, &r.t, r.dir, bg, &w, c, a, &mut g_rgb, &mut g_den);
         for i in 0..n {
             let x0 = r.density[i];
             let h = (FD_STEP * f64::from(x0).abs().max(0.3)) as f32;
             r.density[i] = x0 + h;
-            let up = loss(&r, white, c, a);
+            let up = loss(&r, bg, c, a);
             r.density[i] = x0 - h;
-            let down = loss(&r, white, c, a);
+            let down = loss(&r, bg, c, a);
             r.density[i] = x0;
             let h_eff = (f64::from(x0 + h) - f64::from(x0 - h)) / 2.0;
             check(&format!("case {case} d/d density[{i}]"), f64::from(g_den[i]), (up - down) / (2.0 * h_eff), &mut bad);
@@ -82,9 +88,9 @@ fn volumetric_rendering_backward_matches_finite_differences() {
                 let x0 = r.rgb[i][k];
                 let h = 1e-2f32;
                 r.rgb[i][k] = x0 + h;
-                let up = loss(&r, white, c, a);
+                let up = loss(&r, bg, c, a);
                 r.rgb[i][k] = x0 - h;
-                let down = loss(&r, white, c, a);
+                let down = loss(&r, bg, c, a);
                 r.rgb[i][k] = x0;
                 let h_eff = (f64::from(x0 + h) - f64::from(x0 - h)) / 2.0;
                 check(
@@ -108,7 +114,7 @@ fn a_wrong_gradient_is_caught() {
     let mut rng = SmallRng::seed_from_u64(3);
     let mut r = random_ray(&mut rng, 4);
     let mut w = vec![0.0; 4];
-    volumetric_rendering(&r.rgb, &r.density, &r.t, r.dir, true, &mut w);
+    volumetric_rendering(&r.rgb, &r.density, &r.t, r.dir, background(true), &mut w);
     let mut g_rgb = vec![[0.0; 3]; 4];
     let mut g_den = vec![0.0; 4];
     volumetric_rendering_backward(
@@ -116,7 +122,7 @@ fn a_wrong_gradient_is_caught() {
         &r.density,
         &r.t,
         r.dir,
-        true,
+        background(true),
         &w,
         [1.0, 0.5, -0.3],
         0.0,
@@ -126,9 +132,9 @@ fn a_wrong_gradient_is_caught() {
     let x0 = r.density[1];
     let h = 1e-3f32;
     r.density[1] = x0 + h;
-    let up = loss(&r, true, [1.0, 0.5, -0.3], 0.0);
+    let up = loss(&r, background(true), [1.0, 0.5, -0.3], 0.0);
     r.density[1] = x0 - h;
-    let down = loss(&r, true, [1.0, 0.5, -0.3], 0.0);
+    let down = loss(&r, background(true), [1.0, 0.5, -0.3], 0.0);
     let numeric = (up - down) / (2.0 * f64::from(h));
     let mut bad = Vec::new();
     check("perturbed", f64::from(g_den[1]) * 1.05 + 0.01, numeric, &mut bad);

@@ -6,7 +6,8 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use common::*;
-use mipnerf_core::data::{self, DataError, LoadOptions, Split, demo, llff, multiscale};
+use mipnerf_core::Camera;
+use mipnerf_core::data::{self, DataError, Dataset, LoadOptions, Pixels, Split, View, demo, llff, multiscale};
 
 fn lego_tiny() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/lego_tiny")
@@ -157,7 +158,7 @@ fn batches_come_from_every_scale_with_their_lossmult() {
         .unwrap();
     let ds = data::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap();
     let (mut rays, mut targets) = (Vec::new(), Vec::new());
-    ds.sample_batch(4000, 1, 0, 1, &mut rays, &mut targets);
+    ds.sample_batch(4000, 1, 0, 1, false, &mut rays, &mut targets);
     assert_eq!((rays.len(), targets.len()), (4000, 4000));
     let mut seen = std::collections::BTreeMap::new();
     for r in &rays {
@@ -168,14 +169,84 @@ fn batches_come_from_every_scale_with_their_lossmult() {
     let frac0 = f64::from(seen[&1]) / 4000.0;
     assert!((frac0 - 256.0 / 340.0).abs() < 0.03, "{frac0}");
     let (mut r2, mut t2) = (Vec::new(), Vec::new());
-    ds.sample_batch(4000, 1, 0, 1, &mut r2, &mut t2);
+    ds.sample_batch(4000, 1, 0, 1, false, &mut r2, &mut t2);
     assert_eq!(rays, r2, "batches are a function of (seed, step)");
-    ds.sample_batch(4000, 1, 1, 1, &mut r2, &mut t2);
+    ds.sample_batch(4000, 1, 1, 1, false, &mut r2, &mut t2);
     assert_ne!(rays, r2);
-    ds.sample_batch(10, 1, 0, 3, &mut r2, &mut t2);
+    ds.sample_batch(10, 1, 0, 3, false, &mut r2, &mut t2);
     assert_eq!((r2.len(), t2.len()), (90, 10), "3x3 rays per pixel");
     assert!((r2[0].radius * 3.0 - rays[0].radius).abs() < 1e-6 && r2[0].origin == rays[0].origin);
     assert_ne!(rays, r2);
+}
+
+#[test]
+fn random_background_batches_composite_each_target_on_its_pixels_colour() {
+    // The demo scene's object is opaque over a transparent backdrop: pixels of every alpha.
+    let dir = tempfile::tempdir().unwrap();
+    demo::write_demo_scene(dir.path(), &demo::DemoConfig { size: 16, train_views: 3, test_views: 1, supersample: 1 })
+        .unwrap();
+    let ds = data::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap();
+    assert!(ds.has_transparency());
+    let (mut rays, mut targets, mut r2, mut white) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let (seed, step) = (3, 11);
+    ds.sample_batch(2000, seed, step, 1, true, &mut rays, &mut targets);
+    ds.sample_batch(2000, seed, step, 1, false, &mut r2, &mut white);
+    assert_eq!(rays, r2, "the background changes the targets, not the pixels drawn");
+    let (mut opaque, mut clear) = (0, 0);
+    for (i, ((ray, t), w)) in rays.iter().zip(&targets).zip(&white).enumerate() {
+        let bg = mipnerf_core::rng::random_background(seed, step, i as u32);
+        // Find the pixel again to read its alpha.
+        let (v, x, y) = (0..ds.views().len())
+            .flat_map(|v| {
+                let c = &ds.views()[v].camera;
+                (0..c.height).flat_map(move |y| (0..c.width).map(move |x| (v, x, y)))
+            })
+            .find(|&(v, x, y)| ds.ray(v, x, y) == *ray)
+            .unwrap();
+        let view = &ds.views()[v];
+        let [r, g, b, a] = view.pixels.rgba((y * view.camera.width + x) as usize);
+        let want = [r * a + bg[0] * (1.0 - a), g * a + bg[1] * (1.0 - a), b * a + bg[2] * (1.0 - a)];
+        assert_eq!(*t, want, "pixel {i}");
+        if a == 1.0 {
+            opaque += 1;
+            assert_eq!(t, w, "an opaque pixel {i} keeps its colour");
+        } else if a == 0.0 {
+            clear += 1;
+            assert_eq!(*t, bg, "a transparent pixel {i} is its background");
+        }
+    }
+    assert!(opaque > 100 && clear > 100, "{opaque} opaque and {clear} clear pixels drawn");
+    // The colours cover the cube: no channel is stuck.
+    let mean: [f64; 3] = std::array::from_fn(|k| {
+        (0..2000).map(|i| f64::from(mipnerf_core::rng::random_background(seed, step, i)[k])).sum::<f64>() / 2000.0
+    });
+    assert!(mean.iter().all(|m| (m - 0.5).abs() < 0.03), "mean background {mean:?}");
+}
+
+#[test]
+fn photos_without_alpha_have_no_transparency() {
+    let pixel = |a: u8| Pixels::Rgba8(vec![10, 20, 30, a, 40, 50, 60, 255]);
+    let view = |pixels| View {
+        file: PathBuf::from("p.png"),
+        camera: Camera::from_camera_angle_x(
+            2,
+            1,
+            0.8,
+            [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 4.0]],
+        )
+        .unwrap(),
+        pixels,
+        near: 1.0,
+        far: 5.0,
+        lossmult: 1.0,
+        scale: 0,
+    };
+    let opaque = Dataset::from_views(Split::Train, vec![view(pixel(255))], false).unwrap();
+    assert!(!opaque.has_transparency());
+    let one = Dataset::from_views(Split::Train, vec![view(pixel(255)), view(pixel(254))], false).unwrap();
+    assert!(one.has_transparency());
+    let f = Dataset::from_views(Split::Train, vec![view(Pixels::RgbaF32(vec![0.5, 0.5, 0.5, 0.999]))], false);
+    assert!(f.unwrap().has_transparency());
 }
 
 /// A small forward-facing LLFF scene made from the demo scene: 9 cameras on a 3x3 grid looking

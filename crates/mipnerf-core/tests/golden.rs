@@ -241,7 +241,7 @@ fn volumetric_rendering_matches_official() {
             let t = flat(&inp["t_vals"][ray]);
             let dir = v3(&inp["dirs"][ray]);
             let mut w = vec![0.0; density.len()];
-            let out = volumetric_rendering(&rgb, &density, &t, dir, white, &mut w);
+            let out = volumetric_rendering(&rgb, &density, &t, dir, mipnerf_core::render::background(white), &mut w);
             let k = format!("white {white} ray {ray}");
             mm.check(&format!("{k} comp_rgb"), &out.rgb, &flat(&want["comp_rgb"][ray]), TOL_ACCUMULATED);
             mm.check(&format!("{k} distance"), &[out.distance], &[f(&want["distance"][ray])], TOL_ACCUMULATED);

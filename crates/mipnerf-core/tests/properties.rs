@@ -34,7 +34,7 @@ proptest! {
     ) {
         let rgb: Vec<[f32; 3]> = rgb.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
         let mut w = vec![0.0; 16];
-        let out = volumetric_rendering(&rgb, &density, &t, Vec3::new(0.1, 0.2, -1.0), white, &mut w);
+        let out = volumetric_rendering(&rgb, &density, &t, Vec3::new(0.1, 0.2, -1.0), mipnerf_core::render::background(white), &mut w);
         let sum: f32 = w.iter().sum();
         prop_assert!((sum - out.acc).abs() <= TOL_WEIGHT_SUM, "sum {} acc {}", sum, out.acc);
         prop_assert!((0.0..=1.0).contains(&out.acc), "acc {}", out.acc);

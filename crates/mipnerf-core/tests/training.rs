@@ -69,6 +69,16 @@ const FD_REL: f64 = 3e-2;
 
 #[test]
 fn whole_loss_gradient_matches_finite_differences_for_every_layer() {
+    whole_loss_gradient_matches_finite_differences(false);
+}
+
+#[test]
+fn whole_loss_gradient_on_random_backgrounds_matches_finite_differences() {
+    // Each ray composited on its pixel's random colour (fixed by the step's seed).
+    whole_loss_gradient_matches_finite_differences(true);
+}
+
+fn whole_loss_gradient_matches_finite_differences(random_bkgd: bool) {
     let (rays, colours) = ball_scene(2, 6);
     let mut cfg = Preset::Tiny.config();
     cfg.net_depth = 4; // two skip concatenations' worth of layers
@@ -80,6 +90,7 @@ fn whole_loss_gradient_matches_finite_differences_for_every_layer() {
     // include a term the analytic gradient rightly leaves out. The two-level gradient is pinned to
     // the official code's own gradients in golden_model.rs.
     cfg.num_levels = 1;
+    cfg.random_bkgd = random_bkgd;
     let model = Model::new(cfg).unwrap();
     let mut params = model.init_params(3);
     // Non-zero biases so every term of the gradient is exercised.

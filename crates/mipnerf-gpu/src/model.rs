@@ -426,6 +426,9 @@ impl GpuModel {
             if randomized && c.density_noise > 0.0 {
                 rp = rp.with_density_noise(c.density_noise, seed, step, level as u32);
             }
+            if randomized && c.random_bkgd {
+                rp = rp.with_random_background(seed, step);
+            }
             self.render.encode(rec, rp, &rb)?;
             if let Some(g) = grads {
                 self.mlp.backward(rec, shape, params, bufs, &work.d_rgb, g);

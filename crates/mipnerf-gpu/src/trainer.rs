@@ -249,7 +249,7 @@ impl GpuBackend {
         let lr = self.optim.lr.lr(step);
         let mut rec = Recorder::with_cache(ctx, "train step", std::mem::take(&mut self.train_cache));
         rec.encoder().clear_buffer(&self.state.grads, 0, None);
-        let draw = Draw::Random { seed: self.seed, step: step as u32 };
+        let draw = Draw::Random { seed: self.seed, step: step as u32, random_bkgd: self.model.config().random_bkgd };
         let (area_loss, k) = (self.model.config().area_loss, self.model.config().supersample);
         self.batch_kernel.encode(&mut rec, &data.images, draw, area_loss, k, &data.batch)?;
         let grads = Some(&self.state.grads);

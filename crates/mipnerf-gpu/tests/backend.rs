@@ -86,15 +86,20 @@ fn device_batches_are_the_cpu_batches() {
             None => DeviceImages::upload(&ctx, &ds).unwrap(),
             Some(b) => DeviceImages::upload_with_slot_bytes(&ctx, &ds, b).unwrap(),
         };
-        for (seed, step, area_loss) in [(0u32, 0u32, true), (7, 123, false)] {
-            let tag = format!("f32 {f32_pixels} white {white} slots {slot_bytes:?} seed {seed} step {step}");
+        // Random backgrounds: each target on its pixel's colour of `rng::random_background`.
+        for (seed, step, area_loss, random_bkgd) in
+            [(0u32, 0u32, true, false), (7, 123, false, false), (9, 4, true, true)]
+        {
+            let tag = format!(
+                "f32 {f32_pixels} white {white} random {random_bkgd} slots {slot_bytes:?} seed {seed} step {step}"
+            );
             let batch = RayBatch::new(&ctx, n);
             let mut rec = Recorder::new(&ctx, "batch");
-            kernel.encode(&mut rec, &images, Draw::Random { seed, step }, area_loss, 1, &batch).unwrap();
+            kernel.encode(&mut rec, &images, Draw::Random { seed, step, random_bkgd }, area_loss, 1, &batch).unwrap();
             let _ = rec.submit();
             let [rays, bounds, viewdirs, targets, norm] = read_batch(&ctx, &batch);
             let (mut cpu_rays, mut cpu_targets) = (Vec::new(), Vec::new());
-            ds.sample_batch(n, seed, step, 1, &mut cpu_rays, &mut cpu_targets);
+            ds.sample_batch(n, seed, step, 1, random_bkgd, &mut cpu_rays, &mut cpu_targets);
             let col = |f: &dyn Fn(&mipnerf_core::Ray) -> Vec<f32>| cpu_rays.iter().flat_map(f).collect::<Vec<f32>>();
             let packed = col(&|r| {
                 let mut v = r.origin.extend(r.radius).to_array().to_vec();
@@ -173,11 +178,11 @@ fn device_ndc_batches_match_the_cpu() {
     let n = 400;
     let batch = RayBatch::new(&ctx, n);
     let mut rec = Recorder::new(&ctx, "ndc batch");
-    kernel.encode(&mut rec, &images, Draw::Random { seed: 5, step: 1 }, false, 1, &batch).unwrap();
+    kernel.encode(&mut rec, &images, Draw::Random { seed: 5, step: 1, random_bkgd: false }, false, 1, &batch).unwrap();
     let _ = rec.submit();
     let [rays, bounds, viewdirs, _, _] = read_batch(&ctx, &batch);
     let (mut cpu, mut targets) = (Vec::new(), Vec::new());
-    ds.sample_batch(n, 5, 1, 1, &mut cpu, &mut targets);
+    ds.sample_batch(n, 5, 1, 1, false, &mut cpu, &mut targets);
     let mut bad = Vec::new();
     let (mut worst_ray, mut worst_radius) = (0.0f32, 0.0f32);
     for (i, r) in cpu.iter().enumerate() {
@@ -271,9 +276,22 @@ fn psnr_between(a: &[LevelOutput], b: &[LevelOutput]) -> f64 {
 #[test]
 fn gpu_and_cpu_backends_train_alike_from_the_same_seed() {
     let Some(ctx) = context_or_skip("gpu_and_cpu_backends_train_alike_from_the_same_seed") else { return };
+    train_alike(ctx, Preset::Tiny.config(), 50);
+}
+
+#[test]
+fn gpu_and_cpu_backends_train_alike_on_random_backgrounds() {
+    // The device's batches composite each target on the colour its render uses, as the CPU's.
+    let Some(ctx) = context_or_skip("gpu_and_cpu_backends_train_alike_on_random_backgrounds") else { return };
+    train_alike(ctx, ModelConfig { random_bkgd: true, ..Preset::Tiny.config() }, 20);
+}
+
+/// Trains `cfg` on lego_tiny for `steps` on both backends from one seed: the loss curves and the
+/// final renders agree.
+fn train_alike(ctx: mipnerf_gpu::GpuContext, cfg: ModelConfig, steps: u64) {
     let ds = Arc::new(lego_tiny());
-    let model = Model::new(Preset::Tiny.config()).unwrap();
-    let (seed, batch, steps) = (3u32, 32usize, 50u64);
+    let model = Model::new(cfg).unwrap();
+    let (seed, batch) = (3u32, 32usize);
     let (mut cpu, gpu) = cpu_and_gpu(ctx, &ds, &model, seed, batch);
     let mut gpu = gpu.with_data(&ds, batch).unwrap();
     let mut bad = Vec::new();

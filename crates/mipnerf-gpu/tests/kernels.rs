@@ -207,18 +207,27 @@ const TOL_GPU_RENDER_ABS: f32 = 1e-6;
 fn render_forward_loss_and_backward_match_cpu_reference() {
     use mipnerf_core::model::ModelConfig;
     use mipnerf_core::render::{self, DensityActivation};
-    use mipnerf_gpu::kernels::render::{RenderBuffers, RenderKernel, RenderParams, RenderVariant};
+    use mipnerf_gpu::kernels::render::{
+        BACKGROUND_BLACK, BACKGROUND_RANDOM, BACKGROUND_WHITE, RenderBuffers, RenderKernel, RenderParams, RenderVariant,
+    };
     use rand::{Rng, SeedableRng, rngs::SmallRng};
     let Some(ctx) = context_or_skip("render_forward_loss_and_backward_match_cpu_reference") else { return };
     let mut bad = Vec::new();
     // Both entry points, whatever the adapter would pick; 12 samples (fewer than the wide
     // kernel's 32 lanes: empty blocks) and 75 (blocks of 3, the last lanes short or empty).
-    for (variant, (ci, (act, white, area, samples))) in
+    // Backgrounds: white, black, and (training) each ray's random colour from the stream that
+    // `rng::random_background` draws, its batch index offset by `first_ray`.
+    let (seed, step, first_ray) = (77u32, 5u32, 1000u32);
+    for (variant, (ci, (act, bg, area, samples))) in
         [RenderVariant::PerRay, RenderVariant::Wide].into_iter().flat_map(|v| {
-            [(DensityActivation::Softplus, true, true, 12), (DensityActivation::Relu, false, false, 75)]
-                .into_iter()
-                .enumerate()
-                .map(move |c| (v, c))
+            [
+                (DensityActivation::Softplus, BACKGROUND_WHITE, true, 12),
+                (DensityActivation::Relu, BACKGROUND_BLACK, false, 75),
+                (DensityActivation::Softplus, BACKGROUND_RANDOM, true, 40),
+            ]
+            .into_iter()
+            .enumerate()
+            .map(move |c| (v, c))
         })
     {
         let kernel = RenderKernel::with_variant(&ctx, variant).unwrap();
@@ -226,11 +235,16 @@ fn render_forward_loss_and_backward_match_cpu_reference() {
             num_samples: samples,
             density_activation: act,
             density_bias: if act == DensityActivation::Softplus { -1.0 } else { 0.0 },
-            white_bkgd: white,
+            white_bkgd: bg == BACKGROUND_WHITE,
+            random_bkgd: bg == BACKGROUND_RANDOM,
             area_loss: area,
             ..ModelConfig::default()
         };
         let (nr, s) = (9usize, cfg.num_samples);
+        let ray_bg = |r: usize| match bg {
+            BACKGROUND_RANDOM => mipnerf_core::rng::random_background(seed, step, first_ray + r as u32),
+            _ => render::background(cfg.white_bkgd),
+        };
         let n = nr * s;
         let mut rng = SmallRng::seed_from_u64(ci as u64 + 10);
         // Raw densities away from ReLU's kink.
@@ -272,7 +286,7 @@ fn render_forward_loss_and_backward_match_cpu_reference() {
             let den: Vec<f32> = sl.clone().map(|k| act.forward(raw_density[k], cfg.density_bias)).collect();
             let t = &t_vals[r * (s + 1)..(r + 1) * (s + 1)];
             let dir = glam::Vec3::new(rays[2 * r + 1][0], rays[2 * r + 1][1], rays[2 * r + 1][2]);
-            let o = render::volumetric_rendering(&rgb, &den, t, dir, white, &mut w_cpu[sl.clone()]);
+            let o = render::volumetric_rendering(&rgb, &den, t, dir, ray_bg(r), &mut w_cpu[sl.clone()]);
             let err: [f32; 3] = std::array::from_fn(|c| o.rgb[c] - targets[r][c]);
             let se: f32 = err.iter().map(|e| e * e).sum();
             out_cpu.extend([o.rgb[0], o.rgb[1], o.rgb[2], o.distance, o.acc, lossmult(r) * se, se, 0.0]);
@@ -283,7 +297,7 @@ fn render_forward_loss_and_backward_match_cpu_reference() {
                 &den,
                 t,
                 dir,
-                white,
+                ray_bg(r),
                 &w_cpu[sl.clone()],
                 d_col,
                 0.0,
@@ -323,7 +337,12 @@ fn render_forward_loss_and_backward_match_cpu_reference() {
             ray_out: &b_out,
             norm: &buf("norm", &[norm], false),
         };
-        kernel.encode(&mut rec, RenderParams::new(&cfg, nr, level_weight, true), &rb).unwrap();
+        let mut params = RenderParams::new(&cfg, nr, level_weight, true);
+        if bg == BACKGROUND_RANDOM {
+            params = params.with_random_background(seed, step);
+            params.first_ray = first_ray;
+        }
+        kernel.encode(&mut rec, params, &rb).unwrap();
         let _ = rec.submit();
         let tag = format!("{variant:?} case {ci}");
         bad.extend(mismatches(
@@ -590,6 +609,12 @@ fn whole_model_loss_and_gradients_match_cpu_reference() {
             (ModelConfig { density_noise: 1.0, ..tiny.clone() }, Mode::Train { seed: 4, step: 9 }),
             // The supersampled NeRF: 2x2 rays per pixel, the loss on their mean.
             (ModelConfig { supersample: 2, ..tiny.clone().nerf() }, Mode::Train { seed: 6, step: 1 }),
+            // Random backgrounds (one colour per pixel of the batch), per ray and supersampled.
+            (ModelConfig { random_bkgd: true, ..tiny.clone() }, Mode::Train { seed: 8, step: 4 }),
+            (
+                ModelConfig { random_bkgd: true, supersample: 2, ..tiny.clone().nerf() },
+                Mode::Train { seed: 2, step: 3 },
+            ),
         ]
         .into_iter()
         .enumerate()
@@ -917,20 +942,26 @@ fn occupancy_guided_model_matches_cpu_reference() {
     let targets: Vec<[f32; 3]> = (0..rays.len()).map(|i| [(i % 7) as f32 / 7.0, 0.4, (i % 3) as f32 / 3.0]).collect();
     let grid = two_blob_grid(16);
     let model = Model::new(ModelConfig { num_samples: 16, ..Preset::Tiny.config() }).unwrap();
+    // Random backgrounds too: the empty rays' loss is against their own pixels' colours.
+    let random = Model::new(ModelConfig { random_bkgd: true, ..model.config().clone() }).unwrap();
     let params = model.init_params(11);
     let active = rays.iter().filter(|r| !spans_of(&grid, r).is_empty()).count();
     assert!(0 < active && active < rays.len(), "{active} of {} rays meet occupied cells", rays.len());
     let mut bad = Vec::new();
     for set in [KernelSet::Software, KernelSet::Hardware] {
         let gpu = GpuModel::with_kernel_set(&ctx, set).unwrap();
-        for mode in [Mode::Train { seed: 3, step: 7 }, Mode::Eval] {
+        for (model, mode) in [
+            (&model, Mode::Train { seed: 3, step: 7 }),
+            (&model, Mode::Eval),
+            (&random, Mode::Train { seed: 3, step: 7 }),
+        ] {
             let mut cpu_grads = vec![0.0; model.num_params()];
             let mut scratch = GradScratch::default();
             let cpu =
                 model.loss_and_grad_guided(&params, &rays, &targets, mode, &mut cpu_grads, &mut scratch, Some(&grid));
             let (g_stats, g_grads) =
-                gpu.loss_and_grad_guided(&ctx, &model, &params, &rays, &targets, mode, Some(&grid)).unwrap();
-            let tag = format!("{set:?} {mode:?}");
+                gpu.loss_and_grad_guided(&ctx, model, &params, &rays, &targets, mode, Some(&grid)).unwrap();
+            let tag = format!("{set:?} {mode:?} random background {}", model.config().random_bkgd);
             eprintln!("{tag}: cpu losses {:?} gpu {:?}", cpu.losses, g_stats.losses);
             bad.extend(mismatches(
                 &format!("{tag} losses"),

@@ -319,16 +319,21 @@ impl Dataset {
     /// A training batch of `n` pixels drawn uniformly (with replacement) from all pixels of all
     /// views, a pure function of `(seed, step)`. Fills `targets` with one colour per pixel and
     /// `rays` with `supersample²` rays per pixel (see [`push_pixel_rays`](Self::push_pixel_rays)).
+    /// With `random_bkgd` (the model's `ModelConfig::random_bkgd`), batch pixel `i`'s target is
+    /// its straight colour composited on [`random_background`](crate::rng::random_background)`(seed,
+    /// step, i)`, the colour the model renders it on; otherwise [`target`](Self::target).
     ///
     /// # Panics
     /// If `n` is `2^31` or more (two 32-bit random draws per pixel are counted in a `u32`);
     /// callers bound the batch well below that.
+    #[allow(clippy::too_many_arguments)]
     pub fn sample_batch(
         &self,
         n: usize,
         seed: u32,
         step: u32,
         supersample: usize,
+        random_bkgd: bool,
         rays: &mut Vec<Ray>,
         targets: &mut Vec<[f32; 3]>,
     ) {
@@ -341,8 +346,25 @@ impl Dataset {
             let r = (u64::from(rng.bits(2 * i)) << 32) | u64::from(rng.bits(2 * i + 1));
             let (v, x, y) = self.locate(r % total);
             self.push_pixel_rays(v, x, y, supersample, rays);
-            targets.push(self.target(v, x, y));
+            targets.push(if random_bkgd {
+                let view = &self.views[v];
+                let [r, g, b, a] = view.pixels.rgba((y * view.camera.width + x) as usize);
+                let bg = crate::rng::random_background(seed, step, i);
+                [r * a + bg[0] * (1.0 - a), g * a + bg[1] * (1.0 - a), b * a + bg[2] * (1.0 - a)]
+            } else {
+                self.target(v, x, y)
+            });
         }
+    }
+
+    /// Whether any pixel of any view is not fully opaque (alpha below 1): what training on
+    /// random backgrounds needs (photos without alpha have none).
+    #[must_use]
+    pub fn has_transparency(&self) -> bool {
+        self.views.iter().any(|v| match &v.pixels {
+            Pixels::Rgba8(b) => b.chunks_exact(4).any(|p| p[3] < 255),
+            Pixels::RgbaF32(f) => f.chunks_exact(4).any(|p| p[3] < 1.0),
+        })
     }
 
     /// The scales present, sorted.

@@ -2,7 +2,7 @@
 #![allow(dead_code, clippy::unwrap_used, missing_docs)]
 
 use glam::Vec3;
-use mipnerf_core::render::volumetric_rendering;
+use mipnerf_core::render::{self, volumetric_rendering};
 use mipnerf_core::{Camera, PixelCenters, Ray};
 
 pub const BALL_RADIUS: f32 = 0.8;
@@ -33,7 +33,7 @@ pub fn ball_scene(views: usize, size: u32) -> (Vec<Ray>, Vec<[f32; 3]>) {
             let (density, rgb): (Vec<f32>, Vec<[f32; 3]>) =
                 (0..n).map(|i| field(ray.origin + ray.direction * 0.5 * (t[i] + t[i + 1]))).unzip();
             let mut w = vec![0.0; n];
-            colours.push(volumetric_rendering(&rgb, &density, &t, ray.direction, true, &mut w).rgb);
+            colours.push(volumetric_rendering(&rgb, &density, &t, ray.direction, render::background(true), &mut w).rgb);
             rays.push(ray);
         }
     }

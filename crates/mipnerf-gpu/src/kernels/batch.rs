@@ -33,8 +33,9 @@ pub struct BatchParams {
     pub key: u32,
     /// 0: RGBA8, 1: f32 RGBA, 2: no pixels.
     pub pixel_format: u32,
-    /// 1: composite on white.
-    pub white_bkgd: u32,
+    /// The background the targets are composited on: `BACKGROUND_BLACK`, `_WHITE` or `_RANDOM`
+    /// (see [`render::background_code`](super::render::background_code)).
+    pub background: u32,
     /// 1: weight rays by lossmult in the loss's denominator.
     pub area_loss: u32,
     /// Workgroups along x.
@@ -47,8 +48,10 @@ pub struct BatchParams {
     pub supersample: u32,
     /// The pixel-centre offset in each view's `dir0`.
     pub centre_offset: f32,
-    /// Padding.
-    pub _pad: [u32; 2],
+    /// Run seed (random backgrounds).
+    pub seed: u32,
+    /// Step (random backgrounds).
+    pub step: u32,
 }
 
 /// One view's camera as `batch.wgsl` reads it (`struct View`), 80 bytes.
@@ -265,12 +268,15 @@ impl DeviceImages {
 /// Which pixels a batch holds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Draw {
-    /// Uniformly drawn with replacement, as `Dataset::sample_batch(n, seed, step, ..)` draws them.
+    /// Uniformly drawn with replacement, as `Dataset::sample_batch(n, seed, step, ..,
+    /// random_bkgd, ..)` draws them, targets included.
     Random {
         /// Run seed.
         seed: u32,
         /// Step.
         step: u32,
+        /// Composite each target on its pixel's random colour (`ModelConfig::random_bkgd`).
+        random_bkgd: bool,
     },
     /// Pixels `first..first + n` in raster order over the views; rays past the last pixel repeat
     /// it (the tail of an image's last chunk).
@@ -324,13 +330,17 @@ impl BatchKernel {
                 if images.ndc.is_some() { " in NDC" } else { "" }
             )));
         }
-        let (sequential, first, key) = match draw {
-            Draw::Random { seed, step } => (0, 0, RayRng::new(seed, step, Stream::RayBatch, 0).key()),
+        let fixed = super::render::background_code(images.white_bkgd, false);
+        let (sequential, first, key, background, seed, step) = match draw {
+            Draw::Random { seed, step, random_bkgd } => {
+                let bg = super::render::background_code(images.white_bkgd, random_bkgd);
+                (0, 0, RayRng::new(seed, step, Stream::RayBatch, 0).key(), bg, seed, step)
+            }
             Draw::Sequential { first } => {
                 if first >= images.total_pixels {
                     return Err(GpuError::InvalidInput(format!("pixel {first} of {}", images.total_pixels)));
                 }
-                (1, first, 0)
+                (1, first, 0, fixed, 0, 0)
             }
         };
         let (gx, gy) = kernels::dispatch_grid(u64::from(n), kernels::WORKGROUP)?;
@@ -342,14 +352,15 @@ impl BatchKernel {
             total_pixels: images.total_pixels,
             key,
             pixel_format: images.format as u32,
-            white_bkgd: u32::from(images.white_bkgd),
+            background,
             area_loss: u32::from(area_loss),
             groups_x: gx,
             ndc_fx: images.ndc.map_or(0.0, |n| (2.0 * f64::from(n.focal) / f64::from(n.width)) as f32),
             ndc_fy: images.ndc.map_or(0.0, |n| (2.0 * f64::from(n.focal) / f64::from(n.height)) as f32),
             supersample: k,
             centre_offset: images.centre_offset,
-            _pad: [0; 2],
+            seed,
+            step,
         };
         let [p0, p1, p2, p3] = &images.pixels;
         let bufs = [
@@ -382,13 +393,15 @@ super::wgsl_struct!(
         total_pixels,
         key,
         pixel_format,
-        white_bkgd,
+        background,
         area_loss,
         groups_x,
         ndc_fx,
         ndc_fy,
         supersample,
         centre_offset,
+        seed,
+        step,
     ]
 );
 super::wgsl_struct!(GpuView, "View", [dir0, step_x, step_y, origin, size]);

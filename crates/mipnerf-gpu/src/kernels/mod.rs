@@ -20,7 +20,7 @@ pub fn prelude() -> String {
     use mipnerf_core::model::PointEncoding;
     use mipnerf_core::render::DensityActivation;
     use mipnerf_core::rng::{RAY_LEVEL_STRIDE, Stream};
-    let consts: [(&str, u32); 18] = [
+    let consts: [(&str, u32); 22] = [
         ("WORKGROUP", WORKGROUP),
         ("REDUCE_WORKGROUP", REDUCE_WORKGROUP),
         ("RAY_SHAPE_CONE", RayShape::Cone as u32),
@@ -34,6 +34,10 @@ pub fn prelude() -> String {
         ("STREAM_RESAMPLE_OFFSETS", Stream::ResampleOffsets as u32),
         ("STREAM_DENSITY_NOISE", Stream::DensityNoise as u32),
         ("STREAM_RAY_BATCH", Stream::RayBatch as u32),
+        ("STREAM_BACKGROUND", Stream::Background as u32),
+        ("BACKGROUND_BLACK", render::BACKGROUND_BLACK),
+        ("BACKGROUND_WHITE", render::BACKGROUND_WHITE),
+        ("BACKGROUND_RANDOM", render::BACKGROUND_RANDOM),
         ("RAY_LEVEL_STRIDE", RAY_LEVEL_STRIDE),
         ("PIXEL_FORMAT_RGBA8", batch::PixelFormat::Rgba8 as u32),
         ("PIXEL_FORMAT_F32", batch::PixelFormat::F32 as u32),

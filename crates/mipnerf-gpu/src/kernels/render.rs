@@ -14,8 +14,9 @@ pub struct RenderParams {
     pub n_rays: u32,
     /// Samples per ray.
     pub n_samples: u32,
-    /// 1: composite on white.
-    pub white_bkgd: u32,
+    /// What the rays are composited on: [`BACKGROUND_BLACK`], [`BACKGROUND_WHITE`] or (training,
+    /// with `seed`, `step` and `first_ray`) [`BACKGROUND_RANDOM`].
+    pub background: u32,
     /// 0: softplus, 1: ReLU.
     pub density_activation: u32,
     /// Added to raw density.
@@ -56,7 +57,7 @@ impl RenderParams {
         Self {
             n_rays: n_rays as u32,
             n_samples: cfg.num_samples as u32,
-            white_bkgd: u32::from(cfg.white_bkgd),
+            background: background_code(cfg.white_bkgd, false),
             density_activation: cfg.density_activation as u32,
             density_bias: cfg.density_bias,
             rgb_padding: cfg.rgb_padding,
@@ -75,6 +76,16 @@ impl RenderParams {
         }
     }
 
+    /// Composited on each pixel's random colour of training step `(seed, step)`
+    /// (`ModelConfig::random_bkgd`).
+    #[must_use]
+    pub fn with_random_background(mut self, seed: u32, step: u32) -> Self {
+        self.background = BACKGROUND_RANDOM;
+        self.seed = seed;
+        self.step = step;
+        self
+    }
+
     /// With the training noise on raw density of `cfg` for `(seed, step, level)`.
     #[must_use]
     pub fn with_density_noise(mut self, std: f32, seed: u32, step: u32, level: u32) -> Self {
@@ -83,6 +94,26 @@ impl RenderParams {
         self.step = step;
         self.level = level;
         self
+    }
+}
+
+/// `background` code: black (alpha dropped, no colour behind the scene).
+pub const BACKGROUND_BLACK: u32 = 0;
+/// `background` code: white.
+pub const BACKGROUND_WHITE: u32 = 1;
+/// `background` code: each pixel on its own random colour (`mipnerf_core::rng::random_background`
+/// of its place in the batch), in training only.
+pub const BACKGROUND_RANDOM: u32 = 2;
+
+/// The `background` code for a model's `white_bkgd` and, in training, its `random_bkgd`.
+#[must_use]
+pub const fn background_code(white_bkgd: bool, random: bool) -> u32 {
+    if random {
+        BACKGROUND_RANDOM
+    } else if white_bkgd {
+        BACKGROUND_WHITE
+    } else {
+        BACKGROUND_BLACK
     }
 }
 
@@ -217,7 +248,7 @@ super::wgsl_struct!(
     [
         n_rays,
         n_samples,
-        white_bkgd,
+        background,
         density_activation,
         density_bias,
         rgb_padding,
