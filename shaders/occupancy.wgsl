@@ -18,8 +18,6 @@ struct Params {
     randomized: u32,
     seed: u32,
     step: u32,
-    // Global index of the first ray (random streams are per global ray).
-    first_ray: u32,
     // Cells along each axis.
     resolution: u32,
     // Half the side of the cube the grid covers (world units).
@@ -28,6 +26,7 @@ struct Params {
     cell_size: f32,
     groups_x: u32,
     _pad0: u32,
+    _pad1: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -40,6 +39,9 @@ struct Params {
 // packed_layers`).
 @group(0) @binding(3) var<storage, read> bits: array<u32>;
 @group(0) @binding(4) var<storage, read_write> t_out: array<f32>;
+// The index of each ray in the step's batch (its random streams are drawn with it): 0.. for a
+// whole batch, the chunk's or the compacted rays' own indices otherwise.
+@group(0) @binding(5) var<storage, read> ray_ids: array<u32>;
 
 // Most spans a ray keeps (the host refuses resolutions that could exceed it: at most
 // 3 r / 2 + 1 spans for r cells along each axis).
@@ -185,7 +187,7 @@ fn sample_occupied(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
         return;
     }
-    let key = stream_key(p.seed, p.step, STREAM_SAMPLE_JITTER, p.first_ray + r);
+    let key = stream_key(p.seed, p.step, STREAM_SAMPLE_JITTER, ray_ids[r]);
     if (n_spans == 1u) {
         sample_along(base, spans[0].x, spans[0].y, p.lindisp != 0u, key);
         return;

@@ -14,7 +14,7 @@
 struct Params {
     n_rays: u32,
     n_samples: u32,
-    // BACKGROUND_BLACK, BACKGROUND_WHITE or BACKGROUND_RANDOM (training; seed, step, first_ray).
+    // BACKGROUND_BLACK, BACKGROUND_WHITE or BACKGROUND_RANDOM (training; seed, step, ray_ids).
     background: u32,
     // DENSITY_SOFTPLUS or DENSITY_RELU
     density_activation: u32,
@@ -39,12 +39,6 @@ struct Params {
     // Rays per pixel side (supersampled NeRF). Above 1, `main` only renders; the loss is the
     // pixel's (the mean of its k x k rays' colours), computed with its gradient by `pixel_backward`.
     supersample: u32,
-    // Index of the first ray in the step's batch (the batch may run in chunks): random streams
-    // are per batch ray.
-    first_ray: u32,
-    _pad0b: u32,
-    _pad1b: u32,
-    _pad2b: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -62,6 +56,9 @@ struct Params {
 @group(0) @binding(9) var<storage, read_write> ray_out: array<vec4<f32>>;
 // [0]: 3 * sum of lossmult over the batch (written on the device by batch.wgsl, or by the host).
 @group(0) @binding(10) var<storage, read> batch_norm: array<f32>;
+// The index of each ray in the step's batch (its random streams are drawn with it): 0.. for a
+// whole batch, the chunk's or the compacted rays' own indices otherwise.
+@group(0) @binding(11) var<storage, read> ray_ids: array<u32>;
 
 fn sigmoid(x: f32) -> f32 {
     return 1.0 / (1.0 + exp(-x));
@@ -85,7 +82,7 @@ fn density_derivative(raw: f32) -> f32 {
 
 // The key of ray r's density noise (`Stream::DensityNoise`, the ray's stream at this level).
 fn density_noise_key(r: u32) -> u32 {
-    return stream_key(p.seed, p.step, STREAM_DENSITY_NOISE, ray_level_index(p.first_ray + r, p.level));
+    return stream_key(p.seed, p.step, STREAM_DENSITY_NOISE, ray_level_index(ray_ids[r], p.level));
 }
 
 // Raw density of sample k (sample i of its ray), with the training noise when there is any.
@@ -108,7 +105,7 @@ fn padded(sg: vec3<f32>) -> vec3<f32> {
 // The background colour behind ray r: mipnerf-core's `Model::ray_background`.
 fn background(r: u32) -> vec3<f32> {
     if (p.background == BACKGROUND_RANDOM) {
-        return random_background(p.seed, p.step, (p.first_ray + r) / (p.supersample * p.supersample));
+        return random_background(p.seed, p.step, ray_ids[r] / (p.supersample * p.supersample));
     }
     return vec3<f32>(select(0.0, 1.0, p.background == BACKGROUND_WHITE));
 }

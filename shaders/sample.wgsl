@@ -12,14 +12,13 @@ struct Params {
     randomized: u32,
     seed: u32,
     step: u32,
-    // Global index of the first ray (random streams are per global ray).
-    first_ray: u32,
     // Level of the resampled edges (picks the random stream).
     level: u32,
     resample_padding: f32,
     groups_x: u32,
     _pad0: u32,
     _pad1: u32,
+    _pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -28,6 +27,9 @@ struct Params {
 // resample: the coarse weights (stratified: unused).
 @group(0) @binding(2) var<storage, read> src_b: array<f32>;
 @group(0) @binding(3) var<storage, read_write> t_out: array<f32>;
+// The index of each ray in the step's batch (its random streams are drawn with it): 0.. for a
+// whole batch, the chunk's or the compacted rays' own indices otherwise.
+@group(0) @binding(4) var<storage, read> ray_ids: array<u32>;
 
 const F32_EPS: f32 = 1.1920929e-7;
 const PDF_WEIGHT_EPS: f32 = 1e-5;
@@ -51,7 +53,7 @@ fn stratified(@builtin(global_invocation_id) gid: vec3<u32>) {
     let far = src_a[2u * r + 1u];
     let n = p.n_samples;
     let base = r * (n + 1u);
-    let key = ray_key(STREAM_SAMPLE_JITTER, p.first_ray + r);
+    let key = ray_key(STREAM_SAMPLE_JITTER, ray_ids[r]);
     for (var i = 0u; i <= n; i = i + 1u) {
         t_out[base + i] = stratified_edge(i, n, near, far, p.lindisp != 0u, p.randomized != 0u, key);
     }
@@ -126,7 +128,7 @@ fn resample(@builtin(global_invocation_id) gid: vec3<u32>) {
         cdf[i + 1u] = min(acc, 1.0);
     }
     cdf[nw] = 1.0;
-    let key = ray_key(STREAM_RESAMPLE_OFFSETS, ray_level_index(p.first_ray + r, p.level));
+    let key = ray_key(STREAM_RESAMPLE_OFFSETS, ray_level_index(ray_ids[r], p.level));
     var prev = -3.4e38;
     var k = 0u;
     for (var i = 0u; i < n_out; i = i + 1u) {
@@ -216,7 +218,7 @@ fn resample_wide(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation
     }
     workgroupBarrier();
     // The outputs: this lane's block, each from its own CDF interval.
-    let key = ray_key(STREAM_RESAMPLE_OFFSETS, ray_level_index(p.first_ray + r, p.level));
+    let key = ray_key(STREAM_RESAMPLE_OFFSETS, ray_level_index(ray_ids[r], p.level));
     let per_out = (n_out + RESAMPLE_LANES - 1u) / RESAMPLE_LANES;
     let o0 = min(lane * per_out, n_out);
     let o1 = min(o0 + per_out, n_out);

@@ -205,54 +205,40 @@ fn rays_that_meet_no_occupied_cell_render_the_background_and_add_no_gradient() {
     let alone = m.render_guided(&params, &hit_rays, Some(&grid));
     let among: Vec<LevelOutput> = hit.iter().flat_map(|&i| out[2 * i..2 * i + 2].to_vec()).collect();
     assert_close("hit rays", &outputs_flat(&among), &outputs_flat(&alone), TOL_CHUNKING);
-    // A batch of empty rays: the background's error, and no gradient at all.
+    // A batch of empty rays: the background's error, and no gradient at all; on white, and on
+    // random backgrounds, where each empty ray's error is against its own pixel's colour (its
+    // index in the batch).
     let miss_rays: Vec<_> = miss.iter().map(|&i| rays[i]).collect();
     let miss_targets: Vec<_> = miss.iter().map(|&i| colours[i]).collect();
-    let mut g = vec![0.0; m.num_params()];
     let mode = Mode::Train { seed: 0, step: 0 };
-    let stats = m.loss_and_grad_guided(
-        &params,
-        &miss_rays,
-        &miss_targets,
-        mode,
-        &mut g,
-        &mut GradScratch::default(),
-        Some(&grid),
-    );
-    assert!(g.iter().all(|&x| x == 0.0), "empty rays moved the parameters");
-    let want: f64 = miss_targets.iter().flat_map(|c| c.map(|x| f64::from(1.0 - x).powi(2))).sum::<f64>()
-        / (3.0 * miss_targets.len() as f64);
-    for (l, mse) in stats.mse.iter().enumerate() {
-        assert!((f64::from(*mse) - want).abs() <= 1e-6 * want.max(1e-6), "level {l}: mse {mse}, want {want}");
-    }
-    // Training on random backgrounds: each empty ray's error is against its own pixel's colour
-    // (its index in the batch), still with no gradient.
-    let m = Model::new(ModelConfig { random_bkgd: true, ..m.config().clone() }).unwrap();
-    g.fill(0.0);
-    let stats = m.loss_and_grad_guided(
-        &params,
-        &miss_rays,
-        &miss_targets,
-        mode,
-        &mut g,
-        &mut GradScratch::default(),
-        Some(&grid),
-    );
-    assert!(g.iter().all(|&x| x == 0.0), "empty rays moved the parameters");
-    let want: f64 = miss_targets
-        .iter()
-        .enumerate()
-        .flat_map(|(i, c)| {
-            let bg = mipnerf_core::rng::random_background(0, 0, i as u32);
-            (0..3).map(move |k| f64::from(bg[k] - c[k]).powi(2))
-        })
-        .sum::<f64>()
-        / (3.0 * miss_targets.len() as f64);
-    for (l, mse) in stats.mse.iter().enumerate() {
-        assert!((f64::from(*mse) - want).abs() <= 1e-6 * want.max(1e-6), "random: level {l}: mse {mse}, want {want}");
+    let random = Model::new(ModelConfig { random_bkgd: true, ..m.config().clone() }).unwrap();
+    for m in [&m, &random] {
+        let mut g = vec![0.0; m.num_params()];
+        let mut scratch = GradScratch::default();
+        let stats = m.loss_and_grad_guided(&params, &miss_rays, &miss_targets, mode, &mut g, &mut scratch, Some(&grid));
+        assert!(g.iter().all(|&x| x == 0.0), "empty rays moved the parameters");
+        let background = |i: usize| {
+            if m.config().random_bkgd { mipnerf_core::rng::random_background(0, 0, i as u32) } else { [1.0; 3] }
+        };
+        let want: f64 = miss_targets
+            .iter()
+            .enumerate()
+            .flat_map(|(i, c)| {
+                let bg = background(i);
+                (0..3).map(move |k| f64::from(bg[k] - c[k]).powi(2))
+            })
+            .sum::<f64>()
+            / (3.0 * miss_targets.len() as f64);
+        for (l, mse) in stats.mse.iter().enumerate() {
+            let random = m.config().random_bkgd;
+            assert!(
+                (f64::from(*mse) - want).abs() <= 1e-6 * want.max(1e-6),
+                "random {random} level {l}: mse {mse}, want {want}"
+            );
+        }
     }
     // ... and in evaluation it renders on white, as before.
-    for level in &m.render_guided(&params, &miss_rays[..3], Some(&grid)) {
+    for level in &random.render_guided(&params, &miss_rays[..3], Some(&grid)) {
         assert_eq!(level.rgb, [1.0; 3]);
     }
 }

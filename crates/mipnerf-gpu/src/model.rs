@@ -29,9 +29,11 @@ pub struct RayBatch {
     /// Rays the next pass makes or reads (at most [`capacity`](Self::capacity)).
     pub n_rays: usize,
     capacity: usize,
-    /// Index of this batch's first ray in the step's batch, when a step runs in chunks: the
-    /// random numbers of sampling and density noise are drawn per batch ray.
-    pub first_ray: u32,
+    /// `u32` per ray: its index in the step's batch, with which its random numbers (jitter,
+    /// resampling offsets, density noise, background) are drawn: `0..n` for a whole batch (as
+    /// made), the rays' own indices for a chunk of one or the rays an occupancy grid lets
+    /// through (written there).
+    pub ids: wgpu::Buffer,
     /// Two vec4 per ray: (origin, radius), (direction, lossmult).
     pub rays: wgpu::Buffer,
     /// (near, far) per ray.
@@ -52,7 +54,7 @@ impl RayBatch {
         Self {
             n_rays,
             capacity: n_rays,
-            first_ray: 0,
+            ids: ctx.storage_buffer("batch ray indices", &(0..n_rays.max(1) as u32).collect::<Vec<u32>>(), true),
             rays: nan("batch rays", n_rays * 8),
             bounds: nan("batch bounds", n_rays * 2),
             viewdirs: nan("batch view directions", n_rays * 3),
@@ -93,7 +95,7 @@ impl RayBatch {
         Ok(Self {
             n_rays: rays.len(),
             capacity: rays.len(),
-            first_ray: 0,
+            ids: ctx.storage_buffer("batch ray indices", &(0..rays.len() as u32).collect::<Vec<u32>>(), true),
             rays: ctx.storage_buffer("batch rays", &packed, true),
             bounds: ctx.storage_buffer("batch bounds", &bounds, true),
             viewdirs: ctx.storage_buffer("batch view directions", &viewdirs, true),
@@ -368,7 +370,6 @@ impl GpuModel {
                 randomized: u32::from(randomized),
                 seed,
                 step,
-                first_ray: batch.first_ray,
                 level: level as u32,
                 resample_padding: c.resample_padding,
                 ..SampleParams::default()
@@ -384,15 +385,14 @@ impl GpuModel {
                             randomized: sp.randomized,
                             seed,
                             step,
-                            first_ray: batch.first_ray,
                             ..OccupancyParams::default()
                         };
-                        self.occupancy.sample(rec, op, g, &batch.rays, &batch.bounds, &t[0])?;
+                        self.occupancy.sample(rec, op, g, &batch.rays, &batch.bounds, &batch.ids, &t[0])?;
                     }
-                    None => self.sample.stratified(rec, sp, &batch.bounds, &t[0])?,
+                    None => self.sample.stratified(rec, sp, &batch.bounds, &batch.ids, &t[0])?,
                 }
             } else {
-                self.sample.resample(rec, sp, &t[level - 1], &work.weights, &t[level])?;
+                self.sample.resample(rec, sp, &t[level - 1], &work.weights, &batch.ids, &t[level])?;
             }
             let cp = CastIpeParams {
                 n_rays: nr as u32,
@@ -419,10 +419,10 @@ impl GpuModel {
                 d_raw_density: bufs.d_raw_density().0,
                 ray_out: &work.ray_out[level],
                 norm: &batch.norm,
+                ray_ids: &batch.ids,
             };
             let mut rp = RenderParams::new(c, nr, level_w[level], grads.is_some());
             rp.density_stride = bufs.raw_density().1 as u32;
-            rp.first_ray = batch.first_ray;
             if randomized && c.density_noise > 0.0 {
                 rp = rp.with_density_noise(c.density_noise, seed, step, level as u32);
             }

@@ -276,6 +276,7 @@ impl GpuBackend {
                         (&b.bounds, &sub.bounds, 2),
                         (&b.viewdirs, &sub.viewdirs, 3),
                         (&b.targets, &sub.targets, 4),
+                        (&b.ids, &sub.ids, 1),
                     ] {
                         let per_ray = floats * 4;
                         rec.encoder().copy_buffer_to_buffer(
@@ -288,7 +289,6 @@ impl GpuBackend {
                     }
                     rec.encoder().copy_buffer_to_buffer(&b.norm, 0, &sub.norm, 0, 4);
                     sub.set_active(m)?;
-                    sub.first_ray = first as u32;
                     data.work.set_active(m)?;
                     self.kernels.encode_guided(
                         &mut rec,

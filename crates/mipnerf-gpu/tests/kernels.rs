@@ -216,8 +216,10 @@ fn render_forward_loss_and_backward_match_cpu_reference() {
     // Both entry points, whatever the adapter would pick; 12 samples (fewer than the wide
     // kernel's 32 lanes: empty blocks) and 75 (blocks of 3, the last lanes short or empty).
     // Backgrounds: white, black, and (training) each ray's random colour from the stream that
-    // `rng::random_background` draws, its batch index offset by `first_ray`.
-    let (seed, step, first_ray) = (77u32, 5u32, 1000u32);
+    // `rng::random_background` draws with the ray's batch index: scattered indices, as the rays an
+    // occupancy grid lets through have.
+    let (seed, step) = (77u32, 5u32);
+    let batch_index = |r: usize| 1000 + 3 * r as u32;
     for (variant, (ci, (act, bg, area, samples))) in
         [RenderVariant::PerRay, RenderVariant::Wide].into_iter().flat_map(|v| {
             [
@@ -242,7 +244,7 @@ fn render_forward_loss_and_backward_match_cpu_reference() {
         };
         let (nr, s) = (9usize, cfg.num_samples);
         let ray_bg = |r: usize| match bg {
-            BACKGROUND_RANDOM => mipnerf_core::rng::random_background(seed, step, first_ray + r as u32),
+            BACKGROUND_RANDOM => mipnerf_core::rng::random_background(seed, step, batch_index(r)),
             _ => render::background(cfg.white_bkgd),
         };
         let n = nr * s;
@@ -336,11 +338,11 @@ fn render_forward_loss_and_backward_match_cpu_reference() {
             d_raw_density: &b_dden,
             ray_out: &b_out,
             norm: &buf("norm", &[norm], false),
+            ray_ids: &ctx.storage_buffer("ray ids", &(0..nr).map(batch_index).collect::<Vec<u32>>(), false),
         };
         let mut params = RenderParams::new(&cfg, nr, level_weight, true);
         if bg == BACKGROUND_RANDOM {
             params = params.with_random_background(seed, step);
-            params.first_ray = first_ray;
         }
         kernel.encode(&mut rec, params, &rb).unwrap();
         let _ = rec.submit();
@@ -457,7 +459,9 @@ fn sampling_and_resampling_match_cpu_reference() {
         (ResampleVariant::Wide, 75),
     ] {
         let k = SampleKernels::with_variant(&ctx, variant).unwrap();
-        let (nr, first_ray, seed, step) = (37usize, 100u32, 5u32, 9u32);
+        // Scattered batch indices, as the rays an occupancy grid lets through have.
+        let (nr, seed, step) = (37usize, 5u32, 9u32);
+        let batch_index = |r: usize| 100 + 3 * r as u32;
         let mut rng = SmallRng::seed_from_u64(s as u64);
         let bounds: Vec<f32> = (0..nr)
             .flat_map(|_| {
@@ -476,7 +480,6 @@ fn sampling_and_resampling_match_cpu_reference() {
                 randomized: u32::from(randomized),
                 seed,
                 step,
-                first_ray,
                 level: 1,
                 resample_padding: RESAMPLE_PADDING,
                 ..SampleParams::default()
@@ -484,7 +487,7 @@ fn sampling_and_resampling_match_cpu_reference() {
             // CPU.
             let (mut t_cpu, mut f_cpu) = (vec![0.0; nr * (s + 1)], vec![0.0; nr * (s + 1)]);
             for r in 0..nr {
-                let gi = first_ray + r as u32;
+                let gi = batch_index(r);
                 let jitter = randomized.then(|| RayRng::new(seed, step, Stream::SampleJitter, gi));
                 let t = &mut t_cpu[r * (s + 1)..(r + 1) * (s + 1)];
                 sample_along_rays(bounds[2 * r], bounds[2 * r + 1], lindisp, jitter, t);
@@ -508,8 +511,10 @@ fn sampling_and_resampling_match_cpu_reference() {
             let b_t = ctx.storage_buffer("t coarse", &vec![f32::NAN; nr * (s + 1)], true);
             let b_f = ctx.storage_buffer("t fine", &vec![f32::NAN; nr * (s + 1)], true);
             let mut rec = Recorder::new(&ctx, "sample test");
-            k.stratified(&mut rec, params, &b_bounds, &b_t).unwrap();
-            k.resample(&mut rec, params, &b_t, &b_w, &b_f).unwrap();
+            let ids: Vec<u32> = (0..nr).map(batch_index).collect();
+            let b_ids = ctx.storage_buffer("ray ids", &ids, false);
+            k.stratified(&mut rec, params, &b_bounds, &b_ids, &b_t).unwrap();
+            k.resample(&mut rec, params, &b_t, &b_w, &b_ids, &b_f).unwrap();
             let _ = rec.submit();
             let tag = format!("{variant:?} {s} samples lindisp {lindisp} randomized {randomized}");
             bad.extend(mismatches(
@@ -886,7 +891,9 @@ fn occupancy_guided_edges_match_cpu_reference() {
     // 0 (the axis alone), 0.2, 1 and 3, they use every layer (no dilation to the widest).
     let rays = rays_scaled(16, &[0.0, 0.2, 1.0, 3.0]);
     let nr = rays.len();
-    let (s, first_ray, seed, step) = (24usize, 40u32, 5u32, 9u32);
+    let (s, seed, step) = (24usize, 5u32, 9u32);
+    // Scattered batch indices, as the rays an occupancy grid lets through have.
+    let batch_index = |r: usize| 40 + 3 * r as u32;
     // The CPU's spans: the test must see rays with none, one, and several.
     let spans: Vec<Vec<[f32; 2]>> = rays.iter().map(|r| spans_of(&grid, r)).collect();
     let count = |f: &dyn Fn(usize) -> bool| spans.iter().filter(|v| f(v.len())).count();
@@ -904,7 +911,7 @@ fn occupancy_guided_edges_match_cpu_reference() {
             if sp.is_empty() {
                 t.fill(ray.near);
             } else {
-                let jitter = randomized.then(|| RayRng::new(seed, step, Stream::SampleJitter, first_ray + r as u32));
+                let jitter = randomized.then(|| RayRng::new(seed, step, Stream::SampleJitter, batch_index(r)));
                 sample_along_segments(sp, lindisp, jitter, t);
             }
         }
@@ -916,11 +923,11 @@ fn occupancy_guided_edges_match_cpu_reference() {
             randomized: u32::from(randomized),
             seed,
             step,
-            first_ray,
             ..OccupancyParams::default()
         };
         let mut rec = Recorder::new(&ctx, "occupancy test");
-        kernel.sample(&mut rec, params, &on_device, &batch.rays, &batch.bounds, &t_out).unwrap();
+        let ids = ctx.storage_buffer("ray ids", &(0..nr).map(batch_index).collect::<Vec<u32>>(), false);
+        kernel.sample(&mut rec, params, &on_device, &batch.rays, &batch.bounds, &ids, &t_out).unwrap();
         let _ = rec.submit();
         bad.extend(mismatches(
             &format!("lindisp {lindisp} randomized {randomized}"),

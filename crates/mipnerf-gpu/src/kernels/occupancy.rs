@@ -31,8 +31,6 @@ pub struct OccupancyParams {
     pub seed: u32,
     /// Step.
     pub step: u32,
-    /// Global index of the first ray.
-    pub first_ray: u32,
     /// Cells along each axis.
     pub resolution: u32,
     /// Half the side of the grid's cube (world units).
@@ -42,7 +40,7 @@ pub struct OccupancyParams {
     /// Workgroups along x.
     pub groups_x: u32,
     /// Padding.
-    pub _pad0: u32,
+    pub _pad: [u32; 2],
 }
 
 /// An [`OccupancyGrid`]'s layers on the device ([`OccupancyGrid::packed_layers`]), with its
@@ -119,13 +117,13 @@ impl OccupancyKernel {
     /// If the device rejects it.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
         let ([pipeline], layout) =
-            kernels::build_entries(ctx, "occupancy", SOURCE, &[true, true, true, false], ["sample_occupied"])?;
+            kernels::build_entries(ctx, "occupancy", SOURCE, &[true, true, true, false, true], ["sample_occupied"])?;
         Ok(Self { pipeline, layout })
     }
 
     /// Records the coarse edges of every ray (`rays`: two vec4 per ray, `bounds`: (near, far)
-    /// per ray) inside `grid`'s occupied spans into `t_out`. `params`' grid fields are filled
-    /// from `grid`.
+    /// per ray, `ray_ids`: its index in the step's batch, for its jitter) inside `grid`'s
+    /// occupied spans into `t_out`. `params`' grid fields are filled from `grid`.
     ///
     /// # Errors
     /// [`GpuError::InvalidInput`] for a sample count out of range.
@@ -136,6 +134,7 @@ impl OccupancyKernel {
         grid: &DeviceGrid,
         rays: &wgpu::Buffer,
         bounds: &wgpu::Buffer,
+        ray_ids: &wgpu::Buffer,
         t_out: &wgpu::Buffer,
     ) -> Result<(), GpuError> {
         if params.n_samples == 0 || params.n_samples as usize > kernels::sample::MAX_SAMPLES {
@@ -155,7 +154,7 @@ impl OccupancyKernel {
             &self.pipeline,
             &self.layout,
             &params,
-            &[rays, bounds, &grid.bits, t_out],
+            &[rays, bounds, &grid.bits, t_out, ray_ids],
             (gx, gy, 1),
         );
         Ok(())
@@ -165,5 +164,5 @@ impl OccupancyKernel {
 super::wgsl_struct!(
     OccupancyParams,
     "Params",
-    [n_rays, n_samples, lindisp, randomized, seed, step, first_ray, resolution, bound, cell_size, groups_x,]
+    [n_rays, n_samples, lindisp, randomized, seed, step, resolution, bound, cell_size, groups_x,]
 );

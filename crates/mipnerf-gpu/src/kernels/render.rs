@@ -6,7 +6,7 @@ use crate::{GpuContext, GpuError, kernels};
 /// The WGSL source of this kernel.
 pub const SOURCE: &str = include_str!("../../../../shaders/render.wgsl");
 
-/// The uniform block of `render.wgsl` (`struct Params`), 80 bytes.
+/// The uniform block of `render.wgsl` (`struct Params`), 64 bytes.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct RenderParams {
@@ -15,7 +15,7 @@ pub struct RenderParams {
     /// Samples per ray.
     pub n_samples: u32,
     /// What the rays are composited on: [`BACKGROUND_BLACK`], [`BACKGROUND_WHITE`] or (training,
-    /// with `seed`, `step` and `first_ray`) [`BACKGROUND_RANDOM`].
+    /// with `seed`, `step` and the rays' batch indices) [`BACKGROUND_RANDOM`].
     pub background: u32,
     /// 0: softplus, 1: ReLU.
     pub density_activation: u32,
@@ -44,10 +44,6 @@ pub struct RenderParams {
     pub level: u32,
     /// Rays per pixel side (supersampled NeRF); 1: one ray per pixel.
     pub supersample: u32,
-    /// Index of the first ray in the step's batch (density noise streams are per batch ray).
-    pub first_ray: u32,
-    /// Padding.
-    pub _pad: [u32; 3],
 }
 
 impl RenderParams {
@@ -71,8 +67,6 @@ impl RenderParams {
             step: 0,
             level: 0,
             supersample: cfg.supersample as u32,
-            first_ray: 0,
-            _pad: [0; 3],
         }
     }
 
@@ -140,6 +134,8 @@ pub struct RenderBuffers<'a> {
     pub ray_out: &'a wgpu::Buffer,
     /// One float: `3 * sum(lossmult)` over the batch, the loss's denominator.
     pub norm: &'a wgpu::Buffer,
+    /// `u32` per ray: its index in the step's batch (its random streams).
+    pub ray_ids: &'a wgpu::Buffer,
 }
 
 /// Which entry point renders the rays. Both compute the same maths; they group the sums over a
@@ -187,7 +183,7 @@ impl RenderKernel {
     /// # Errors
     /// If the device rejects it.
     pub fn with_variant(ctx: &GpuContext, variant: RenderVariant) -> Result<Self, GpuError> {
-        let read_only = [true, true, true, true, true, false, false, false, false, true];
+        let read_only = [true, true, true, true, true, false, false, false, false, true, true];
         let entry = match variant {
             RenderVariant::PerRay => "main",
             RenderVariant::Wide => "main_wide",
@@ -230,6 +226,7 @@ impl RenderKernel {
             b.d_raw_density,
             b.ray_out,
             b.norm,
+            b.ray_ids,
         ];
         rec.dispatch("render", &self.pipeline, &self.layout, &params, &bufs, (gx, gy, 1));
         if kk > 1 {
@@ -262,6 +259,5 @@ super::wgsl_struct!(
         step,
         level,
         supersample,
-        first_ray,
     ]
 );

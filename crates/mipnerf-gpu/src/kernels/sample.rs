@@ -25,8 +25,6 @@ pub struct SampleParams {
     pub seed: u32,
     /// Step.
     pub step: u32,
-    /// Global index of the first ray.
-    pub first_ray: u32,
     /// Level of the resampled edges.
     pub level: u32,
     /// Added to the blurred weights.
@@ -34,7 +32,7 @@ pub struct SampleParams {
     /// Workgroups along x.
     pub groups_x: u32,
     /// Padding.
-    pub _pad: [u32; 2],
+    pub _pad: [u32; 3],
 }
 
 /// How the fine edges are resampled. Both give the same edges up to the rounding of the sums
@@ -84,7 +82,7 @@ impl SampleKernels {
             ResampleVariant::Wide => "resample_wide",
         };
         let ([stratified, resample], layout) =
-            kernels::build_entries(ctx, "sample", SOURCE, &[true, true, false], ["stratified", entry])?;
+            kernels::build_entries(ctx, "sample", SOURCE, &[true, true, false, true], ["stratified", entry])?;
         Ok(Self { stratified, resample, layout, variant })
     }
 
@@ -93,7 +91,7 @@ impl SampleKernels {
         rec: &mut Recorder<'_>,
         which: &wgpu::ComputePipeline,
         mut params: SampleParams,
-        bufs: [&wgpu::Buffer; 3],
+        bufs: [&wgpu::Buffer; 4],
     ) -> Result<(), GpuError> {
         if params.n_samples == 0 || params.n_samples as usize > MAX_SAMPLES {
             return Err(GpuError::InvalidInput(format!(
@@ -110,7 +108,8 @@ impl SampleKernels {
         Ok(())
     }
 
-    /// Records the coarse edges of every ray from `bounds` ((near, far) per ray) into `t_out`.
+    /// Records the coarse edges of every ray from `bounds` ((near, far) per ray) into `t_out`,
+    /// jittered (in training) by the streams of the rays' batch indices `ray_ids`.
     ///
     /// # Errors
     /// [`GpuError::InvalidInput`] for a sample count out of range.
@@ -119,12 +118,14 @@ impl SampleKernels {
         rec: &mut Recorder<'_>,
         params: SampleParams,
         bounds: &wgpu::Buffer,
+        ray_ids: &wgpu::Buffer,
         t_out: &wgpu::Buffer,
     ) -> Result<(), GpuError> {
-        self.run(rec, &self.stratified, params, [bounds, bounds, t_out])
+        self.run(rec, &self.stratified, params, [bounds, bounds, t_out, ray_ids])
     }
 
-    /// Records the fine edges of every ray from the coarse edges and weights into `t_out`.
+    /// Records the fine edges of every ray from the coarse edges and weights into `t_out`, with
+    /// (in training) the offsets of the rays' batch indices `ray_ids`.
     ///
     /// # Errors
     /// [`GpuError::InvalidInput`] for a sample count out of range.
@@ -134,14 +135,15 @@ impl SampleKernels {
         params: SampleParams,
         t_coarse: &wgpu::Buffer,
         weights: &wgpu::Buffer,
+        ray_ids: &wgpu::Buffer,
         t_out: &wgpu::Buffer,
     ) -> Result<(), GpuError> {
-        self.run(rec, &self.resample, params, [t_coarse, weights, t_out])
+        self.run(rec, &self.resample, params, [t_coarse, weights, t_out, ray_ids])
     }
 }
 
 super::wgsl_struct!(
     SampleParams,
     "Params",
-    [n_rays, n_samples, lindisp, randomized, seed, step, first_ray, level, resample_padding, groups_x,]
+    [n_rays, n_samples, lindisp, randomized, seed, step, level, resample_padding, groups_x,]
 );
