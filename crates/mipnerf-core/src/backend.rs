@@ -249,6 +249,9 @@ pub struct WorkCounters {
     pub bind_groups_created: u64,
     /// Bytes copied back from the device to the host.
     pub bytes_read_back: u64,
+    /// Rays run through the model (sampling, MLP and rendering of every level), summed over
+    /// passes: with occupancy-guided sampling, only the rays that meet an occupied cell.
+    pub model_rays: u64,
 }
 
 impl std::ops::Sub for WorkCounters {
@@ -261,6 +264,7 @@ impl std::ops::Sub for WorkCounters {
             buffers_created: self.buffers_created - b.buffers_created,
             bind_groups_created: self.bind_groups_created - b.bind_groups_created,
             bytes_read_back: self.bytes_read_back - b.bytes_read_back,
+            model_rays: self.model_rays - b.model_rays,
         }
     }
 }

@@ -294,6 +294,23 @@ impl OccupancyGrid {
             .collect()
     }
 
+    /// The indices (ascending) of the `rays` that meet an occupied cell: those that
+    /// [`ray_segments`](Self::ray_segments) gives a span, the only ones guided sampling runs the
+    /// MLP on (the others render the background).
+    #[must_use]
+    pub fn active_rays(&self, rays: &[Ray]) -> Vec<u32> {
+        use rayon::prelude::*;
+        let hit: Vec<bool> = rays
+            .par_iter()
+            .map_init(Vec::new, |spans, r| {
+                spans.clear();
+                self.ray_segments(r, spans);
+                !spans.is_empty()
+            })
+            .collect();
+        hit.iter().enumerate().filter(|(_, h)| **h).map(|(i, _)| i as u32).collect()
+    }
+
     /// The parts of `ray` (`origin + t direction`, `t` in `[near, far]`, in units of the
     /// direction, which need not be unit length) that its cone may see occupied, as sorted,
     /// disjoint `[t0, t1]` spans: a voxel traversal (Amanatides and Woo) of the cells the ray's

@@ -184,6 +184,7 @@ struct Counters {
     buffers_created: AtomicU64,
     bind_groups_created: AtomicU64,
     bytes_read_back: AtomicU64,
+    model_rays: AtomicU64,
 }
 
 /// The device and queue every kernel runs on, with the adapter they came from.
@@ -329,6 +330,7 @@ impl GpuContext {
             buffers_created: get(&c.buffers_created),
             bind_groups_created: get(&c.bind_groups_created),
             bytes_read_back: get(&c.bytes_read_back),
+            model_rays: get(&c.model_rays),
         }
     }
 
@@ -337,6 +339,10 @@ impl GpuContext {
         if new_pass {
             self.counters.compute_passes.fetch_add(1, Ordering::Relaxed);
         }
+    }
+
+    pub(crate) fn count_model_rays(&self, n: usize) {
+        self.counters.model_rays.fetch_add(n as u64, Ordering::Relaxed);
     }
 
     pub(crate) fn count_bind_group(&self) {

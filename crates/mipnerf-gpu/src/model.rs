@@ -16,8 +16,9 @@ use mipnerf_core::occupancy::OccupancyGrid;
 
 use crate::kernels::Recorder;
 use crate::kernels::cast_ipe::{CastIpeKernel, CastIpeParams};
+use crate::kernels::compact::{Compaction, ExpandKernel, ExpandParams, GatherKernel, kept_rays};
 use crate::kernels::occupancy::{DeviceGrid, OccupancyKernel, OccupancyParams};
-use crate::kernels::render::{RenderBuffers, RenderKernel, RenderParams};
+use crate::kernels::render::{RenderBuffers, RenderKernel, RenderParams, background_code};
 use crate::kernels::sample::{SampleKernels, SampleParams};
 use crate::kernels::view_enc::ViewEncKernel;
 use crate::mlp::{GpuMlp, MlpBuffers};
@@ -262,6 +263,8 @@ pub struct GpuModel {
     view: ViewEncKernel,
     mlp: GpuMlp,
     render: RenderKernel,
+    gather: GatherKernel,
+    expand: ExpandKernel,
 }
 
 /// The family of kernel variants a [`GpuModel`] runs.
@@ -294,6 +297,8 @@ impl GpuModel {
             view: ViewEncKernel::new(ctx)?,
             mlp: GpuMlp::with_variant(ctx, m)?,
             render: RenderKernel::with_variant(ctx, r)?,
+            gather: GatherKernel::new(ctx)?,
+            expand: ExpandKernel::new(ctx)?,
         })
     }
 
@@ -329,8 +334,9 @@ impl GpuModel {
     /// (and one ray per pixel), the coarse edges lie in each ray's occupied spans, and a ray that
     /// meets no occupied cell renders the background (no opacity, distance `near`) and adds its
     /// background's error to the loss and nothing to the gradient. Such a ray still runs the
-    /// MLP here (on intervals of zero length); the CPU skips it. A full grid, or none, records
-    /// exactly [`encode`](Self::encode).
+    /// MLP here (on intervals of zero length); [`encode_compacted`](Self::encode_compacted)
+    /// skips it, as the CPU does. A full grid, or none, records exactly
+    /// [`encode`](Self::encode).
     ///
     /// # Errors
     /// As [`encode`](Self::encode).
@@ -360,6 +366,7 @@ impl GpuModel {
             Mode::Eval => (0, 0, false),
         };
         let level_w = model.level_weights();
+        rec.context().count_model_rays(nr);
         let bufs = &work.mlp;
         self.view.encode(rec, nr, c.deg_view, &batch.viewdirs, &bufs.view)?;
         for level in 0..c.num_levels {
@@ -433,6 +440,91 @@ impl GpuModel {
             if let Some(g) = grads {
                 self.mlp.backward(rec, shape, params, bufs, &work.d_rgb, g);
             }
+        }
+        Ok(())
+    }
+
+    /// [`encode_guided`](Self::encode_guided) on only the rays of `batch` that `compaction`'s
+    /// last [`upload`](Compaction::upload) kept (those that meet an occupied cell of `grid`):
+    /// they are gathered into `compaction.batch` and run with `work` (its active rays set here);
+    /// every level's outputs are then put back in batch order in `compaction.outs`, with the
+    /// background (and its error) for the rays that were not kept. Those cost no sampling, MLP
+    /// or rendering work, as on the CPU.
+    ///
+    /// # Errors
+    /// As [`encode`](Self::encode), and `work` too small for the kept rays.
+    #[allow(clippy::too_many_arguments)]
+    pub fn encode_compacted(
+        &self,
+        rec: &mut Recorder<'_>,
+        model: &Model,
+        params: &wgpu::Buffer,
+        batch: &RayBatch,
+        compaction: &mut Compaction,
+        work: &mut ModelBuffers,
+        mode: Mode,
+        grads: Option<&wgpu::Buffer>,
+        grid: Option<&DeviceGrid>,
+    ) -> Result<(), GpuError> {
+        if self.gather_kept(rec, batch, compaction)? {
+            work.set_active(compaction.n_kept())?;
+            self.encode_guided(rec, model, params, &compaction.batch, work, mode, grads, grid)?;
+        }
+        self.expand_outputs(rec, model, mode, batch, compaction, &work.ray_out)
+    }
+
+    /// Records the gathering of the rays `compaction` keeps from `batch` into
+    /// `compaction.batch` (active: the kept rays), with the batch's loss denominator. Returns
+    /// whether any ray is kept (none: nothing is recorded).
+    ///
+    /// # Errors
+    /// A grid too large for one dispatch.
+    pub fn gather_kept(
+        &self,
+        rec: &mut Recorder<'_>,
+        batch: &RayBatch,
+        compaction: &mut Compaction,
+    ) -> Result<bool, GpuError> {
+        let m = compaction.n_kept();
+        if m == 0 {
+            return Ok(false);
+        }
+        self.gather.encode(rec, m, &compaction.kept, batch, &compaction.batch)?;
+        rec.encoder().copy_buffer_to_buffer(&batch.norm, 0, &compaction.batch.norm, 0, 4);
+        compaction.batch.set_active(m)?;
+        Ok(true)
+    }
+
+    /// Records every level's outputs of `batch` in batch order into `compaction.outs`: the kept
+    /// rays' from `kept_out` (one buffer per level, in kept order), the background for the
+    /// others (white or black, or in training with random backgrounds the pixel's colour).
+    ///
+    /// # Errors
+    /// A grid too large for one dispatch.
+    pub fn expand_outputs(
+        &self,
+        rec: &mut Recorder<'_>,
+        model: &Model,
+        mode: Mode,
+        batch: &RayBatch,
+        compaction: &Compaction,
+        kept_out: &[wgpu::Buffer],
+    ) -> Result<(), GpuError> {
+        let c = model.config();
+        let (seed, step, train) = match mode {
+            Mode::Train { seed, step } => (seed, step, true),
+            Mode::Eval => (0, 0, false),
+        };
+        let params = ExpandParams {
+            n_rays: batch.n_rays as u32,
+            background: background_code(c.white_bkgd, train && c.random_bkgd),
+            seed,
+            step,
+            area_loss: u32::from(c.area_loss),
+            ..ExpandParams::default()
+        };
+        for (src, dst) in kept_out.iter().zip(&compaction.outs) {
+            self.expand.encode(rec, params, &compaction.slot, batch, src, dst)?;
         }
         Ok(())
     }
@@ -533,15 +625,36 @@ impl GpuModel {
             )));
         }
         let batch = RayBatch::upload(ctx, rays, targets, model.rays_per_pixel(), model.config().area_loss)?;
-        let work = ModelBuffers::new(ctx, model, rays.len())?;
+        let mut work = ModelBuffers::new(ctx, model, rays.len())?;
         let params_buf = ctx.storage_buffer("parameters", params, false);
         let grads = ctx.storage_buffer("gradients", &vec![0.0f32; model.num_params()], true);
+        let kept = grid.filter(|_| model.rays_per_pixel() == 1).and_then(|g| kept_rays(g, rays));
         let grid = grid.map(|g| DeviceGrid::new(ctx, g)).transpose()?;
         let mut rec = Recorder::new(ctx, "model step");
-        self.encode_guided(&mut rec, model, &params_buf, &batch, &work, mode, Some(&grads), grid.as_ref())?;
-        let _ = rec.submit();
-        let g = ctx.read_f32(&grads, model.num_params())?;
-        Ok((self.read_losses(ctx, model, &batch, &work.ray_out)?, g))
+        let g = Some(&grads);
+        let losses = if let Some(kept) = kept {
+            // Only the rays that meet an occupied cell run, as on the CPU.
+            let mut compaction = Compaction::new(ctx, rays.len(), model.config().num_levels);
+            compaction.upload(ctx, &kept, rays.len())?;
+            self.encode_compacted(
+                &mut rec,
+                model,
+                &params_buf,
+                &batch,
+                &mut compaction,
+                &mut work,
+                mode,
+                g,
+                grid.as_ref(),
+            )?;
+            let _ = rec.submit();
+            self.read_losses(ctx, model, &batch, &compaction.outs)?
+        } else {
+            self.encode_guided(&mut rec, model, &params_buf, &batch, &work, mode, g, grid.as_ref())?;
+            let _ = rec.submit();
+            self.read_losses(ctx, model, &batch, &work.ray_out)?
+        };
+        Ok((losses, ctx.read_f32(&grads, model.num_params())?))
     }
 }
 

@@ -12,7 +12,11 @@
 //!
 //! With an occupancy grid (the fast preset), the coarse edges come from `occupancy.wgsl` on the
 //! grid's copy on the device; the grid itself is updated on the host every few steps from
-//! parameters read back then (the CPU backend's code, so both backends keep the same grid).
+//! parameters read back then (the CPU backend's code, so both backends keep the same grid). The
+//! rays that meet no occupied cell are found on the host (the CPU's traversal of the CPU's rays
+//! for the same pixels: the same rays the CPU backend skips) and compacted away on the device
+//! ([`crate::kernels::compact`]): they render the background without sampling, MLP or rendering
+//! work, in training and in rendering.
 //!
 //! Rendering runs an image in chunks of a fixed number of rays through buffers that are reused
 //! from chunk to chunk, so the device memory it takes is set by the chunk size, not the image.
@@ -26,6 +30,7 @@ use mipnerf_core::train::{AdamState, OptimConfig, StepReport};
 
 use crate::kernels::adam::{AdamBuffers, AdamKernel, AdamStep};
 use crate::kernels::batch::{BatchKernel, DeviceImages, Draw};
+use crate::kernels::compact::{Compaction, kept_rays};
 use crate::kernels::occupancy::DeviceGrid;
 use crate::kernels::{DispatchCache, Recorder};
 use crate::model::{GpuModel, ModelBuffers, RayBatch};
@@ -63,6 +68,9 @@ struct TrainData {
     /// When the batch runs in chunks: each chunk's rays, copied from `batch`, and every level's
     /// per-ray outputs gathered over the chunks (for the losses).
     chunks: Option<(RayBatch, Vec<wgpu::Buffer>)>,
+    /// With an occupancy grid: the cameras (no pixels), to find on the host which of a step's
+    /// rays meet an occupied cell, and the buffers of the compacted batch.
+    compaction: Option<(Dataset, Compaction)>,
 }
 
 /// Training and rendering on a wgpu device. See the [module docs](self).
@@ -82,6 +90,8 @@ pub struct GpuBackend {
     render_chunk: usize,
     /// The render chunk's rays and buffers, and two staging buffers its outputs alternate in.
     render: Option<(RayBatch, ModelBuffers, [wgpu::Buffer; 2])>,
+    /// The render chunk's compaction buffers (with an occupancy grid).
+    render_compaction: Option<Compaction>,
     in_flight: u32,
     /// Bind groups and uniforms of the training step's dispatches, and of a render chunk's.
     train_cache: DispatchCache,
@@ -128,6 +138,7 @@ impl GpuBackend {
             train: None,
             render_chunk,
             render: None,
+            render_compaction: None,
             in_flight: 0,
             train_cache: DispatchCache::default(),
             render_cache: DispatchCache::default(),
@@ -182,8 +193,13 @@ impl GpuBackend {
             let work = ModelBuffers::new(&self.ctx, &self.model, chunk)?;
             Ok((batch, work, Some((RayBatch::new(&self.ctx, chunk), outs))))
         })?;
+        // Compaction only guides one ray per pixel, as on the CPU.
+        let compaction = (self.occupancy.is_some() && rpp == 1).then(|| {
+            let levels = self.model.config().num_levels;
+            (ds.without_pixels(), Compaction::new(&self.ctx, n_rays, levels))
+        });
         self.ctx.check()?;
-        self.train = Some(TrainData { images, batch, work, chunks });
+        self.train = Some(TrainData { images, batch, work, chunks, compaction });
         Ok(self)
     }
 
@@ -210,9 +226,15 @@ impl GpuBackend {
     /// Device bytes of the render buffers (0 before the first render): the same for every image.
     #[must_use]
     pub fn render_buffer_bytes(&self) -> u64 {
-        self.render.as_ref().map_or(0, |(b, w, _)| {
-            w.bytes() + [&b.rays, &b.bounds, &b.viewdirs, &b.targets, &b.norm].iter().map(|x| x.size()).sum::<u64>()
-        })
+        let compaction = self.render_compaction.as_ref().map_or(0, Compaction::bytes);
+        compaction
+            + self.render.as_ref().map_or(0, |(b, w, _)| {
+                w.bytes()
+                    + [&b.ids, &b.rays, &b.bounds, &b.viewdirs, &b.targets, &b.norm]
+                        .iter()
+                        .map(|x| x.size())
+                        .sum::<u64>()
+            })
     }
 
     /// Device bytes of the training images (0 without training data).
@@ -247,65 +269,105 @@ impl GpuBackend {
         let step = self.step;
         let mode = Mode::Train { seed: self.seed, step: step as u32 };
         let lr = self.optim.lr.lr(step);
+        let TrainData { images, batch, work, chunks, compaction } = data;
+        let n = batch.n_rays;
+        // The rays that meet an occupied cell, found on the host for the pixels the device draws.
+        let mut kept: Option<&mut Compaction> = None;
+        if let (Some((host_grid, _)), Some((cameras, c))) = (&self.occupancy, compaction.as_mut())
+            && !host_grid.is_full()
+        {
+            let rays: Vec<mipnerf_core::Ray> =
+                cameras.batch_pixels(n, self.seed, step as u32).map(|(v, x, y)| cameras.ray(v, x, y)).collect();
+            if let Some(list) = kept_rays(host_grid, &rays) {
+                c.upload(ctx, &list, n)?;
+                kept = Some(c);
+            }
+        }
         let mut rec = Recorder::with_cache(ctx, "train step", std::mem::take(&mut self.train_cache));
         rec.encoder().clear_buffer(&self.state.grads, 0, None);
         let draw = Draw::Random { seed: self.seed, step: step as u32, random_bkgd: self.model.config().random_bkgd };
         let (area_loss, k) = (self.model.config().area_loss, self.model.config().supersample);
-        self.batch_kernel.encode(&mut rec, &data.images, draw, area_loss, k, &data.batch)?;
+        self.batch_kernel.encode(&mut rec, images, draw, area_loss, k, batch)?;
         let grads = Some(&self.state.grads);
-        match &mut data.chunks {
-            None => self.kernels.encode_guided(
-                &mut rec,
-                &self.model,
-                &self.state.params,
-                &data.batch,
-                &data.work,
-                mode,
-                grads,
-                grid,
-            )?,
+        // The rays that run: the whole batch, or the kept ones gathered out of it.
+        let n_src = match kept.as_deref_mut() {
+            Some(c) => {
+                if self.kernels.gather_kept(&mut rec, batch, c)? {
+                    c.n_kept()
+                } else {
+                    0
+                }
+            }
+            None => n,
+        };
+        let src: &RayBatch = kept.as_deref().map_or(&*batch, |c| &c.batch);
+        match chunks.as_mut() {
+            None => {
+                if n_src > 0 {
+                    work.set_active(n_src)?;
+                    self.kernels.encode_guided(
+                        &mut rec,
+                        &self.model,
+                        &self.state.params,
+                        src,
+                        work,
+                        mode,
+                        grads,
+                        grid,
+                    )?;
+                }
+            }
             Some((sub, outs)) => {
                 // Each chunk's rays are copied out of the batch; the gradients add up in `grads`.
-                let n = data.batch.n_rays;
                 let chunk = sub.capacity();
-                for first in (0..n).step_by(chunk) {
-                    let m = chunk.min(n - first);
-                    let b = &data.batch;
-                    for (src, dst, floats) in [
-                        (&b.rays, &sub.rays, 8),
-                        (&b.bounds, &sub.bounds, 2),
-                        (&b.viewdirs, &sub.viewdirs, 3),
-                        (&b.targets, &sub.targets, 4),
-                        (&b.ids, &sub.ids, 1),
+                for first in (0..n_src).step_by(chunk) {
+                    let m = chunk.min(n_src - first);
+                    for (from, to, floats) in [
+                        (&src.rays, &sub.rays, 8),
+                        (&src.bounds, &sub.bounds, 2),
+                        (&src.viewdirs, &sub.viewdirs, 3),
+                        (&src.targets, &sub.targets, 4),
+                        (&src.ids, &sub.ids, 1),
                     ] {
                         let per_ray = floats * 4;
                         rec.encoder().copy_buffer_to_buffer(
-                            src,
+                            from,
                             (first * per_ray) as u64,
-                            dst,
+                            to,
                             0,
                             (m * per_ray) as u64,
                         );
                     }
-                    rec.encoder().copy_buffer_to_buffer(&b.norm, 0, &sub.norm, 0, 4);
+                    rec.encoder().copy_buffer_to_buffer(&src.norm, 0, &sub.norm, 0, 4);
                     sub.set_active(m)?;
-                    data.work.set_active(m)?;
+                    work.set_active(m)?;
                     self.kernels.encode_guided(
                         &mut rec,
                         &self.model,
                         &self.state.params,
                         sub,
-                        &data.work,
+                        work,
                         mode,
                         grads,
                         grid,
                     )?;
-                    for (src, dst) in data.work.ray_out.iter().zip(outs.iter()) {
-                        rec.encoder().copy_buffer_to_buffer(src, 0, dst, (first * 32) as u64, (m * 32) as u64);
+                    for (from, to) in work.ray_out.iter().zip(outs.iter()) {
+                        rec.encoder().copy_buffer_to_buffer(from, 0, to, (first * 32) as u64, (m * 32) as u64);
                     }
                 }
             }
         }
+        // Every level's outputs in batch order, for the losses: the background for the rays that
+        // were not kept.
+        let ray_out: &[wgpu::Buffer] = match (&kept, chunks.as_ref()) {
+            (Some(c), chunked) => {
+                let kept_out = chunked.map_or(&work.ray_out, |(_, outs)| outs);
+                self.kernels.expand_outputs(&mut rec, &self.model, mode, batch, c, kept_out)?;
+                &c.outs
+            }
+            (None, Some((_, outs))) => outs,
+            (None, None) => &work.ray_out,
+        };
         let adam = AdamStep {
             cfg: self.optim.adam,
             t: self.adam_t + 1,
@@ -327,8 +389,7 @@ impl GpuBackend {
             return Ok(None);
         }
         self.in_flight = 0;
-        let ray_out = data.chunks.as_ref().map_or(&data.work.ray_out, |(_, outs)| outs);
-        let stats = self.kernels.read_losses(ctx, &self.model, &data.batch, ray_out)?;
+        let stats = self.kernels.read_losses(ctx, &self.model, batch, ray_out)?;
         let grad_norm =
             if self.optim.grad_max_norm > 0.0 { Some(ctx.read_f32(&self.state.stats, 1)?[0]) } else { None };
         Ok(Some(StepReport { step, lr, stats, grad_norm }))
@@ -350,6 +411,7 @@ impl GpuBackend {
             let need = ModelBuffers::bytes_for(&self.model, rays);
             // Drop the old buffers, and the bind groups that hold them, before making new ones.
             self.render = None;
+            self.render_compaction = None;
             self.render_cache = DispatchCache::default();
             let ctx = &self.ctx;
             let made = ctx.allocating(need, || {
@@ -358,6 +420,9 @@ impl GpuBackend {
                 Ok((RayBatch::new(ctx, rays), ModelBuffers::new(ctx, &self.model, rays)?, staging))
             })?;
             self.render = Some(made);
+        }
+        if self.render_compaction.is_none() && self.occupancy.is_some() && rpp == 1 {
+            self.render_compaction = Some(Compaction::new(&self.ctx, chunk_pixels, levels));
         }
         let Some((batch, work, staging)) = &mut self.render else { unreachable!("render buffers were just made") };
         let mut out = Vec::with_capacity(total * levels);
@@ -372,25 +437,49 @@ impl GpuBackend {
             Ok(crate::model::level_outputs(&per_level, n, rpp))
         };
         let mut pending: Option<(usize, usize, wgpu::SubmissionIndex)> = None;
+        let mut host_rays = Vec::new();
         for (i, first) in (0..total).step_by(chunk_pixels).enumerate() {
             let n = chunk_pixels.min(total - first) * rpp;
             batch.set_active(n)?;
             work.set_active(n)?;
+            // The chunk's rays that meet an occupied cell, found on the host.
+            let mut kept = None;
+            if let (Some((host_grid, _)), Some(c)) = (&self.occupancy, self.render_compaction.as_mut())
+                && !host_grid.is_full()
+            {
+                host_rays.clear();
+                image.push_rays(first, n, &mut host_rays);
+                if let Some(list) = kept_rays(host_grid, &host_rays) {
+                    c.upload(ctx, &list, n)?;
+                    kept = Some(c);
+                }
+            }
             let mut rec = Recorder::with_cache(ctx, "render chunk", std::mem::take(&mut self.render_cache));
             let draw = Draw::Sequential { first: first as u32 };
             self.batch_kernel.encode(&mut rec, cams, draw, false, k, batch)?;
-            self.kernels.encode_guided(
-                &mut rec,
-                &self.model,
-                &self.state.params,
-                batch,
-                work,
-                Mode::Eval,
-                None,
-                grid,
-            )?;
+            let params = &self.state.params;
+            let outs = match kept {
+                Some(c) => {
+                    self.kernels.encode_compacted(
+                        &mut rec,
+                        &self.model,
+                        params,
+                        batch,
+                        c,
+                        work,
+                        Mode::Eval,
+                        None,
+                        grid,
+                    )?;
+                    &c.outs
+                }
+                None => {
+                    self.kernels.encode_guided(&mut rec, &self.model, params, batch, work, Mode::Eval, None, grid)?;
+                    &work.ray_out
+                }
+            };
             let slot = i % 2;
-            for (l, src) in work.ray_out.iter().enumerate() {
+            for (l, src) in outs.iter().enumerate() {
                 rec.encoder().copy_buffer_to_buffer(src, 0, &staging[slot], (l * n * 32) as u64, (n * 32) as u64);
             }
             let (cache, index) = rec.submit_indexed();

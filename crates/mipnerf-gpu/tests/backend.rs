@@ -473,14 +473,29 @@ fn the_real_lego_scene_trains_alike_on_both_backends() {
 
 #[test]
 fn occupancy_guided_training_follows_the_cpu_in_chunks() {
-    use mipnerf_core::occupancy::{OccupancyConfig, OccupancyGrid, auto_bound};
     let Some(ctx) = context_or_skip("occupancy_guided_training_follows_the_cpu_in_chunks") else { return };
+    // 64 rays in chunks of 24, 24 and 16: the chunks' rays keep their place in the batch.
+    guided_training_follows_the_cpu(ctx, Some(24));
+}
+
+#[test]
+fn occupancy_guided_training_follows_the_cpu_in_one_pass() {
+    let Some(ctx) = context_or_skip("occupancy_guided_training_follows_the_cpu_in_one_pass") else { return };
+    guided_training_follows_the_cpu(ctx, None);
+}
+
+/// Guided training on both backends from one seed and one mask-carved grid (updated within the
+/// run): the losses, the grids and the renders agree, and the GPU ran only the rays that meet an
+/// occupied cell through the model, as the CPU does.
+fn guided_training_follows_the_cpu(ctx: mipnerf_gpu::GpuContext, chunk: Option<usize>) {
+    use mipnerf_core::occupancy::{OccupancyConfig, OccupancyGrid, auto_bound};
     let ds = Arc::new(lego_tiny());
     let model = Model::new(ModelConfig { num_samples: 16, ..Preset::Tiny.config() }).unwrap();
     // A grid seeded by the masks, with a short warm-up so that it is updated from the model
     // (on each backend from its own parameters) within the run.
+    // Fine enough (cells of 1/20 of the scene) that some rays miss every occupied cell.
     let config = OccupancyConfig {
-        resolution: 16,
+        resolution: 40,
         bound: auto_bound(&ds).unwrap(),
         update_every: 4,
         warmup_steps: 8,
@@ -491,29 +506,47 @@ fn occupancy_guided_training_follows_the_cpu_in_chunks() {
     assert!(carved > 0, "lego_tiny's masks carve nothing");
     let (seed, batch, steps) = (4u32, 64usize, 16u64);
     let optim = OptimConfig::default();
-    let state = TrainState { occupancy: Some(grid.clone()), ..TrainState::fresh(&model, seed) };
+    let state = TrainState { occupancy: Some(grid), ..TrainState::fresh(&model, seed) };
     let mut cpu =
         CpuBackend::new(model.clone(), optim.clone(), seed, state.clone()).unwrap().with_data(Arc::clone(&ds), batch);
-    // 64 rays in chunks of 24, 24 and 16: the chunks' rays keep their place in the batch.
-    let mut gpu =
-        GpuBackend::new(ctx, model.clone(), optim, seed, state).unwrap().with_data_in_chunks(&ds, batch, 24).unwrap();
-    let mut bad = Vec::new();
+    let gpu = GpuBackend::new(ctx, model.clone(), optim, seed, state).unwrap();
+    let mut gpu = match chunk {
+        Some(c) => gpu.with_data_in_chunks(&ds, batch, c).unwrap(),
+        None => gpu.with_data(&ds, batch).unwrap(),
+    };
+    let (mut bad, mut ran) = (Vec::new(), Vec::new());
     for step in 0..steps {
+        let before = gpu.work_counters().unwrap().model_rays;
         let c = cpu.train_step(true).unwrap().unwrap();
         let g = gpu.train_step(true).unwrap().unwrap();
         for (what, gv, cv) in [("loss", g.stats.loss, c.stats.loss), ("fine mse", g.stats.mse[1], c.stats.mse[1])] {
             compare_loss(&mut bad, &format!("step {step} {what}"), gv, cv);
         }
+        ran.push(gpu.work_counters().unwrap().model_rays - before);
     }
     assert_none(&bad);
     let (ck_c, ck_g) = (cpu.checkpoint().unwrap(), gpu.checkpoint().unwrap());
     let (grid_c, grid_g) = (ck_c.occupancy.unwrap(), ck_g.occupancy.unwrap());
+    // The last step ran under the saved grid (updated before step 12, the last update): the
+    // batch's rays that meet an occupied cell, and no others, ran through the model.
+    let (mut rays, mut targets) = (Vec::new(), Vec::new());
+    ds.sample_batch(batch, seed, (steps - 1) as u32, 1, false, &mut rays, &mut targets);
+    let kept = grid_g.active_rays(&rays).len();
+    assert!(0 < kept && kept < batch, "the learnt grid keeps {kept} of {batch} rays");
+    assert_eq!(ran[steps as usize - 1], kept as u64, "rays run through the GPU model at the last step: {ran:?}");
+    assert!(ran.iter().all(|&r| r <= batch as u64), "{ran:?}");
     assert!(grid_g.warmed_up && !grid_g.is_full(), "the GPU run's grid was not updated past its warm-up");
     let worst = grid_c.opacity.iter().zip(&grid_g.opacity).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
     assert!(worst < 1e-3, "the backends' grids differ by {worst:e} in a cell's opacity");
     let image = ImageSpec::of_view(&ds, 0, 1);
+    let before = gpu.work_counters().unwrap().model_rays;
     let (r_cpu, r_gpu) = (cpu.render_image(&image).unwrap(), gpu.render_image(&image).unwrap());
+    let ran = gpu.work_counters().unwrap().model_rays - before;
+    let mut rays = Vec::new();
+    image.push_rays(0, image.pixels(), &mut rays);
+    assert_eq!(ran, grid_g.active_rays(&rays).len() as u64, "rays run through the GPU model in the render");
+    assert!(ran < image.pixels() as u64);
     let psnr = psnr_between(&r_cpu, &r_gpu);
-    eprintln!("guided renders after {steps} steps: CPU vs GPU PSNR {psnr:.1} dB");
+    eprintln!("guided renders after {steps} steps: CPU vs GPU PSNR {psnr:.1} dB; {ran} of {} rays ran", image.pixels());
     assert!(psnr >= MIN_RENDER_AGREEMENT_PSNR, "CPU and GPU guided renders differ: {psnr:.1} dB");
 }

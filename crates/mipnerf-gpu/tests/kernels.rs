@@ -966,8 +966,11 @@ fn occupancy_guided_model_matches_cpu_reference() {
             let mut scratch = GradScratch::default();
             let cpu =
                 model.loss_and_grad_guided(&params, &rays, &targets, mode, &mut cpu_grads, &mut scratch, Some(&grid));
+            let before = ctx.counters().model_rays;
             let (g_stats, g_grads) =
                 gpu.loss_and_grad_guided(&ctx, model, &params, &rays, &targets, mode, Some(&grid)).unwrap();
+            // Only the rays that meet an occupied cell ran through the model, as on the CPU.
+            assert_eq!(ctx.counters().model_rays - before, active as u64, "{set:?} {mode:?}: rays run");
             let tag = format!("{set:?} {mode:?} random background {}", model.config().random_bkgd);
             eprintln!("{tag}: cpu losses {:?} gpu {:?}", cpu.losses, g_stats.losses);
             bad.extend(mismatches(

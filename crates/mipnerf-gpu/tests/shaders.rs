@@ -9,6 +9,7 @@ use mipnerf_gpu::kernels::{
     adam::AdamParams,
     batch::{BatchParams, GpuView},
     cast_ipe::CastIpeParams,
+    compact::{ExpandParams, GatherParams},
     compose,
     matmul::MatmulParams,
     mlp_aux::AuxParams,
@@ -153,6 +154,8 @@ fn uniform_structs_match_wgsl_member_by_member() {
     check::<OccupancyParams>("occupancy.wgsl", &mut mismatches);
     check::<ViewEncParams>("view_enc.wgsl", &mut mismatches);
     check::<BatchParams>("batch.wgsl", &mut mismatches);
+    check::<GatherParams>("gather.wgsl", &mut mismatches);
+    check::<ExpandParams>("expand.wgsl", &mut mismatches);
     // The per-view camera record of batch.wgsl, read from a storage array.
     check::<GpuView>("batch.wgsl", &mut mismatches);
     assert!(mismatches.is_empty(), "{} mismatch(es):\n{}", mismatches.len(), mismatches.join("\n"));

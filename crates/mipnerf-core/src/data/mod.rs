@@ -339,12 +339,8 @@ impl Dataset {
     ) {
         rays.clear();
         targets.clear();
-        let total = self.num_pixels();
-        let rng = RayRng::new(seed, step, Stream::RayBatch, 0);
-        let n = u32::try_from(n).ok().filter(|n| *n < 1 << 31).unwrap_or_else(|| panic!("sample_batch: {n} pixels"));
-        for i in 0..n {
-            let r = (u64::from(rng.bits(2 * i)) << 32) | u64::from(rng.bits(2 * i + 1));
-            let (v, x, y) = self.locate(r % total);
+        for (i, (v, x, y)) in self.batch_pixels(n, seed, step).enumerate() {
+            let i = i as u32;
             self.push_pixel_rays(v, x, y, supersample, rays);
             targets.push(if random_bkgd {
                 let view = &self.views[v];
@@ -354,6 +350,54 @@ impl Dataset {
             } else {
                 self.target(v, x, y)
             });
+        }
+    }
+
+    /// The pixels (view, x, y) of [`sample_batch`](Self::sample_batch)`(n, seed, step, ..)`, in
+    /// batch order: what a backend that makes its batches elsewhere (the GPU) needs to know
+    /// which of them an occupancy grid lets through.
+    ///
+    /// # Panics
+    /// If `n` is `2^31` or more.
+    pub fn batch_pixels(&self, n: usize, seed: u32, step: u32) -> impl Iterator<Item = (usize, u32, u32)> + '_ {
+        let total = self.num_pixels();
+        let rng = RayRng::new(seed, step, Stream::RayBatch, 0);
+        let n = u32::try_from(n).ok().filter(|n| *n < 1 << 31).unwrap_or_else(|| panic!("sample_batch: {n} pixels"));
+        (0..n).map(move |i| {
+            let r = (u64::from(rng.bits(2 * i)) << 32) | u64::from(rng.bits(2 * i + 1));
+            self.locate(r % total)
+        })
+    }
+
+    /// The same dataset without its pixels: cameras, bounds and offsets, enough for
+    /// [`ray`](Self::ray) and [`batch_pixels`](Self::batch_pixels) at no memory cost (a backend
+    /// that holds the pixels elsewhere keeps this). [`target`](Self::target) and
+    /// [`sample_batch`](Self::sample_batch) must not be called on it (they panic: no pixels).
+    #[must_use]
+    pub fn without_pixels(&self) -> Self {
+        let views = self
+            .views
+            .iter()
+            .map(|v| View {
+                file: v.file.clone(),
+                camera: v.camera.clone(),
+                pixels: Pixels::Rgba8(Vec::new()),
+                near: v.near,
+                far: v.far,
+                lossmult: v.lossmult,
+                scale: v.scale,
+            })
+            .collect();
+        Self {
+            root: self.root.clone(),
+            split: self.split,
+            views,
+            white_bkgd: self.white_bkgd,
+            centers: self.centers,
+            ndc: self.ndc,
+            render_path: self.render_path.clone(),
+            notes: self.notes.clone(),
+            offsets: self.offsets.clone(),
         }
     }
 

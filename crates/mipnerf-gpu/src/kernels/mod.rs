@@ -127,6 +127,7 @@ pub(crate) use wgsl_struct;
 pub mod adam;
 pub mod batch;
 pub mod cast_ipe;
+pub mod compact;
 pub mod matmul;
 pub mod mlp_aux;
 pub mod occupancy;
@@ -146,6 +147,8 @@ pub const ALL_SOURCES: &[(&str, &str)] = &[
     ("occupancy.wgsl", occupancy::SOURCE),
     ("view_enc.wgsl", view_enc::SOURCE),
     ("batch.wgsl", batch::SOURCE),
+    ("gather.wgsl", compact::GATHER_SOURCE),
+    ("expand.wgsl", compact::EXPAND_SOURCE),
 ];
 
 /// Most workgroups a dispatch may have along one dimension: WebGPU's default
@@ -336,6 +339,12 @@ impl<'a> Recorder<'a> {
     pub fn with_cache(ctx: &'a GpuContext, label: &str, cache: DispatchCache) -> Self {
         let enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
         Self { ctx, pass: None, enc, cache, next: 0 }
+    }
+
+    /// The context the recording is for.
+    #[must_use]
+    pub fn context(&self) -> &'a GpuContext {
+        self.ctx
     }
 
     /// The encoder, for copies and clears (ends the open compute pass).
