@@ -7,6 +7,7 @@ mod check;
 mod config;
 mod eval;
 mod experiment;
+mod export;
 mod figure;
 mod html;
 mod images;
@@ -180,6 +181,38 @@ enum Command {
         table_only: bool,
         #[command(flatten)]
         lpips: lpips::LpipsWeights,
+    },
+    /// Export a trained run's geometry as PLY for 3D tools: a mesh of its density (marching
+    /// cubes, vertex colours from the model) and/or coloured points at the expected depth of its
+    /// training rays.
+    Export {
+        /// The run directory.
+        run: PathBuf,
+        /// Write the mesh here (binary PLY: positions, normals, colours, triangles).
+        #[arg(long, value_name = "FILE.ply")]
+        mesh: Option<PathBuf>,
+        /// Write the points here (binary PLY: positions, colours).
+        #[arg(long, value_name = "FILE.ply")]
+        points: Option<PathBuf>,
+        /// Grid cells along each side of the box the density is sampled in.
+        #[arg(long, default_value_t = export::DEFAULT_RESOLUTION)]
+        resolution: usize,
+        /// The density (opacity per world unit) the mesh's surface follows.
+        #[arg(long, default_value_t = export::DEFAULT_THRESHOLD)]
+        threshold: f32,
+        /// Half the side of the box around the origin [default: the run's occupancy grid's, else
+        /// from the cameras].
+        #[arg(long, value_name = "B")]
+        bound: Option<f32>,
+        /// Training rays (random pixels of the training views) the points come from.
+        #[arg(long, default_value_t = export::DEFAULT_POINTS)]
+        count: usize,
+        /// The opacity a ray must reach for its expected depth to become a point.
+        #[arg(long, default_value_t = export::DEFAULT_MIN_OPACITY)]
+        min_opacity: f32,
+        /// Replace files that exist.
+        #[arg(long)]
+        overwrite: bool,
     },
     /// The paper's figure 1 for evaluated runs: one test view at every scale, ground truth beside
     /// each run's render (blown up with square pixels so aliasing shows), a zoomed crop of each, and
@@ -719,6 +752,19 @@ fn main() -> std::process::ExitCode {
                     println!("{label}: test PSNR per scale (full to coarsest) {}", p.join(" / "));
                 }
                 println!("wrote {}", args.out.display());
+            })
+        }
+        Command::Export { run, mesh, points, resolution, threshold, bound, count, min_opacity, overwrite } => {
+            export::export(&export::ExportArgs {
+                run,
+                mesh,
+                points,
+                resolution,
+                threshold,
+                bound,
+                count,
+                min_opacity,
+                overwrite,
             })
         }
         Command::Compare { a, b, json, lpips, require_lpips } => eval::compare(&a, &b, json, &lpips, require_lpips),

@@ -200,6 +200,18 @@ impl Camera {
         [self.cam2world[0][3], self.cam2world[1][3], self.cam2world[2][3]]
     }
 
+    /// The inverse of [`direction_f64`](Self::direction_f64): what projects world points into
+    /// this camera's image. `None` for a singular `pix2cam`.
+    #[must_use]
+    pub fn projection(&self) -> Option<Projection> {
+        let c2w = &self.cam2world;
+        Some(Projection {
+            rot_t: std::array::from_fn(|r| std::array::from_fn(|c| c2w[c][r])),
+            origin: self.origin(),
+            cam2pix: invert3(&self.pix2cam)?,
+        })
+    }
+
     /// The unnormalised world-space direction through pixel coordinates `(x, y)` (continuous, so
     /// pass `x + 0.5` for a pixel centre).
     #[must_use]
@@ -271,6 +283,44 @@ impl Camera {
 fn det3(m: impl Fn(usize, usize) -> f64) -> f64 {
     m(0, 0) * (m(1, 1) * m(2, 2) - m(1, 2) * m(2, 1)) - m(0, 1) * (m(1, 0) * m(2, 2) - m(1, 2) * m(2, 0))
         + m(0, 2) * (m(1, 0) * m(2, 1) - m(1, 1) * m(2, 0))
+}
+
+/// World points to a camera's pixels: [`Camera::projection`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Projection {
+    /// World-to-camera rotation (the transpose of cam2world's).
+    rot_t: [[f64; 3]; 3],
+    origin: [f64; 3],
+    /// The inverse of `pix2cam`.
+    cam2pix: [[f64; 3]; 3],
+}
+
+impl Projection {
+    /// The continuous pixel coordinates `(x, y)` of world point `p` and its ray parameter `t`
+    /// (`p = origin + t direction_f64(x, y)`, so `t` is in the units of the camera's near and far
+    /// bounds), or `None` when `p` is not in front of the camera.
+    #[must_use]
+    pub fn project(&self, p: [f64; 3]) -> Option<(f64, f64, f64)> {
+        let d: [f64; 3] = std::array::from_fn(|k| p[k] - self.origin[k]);
+        let cam: [f64; 3] = std::array::from_fn(|r| (0..3).map(|c| self.rot_t[r][c] * d[c]).sum());
+        let pix: [f64; 3] = std::array::from_fn(|r| (0..3).map(|c| self.cam2pix[r][c] * cam[c]).sum());
+        // pix2cam maps (x, y, 1) to a direction; in front of the camera the third pixel
+        // coordinate comes back positive, and it is t.
+        (pix[2] > 1e-9).then(|| (pix[0] / pix[2], pix[1] / pix[2], pix[2]))
+    }
+}
+
+/// The inverse of a 3x3 matrix, `None` when singular.
+fn invert3(m: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
+    let c = |r: usize, k: usize| {
+        m[(r + 1) % 3][(k + 1) % 3] * m[(r + 2) % 3][(k + 2) % 3]
+            - m[(r + 1) % 3][(k + 2) % 3] * m[(r + 2) % 3][(k + 1) % 3]
+    };
+    let det = m[0][0] * c(0, 0) + m[0][1] * c(0, 1) + m[0][2] * c(0, 2);
+    if det.abs() < 1e-300 {
+        return None;
+    }
+    Some(std::array::from_fn(|r| std::array::from_fn(|k| c(k, r) / det)))
 }
 
 #[cfg(test)]

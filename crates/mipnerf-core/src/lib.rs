@@ -31,6 +31,7 @@ pub mod checkpoint;
 pub mod compare;
 pub mod cone;
 pub mod data;
+pub mod export;
 pub mod linalg;
 pub mod lpips;
 pub mod memory;

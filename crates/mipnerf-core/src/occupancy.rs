@@ -157,6 +157,19 @@ impl OccupancyGrid {
         self.occupied[(z * r + y) * r + x]
     }
 
+    /// Whether the point `p` (world units) lies in an occupied cell; outside the grid's cube,
+    /// space is empty.
+    #[must_use]
+    pub fn is_occupied_at(&self, p: Vec3) -> bool {
+        let b = self.config.bound;
+        let r = self.config.resolution;
+        let cell = (p + b) / self.cell_size();
+        if !(cell.min_element() >= 0.0 && cell.max_element() < r as f32) {
+            return false;
+        }
+        self.is_occupied(cell.x as usize, cell.y as usize, cell.z as usize)
+    }
+
     /// The world-space centre of cell `i` (x fastest).
     #[must_use]
     pub fn cell_center(&self, i: usize) -> Vec3 {
@@ -432,11 +445,7 @@ struct Mask {
     height: usize,
     /// `(width + 1) x (height + 1)` prefix counts of opaque-ish pixels.
     sat: Vec<u32>,
-    /// World-to-camera rotation (rows) and the camera centre.
-    rot_t: [[f64; 3]; 3],
-    origin: [f64; 3],
-    /// Inverse of the camera's `pix2cam`.
-    cam2pix: [[f64; 3]; 3],
+    projection: crate::camera::Projection,
 }
 
 impl Mask {
@@ -457,9 +466,7 @@ impl Mask {
         if !any_transparent {
             return None;
         }
-        let c2w = &v.camera.cam2world;
-        let rot_t = std::array::from_fn(|r| std::array::from_fn(|c| c2w[c][r]));
-        Some(Self { width: w, height: h, sat, rot_t, origin: v.camera.origin(), cam2pix: invert3(&v.camera.pix2cam)? })
+        Some(Self { width: w, height: h, sat, projection: v.camera.projection()? })
     }
 
     /// Whether the rectangle spanned by `corners`' projections lies inside the image, in front of
@@ -467,15 +474,9 @@ impl Mask {
     fn transparent(&self, corners: &[Vec3; 8]) -> bool {
         let (mut x0, mut y0, mut x1, mut y1) = (f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY);
         for p in corners {
-            let d = [f64::from(p.x) - self.origin[0], f64::from(p.y) - self.origin[1], f64::from(p.z) - self.origin[2]];
-            let cam: [f64; 3] = std::array::from_fn(|r| (0..3).map(|c| self.rot_t[r][c] * d[c]).sum());
-            let pix: [f64; 3] = std::array::from_fn(|r| (0..3).map(|c| self.cam2pix[r][c] * cam[c]).sum());
-            // pix2cam maps (x, y, 1) to a direction; in front of the camera the third pixel
-            // coordinate comes back positive.
-            if pix[2] <= 1e-9 {
+            let Some((x, y, _)) = self.projection.project(p.as_dvec3().to_array()) else {
                 return false;
-            }
-            let (x, y) = (pix[0] / pix[2], pix[1] / pix[2]);
+            };
             x0 = x0.min(x);
             y0 = y0.min(y);
             x1 = x1.max(x);
@@ -490,19 +491,6 @@ impl Mask {
         let count = self.sat[yb * w1 + xb] + self.sat[ya * w1 + xa] - self.sat[ya * w1 + xb] - self.sat[yb * w1 + xa];
         count == 0
     }
-}
-
-/// The inverse of a 3x3 matrix, `None` when singular.
-fn invert3(m: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
-    let c = |r: usize, k: usize| {
-        m[(r + 1) % 3][(k + 1) % 3] * m[(r + 2) % 3][(k + 2) % 3]
-            - m[(r + 1) % 3][(k + 2) % 3] * m[(r + 2) % 3][(k + 1) % 3]
-    };
-    let det = m[0][0] * c(0, 0) + m[0][1] * c(0, 1) + m[0][2] * c(0, 2);
-    if det.abs() < 1e-300 {
-        return None;
-    }
-    Some(std::array::from_fn(|r| std::array::from_fn(|k| c(k, r) / det)))
 }
 
 /// The cube's half side for a dataset of cameras looking in at an object: the smallest distance
