@@ -9,7 +9,7 @@ set -euo pipefail
 M=$1; LEGO=$2; W=$3
 here=$(cd "$(dirname "$0")" && pwd)
 mkdir -p "$W"
-echo "# mipnerf export --mesh thresholds; binary: $("$M" --version) $(strings "$M" | grep -m1 -oE '[0-9a-f]{40}(-dirty)?' || true)"
+echo "# mipnerf export --mesh thresholds; binary: $("$M" --version)"
 if [ ! -f "$W/demo/checkpoint.safetensors" ]; then
   "$M" --quiet demo --out "$W/gen" --size 64 --views 20 --steps 1 --preset tiny --backend cpu > /dev/null
   "$M" --quiet train --data "$W/gen/data" --out "$W/demo" --preset fast --steps 1500 --backend cpu
@@ -18,8 +18,8 @@ if [ ! -f "$W/lego/checkpoint.safetensors" ]; then
   "$M" --quiet train --data "$LEGO" --out "$W/lego" --preset fast --time-budget 5m --backend cpu
 fi
 for t in 5 10 25; do
-  "$M" export "$W/demo" --mesh "$W/demo-$t.ply" --resolution 64 --threshold $t --overwrite
+  "$M" export --run "$W/demo" --mesh "$W/demo-$t.ply" --resolution 64 --threshold $t --overwrite
   python3 "$here/plystats.py" sphere "$W/demo-$t.ply"
-  "$M" export "$W/lego" --mesh "$W/lego-$t.ply" --resolution 128 --threshold $t --overwrite
+  "$M" export --run "$W/lego" --mesh "$W/lego-$t.ply" --resolution 128 --threshold $t --overwrite
   python3 "$here/plystats.py" lego "$W/lego-$t.ply"
 done

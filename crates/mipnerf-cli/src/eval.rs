@@ -108,8 +108,23 @@ fn ssim_config(w: usize, h: usize) -> SsimConfig {
 /// MSE, PSNR (dB) and SSIM (official settings) of two `w x h` RGB images in `[0, 1]`: the scores
 /// `eval` and `compare` share.
 fn pixel_scores(a: &[f32], b: &[f32], w: usize, h: usize) -> (f64, f64, f64) {
-    let mse = a.iter().zip(b).map(|(x, y)| f64::from(x - y).powi(2)).sum::<f64>() / a.len() as f64;
+    let mse = mse(a, b);
     (mse, f64::from(mse_to_psnr(mse as f32)), ssim(a, b, h, w, 3, &ssim_config(w, h)))
+}
+
+fn mse(a: &[f32], b: &[f32]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| f64::from(x - y).powi(2)).sum::<f64>() / a.len() as f64
+}
+
+/// A rendered image's colours clamped to `[0, 1]` and flattened, as `eval` scores them.
+fn flat_clamped(img: &[[f32; 3]]) -> Vec<f32> {
+    img.iter().flat_map(|p| p.map(|c| c.clamp(0.0, 1.0))).collect()
+}
+
+/// The PSNR (dB) of a rendered image against its target, exactly as `eval` scores it (training's
+/// validation uses it, so its curve ends where `eval` starts).
+pub(crate) fn render_psnr(rendered: &[[f32; 3]], target: &[[f32; 3]]) -> f64 {
+    f64::from(mse_to_psnr(mse(&flat_clamped(rendered), &flat_clamped(target)) as f32))
 }
 
 /// Renders and scores every image of `split`; writes `RUN/eval/`.
@@ -161,8 +176,7 @@ pub fn eval(
             .map(|l| l[levels - 1].rgb)
             .collect();
         let target = ds.view_targets(v);
-        let flat = |img: &[[f32; 3]]| img.iter().flat_map(|p| p.map(|c| c.clamp(0.0, 1.0))).collect::<Vec<f32>>();
-        let (a, b) = (flat(&rendered), flat(&target));
+        let (a, b) = (flat_clamped(&rendered), flat_clamped(&target));
         let (mse, psnr, ss) = pixel_scores(&a, &b, w, h);
         // LPIPS of images smaller than the backbone takes (the coarse scales of a tiny scene) is
         // left out, image by image; the scale then has no LPIPS.

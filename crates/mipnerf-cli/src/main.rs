@@ -46,7 +46,7 @@ const EXAMPLES: &str = "Examples:
 /// Anti-aliased neural radiance fields (Mip-NeRF, Barron et al. 2021) on the CPU and, through
 /// wgpu, on any GPU.
 #[derive(Parser, Debug)]
-#[command(name = "mipnerf", version, about, after_help = EXAMPLES)]
+#[command(name = "mipnerf", version = concat!(env!("CARGO_PKG_VERSION"), " (commit ", env!("MIPNERF_COMMIT"), ")"), about, after_help = EXAMPLES)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -187,6 +187,7 @@ enum Command {
     /// training rays.
     Export {
         /// The run directory.
+        #[arg(long, value_name = "RUN_DIR")]
         run: PathBuf,
         /// Write the mesh here (binary PLY: positions, normals, colours, triangles).
         #[arg(long, value_name = "FILE.ply")]

@@ -20,20 +20,51 @@ fn plot_err<E: std::fmt::Debug>(path: &Path) -> impl Fn(E) -> anyhow::Error + '_
     move |e| anyhow!("drawing {}: {e:?}", path.display())
 }
 
-/// One curve against the step.
-fn line_chart(path: &Path, title: &str, y_label: &str, points: &[(f64, f64)], log_y: bool) -> Result<()> {
+/// Curves against the step, one per named series (a legend when there is more than one).
+fn line_chart(
+    path: &Path,
+    title: &str,
+    y_label: &str,
+    series: &[(String, Vec<(f64, f64)>)],
+    log_y: bool,
+) -> Result<()> {
     ensure_font();
     let err = plot_err(path);
     let root = BitMapBackend::new(path, (800, 480)).into_drawing_area();
     root.fill(&WHITE).map_err(&err)?;
-    let (x0, x1) = (points.first().map_or(0.0, |p| p.0), points.last().map_or(1.0, |p| p.0).max(1.0));
-    let ys = points.iter().map(|p| p.1).filter(|y| y.is_finite() && (!log_y || *y > 0.0));
+    let all = || series.iter().flat_map(|(_, p)| p.iter());
+    let (x0, x1) = all().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p.0), b.max(p.0)));
+    let (x0, x1) = if x0.is_finite() { (x0, x1.max(x0 + 1.0)) } else { (0.0, 1.0) };
+    let ys = all().map(|p| p.1).filter(|y| y.is_finite() && (!log_y || *y > 0.0));
     let (lo, hi) = ys.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), y| (a.min(y), b.max(y)));
     let (lo, hi) = if lo.is_finite() { (lo, hi.max(lo * 1.0001 + 1e-12)) } else { (0.1, 1.0) };
     let mut chart = ChartBuilder::on(&root);
     chart.caption(title, ("sans-serif", 22)).margin(12).x_label_area_size(40).y_label_area_size(70);
-    let series = points.iter().copied().filter(|p| p.1.is_finite() && (!log_y || p.1 > 0.0));
+    let points = |p: &[(f64, f64)]| -> Vec<(f64, f64)> {
+        p.iter().copied().filter(|p| p.1.is_finite() && (!log_y || p.1 > 0.0)).collect()
+    };
+    let palette = [RED, BLUE, GREEN, MAGENTA, CYAN, BLACK];
     let step_label = |x: &f64| format!("{}", x.round() as i64);
+    macro_rules! draw {
+        ($c:expr) => {{
+            for (i, (name, p)) in series.iter().enumerate() {
+                let colour = palette[i % palette.len()];
+                let s = $c.draw_series(LineSeries::new(points(p), colour.stroke_width(2))).map_err(&err)?;
+                if series.len() > 1 {
+                    s.label(name.as_str())
+                        .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2)));
+                }
+            }
+            if series.len() > 1 {
+                $c.configure_series_labels()
+                    .background_style(WHITE.mix(0.9))
+                    .border_style(BLACK)
+                    .position(SeriesLabelPosition::LowerRight)
+                    .draw()
+                    .map_err(&err)?;
+            }
+        }};
+    }
     if log_y {
         let mut c = chart.build_cartesian_2d(x0..x1, (lo..hi).log_scale()).map_err(&err)?;
         c.configure_mesh()
@@ -45,7 +76,7 @@ fn line_chart(path: &Path, title: &str, y_label: &str, points: &[(f64, f64)], lo
             .y_label_formatter(&|y| format!("{y:.1e}"))
             .draw()
             .map_err(&err)?;
-        c.draw_series(LineSeries::new(series, BLUE.stroke_width(2))).map_err(&err)?;
+        draw!(c);
     } else {
         let pad = 0.05 * (hi - lo);
         let mut c = chart.build_cartesian_2d(x0..x1, (lo - pad)..(hi + pad)).map_err(&err)?;
@@ -57,13 +88,14 @@ fn line_chart(path: &Path, title: &str, y_label: &str, points: &[(f64, f64)], lo
             .y_label_formatter(&|y| format!("{y:.1}"))
             .draw()
             .map_err(&err)?;
-        c.draw_series(LineSeries::new(series, RED.stroke_width(2))).map_err(&err)?;
+        draw!(c);
     }
     root.present().map_err(&err)?;
     Ok(())
 }
 
-/// `loss.png` and `psnr.png` in `out` from a run's `metrics.csv`.
+/// `loss.png` and `psnr.png` in `out` from a run's `metrics.csv`: the training loss, and the
+/// training PSNR with, where the run validated (`val_psnr`), the test PSNR of every scale.
 ///
 /// # Errors
 /// An unreadable CSV or unwritable PNGs.
@@ -73,8 +105,24 @@ pub fn training_curves(csv: &Path, out: &Path) -> Result<()> {
     let col = |i: usize| -> Vec<(f64, f64)> {
         rows.iter().filter_map(|r| Some((r.first()?.parse().ok()?, r.get(i)?.parse().ok()?))).collect()
     };
-    line_chart(&out.join("loss.png"), "Training loss (coarse x 0.1 + fine, per-channel MSE)", "loss", &col(1), true)?;
-    line_chart(&out.join("psnr.png"), "Training PSNR (fine level, batch)", "PSNR (dB)", &col(3), false)?;
+    let loss = [("training loss".to_string(), col(1))];
+    line_chart(&out.join("loss.png"), "Training loss (coarse x 0.1 + fine, per-channel MSE)", "loss", &loss, true)?;
+    let mut psnr = vec![("training (fine level, batch)".to_string(), col(3))];
+    let val: Vec<(f64, Vec<f64>)> = rows
+        .iter()
+        .filter_map(|r| {
+            let v: Vec<f64> = r.get(7)?.split(';').map(str::parse).collect::<Result<_, _>>().ok()?;
+            Some((r.first()?.parse().ok()?, v))
+        })
+        .collect();
+    let scales = val.iter().map(|(_, v)| v.len()).max().unwrap_or(0);
+    for j in 0..scales {
+        let name =
+            if j == 0 { "test, full resolution".to_string() } else { format!("test, 1/{} resolution", 1u64 << j) };
+        psnr.push((name, val.iter().filter_map(|(s, v)| Some((*s, *v.get(j)?))).collect()));
+    }
+    let title = if scales > 0 { "PSNR: training batch and test images" } else { "Training PSNR (fine level, batch)" };
+    line_chart(&out.join("psnr.png"), title, "PSNR (dB)", &psnr, false)?;
     Ok(())
 }
 

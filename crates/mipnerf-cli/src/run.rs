@@ -407,6 +407,56 @@ struct TrainLoop<'a> {
     segment_steps: u64,
     /// Whether the estimate of the run's wall time has been printed.
     estimated: bool,
+    /// `--val-every`: the test images it renders, and the step it last rendered them at.
+    val: Option<Validation>,
+}
+
+/// Validation during training (`--val-every`): a fixed few test images at every scale.
+struct Validation {
+    ds: Dataset,
+    /// Per scale (ascending), the views rendered.
+    views: Vec<Vec<usize>>,
+    every: u64,
+    last: Option<u64>,
+}
+
+impl Validation {
+    /// The first `images` test views of every scale of the run's test split.
+    fn new(s: &TrainSettings, every: u64, images: usize) -> Result<Self> {
+        if images == 0 || images > 1000 {
+            bail!("--val-images must be between 1 and 1000, got {images}");
+        }
+        let ds = load_split(s, Split::Test).context("--val-every renders test images")?;
+        let views: Vec<Vec<usize>> = ds
+            .scales()
+            .into_iter()
+            .map(|scale| (0..ds.views().len()).filter(|&v| ds.views()[v].scale == scale).take(images).collect())
+            .collect();
+        Ok(Self { ds, views, every, last: None })
+    }
+
+    /// Whether the model after step index `step` is due: every `every` steps, and the last.
+    fn due(&self, step: u64, steps: u64) -> bool {
+        (step + 1).is_multiple_of(self.every) || step + 1 == steps
+    }
+
+    /// The mean test PSNR per scale of the model `be` holds, as `eval` scores it.
+    fn psnr(&self, be: &mut dyn mipnerf_core::backend::Backend) -> Result<Vec<f64>> {
+        let (k, levels) = (be.model().config().supersample, be.model().config().num_levels);
+        self.views
+            .iter()
+            .map(|views| {
+                let mut sum = 0.0;
+                for &v in views {
+                    let image = mipnerf_core::backend::ImageSpec::of_view(&self.ds, v, k);
+                    let out = be.render_image(&image).with_context(|| self.ds.views()[v].file.display().to_string())?;
+                    let rendered: Vec<[f32; 3]> = out.chunks(levels).map(|l| l[levels - 1].rgb).collect();
+                    sum += crate::eval::render_psnr(&rendered, &self.ds.view_targets(v));
+                }
+                Ok(sum / views.len() as f64)
+            })
+            .collect()
+    }
 }
 
 /// Seconds of training after which `train` prints its estimate of the run's wall time (and at
@@ -471,6 +521,10 @@ impl<'a> TrainLoop<'a> {
             snapshots,
             segment_steps: 0,
             estimated: false,
+            val: match s.val_every.unwrap_or(0) {
+                0 => None,
+                every => Some(Validation::new(s, every, s.val_images.unwrap_or(2))?),
+            },
             be,
         })
     }
@@ -534,8 +588,26 @@ impl<'a> TrainLoop<'a> {
         Ok(())
     }
 
+    /// Validation of the model after step index `step`: the test PSNR per scale, its time taken
+    /// out of the training time (and of the rays/s window `window`).
+    fn validate(&mut self, step: u64, window: &mut (Instant, u64)) -> Result<Option<Vec<f64>>> {
+        let Some(val) = &mut self.val else { return Ok(None) };
+        let t = Instant::now();
+        let psnr = val.psnr(self.be.as_mut())?;
+        val.last = Some(step);
+        let took = t.elapsed();
+        self.t0 += took;
+        window.0 += took;
+        Ok(Some(psnr))
+    }
+
     /// One row of metrics.csv for a step's report; returns the progress message.
-    fn log_row(&mut self, rep: &mipnerf_core::train::StepReport, rays_per_s: f64) -> Result<String> {
+    fn log_row(
+        &mut self,
+        rep: &mipnerf_core::train::StepReport,
+        rays_per_s: f64,
+        val: Option<&[f64]>,
+    ) -> Result<String> {
         if !rep.stats.loss.is_finite() {
             bail!(
                 "the loss became {} at step {}; {} (try a lower --lr-init or --grad-max-norm)",
@@ -546,9 +618,10 @@ impl<'a> TrainLoop<'a> {
         }
         let psnr = rep.stats.psnr();
         let losses: Vec<String> = rep.stats.losses.iter().map(|l| format!("{l:.6}")).collect();
+        let val_cell = val.map_or(String::new(), |v| v.iter().map(|p| format!("{p:.3}")).collect::<Vec<_>>().join(";"));
         writeln!(
             self.csv,
-            "{},{:.6},{},{:.3},{:.3e},{:.0},{:.1}",
+            "{},{:.6},{},{:.3},{:.3e},{:.0},{:.1},{val_cell}",
             rep.step,
             rep.stats.loss,
             losses.join(";"),
@@ -558,7 +631,8 @@ impl<'a> TrainLoop<'a> {
             self.seconds_before + self.t0.elapsed().as_secs_f64()
         )?;
         self.csv.flush()?;
-        Ok(format!("loss {:.5} psnr {psnr:.2} lr {:.2e} {rays_per_s:.0} rays/s", rep.stats.loss, rep.lr))
+        let val_msg = val.and_then(|v| v.first()).map_or(String::new(), |p| format!(" test {p:.2}"));
+        Ok(format!("loss {:.5} psnr {psnr:.2}{val_msg} lr {:.2e} {rays_per_s:.0} rays/s", rep.stats.loss, rep.lr))
     }
 
     /// Once, after [`ESTIMATE_AFTER_SECONDS`] and [`ESTIMATE_AFTER_STEPS`]: how long the run
@@ -599,15 +673,18 @@ impl<'a> TrainLoop<'a> {
                 }
                 self.stretch_schedule(budget, lr);
             }
-            // The losses are read (from the device, for a GPU) only on logged steps.
-            let report = step.is_multiple_of(self.log_every) || step + 1 == self.steps;
+            // The losses are read (from the device, for a GPU) only on logged steps, and on the
+            // steps after which the test images are rendered.
+            let val_due = self.val.as_ref().is_some_and(|v| v.due(step, self.steps));
+            let report = step.is_multiple_of(self.log_every) || step + 1 == self.steps || val_due;
             let rep = self.be.train_step(report)?;
             window.1 += 1;
+            let val = if val_due { self.validate(step, &mut window)? } else { None };
             if let Some(rep) = rep.filter(|_| report) {
                 let dt = window.0.elapsed().as_secs_f64().max(1e-9);
                 let rays_per_s = (window.1 as f64 * self.batch as f64) / dt;
                 window = (Instant::now(), 0);
-                let msg = self.log_row(&rep, rays_per_s)?;
+                let msg = self.log_row(&rep, rays_per_s, val.as_deref())?;
                 pb.set_message(if self.budget.is_some() { format!("step {} {msg}", rep.step) } else { msg });
                 last = Some((rep.stats.loss, rep.stats.psnr()));
             }
@@ -622,6 +699,17 @@ impl<'a> TrainLoop<'a> {
             while self.snapshots.first().is_some_and(|&m| self.elapsed() >= m) {
                 let mark = self.snapshots.remove(0);
                 self.snapshot(mark)?;
+            }
+        }
+        // A run stopped by its budget or a signal is validated where it stopped, on a row of its
+        // own (no training step reported on it).
+        let done = self.be.step();
+        if done > 0 && self.val.as_ref().is_some_and(|v| v.last != Some(done - 1)) {
+            let mut window = (Instant::now(), 0);
+            if let Some(v) = self.validate(done - 1, &mut window)? {
+                let cells = v.iter().map(|p| format!("{p:.3}")).collect::<Vec<_>>().join(";");
+                writeln!(self.csv, "{},,,,,,{:.1},{cells}", done - 1, self.elapsed())?;
+                self.csv.flush()?;
             }
         }
         self.save()?;
@@ -680,7 +768,7 @@ fn lock_run_dir(run_dir: &Path) -> Result<std::fs::File> {
 /// Opens `metrics.csv` for appending rows after `from_step` (dropping any rows at or past it
 /// that a crash left behind), writing the header for a new file.
 fn open_csv(path: &PathBuf, from_step: u64) -> Result<std::fs::File> {
-    const HEADER: &str = "step,loss,level_losses,psnr,lr,rays_per_s,elapsed_s";
+    const HEADER: &str = "step,loss,level_losses,psnr,lr,rays_per_s,elapsed_s,val_psnr";
     let kept: Vec<String> = match std::fs::read_to_string(path) {
         Ok(text) => text
             .lines()

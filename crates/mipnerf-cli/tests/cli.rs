@@ -1090,3 +1090,59 @@ fn random_backgrounds_train_on_images_with_alpha_and_are_refused_for_photos() {
     );
     assert!(!photos.join("checkpoint.bin").exists());
 }
+
+#[test]
+fn validation_logs_the_test_psnr_per_scale_that_eval_then_reports() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = common::small_demo_scene(dir.path(), 3);
+    let run = dir.path().join("run");
+    let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
+    let base = ["train", "--data", d, "--out", r, "--batch-rays", "64", "--backend", "cpu", "--log-every", "3"];
+    let text = run_ok(&[&base[..], &["--steps", "12", "--val-every", "5", "--val-images", "1"]].concat());
+    assert!(text.contains("trained to step 12"), "{text}");
+    let csv = std::fs::read_to_string(run.join("metrics.csv")).unwrap();
+    let mut lines = csv.lines();
+    assert_eq!(lines.next(), Some("step,loss,level_losses,psnr,lr,rays_per_s,elapsed_s,val_psnr"));
+    let val: Vec<(u64, Vec<f64>)> = lines
+        .filter_map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            assert_eq!(f.len(), 8, "{l}");
+            (!f[7].is_empty()).then(|| (f[0].parse().unwrap(), f[7].split(';').map(|p| p.parse().unwrap()).collect()))
+        })
+        .collect();
+    // After steps 5 and 10 (indices 4 and 9) and the last; every scale of the demo scene.
+    assert_eq!(val.iter().map(|v| v.0).collect::<Vec<_>>(), [4, 9, 11], "{csv}");
+    assert!(val.iter().all(|(_, p)| p.len() == 4 && p.iter().all(|x| x.is_finite() && *x > 5.0)), "{csv}");
+    // The last validation is eval's score of the same image (rendered and scored alike).
+    run_ok(&["eval", "--run", r, "--backend", "cpu", "--no-lpips"]);
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("eval/metrics.json")).unwrap()).unwrap();
+    for (j, want) in val[2].1.iter().enumerate() {
+        let first = m["per_image"].as_array().unwrap().iter().find(|i| i["scale"].as_u64() == Some(j as u64)).unwrap();
+        let got = first["psnr"].as_f64().unwrap();
+        assert!((got - want).abs() < 2e-3, "scale {j}: validation {want}, eval {got}");
+    }
+    // Resuming keeps the rows and validates on.
+    run_ok(&[&base[..], &["--resume", "--steps", "16", "--val-every", "5", "--val-images", "1"]].concat());
+    let steps = |run: &std::path::Path| -> Vec<u64> {
+        let csv = std::fs::read_to_string(run.join("metrics.csv")).unwrap();
+        csv.lines()
+            .skip(1)
+            .filter(|l| !l.ends_with(','))
+            .map(|l| l.split(',').next().unwrap().parse().unwrap())
+            .collect()
+    };
+    assert_eq!(steps(&run), [4, 9, 11, 14, 15]);
+    assert!(run.join("psnr.png").is_file());
+    // A run that stops on its budget is validated where it stopped, on a row of its own.
+    let run2 = dir.path().join("run2");
+    let r2 = run2.to_str().unwrap();
+    let budget = ["train", "--data", d, "--out", r2, "--backend", "cpu", "--steps", "100000000", "--time-budget", "2s"];
+    run_ok(&[&budget[..], &["--val-every", "100000000"]].concat());
+    let csv = std::fs::read_to_string(run2.join("metrics.csv")).unwrap();
+    let f: Vec<&str> = csv.lines().last().unwrap().split(',').collect();
+    assert!(f[1].is_empty() && f[7].split(';').count() == 4, "{csv}");
+    let out = mipnerf(&[&base[..], &["--resume", "--steps", "20", "--val-every", "2", "--val-images", "0"]].concat());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("--val-images"), "{err}");
+}

@@ -111,6 +111,7 @@ fn the_demo_spheres_mesh_and_points_lie_on_the_true_sphere() {
     let (mesh, points) = (dir.path().join("sphere.ply"), dir.path().join("points.ply"));
     let text = run_ok(&[
         "export",
+        "--run",
         r,
         "--mesh",
         mesh.to_str().unwrap(),
@@ -141,17 +142,17 @@ fn the_demo_spheres_mesh_and_points_lie_on_the_true_sphere() {
     assert!(n > 1000 && max <= POINTS_MAX_ERROR && median <= POINTS_MEDIAN_ERROR, "points: {median} / {max} ({n})");
     // An existing file is kept without --overwrite, and a bad value is named.
     let before = std::fs::read(&mesh).unwrap();
-    let out = mipnerf(&["export", r, "--mesh", mesh.to_str().unwrap()]);
+    let out = mipnerf(&["export", "--run", r, "--mesh", mesh.to_str().unwrap()]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("exists") && err.contains("--overwrite"), "{err}");
     assert_eq!(std::fs::read(&mesh).unwrap(), before);
     for (arg, says) in [("--resolution=4", "--resolution"), ("--threshold=-1", "--threshold"), ("--count=0", "--count")]
     {
-        let out = mipnerf(&["export", r, "--mesh", "x.ply", arg]);
+        let out = mipnerf(&["export", "--run", r, "--mesh", "x.ply", arg]);
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(!out.status.success() && err.contains(says) && !err.contains("panicked"), "{err}");
     }
-    let out = mipnerf(&["export", r]);
+    let out = mipnerf(&["export", "--run", r]);
     assert!(String::from_utf8_lossy(&out.stderr).contains("nothing to export"));
 }
 
@@ -162,7 +163,7 @@ fn a_forward_facing_run_is_refused_with_the_way_out() {
     let scene = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/colmap_lego");
     let r = run.to_str().unwrap();
     run_ok(&["train", "--data", scene.to_str().unwrap(), "--out", r, "--steps", "2", "--backend", "cpu"]);
-    let out = mipnerf(&["export", r, "--points", dir.path().join("p.ply").to_str().unwrap()]);
+    let out = mipnerf(&["export", "--run", r, "--points", dir.path().join("p.ply").to_str().unwrap()]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("NDC") && err.contains("--spherify"), "{err}");
     assert!(!dir.path().join("p.ply").exists());
