@@ -87,3 +87,115 @@ pub fn write_gif(path: &Path, w: u32, h: u32, frames: &[Vec<u8>], delay_ms: u32)
         Ok(())
     })
 }
+
+/// The H.264 quantiser of [`write_mp4`] (0 lossless to 51; 20 is visually clean).
+pub const VIDEO_QP: u8 = 20;
+
+/// Smallest side H.264 takes here (one macroblock).
+pub const MIN_VIDEO_SIDE: u32 = 16;
+
+/// Writes `frames` (8-bit RGB, `w x h` each) as an H.264 MP4 at `fps` frames per second that
+/// browsers play: OpenH264 (constrained baseline, every 2 seconds a key frame) in an `avc1`
+/// track. H.264 takes whole chroma samples, so an odd width or height loses its last column or
+/// row. Written to a temporary name and renamed.
+///
+/// # Errors
+/// Frames smaller than [`MIN_VIDEO_SIDE`], an `fps` of 0, an encoder error, or an unwritable
+/// file, named.
+pub fn write_mp4(path: &Path, w: u32, h: u32, frames: &[Vec<u8>], fps: u32) -> Result<()> {
+    use openh264::encoder::{Encoder, EncoderConfig, FrameRate, IntraFramePeriod, QpRange, RateControlMode};
+    use openh264::formats::{RgbSliceU8, YUVBuffer};
+    let (we, he) = (w & !1, h & !1);
+    if we < MIN_VIDEO_SIDE || he < MIN_VIDEO_SIDE {
+        anyhow::bail!(
+            "{}: {w}x{h} frames are too small for H.264 (at least {MIN_VIDEO_SIDE} px a side)",
+            path.display()
+        );
+    }
+    if fps == 0 || fps > 240 {
+        anyhow::bail!("{}: {fps} frames per second (1 to 240)", path.display());
+    }
+    // Constant quality (no rate control, so no frame is ever skipped): quantiser 20 keeps smooth
+    // renders within about 2 dB of their PNGs, in a few MB a minute at 800 px.
+    let config = EncoderConfig::new()
+        .rate_control_mode(RateControlMode::Off)
+        .qp(QpRange::new(VIDEO_QP, VIDEO_QP))
+        .max_frame_rate(FrameRate::from_hz(fps as f32))
+        .skip_frames(false)
+        .intra_frame_period(IntraFramePeriod::from_num_frames(2 * fps));
+    let api = openh264::OpenH264API::from_source();
+    let mut encoder =
+        Encoder::with_api_config(api, config).map_err(|e| anyhow!("{}: H.264 encoder: {e}", path.display()))?;
+    let (mut sps, mut pps) = (None, None);
+    let mut samples: Vec<(Vec<u8>, bool)> = Vec::with_capacity(frames.len());
+    let mut cropped = Vec::with_capacity((we * he * 3) as usize);
+    for (i, rgb) in frames.iter().enumerate() {
+        if rgb.len() != (w * h * 3) as usize {
+            anyhow::bail!("{}: frame {i} has {} bytes, not {w}x{h} RGB", path.display(), rgb.len());
+        }
+        cropped.clear();
+        for row in rgb.chunks_exact(w as usize * 3).take(he as usize) {
+            cropped.extend_from_slice(&row[..we as usize * 3]);
+        }
+        let yuv = YUVBuffer::from_rgb_source(RgbSliceU8::new(&cropped, (we as usize, he as usize)));
+        let stream = encoder.encode(&yuv).map_err(|e| anyhow!("{}: H.264 frame {i}: {e}", path.display()))?.to_vec();
+        // Annex B (start codes) to MP4's length-prefixed NAL units; the parameter sets go to the
+        // track's avcC box.
+        let (mut sample, mut key) = (Vec::new(), false);
+        for nal in openh264::nal_units(&stream) {
+            let body = strip_start_code(nal);
+            match body.first().map(|b| b & 0x1f) {
+                Some(7) => sps = sps.or_else(|| Some(body.to_vec())),
+                Some(8) => pps = pps.or_else(|| Some(body.to_vec())),
+                Some(t) => {
+                    key |= t == 5;
+                    sample.extend_from_slice(&(body.len() as u32).to_be_bytes());
+                    sample.extend_from_slice(body);
+                }
+                None => {}
+            }
+        }
+        samples.push((sample, key));
+    }
+    let (Some(sps), Some(pps)) = (sps, pps) else {
+        anyhow::bail!("{}: the H.264 encoder gave no parameter sets", path.display());
+    };
+    atomically(path, |tmp| {
+        let err = |e: mp4::Error| anyhow!("writing {}: {e}", path.display());
+        let file = std::fs::File::create(tmp).with_context(|| format!("writing {}", path.display()))?;
+        let brand = |s: &str| s.parse::<mp4::FourCC>().map_err(|e| anyhow!("{e}"));
+        let config = mp4::Mp4Config {
+            major_brand: brand("isom")?,
+            minor_version: 512,
+            compatible_brands: vec![brand("isom")?, brand("iso2")?, brand("avc1")?, brand("mp41")?],
+            timescale: 1000,
+        };
+        let mut writer = mp4::Mp4Writer::write_start(std::io::BufWriter::new(file), &config).map_err(err)?;
+        let avc = mp4::AvcConfig { width: we as u16, height: he as u16, seq_param_set: sps, pic_param_set: pps };
+        let track = mp4::TrackConfig {
+            track_type: mp4::TrackType::Video,
+            timescale: fps,
+            language: "und".to_string(),
+            media_conf: mp4::MediaConfig::AvcConfig(avc),
+        };
+        writer.add_track(&track).map_err(err)?;
+        for (i, (bytes, key)) in samples.into_iter().enumerate() {
+            let sample = mp4::Mp4Sample {
+                start_time: i as u64,
+                duration: 1,
+                rendering_offset: 0,
+                is_sync: key,
+                bytes: bytes::Bytes::from(bytes),
+            };
+            writer.write_sample(1, &sample).map_err(err)?;
+        }
+        writer.write_end().map_err(err)?;
+        Ok(())
+    })
+}
+
+/// A NAL unit without its Annex B start code (`00 00 01` or `00 00 00 01`).
+fn strip_start_code(nal: &[u8]) -> &[u8] {
+    let zeros = nal.iter().take_while(|&&b| b == 0).count();
+    if zeros >= 2 && nal.get(zeros) == Some(&1) { &nal[zeros + 1..] } else { nal }
+}

@@ -243,7 +243,7 @@ enum Command {
         overwrite: bool,
     },
     /// Render a trained run: colour PNGs, depth and opacity EXRs, colour-mapped depth PNGs, and an
-    /// animated preview (preview.gif) for camera paths.
+    /// animated preview (preview.gif) and a video (video.mp4, H.264) for camera paths.
     Render {
         /// The run directory.
         #[arg(long, value_name = "RUN_DIR")]
@@ -260,6 +260,9 @@ enum Command {
         /// Frames of the path.
         #[arg(long, default_value_t = 60)]
         frames: usize,
+        /// Frames per second of the path's video (video.mp4, H.264, beside preview.gif).
+        #[arg(long, default_value_t = render::DEFAULT_FPS)]
+        fps: u32,
         /// Output width in pixels (with --height) [default: the data's].
         #[arg(long, requires = "height")]
         width: Option<u32>,
@@ -638,7 +641,7 @@ fn demo_cmd(out: &Path, d: &DemoArgs) -> Result<()> {
     }
     let renders =
         render::render(out, &out.join("render"), render::Target::Split(Split::Test), None, d.backend, None, false)?;
-    let orbit = render::Target::Path(render::PathKind::Orbit, 36);
+    let orbit = render::Target::Path(render::PathKind::Orbit, 36, render::DEFAULT_FPS);
     let path = render::render(out, &out.join("render_orbit"), orbit, None, d.backend, None, false)?;
     let fig_path = out.join("antialiasing.png");
     let fig = figure::FigureArgs {
@@ -660,7 +663,7 @@ fn demo_cmd(out: &Path, d: &DemoArgs) -> Result<()> {
         "  render/                   {} files: colour, depth (EXR and PNG), opacity (EXR) of the test views",
         renders.len()
     );
-    println!("  render_orbit/preview.gif  an orbit around the scene ({} files)", path.len());
+    println!("  render_orbit/video.mp4, preview.gif  an orbit around the scene ({} files)", path.len());
     println!("\nTest PSNR (dB) per scale, the same scene seen at full, 1/2, 1/4 and 1/8 resolution:");
     println!("  | system | full | 1/2 | 1/4 | 1/8 | mean |");
     println!("  |---|---|---|---|---|---|");
@@ -735,10 +738,23 @@ fn main() -> std::process::ExitCode {
                 print_eval(&m);
             })
         }
-        Command::Render { run, out, split, path, frames, width, height, backend, device, precision, overwrite } => {
+        Command::Render {
+            run,
+            out,
+            split,
+            path,
+            frames,
+            fps,
+            width,
+            height,
+            backend,
+            device,
+            precision,
+            overwrite,
+        } => {
             backend::set_device_args(&device);
             let target = match path {
-                Some(kind) => render::Target::Path(kind, frames),
+                Some(kind) => render::Target::Path(kind, frames, fps),
                 None => render::Target::Split(split.unwrap_or(SplitArg::Test).into()),
             };
             render::render(&run, &out, target, width.zip(height), backend, precision, overwrite)

@@ -27,9 +27,15 @@ pub enum PathKind {
 pub enum Target {
     /// Every view of a split at its own resolution.
     Split(Split),
-    /// `frames` cameras along a path.
-    Path(PathKind, usize),
+    /// `frames` cameras along a path, and the video's frames per second.
+    Path(PathKind, usize, u32),
 }
+
+/// The video of a path render (H.264 in MP4, see [`crate::images::write_mp4`]).
+pub const VIDEO: &str = "video.mp4";
+
+/// Frames per second of a path's video by default.
+pub const DEFAULT_FPS: u32 = 24;
 
 fn look_at(pos: glam::DVec3) -> [[f64; 4]; 3] {
     let back = pos.normalize();
@@ -115,7 +121,10 @@ pub fn render(
                 jobs.push((stem, image));
             }
         }
-        Target::Path(kind, frames) => {
+        Target::Path(kind, frames, fps) => {
+            if fps == 0 || fps > 240 {
+                bail!("--fps must be between 1 and 240, got {fps}");
+            }
             if frames == 0 || frames > 10_000 {
                 bail!("--frames must be between 1 and 10000, got {frames}");
             }
@@ -152,7 +161,7 @@ pub fn render(
         })
         .collect();
     if matches!(target, Target::Path(..)) {
-        names.push("preview.gif".to_owned());
+        names.extend(["preview.gif".to_owned(), VIDEO.to_owned()]);
     }
     names.push(DEPTH_SCALE.to_owned());
     crate::outputs::record(out, names)?;
@@ -225,6 +234,18 @@ pub fn render(
         let gif = out.join("preview.gif");
         write_gif(&gif, w, h, &preview, 80)?;
         written.push(gif);
+        if let Target::Path(_, _, fps) = target {
+            if w.min(h) >= crate::images::MIN_VIDEO_SIDE {
+                let video = out.join(VIDEO);
+                crate::images::write_mp4(&video, w, h, &preview, fps)?;
+                written.push(video);
+            } else {
+                eprintln!(
+                    "note: no {VIDEO}: {w}x{h} frames are smaller than H.264 takes ({} px a side); pass --width and --height",
+                    crate::images::MIN_VIDEO_SIDE
+                );
+            }
+        }
     }
     Ok(written)
 }

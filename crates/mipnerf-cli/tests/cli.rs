@@ -145,6 +145,7 @@ fn the_demo_produces_every_promised_file_and_beats_a_constant_image() {
         "render/000_d0_depth.png",
         "render_orbit/frame_0000.png",
         "render_orbit/preview.gif",
+        "render_orbit/video.mp4",
         "nerf/checkpoint.safetensors",
         "nerf/eval/metrics.json",
         "antialiasing.png",
