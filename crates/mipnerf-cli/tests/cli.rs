@@ -739,14 +739,7 @@ fn eval_writes_a_page_that_a_real_browser_loads_with_every_image() {
     for needle in ["Scores per scale", "000_d0_gt.png", "000_d3_error.png", "training_loss.png"] {
         assert!(html.contains(needle), "{needle}");
     }
-    let Some(chromium) = ["chromium", "chromium-browser", "google-chrome"]
-        .into_iter()
-        .find(|c| Command::new(c).arg("--version").output().is_ok_and(|o| o.status.success()))
-    else {
-        assert!(std::env::var("CI").is_err(), "CI installs Chromium (scripts/ensure-chromium.sh)");
-        eprintln!("SKIPPED the browser check of eval/index.html: no chromium (Debian: apt-get install chromium)");
-        return;
-    };
+    let Some(chromium) = common::chromium("eval/index.html") else { return };
     let url = format!("file://{}", page.display());
     let base = ["--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--virtual-time-budget=10000"];
     let dom = Command::new(chromium)

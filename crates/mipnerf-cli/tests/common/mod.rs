@@ -37,3 +37,17 @@ pub fn run_ok(args: &[&str]) -> String {
     assert!(out.status.success(), "mipnerf {args:?} failed:\n{text}");
     text
 }
+
+/// Headless Chromium's command, for the tests that open a page in a real browser; `None` (and a
+/// line saying that `what` was not checked) where none is installed. CI installs it
+/// (`scripts/ensure-chromium.sh`), so there its absence fails the test.
+pub fn chromium(what: &str) -> Option<&'static str> {
+    let found = ["chromium", "chromium-browser", "google-chrome"]
+        .into_iter()
+        .find(|c| Command::new(c).arg("--version").output().is_ok_and(|o| o.status.success()));
+    if found.is_none() {
+        assert!(std::env::var("CI").is_err(), "CI installs Chromium (scripts/ensure-chromium.sh)");
+        eprintln!("SKIPPED the browser check of {what}: no chromium (Debian: apt-get install chromium)");
+    }
+    found
+}

@@ -1,0 +1,523 @@
+//! `mipnerf view` (and `train --view`): a local web page that shows a run as it trains.
+//!
+//! One page with no build step and no external assets (`assets/view.html`): an orbit camera whose
+//! view is rendered coarse to fine while it rests (server-sent events, one PNG per level), the
+//! training and test curves from `metrics.csv`, and the same view at the four scales of
+//! Mip-NeRF side by side. The run's latest checkpoint is reloaded whenever a new one lands.
+//!
+//! The server is `tiny_http` with a thread per request: the viewer serves one person and renders
+//! one frame at a time, so threads suffice and no async runtime is pulled in. Rendering happens on
+//! one thread that owns the backend (backends are not `Send`); requests queue for it.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::mpsc;
+use std::time::{Duration, Instant, SystemTime};
+
+use anyhow::{Context, Result, bail};
+use base64::Engine;
+use mipnerf_core::backend::ImageSpec;
+use mipnerf_core::camera::Camera;
+use mipnerf_core::data::Split;
+
+use crate::config::{Backend, TrainSettings};
+use crate::run::{CHECKPOINT, METRICS_CSV, load_split, open_trained, read_config};
+
+/// The page.
+const PAGE: &str = include_str!("../assets/view.html");
+/// The largest frame side a request may ask for.
+pub const MAX_SIDE: u32 = 1024;
+/// Refinement levels of a streamed view: 1/8, 1/4, 1/2 and full size.
+pub const LEVELS: u32 = 4;
+/// Beside training (`train --view`), the most of the wall-clock time the viewer may spend
+/// rendering: after a band of rows that took `t`, the renderer owes a rest of
+/// `t * (1 / share - 1)` (see [`REST_ALLOWANCE`]), so that a client streaming without pause
+/// takes at most this share of the CPU's time from training (measured by
+/// `mipnerf bench --viewer`). `mipnerf view` alone renders without rests.
+pub const SHARE_BESIDE_TRAINING: f64 = 0.25;
+
+/// What `mipnerf view` serves.
+#[derive(Clone, Debug)]
+pub struct ViewArgs {
+    /// The run directory.
+    pub run: PathBuf,
+    /// Address to bind (loopback unless asked otherwise).
+    pub host: String,
+    /// Port (0: any free one).
+    pub port: u16,
+    /// Where frames are rendered.
+    pub backend: Backend,
+    /// The most of the wall-clock time rendering may take (`None`: all of it).
+    pub share: Option<f64>,
+}
+
+/// A rendered frame.
+struct Frame {
+    png: Vec<u8>,
+    width: u32,
+    height: u32,
+    ms: u128,
+    step: u64,
+}
+
+/// A frame to render: the camera-to-world pose, size and horizontal field of view.
+#[derive(Clone, Copy, Debug)]
+struct FrameRequest {
+    c2w: [[f64; 4]; 3],
+    width: u32,
+    height: u32,
+    fov: f64,
+}
+
+/// Who asked for a frame: a level of the page's stream (superseded by the next stream: the
+/// camera moved), or a single frame (`/api/render`: the scales panel), always finished.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Kind {
+    Stream,
+    Still,
+}
+
+/// A frame to render, and where its answer goes.
+struct Job {
+    req: FrameRequest,
+    kind: Kind,
+    reply: mpsc::Sender<Result<Frame, String>>,
+}
+
+/// Pixels rendered between two checks for a newer stream (and, beside training, two rests):
+/// the 1/8 level of a 512 px view is one band.
+pub const BAND_PIXELS: u32 = 4096;
+/// Beside training, the rest the renderer may still owe when it starts the first band of a
+/// stream's level: the coarse frame after a camera move is not kept waiting behind the rest of
+/// the refinement it superseded, yet a camera that never stops gets at most
+/// [`SHARE_BESIDE_TRAINING`] of the time (plus this, once).
+pub const REST_ALLOWANCE: Duration = Duration::from_secs(1);
+/// What a superseded stream level answers.
+const SUPERSEDED: &str = "superseded by a newer view";
+
+/// Starts the server and serves until the process ends; prints the URL first.
+///
+/// # Errors
+/// An unreadable run, or an address that cannot be bound.
+pub fn serve(a: &ViewArgs) -> Result<()> {
+    let (server, url) = bind(a)?;
+    println!("view: {url} (serving {}; Ctrl-C stops)", a.run.display());
+    run_server(server, a)
+}
+
+/// `train --view`: the viewer of the run in `run_dir` on 127.0.0.1:`port`, in a thread beside
+/// training (it starts serving once training has written the run's configuration).
+///
+/// # Errors
+/// A port that cannot be bound.
+pub fn beside_training(run_dir: &Path, port: u16) -> Result<()> {
+    let args = ViewArgs {
+        run: run_dir.to_path_buf(),
+        host: "127.0.0.1".into(),
+        port,
+        backend: Backend::Cpu,
+        share: Some(SHARE_BESIDE_TRAINING),
+    };
+    let (server, url) = bind(&args)?;
+    println!("view: {url} (the run's latest checkpoint, while it trains)");
+    std::thread::Builder::new()
+        .name("view server".into())
+        .spawn(move || {
+            while !args.run.join(crate::run::CONFIG).is_file() {
+                std::thread::sleep(std::time::Duration::from_millis(200));
+            }
+            if let Err(e) = run_server(server, &args) {
+                eprintln!("view: stopped: {e:#}");
+            }
+        })
+        .context("starting the viewer")?;
+    Ok(())
+}
+
+/// Binds the server, saying where and that only this machine can reach a loopback address.
+///
+/// # Errors
+/// An address that cannot be bound.
+pub fn bind(a: &ViewArgs) -> Result<(tiny_http::Server, String)> {
+    let server = tiny_http::Server::http((a.host.as_str(), a.port))
+        .map_err(|e| anyhow::anyhow!("cannot listen on {}:{}: {e}", a.host, a.port))?;
+    let addr = server.server_addr().to_ip().context("the viewer's address")?;
+    if !addr.ip().is_loopback() {
+        eprintln!("view: listening on {addr}, reachable from other machines (--host); the default is 127.0.0.1");
+    }
+    Ok((server, format!("http://{addr}/")))
+}
+
+/// Serves `server` for the run of `a` until the process ends.
+///
+/// # Errors
+/// An unreadable run.
+pub fn run_server(server: tiny_http::Server, a: &ViewArgs) -> Result<()> {
+    let s = read_config(&a.run)?;
+    let info = info_json(&a.run, &s)?;
+    let template = {
+        let train = load_split(&s, Split::Train)?;
+        let k = crate::render::read_supersample(&s)?;
+        ImageSpec::of_view(&train, 0, k)
+    };
+    let (tx, rx) = mpsc::channel::<Job>();
+    let (run, backend, share) = (a.run.clone(), a.backend, a.share);
+    std::thread::Builder::new()
+        .name("view renderer".into())
+        .spawn(move || renderer(&run, &s, backend, share, &template, &rx))
+        .context("starting the render thread")?;
+    for request in server.incoming_requests() {
+        let (tx, info, run) = (tx.clone(), info.clone(), a.run.clone());
+        std::thread::spawn(move || handle(request, &tx, &info, &run));
+    }
+    Ok(())
+}
+
+/// The render thread: owns the backend, reloads the run's checkpoint when it changes, and
+/// renders the frames asked for, one at a time, in bands of rows ([`BAND_PIXELS`]). It drops a
+/// stream's level as soon as a newer stream waits (the camera moved), so a moving camera gets
+/// its coarse frame within a band. With a `share` (beside training) every band adds
+/// `took * (1 / share - 1)` to a rest it owes, and a band starts only once the rest owed is paid
+/// down to [`REST_ALLOWANCE`] for the first band of a stream's level (the coarse frame after a
+/// move comes at once) or to zero for the others: over any stretch of time rendering takes at
+/// most `share` of it, give or take one allowance.
+fn renderer(
+    run: &Path,
+    s: &TrainSettings,
+    backend: Backend,
+    share: Option<f64>,
+    template: &ImageSpec,
+    jobs: &mpsc::Receiver<Job>,
+) {
+    let mut loaded: Option<(Box<dyn mipnerf_core::backend::Backend>, u64, Option<SystemTime>)> = None;
+    let ckpt = run.join(CHECKPOINT);
+    let mut waiting = std::collections::VecDeque::new();
+    let share = share.filter(|s| *s > 0.0 && *s < 1.0);
+    // The rest owed, as of `paid_at`: any time not spent rendering pays it, idle time included.
+    let (mut owed, mut paid_at) = (Duration::ZERO, Instant::now());
+    loop {
+        let Some(job) = waiting.pop_front().or_else(|| jobs.recv().ok()) else { return };
+        let result = (|| -> Result<Frame> {
+            let mtime = std::fs::metadata(&ckpt).and_then(|m| m.modified()).ok();
+            if loaded.as_ref().is_none_or(|l| l.2 != mtime) {
+                // A checkpoint that is being replaced is renamed into place whole, so a failed
+                // load is only a missing one: keep the model we have.
+                match open_trained(run, s, backend, None) {
+                    Ok((be, step, _)) => loaded = Some((be, step, mtime)),
+                    Err(e) if loaded.is_none() => return Err(e),
+                    Err(_) => {}
+                }
+            }
+            let Some((be, step, _)) = loaded.as_mut() else { bail!("no checkpoint in {}", run.display()) };
+            let req = job.req;
+            let camera = Camera::from_camera_angle_x(req.width, req.height, req.fov, req.c2w)?;
+            let image = ImageSpec { camera, ..template.clone() };
+            let levels = be.model().config().num_levels;
+            let mut rgb: Vec<[f32; 3]> = Vec::with_capacity(image.pixels());
+            let mut busy = Duration::ZERO;
+            let superseded = |waiting: &std::collections::VecDeque<Job>| {
+                job.kind == Kind::Stream && waiting.iter().any(|j| j.kind == Kind::Stream)
+            };
+            for (i, (y0, y1)) in bands(req.width, req.height).into_iter().enumerate() {
+                let allowance = if i == 0 && job.kind == Kind::Stream { REST_ALLOWANCE } else { Duration::ZERO };
+                // Rest what is owed beyond the allowance, listening for newer requests.
+                loop {
+                    owed = owed.saturating_sub(paid_at.elapsed());
+                    paid_at = Instant::now();
+                    if owed <= allowance {
+                        break;
+                    }
+                    if let Ok(j) = jobs.recv_timeout(owed - allowance) {
+                        waiting.push_back(j);
+                    }
+                    if superseded(&waiting) {
+                        bail!(SUPERSEDED);
+                    }
+                }
+                let t = Instant::now();
+                let (band, extra) = band(&image, y0, y1);
+                let out = be.render_image(&band)?;
+                let keep = (y1 - y0) as usize * req.width as usize;
+                debug_assert_eq!(out.len(), (keep + extra) * levels);
+                rgb.extend(out.chunks(levels).take(keep).map(|l| l[levels - 1].rgb));
+                let took = t.elapsed();
+                busy += took;
+                if let Some(share) = share {
+                    owed += took.mul_f64(1.0 / share - 1.0);
+                }
+                paid_at = Instant::now();
+                waiting.extend(jobs.try_iter());
+                if y1 < req.height && superseded(&waiting) {
+                    bail!(SUPERSEDED);
+                }
+            }
+            let mut png = Vec::new();
+            image::codecs::png::PngEncoder::new(&mut png)
+                .write_image(&crate::images::rgb_to_png(&rgb), req.width, req.height, image::ExtendedColorType::Rgb8)
+                .context("encoding the frame")?;
+            Ok(Frame { png, width: req.width, height: req.height, ms: busy.as_millis(), step: *step })
+        })();
+        let _ = job.reply.send(result.map_err(|e| format!("{e:#}")));
+    }
+}
+
+/// The bands of rows `[y0, y1)` a `width` x `height` frame is rendered in: about
+/// [`BAND_PIXELS`] each, and never fewer than 3 rows (see [`band`]).
+fn bands(width: u32, height: u32) -> Vec<(u32, u32)> {
+    let rows = (BAND_PIXELS / width.max(1)).max(3);
+    let mut out: Vec<(u32, u32)> = (0..height).step_by(rows as usize).map(|y0| (y0, (y0 + rows).min(height))).collect();
+    // A last band under 3 rows joins the one before it.
+    if out.len() > 1 && out.last().is_some_and(|b| b.1 - b.0 < 3) {
+        let last = out.pop().unwrap_or_default();
+        if let Some(prev) = out.last_mut() {
+            prev.1 = last.1;
+        }
+    }
+    out
+}
+
+/// Rows `y0..y1` of `image` as an image of their own whose rays are the whole image's for
+/// those rows, and how many extra pixels it has at its end. A ray's cone radius is the distance
+/// to the ray of the row below (the last row's, that of the two rows above it): so a band that
+/// does not end the image takes one row more (`width` extra pixels, dropped), and one that does
+/// has at least 3 rows ([`bands`]).
+fn band(image: &ImageSpec, y0: u32, y1: u32) -> (ImageSpec, usize) {
+    let cam = &image.camera;
+    let end = (y1 + 1).min(cam.height);
+    let mut pix2cam = cam.pix2cam;
+    for row in &mut pix2cam {
+        row[2] += row[1] * f64::from(y0);
+    }
+    let camera = Camera { height: end - y0, pix2cam, ..cam.clone() };
+    (ImageSpec { camera, ..image.clone() }, ((end - y1) * cam.width) as usize)
+}
+
+use image::ImageEncoder;
+
+/// The run's cameras, field of view, up direction and starting pose, as the page reads them.
+fn info_json(run: &Path, s: &TrainSettings) -> Result<String> {
+    let train = load_split(s, Split::Train)?;
+    let test = load_split(s, Split::Test).ok();
+    let poses = |ds: &mipnerf_core::data::Dataset| -> Vec<[[f64; 4]; 3]> {
+        ds.views().iter().filter(|v| v.scale == 0).map(|v| v.camera.cam2world).collect()
+    };
+    let train_poses = poses(&train);
+    let test_poses = test.as_ref().map(poses).unwrap_or_default();
+    let first = &train.views()[0].camera;
+    let fov = 2.0 * (0.5 * f64::from(first.width) * first.pix2cam[0][0].abs()).atan();
+    // World up: the mean of the cameras' up axes.
+    let mut up = [0.0f64; 3];
+    for p in &train_poses {
+        for (k, u) in up.iter_mut().enumerate() {
+            *u += p[k][1];
+        }
+    }
+    let n = up.iter().map(|x| x * x).sum::<f64>().sqrt().max(1e-12);
+    let start = test_poses.first().or(train_poses.first()).copied().context("no cameras")?;
+    Ok(serde_json::json!({
+        "run": run.display().to_string(),
+        "fov": fov,
+        "up": up.map(|x| x / n),
+        "start": start,
+        "cameras": { "train": train_poses, "test": test_poses },
+    })
+    .to_string())
+}
+
+/// `metrics.csv` as columns (step, loss, psnr, lr), the validation rows, and when the
+/// checkpoint last changed.
+fn metrics_json(run: &Path) -> String {
+    let text = std::fs::read_to_string(run.join(METRICS_CSV)).unwrap_or_default();
+    let (mut step, mut loss, mut psnr, mut lr, mut val) = (vec![], vec![], vec![], vec![], vec![]);
+    let mut scales = 0;
+    for line in text.lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        let Some(s) = f.first().and_then(|s| s.parse::<u64>().ok()) else { continue };
+        let num = |i: usize| f.get(i).and_then(|x| x.parse::<f64>().ok());
+        if let (Some(l), Some(p), Some(r)) = (num(1), num(3), num(4)) {
+            step.push(s);
+            loss.push(l);
+            psnr.push(p);
+            lr.push(r);
+        }
+        if let Some(v) = f.get(7).filter(|v| !v.is_empty()) {
+            let v: Vec<f64> = v.split(';').filter_map(|x| x.parse().ok()).collect();
+            scales = scales.max(v.len());
+            val.push(serde_json::json!([s, v]));
+        }
+    }
+    // When the checkpoint last changed (ms since the epoch): the page re-renders a resting view
+    // when it does.
+    let checkpoint = std::fs::metadata(run.join(CHECKPOINT))
+        .and_then(|m| m.modified())
+        .ok()
+        .and_then(|t| t.duration_since(SystemTime::UNIX_EPOCH).ok())
+        .map(|d| d.as_millis() as u64);
+    serde_json::json!({"step": step, "loss": loss, "psnr": psnr, "lr": lr, "val": val,
+        "val_scales": vec![0; scales], "checkpoint": checkpoint})
+    .to_string()
+}
+
+/// A request's query parameters as a frame, or what is wrong with them.
+fn parse_frame(query: &str) -> Result<FrameRequest, String> {
+    let get = |k: &str| {
+        query.split('&').find_map(|kv| kv.strip_prefix(k).and_then(|r| r.strip_prefix('='))).ok_or(format!("no {k}"))
+    };
+    let c2w: Vec<f64> = get("c2w")?
+        .split(',')
+        .map(|x| x.parse::<f64>().map_err(|_| format!("c2w: {x:?}")))
+        .collect::<Result<_, _>>()?;
+    if c2w.len() != 12 || c2w.iter().any(|x| !x.is_finite() || x.abs() > 1e6) {
+        return Err("c2w must be 12 finite numbers (3 rows of 4)".into());
+    }
+    let side = |k: &str| -> Result<u32, String> {
+        get(k)?.parse::<u32>().ok().filter(|v| (1..=MAX_SIDE).contains(v)).ok_or(format!("{k} must be 1 to {MAX_SIDE}"))
+    };
+    let fov =
+        get("fov")?.parse::<f64>().ok().filter(|f| *f > 0.01 && *f < 3.1).ok_or("fov must be 0.01 to 3.1 radians")?;
+    Ok(FrameRequest {
+        c2w: std::array::from_fn(|r| std::array::from_fn(|c| c2w[4 * r + c])),
+        width: side("width")?,
+        height: side("height")?,
+        fov,
+    })
+}
+
+fn render(tx: &mpsc::Sender<Job>, req: FrameRequest, kind: Kind) -> Result<Frame, String> {
+    let (reply, answer) = mpsc::channel();
+    tx.send(Job { req, kind, reply }).map_err(|_| "the renderer has stopped".to_string())?;
+    answer.recv().map_err(|_| "the renderer has stopped".to_string())?
+}
+
+fn respond(request: tiny_http::Request, code: u16, content_type: &str, body: Vec<u8>) {
+    let header = tiny_http::Header::from_bytes("Content-Type", content_type).expect("a valid header");
+    let _ = request.respond(tiny_http::Response::from_data(body).with_status_code(code).with_header(header));
+}
+
+/// One request: the page, the run's info and metrics, a frame, or a stream of frames.
+fn handle(request: tiny_http::Request, tx: &mpsc::Sender<Job>, info: &str, run: &Path) {
+    let url = request.url().to_string();
+    let (path, query) = url.split_once('?').unwrap_or((&url, ""));
+    if *request.method() != tiny_http::Method::Get {
+        return respond(request, 405, "text/plain", b"only GET".to_vec());
+    }
+    match path {
+        "/" | "/index.html" => respond(request, 200, "text/html; charset=utf-8", PAGE.as_bytes().to_vec()),
+        "/api/info" => respond(request, 200, "application/json", info.as_bytes().to_vec()),
+        "/api/metrics" => respond(request, 200, "application/json", metrics_json(run).into_bytes()),
+        "/api/render" => match parse_frame(query) {
+            Err(e) => respond(request, 400, "text/plain", e.into_bytes()),
+            Ok(req) => match render(tx, req, Kind::Still) {
+                Ok(f) => respond(request, 200, "image/png", f.png),
+                Err(e) => respond(request, 500, "text/plain", e.into_bytes()),
+            },
+        },
+        p if p.starts_with("/api/val/") => {
+            // The latest validation render of one scale (`train --val-every`).
+            match p["/api/val/".len()..].parse::<u32>().ok().filter(|j| *j < 16) {
+                None => respond(request, 404, "text/plain", format!("no such page: {path}").into_bytes()),
+                Some(j) => match std::fs::read(run.join(crate::run::VAL_DIR).join(format!("scale{j}.png"))) {
+                    Ok(png) => respond(request, 200, "image/png", png),
+                    Err(_) => {
+                        respond(request, 404, "text/plain", b"no validation render yet (train --val-every)".to_vec())
+                    }
+                },
+            }
+        }
+        "/api/stream" => match parse_frame(query) {
+            Err(e) => respond(request, 400, "text/plain", e.into_bytes()),
+            Ok(req) => stream(request, tx, req),
+        },
+        _ => respond(request, 404, "text/plain", format!("no such page: {path}").into_bytes()),
+    }
+}
+
+/// Server-sent events: the frame at 1/8, 1/4, 1/2 and full size, each as soon as it is rendered;
+/// stops early when the page closes the stream (the camera moved).
+fn stream(request: tiny_http::Request, tx: &mpsc::Sender<Job>, req: FrameRequest) {
+    let mut w = request.into_writer();
+    let head =
+        "HTTP/1.1 200 OK\r\nContent-Type: text/event-stream\r\nCache-Control: no-cache\r\nConnection: close\r\n\r\n";
+    if w.write_all(head.as_bytes()).and_then(|()| w.flush()).is_err() {
+        return;
+    }
+    for level in (0..LEVELS).rev() {
+        let scaled = |s: u32| (s >> level).max(8.min(s));
+        let r = FrameRequest { width: scaled(req.width), height: scaled(req.height), ..req };
+        let event = match render(tx, r, Kind::Stream) {
+            Ok(f) => serde_json::json!({
+                "level": level, "width": f.width, "height": f.height, "ms": f.ms, "step": f.step,
+                "png": base64::engine::general_purpose::STANDARD.encode(&f.png),
+            })
+            .to_string(),
+            Err(e) => {
+                let _ = write!(w, "event: failed\ndata: {}\n\n", serde_json::json!(e)).and_then(|()| w.flush());
+                return;
+            }
+        };
+        if write!(w, "data: {event}\n\n").and_then(|()| w.flush()).is_err() {
+            return;
+        }
+    }
+    let _ = write!(w, "event: done\ndata: {{}}\n\n").and_then(|()| w.flush());
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mipnerf_core::PixelCenters;
+    use mipnerf_core::data::Ndc;
+
+    /// Ray components of a band and of the whole image agree to this (f64 pixel offsets folded
+    /// into `pix2cam` move the f32 rays by an ulp at most).
+    const RAY_TOLERANCE: f32 = 1e-6;
+
+    /// Every band's rays are the whole image's rays for its rows, for frames split into one or
+    /// many bands (a short last band joined to the one before), with and without NDC and
+    /// supersampling; the bands cover every row once.
+    #[test]
+    fn a_frame_rendered_in_bands_has_the_whole_frames_rays() {
+        let pose = mipnerf_core::data::demo::camera_pose(0.3, 0.5);
+        for (w, h, ndc, k) in
+            [(24, 20, false, 1), (100, 83, false, 1), (64, 131, true, 1), (40, 205, false, 2), (3, 2, false, 1)]
+        {
+            let camera = Camera::from_camera_angle_x(w, h, 0.7, pose).unwrap();
+            let ndc = ndc.then_some(Ndc { focal: 30.0, width: w as f32, height: h as f32 });
+            let image = ImageSpec { camera, near: 2.0, far: 6.0, centers: PixelCenters::Centered, ndc, supersample: k };
+            let mut whole = Vec::new();
+            image.push_rays(0, image.pixels(), &mut whole);
+            let bands = bands(w, h);
+            assert_eq!(bands.first().map(|b| b.0), Some(0));
+            assert_eq!(bands.last().map(|b| b.1), Some(h));
+            assert!(bands.windows(2).all(|p| p[0].1 == p[1].0), "{bands:?}");
+            assert!(h < 3 || bands.iter().all(|b| b.1 - b.0 >= 3), "{bands:?}");
+            let mut banded = Vec::new();
+            for (y0, y1) in bands {
+                let (spec, extra) = band(&image, y0, y1);
+                let mut rays = Vec::new();
+                spec.push_rays(0, spec.pixels(), &mut rays);
+                assert_eq!(rays.len(), (spec.pixels()) * k * k);
+                rays.truncate(rays.len() - extra * k * k);
+                banded.extend(rays);
+            }
+            assert_eq!(banded.len(), whole.len(), "{w}x{h}");
+            let mut bad = Vec::new();
+            for (i, (a, b)) in whole.iter().zip(&banded).enumerate() {
+                let close = |x: glam::Vec3, y: glam::Vec3| {
+                    (x - y).abs().max_element() <= RAY_TOLERANCE * (1.0 + x.abs().max_element())
+                };
+                if !(close(a.origin, b.origin) && close(a.direction, b.direction) && close(a.viewdir, b.viewdir))
+                    || (a.radius - b.radius).abs() > RAY_TOLERANCE * a.radius
+                {
+                    bad.push(format!("ray {i}: {a:?} != {b:?}"));
+                }
+            }
+            assert!(
+                bad.is_empty(),
+                "{w}x{h} ndc {ndc:?} k {k}: {} rays differ:\n{}",
+                bad.len(),
+                bad[..bad.len().min(5)].join("\n")
+            );
+        }
+    }
+}

@@ -1,0 +1,373 @@
+//! `mipnerf view` and `train --view`: the live viewer's server answered over plain HTTP (its page,
+//! the run's cameras and curves, frames, the coarse-to-fine stream, refusals), then its page in
+//! headless Chromium, moving the camera with the page's own pointer handlers and checking that a
+//! new frame arrives and is not blank; a screenshot is taken.
+#![allow(clippy::unwrap_used, missing_docs)]
+
+mod common;
+use common::run_ok;
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::process::{Child, Stdio};
+use std::time::{Duration, Instant};
+
+/// A frame of the trained demo model has at least this many colours (measured: hundreds); a
+/// blank or constant frame has one.
+const MIN_FRAME_COLOURS: usize = 20;
+
+/// A running server, killed when dropped.
+struct Server {
+    child: Child,
+    addr: String,
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Starts `mipnerf ARGS` and waits for its "view: http://ADDR/" line.
+fn start(args: &[&str]) -> Server {
+    let mut child = common::command().args(args).stdout(Stdio::piped()).stderr(Stdio::inherit()).spawn().unwrap();
+    let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
+    let addr = loop {
+        let line = lines.next().expect("the server printed no URL").unwrap();
+        if let Some(rest) = line.strip_prefix("view: http://") {
+            break rest.split('/').next().unwrap().to_string();
+        }
+    };
+    // Keep reading its output so that it never blocks on a full pipe.
+    std::thread::spawn(move || lines.for_each(drop));
+    Server { child, addr }
+}
+
+/// A GET over one connection: status, content type and body.
+fn get(addr: &str, path: &str) -> (u16, String, Vec<u8>) {
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(120))).unwrap();
+    write!(s, "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n").unwrap();
+    let mut bytes = Vec::new();
+    s.read_to_end(&mut bytes).unwrap();
+    let end = bytes.windows(4).position(|w| w == b"\r\n\r\n").expect("no header end") + 4;
+    let head = String::from_utf8_lossy(&bytes[..end]).to_string();
+    let status = head.split_whitespace().nth(1).unwrap().parse().unwrap();
+    let content_type = head
+        .lines()
+        .find_map(|l| l.to_ascii_lowercase().strip_prefix("content-type:").map(|v| v.trim().to_string()))
+        .unwrap_or_default();
+    let mut body = bytes[end..].to_vec();
+    if head.to_ascii_lowercase().contains("transfer-encoding: chunked") {
+        body = dechunk(&body);
+    }
+    (status, content_type, body)
+}
+
+/// The body of a chunked HTTP response.
+fn dechunk(mut b: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    loop {
+        let eol = b.windows(2).position(|w| w == b"\r\n").unwrap();
+        let n = usize::from_str_radix(std::str::from_utf8(&b[..eol]).unwrap().trim(), 16).unwrap();
+        if n == 0 {
+            return out;
+        }
+        out.extend_from_slice(&b[eol + 2..eol + 2 + n]);
+        b = &b[eol + 2 + n + 2..];
+    }
+}
+
+fn png_size(png: &[u8]) -> (u32, u32) {
+    let img = image::load_from_memory_with_format(png, image::ImageFormat::Png).unwrap();
+    (img.width(), img.height())
+}
+
+fn distinct_colours(img: &image::RgbImage) -> usize {
+    img.pixels().map(|p| p.0).collect::<std::collections::HashSet<_>>().len()
+}
+
+/// A camera query for the run's first test camera.
+fn query(info: &serde_json::Value, w: u32, h: u32) -> String {
+    let c2w: Vec<String> = info["start"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|r| r.as_array().unwrap().clone())
+        .map(|x| x.to_string())
+        .collect();
+    format!("c2w={}&width={w}&height={h}&fov={}", c2w.join(","), info["fov"])
+}
+
+#[test]
+fn the_viewer_serves_frames_coarse_to_fine_and_a_browser_moves_its_camera() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let cfg = mipnerf_core::data::demo::DemoConfig { size: 32, train_views: 16, test_views: 1, supersample: 1 };
+    mipnerf_core::data::demo::write_demo_scene(&data, &cfg).unwrap();
+    let run = dir.path().join("run");
+    let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
+    run_ok(&[
+        "train",
+        "--data",
+        d,
+        "--out",
+        r,
+        "--preset",
+        "fast",
+        "--steps",
+        "300",
+        "--batch-rays",
+        "1024",
+        "--backend",
+        "cpu",
+        "--val-every",
+        "150",
+        "--val-images",
+        "1",
+        "--quiet",
+    ]);
+    let server = start(&["view", "--run", r, "--port", "0"]);
+    let addr = server.addr.as_str();
+    assert!(addr.starts_with("127.0.0.1:"), "binds to loopback by default: {addr}");
+
+    let (status, ty, page) = get(addr, "/");
+    assert_eq!((status, ty.as_str()), (200, "text/html; charset=utf-8"));
+    let page = String::from_utf8(page).unwrap();
+    assert!(
+        page.contains("EventSource(") && !page.contains("http://") && !page.contains("https://"),
+        "no external assets"
+    );
+
+    let (status, _, info) = get(addr, "/api/info");
+    assert_eq!(status, 200);
+    let info: serde_json::Value = serde_json::from_slice(&info).unwrap();
+    assert_eq!(info["cameras"]["train"].as_array().unwrap().len(), 16);
+    assert_eq!(info["cameras"]["test"].as_array().unwrap().len(), 1);
+
+    let (status, ty, png) = get(addr, &format!("/api/render?{}", query(&info, 24, 20)));
+    assert_eq!((status, ty.as_str()), (200, "image/png"));
+    assert_eq!(png_size(&png), (24, 20));
+    let frame = image::load_from_memory(&png).unwrap().to_rgb8();
+    assert!(distinct_colours(&frame) >= MIN_FRAME_COLOURS, "a blank frame: {} colours", distinct_colours(&frame));
+
+    // The stream: 1/8, 1/4, 1/2 and full size (never under 8 px), then `done`.
+    let (status, ty, sse) = get(addr, &format!("/api/stream?{}", query(&info, 96, 80)));
+    assert_eq!((status, ty.as_str()), (200, "text/event-stream"));
+    let sse = String::from_utf8(sse).unwrap();
+    let frames: Vec<serde_json::Value> = sse
+        .lines()
+        .filter_map(|l| l.strip_prefix("data: "))
+        .filter(|d| *d != "{}")
+        .map(|d| serde_json::from_str(d).unwrap())
+        .collect();
+    let sizes: Vec<(u64, u64)> =
+        frames.iter().map(|f| (f["width"].as_u64().unwrap(), f["height"].as_u64().unwrap())).collect();
+    assert_eq!(sizes, [(12, 10), (24, 20), (48, 40), (96, 80)]);
+    for f in &frames {
+        use base64::Engine;
+        let png = base64::engine::general_purpose::STANDARD.decode(f["png"].as_str().unwrap()).unwrap();
+        assert_eq!(png_size(&png), (f["width"].as_u64().unwrap() as u32, f["height"].as_u64().unwrap() as u32));
+        assert_eq!(f["step"], 300);
+    }
+    assert!(sse.trim_end().ends_with("event: done\ndata: {}"), "{sse}");
+
+    // A moved camera supersedes the refinement under way: a 1024 px stream, once its first
+    // level is in, is dropped for a newer one (which finishes) and says so.
+    let mut big = TcpStream::connect(addr).unwrap();
+    big.set_read_timeout(Some(Duration::from_secs(120))).unwrap();
+    write!(big, "GET /api/stream?{} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n", query(&info, 1024, 1024))
+        .unwrap();
+    let mut big = BufReader::new(big);
+    let mut line = String::new();
+    while !line.starts_with("data: ") {
+        line.clear();
+        big.read_line(&mut line).unwrap();
+    }
+    assert!(line.contains("\"width\":128"), "the 1/8 level first: {}", &line[..line.len().min(80)]);
+    let (status, _, sse) = get(addr, &format!("/api/stream?{}", query(&info, 16, 16)));
+    assert_eq!(status, 200);
+    assert!(String::from_utf8(sse).unwrap().trim_end().ends_with("event: done\ndata: {}"), "the newer stream finishes");
+    let mut rest = String::new();
+    big.read_to_string(&mut rest).unwrap();
+    assert!(rest.contains("event: failed") && rest.contains("superseded by a newer view"), "{rest}");
+    assert!(!rest.contains("event: done"), "{rest}");
+
+    // Curves, and the latest validation renders (render | test image, per scale).
+    let (status, _, metrics) = get(addr, "/api/metrics");
+    assert_eq!(status, 200);
+    let metrics: serde_json::Value = serde_json::from_slice(&metrics).unwrap();
+    // Rows are named by step index, as in metrics.csv.
+    assert_eq!(metrics["step"].as_array().unwrap().last().unwrap(), 299);
+    let val_steps: Vec<u64> = metrics["val"].as_array().unwrap().iter().map(|v| v[0].as_u64().unwrap()).collect();
+    assert_eq!(val_steps, [149, 299]);
+    let (status, ty, png) = get(addr, "/api/val/0");
+    assert_eq!((status, ty.as_str()), (200, "image/png"));
+    assert_eq!(png_size(&png), (64, 32), "the 32 px test view beside its render");
+    assert_eq!(get(addr, "/api/val/9").0, 404, "a scale the run does not have");
+
+    // Refusals: 4xx with a reason, and the server keeps serving.
+    for (path, code, why) in [
+        ("/nowhere", 404, "no such page"),
+        ("/api/render?width=8&height=8&fov=0.7", 400, "no c2w"),
+        ("/api/render?c2w=1,2,3&width=8&height=8&fov=0.7", 400, "12 finite numbers"),
+        (&format!("/api/render?{}", query(&info, 100_000, 8)), 400, "width must be 1 to 1024"),
+        (&format!("/api/render?{}", query(&info, 8, 8)).replace("c2w=", "c2w=NaN,"), 400, "c2w"),
+        (&format!("/api/stream?{}", query(&info, 8, 0)), 400, "height must be 1 to 1024"),
+        ("/api/render?c2w=1,0,0,0,0,1,0,0,0,0,1,4&width=8&height=8&fov=9", 400, "fov"),
+    ] {
+        let (status, _, body) = get(addr, path);
+        assert_eq!(status, code, "{path}");
+        assert!(String::from_utf8_lossy(&body).contains(why), "{path}: {}", String::from_utf8_lossy(&body));
+    }
+    let mut s = TcpStream::connect(addr).unwrap();
+    write!(s, "POST /api/render HTTP/1.1\r\nHost: x\r\nContent-Length: 0\r\nConnection: close\r\n\r\n").unwrap();
+    let mut reply = String::new();
+    s.read_to_string(&mut reply).unwrap();
+    assert!(reply.starts_with("HTTP/1.1 405"), "{reply}");
+    assert_eq!(get(addr, "/api/info").0, 200, "still serving after the refusals");
+
+    // The page in a real browser: `#drive` makes the page drag its own canvas (through the same
+    // pointer handlers a mouse uses) once the first frame is in, and ask for the scales.
+    let Some(chromium) = common::chromium("the viewer") else { return };
+    let url = format!("http://{addr}/?size=128#drive");
+    let browse = |extra: &[&str]| {
+        std::process::Command::new(chromium)
+            .args([
+                "--headless",
+                "--no-sandbox",
+                "--disable-gpu",
+                "--virtual-time-budget=60000",
+                "--window-size=1000,900",
+            ])
+            .args(extra)
+            .arg(&url)
+            .output()
+            .unwrap()
+    };
+    let dom = String::from_utf8_lossy(&browse(&["--dump-dom"]).stdout).to_string();
+    let canvas = dom.lines().find(|l| l.contains("id=\"view\"")).unwrap_or_else(|| panic!("no canvas in {dom}"));
+    let attr = |name: &str| -> i64 {
+        let at = canvas.find(&format!("{name}=\"")).unwrap_or_else(|| panic!("no {name} in {canvas}")) + name.len() + 2;
+        canvas[at..].split('"').next().unwrap().parse().unwrap()
+    };
+    let (frames, moved_at, colours) = (attr("data-frames"), attr("data-moved-at"), attr("data-colours"));
+    assert!(moved_at >= 1, "the camera moved after the first frame: {canvas}");
+    assert!(frames > moved_at, "a new frame arrived after the move: {canvas}");
+    assert!(colours >= MIN_FRAME_COLOURS as i64, "the new frame is not blank: {canvas}");
+    assert_eq!(attr("data-level"), 0, "the view refined to full size once the camera rested: {canvas}");
+    assert!(dom.contains("data-loaded=\"4\""), "the four scales loaded: {dom}");
+    assert!(dom.contains("src=\"/api/val/0?step=299\""), "the latest validation render is shown: {dom}");
+
+    let shot = dir.path().join("viewer.png");
+    let out = browse(&[&format!("--screenshot={}", shot.display())]);
+    assert!(shot.is_file(), "no screenshot: {}", String::from_utf8_lossy(&out.stderr));
+    let img = image::open(&shot).unwrap().to_rgb8();
+    assert_eq!(img.dimensions(), (1000, 900));
+    assert!(distinct_colours(&img) > 50, "the screenshot is blank");
+    // The README's picture of the viewer is this screenshot.
+    if let Ok(keep) = std::env::var("MIPNERF_VIEWER_SCREENSHOT") {
+        std::fs::copy(&shot, keep).unwrap();
+    }
+}
+
+#[test]
+fn train_view_serves_the_run_while_it_trains() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = common::small_demo_scene(dir.path(), 4);
+    let run = dir.path().join("run");
+    let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
+    let server = start(&[
+        "train",
+        "--data",
+        d,
+        "--out",
+        r,
+        "--steps",
+        "1000000",
+        "--batch-rays",
+        "64",
+        "--backend",
+        "cpu",
+        "--checkpoint-every",
+        "20",
+        "--view",
+        "--view-port",
+        "0",
+        "--quiet",
+    ]);
+    let addr = server.addr.clone();
+    let t = Instant::now();
+    while !run.join("checkpoint.safetensors").is_file() {
+        assert!(t.elapsed() < Duration::from_secs(120), "no checkpoint");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let (status, _, info) = get(&addr, "/api/info");
+    assert_eq!(status, 200);
+    let info: serde_json::Value = serde_json::from_slice(&info).unwrap();
+    let step = |png_query: &str| -> u64 {
+        let (status, _, sse) = get(&addr, &format!("/api/stream?{png_query}"));
+        assert_eq!(status, 200);
+        let sse = String::from_utf8(sse).unwrap();
+        let last = sse.lines().filter_map(|l| l.strip_prefix("data: ")).rfind(|d| *d != "{}").unwrap().to_string();
+        serde_json::from_str::<serde_json::Value>(&last).unwrap()["step"].as_u64().unwrap()
+    };
+    let q = query(&info, 16, 16);
+    let first = step(&q);
+    assert!(first >= 20);
+    // A later checkpoint is picked up: the model is reloaded.
+    let t = Instant::now();
+    loop {
+        std::thread::sleep(Duration::from_millis(300));
+        if step(&q) > first {
+            break;
+        }
+        assert!(t.elapsed() < Duration::from_secs(120), "the model was not reloaded");
+    }
+    let metrics = || -> serde_json::Value {
+        let (status, _, metrics) = get(&addr, "/api/metrics");
+        assert_eq!(status, 200);
+        serde_json::from_slice(&metrics).unwrap()
+    };
+    let m = metrics();
+    assert!(!m["loss"].as_array().unwrap().is_empty());
+    // The page re-renders a resting view when the checkpoint's time changes.
+    let t = Instant::now();
+    while metrics()["checkpoint"] == m["checkpoint"] {
+        assert!(m["checkpoint"].as_u64().is_some() && t.elapsed() < Duration::from_secs(120), "{m}");
+        std::thread::sleep(Duration::from_millis(200));
+    }
+}
+
+#[test]
+fn the_viewer_refuses_a_missing_run_and_a_busy_port_and_says_when_it_is_reachable_from_outside() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = common::mipnerf(&["view", "--run", dir.path().join("none").to_str().unwrap(), "--port", "0"]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("none"), "names the run: {err}");
+
+    let data = common::small_demo_scene(dir.path(), 2);
+    let run = dir.path().join("run");
+    let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
+    run_ok(&["train", "--data", d, "--out", r, "--steps", "2", "--batch-rays", "16", "--backend", "cpu", "--quiet"]);
+    let held = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = held.local_addr().unwrap().port().to_string();
+    let out = common::mipnerf(&["view", "--run", r, "--port", &port]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains(&format!("cannot listen on 127.0.0.1:{port}")), "{err}");
+
+    let mut open = common::command()
+        .args(["view", "--run", r, "--port", "0", "--host", "0.0.0.0"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    BufReader::new(open.stderr.take().unwrap()).read_line(&mut line).unwrap();
+    let _ = open.kill();
+    let _ = open.wait();
+    assert!(line.contains("reachable from other machines"), "{line}");
+}
