@@ -160,7 +160,6 @@ pub fn uses_bf16(m: usize, k: usize, n: usize) -> bool {
 /// # Panics
 /// If a slice is shorter than its shape needs, or if the CPU lacks AMX-BF16
 /// ([`Bf16Support::detect`]): callers choose [`Precision::Bf16`] only after checking it.
-#[allow(clippy::too_many_arguments)]
 pub fn matmul_bf16(
     c: &mut [f32],
     a: &[f32],
@@ -195,7 +194,6 @@ pub fn matmul_bf16(
 
 /// The same rounding as [`matmul_bf16`] on any CPU: `a` and `b` rounded to bf16 (as f32 values),
 /// then the f32 product. Differs from the AMX kernel only in the order of the f32 additions.
-#[allow(clippy::too_many_arguments)]
 pub fn matmul_bf16_emulated(
     c: &mut [f32],
     a: &[f32],
@@ -591,7 +589,6 @@ mod amx {
     /// 16-row tiles of `a`, tmm6/7 two 16-column tiles of `b`. A block inside `c` is loaded
     /// (when accumulating) and stored in place; a block on the ragged edge goes through a
     /// scratch block.
-    #[allow(clippy::too_many_arguments)]
     pub(super) fn product(
         c: &mut [f32],
         a: &[u16],

@@ -233,7 +233,6 @@ fn dense(p: Precision, params: &[f32], l: &DenseLayer, parts: &[(&[f32], usize)]
 }
 
 /// [`matmul`] or [`matmul_bf16`], as `precision` says.
-#[allow(clippy::too_many_arguments)]
 fn product(
     precision: Precision,
     c: &mut [f32],

@@ -580,7 +580,6 @@ impl Model {
     ///
     /// # Panics
     /// If the lengths disagree.
-    #[allow(clippy::too_many_arguments)]
     pub fn loss_and_grad_guided(
         &self,
         params: &[f32],
@@ -690,7 +689,6 @@ impl Model {
     /// Runs all levels over one chunk of whole pixels, step by step as the paper describes them
     /// (see ARCHITECTURE.md). With `targets`, accumulates the gradient into `grads` and returns
     /// per level `[sum lossmult·sq, sum sq]`; with `out`, writes the rendered pixels.
-    #[allow(clippy::too_many_arguments)]
     fn run_chunk(
         &self,
         params: &[f32],
@@ -915,7 +913,6 @@ impl Model {
     /// [`pixel_loss_gradient`] of the area-weighted squared error (adding the pixel's
     /// `lossmult · |e|²` and `|e|²` to `sums`), shared by its rays, then
     /// [`render::volumetric_rendering_backward`] to each sample's colour and density.
-    #[allow(clippy::too_many_arguments)]
     fn loss_gradient(
         &self,
         level: usize,

@@ -107,7 +107,6 @@ pub const fn background(white_bkgd: bool) -> [f32; 3] {
 ///
 /// # Panics
 /// If the lengths disagree.
-#[allow(clippy::too_many_arguments)]
 pub fn volumetric_rendering_backward(
     rgb: &[[f32; 3]],
     density: &[f32],

@@ -212,7 +212,6 @@ impl GpuMlp {
     /// weight gradients split over the samples), and writes (or adds, with `d.accumulate`) the
     /// gradient of the first input part to `d.out`, masked by the ReLU backward when `d.relu`
     /// (the first part is then a ReLU output, its own mask).
-    #[allow(clippy::too_many_arguments)]
     fn dense_backward(
         &self,
         rec: &mut Recorder<'_>,

@@ -315,7 +315,6 @@ impl GpuModel {
     ///
     /// # Errors
     /// [`GpuError::InvalidInput`] for buffers of another size or rays that are not whole pixels.
-    #[allow(clippy::too_many_arguments)]
     pub fn encode(
         &self,
         rec: &mut Recorder<'_>,
@@ -340,7 +339,6 @@ impl GpuModel {
     ///
     /// # Errors
     /// As [`encode`](Self::encode).
-    #[allow(clippy::too_many_arguments)]
     pub fn encode_guided(
         &self,
         rec: &mut Recorder<'_>,
@@ -453,7 +451,6 @@ impl GpuModel {
     ///
     /// # Errors
     /// As [`encode`](Self::encode), and `work` too small for the kept rays.
-    #[allow(clippy::too_many_arguments)]
     pub fn encode_compacted(
         &self,
         rec: &mut Recorder<'_>,
@@ -606,7 +603,6 @@ impl GpuModel {
     ///
     /// # Errors
     /// As [`loss_and_grad`](Self::loss_and_grad), and a grid the kernel does not take.
-    #[allow(clippy::too_many_arguments)]
     pub fn loss_and_grad_guided(
         &self,
         ctx: &GpuContext,

@@ -690,7 +690,6 @@ fn whole_model_loss_and_gradients_match_cpu_reference() {
 /// worst-case bound of f32 summation, `k u sum_i |a_i b_i|` (Higham's gamma_k, u = 2^-24; it holds
 /// for any order and any fusing of the multiply-adds, split or not), plus one rounding of the
 /// epilogue. Returns every output outside it.
-#[allow(clippy::too_many_arguments)]
 fn check_product(
     ctx: &mipnerf_gpu::GpuContext,
     kernel: &mipnerf_gpu::kernels::matmul::MatmulKernel,

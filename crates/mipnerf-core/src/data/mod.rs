@@ -326,7 +326,6 @@ impl Dataset {
     /// # Panics
     /// If `n` is `2^31` or more (two 32-bit random draws per pixel are counted in a `u32`);
     /// callers bound the batch well below that.
-    #[allow(clippy::too_many_arguments)]
     pub fn sample_batch(
         &self,
         n: usize,

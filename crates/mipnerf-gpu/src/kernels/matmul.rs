@@ -297,7 +297,6 @@ impl MatmulKernel {
 
     /// Records `c (m x n) (+)= a (m x k) · b (k x n)` with `epi`. `c` must be another buffer
     /// than `a`, `b` and the mask.
-    #[allow(clippy::too_many_arguments)]
     pub fn encode(
         &self,
         rec: &mut Recorder<'_>,
@@ -316,7 +315,6 @@ impl MatmulKernel {
     /// partial products go to `scratch` (`scratch_len` floats, another buffer than the
     /// operands), then a second pass adds them in order into `c` with the epilogue. For products
     /// with few outputs and a long k: the weight gradients.
-    #[allow(clippy::too_many_arguments)]
     pub fn encode_split(
         &self,
         rec: &mut Recorder<'_>,

@@ -78,7 +78,6 @@ impl MlpAuxKernels {
     /// `out[col] (+)= sum over rows of x[row, col]`, in a fixed order: for more than
     /// [`BLOCK_ROWS`](Self::BLOCK_ROWS) rows, blocks of rows are summed first (into `scratch`,
     /// [`col_sums_scratch_len`](Self::col_sums_scratch_len) floats), then the blocks.
-    #[allow(clippy::too_many_arguments)]
     pub fn col_sums(
         &self,
         rec: &mut Recorder<'_>,
@@ -134,7 +133,6 @@ impl MlpAuxKernels {
     /// Packs the density layer (`(rows) x 1` at `density` of `params`, bias last) and the
     /// bottleneck layer (`rows x cols` at `bottleneck`) into `out` as one `rows x (cols + 1)`
     /// matrix `[density | bottleneck]`.
-    #[allow(clippy::too_many_arguments)]
     pub fn pack_heads(
         &self,
         rec: &mut Recorder<'_>,

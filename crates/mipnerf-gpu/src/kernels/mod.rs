@@ -355,7 +355,6 @@ impl<'a> Recorder<'a> {
 
     /// Records one dispatch of `pipeline` with the uniform block `params` at binding 0 and the
     /// storage `buffers` (whole buffers) at bindings 1...
-    #[allow(clippy::too_many_arguments)]
     pub fn dispatch<P: bytemuck::Pod>(
         &mut self,
         name: &str,
