@@ -30,7 +30,7 @@ pub fn open(
     let opened =
         open_backend(c, setup).with_context(|| format!("--backend {}", format!("{choice:?}").to_lowercase()))?;
     if let Some(why) = &opened.fallback {
-        say_once(format!("backend auto: {why}; using the CPU"));
+        say_once(crate::hints::in_flags(&format!("backend auto: {why}; using the CPU")));
     }
     let mut be = opened.backend;
     let ran = match precision {

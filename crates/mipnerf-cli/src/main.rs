@@ -9,6 +9,7 @@ mod eval;
 mod experiment;
 mod export;
 mod figure;
+mod hints;
 mod html;
 mod images;
 mod lpips;
@@ -23,7 +24,7 @@ mod view_bench;
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand, ValueEnum};
 use mipnerf_core::data::{self, Split, demo};
 
@@ -869,9 +870,12 @@ fn main() -> std::process::ExitCode {
             colmap_cmd(&input, &output, max_size, min_views, overwrite)
         }
         Command::Convert { input, output, to: ConvertTo::Multiscale, size, .. } => {
-            data::multiscale::convert_resized(&input, &output, size)
-                .map(|splits| println!("converted {splits:?} into {}", output.display()))
-                .map_err(Into::into)
+            let done = data::multiscale::convert_resized(&input, &output, size)
+                .map(|splits| println!("converted {splits:?} into {}", output.display()));
+            match size {
+                Some(n) => done.map_err(anyhow::Error::from).with_context(|| format!("--size {n}")),
+                None => done.map_err(Into::into),
+            }
         }
         Command::Convert { input, output, to: ConvertTo::Llff, size, factor } => {
             convert_llff(&input, &output, size, factor)
@@ -888,7 +892,7 @@ fn main() -> std::process::ExitCode {
             std::process::ExitCode::from(signals::EXIT_INTERRUPTED as u8)
         }
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", hints::in_flags(&format!("{e:#}")));
             std::process::ExitCode::FAILURE
         }
     }

@@ -332,7 +332,7 @@ pub fn check_ndc_supersample(ndc: Option<Ndc>, supersample: usize) -> Result<(),
 }
 
 /// Why forward-facing data and supersampling do not mix.
-pub const NDC_SUPERSAMPLE: &str = "supersampling (--supersample) is not defined for forward-facing (NDC) datasets: sub-pixel rays are not mapped to NDC";
+pub const NDC_SUPERSAMPLE: &str = "supersampling (`ModelConfig::supersample`) is not defined for forward-facing (NDC) datasets: sub-pixel rays are not mapped to NDC";
 
 /// Rays per chunk when the CPU renders an image, unless set (bounds the rays held at once).
 pub const CPU_RENDER_CHUNK: usize = 16 * 1024;

@@ -39,7 +39,7 @@ pub enum GpuError {
     #[error(
         "no GPU adapter found for {wanted}{}. Install a Vulkan driver (for a software one on Debian/Ubuntu: \
          'apt-get install mesa-vulkan-drivers libvulkan1', or run scripts/ensure-vulkan.sh), pick another \
-         adapter (--adapter, see 'mipnerf info'), or use the CPU backend (--backend cpu)",
+         adapter (`DeviceOptions::adapter`), or use the CPU backend (`BackendChoice::Cpu`)",
         if passed_over.is_empty() { "; wgpu saw no adapter".to_string() } else { format!("; passed over: {}", passed_over.join("; ")) }
     )]
     NoAdapter {
@@ -96,7 +96,7 @@ pub enum GpuError {
     /// The device did not finish the submitted work within the timeout.
     #[error(
         "{adapter} did not finish its work within {seconds:.0} s: the device may hang, or a batch is too \
-         large for it (lower --batch-rays)"
+         large for it (lower the rays per batch, `BackendSetup::data`)"
     )]
     Timeout {
         /// The adapter's name.
@@ -105,7 +105,10 @@ pub enum GpuError {
         seconds: f64,
     },
     /// Making a batch's buffers ran the device out of memory.
-    #[error("the batch does not fit on {adapter} ({mib:.0} MiB needed): lower --batch-rays (or --gpu-memory)")]
+    #[error(
+        "the batch does not fit on {adapter} ({mib:.0} MiB needed): lower the rays per batch \
+         (`BackendSetup::data`) or the memory budget (`DeviceOptions::memory_budget`)"
+    )]
     BatchTooLarge {
         /// The adapter's name.
         adapter: String,

@@ -226,7 +226,7 @@ fn images_too_large_for_the_device_are_a_clear_error() {
     let ds = synthetic_dataset(false, true);
     // The largest view is 21 x 3 x 4 = 252 bytes; four slots of 256 bytes cannot hold all five.
     let err = DeviceImages::upload_with_slot_bytes(&ctx, &ds, 256).unwrap_err().to_string();
-    assert!(err.contains("synthetic") && err.contains("MiB") && err.contains("--backend cpu"), "{err}");
+    assert!(err.contains("synthetic") && err.contains("MiB") && err.contains("`BackendChoice::Cpu`"), "{err}");
 }
 
 fn lego_tiny() -> Dataset {

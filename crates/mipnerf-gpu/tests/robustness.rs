@@ -37,7 +37,10 @@ fn a_wait_past_the_timeout_is_a_clear_error() {
     let err = ctx.wait().unwrap_err();
     assert!(matches!(err, GpuError::Timeout { .. }), "{err:?}");
     let msg = err.to_string();
-    assert!(msg.contains(&ctx.adapter.name) && msg.contains("did not finish") && msg.contains("--batch-rays"), "{msg}");
+    assert!(
+        msg.contains(&ctx.adapter.name) && msg.contains("did not finish") && msg.contains("rays per batch"),
+        "{msg}"
+    );
     let ctx = ctx.with_timeout(Duration::from_secs(600));
     let got = ctx.read_f32(&c, 4).unwrap();
     assert_eq!(got, vec![0.5 * 0.25 * k as f32; 4]);

@@ -576,7 +576,10 @@ pub(crate) fn read_png_rgba(path: &Path) -> Result<(u32, u32, Vec<u8>, u8), Data
 pub(crate) fn check_pixel_memory(path: &Path, pixels: u64, images: usize) -> Result<(), DataError> {
     crate::memory::check(pixels.saturating_mul(4), &format!("loading {images} images of {pixels} pixels in all"))
         .map_err(|e| {
-            DataError::invalid(path, format!("{e}; train on fewer or smaller images (`mipnerf convert --size`)"))
+            DataError::invalid(
+                path,
+                format!("{e}; train on fewer or smaller images (`multiscale::convert_resized` makes smaller ones)"),
+            )
         })
 }
 

@@ -123,7 +123,7 @@ pub fn convert_resized(input: &Path, output: &Path, width: Option<u32>) -> Resul
     {
         return Err(DataError::invalid(
             input,
-            format!("--size {n}: the size must be at least 16 and divisible by 8 (for the 1/8 scale)"),
+            format!("a width of {n} px: the width must be at least 16 and divisible by 8 (for the 1/8 scale)"),
         ));
     }
     std::fs::create_dir_all(output).map_err(|e| DataError::io(output, e))?;
@@ -159,13 +159,13 @@ pub fn convert_resized(input: &Path, output: &Path, width: Option<u32>) -> Resul
     }
     if done.is_empty() {
         let why = if input.join("sparse").is_dir() {
-            "no transforms_{train,val,test}.json: this is a COLMAP workspace (sparse/); convert it with --to llff"
+            "no transforms_{train,val,test}.json: this is a COLMAP workspace (sparse/); convert it with `colmap::convert_to_llff`"
         } else if input.join("metadata.json").is_file() {
             "no transforms_{train,val,test}.json: this is already a multiscale dataset (metadata.json); train on it \
              as it is"
         } else {
             "no transforms_{train,val,test}.json to convert (a Blender scene has them; a COLMAP workspace has \
-             sparse/ and converts with --to llff)"
+             sparse/ and converts with `colmap::convert_to_llff`)"
         };
         return Err(DataError::invalid(input, why));
     }
@@ -176,14 +176,14 @@ pub fn convert_resized(input: &Path, output: &Path, width: Option<u32>) -> Resul
 /// The `width x height` an image of `w x h` gets at `width` pixels wide, checked.
 fn resized_shape(file: &Path, w: u32, h: u32, width: u32) -> Result<(u32, u32), DataError> {
     if width > w {
-        return Err(DataError::invalid(file, format!("--size {width} is larger than the image ({w}x{h})")));
+        return Err(DataError::invalid(file, format!("a width of {width} px is larger than the image ({w}x{h})")));
     }
     let hh = u64::from(h) * u64::from(width);
     if hh % u64::from(w) != 0 || (hh / u64::from(w)) % 8 != 0 {
         return Err(DataError::invalid(
             file,
             format!(
-                "--size {width}: a {w}x{h} image would be {width}x{:.2}, not a whole multiple of 8 high",
+                "a width of {width} px: a {w}x{h} image would be {width}x{:.2}, not a whole multiple of 8 high",
                 hh as f64 / f64::from(w)
             ),
         ));

@@ -146,7 +146,7 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
             &best.1,
             format!(
                 "the largest COLMAP model registers {registered} of {photos} photos, fewer than the minimum of {} \
-                 (--min-views): take more photos with more overlap between neighbours, or try COLMAP's mapper \
+                 (`ProcessOptions::min_views`): take more photos with more overlap between neighbours, or try COLMAP's mapper \
                  with looser settings (the README's own-photos section gives them)",
                 opts.min_views
             ),
@@ -200,7 +200,7 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
         if entries.next().is_some() && !opts.overwrite {
             return Err(DataError::invalid(
                 output,
-                "is not empty; choose a new folder, or pass --overwrite to replace the dataset in it",
+                "is not empty; choose a new folder, or set `ProcessOptions::overwrite` to replace the dataset in it",
             ));
         }
     }

@@ -161,7 +161,7 @@ impl DeviceImages {
                 let need = total * words_per_pixel * 4;
                 return Err(GpuError::InvalidInput(format!(
                     "{}: the training images need {:.0} MiB on the device, but this adapter binds at most \
-                     {PIXEL_SLOTS} x {:.0} MiB; train at lower resolution (--half-res), on fewer views, or with --backend cpu",
+                     {PIXEL_SLOTS} x {:.0} MiB; train at lower resolution (`LoadOptions::half_res`), on fewer views, or on the CPU (`BackendChoice::Cpu`)",
                     ds.root.display(),
                     need as f64 / 1048576.0,
                     slot_bytes as f64 / 1048576.0
