@@ -56,7 +56,7 @@ pub fn check(backend: CheckBackend) -> Result<()> {
         }
         Err(e) => return Err(e).context("opening the GPU"),
     };
-    println!("checking on {} ({}, {})", ctx.adapter.name, ctx.adapter.backend, ctx.adapter.device_type);
+    println!("checking on {} ({}, {})", ctx.adapter().name, ctx.adapter().backend, ctx.adapter().device_type);
     let c2w = [[0.8, 0.0, 0.6, 2.4], [0.36, 0.8, -0.48, -1.92], [-0.48, 0.6, 0.64, 2.56]];
     let cam = mipnerf_core::Camera::from_camera_angle_x(32, 32, 0.69, c2w)?;
     let rays = cam.generate_rays(mipnerf_core::PixelCenters::Centered, 2.0, 6.0, 1.0);

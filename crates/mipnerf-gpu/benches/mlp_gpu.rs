@@ -48,7 +48,9 @@ fn main() {
     let reps = arg("--reps", if full { 3 } else { 1 });
     println!(
         "adapter: {} ({}, {}), {samples} samples, median of {reps}",
-        ctx.adapter.name, ctx.adapter.backend, ctx.adapter.device_type
+        ctx.adapter().name,
+        ctx.adapter().backend,
+        ctx.adapter().device_type
     );
     println!("| shape | forward ms | forward GFLOP/s | backward ms | backward GFLOP/s |");
     println!("|---|---|---|---|---|");
@@ -63,13 +65,13 @@ fn main() {
         let n_rays = samples / spr;
         let bufs = MlpBuffers::new(&ctx, &shape, n_rays, spr);
         let n = n_rays * spr;
-        ctx.queue.write_buffer(&bufs.x, 0, bytemuck::cast_slice(&vec![0.3f32; n * cfg.x_dim]));
-        ctx.queue.write_buffer(&bufs.view, 0, bytemuck::cast_slice(&vec![0.2f32; n_rays * cfg.view_dim]));
+        ctx.queue().write_buffer(&bufs.x, 0, bytemuck::cast_slice(&vec![0.3f32; n * cfg.x_dim]));
+        ctx.queue().write_buffer(&bufs.view, 0, bytemuck::cast_slice(&vec![0.2f32; n_rays * cfg.view_dim]));
         let p = ctx.storage_buffer("params", &params, false);
         let g = ctx.storage_buffer("grads", &vec![0.0f32; shape.num_params], false);
         let dr = ctx.storage_buffer("d rgb", &vec![0.01f32; n * 3], false);
         let (dd, stride) = bufs.d_raw_density();
-        ctx.queue.write_buffer(dd, 0, bytemuck::cast_slice(&vec![0.01f32; n * stride]));
+        ctx.queue().write_buffer(dd, 0, bytemuck::cast_slice(&vec![0.01f32; n * stride]));
         let fwd = time(&ctx, reps, |rec| mlp.forward(rec, &shape, &p, &bufs));
         let bwd = time(&ctx, reps, |rec| mlp.backward(rec, &shape, &p, &bufs, &dr, &g));
         let fwd_flops: f64 = shape.layers.iter().map(|l| 2.0 * (l.fan_in * l.fan_out) as f64).sum::<f64>() * n as f64;

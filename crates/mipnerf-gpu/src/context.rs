@@ -194,12 +194,9 @@ struct Counters {
 /// the work recorded and the resources made ([`GpuContext::counters`]), and keeps one staging
 /// buffer for reading back, grown as needed.
 pub struct GpuContext {
-    /// The adapter this context runs on.
-    pub adapter: AdapterSummary,
-    /// The logical device.
-    pub device: wgpu::Device,
-    /// Its queue.
-    pub queue: wgpu::Queue,
+    adapter: AdapterSummary,
+    device: wgpu::Device,
+    queue: wgpu::Queue,
     sink: Arc<Mutex<ErrorSink>>,
     counters: Counters,
     staging: Mutex<Option<wgpu::Buffer>>,
@@ -214,6 +211,24 @@ impl std::fmt::Debug for GpuContext {
 }
 
 impl GpuContext {
+    /// The adapter this context runs on.
+    #[must_use]
+    pub fn adapter(&self) -> &AdapterSummary {
+        &self.adapter
+    }
+
+    /// The logical device.
+    #[must_use]
+    pub fn device(&self) -> &wgpu::Device {
+        &self.device
+    }
+
+    /// Its queue.
+    #[must_use]
+    pub fn queue(&self) -> &wgpu::Queue {
+        &self.queue
+    }
+
     /// Opens the best adapter allowed by `choice` and creates a device with the adapter's own
     /// limits (so large storage buffers are available where the hardware has them). Adapters
     /// whose limits are below what the kernels need are passed over.

@@ -28,7 +28,7 @@ use crate::{GpuContext, GpuError};
 #[derive(Debug)]
 pub struct RayBatch {
     /// Rays the next pass makes or reads (at most [`capacity`](Self::capacity)).
-    pub n_rays: usize,
+    n_rays: usize,
     capacity: usize,
     /// `u32` per ray: its index in the step's batch, with which its random numbers (jitter,
     /// resampling offsets, density noise, background) are drawn: `0..n` for a whole batch (as
@@ -113,6 +113,12 @@ impl RayBatch {
         self.capacity
     }
 
+    /// Rays the next pass makes or reads (set by [`set_active`](Self::set_active)).
+    #[must_use]
+    pub fn n_rays(&self) -> usize {
+        self.n_rays
+    }
+
     /// Makes the next passes use the first `n` rays (a chunk's tail).
     ///
     /// # Errors
@@ -131,7 +137,7 @@ impl RayBatch {
 #[derive(Debug)]
 pub struct ModelBuffers {
     /// Rays the next pass uses (at most the capacity these buffers were made for).
-    pub n_rays: usize,
+    n_rays: usize,
     capacity: usize,
     mlp: MlpBuffers,
     t_vals: Vec<wgpu::Buffer>,
@@ -230,6 +236,12 @@ impl ModelBuffers {
         Self::bytes_per_ray(model) * n_rays as u64 + 4 * (MlpBuffers::split_scratch_len(shape, n) + packed_heads) as u64
     }
 
+    /// Rays the next pass uses (set by [`set_active`](Self::set_active)).
+    #[must_use]
+    pub fn n_rays(&self) -> usize {
+        self.n_rays
+    }
+
     /// Makes the next passes use the first `n` rays (a chunk's tail).
     ///
     /// # Errors
@@ -307,7 +319,7 @@ impl GpuModel {
     /// # Errors
     /// If the device rejects one.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        Self::with_kernel_set(ctx, if ctx.adapter.is_software { KernelSet::Software } else { KernelSet::Hardware })
+        Self::with_kernel_set(ctx, if ctx.adapter().is_software { KernelSet::Software } else { KernelSet::Hardware })
     }
 
     /// Records the model on `batch`: every level's outputs into `work.ray_out`; in training

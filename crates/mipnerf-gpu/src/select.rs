@@ -113,7 +113,7 @@ pub fn open_backend(choice: BackendChoice, setup: BackendSetup) -> Result<Opened
         }
         BackendChoice::Auto => match GpuContext::new(named.unwrap_or(AdapterChoice::HardwareOnly)) {
             Ok(ctx) => {
-                let name = ctx.adapter.name.clone();
+                let name = ctx.adapter().name.clone();
                 match open_gpu(ctx, &setup) {
                     Ok(g) => (Box::new(g), None),
                     Err(e) => (open_cpu(setup)?, Some(format!("{name} cannot run this: {e}"))),

@@ -270,7 +270,7 @@ impl GpuBackend {
         let mode = Mode::Train { seed: self.seed, step: step as u32 };
         let lr = self.optim.lr.lr(step);
         let TrainData { images, batch, work, chunks, compaction } = data;
-        let n = batch.n_rays;
+        let n = batch.n_rays();
         // The rays that meet an occupied cell, found on the host for the pixels the device draws.
         let mut kept: Option<&mut Compaction> = None;
         if let (Some((host_grid, _)), Some((cameras, c))) = (&self.occupancy, compaction.as_mut())
@@ -513,7 +513,7 @@ fn auto_chunk(ctx: &GpuContext, model: &Model) -> usize {
 
 impl Backend for GpuBackend {
     fn describe(&self) -> String {
-        let a = &self.ctx.adapter;
+        let a = &self.ctx.adapter();
         let mib = |b: u64| b as f64 / 1048576.0;
         let mut s = format!("GPU: {} ({}, {})", a.name, a.backend, a.device_type);
         if let Some(t) = &self.train {

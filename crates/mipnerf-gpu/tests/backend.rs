@@ -63,7 +63,7 @@ fn synthetic_dataset(f32_pixels: bool, white_bkgd: bool) -> Dataset {
 
 /// Reads a batch back as (packed rays, bounds, view directions, targets, norm).
 fn read_batch(ctx: &mipnerf_gpu::GpuContext, b: &RayBatch) -> [Vec<f32>; 5] {
-    let n = b.n_rays;
+    let n = b.n_rays();
     [
         ctx.read_f32(&b.rays, n * 8).unwrap(),
         ctx.read_f32(&b.bounds, n * 2).unwrap(),

@@ -27,7 +27,7 @@ const WGSL_SIN_ABS: f32 = 1.0 / 2048.0;
 /// The tolerance of a feature computed with one `sin` on `ctx`: what lavapipe measures plus, on
 /// a hardware adapter, the spec's bound.
 fn sin_feature_tolerance(ctx: &mipnerf_gpu::GpuContext) -> f32 {
-    if ctx.adapter.is_software { TOL_GPU_IPE_ABS } else { TOL_GPU_IPE_ABS + WGSL_SIN_ABS }
+    if ctx.adapter().is_software { TOL_GPU_IPE_ABS } else { TOL_GPU_IPE_ABS + WGSL_SIN_ABS }
 }
 
 fn test_camera(n_side: u32) -> Camera {
@@ -65,7 +65,7 @@ fn cast_ipe_matches_cpu_reference() {
             .map(|(i, (g, c))| format!("feature {i}: gpu {g} cpu {c}"))
             .collect();
         let max = gpu.iter().zip(&cpu).map(|(g, c)| (g - c).abs()).fold(0.0f32, f32::max);
-        eprintln!("cast_ipe {shape:?} on {}: max |gpu - cpu| = {max:e}", ctx.adapter.name);
+        eprintln!("cast_ipe {shape:?} on {}: max |gpu - cpu| = {max:e}", ctx.adapter().name);
         assert!(bad.is_empty(), "{shape:?}: GPU IPE differs from the CPU (max {max:e}):\n{}", bad.join("\n"));
     }
 }
@@ -151,8 +151,8 @@ fn mlp_forward_and_backward_match_cpu_reference() {
             shape.backward(&params, &x, &view, spr, &mut cache, &d_rgb, &d_density, &mut cpu_grads);
             // GPU.
             let bufs = MlpBuffers::new(&ctx, &shape, n_rays, spr);
-            ctx.queue.write_buffer(&bufs.x, 0, bytemuck::cast_slice(&x));
-            ctx.queue.write_buffer(&bufs.view, 0, bytemuck::cast_slice(&view));
+            ctx.queue().write_buffer(&bufs.x, 0, bytemuck::cast_slice(&x));
+            ctx.queue().write_buffer(&bufs.view, 0, bytemuck::cast_slice(&view));
             let p = ctx.storage_buffer("params", &params, true);
             let g = ctx.storage_buffer("grads", &vec![0.0f32; shape.num_params], true);
             let dr = ctx.storage_buffer("d rgb", &d_rgb, false);
@@ -163,7 +163,7 @@ fn mlp_forward_and_backward_match_cpu_reference() {
             for (k, v) in d_density.iter().enumerate() {
                 strided[k * stride] = *v;
             }
-            ctx.queue.write_buffer(dd, 0, bytemuck::cast_slice(&strided));
+            ctx.queue().write_buffer(dd, 0, bytemuck::cast_slice(&strided));
             let mut rec = Recorder::new(&ctx, "mlp test");
             gpu.forward(&mut rec, &shape, &p, &bufs);
             gpu.backward(&mut rec, &shape, &p, &bufs, &dr, &g);
@@ -396,7 +396,7 @@ fn adam_and_gradient_clipping_match_cpu_reference() {
         let mut norms = Vec::new();
         for t in 1..=3u64 {
             let mut grads: Vec<f32> = (0..n).map(|_| rng.random_range(-0.1..0.1)).collect();
-            ctx.queue.write_buffer(&b.grads, 0, bytemuck::cast_slice(&grads));
+            ctx.queue().write_buffer(&b.grads, 0, bytemuck::cast_slice(&grads));
             let mut rec = Recorder::new(&ctx, "adam test");
             let step = AdamStep { cfg, t, lr: 1e-3, max_val, max_norm };
             kernel.encode(&mut rec, &step, &b).unwrap();
@@ -560,7 +560,7 @@ fn view_direction_encoding_matches_cpu_reference() {
         let _ = rec.submit();
         let got = ctx.read_f32(&b_out, cpu.len()).unwrap();
         let max = got.iter().zip(&cpu).map(|(g, c)| (g - c).abs()).fold(0.0f32, f32::max);
-        eprintln!("view encoding, {deg} degrees, on {}: max |gpu - cpu| = {max:e}", ctx.adapter.name);
+        eprintln!("view encoding, {deg} degrees, on {}: max |gpu - cpu| = {max:e}", ctx.adapter().name);
         let tol = Tolerance::new(sin_feature_tolerance(&ctx), 0.0);
         bad.extend(mismatches(&format!("view encoding, {deg} degrees"), &got, &cpu, tol));
     }
@@ -571,7 +571,7 @@ fn view_direction_encoding_matches_cpu_reference() {
 fn a_missing_hardware_gpu_is_an_error_not_a_panic() {
     use mipnerf_gpu::{AdapterChoice, GpuContext, GpuError};
     match GpuContext::new(AdapterChoice::HardwareOnly) {
-        Ok(ctx) => assert!(!ctx.adapter.is_software, "HardwareOnly returned {}", ctx.adapter.name),
+        Ok(ctx) => assert!(!ctx.adapter().is_software, "HardwareOnly returned {}", ctx.adapter().name),
         Err(e) => {
             let GpuError::NoAdapter { passed_over, .. } = &e else { panic!("{e:?}") };
             // Every adapter wgpu saw is listed with why it was passed over.

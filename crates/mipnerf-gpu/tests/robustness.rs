@@ -38,7 +38,7 @@ fn a_wait_past_the_timeout_is_a_clear_error() {
     assert!(matches!(err, GpuError::Timeout { .. }), "{err:?}");
     let msg = err.to_string();
     assert!(
-        msg.contains(&ctx.adapter.name) && msg.contains("did not finish") && msg.contains("rays per batch"),
+        msg.contains(&ctx.adapter().name) && msg.contains("did not finish") && msg.contains("rays per batch"),
         "{msg}"
     );
     let ctx = ctx.with_timeout(Duration::from_secs(600));
@@ -47,12 +47,12 @@ fn a_wait_past_the_timeout_is_a_clear_error() {
 }
 
 /// A batch that the device cannot hold is reported as "the batch does not fit on <adapter> (<MiB>
-/// needed): lower --batch-rays", kept as an out-of-memory error of the backend with wgpu's error
+/// needed): lower the rays per batch" (the setting, which the CLI names by its flag), kept as an out-of-memory error of the backend with wgpu's error
 /// as its source. (A real out-of-memory cannot be provoked safely on a shared CI machine: lavapipe
 /// allocates host memory; the scope that catches it is [`GpuContext::allocating`], run around
 /// every batch and render allocation.)
 #[test]
-fn a_batch_too_large_for_the_device_names_the_adapter_the_size_and_the_flag() {
+fn a_batch_too_large_for_the_device_names_the_adapter_the_size_and_the_setting() {
     use std::error::Error as _;
     let e = GpuError::BatchTooLarge {
         adapter: "NVIDIA H100 80GB HBM3".into(),
@@ -61,7 +61,8 @@ fn a_batch_too_large_for_the_device_names_the_adapter_the_size_and_the_flag() {
     };
     assert_eq!(
         e.to_string(),
-        "the batch does not fit on NVIDIA H100 80GB HBM3 (81234 MiB needed): lower --batch-rays (or --gpu-memory)"
+        "the batch does not fit on NVIDIA H100 80GB HBM3 (81234 MiB needed): lower the rays per batch \
+         (`BackendSetup::data`) or the memory budget (`DeviceOptions::memory_budget`)"
     );
     let b = BackendError::from(e);
     assert!(matches!(b, BackendError::OutOfMemory(_)), "{b:?}");
@@ -88,7 +89,7 @@ fn the_memory_budget_scales_with_the_device_or_the_flag() {
     use mipnerf_gpu::model::ModelBuffers;
     let Some(ctx) = context_or_skip("the_memory_budget_scales_with_the_device_or_the_flag") else { return };
     let default = ctx.memory_budget();
-    let bindings = if ctx.adapter.is_software { 1 } else { 4 };
+    let bindings = if ctx.adapter().is_software { 1 } else { 4 };
     assert_eq!(default, (bindings * ctx.max_binding_bytes()).clamp(1 << 30, 16 << 30));
     let ctx = ctx.with_memory_budget(Some(8 << 20));
     assert_eq!(ctx.memory_budget(), 8 << 20);

@@ -171,7 +171,7 @@ impl DeviceImages {
             used[slot] += bytes;
         }
         let pixels: [wgpu::Buffer; PIXEL_SLOTS] = std::array::from_fn(|s| {
-            ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            ctx.device().create_buffer(&wgpu::BufferDescriptor {
                 label: Some(&format!("training pixels {s}")),
                 size: used[s].max(4),
                 usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
@@ -182,14 +182,14 @@ impl DeviceImages {
             let offset = u64::from(word) * 4;
             match (&v.pixels, format) {
                 (Pixels::Rgba8(bytes), PixelFormat::Rgba8) => {
-                    ctx.queue.write_buffer(&pixels[slot as usize], offset, bytes)
+                    ctx.queue().write_buffer(&pixels[slot as usize], offset, bytes)
                 }
                 (Pixels::RgbaF32(f), _) => {
-                    ctx.queue.write_buffer(&pixels[slot as usize], offset, bytemuck::cast_slice(f))
+                    ctx.queue().write_buffer(&pixels[slot as usize], offset, bytemuck::cast_slice(f))
                 }
                 (Pixels::Rgba8(bytes), _) => {
                     let f: Vec<f32> = bytes.iter().map(|&b| f32::from(b) / 255.0).collect();
-                    ctx.queue.write_buffer(&pixels[slot as usize], offset, bytemuck::cast_slice(&f));
+                    ctx.queue().write_buffer(&pixels[slot as usize], offset, bytemuck::cast_slice(&f));
                 }
             }
         }
@@ -250,8 +250,8 @@ impl DeviceImages {
         }
         let total_u32 = u32::try_from(image.pixels() as u64).map_err(|_| too_large("the image"))?;
         let view = GpuView::new(&image.camera, image.centers, (image.near, image.far), 1.0, (0, 0));
-        ctx.queue.write_buffer(&self.views, 0, bytemuck::bytes_of(&view));
-        ctx.queue.write_buffer(&self.offsets, 0, bytemuck::cast_slice(&[0u32, total_u32]));
+        ctx.queue().write_buffer(&self.views, 0, bytemuck::bytes_of(&view));
+        ctx.queue().write_buffer(&self.offsets, 0, bytemuck::cast_slice(&[0u32, total_u32]));
         self.total_pixels = total_u32;
         self.ndc = image.ndc;
         self.centre_offset = image.centers.offset() as f32;
@@ -322,7 +322,7 @@ impl BatchKernel {
         supersample: usize,
         out: &RayBatch,
     ) -> Result<(), GpuError> {
-        let n = out.n_rays as u32;
+        let n = out.n_rays() as u32;
         let k = supersample.max(1) as u32;
         if !n.is_multiple_of(k * k) || (k > 1 && images.ndc.is_some()) {
             return Err(GpuError::InvalidInput(format!(

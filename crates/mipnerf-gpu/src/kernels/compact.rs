@@ -213,9 +213,9 @@ impl Compaction {
             slot[i as usize] = j as u32;
         }
         if !kept.is_empty() {
-            ctx.queue.write_buffer(&self.kept, 0, bytemuck::cast_slice(kept));
+            ctx.queue().write_buffer(&self.kept, 0, bytemuck::cast_slice(kept));
         }
-        ctx.queue.write_buffer(&self.slot, 0, bytemuck::cast_slice(&slot));
+        ctx.queue().write_buffer(&self.slot, 0, bytemuck::cast_slice(&slot));
         self.n_kept = kept.len();
         Ok(())
     }

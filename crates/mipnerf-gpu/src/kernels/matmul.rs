@@ -136,7 +136,7 @@ impl MatmulVariant {
     /// The variant for `ctx`'s adapter: blocked on a software adapter, tiled on hardware.
     #[must_use]
     pub fn for_adapter(ctx: &GpuContext) -> Self {
-        if ctx.adapter.is_software { Self::Blocked } else { Self::Tiled }
+        if ctx.adapter().is_software { Self::Blocked } else { Self::Tiled }
     }
 
     /// Output rows (and columns) one workgroup covers.

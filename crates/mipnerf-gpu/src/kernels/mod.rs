@@ -196,7 +196,7 @@ pub fn storage_layout(ctx: &GpuContext, name: &str, read_only: &[bool]) -> wgpu:
             count: None,
         });
     }
-    ctx.device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+    ctx.device().create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
         label: Some(&format!("{name} layout")),
         entries: &entries,
     })
@@ -265,16 +265,16 @@ pub fn compute_pipeline_entry(
     layout: &wgpu::BindGroupLayout,
     zero_init_workgroup_memory: bool,
 ) -> wgpu::ComputePipeline {
-    let module = ctx.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+    let module = ctx.device().create_shader_module(wgpu::ShaderModuleDescriptor {
         label: Some(name),
         source: wgpu::ShaderSource::Wgsl(compose(source).into()),
     });
-    let pl = ctx.device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+    let pl = ctx.device().create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
         label: Some(&format!("{name} pipeline layout")),
         bind_group_layouts: &[Some(layout)],
         immediate_size: 0,
     });
-    ctx.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+    ctx.device().create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
         label: Some(&format!("{name} pipeline")),
         layout: Some(&pl),
         module: &module,
@@ -337,7 +337,7 @@ impl<'a> Recorder<'a> {
     /// of the same sequence).
     #[must_use]
     pub fn with_cache(ctx: &'a GpuContext, label: &str, cache: DispatchCache) -> Self {
-        let enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
+        let enc = ctx.device().create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
         Self { ctx, pass: None, enc, cache, next: 0 }
     }
 
@@ -377,7 +377,7 @@ impl<'a> Recorder<'a> {
         if reusable {
             let slot = &mut self.cache.slots[i];
             if slot.params != bytes {
-                ctx.queue.write_buffer(&slot.uniform, 0, bytes);
+                ctx.queue().write_buffer(&slot.uniform, 0, bytes);
                 slot.params.clear();
                 slot.params.extend_from_slice(bytes);
             }
@@ -388,7 +388,7 @@ impl<'a> Recorder<'a> {
                 entries.push(wgpu::BindGroupEntry { binding: k as u32 + 1, resource: b.as_entire_binding() });
             }
             ctx.count_bind_group();
-            let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            let bind = ctx.device().create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some(name),
                 layout,
                 entries: &entries,

@@ -90,7 +90,7 @@ impl DeviceGrid {
                 self.bound
             )));
         }
-        ctx.queue.write_buffer(&self.bits, 0, bytemuck::cast_slice(&grid.packed_layers()));
+        ctx.queue().write_buffer(&self.bits, 0, bytemuck::cast_slice(&grid.packed_layers()));
         self.full = grid.is_full();
         Ok(())
     }

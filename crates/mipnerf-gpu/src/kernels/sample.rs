@@ -50,7 +50,7 @@ impl ResampleVariant {
     /// The variant for `ctx`'s adapter.
     #[must_use]
     pub fn for_adapter(ctx: &GpuContext) -> Self {
-        if ctx.adapter.is_software { Self::PerRay } else { Self::Wide }
+        if ctx.adapter().is_software { Self::PerRay } else { Self::Wide }
     }
 }
 
