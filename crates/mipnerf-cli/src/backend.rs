@@ -1,8 +1,6 @@
 //! `--backend cpu|gpu|auto`: the library's [`mipnerf_gpu::open_backend`], saying which backend
 //! runs and why.
 
-use std::sync::OnceLock;
-
 use anyhow::{Context, Result};
 use mipnerf_gpu::{AdapterChoice, BackendChoice, BackendSetup, DeviceOptions, open_backend};
 
@@ -85,19 +83,13 @@ pub struct DeviceArgs {
     pub gpu_memory: Option<u64>,
 }
 
-static DEVICE: OnceLock<DeviceArgs> = OnceLock::new();
-
-/// Records the command's [`DeviceArgs`] for every backend it opens (the first call wins).
-pub fn set_device_args(args: &DeviceArgs) {
-    let _ = DEVICE.set(args.clone());
-}
-
-/// The [`DeviceOptions`] of the command's flags.
-#[must_use]
-pub fn device_options() -> DeviceOptions {
-    let a = DEVICE.get().cloned().unwrap_or_default();
-    DeviceOptions {
-        adapter: AdapterChoice::explicit(a.adapter.as_deref()),
-        memory_budget: a.gpu_memory.map(|mib| mib << 20),
+impl DeviceArgs {
+    /// The [`DeviceOptions`] these flags ask for.
+    #[must_use]
+    pub fn options(&self) -> DeviceOptions {
+        DeviceOptions {
+            adapter: AdapterChoice::explicit(self.adapter.as_deref()),
+            memory_budget: self.gpu_memory.map(|mib| mib << 20),
+        }
     }
 }

@@ -44,6 +44,8 @@ pub struct BenchArgs {
     pub render_side: u32,
     /// Precisions to measure (one row each on the CPU; a device backend runs f32 once).
     pub precisions: Vec<PrecisionArg>,
+    /// The GPU to open (`--adapter`, `--gpu-memory`).
+    pub device: mipnerf_gpu::DeviceOptions,
 }
 
 /// Measures and prints the table.
@@ -90,7 +92,7 @@ pub fn bench(a: &BenchArgs) -> Result<()> {
                 state: TrainState::fresh(&model, 0),
                 data: Some((Arc::clone(&ds), a.batch)),
                 render_chunk: None,
-                device: crate::backend::device_options(),
+                device: a.device.clone(),
             };
             let (mut b, _) = backend::open(choice, setup, precision)?;
             let work = device_work(b.as_mut(), a.render_side).with_context(|| format!("counting {}", b.describe()))?;

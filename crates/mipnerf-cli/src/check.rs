@@ -36,17 +36,15 @@ pub enum CheckBackend {
 ///
 /// # Errors
 /// No adapter (for `gpu`), or a stage whose GPU result is outside its tolerance.
-pub fn check(backend: CheckBackend) -> Result<()> {
+pub fn check(backend: CheckBackend, device: &mipnerf_gpu::DeviceOptions) -> Result<()> {
     use mipnerf_core::{RayShape, cone};
     let choice = match backend {
         CheckBackend::Cpu => {
             println!("the CPU backend is the reference; nothing to compare it with");
             return Ok(());
         }
-        CheckBackend::Gpu => crate::backend::device_options().adapter.unwrap_or(mipnerf_gpu::AdapterChoice::Any),
-        CheckBackend::Auto => {
-            crate::backend::device_options().adapter.unwrap_or(mipnerf_gpu::AdapterChoice::HardwareOnly)
-        }
+        CheckBackend::Gpu => device.adapter.clone().unwrap_or(mipnerf_gpu::AdapterChoice::Any),
+        CheckBackend::Auto => device.adapter.clone().unwrap_or(mipnerf_gpu::AdapterChoice::HardwareOnly),
     };
     let ctx = match mipnerf_gpu::GpuContext::new(choice) {
         Ok(c) => c,

@@ -138,6 +138,7 @@ pub fn eval(
     run: &Path,
     split: Split,
     backend: Backend,
+    device: &mipnerf_gpu::DeviceOptions,
     precision: Option<PrecisionArg>,
     weights: &LpipsWeights,
 ) -> Result<Metrics> {
@@ -152,7 +153,7 @@ pub fn eval(
     let lpips = lpips.as_ref();
     let lpips_absent = lpips_absent.as_deref();
     let ds = load_split(&s, split)?;
-    let (mut be, step, precision) = open_trained(run, &s, backend, precision)?;
+    let (mut be, step, precision) = open_trained(run, &s, backend, precision, device)?;
     // Everything goes to eval.partial/, renamed to eval/ once whole: an interrupted or failed
     // eval leaves the previous results as they were and nothing that looks complete.
     let out = run.join(EVAL_PARTIAL);

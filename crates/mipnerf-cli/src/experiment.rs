@@ -341,7 +341,13 @@ fn run_row(
             ),
             None => println!("== row {id} ({}): training, {} of {steps} steps done", row.label, done_steps),
         }
-        let outcome = run::train(run_dir, Some(settings.clone()), TrainSettings::default(), done_steps > 0)?;
+        let outcome = run::train(
+            run_dir,
+            Some(settings.clone()),
+            TrainSettings::default(),
+            done_steps > 0,
+            &mipnerf_gpu::DeviceOptions::default(),
+        )?;
         if outcome.interrupted {
             return Ok(false);
         }
@@ -369,7 +375,14 @@ fn run_row(
     println!("== row {id} ({}): evaluating", row.label);
     let t = Instant::now();
     let saved = run::read_config(run_dir)?;
-    let m = crate::eval::eval(run_dir, Split::Test, saved.backend.unwrap_or(crate::config::Backend::Cpu), None, lpips)?;
+    let m = crate::eval::eval(
+        run_dir,
+        Split::Test,
+        saved.backend.unwrap_or(crate::config::Backend::Cpu),
+        &mipnerf_gpu::DeviceOptions::default(),
+        None,
+        lpips,
+    )?;
     let (model, ck) = run::load_trained(run_dir, &saved)?;
     let r = RowResult {
         row: id.to_string(),
@@ -427,8 +440,14 @@ fn evaluate_marks(id: &str, run_dir: &Path, known: &[MarkResult], lpips: &LpipsW
         println!("== row {id}: evaluating the snapshot at {mark_seconds:.0} s");
         let t = Instant::now();
         let saved = run::read_config(&snap)?;
-        let m =
-            crate::eval::eval(&snap, Split::Test, saved.backend.unwrap_or(crate::config::Backend::Cpu), None, lpips)?;
+        let m = crate::eval::eval(
+            &snap,
+            Split::Test,
+            saved.backend.unwrap_or(crate::config::Backend::Cpu),
+            &mipnerf_gpu::DeviceOptions::default(),
+            None,
+            lpips,
+        )?;
         let psnr = m.column(|s| s.psnr);
         out.push(MarkResult {
             mark_seconds,

@@ -521,7 +521,13 @@ fn print_eval(m: &eval::Metrics) {
     println!("  average error over the scales ({terms}): {:.4}", m.avg_error);
 }
 
-fn train_cmd(out: &Path, config: Option<PathBuf>, resume: bool, flags: &TrainFlags) -> Result<run::TrainOutcome> {
+fn train_cmd(
+    out: &Path,
+    config: Option<PathBuf>,
+    resume: bool,
+    flags: &TrainFlags,
+    device: &mipnerf_gpu::DeviceOptions,
+) -> Result<run::TrainOutcome> {
     if resume && let Some(p) = &config {
         bail!(
             "--config {} with --resume: a resumed run keeps its own config.toml; pass the settings to change \
@@ -530,7 +536,7 @@ fn train_cmd(out: &Path, config: Option<PathBuf>, resume: bool, flags: &TrainFla
         );
     }
     let file = config.map(|p| TrainSettings::from_file(&p)).transpose()?;
-    let outcome = run::train(out, file, flags.settings(), resume)?;
+    let outcome = run::train(out, file, flags.settings(), resume, device)?;
     if let Some((loss, psnr)) = outcome.last {
         println!(
             "trained to step {}: loss {loss:.5}, training PSNR {psnr:.2} dB; run in {}",
@@ -674,20 +680,20 @@ fn demo_cmd(out: &Path, d: &DemoArgs) -> Result<()> {
             ..TrainFlags::default()
         };
         let resume = dir.join(run::CHECKPOINT).is_file();
-        let outcome = train_cmd(dir, None, resume, &flags)?;
+        let outcome = train_cmd(dir, None, resume, &flags, &d.device)?;
         if outcome.interrupted {
             eprintln!("demo interrupted while training {name}; run the same command again to continue");
             std::process::exit(signals::EXIT_INTERRUPTED);
         }
-        let metrics = eval::eval(dir, Split::Test, d.backend, None, &weights)?;
+        let metrics = eval::eval(dir, Split::Test, d.backend, &d.device, None, &weights)?;
         println!("{name} test metrics:");
         print_eval(&metrics);
         scores.push((name, metrics));
     }
-    let renders =
-        render::render(out, &out.join("render"), render::Target::Split(Split::Test), None, d.backend, None, false)?;
+    let test = render::Target::Split(Split::Test);
+    let renders = render::render(out, &out.join("render"), test, None, d.backend, &d.device, None, false)?;
     let orbit = render::Target::Path(render::PathKind::Orbit, 36, render::DEFAULT_FPS);
-    let path = render::render(out, &out.join("render_orbit"), orbit, None, d.backend, None, false)?;
+    let path = render::render(out, &out.join("render_orbit"), orbit, None, d.backend, &d.device, None, false)?;
     let fig_path = out.join("antialiasing.png");
     let fig = figure::FigureArgs {
         runs: vec![nerf_dir.clone(), out.to_path_buf()],
@@ -744,6 +750,7 @@ struct DemoArgs {
     time_budget: String,
     steps: Option<u64>,
     backend: Backend,
+    device: mipnerf_gpu::DeviceOptions,
     seed: u32,
     size: u32,
     views: usize,
@@ -764,26 +771,20 @@ fn main() -> std::process::ExitCode {
             info();
             Ok(())
         }
-        Command::Check { backend, device } => {
-            backend::set_device_args(&device);
-            check::check(backend)
-        }
+        Command::Check { backend, device } => check::check(backend, &device.options()),
         Command::Train { out, config, resume, view, view_port, flags, device } => {
-            backend::set_device_args(&device);
             let viewer = if view { view::beside_training(&out, view_port) } else { Ok(()) };
-            viewer.and_then(|()| train_cmd(&out, config, resume, &flags)).map(|o| {
+            viewer.and_then(|()| train_cmd(&out, config, resume, &flags, &device.options())).map(|o| {
                 if o.interrupted {
                     std::process::exit(signals::EXIT_INTERRUPTED);
                 }
             })
         }
         Command::View { run, port, host, backend, device } => {
-            backend::set_device_args(&device);
-            view::serve(&view::ViewArgs { run, host, port, backend, share: None })
+            view::serve(&view::ViewArgs { run, host, port, backend, share: None, device: device.options() })
         }
         Command::Eval { run, split, backend, device, precision, lpips } => {
-            backend::set_device_args(&device);
-            eval::eval(&run, split.into(), backend, precision, &lpips).map(|m| {
+            eval::eval(&run, split.into(), backend, &device.options(), precision, &lpips).map(|m| {
                 println!("wrote {}", run.join("eval/metrics.json").display());
                 print_eval(&m);
             })
@@ -802,12 +803,11 @@ fn main() -> std::process::ExitCode {
             precision,
             overwrite,
         } => {
-            backend::set_device_args(&device);
             let target = match path {
                 Some(kind) => render::Target::Path(kind, frames, fps),
                 None => render::Target::Split(split.unwrap_or(SplitArg::Test).into()),
             };
-            render::render(&run, &out, target, width.zip(height), backend, precision, overwrite)
+            render::render(&run, &out, target, width.zip(height), backend, &device.options(), precision, overwrite)
                 .map(|files| println!("wrote {} files to {}", files.len(), out.display()))
         }
         Command::Figure { runs, labels, view, cell, crop, out, overwrite } => {
@@ -840,23 +840,21 @@ fn main() -> std::process::ExitCode {
         }
         Command::Bench {
             viewer: Some(run), backend, device, viewer_size, viewer_frames, viewer_stall_steps, ..
-        } => {
-            backend::set_device_args(&device);
-            view_bench::bench(&view_bench::ViewerBenchArgs {
-                run,
-                backend: match backend {
-                    bench::BenchBackends::Gpu => Backend::Gpu,
-                    bench::BenchBackends::Auto => Backend::Auto,
-                    bench::BenchBackends::Cpu | bench::BenchBackends::Both => Backend::Cpu,
-                },
-                size: viewer_size,
-                frames: viewer_frames,
-                stall_steps: viewer_stall_steps,
-            })
-        }
+        } => view_bench::bench(&view_bench::ViewerBenchArgs {
+            run,
+            device: device.options(),
+            backend: match backend {
+                bench::BenchBackends::Gpu => Backend::Gpu,
+                bench::BenchBackends::Auto => Backend::Auto,
+                bench::BenchBackends::Cpu | bench::BenchBackends::Both => Backend::Cpu,
+            },
+            size: viewer_size,
+            frames: viewer_frames,
+            stall_steps: viewer_stall_steps,
+        }),
         Command::Bench { backend, device, preset, batch_rays, steps, render_side, precision, viewer: None, .. } => {
-            backend::set_device_args(&device);
             bench::bench(&bench::BenchArgs {
+                device: device.options(),
                 backends: backend,
                 presets: preset,
                 batch: batch_rays,
@@ -881,8 +879,8 @@ fn main() -> std::process::ExitCode {
             convert_llff(&input, &output, size, factor)
         }
         Command::Demo { out, preset, time_budget, steps, backend, device, seed, size, views, batch_rays } => {
-            backend::set_device_args(&device);
-            demo_cmd(&out, &DemoArgs { preset, time_budget, steps, backend, seed, size, views, batch_rays })
+            let device = device.options();
+            demo_cmd(&out, &DemoArgs { preset, time_budget, steps, backend, device, seed, size, views, batch_rays })
         }
     };
     match result {

@@ -96,6 +96,7 @@ pub fn render(
     target: Target,
     size: Option<(u32, u32)>,
     backend: Backend,
+    device: &mipnerf_gpu::DeviceOptions,
     precision: Option<PrecisionArg>,
     overwrite: bool,
 ) -> Result<Vec<std::path::PathBuf>> {
@@ -148,7 +149,7 @@ pub fn render(
     // Never into a folder of files mipnerf did not write (a dataset's images, say).
     crate::outputs::check_dir(out, "--out", overwrite)?;
     // Load the data first: a bad split fails before the device is opened.
-    let (mut be, _, _) = open_trained(run, &s, backend, precision)?;
+    let (mut be, _, _) = open_trained(run, &s, backend, precision, device)?;
     // Only now, with every argument checked and the model open, is anything created. The
     // manifest names every file before any is written, so an interrupted render can be redone.
     let mut names: Vec<String> = jobs

@@ -66,6 +66,7 @@ pub fn open_trained(
     s: &TrainSettings,
     choice: Backend,
     precision: Option<PrecisionArg>,
+    device: &mipnerf_gpu::DeviceOptions,
 ) -> Result<(Box<dyn mipnerf_core::backend::Backend>, u64, Precision)> {
     let (model, ck) = load_trained(run, s)?;
     let step = ck.step;
@@ -76,7 +77,7 @@ pub fn open_trained(
         state: TrainState::from_checkpoint(ck),
         data: None,
         render_chunk: None,
-        device: crate::backend::device_options(),
+        device: device.clone(),
     };
     let (be, ran) = backend::open(choice, setup, precision_for(s.precision, precision))?;
     Ok((be, step, ran))
@@ -174,6 +175,7 @@ pub fn train(
     file_settings: Option<TrainSettings>,
     flag_settings: TrainSettings,
     resume: bool,
+    device: &mipnerf_gpu::DeviceOptions,
 ) -> Result<TrainOutcome> {
     let (s, format, model) = resolve_settings(run_dir, file_settings, &flag_settings, resume)?;
     std::fs::create_dir_all(run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
@@ -231,7 +233,7 @@ pub fn train(
         state,
         data: Some((ds, batch)),
         render_chunk: None,
-        device: crate::backend::device_options(),
+        device: device.clone(),
     };
     // A resumed run keeps its precision where it can: bf16 becomes auto, so that a run trained
     // on an AMX CPU continues on a GPU (or another CPU) in f32, said in the header.

@@ -49,6 +49,8 @@ pub struct ViewArgs {
     pub backend: Backend,
     /// The most of the wall-clock time rendering may take (`None`: all of it).
     pub share: Option<f64>,
+    /// The GPU to open when `backend` is one (`--adapter`, `--gpu-memory`).
+    pub device: mipnerf_gpu::DeviceOptions,
 }
 
 /// A rendered frame.
@@ -117,6 +119,7 @@ pub fn beside_training(run_dir: &Path, port: u16) -> Result<()> {
         port,
         backend: Backend::Cpu,
         share: Some(SHARE_BESIDE_TRAINING),
+        device: mipnerf_gpu::DeviceOptions::default(),
     };
     let (server, url) = bind(&args)?;
     println!("view: {url} (the run's latest checkpoint, while it trains)");
@@ -161,10 +164,10 @@ pub fn run_server(server: tiny_http::Server, a: &ViewArgs) -> Result<()> {
         ImageSpec::of_view(&train, 0, k)
     };
     let (tx, rx) = mpsc::channel::<Job>();
-    let (run, backend, share) = (a.run.clone(), a.backend, a.share);
+    let args = a.clone();
     std::thread::Builder::new()
         .name("view renderer".into())
-        .spawn(move || renderer(&run, &s, backend, share, &template, &rx))
+        .spawn(move || renderer(&args, &s, &template, &rx))
         .context("starting the render thread")?;
     for request in server.incoming_requests() {
         let (tx, info, run) = (tx.clone(), info.clone(), a.run.clone());
@@ -176,23 +179,17 @@ pub fn run_server(server: tiny_http::Server, a: &ViewArgs) -> Result<()> {
 /// The render thread: owns the backend, reloads the run's checkpoint when it changes, and
 /// renders the frames asked for, one at a time, in bands of rows ([`BAND_PIXELS`]). It drops a
 /// stream's level as soon as a newer stream waits (the camera moved), so a moving camera gets
-/// its coarse frame within a band. With a `share` (beside training) every band adds
+/// its coarse frame within a band. With a share (`ViewArgs::share`, beside training) every band adds
 /// `took * (1 / share - 1)` to a rest it owes, and a band starts only once the rest owed is paid
 /// down to [`REST_ALLOWANCE`] for the first band of a stream's level (the coarse frame after a
 /// move comes at once) or to zero for the others: over any stretch of time rendering takes at
 /// most `share` of it, give or take one allowance.
-fn renderer(
-    run: &Path,
-    s: &TrainSettings,
-    backend: Backend,
-    share: Option<f64>,
-    template: &ImageSpec,
-    jobs: &mpsc::Receiver<Job>,
-) {
+fn renderer(a: &ViewArgs, s: &TrainSettings, template: &ImageSpec, jobs: &mpsc::Receiver<Job>) {
+    let run = a.run.as_path();
     let mut loaded: Option<(Box<dyn mipnerf_core::backend::Backend>, u64, Option<SystemTime>)> = None;
     let ckpt = run.join(CHECKPOINT);
     let mut waiting = std::collections::VecDeque::new();
-    let share = share.filter(|s| *s > 0.0 && *s < 1.0);
+    let share = a.share.filter(|s| *s > 0.0 && *s < 1.0);
     // The rest owed, as of `paid_at`: any time not spent rendering pays it, idle time included.
     let (mut owed, mut paid_at) = (Duration::ZERO, Instant::now());
     loop {
@@ -202,7 +199,7 @@ fn renderer(
             if loaded.as_ref().is_none_or(|l| l.2 != mtime) {
                 // A checkpoint that is being replaced is renamed into place whole, so a failed
                 // load is only a missing one: keep the model we have.
-                match open_trained(run, s, backend, None) {
+                match open_trained(run, s, a.backend, None, &a.device) {
                     Ok((be, step, _)) => loaded = Some((be, step, mtime)),
                     Err(e) if loaded.is_none() => return Err(e),
                     Err(_) => {}

@@ -32,6 +32,8 @@ pub struct ViewerBenchArgs {
     pub run: PathBuf,
     /// Where the frames are rendered.
     pub backend: Backend,
+    /// The GPU to open when `backend` is one.
+    pub device: mipnerf_gpu::DeviceOptions,
     /// The full frame's side in pixels (the page's default is 512).
     pub size: u32,
     /// Camera poses timed (after one untimed pose that loads the model).
@@ -71,7 +73,14 @@ pub fn bench(a: &ViewerBenchArgs) -> Result<()> {
         rayon::current_num_threads(),
         s = a.size
     );
-    let args = ViewArgs { run: a.run.clone(), host: "127.0.0.1".into(), port: 0, backend: a.backend, share: None };
+    let args = ViewArgs {
+        run: a.run.clone(),
+        host: "127.0.0.1".into(),
+        port: 0,
+        backend: a.backend,
+        share: None,
+        device: a.device.clone(),
+    };
     let (server, url) = view::bind(&args)?;
     let addr = url.trim_start_matches("http://").trim_end_matches('/').to_string();
     std::thread::spawn(move || view::run_server(server, &args));

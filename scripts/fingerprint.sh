@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# Behaviour fingerprint of a mipnerf binary: the SHA-256 of the checkpoints of 20-step runs on the
+# demo scene (Mip-NeRF tiny and fast presets and the NeRF baseline on the CPU, Mip-NeRF tiny on the
+# GPU backend where an adapter is found, lavapipe included). A refactor that must not change
+# behaviour gives the same lines before and after (issue 28):
+#   scripts/fingerprint.sh OLD_BINARY > before.txt; scripts/fingerprint.sh target/release/mipnerf > after.txt
+#   diff before.txt after.txt
+set -euo pipefail
+bin=$(realpath "${1:-target/release/mipnerf}")
+dir=$(mktemp -d)
+trap 'rm -rf "$dir"' EXIT
+q=(--quiet)
+"$bin" demo --out "$dir/demo" --steps 20 --size 32 --views 8 --preset tiny --backend cpu --seed 0 >/dev/null 2>&1
+data="$dir/demo/data"
+run() { # name, then train flags
+    local name=$1; shift
+    "$bin" train --data "$data" --out "$dir/$name" --steps 20 --batch-rays 256 --seed 0 "${q[@]}" "$@" >/dev/null 2>&1
+    echo "$name $(sha256sum < "$dir/$name/checkpoint.safetensors" | cut -d' ' -f1)"
+}
+echo "demo-mipnerf $(sha256sum < "$dir/demo/checkpoint.safetensors" | cut -d' ' -f1)"
+echo "demo-nerf $(sha256sum < "$dir/demo/nerf/checkpoint.safetensors" | cut -d' ' -f1)"
+run tiny-cpu --preset tiny --backend cpu
+run fast-cpu --preset fast --backend cpu --precision f32
+run nerf-cpu --model nerf --preset tiny --backend cpu
+if "$bin" info 2>/dev/null | grep -q "^  \[0\]"; then
+    run tiny-gpu --preset tiny --backend gpu
+    run fast-gpu --preset fast --backend gpu
+else
+    echo "no GPU adapter: GPU runs skipped" >&2
+fi
