@@ -375,14 +375,7 @@ fn run_row(
     println!("== row {id} ({}): evaluating", row.label);
     let t = Instant::now();
     let saved = run::read_config(run_dir)?;
-    let m = crate::eval::eval(
-        run_dir,
-        Split::Test,
-        saved.backend.unwrap_or(crate::config::Backend::Cpu),
-        &mipnerf_gpu::DeviceOptions::default(),
-        None,
-        lpips,
-    )?;
+    let m = evaluate(run_dir, &saved, lpips)?;
     let (model, ck) = run::load_trained(run_dir, &saved)?;
     let r = RowResult {
         row: id.to_string(),
@@ -440,14 +433,7 @@ fn evaluate_marks(id: &str, run_dir: &Path, known: &[MarkResult], lpips: &LpipsW
         println!("== row {id}: evaluating the snapshot at {mark_seconds:.0} s");
         let t = Instant::now();
         let saved = run::read_config(&snap)?;
-        let m = crate::eval::eval(
-            &snap,
-            Split::Test,
-            saved.backend.unwrap_or(crate::config::Backend::Cpu),
-            &mipnerf_gpu::DeviceOptions::default(),
-            None,
-            lpips,
-        )?;
+        let m = evaluate(&snap, &saved, lpips)?;
         let psnr = m.column(|s| s.psnr);
         out.push(MarkResult {
             mark_seconds,
@@ -633,4 +619,10 @@ fn write_table(dir: &Path, exp: &Experiment) -> Result<PathBuf> {
     }
     std::fs::write(&path, new).with_context(|| format!("writing {}", path.display()))?;
     Ok(path)
+}
+
+/// The test split's scores of a row's run (or snapshot) on the backend it trained on.
+fn evaluate(run_dir: &Path, saved: &TrainSettings, lpips: &LpipsWeights) -> Result<crate::eval::Metrics> {
+    let backend = saved.backend.unwrap_or(crate::config::Backend::Cpu);
+    crate::eval::eval(run_dir, Split::Test, backend, &mipnerf_gpu::DeviceOptions::default(), None, lpips)
 }
