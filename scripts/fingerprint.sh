@@ -22,7 +22,8 @@ echo "demo-nerf $(sha256sum < "$dir/demo/nerf/checkpoint.safetensors" | cut -d' 
 run tiny-cpu --preset tiny --backend cpu
 run fast-cpu --preset fast --backend cpu --precision f32
 run nerf-cpu --model nerf --preset tiny --backend cpu
-if "$bin" info 2>/dev/null | grep -q "^  \[0\]"; then
+adapters=$("$bin" info 2>/dev/null || true)
+if grep -q "^  \[0\]" <<<"$adapters"; then
     run tiny-gpu --preset tiny --backend gpu
     run fast-gpu --preset fast --backend gpu
 else
