@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Behaviour fingerprint of a mipnerf binary: the SHA-256 of the checkpoints of 20-step runs on the
-# demo scene (Mip-NeRF tiny and fast presets and the NeRF baseline on the CPU, Mip-NeRF tiny on the
-# GPU backend where an adapter is found, lavapipe included). A refactor that must not change
+# demo scene (Mip-NeRF tiny and fast presets and the NeRF baseline on the CPU, tiny and fast on the
+# GPU backend where an adapter is found, lavapipe included), and of the demo's rendered PNGs. A refactor that must not change
 # behaviour gives the same lines before and after (issue 28):
 #   scripts/fingerprint.sh OLD_BINARY > before.txt; scripts/fingerprint.sh target/release/mipnerf > after.txt
 #   diff before.txt after.txt
@@ -19,6 +19,8 @@ run() { # name, then train flags
 }
 echo "demo-mipnerf $(sha256sum < "$dir/demo/checkpoint.safetensors" | cut -d' ' -f1)"
 echo "demo-nerf $(sha256sum < "$dir/demo/nerf/checkpoint.safetensors" | cut -d' ' -f1)"
+# The demo's renders of the test views (colour and depth PNGs) and of its orbit.
+echo "demo-renders $(cd "$dir/demo" && find render render_orbit -name '*.png' | sort | xargs sha256sum | sha256sum | cut -d' ' -f1)"
 run tiny-cpu --preset tiny --backend cpu
 run fast-cpu --preset fast --backend cpu --precision f32
 run nerf-cpu --model nerf --preset tiny --backend cpu

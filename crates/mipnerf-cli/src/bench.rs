@@ -152,9 +152,9 @@ fn device_work(
     let side = render_side.clamp(1, 32);
     let camera = Camera::from_camera_angle_x(side, side, 0.69, demo::camera_pose(0.3, 0.5))?;
     let spec = ImageSpec { camera, near: 2.0, far: 6.0, centers: PixelCenters::Centered, ndc: None, supersample: 1 };
-    b.render_image(&spec)?;
+    b.render(&spec)?;
     take(b, &format!("first render chunk ({side}x{side} pixels)"));
-    b.render_image(&spec)?;
+    b.render(&spec)?;
     take(b, &format!("render chunk ({side}x{side} pixels)"));
     Ok(Some(rows))
 }

@@ -162,7 +162,6 @@ pub fn eval(
     }
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     let k = be.model().config().supersample;
-    let levels = be.model().config().num_levels;
     let mut per_image = Vec::new();
     let mut entries = Vec::new();
     let mut pb = crate::progress::Progress::new("eval", 0, ds.views().len() as u64);
@@ -170,12 +169,8 @@ pub fn eval(
         let view = &ds.views()[v];
         let (w, h) = (view.camera.width as usize, view.camera.height as usize);
         let image = ImageSpec::of_view(&ds, v, k);
-        let rendered: Vec<[f32; 3]> = be
-            .render_image(&image)
-            .with_context(|| view.file.display().to_string())?
-            .chunks(levels)
-            .map(|l| l[levels - 1].rgb)
-            .collect();
+        let rendered: Vec<[f32; 3]> =
+            be.render(&image).with_context(|| view.file.display().to_string())?.fine.iter().map(|o| o.rgb).collect();
         let target = ds.view_targets(v);
         let (a, b) = (flat_clamped(&rendered), flat_clamped(&target));
         let (mse, psnr, ss) = pixel_scores(&a, &b, w, h);

@@ -177,7 +177,6 @@ pub fn render(
             crate::images::turbo,
         )?;
     }
-    let levels = be.model().config().num_levels;
     let mut written = Vec::new();
     let mut preview = Vec::new();
     let mut pb = crate::progress::Progress::new("render", 0, jobs.len() as u64);
@@ -195,12 +194,7 @@ pub fn render(
             .into());
         }
         let (w, h) = (&image.camera.width, &image.camera.height);
-        let outs: Vec<_> = be
-            .render_image(image)
-            .with_context(|| format!("rendering {name}"))?
-            .chunks(levels)
-            .map(|l| l[levels - 1])
-            .collect();
+        let outs = be.render(image).with_context(|| format!("rendering {name}"))?.fine;
         let rgb: Vec<[f32; 3]> = outs.iter().map(|o| o.rgb).collect();
         let depth: Vec<f32> = outs.iter().map(|o| o.distance).collect();
         let acc: Vec<f32> = outs.iter().map(|o| o.acc).collect();

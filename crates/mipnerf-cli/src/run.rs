@@ -446,7 +446,7 @@ impl Validation {
     /// image of each scale is written beside its target to `RUN/val/scale{j}.png` (the latest
     /// validation renders, which the viewer shows).
     fn psnr(&self, be: &mut dyn mipnerf_core::backend::Backend, run_dir: &Path) -> Result<Vec<f64>> {
-        let (k, levels) = (be.model().config().supersample, be.model().config().num_levels);
+        let k = be.model().config().supersample;
         let dir = run_dir.join(VAL_DIR);
         std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
         self.views
@@ -456,8 +456,8 @@ impl Validation {
                 let mut sum = 0.0;
                 for (i, &v) in views.iter().enumerate() {
                     let image = mipnerf_core::backend::ImageSpec::of_view(&self.ds, v, k);
-                    let out = be.render_image(&image).with_context(|| self.ds.views()[v].file.display().to_string())?;
-                    let rendered: Vec<[f32; 3]> = out.chunks(levels).map(|l| l[levels - 1].rgb).collect();
+                    let out = be.render(&image).with_context(|| self.ds.views()[v].file.display().to_string())?;
+                    let rendered: Vec<[f32; 3]> = out.fine.iter().map(|o| o.rgb).collect();
                     let target = self.ds.view_targets(v);
                     sum += crate::eval::render_psnr(&rendered, &target);
                     if i == 0 {

@@ -209,7 +209,6 @@ fn renderer(a: &ViewArgs, s: &TrainSettings, template: &ImageSpec, jobs: &mpsc::
             let req = job.req;
             let camera = Camera::from_camera_angle_x(req.width, req.height, req.fov, req.c2w)?;
             let image = ImageSpec { camera, ..template.clone() };
-            let levels = be.model().config().num_levels;
             let mut rgb: Vec<[f32; 3]> = Vec::with_capacity(image.pixels());
             let mut busy = Duration::ZERO;
             let superseded = |waiting: &std::collections::VecDeque<Job>| {
@@ -233,10 +232,10 @@ fn renderer(a: &ViewArgs, s: &TrainSettings, template: &ImageSpec, jobs: &mpsc::
                 }
                 let t = Instant::now();
                 let (band, extra) = band(&image, y0, y1);
-                let out = be.render_image(&band)?;
+                let out = be.render(&band)?;
                 let keep = (y1 - y0) as usize * req.width as usize;
-                debug_assert_eq!(out.len(), (keep + extra) * levels);
-                rgb.extend(out.chunks(levels).take(keep).map(|l| l[levels - 1].rgb));
+                debug_assert_eq!(out.fine.len(), keep + extra);
+                rgb.extend(out.fine.iter().take(keep).map(|o| o.rgb));
                 let took = t.elapsed();
                 busy += took;
                 if let Some(share) = share {

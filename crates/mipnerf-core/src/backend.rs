@@ -137,7 +137,8 @@ pub struct RenderedImage {
 }
 
 impl RenderedImage {
-    /// Splits [`Backend::render_image`]'s pixel-major outputs of `levels` levels.
+    /// Splits pixel-major outputs of `levels` levels (as [`Model::render`] gives them) into the
+    /// fine and the coarse level.
     #[must_use]
     pub fn from_outputs(width: u32, height: u32, levels: usize, outputs: &[LevelOutput]) -> Self {
         let levels = levels.max(1);
@@ -199,24 +200,13 @@ pub trait Backend {
     /// Device failures.
     fn checkpoint(&mut self) -> Result<Checkpoint, BackendError>;
 
-    /// Renders every pixel of `image` at every level with the current parameters (evaluation
-    /// mode): `pixels x num_levels` outputs, pixel-major, as [`Model::render`]; supersampled rays
-    /// are averaged per pixel.
+    /// Renders every pixel of `image` with the current parameters (evaluation mode): the fine
+    /// and the coarse level's colour, distance and opacity per pixel (the levels of
+    /// [`Model::render`]); supersampled rays are averaged per pixel.
     ///
     /// # Errors
     /// [`BackendError::Unsupported`] for what the backend does not render; device failures.
-    fn render_image(&mut self, image: &ImageSpec) -> Result<Vec<LevelOutput>, BackendError>;
-
-    /// [`render_image`](Self::render_image) as a [`RenderedImage`]: the fine and coarse levels
-    /// apart, with the image's size.
-    ///
-    /// # Errors
-    /// As [`render_image`](Self::render_image).
-    fn render(&mut self, image: &ImageSpec) -> Result<RenderedImage, BackendError> {
-        let levels = self.model().config().num_levels;
-        let out = self.render_image(image)?;
-        Ok(RenderedImage::from_outputs(image.camera.width, image.camera.height, levels, &out))
-    }
+    fn render(&mut self, image: &ImageSpec) -> Result<RenderedImage, BackendError>;
 
     /// What the backend has sent to and read from a device so far, for `mipnerf bench`; `None`
     /// for a backend without a device (the CPU).
@@ -432,7 +422,7 @@ impl Backend for CpuBackend {
         self.trainer.model.training_bytes(batch_rays)
     }
 
-    fn render_image(&mut self, image: &ImageSpec) -> Result<Vec<LevelOutput>, BackendError> {
+    fn render(&mut self, image: &ImageSpec) -> Result<RenderedImage, BackendError> {
         let model = &self.trainer.model;
         image.check_for(model)?;
         let mut out = Vec::with_capacity(image.pixels() * model.config().num_levels);
@@ -443,6 +433,7 @@ impl Backend for CpuBackend {
             image.push_rays(first, chunk_pixels, &mut rays);
             out.extend(model.render_guided(&self.trainer.params, &rays, self.trainer.occupancy.as_ref()));
         }
-        Ok(out)
+        let (w, h) = (image.camera.width, image.camera.height);
+        Ok(RenderedImage::from_outputs(w, h, model.config().num_levels, &out))
     }
 }

@@ -180,10 +180,10 @@ pub fn backend_throughput(
     let supersample = b.model().config().supersample;
     let spec =
         |camera| ImageSpec { camera, near: 2.0, far: 6.0, centers: PixelCenters::Centered, ndc: None, supersample };
-    b.render_image(&spec(camera(8)?))?;
+    b.render(&spec(camera(8)?))?;
     let image = spec(camera(render_side)?);
     let t = Instant::now();
-    b.render_image(&image)?;
+    b.render(&image)?;
     let render_s = t.elapsed().as_secs_f64();
     Ok(BackendThroughput {
         backend: b.describe(),

@@ -654,7 +654,7 @@ proptest::proptest! {
             .unwrap()
             .with_data(Arc::new(ds), 16);
         let _ = be.train_step(true);
-        let _ = be.render_image(&image);
+        let _ = be.render(&image);
     }
 }
 

@@ -21,7 +21,7 @@
 //! Rendering runs an image in chunks of a fixed number of rays through buffers that are reused
 //! from chunk to chunk, so the device memory it takes is set by the chunk size, not the image.
 
-use mipnerf_core::backend::{Backend, BackendError, ImageSpec, TrainState, WorkCounters};
+use mipnerf_core::backend::{Backend, BackendError, ImageSpec, RenderedImage, TrainState, WorkCounters};
 use mipnerf_core::checkpoint::Checkpoint;
 use mipnerf_core::data::Dataset;
 use mipnerf_core::model::{LevelOutput, Mode, Model};
@@ -551,9 +551,11 @@ impl Backend for GpuBackend {
         Ok(self.read_checkpoint()?)
     }
 
-    fn render_image(&mut self, image: &ImageSpec) -> Result<Vec<LevelOutput>, BackendError> {
+    fn render(&mut self, image: &ImageSpec) -> Result<RenderedImage, BackendError> {
         image.check_for(&self.model)?;
-        Ok(self.render_all(image)?)
+        let out = self.render_all(image)?;
+        let (w, h) = (image.camera.width, image.camera.height);
+        Ok(RenderedImage::from_outputs(w, h, self.model.config().num_levels, &out))
     }
 
     fn work_counters(&self) -> Option<WorkCounters> {

@@ -216,7 +216,7 @@ fn device_ndc_batches_match_the_cpu() {
     let mut cpu = CpuBackend::new(model.clone(), OptimConfig::default(), 0, state.clone()).unwrap();
     let mut gpu = GpuBackend::new(ctx, model, OptimConfig::default(), 0, state).unwrap().with_render_chunk(100);
     let image = ImageSpec::of_view(&ds, 2, 1);
-    let psnr = psnr_between(&cpu.render_image(&image).unwrap(), &gpu.render_image(&image).unwrap());
+    let psnr = psnr_between(&both_levels(&mut cpu, &image), &both_levels(&mut gpu, &image));
     assert!(psnr >= MIN_RENDER_AGREEMENT_PSNR, "CPU and GPU NDC renders differ: {psnr:.1} dB");
 }
 
@@ -268,6 +268,12 @@ fn compare_loss(bad: &mut Vec<String>, what: &str, gpu: f32, cpu: f32) -> f32 {
     rel
 }
 
+/// Both levels of a render, fine then coarse, to compare every output.
+fn both_levels(b: &mut impl Backend, image: &ImageSpec) -> Vec<LevelOutput> {
+    let r = b.render(image).unwrap();
+    [r.fine, r.coarse].concat()
+}
+
 fn psnr_between(a: &[LevelOutput], b: &[LevelOutput]) -> f64 {
     let se: f64 = a.iter().zip(b).flat_map(|(x, y)| (0..3).map(move |c| f64::from(x.rgb[c] - y.rgb[c]).powi(2))).sum();
     -10.0 * (se / (3 * a.len()) as f64).log10()
@@ -315,7 +321,7 @@ fn train_alike(ctx: mipnerf_gpu::GpuContext, cfg: ModelConfig, steps: u64) {
     let ck_gpu = gpu.checkpoint().unwrap();
     assert_eq!(ck_gpu.adam.t, steps);
     let image = ImageSpec::of_view(&ds, 0, 1);
-    let (r_cpu, r_gpu) = (cpu.render_image(&image).unwrap(), gpu.render_image(&image).unwrap());
+    let (r_cpu, r_gpu) = (both_levels(&mut cpu, &image), both_levels(&mut gpu, &image));
     let psnr = psnr_between(&r_cpu, &r_gpu);
     eprintln!("renders of view 0 after {steps} steps: CPU vs GPU PSNR {psnr:.1} dB");
     assert!(psnr >= MIN_RENDER_AGREEMENT_PSNR, "CPU and GPU renders differ: {psnr:.1} dB");
@@ -345,8 +351,8 @@ fn chunked_gpu_render_matches_cpu_with_bounded_memory() {
         let camera = Camera::from_camera_angle_x(w, h, 0.7, pose).unwrap();
         let image =
             ImageSpec { camera, near: 2.0, far: 6.0, centers: PixelCenters::Centered, ndc: None, supersample: 1 };
-        let g = gpu.render_image(&image).unwrap();
-        let c = cpu.render_image(&image).unwrap();
+        let g = both_levels(&mut gpu, &image);
+        let c = both_levels(&mut cpu, &image);
         assert_eq!(g.len(), c.len());
         let field = |o: &[LevelOutput], f: fn(&LevelOutput) -> Vec<f32>| o.iter().flat_map(f).collect::<Vec<f32>>();
         let tag = format!("{w}x{h}");
@@ -430,7 +436,7 @@ fn supersampled_nerf_trains_and_renders_alike() {
     let mut gpu = gpu.with_render_chunk(256);
     let camera = Camera::from_camera_angle_x(30, 20, 0.7, demo::camera_pose(0.2, 0.5)).unwrap();
     let image = ImageSpec { camera, near: 2.0, far: 6.0, centers: PixelCenters::Centered, ndc: None, supersample: 2 };
-    let (r_cpu, r_gpu) = (cpu.render_image(&image).unwrap(), gpu.render_image(&image).unwrap());
+    let (r_cpu, r_gpu) = (both_levels(&mut cpu, &image), both_levels(&mut gpu, &image));
     assert_eq!(r_gpu.len(), 30 * 20 * 2);
     let psnr = psnr_between(&r_cpu, &r_gpu);
     assert!(psnr >= MIN_RENDER_AGREEMENT_PSNR, "CPU and GPU supersampled renders differ: {psnr:.1} dB");
@@ -540,7 +546,7 @@ fn guided_training_follows_the_cpu(ctx: mipnerf_gpu::GpuContext, chunk: Option<u
     assert!(worst < 1e-3, "the backends' grids differ by {worst:e} in a cell's opacity");
     let image = ImageSpec::of_view(&ds, 0, 1);
     let before = gpu.work_counters().unwrap().model_rays;
-    let (r_cpu, r_gpu) = (cpu.render_image(&image).unwrap(), gpu.render_image(&image).unwrap());
+    let (r_cpu, r_gpu) = (both_levels(&mut cpu, &image), both_levels(&mut gpu, &image));
     let ran = gpu.work_counters().unwrap().model_rays - before;
     let mut rays = Vec::new();
     image.push_rays(0, image.pixels(), &mut rays);

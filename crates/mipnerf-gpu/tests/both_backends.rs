@@ -208,10 +208,11 @@ fn rendering_in_chunks_gives_the_same_image_whatever_the_chunk(kind: Kind) {
         };
         let render = |kind: Kind, chunk: Option<usize>| {
             let mut b = kind.open(BackendSetup { render_chunk: chunk, ..setup(&model, state.clone(), None) });
-            flat(&b.render_image(&image).unwrap())
+            let r = b.render(&image).unwrap();
+            [flat(&r.fine), flat(&r.coarse)].concat()
         };
         let whole = render(kind, None);
-        assert_eq!(whole.len(), 35 * 20 * model.config().num_levels * 5);
+        assert_eq!(whole.len(), 35 * 20 * 2 * 5, "the fine and the coarse level of every pixel");
         for chunk in [64, 250] {
             let chunked = render(kind, Some(chunk));
             assert_close(&format!("{name}: chunks of {chunk} rays"), &chunked, &whole, TOL_CHUNKED_VS_WHOLE);
