@@ -187,10 +187,16 @@ fn the_demo_stops_in_training_and_after_it_and_a_second_signal_stops_at_once() {
     let mut child = spawn(&args);
     let csv = run.join("metrics.csv");
     wait_until(&mut child, "training started", || std::fs::read_to_string(&csv).is_ok_and(|s| s.lines().count() > 2));
+    // The signals go in 300 ms after a checkpoint lands, so that they meet a step being computed
+    // (over a second of the paper preset) and not the moment between a save and the check for a
+    // stop, where the first one alone ends the run before the second arrives.
+    let ckpt = run.join("checkpoint.safetensors");
+    let saved_at = || std::fs::metadata(&ckpt).and_then(|m| m.modified()).ok();
+    let before = saved_at();
+    wait_until(&mut child, "a checkpoint was saved", || saved_at() != before);
+    std::thread::sleep(Duration::from_millis(300));
     signal(&child, "INT");
-    // Far apart enough that a loaded machine delivers them as two signals (two pending SIGINTs
-    // merge into one), and well within the paper preset's step of several seconds.
-    std::thread::sleep(Duration::from_millis(500));
+    std::thread::sleep(Duration::from_millis(100));
     let t = Instant::now();
     signal(&child, "INT");
     let (code, err) = finish_within(child, 30);
