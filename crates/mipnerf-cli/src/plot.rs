@@ -101,25 +101,18 @@ fn line_chart(
 /// An unreadable CSV or unwritable PNGs.
 pub fn training_curves(csv: &Path, out: &Path) -> Result<()> {
     let text = std::fs::read_to_string(csv).with_context(|| format!("reading {}", csv.display()))?;
-    let rows: Vec<Vec<&str>> = text.lines().skip(1).map(|l| l.split(',').collect()).collect();
-    let col = |i: usize| -> Vec<(f64, f64)> {
-        rows.iter().filter_map(|r| Some((r.first()?.parse().ok()?, r.get(i)?.parse().ok()?))).collect()
+    let m = crate::run::MetricsRows::parse(&text);
+    let col = |f: fn(&crate::run::TrainRow) -> f64| -> Vec<(f64, f64)> {
+        m.train.iter().map(|r| (r.step as f64, f(r))).collect()
     };
-    let loss = [("training loss".to_string(), col(1))];
+    let loss = [("training loss".to_string(), col(|r| r.loss))];
     line_chart(&out.join("loss.png"), "Training loss (coarse x 0.1 + fine, per-channel MSE)", "loss", &loss, true)?;
-    let mut psnr = vec![("training (fine level, batch)".to_string(), col(3))];
-    let val: Vec<(f64, Vec<f64>)> = rows
-        .iter()
-        .filter_map(|r| {
-            let v: Vec<f64> = r.get(7)?.split(';').map(str::parse).collect::<Result<_, _>>().ok()?;
-            Some((r.first()?.parse().ok()?, v))
-        })
-        .collect();
-    let scales = val.iter().map(|(_, v)| v.len()).max().unwrap_or(0);
+    let mut psnr = vec![("training (fine level, batch)".to_string(), col(|r| r.psnr))];
+    let scales = m.scales();
     for j in 0..scales {
         let name =
             if j == 0 { "test, full resolution".to_string() } else { format!("test, 1/{} resolution", 1u64 << j) };
-        psnr.push((name, val.iter().filter_map(|(s, v)| Some((*s, *v.get(j)?))).collect()));
+        psnr.push((name, m.val.iter().filter_map(|(s, v)| Some((*s as f64, *v.get(j)?))).collect()));
     }
     let title = if scales > 0 { "PSNR: training batch and test images" } else { "Training PSNR (fine level, batch)" };
     line_chart(&out.join("psnr.png"), title, "PSNR (dB)", &psnr, false)?;

@@ -21,7 +21,7 @@ use mipnerf_core::camera::Camera;
 use mipnerf_core::data::Split;
 
 use crate::config::{Backend, TrainSettings};
-use crate::run::{CHECKPOINT, METRICS_CSV, load_split, open_trained, read_config};
+use crate::run::{CHECKPOINT, METRICS_CSV, MetricsRows, load_split, open_trained, read_config};
 
 /// The page.
 const PAGE: &str = include_str!("../assets/view.html");
@@ -157,12 +157,10 @@ pub fn bind(a: &ViewArgs) -> Result<(tiny_http::Server, String)> {
 /// An unreadable run.
 pub fn run_server(server: tiny_http::Server, a: &ViewArgs) -> Result<()> {
     let s = read_config(&a.run)?;
-    let info = info_json(&a.run, &s)?;
-    let template = {
-        let train = load_split(&s, Split::Train)?;
-        let k = crate::render::read_supersample(&s)?;
-        ImageSpec::of_view(&train, 0, k)
-    };
+    let train = load_split(&s, Split::Train)?;
+    let info = info_json(&a.run, &s, &train)?;
+    let template = ImageSpec::of_view(&train, 0, crate::render::read_supersample(&s)?);
+    drop(train);
     let (tx, rx) = mpsc::channel::<Job>();
     let args = a.clone();
     std::thread::Builder::new()
@@ -291,13 +289,12 @@ fn band(image: &ImageSpec, y0: u32, y1: u32) -> (ImageSpec, usize) {
 use image::ImageEncoder;
 
 /// The run's cameras, field of view, up direction and starting pose, as the page reads them.
-fn info_json(run: &Path, s: &TrainSettings) -> Result<String> {
-    let train = load_split(s, Split::Train)?;
+fn info_json(run: &Path, s: &TrainSettings, train: &mipnerf_core::data::Dataset) -> Result<String> {
     let test = load_split(s, Split::Test).ok();
     let poses = |ds: &mipnerf_core::data::Dataset| -> Vec<[[f64; 4]; 3]> {
         ds.views().iter().filter(|v| v.scale == 0).map(|v| v.camera.cam2world).collect()
     };
-    let train_poses = poses(&train);
+    let train_poses = poses(train);
     let test_poses = test.as_ref().map(poses).unwrap_or_default();
     let first = &train.views()[0].camera;
     let fov = 2.0 * (0.5 * f64::from(first.width) * first.pix2cam[0][0].abs()).atan();
@@ -323,25 +320,16 @@ fn info_json(run: &Path, s: &TrainSettings) -> Result<String> {
 /// `metrics.csv` as columns (step, loss, psnr, lr), the validation rows, and when the
 /// checkpoint last changed.
 fn metrics_json(run: &Path) -> String {
-    let text = std::fs::read_to_string(run.join(METRICS_CSV)).unwrap_or_default();
-    let (mut step, mut loss, mut psnr, mut lr, mut val) = (vec![], vec![], vec![], vec![], vec![]);
-    let mut scales = 0;
-    for line in text.lines().skip(1) {
-        let f: Vec<&str> = line.split(',').collect();
-        let Some(s) = f.first().and_then(|s| s.parse::<u64>().ok()) else { continue };
-        let num = |i: usize| f.get(i).and_then(|x| x.parse::<f64>().ok());
-        if let (Some(l), Some(p), Some(r)) = (num(1), num(3), num(4)) {
-            step.push(s);
-            loss.push(l);
-            psnr.push(p);
-            lr.push(r);
-        }
-        if let Some(v) = f.get(7).filter(|v| !v.is_empty()) {
-            let v: Vec<f64> = v.split(';').filter_map(|x| x.parse().ok()).collect();
-            scales = scales.max(v.len());
-            val.push(serde_json::json!([s, v]));
-        }
-    }
+    let m = MetricsRows::parse(&std::fs::read_to_string(run.join(METRICS_CSV)).unwrap_or_default());
+    let column = |f: fn(&crate::run::TrainRow) -> f64| m.train.iter().map(f).collect::<Vec<f64>>();
+    let (step, loss, psnr, lr) = (
+        m.train.iter().map(|r| r.step).collect::<Vec<u64>>(),
+        column(|r| r.loss),
+        column(|r| r.psnr),
+        column(|r| r.lr),
+    );
+    let val: Vec<serde_json::Value> = m.val.iter().map(|(s, v)| serde_json::json!([s, v])).collect();
+    let scales = m.scales();
     // When the checkpoint last changed (ms since the epoch): the page re-renders a resting view
     // when it does.
     let checkpoint = std::fs::metadata(run.join(CHECKPOINT))

@@ -387,9 +387,7 @@ fn shared_lpips(test: &str) -> Option<String> {
 #[test]
 fn eval_reports_lpips_and_the_papers_average_error_or_says_how_to_get_them() {
     let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    let cfg = mipnerf_core::data::demo::DemoConfig { size: 128, train_views: 2, test_views: 1, supersample: 1 };
-    mipnerf_core::data::demo::write_demo_scene(&data, &cfg).unwrap();
+    let data = common::demo_scene(dir.path(), 128, 2);
     let run = dir.path().join("run");
     let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
     run_ok(&["train", "--data", d, "--out", r, "--steps", "3", "--batch-rays", "64", "--backend", "cpu"]);

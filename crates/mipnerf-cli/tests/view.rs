@@ -103,9 +103,7 @@ fn query(info: &serde_json::Value, w: u32, h: u32) -> String {
 #[test]
 fn the_viewer_serves_frames_coarse_to_fine_and_a_browser_moves_its_camera() {
     let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    let cfg = mipnerf_core::data::demo::DemoConfig { size: 32, train_views: 16, test_views: 1, supersample: 1 };
-    mipnerf_core::data::demo::write_demo_scene(&data, &cfg).unwrap();
+    let data = common::demo_scene(dir.path(), 32, 16);
     let run = dir.path().join("run");
     let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
     run_ok(&[

@@ -19,8 +19,13 @@ pub fn command() -> Command {
 
 /// A 16-pixel demo scene of `train_views` training views and one test view in `dir/data`.
 pub fn small_demo_scene(dir: &std::path::Path, train_views: usize) -> std::path::PathBuf {
+    demo_scene(dir, 16, train_views)
+}
+
+/// A `size`-pixel demo scene of `train_views` training views and one test view in `dir/data`.
+pub fn demo_scene(dir: &std::path::Path, size: u32, train_views: usize) -> std::path::PathBuf {
     let data = dir.join("data");
-    let cfg = mipnerf_core::data::demo::DemoConfig { size: 16, train_views, test_views: 1, supersample: 1 };
+    let cfg = mipnerf_core::data::demo::DemoConfig { size, train_views, test_views: 1, supersample: 1 };
     mipnerf_core::data::demo::write_demo_scene(&data, &cfg).unwrap();
     data
 }
