@@ -2,18 +2,20 @@
 //! IPE kernel, one whole model step (losses and every gradient), and a few training steps of both
 //! backends from one seed (device-drawn batches, Adam, loss read-back).
 
-use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::{Context, Result};
 use clap::ValueEnum;
 use mipnerf_core::backend::{Backend as _, CpuBackend, TrainState};
-use mipnerf_core::data::{Dataset, Pixels, Split, View, demo};
-use mipnerf_core::model::{Mode, Model, ModelConfig, Preset};
+use mipnerf_core::compare::{KernelCheck, Tolerance, check_kernel};
+use mipnerf_core::data::{Dataset, demo};
+use mipnerf_core::model::{Mode, Model, ModelConfig, PointEncoding, Preset};
 use mipnerf_core::train::OptimConfig;
-use mipnerf_core::{Camera, Ray};
+use mipnerf_core::{Ray, RayShape, stages};
 use mipnerf_gpu::{GpuBackend, GpuContext};
 
+/// IPE features: GPU vs CPU, absolute (features are bounded by 1; lavapipe measures < 5e-6).
+const TOL_IPE_ABS: f32 = 1e-4;
 /// Loss of one model step: GPU vs CPU, relative (the kernels' tests measure about 1e-5).
 const TOL_STEP_LOSS_REL: f32 = 2e-3;
 /// Gradients of one model step: GPU vs CPU, relative to the largest gradient.
@@ -37,7 +39,6 @@ pub enum CheckBackend {
 /// # Errors
 /// No adapter (for `gpu`), or a stage whose GPU result is outside its tolerance.
 pub fn check(backend: CheckBackend, device: &mipnerf_gpu::DeviceOptions) -> Result<()> {
-    use mipnerf_core::{RayShape, cone};
     let choice = match backend {
         CheckBackend::Cpu => {
             println!("the CPU backend is the reference; nothing to compare it with");
@@ -55,27 +56,43 @@ pub fn check(backend: CheckBackend, device: &mipnerf_gpu::DeviceOptions) -> Resu
         Err(e) => return Err(e).context("opening the GPU"),
     };
     println!("checking on {} ({}, {})", ctx.adapter().name, ctx.adapter().backend, ctx.adapter().device_type);
-    let c2w = [[0.8, 0.0, 0.6, 2.4], [0.36, 0.8, -0.48, -1.92], [-0.48, 0.6, 0.64, 2.56]];
-    let cam = mipnerf_core::Camera::from_camera_angle_x(32, 32, 0.69, c2w)?;
-    let rays = cam.generate_rays(mipnerf_core::PixelCenters::Centered, 2.0, 6.0, 1.0);
+    let rays = demo::oblique_camera(32).generate_rays(mipnerf_core::PixelCenters::Centered, 2.0, 6.0, 1.0);
     let n = 32usize;
+    let ids: Vec<u32> = (0..rays.len() as u32).collect();
     let mut t = vec![0.0; rays.len() * (n + 1)];
-    for (r, chunk) in t.chunks_mut(n + 1).enumerate() {
-        mipnerf_core::sample_along_rays(rays[r].near, rays[r].far, false, None, chunk);
-    }
+    stages::sample_intervals(&rays, n, false, Mode::Eval, &ids, &mut t);
     let kernel = mipnerf_gpu::kernels::cast_ipe::CastIpeKernel::new(&ctx)?;
-    let gpu = kernel.run(&ctx, &rays, &t, n as u32, RayShape::Cone, 0, 16)?;
-    let cpu = cone::cast_and_encode(&rays, &t, n, RayShape::Cone, 0, 16);
-    let max = gpu
-        .iter()
-        .zip(&cpu)
-        .map(|(a, b)| if a.is_nan() { f32::INFINITY } else { (a - b).abs() })
-        .fold(0.0f32, f32::max);
-    println!("cast_ipe: {} features, max |gpu - cpu| = {max:e}", gpu.len());
-    anyhow::ensure!(max <= 1e-4, "the GPU's IPE features differ from the CPU reference by {max:e} (> 1e-4)");
+    let degrees = (0, 16);
+    let ipe = check_kernel(
+        "cast_ipe",
+        |(rays, t): &(&[Ray], &[f32])| {
+            let mut x = vec![0.0; rays.len() * n * mipnerf_core::mip::ipe_len(degrees.0, degrees.1)];
+            stages::cast_and_encode(rays, t, n, RayShape::Cone, PointEncoding::Integrated, degrees, &mut x);
+            vec![("features", x)]
+        },
+        |(rays, t)| {
+            kernel.run(&ctx, rays, t, n as u32, RayShape::Cone, degrees.0, degrees.1).map(|x| vec![("features", x)])
+        },
+        &(&rays[..], &t[..]),
+        |_| Tolerance::abs(TOL_IPE_ABS),
+    );
+    report(&ipe)?;
     model_step(&ctx, &rays)?;
     training(ctx)?;
     println!("ok");
+    Ok(())
+}
+
+/// Prints a check's largest differences; fails with its first mismatches.
+fn report(check: &KernelCheck) -> Result<()> {
+    println!("{}", check.summary());
+    let bad = &check.mismatches;
+    anyhow::ensure!(
+        bad.is_empty(),
+        "{} values differ from the CPU reference beyond the tolerance:\n{}",
+        bad.len(),
+        bad.iter().take(10).cloned().collect::<Vec<_>>().join("\n")
+    );
     Ok(())
 }
 
@@ -86,48 +103,32 @@ fn model_step(ctx: &GpuContext, rays: &[Ray]) -> Result<()> {
     let mode = Mode::Train { seed: 1, step: 0 };
     let mut grads = vec![0.0; model.num_params()];
     let cpu = model.loss_and_grad(&params, rays, &targets, mode, &mut grads);
-    let gpu = mipnerf_gpu::model::GpuModel::new(ctx)?;
-    let (stats, g) = gpu.loss_and_grad(ctx, &model, &params, rays, &targets, mode)?;
-    let loss_rel = (stats.loss - cpu.loss).abs() / cpu.loss.abs().max(1e-12);
     let scale = grads.iter().fold(0.0f32, |m, x| m.max(x.abs())).max(1e-20);
-    let grad_rel = g
-        .iter()
-        .zip(&grads)
-        .map(|(a, b)| if a.is_nan() { f32::INFINITY } else { (a - b).abs() / scale })
-        .fold(0.0f32, f32::max);
+    let gpu = mipnerf_gpu::model::GpuModel::new(ctx)?;
     println!(
-        "model step ({} rays, tiny preset, {} parameters): loss cpu {:.6} gpu {:.6} (relative {loss_rel:.1e}); \
-         max gradient difference {grad_rel:.1e} of the largest gradient",
+        "model step: {} rays, tiny preset, {} parameters, cpu loss {:.6}",
         rays.len(),
         model.num_params(),
-        cpu.loss,
-        stats.loss
+        cpu.loss
     );
-    anyhow::ensure!(loss_rel <= TOL_STEP_LOSS_REL, "the GPU's loss differs from the CPU's by {loss_rel:e} relative");
-    anyhow::ensure!(grad_rel <= TOL_STEP_GRAD_REL, "the GPU's gradients differ from the CPU's by {grad_rel:e}");
-    Ok(())
+    let step = check_kernel(
+        "model step (loss; gradients, absolute, against the largest)",
+        |_: &()| vec![("loss", vec![cpu.loss]), ("gradients", grads.clone())],
+        |_| {
+            let (stats, g) = gpu.loss_and_grad(ctx, &model, &params, rays, &targets, mode)?;
+            Ok::<_, mipnerf_gpu::GpuError>(vec![("loss", vec![stats.loss]), ("gradients", g)])
+        },
+        &(),
+        |name| {
+            if name == "loss" { Tolerance::rel(TOL_STEP_LOSS_REL) } else { Tolerance::abs(TOL_STEP_GRAD_REL * scale) }
+        },
+    );
+    report(&step)
 }
 
 /// Eight 32x32 views of the demo scene, in memory.
 fn demo_views() -> Result<Dataset> {
-    let views = demo::view_poses(8, 0.0)
-        .into_iter()
-        .enumerate()
-        .map(|(i, pose)| {
-            let camera = Camera::from_camera_angle_x(32, 32, 0.69, pose)?;
-            let pixels = Pixels::RgbaF32(demo::render_view(&camera, 1));
-            Ok(View {
-                file: PathBuf::from(format!("demo_{i}")),
-                camera,
-                pixels,
-                near: 2.0,
-                far: 6.0,
-                lossmult: 1.0,
-                scale: 0,
-            })
-        })
-        .collect::<Result<Vec<_>>>()?;
-    Ok(Dataset::new(&PathBuf::from("demo scene (in memory)"), Split::Train, views, true)?)
+    Ok(demo::dataset(8, 32)?)
 }
 
 fn training(ctx: GpuContext) -> Result<()> {

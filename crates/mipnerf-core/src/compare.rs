@@ -73,6 +73,89 @@ pub fn mismatches(what: &str, got: &[f32], want: &[f32], tol: Tolerance) -> Vec<
         .collect()
 }
 
+/// A kernel's outputs, each named, in a fixed order: what both sides of [`check_kernel`] return.
+pub type Outputs = Vec<(&'static str, Vec<f32>)>;
+
+/// What [`check_kernel`] found: the largest difference of each output and every mismatch.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct KernelCheck {
+    /// The check's label.
+    pub label: String,
+    /// Each output's largest `|gpu - cpu|` (infinite where the GPU wrote NaN and the CPU did not).
+    pub max_abs_diff: Vec<(&'static str, f32)>,
+    /// Every value out of tolerance, as [`mismatches`] words it, and any output missing on one
+    /// side, of another length, or a kernel that failed.
+    pub mismatches: Vec<String>,
+}
+
+impl KernelCheck {
+    /// One line: the label and each output's largest difference.
+    #[must_use]
+    pub fn summary(&self) -> String {
+        let diffs: Vec<String> = self.max_abs_diff.iter().map(|(name, d)| format!("{name} {d:.1e}")).collect();
+        format!("{}: max |gpu - cpu|: {}", self.label, diffs.join(", "))
+    }
+
+    /// The mismatches, after printing [`summary`](Self::summary) to stderr (what a test collects
+    /// over its cases and hands to [`assert_none`]).
+    #[must_use]
+    pub fn into_mismatches(self) -> Vec<String> {
+        eprintln!("{}", self.summary());
+        self.mismatches
+    }
+}
+
+/// A GPU kernel against its CPU reference, the one check every kernel test uses: runs `cpu` and
+/// `gpu` on the same `inputs` and compares each output the CPU names with the GPU's output of
+/// that name under `tolerance(name)`.
+///
+/// Never panics on a disagreement: a failed kernel, an output the GPU lacks and a length that
+/// differs are mismatches like any value out of tolerance, so a test reports everything at once.
+pub fn check_kernel<I: ?Sized, E: std::fmt::Display>(
+    label: &str,
+    cpu: impl FnOnce(&I) -> Outputs,
+    gpu: impl FnOnce(&I) -> Result<Outputs, E>,
+    inputs: &I,
+    tolerance: impl Fn(&str) -> Tolerance,
+) -> KernelCheck {
+    let mut check = KernelCheck { label: label.to_owned(), ..KernelCheck::default() };
+    let want = cpu(inputs);
+    let got = match gpu(inputs) {
+        Ok(got) => got,
+        Err(e) => {
+            check.mismatches.push(format!("{label}: the kernel failed: {e}"));
+            return check;
+        }
+    };
+    for (name, want) in &want {
+        let what = format!("{label} {name}");
+        let Some((_, got)) = got.iter().find(|(n, _)| n == name) else {
+            check.mismatches.push(format!("{what}: the kernel gave no such output"));
+            continue;
+        };
+        if got.len() != want.len() {
+            check.mismatches.push(format!("{what}: {} values, expected {}", got.len(), want.len()));
+            continue;
+        }
+        let max = got
+            .iter()
+            .zip(want)
+            .map(|(g, w)| {
+                if g.is_nan() != w.is_nan() {
+                    f32::INFINITY
+                } else if g.is_nan() {
+                    0.0
+                } else {
+                    (g - w).abs()
+                }
+            })
+            .fold(0.0f32, f32::max);
+        check.max_abs_diff.push((name, max));
+        check.mismatches.extend(mismatches(&what, got, want, tolerance(name)));
+    }
+    check
+}
+
 /// Panics with every mismatch (the first 40 listed, and the count) when `bad` is not empty.
 ///
 /// # Panics
@@ -128,5 +211,44 @@ mod tests {
         let r = std::panic::catch_unwind(|| assert_close("y", &[1.0, 7.0, 8.0], &[1.0, 1.0, 1.0], Tolerance::EXACT));
         let msg = r.unwrap_err().downcast::<String>().unwrap();
         assert!(msg.contains("2 values out of tolerance") && msg.contains("y[1]") && msg.contains("y[2]"), "{msg}");
+    }
+
+    #[test]
+    fn check_kernel_reports_values_missing_outputs_lengths_and_failures() {
+        let cpu = |x: &[f32]| -> Outputs {
+            vec![("doubled", x.iter().map(|v| 2.0 * v).collect()), ("sum", vec![x.iter().sum()])]
+        };
+        let tol = |name: &str| if name == "sum" { Tolerance::EXACT } else { Tolerance::abs(0.1) };
+        let inputs = [1.0f32, 2.0, 3.0];
+        // A kernel that agrees everywhere.
+        let ok = check_kernel("k", cpu, |x: &[f32]| Ok::<_, String>(cpu(x)), &inputs[..], tol);
+        assert!(ok.mismatches.is_empty() && ok.max_abs_diff == [("doubled", 0.0), ("sum", 0.0)], "{ok:?}");
+        // One value off, NaN where the CPU has a number, and the second output missing.
+        let off = check_kernel(
+            "k",
+            cpu,
+            |_: &[f32]| Ok::<_, String>(vec![("doubled", vec![2.0, 4.5, f32::NAN])]),
+            &inputs[..],
+            tol,
+        );
+        assert_eq!(off.mismatches.len(), 3, "{off:?}");
+        assert!(
+            off.mismatches[0].starts_with("k doubled[1]") && off.mismatches[1].starts_with("k doubled[2]"),
+            "{off:?}"
+        );
+        assert_eq!(off.mismatches[2], "k sum: the kernel gave no such output");
+        assert_eq!(off.max_abs_diff, [("doubled", f32::INFINITY)]);
+        // Another length, and a kernel that failed.
+        let short = check_kernel(
+            "k",
+            cpu,
+            |_: &[f32]| Ok::<_, String>(vec![("doubled", vec![2.0]), ("sum", vec![6.0])]),
+            &inputs[..],
+            tol,
+        );
+        assert_eq!(short.mismatches, ["k doubled: 1 values, expected 3"]);
+        let failed = check_kernel("k", cpu, |_: &[f32]| Err::<Outputs, _>("device lost"), &inputs[..], tol);
+        assert_eq!(failed.mismatches, ["k: the kernel failed: device lost"]);
+        assert!(failed.summary().starts_with("k: max |gpu - cpu|"));
     }
 }

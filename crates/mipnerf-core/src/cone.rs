@@ -2,7 +2,7 @@
 //! ([`Ray`]: apex at the camera centre, axis through the pixel, radius at the image plane from the
 //! pixel's footprint, [`radius_from_spacing`]), and the cone's intervals between sample edges
 //! become Gaussians ([`cast_ray`], with the frustum maths of [`crate::mip`]), then IPE features
-//! ([`cast_and_encode`]).
+//! ([`crate::stages::cast_and_encode`]).
 //!
 //! Where the rays come from: [`crate::camera::Camera::ray_at`] (pinhole cameras),
 //! [`crate::data::llff::ndc_ray`] (forward-facing scenes in NDC) and the sub-pixel cones of
@@ -10,7 +10,7 @@
 
 use glam::Vec3;
 
-use crate::mip::{Gaussian, conical_frustum_to_gaussian, cylinder_to_gaussian, integrated_pos_enc, ipe_len};
+use crate::mip::{Gaussian, conical_frustum_to_gaussian, cylinder_to_gaussian};
 
 /// One ray (a cone) through one pixel, in the official code's terms.
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
@@ -70,40 +70,4 @@ pub fn cast_ray(t_vals: &[f32], origin: Vec3, direction: Vec3, radius: f32, shap
         lifted.mean += origin;
         *g = lifted;
     }
-}
-
-/// Casts every ray's intervals (`t_vals`: `n_samples + 1` edges per ray, row-major) and encodes
-/// them with [`integrated_pos_enc`]: `rays.len() * n_samples * ipe_len(min_deg, max_deg)` features,
-/// sample after sample. This is what the GPU's `cast_ipe` kernel computes.
-///
-/// # Panics
-/// If `t_vals.len() != rays.len() * (n_samples + 1)`.
-#[must_use]
-pub fn cast_and_encode(
-    rays: &[Ray],
-    t_vals: &[f32],
-    n_samples: usize,
-    shape: RayShape,
-    min_deg: u32,
-    max_deg: u32,
-) -> Vec<f32> {
-    assert_eq!(t_vals.len(), rays.len() * (n_samples + 1), "cast_and_encode: t values");
-    let len = ipe_len(min_deg, max_deg);
-    let mut out = vec![0.0; rays.len() * n_samples * len];
-    let mut gs = vec![Gaussian::default(); n_samples];
-    for (r, ray) in rays.iter().enumerate() {
-        cast_ray(
-            &t_vals[r * (n_samples + 1)..(r + 1) * (n_samples + 1)],
-            ray.origin,
-            ray.direction,
-            ray.radius,
-            shape,
-            &mut gs,
-        );
-        for (s, g) in gs.iter().enumerate() {
-            let i = r * n_samples + s;
-            integrated_pos_enc(g, min_deg, max_deg, &mut out[i * len..(i + 1) * len]);
-        }
-    }
-    out
 }

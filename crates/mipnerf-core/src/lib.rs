@@ -44,6 +44,7 @@ pub mod render;
 pub mod rng;
 pub mod sampling;
 pub mod schedule;
+pub mod stages;
 pub mod train;
 
 pub use camera::{Camera, PixelCenters};

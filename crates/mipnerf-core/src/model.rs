@@ -10,17 +10,16 @@
 //! The batch is cut into chunks of whole rays that run in parallel (rayon); each chunk's gradient
 //! is summed in chunk order, so results are bit-for-bit the same whatever the thread count.
 
-use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::bf16::{Bf16Support, Precision};
-use crate::cone::{self, Ray, RayShape};
+use crate::cone::{Ray, RayShape};
 use crate::mip::{self, Gaussian};
 use crate::mlp::{MlpCache, MlpConfig, MlpConfigError, MlpShape};
 use crate::occupancy::OccupancyGrid;
 use crate::render::{self, DensityActivation};
-use crate::rng::{RayRng, Stream};
-use crate::sampling::{self, PdfSamples};
+use crate::sampling;
+use crate::stages;
 
 /// How a sample's Gaussian is encoded for the MLP.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
@@ -318,15 +317,14 @@ thread_local! {
 struct Workspace {
     t: Vec<f32>,
     t_next: Vec<f32>,
-    gauss: Vec<Gaussian>,
+    ids: Vec<u32>,
+    backgrounds: Vec<[f32; 3]>,
     x: Vec<f32>,
     view: Vec<f32>,
     cache: MlpCache,
-    rgb: Vec<[f32; 3]>,
-    density: Vec<f32>,
-    weights: Vec<f32>,
-    g_rgb: Vec<[f32; 3]>,
-    g_density: Vec<f32>,
+    samples: stages::RenderedSamples,
+    per_ray: Vec<render::RenderedRay>,
+    d_ray_rgb: Vec<[f32; 3]>,
     d_raw_rgb: Vec<f32>,
     d_raw_density: Vec<f32>,
     pixel_rgb: Vec<[f32; 3]>,
@@ -686,9 +684,10 @@ impl Model {
         if self.config.area_loss { ray.lossmult } else { 1.0 }
     }
 
-    /// Runs all levels over one chunk of whole pixels, step by step as the paper describes them
-    /// (see ARCHITECTURE.md). With `targets`, accumulates the gradient into `grads` and returns
-    /// per level `[sum lossmult·sq, sum sq]`; with `out`, writes the rendered pixels.
+    /// Runs all levels over one chunk of whole pixels: the stages of [`crate::stages`] in the
+    /// paper's order (see ARCHITECTURE.md), each the reference of one GPU kernel. With `targets`,
+    /// accumulates the gradient into `grads` and returns per level `[sum lossmult·sq, sum sq]`;
+    /// with `out`, writes the rendered pixels.
     fn run_chunk(
         &self,
         params: &[f32],
@@ -702,28 +701,52 @@ impl Model {
         mut out: Option<&mut [LevelOutput]>,
     ) -> Vec<[f64; 2]> {
         let c = &self.config;
+        let (s, n) = (c.num_samples, rays.len() * c.num_samples);
         self.size_workspace(rays.len(), ws);
         let mut sums = vec![[0.0f64; 2]; c.num_levels];
-        self.encode_view_directions(rays, ws);
-        let mut per_ray = vec![render::RenderedRay::default(); rays.len()];
+        ws.ids.clear();
+        ws.ids.extend((0..rays.len()).map(|r| ids.get(r)));
+        ws.backgrounds.clear();
+        ws.backgrounds.extend(ws.ids.iter().map(|&id| self.ray_background(mode, id)));
+        stages::encode_view_directions(rays, c.deg_view, &mut ws.view);
         for level in 0..c.num_levels {
-            self.sample_intervals(level, rays, ids, spans, mode, ws);
-            self.encode_intervals(rays, ws);
+            match (level, spans) {
+                (0, Some(sp)) => stages::sample_occupied_intervals(
+                    rays,
+                    (sp.starts, sp.spans),
+                    s,
+                    c.lindisp,
+                    mode,
+                    &ws.ids,
+                    &mut ws.t,
+                ),
+                (0, None) => stages::sample_intervals(rays, s, c.lindisp, mode, &ws.ids, &mut ws.t),
+                _ => {
+                    let (t, w) = (&ws.t, &ws.samples.weights);
+                    stages::resample_intervals(t, w, s, c.resample_padding, level, mode, &ws.ids, &mut ws.t_next);
+                    std::mem::swap(&mut ws.t, &mut ws.t_next);
+                }
+            }
+            let degrees = (c.min_deg_point, c.max_deg_point);
+            stages::cast_and_encode(rays, &ws.t, s, c.ray_shape, c.point_encoding, degrees, &mut ws.x);
             let mlp = self.mlp_for_level(level);
-            mlp.forward(params, &ws.x, &ws.view, rays.len(), c.num_samples, &mut ws.cache);
-            self.add_density_noise(level, rays.len(), ids, mode, ws);
-            self.apply_activations(ws);
-            self.render_pixels(rays, ids, mode, &mut per_ray, ws);
+            mlp.forward(params, &ws.x, &ws.view, rays.len(), s, &mut ws.cache);
+            stages::add_density_noise(c.density_noise, level, mode, &ws.ids, s, &mut ws.cache.raw_density[..n]);
+            let raw = (&ws.cache.raw_rgb[..3 * n], &ws.cache.raw_density[..n]);
+            stages::render_rays(c, raw.0, raw.1, &ws.t, rays, &ws.backgrounds, &mut ws.samples, &mut ws.per_ray);
+            self.average_pixels(ws);
             if let Some(out) = out.as_deref_mut() {
-                self.write_level_output(level, &per_ray, ws, out);
+                self.write_level_output(level, ws, out);
             }
             let (Some((tg, norm)), Some(grads)) = (targets, grads.as_deref_mut()) else {
                 continue;
             };
-            self.loss_gradient(level, rays, ids, mode, tg, norm, &mut sums[level], ws);
-            self.activations_backward(ws);
+            self.loss_gradient(level, rays, tg, norm, &mut sums[level], ws);
+            let raw = (&ws.cache.raw_rgb[..3 * n], &ws.cache.raw_density[..n]);
+            let d_raw = (&mut ws.d_raw_rgb[..], &mut ws.d_raw_density[..]);
+            stages::render_rays_backward(c, raw, &ws.t, rays, &ws.backgrounds, &ws.samples, &ws.d_ray_rgb, d_raw);
             let (x, view, cache) = (&ws.x, &ws.view, &mut ws.cache);
-            mlp.backward(params, x, view, c.num_samples, cache, &ws.d_raw_rgb, &ws.d_raw_density, grads);
+            mlp.backward(params, x, view, s, cache, &ws.d_raw_rgb, &ws.d_raw_density, grads);
         }
         sums
     }
@@ -734,173 +757,41 @@ impl Model {
         let (s, n) = (c.num_samples, nr * c.num_samples);
         ws.t.resize(nr * (s + 1), 0.0);
         ws.t_next.resize(nr * (s + 1), 0.0);
-        ws.gauss.resize(s, Gaussian::default());
         ws.x.resize(n * c.x_dim(), 0.0);
         ws.view.resize(nr * c.view_dim(), 0.0);
-        ws.rgb.resize(n, [0.0; 3]);
-        ws.density.resize(n, 0.0);
-        ws.weights.resize(n, 0.0);
+        ws.samples.resize(n);
+        ws.per_ray.resize(nr, render::RenderedRay::default());
+        ws.d_ray_rgb.resize(nr, [0.0; 3]);
+        ws.d_raw_rgb.resize(n * 3, 0.0);
+        ws.d_raw_density.resize(n, 0.0);
         ws.pixel_rgb.resize(nr / self.rays_per_pixel(), [0.0; 3]);
     }
 
-    /// The positional encoding of each ray's view direction (degrees `0..deg_view`, with the
-    /// identity), the colour branch's input.
-    fn encode_view_directions(&self, rays: &[Ray], ws: &mut Workspace) {
-        let (deg, v_dim) = (self.config.deg_view, self.config.view_dim());
-        for (r, ray) in rays.iter().enumerate() {
-            mip::pos_enc(ray.viewdir, 0, deg, true, &mut ws.view[r * v_dim..(r + 1) * v_dim]);
-        }
-    }
-
-    /// The interval edges `t` of each ray at `level`: stratified between near and far on the
-    /// coarse level ([`sampling::sample_along_rays`]), then drawn from the previous level's
-    /// weights ([`sampling::resample_along_rays`]); jittered by the ray's random streams in
-    /// training.
-    fn sample_intervals(
-        &self,
-        level: usize,
-        rays: &[Ray],
-        ids: RayIds<'_>,
-        spans: Option<ChunkSpans<'_>>,
-        mode: Mode,
-        ws: &mut Workspace,
-    ) {
-        let c = &self.config;
-        let s = c.num_samples;
-        for (r, ray) in rays.iter().enumerate() {
-            let gi = ids.get(r);
-            let t = &mut ws.t_next[r * (s + 1)..(r + 1) * (s + 1)];
-            if level == 0 {
-                let jitter = match mode {
-                    Mode::Train { seed, step } => Some(RayRng::new(seed, step, Stream::SampleJitter, gi)),
-                    Mode::Eval => None,
-                };
-                match spans {
-                    Some(sp) => sampling::sample_along_segments(sp.of(r), c.lindisp, jitter, t),
-                    None => sampling::sample_along_rays(ray.near, ray.far, c.lindisp, jitter, t),
-                }
-            } else {
-                let samples = match mode {
-                    Mode::Train { seed, step } => PdfSamples::Stratified(RayRng::new(
-                        seed,
-                        step,
-                        Stream::ResampleOffsets,
-                        crate::rng::ray_level_index(gi, level as u32),
-                    )),
-                    Mode::Eval => PdfSamples::Deterministic,
-                };
-                sampling::resample_along_rays(
-                    &ws.t[r * (s + 1)..(r + 1) * (s + 1)],
-                    &ws.weights[r * s..(r + 1) * s],
-                    c.resample_padding,
-                    samples,
-                    t,
-                );
-            }
-        }
-        std::mem::swap(&mut ws.t, &mut ws.t_next);
-    }
-
-    /// Each interval's conical frustum (or cylinder) as a Gaussian ([`cone::cast_ray`]), encoded
-    /// by the configured point encoding: IPE, PE of the mean ("w/o IPE"), or NeRF's PE.
-    fn encode_intervals(&self, rays: &[Ray], ws: &mut Workspace) {
-        let c = &self.config;
-        let (s, x_dim) = (c.num_samples, c.x_dim());
-        for (r, ray) in rays.iter().enumerate() {
-            let t = &ws.t[r * (s + 1)..(r + 1) * (s + 1)];
-            cone::cast_ray(t, ray.origin, ray.direction, ray.radius, c.ray_shape, &mut ws.gauss);
-            for (i, g) in ws.gauss.iter().enumerate() {
-                self.encode_point(g, &mut ws.x[(r * s + i) * x_dim..(r * s + i + 1) * x_dim]);
-            }
-        }
-    }
-
     /// One Gaussian encoded by the configured point encoding into `dst` (`x_dim` values): IPE,
-    /// PE of the mean ("w/o IPE"), or NeRF's PE.
+    /// PE of the mean ("w/o IPE"), or NeRF's PE ([`stages::encode_gaussian`]).
     pub fn encode_point(&self, g: &Gaussian, dst: &mut [f32]) {
         let c = &self.config;
-        match c.point_encoding {
-            PointEncoding::Integrated => mip::integrated_pos_enc(g, c.min_deg_point, c.max_deg_point, dst),
-            PointEncoding::Mean => {
-                let g0 = Gaussian { mean: g.mean, cov_diag: Vec3::ZERO };
-                mip::integrated_pos_enc(&g0, c.min_deg_point, c.max_deg_point, dst);
-            }
-            PointEncoding::Nerf => mip::pos_enc(g.mean, c.min_deg_point, c.max_deg_point, true, dst),
-        }
+        stages::encode_gaussian(g, c.point_encoding, c.min_deg_point, c.max_deg_point, dst);
     }
 
-    /// Training only: Gaussian noise of standard deviation `density_noise` on the raw density of
-    /// the `nr` rays, from each ray's `DensityNoise` stream at this level.
-    fn add_density_noise(&self, level: usize, nr: usize, ids: RayIds<'_>, mode: Mode, ws: &mut Workspace) {
-        let c = &self.config;
-        let (Mode::Train { seed, step }, true) = (mode, c.density_noise > 0.0) else {
-            return;
-        };
-        let s = c.num_samples;
-        for r in 0..nr {
-            let stream = crate::rng::ray_level_index(ids.get(r), level as u32);
-            let rng = RayRng::new(seed, step, Stream::DensityNoise, stream);
-            for i in 0..s {
-                ws.cache.raw_density[r * s + i] += c.density_noise * rng.normal(i as u32);
-            }
-        }
-    }
-
-    /// The MLP's raw outputs to density (softplus or ReLU, with the bias) and colour (sigmoid
-    /// with padding).
-    fn apply_activations(&self, ws: &mut Workspace) {
-        let c = &self.config;
-        for i in 0..ws.density.len() {
-            ws.density[i] = c.density_activation.forward(ws.cache.raw_density[i], c.density_bias);
-            for k in 0..3 {
-                ws.rgb[i][k] = render::rgb_activation(ws.cache.raw_rgb[i * 3 + k], c.rgb_padding);
-            }
-        }
-    }
-
-    /// Volume rendering of each ray ([`render::volumetric_rendering`], which also writes the
-    /// weights the next level resamples from), averaged over a pixel's rays.
-    fn render_pixels(
-        &self,
-        rays: &[Ray],
-        ids: RayIds<'_>,
-        mode: Mode,
-        per_ray: &mut [render::RenderedRay],
-        ws: &mut Workspace,
-    ) {
-        let c = &self.config;
-        let s = c.num_samples;
+    /// Each pixel's colour: the mean of its rays' rendered colours.
+    fn average_pixels(&self, ws: &mut Workspace) {
         let rpp = self.rays_per_pixel();
         let inv_rpp = 1.0 / rpp as f32;
         ws.pixel_rgb.iter_mut().for_each(|p| *p = [0.0; 3]);
-        for (r, ray) in rays.iter().enumerate() {
-            let sl = r * s..(r + 1) * s;
-            per_ray[r] = render::volumetric_rendering(
-                &ws.rgb[sl.clone()],
-                &ws.density[sl.clone()],
-                &ws.t[r * (s + 1)..(r + 1) * (s + 1)],
-                ray.direction,
-                self.ray_background(mode, ids.get(r)),
-                &mut ws.weights[sl],
-            );
+        for (r, ray) in ws.per_ray.iter().enumerate() {
             for k in 0..3 {
-                ws.pixel_rgb[r / rpp][k] += per_ray[r].rgb[k] * inv_rpp;
+                ws.pixel_rgb[r / rpp][k] += ray.rgb[k] * inv_rpp;
             }
         }
     }
 
     /// Each pixel's colour, distance and opacity at `level`.
-    fn write_level_output(
-        &self,
-        level: usize,
-        per_ray: &[render::RenderedRay],
-        ws: &Workspace,
-        out: &mut [LevelOutput],
-    ) {
+    fn write_level_output(&self, level: usize, ws: &Workspace, out: &mut [LevelOutput]) {
         let rpp = self.rays_per_pixel();
         let inv_rpp = 1.0 / rpp as f32;
         let levels = self.config.num_levels;
-        for (p, group) in per_ray.chunks(rpp).enumerate() {
+        for (p, group) in ws.per_ray.chunks(rpp).enumerate() {
             out[p * levels + level] = LevelOutput {
                 rgb: ws.pixel_rgb[p],
                 distance: group.iter().map(|g| g.distance).sum::<f32>() * inv_rpp,
@@ -909,31 +800,21 @@ impl Model {
         }
     }
 
-    /// The level's loss and its gradient back through volume rendering: per pixel,
-    /// [`pixel_loss_gradient`] of the area-weighted squared error (adding the pixel's
-    /// `lossmult · |e|²` and `|e|²` to `sums`), shared by its rays, then
-    /// [`render::volumetric_rendering_backward`] to each sample's colour and density.
+    /// The level's loss and each ray's loss gradient with respect to its rendered colour: per
+    /// pixel, [`pixel_loss_gradient`] of the area-weighted squared error (adding the pixel's
+    /// `lossmult · |e|²` and `|e|²` to `sums`), shared equally by its rays (`ws.d_ray_rgb`).
     fn loss_gradient(
         &self,
         level: usize,
         rays: &[Ray],
-        ids: RayIds<'_>,
-        mode: Mode,
         tg: &[[f32; 3]],
         norm: f32,
         sums: &mut [f64; 2],
         ws: &mut Workspace,
     ) {
-        let c = &self.config;
-        let s = c.num_samples;
-        let n = rays.len() * s;
         let rpp = self.rays_per_pixel();
         let inv_rpp = 1.0 / rpp as f32;
         let level_w = self.level_weights()[level];
-        ws.g_rgb.resize(n, [0.0; 3]);
-        ws.g_density.resize(n, 0.0);
-        ws.d_raw_rgb.resize(n * 3, 0.0);
-        ws.d_raw_density.resize(n, 0.0);
         for (r, ray) in rays.iter().enumerate() {
             let p = r / rpp;
             let lm = self.lossmult(ray);
@@ -945,33 +826,7 @@ impl Model {
                 }
             }
             let d_pixel = pixel_loss_gradient(ws.pixel_rgb[p], tg[p], lm, level_w, norm);
-            let d_rgb = d_pixel.map(|d| d * inv_rpp);
-            let sl = r * s..(r + 1) * s;
-            render::volumetric_rendering_backward(
-                &ws.rgb[sl.clone()],
-                &ws.density[sl.clone()],
-                &ws.t[r * (s + 1)..(r + 1) * (s + 1)],
-                ray.direction,
-                self.ray_background(mode, ids.get(r)),
-                &ws.weights[sl.clone()],
-                d_rgb,
-                0.0,
-                &mut ws.g_rgb[sl.clone()],
-                &mut ws.g_density[sl],
-            );
-        }
-    }
-
-    /// The gradients through the activations, to the MLP's raw outputs.
-    fn activations_backward(&self, ws: &mut Workspace) {
-        let c = &self.config;
-        for i in 0..ws.d_raw_density.len() {
-            let raw = ws.cache.raw_density[i];
-            ws.d_raw_density[i] = ws.g_density[i] * c.density_activation.derivative(raw, c.density_bias);
-            for k in 0..3 {
-                ws.d_raw_rgb[i * 3 + k] =
-                    ws.g_rgb[i][k] * render::rgb_activation_derivative(ws.cache.raw_rgb[i * 3 + k], c.rgb_padding);
-            }
+            ws.d_ray_rgb[r] = d_pixel.map(|d| d * inv_rpp);
         }
     }
 }
@@ -1014,12 +869,6 @@ impl Guide {
 struct ChunkSpans<'a> {
     starts: &'a [u32],
     spans: &'a [[f32; 2]],
-}
-
-impl ChunkSpans<'_> {
-    fn of(&self, r: usize) -> &[[f32; 2]] {
-        &self.spans[self.starts[r] as usize..self.starts[r + 1] as usize]
-    }
 }
 
 /// The gradient of one level's loss with respect to a pixel's rendered colour: the loss is

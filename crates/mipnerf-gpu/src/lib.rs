@@ -129,33 +129,25 @@ pub enum GpuError {
     InvalidInput(String),
 }
 
-/// Support for tests that need a GPU, shared by this crate's and the workspace's tests.
+/// Support for tests that need a GPU, shared by this crate's and the workspace's tests (the
+/// `test-support` feature, which only the tests' dev-dependencies turn on).
+#[cfg(feature = "test-support")]
 #[doc(hidden)]
 pub mod test_support {
     use std::sync::Arc;
 
-    use mipnerf_core::Camera;
-    use mipnerf_core::data::{Dataset, Pixels, Split, View, demo};
+    use mipnerf_core::data::{Dataset, demo};
 
     use crate::{AdapterChoice, GpuContext};
 
-    /// `n` views of the demo scene held in memory, `side` x `side` pixels each, on an orbit
-    /// (bounds 2 to 6, composited on white): training data that needs no files.
+    /// `n` views of the demo scene held in memory, `side` x `side` pixels each
+    /// ([`demo::dataset`]).
     ///
     /// # Panics
     /// If `n` or `side` is 0.
     #[must_use]
     pub fn demo_views(n: usize, side: u32) -> Arc<Dataset> {
-        let views = demo::view_poses(n, 0.0)
-            .into_iter()
-            .enumerate()
-            .map(|(i, pose)| {
-                let camera = Camera::from_camera_angle_x(side, side, 0.69, pose).expect("a valid demo camera");
-                let pixels = Pixels::RgbaF32(demo::render_view(&camera, 1));
-                View::in_memory(&format!("v{i}"), camera, pixels, 2.0, 6.0)
-            })
-            .collect();
-        Arc::new(Dataset::from_views(Split::Train, views, true).expect("at least one view"))
+        Arc::new(demo::dataset(n, side).expect("at least one view of at least one pixel"))
     }
 
     /// The context GPU tests run on, or `None` (after printing one line saying how to get an

@@ -1,15 +1,16 @@
-//! Each kernel run on a real adapter (lavapipe in CI) and compared with the CPU reference.
+//! Each kernel run on a real adapter (lavapipe in CI) and compared with its CPU reference in
+//! `mipnerf_core::stages` (or the MLP's `MlpShape::forward`/`backward`, or the whole `Model`)
+//! through one check, `mipnerf_core::compare::check_kernel`.
 #![allow(clippy::unwrap_used, missing_docs)]
 
-use mipnerf_gpu::kernels::Recorder;
-
 use glam::Vec3;
-use mipnerf_core::RayShape;
-use mipnerf_core::compare::{Tolerance, assert_none, mismatches};
-use mipnerf_core::rng::{RayRng, Stream};
-use mipnerf_core::sampling::sample_along_rays;
-use mipnerf_core::{Camera, PixelCenters, Ray};
-use mipnerf_core::{cone, mip};
+use mipnerf_core::compare::{Outputs, Tolerance, assert_none, check_kernel, mismatches};
+use mipnerf_core::data::demo;
+use mipnerf_core::mip::{self, ipe_len};
+use mipnerf_core::model::{Mode, PointEncoding};
+use mipnerf_core::{PixelCenters, Ray, RayShape, stages};
+use mipnerf_gpu::GpuError;
+use mipnerf_gpu::kernels::Recorder;
 use mipnerf_gpu::kernels::cast_ipe::CastIpeKernel;
 use mipnerf_gpu::test_support::context_or_skip;
 
@@ -30,13 +31,20 @@ fn sin_feature_tolerance(ctx: &mipnerf_gpu::GpuContext) -> f32 {
     if ctx.adapter().is_software { TOL_GPU_IPE_ABS } else { TOL_GPU_IPE_ABS + WGSL_SIN_ABS }
 }
 
-fn test_camera(n_side: u32) -> Camera {
-    let c2w = [[0.8, 0.0, 0.6, 2.4], [0.36, 0.8, -0.48, -1.92], [-0.48, 0.6, 0.64, 2.56]];
-    Camera::from_camera_angle_x(n_side, n_side, 0.69, c2w).unwrap()
+/// The rays of the demo's oblique camera at `n_side` x `n_side` pixels, bounds 2 to 6.
+fn test_rays(n_side: u32) -> Vec<Ray> {
+    demo::oblique_camera(n_side).generate_rays(PixelCenters::Centered, 2.0, 6.0, 1.0)
 }
 
-fn test_rays(n_side: u32) -> Vec<Ray> {
-    test_camera(n_side).generate_rays(PixelCenters::Centered, 2.0, 6.0, 1.0)
+/// The indices `0..n` (the batch indices of `n` consecutive rays).
+fn consecutive(n: usize) -> Vec<u32> {
+    (0..n as u32).collect()
+}
+
+/// A mode that draws random numbers (training, `seed` and `step`) when `randomized`, else
+/// evaluation.
+fn mode_of(randomized: bool, seed: u32, step: u32) -> Mode {
+    if randomized { Mode::Train { seed, step } } else { Mode::Eval }
 }
 
 #[test]
@@ -48,26 +56,24 @@ fn cast_ipe_matches_cpu_reference() {
     let rays = test_rays(12);
     let n = 16usize;
     let mut t = vec![0.0; rays.len() * (n + 1)];
-    for (r, ray) in rays.iter().enumerate() {
-        let rng = RayRng::new(7, 0, Stream::SampleJitter, r as u32);
-        sample_along_rays(ray.near, ray.far, false, Some(rng), &mut t[r * (n + 1)..(r + 1) * (n + 1)]);
-    }
+    stages::sample_intervals(&rays, n, false, Mode::Train { seed: 7, step: 0 }, &consecutive(rays.len()), &mut t);
+    let degrees = (0, 16);
+    let mut bad = Vec::new();
     for shape in [RayShape::Cone, RayShape::Cylinder] {
-        let gpu = kernel.run(&ctx, &rays, &t, n as u32, shape, 0, 16).unwrap();
-        let cpu = cone::cast_and_encode(&rays, &t, n, shape, 0, 16);
-        assert_eq!(gpu.len(), cpu.len());
-        let bad: Vec<String> = gpu
-            .iter()
-            .zip(&cpu)
-            .enumerate()
-            .filter(|(_, (g, c))| g.is_nan() || (*g - *c).abs() > sin_feature_tolerance(&ctx))
-            .take(20)
-            .map(|(i, (g, c))| format!("feature {i}: gpu {g} cpu {c}"))
-            .collect();
-        let max = gpu.iter().zip(&cpu).map(|(g, c)| (g - c).abs()).fold(0.0f32, f32::max);
-        eprintln!("cast_ipe {shape:?} on {}: max |gpu - cpu| = {max:e}", ctx.adapter().name);
-        assert!(bad.is_empty(), "{shape:?}: GPU IPE differs from the CPU (max {max:e}):\n{}", bad.join("\n"));
+        let check = check_kernel(
+            &format!("cast_ipe {shape:?} on {}", ctx.adapter().name),
+            |(rays, t): &(&[Ray], &[f32])| {
+                let mut x = vec![0.0; rays.len() * n * ipe_len(degrees.0, degrees.1)];
+                stages::cast_and_encode(rays, t, n, shape, PointEncoding::Integrated, degrees, &mut x);
+                vec![("features", x)]
+            },
+            |(rays, t)| kernel.run(&ctx, rays, t, n as u32, shape, degrees.0, degrees.1).map(|x| vec![("features", x)]),
+            &(&rays[..], &t[..]),
+            |_| Tolerance::abs(sin_feature_tolerance(&ctx)),
+        );
+        bad.extend(check.into_mismatches());
     }
+    assert_none(&bad);
 }
 
 #[test]
@@ -87,6 +93,18 @@ fn cast_ipe_rejects_inconsistent_sizes() {
 /// hardware as on lavapipe.
 const TOL_GPU_MLP_REL: f32 = 2e-4;
 const TOL_GPU_MLP_ABS: f32 = 2e-5;
+
+/// The inputs of one MLP pass: parameters, point features, view features, and the gradients of
+/// the raw outputs.
+struct MlpCase {
+    params: Vec<f32>,
+    x: Vec<f32>,
+    view: Vec<f32>,
+    d_rgb: Vec<f32>,
+    d_density: Vec<f32>,
+    n_rays: usize,
+    samples_per_ray: usize,
+}
 
 /// Fails with every mismatch `compare` reported (the first 40 listed).
 #[test]
@@ -139,58 +157,61 @@ fn mlp_forward_and_backward_match_cpu_reference() {
                     .split_plan((cfg.net_width, n, cfg.net_width), usize::MAX);
                 assert!(plan.splits > 1 && n % plan.k_chunk != 0, "{variant:?}: {plan:?} does not exercise the split");
             }
-            let x: Vec<f32> = (0..n * cfg.x_dim).map(|_| rng.random_range(-1.0..1.0)).collect();
-            let view: Vec<f32> = (0..n_rays * cfg.view_dim).map(|_| rng.random_range(-1.0..1.0)).collect();
-            let d_rgb: Vec<f32> = (0..n * 3).map(|_| rng.random_range(-1.0..1.0)).collect();
-            let d_density: Vec<f32> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
-            // CPU reference.
-            let mut cache = MlpCache::default();
-            shape.forward(&params, &x, &view, n_rays, spr, &mut cache);
-            let mut cpu_grads = vec![0.0; shape.num_params];
-            let (cpu_rgb, cpu_density) = (cache.raw_rgb.clone(), cache.raw_density.clone());
-            shape.backward(&params, &x, &view, spr, &mut cache, &d_rgb, &d_density, &mut cpu_grads);
-            // GPU.
-            let bufs = MlpBuffers::new(&ctx, &shape, n_rays, spr);
-            ctx.queue().write_buffer(&bufs.x, 0, bytemuck::cast_slice(&x));
-            ctx.queue().write_buffer(&bufs.view, 0, bytemuck::cast_slice(&view));
-            let p = ctx.storage_buffer("params", &params, true);
-            let g = ctx.storage_buffer("grads", &vec![0.0f32; shape.num_params], true);
-            let dr = ctx.storage_buffer("d rgb", &d_rgb, false);
-            // The density gradient goes where rendering writes it: column 0 of the heads'
-            // gradient (the other columns stay NaN: the backward pass must write them first).
-            let (dd, stride) = bufs.d_raw_density();
-            let mut strided = vec![f32::NAN; n * stride];
-            for (k, v) in d_density.iter().enumerate() {
-                strided[k * stride] = *v;
-            }
-            ctx.queue().write_buffer(dd, 0, bytemuck::cast_slice(&strided));
-            let mut rec = Recorder::new(&ctx, "mlp test");
-            gpu.forward(&mut rec, &shape, &p, &bufs);
-            gpu.backward(&mut rec, &shape, &p, &bufs, &dr, &g);
-            let _ = rec.submit();
-            let rgb = ctx.read_f32(&bufs.raw_rgb, n * 3).unwrap();
-            let (heads, stride) = bufs.raw_density();
-            let density: Vec<f32> = ctx.read_f32(heads, n * stride).unwrap().iter().step_by(stride).copied().collect();
-            let grads = ctx.read_f32(&g, shape.num_params).unwrap();
-            let tag = format!("{variant:?} shape {ci}");
-            bad.extend(mismatches(
-                &format!("{tag} raw rgb"),
-                &rgb,
-                &cpu_rgb,
-                Tolerance::new(TOL_GPU_MLP_ABS, TOL_GPU_MLP_REL),
-            ));
-            bad.extend(mismatches(
-                &format!("{tag} raw density"),
-                &density,
-                &cpu_density,
-                Tolerance::new(TOL_GPU_MLP_ABS, TOL_GPU_MLP_REL),
-            ));
-            bad.extend(mismatches(
-                &format!("{tag} grads"),
-                &grads,
-                &cpu_grads,
-                Tolerance::new(TOL_GPU_MLP_ABS, TOL_GPU_MLP_REL),
-            ));
+            let case = MlpCase {
+                params,
+                x: (0..n * cfg.x_dim).map(|_| rng.random_range(-1.0..1.0)).collect(),
+                view: (0..n_rays * cfg.view_dim).map(|_| rng.random_range(-1.0..1.0)).collect(),
+                d_rgb: (0..n * 3).map(|_| rng.random_range(-1.0..1.0)).collect(),
+                d_density: (0..n).map(|_| rng.random_range(-1.0..1.0)).collect(),
+                n_rays,
+                samples_per_ray: spr,
+            };
+            let cpu = |c: &MlpCase| -> Outputs {
+                let mut cache = MlpCache::default();
+                shape.forward(&c.params, &c.x, &c.view, c.n_rays, c.samples_per_ray, &mut cache);
+                let (rgb, density) = (cache.raw_rgb.clone(), cache.raw_density.clone());
+                let mut grads = vec![0.0; shape.num_params];
+                shape.backward(
+                    &c.params,
+                    &c.x,
+                    &c.view,
+                    c.samples_per_ray,
+                    &mut cache,
+                    &c.d_rgb,
+                    &c.d_density,
+                    &mut grads,
+                );
+                vec![("raw rgb", rgb), ("raw density", density), ("grads", grads)]
+            };
+            let on_gpu = |c: &MlpCase| -> Result<Outputs, GpuError> {
+                let bufs = MlpBuffers::new(&ctx, &shape, c.n_rays, c.samples_per_ray);
+                ctx.queue().write_buffer(&bufs.x, 0, bytemuck::cast_slice(&c.x));
+                ctx.queue().write_buffer(&bufs.view, 0, bytemuck::cast_slice(&c.view));
+                let p = ctx.storage_buffer("params", &c.params, true);
+                let g = ctx.storage_buffer("grads", &vec![0.0f32; shape.num_params], true);
+                let dr = ctx.storage_buffer("d rgb", &c.d_rgb, false);
+                // The density gradient goes where rendering writes it: column 0 of the heads'
+                // gradient (the other columns stay NaN: the backward pass must write them first).
+                let (dd, stride) = bufs.d_raw_density();
+                let mut strided = vec![f32::NAN; n * stride];
+                for (k, v) in c.d_density.iter().enumerate() {
+                    strided[k * stride] = *v;
+                }
+                ctx.queue().write_buffer(dd, 0, bytemuck::cast_slice(&strided));
+                let mut rec = Recorder::new(&ctx, "mlp test");
+                gpu.forward(&mut rec, &shape, &p, &bufs);
+                gpu.backward(&mut rec, &shape, &p, &bufs, &dr, &g);
+                let _ = rec.submit();
+                let (heads, stride) = bufs.raw_density();
+                let density = ctx.read_f32(heads, n * stride)?.iter().step_by(stride).copied().collect();
+                Ok(vec![
+                    ("raw rgb", ctx.read_f32(&bufs.raw_rgb, n * 3)?),
+                    ("raw density", density),
+                    ("grads", ctx.read_f32(&g, shape.num_params)?),
+                ])
+            };
+            let tol = |_: &str| Tolerance::new(TOL_GPU_MLP_ABS, TOL_GPU_MLP_REL);
+            bad.extend(check_kernel(&format!("{variant:?} shape {ci}"), cpu, on_gpu, &case, tol).into_mismatches());
         }
     }
     assert_none(&bad);
@@ -203,10 +224,22 @@ fn mlp_forward_and_backward_match_cpu_reference() {
 const TOL_GPU_RENDER_REL: f32 = 1e-4;
 const TOL_GPU_RENDER_ABS: f32 = 1e-6;
 
+/// The inputs of `render.wgsl`: the MLP's raw outputs, the edges, the rays (direction and
+/// `lossmult`), their batch indices and backgrounds, and each ray's target colour.
+struct RenderCase {
+    raw_rgb: Vec<f32>,
+    raw_density: Vec<f32>,
+    t: Vec<f32>,
+    rays: Vec<Ray>,
+    ids: Vec<u32>,
+    backgrounds: Vec<[f32; 3]>,
+    targets: Vec<[f32; 3]>,
+}
+
 #[test]
 fn render_forward_loss_and_backward_match_cpu_reference() {
-    use mipnerf_core::model::ModelConfig;
-    use mipnerf_core::render::{self, DensityActivation};
+    use mipnerf_core::model::{ModelConfig, pixel_loss_gradient};
+    use mipnerf_core::render::{self, DensityActivation, RenderedRay};
     use mipnerf_gpu::kernels::render::{
         BACKGROUND_BLACK, BACKGROUND_RANDOM, BACKGROUND_WHITE, RenderBuffers, RenderKernel, RenderParams, RenderVariant,
     };
@@ -219,7 +252,6 @@ fn render_forward_loss_and_backward_match_cpu_reference() {
     // `rng::random_background` draws with the ray's batch index: scattered indices, as the rays an
     // occupancy grid lets through have.
     let (seed, step) = (77u32, 5u32);
-    let batch_index = |r: usize| 1000 + 3 * r as u32;
     for (variant, (ci, (act, bg, area, samples))) in
         [RenderVariant::PerRay, RenderVariant::Wide].into_iter().flat_map(|v| {
             [
@@ -243,192 +275,178 @@ fn render_forward_loss_and_backward_match_cpu_reference() {
             ..ModelConfig::default()
         };
         let (nr, s) = (9usize, cfg.num_samples);
-        let ray_bg = |r: usize| match bg {
-            BACKGROUND_RANDOM => mipnerf_core::rng::random_background(seed, step, batch_index(r)),
-            _ => render::background(cfg.white_bkgd),
-        };
         let n = nr * s;
         let mut rng = SmallRng::seed_from_u64(ci as u64 + 10);
-        // Raw densities away from ReLU's kink.
-        let raw_density: Vec<f32> =
-            (0..n).map(|_| rng.random_range(0.2..4.0) * if rng.random::<bool>() { 1.0 } else { -1.0 }).collect();
-        let raw_rgb: Vec<f32> = (0..n * 3).map(|_| rng.random_range(-3.0..3.0)).collect();
-        let mut t_vals = Vec::new();
+        let ids: Vec<u32> = (0..nr as u32).map(|r| 1000 + 3 * r).collect();
+        let mut t = Vec::new();
         for _ in 0..nr {
-            let mut t: Vec<f32> = (0..=s).map(|_| rng.random_range(2.0..6.0)).collect();
-            t.sort_by(f32::total_cmp);
-            t_vals.extend(t);
+            let mut edges: Vec<f32> = (0..=s).map(|_| rng.random_range(2.0..6.0)).collect();
+            edges.sort_by(f32::total_cmp);
+            t.extend(edges);
         }
-        let rays: Vec<[f32; 4]> = (0..nr)
-            .flat_map(|_| {
-                [
-                    [0.0, -4.0, 0.5, 0.001],
-                    [
-                        rng.random_range(-0.3..0.3),
-                        1.0,
-                        rng.random_range(-0.3..0.3),
-                        [1.0, 4.0, 16.0][rng.random_range(0..3)],
-                    ],
-                ]
-            })
-            .collect();
-        let targets: Vec<[f32; 4]> = (0..nr).map(|_| [rng.random(), rng.random(), rng.random(), 0.0]).collect();
-        let lossmult = |r: usize| if area { rays[2 * r + 1][3] } else { 1.0 };
-        let norm = 3.0 * (0..nr).map(lossmult).sum::<f32>();
-        let level_weight = 0.1;
-        // CPU reference.
-        let (mut w_cpu, mut d_rgb_cpu, mut d_den_cpu, mut out_cpu) =
-            (vec![0.0; n], vec![0.0; n * 3], vec![0.0; n], Vec::new());
-        for r in 0..nr {
-            let sl = r * s..(r + 1) * s;
-            let rgb: Vec<[f32; 3]> = sl
-                .clone()
-                .map(|k| std::array::from_fn(|c| render::rgb_activation(raw_rgb[3 * k + c], cfg.rgb_padding)))
-                .collect();
-            let den: Vec<f32> = sl.clone().map(|k| act.forward(raw_density[k], cfg.density_bias)).collect();
-            let t = &t_vals[r * (s + 1)..(r + 1) * (s + 1)];
-            let dir = glam::Vec3::new(rays[2 * r + 1][0], rays[2 * r + 1][1], rays[2 * r + 1][2]);
-            let o = render::volumetric_rendering(&rgb, &den, t, dir, ray_bg(r), &mut w_cpu[sl.clone()]);
-            let err: [f32; 3] = std::array::from_fn(|c| o.rgb[c] - targets[r][c]);
-            let se: f32 = err.iter().map(|e| e * e).sum();
-            out_cpu.extend([o.rgb[0], o.rgb[1], o.rgb[2], o.distance, o.acc, lossmult(r) * se, se, 0.0]);
-            let d_col = err.map(|e| level_weight * 2.0 * lossmult(r) * e / norm);
-            let (mut g_rgb, mut g_den) = (vec![[0.0; 3]; s], vec![0.0; s]);
-            render::volumetric_rendering_backward(
-                &rgb,
-                &den,
-                t,
-                dir,
-                ray_bg(r),
-                &w_cpu[sl.clone()],
-                d_col,
-                0.0,
-                &mut g_rgb,
-                &mut g_den,
-            );
-            for (i, k) in sl.enumerate() {
-                d_den_cpu[k] = g_den[i] * act.derivative(raw_density[k], cfg.density_bias);
-                for c in 0..3 {
-                    d_rgb_cpu[3 * k + c] =
-                        g_rgb[i][c] * render::rgb_activation_derivative(raw_rgb[3 * k + c], cfg.rgb_padding);
-                }
-            }
-        }
-        // GPU, outputs poisoned with NaN.
-        let buf = |name: &str, v: &[f32], out: bool| ctx.storage_buffer(name, v, out);
-        let (b_rgb, b_den, b_t) =
-            (buf("raw rgb", &raw_rgb, false), buf("raw density", &raw_density, false), buf("t", &t_vals, false));
-        let b_rays = buf("rays", rays.as_flattened(), false);
-        let b_targets = buf("targets", targets.as_flattened(), false);
-        let (b_w, b_drgb, b_dden, b_out) = (
-            buf("w", &vec![f32::NAN; n], true),
-            buf("d rgb", &vec![f32::NAN; n * 3], true),
-            buf("d den", &vec![f32::NAN; n], true),
-            buf("out", &vec![f32::NAN; nr * 8], true),
-        );
-        let mut rec = Recorder::new(&ctx, "render test");
-        let rb = RenderBuffers {
-            raw_rgb: &b_rgb,
-            raw_density: &b_den,
-            t_vals: &b_t,
-            rays: &b_rays,
-            targets: &b_targets,
-            weights: &b_w,
-            d_raw_rgb: &b_drgb,
-            d_raw_density: &b_dden,
-            ray_out: &b_out,
-            norm: &buf("norm", &[norm], false),
-            ray_ids: &ctx.storage_buffer("ray ids", &(0..nr).map(batch_index).collect::<Vec<u32>>(), false),
+        let case = RenderCase {
+            // Raw densities away from ReLU's kink.
+            raw_density: (0..n)
+                .map(|_| rng.random_range(0.2..4.0) * if rng.random::<bool>() { 1.0 } else { -1.0 })
+                .collect(),
+            raw_rgb: (0..n * 3).map(|_| rng.random_range(-3.0..3.0)).collect(),
+            t,
+            rays: (0..nr)
+                .map(|_| Ray {
+                    origin: Vec3::new(0.0, -4.0, 0.5),
+                    radius: 0.001,
+                    direction: Vec3::new(rng.random_range(-0.3..0.3), 1.0, rng.random_range(-0.3..0.3)),
+                    lossmult: [1.0, 4.0, 16.0][rng.random_range(0..3)],
+                    ..Ray::default()
+                })
+                .collect(),
+            backgrounds: ids
+                .iter()
+                .map(|&id| match bg {
+                    BACKGROUND_RANDOM => mipnerf_core::rng::random_background(seed, step, id),
+                    _ => render::background(cfg.white_bkgd),
+                })
+                .collect(),
+            ids,
+            targets: (0..nr).map(|_| [rng.random(), rng.random(), rng.random()]).collect(),
         };
-        let mut params = RenderParams::new(&cfg, nr, level_weight, true);
-        if bg == BACKGROUND_RANDOM {
-            params = params.with_random_background(seed, step);
-        }
-        kernel.encode(&mut rec, params, &rb).unwrap();
-        let _ = rec.submit();
-        let tag = format!("{variant:?} case {ci}");
-        bad.extend(mismatches(
-            &format!("{tag} weights"),
-            &ctx.read_f32(&b_w, n).unwrap(),
-            &w_cpu,
-            Tolerance::new(TOL_GPU_RENDER_ABS, TOL_GPU_RENDER_REL),
-        ));
-        bad.extend(mismatches(
-            &format!("{tag} ray outputs"),
-            &ctx.read_f32(&b_out, nr * 8).unwrap(),
-            &out_cpu,
-            Tolerance::new(TOL_GPU_RENDER_ABS, TOL_GPU_RENDER_REL),
-        ));
-        bad.extend(mismatches(
-            &format!("{tag} d raw rgb"),
-            &ctx.read_f32(&b_drgb, n * 3).unwrap(),
-            &d_rgb_cpu,
-            Tolerance::new(TOL_GPU_RENDER_ABS, TOL_GPU_RENDER_REL),
-        ));
-        bad.extend(mismatches(
-            &format!("{tag} d raw density"),
-            &ctx.read_f32(&b_dden, n).unwrap(),
-            &d_den_cpu,
-            Tolerance::new(TOL_GPU_RENDER_ABS, TOL_GPU_RENDER_REL),
-        ));
+        let lossmult = |ray: &Ray| if area { ray.lossmult } else { 1.0 };
+        let norm = 3.0 * case.rays.iter().map(lossmult).sum::<f32>();
+        let level_weight = 0.1;
+        let cpu = |c: &RenderCase| -> Outputs {
+            let mut samples = stages::RenderedSamples::default();
+            let mut per_ray = vec![RenderedRay::default(); nr];
+            stages::render_rays(
+                &cfg,
+                &c.raw_rgb,
+                &c.raw_density,
+                &c.t,
+                &c.rays,
+                &c.backgrounds,
+                &mut samples,
+                &mut per_ray,
+            );
+            // Per ray: colour, distance, opacity, the area-weighted and the plain squared error.
+            let mut out = Vec::new();
+            let mut d_ray_rgb = Vec::new();
+            for ((o, target), ray) in per_ray.iter().zip(&c.targets).zip(&c.rays) {
+                let se: f32 = (0..3).map(|k| (o.rgb[k] - target[k]) * (o.rgb[k] - target[k])).sum();
+                out.extend([o.rgb[0], o.rgb[1], o.rgb[2], o.distance, o.acc, lossmult(ray) * se, se, 0.0]);
+                d_ray_rgb.push(pixel_loss_gradient(o.rgb, *target, lossmult(ray), level_weight, norm));
+            }
+            let (mut d_rgb, mut d_density) = (vec![0.0; n * 3], vec![0.0; n]);
+            let raw = (&c.raw_rgb[..], &c.raw_density[..]);
+            let d_raw = (&mut d_rgb[..], &mut d_density[..]);
+            stages::render_rays_backward(&cfg, raw, &c.t, &c.rays, &c.backgrounds, &samples, &d_ray_rgb, d_raw);
+            vec![("weights", samples.weights), ("ray outputs", out), ("d raw rgb", d_rgb), ("d raw density", d_density)]
+        };
+        // GPU, outputs poisoned with NaN.
+        let on_gpu = |c: &RenderCase| -> Result<Outputs, GpuError> {
+            let buf = |name: &str, v: &[f32], out: bool| ctx.storage_buffer(name, v, out);
+            let packed: Vec<[f32; 4]> = c
+                .rays
+                .iter()
+                .flat_map(|r| [r.origin.extend(r.radius).to_array(), r.direction.extend(r.lossmult).to_array()])
+                .collect();
+            let targets: Vec<[f32; 4]> = c.targets.iter().map(|t| [t[0], t[1], t[2], 0.0]).collect();
+            let (b_rgb, b_den, b_t) =
+                (buf("raw rgb", &c.raw_rgb, false), buf("raw density", &c.raw_density, false), buf("t", &c.t, false));
+            let (b_rays, b_targets) =
+                (buf("rays", packed.as_flattened(), false), buf("targets", targets.as_flattened(), false));
+            let (b_w, b_drgb, b_dden, b_out) = (
+                buf("w", &vec![f32::NAN; n], true),
+                buf("d rgb", &vec![f32::NAN; n * 3], true),
+                buf("d den", &vec![f32::NAN; n], true),
+                buf("out", &vec![f32::NAN; nr * 8], true),
+            );
+            let mut rec = Recorder::new(&ctx, "render test");
+            let rb = RenderBuffers {
+                raw_rgb: &b_rgb,
+                raw_density: &b_den,
+                t_vals: &b_t,
+                rays: &b_rays,
+                targets: &b_targets,
+                weights: &b_w,
+                d_raw_rgb: &b_drgb,
+                d_raw_density: &b_dden,
+                ray_out: &b_out,
+                norm: &buf("norm", &[norm], false),
+                ray_ids: &ctx.storage_buffer("ray ids", &c.ids, false),
+            };
+            let mut params = RenderParams::new(&cfg, nr, level_weight, true);
+            if bg == BACKGROUND_RANDOM {
+                params = params.with_random_background(seed, step);
+            }
+            kernel.encode(&mut rec, params, &rb)?;
+            let _ = rec.submit();
+            Ok(vec![
+                ("weights", ctx.read_f32(&b_w, n)?),
+                ("ray outputs", ctx.read_f32(&b_out, nr * 8)?),
+                ("d raw rgb", ctx.read_f32(&b_drgb, n * 3)?),
+                ("d raw density", ctx.read_f32(&b_dden, n)?),
+            ])
+        };
+        let tol = |_: &str| Tolerance::new(TOL_GPU_RENDER_ABS, TOL_GPU_RENDER_REL);
+        bad.extend(check_kernel(&format!("{variant:?} case {ci}"), cpu, on_gpu, &case, tol).into_mismatches());
     }
     assert_none(&bad);
 }
 
 #[test]
 fn adam_and_gradient_clipping_match_cpu_reference() {
-    use mipnerf_core::train::{AdamConfig, AdamState, clip_gradients};
+    use mipnerf_core::train::{AdamConfig, AdamState};
     use mipnerf_gpu::kernels::adam::{AdamBuffers, AdamKernel, AdamStep};
     use rand::{Rng, SeedableRng, rngs::SmallRng};
     let Some(ctx) = context_or_skip("adam_and_gradient_clipping_match_cpu_reference") else { return };
     let kernel = AdamKernel::new(&ctx).unwrap();
     // More than one workgroup of the norm's first pass (256), not a multiple of it.
     let n = 1000;
+    let (cfg, lr) = (AdamConfig::default(), 1e-3);
     let mut bad = Vec::new();
     // (max_val, max_norm): off; by value (some entries clipped); by norm (the norm of 1000 entries
     // of about 0.06 is about 1.8, so it is scaled); both.
     for (max_val, max_norm) in [(0.0, 0.0), (0.05, 0.0), (0.0, 0.5), (0.08, 1.0)] {
+        // The starting parameters and three steps' gradients.
         let mut rng = SmallRng::seed_from_u64(3);
-        let mut params: Vec<f32> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
-        let cfg = AdamConfig::default();
-        let b = AdamBuffers::new(&ctx, &params, &vec![0.0; n], &vec![0.0; n]);
-        let mut state = AdamState::new(n);
-        let mut norms = Vec::new();
-        for t in 1..=3u64 {
-            let mut grads: Vec<f32> = (0..n).map(|_| rng.random_range(-0.1..0.1)).collect();
-            ctx.queue().write_buffer(&b.grads, 0, bytemuck::cast_slice(&grads));
-            let mut rec = Recorder::new(&ctx, "adam test");
-            let step = AdamStep { cfg, t, lr: 1e-3, max_val, max_norm };
-            kernel.encode(&mut rec, &step, &b).unwrap();
-            let _ = rec.submit();
-            let cpu_norm = clip_gradients(&mut grads, max_val, max_norm);
-            state.update(&cfg, 1e-3, &mut params, &grads);
-            if max_norm > 0.0 {
-                norms.push((ctx.read_f32(&b.stats, 1).unwrap()[0], cpu_norm));
+        let params: Vec<f32> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let steps: Vec<Vec<f32>> = (0..3).map(|_| (0..n).map(|_| rng.random_range(-0.1..0.1)).collect()).collect();
+        let cpu = |(params, steps): &(Vec<f32>, Vec<Vec<f32>>)| -> Outputs {
+            let (mut params, mut state, mut norms) = (params.clone(), AdamState::new(n), Vec::new());
+            for grads in steps {
+                let norm =
+                    stages::adam_step(&cfg, lr, (max_val, max_norm), &mut state, &mut params, &mut grads.clone());
+                norms.push(norm);
             }
-        }
-        let tag = format!("max_val {max_val} max_norm {max_norm}");
-        bad.extend(mismatches(
-            &format!("{tag} params"),
-            &ctx.read_f32(&b.params, n).unwrap(),
-            &params,
-            Tolerance::new(1e-7, 1e-6),
-        ));
-        bad.extend(mismatches(
-            &format!("{tag} m"),
-            &ctx.read_f32(&b.m, n).unwrap(),
-            &state.m,
-            Tolerance::new(1e-9, 1e-6),
-        ));
-        bad.extend(mismatches(
-            &format!("{tag} v"),
-            &ctx.read_f32(&b.v, n).unwrap(),
-            &state.v,
-            Tolerance::new(1e-12, 1e-5),
-        ));
-        for (g, c) in norms {
-            bad.extend(mismatches(&format!("{tag} gradient norm"), &[g], &[c], Tolerance::new(0.0, 1e-5)));
-        }
+            let norms = if max_norm > 0.0 { norms } else { Vec::new() };
+            vec![("params", params), ("m", state.m), ("v", state.v), ("gradient norm", norms)]
+        };
+        let on_gpu = |(params, steps): &(Vec<f32>, Vec<Vec<f32>>)| -> Result<Outputs, GpuError> {
+            let b = AdamBuffers::new(&ctx, params, &vec![0.0; n], &vec![0.0; n]);
+            let mut norms = Vec::new();
+            for (t, grads) in (1..).zip(steps) {
+                ctx.queue().write_buffer(&b.grads, 0, bytemuck::cast_slice(grads));
+                let mut rec = Recorder::new(&ctx, "adam test");
+                kernel.encode(&mut rec, &AdamStep { cfg, t, lr, max_val, max_norm }, &b)?;
+                let _ = rec.submit();
+                if max_norm > 0.0 {
+                    norms.push(ctx.read_f32(&b.stats, 1)?[0]);
+                }
+            }
+            Ok(vec![
+                ("params", ctx.read_f32(&b.params, n)?),
+                ("m", ctx.read_f32(&b.m, n)?),
+                ("v", ctx.read_f32(&b.v, n)?),
+                ("gradient norm", norms),
+            ])
+        };
+        let tol = |name: &str| match name {
+            "params" => Tolerance::new(1e-7, 1e-6),
+            "m" => Tolerance::new(1e-9, 1e-6),
+            "v" => Tolerance::new(1e-12, 1e-5),
+            _ => Tolerance::new(0.0, 1e-5),
+        };
+        let label = format!("max_val {max_val} max_norm {max_norm}");
+        bad.extend(check_kernel(&label, cpu, on_gpu, &(params, steps), tol).into_mismatches());
     }
     assert_none(&bad);
 }
@@ -445,7 +463,7 @@ const TOL_GPU_RESAMPLE_WIDE_ABS: f32 = 1e-4;
 
 #[test]
 fn sampling_and_resampling_match_cpu_reference() {
-    use mipnerf_core::sampling::{PdfSamples, RESAMPLE_PADDING, resample_along_rays, sample_along_rays};
+    use mipnerf_core::sampling::RESAMPLE_PADDING;
     use mipnerf_gpu::kernels::sample::{ResampleVariant, SampleKernels, SampleParams};
     use rand::{Rng, SeedableRng, rngs::SmallRng};
     let Some(ctx) = context_or_skip("sampling_and_resampling_match_cpu_reference") else { return };
@@ -461,77 +479,57 @@ fn sampling_and_resampling_match_cpu_reference() {
         let k = SampleKernels::with_variant(&ctx, variant).unwrap();
         // Scattered batch indices, as the rays an occupancy grid lets through have.
         let (nr, seed, step) = (37usize, 5u32, 9u32);
-        let batch_index = |r: usize| 100 + 3 * r as u32;
+        let ids: Vec<u32> = (0..nr as u32).map(|r| 100 + 3 * r).collect();
         let mut rng = SmallRng::seed_from_u64(s as u64);
-        let bounds: Vec<f32> = (0..nr)
-            .flat_map(|_| {
+        let rays: Vec<Ray> = (0..nr)
+            .map(|_| {
                 let near = rng.random_range(0.5..3.0);
-                [near, near + rng.random_range(0.5..5.0)]
+                Ray { near, far: near + rng.random_range(0.5..5.0), ..Ray::default() }
             })
             .collect();
         // Weights with zeros and spikes.
         let weights: Vec<f32> =
             (0..nr * s).map(|i| if i % 7 == 0 { 0.0 } else { rng.random_range(0.0..1.0f32).powi(4) }).collect();
         for (lindisp, randomized) in [(false, false), (true, false), (false, true), (true, true)] {
-            let params = SampleParams {
-                n_rays: nr as u32,
-                n_samples: s as u32,
-                lindisp: u32::from(lindisp),
-                randomized: u32::from(randomized),
-                seed,
-                step,
-                level: 1,
-                resample_padding: RESAMPLE_PADDING,
-                ..SampleParams::default()
+            let mode = mode_of(randomized, seed, step);
+            let cpu = |w: &[f32]| -> Outputs {
+                let (mut coarse, mut fine) = (vec![0.0; nr * (s + 1)], vec![0.0; nr * (s + 1)]);
+                stages::sample_intervals(&rays, s, lindisp, mode, &ids, &mut coarse);
+                stages::resample_intervals(&coarse, w, s, RESAMPLE_PADDING, 1, mode, &ids, &mut fine);
+                vec![("coarse", coarse), ("fine", fine)]
             };
-            // CPU.
-            let (mut t_cpu, mut f_cpu) = (vec![0.0; nr * (s + 1)], vec![0.0; nr * (s + 1)]);
-            for r in 0..nr {
-                let gi = batch_index(r);
-                let jitter = randomized.then(|| RayRng::new(seed, step, Stream::SampleJitter, gi));
-                let t = &mut t_cpu[r * (s + 1)..(r + 1) * (s + 1)];
-                sample_along_rays(bounds[2 * r], bounds[2 * r + 1], lindisp, jitter, t);
-                let samples = if randomized {
-                    PdfSamples::Stratified(RayRng::new(seed, step, Stream::ResampleOffsets, gi * 8 + 1))
-                } else {
-                    PdfSamples::Deterministic
-                };
-                let t = &t_cpu[r * (s + 1)..(r + 1) * (s + 1)];
-                resample_along_rays(
-                    t,
-                    &weights[r * s..(r + 1) * s],
-                    RESAMPLE_PADDING,
-                    samples,
-                    &mut f_cpu[r * (s + 1)..(r + 1) * (s + 1)],
-                );
-            }
             // GPU, outputs poisoned.
-            let b_bounds = ctx.storage_buffer("bounds", &bounds, false);
-            let b_w = ctx.storage_buffer("weights", &weights, false);
-            let b_t = ctx.storage_buffer("t coarse", &vec![f32::NAN; nr * (s + 1)], true);
-            let b_f = ctx.storage_buffer("t fine", &vec![f32::NAN; nr * (s + 1)], true);
-            let mut rec = Recorder::new(&ctx, "sample test");
-            let ids: Vec<u32> = (0..nr).map(batch_index).collect();
-            let b_ids = ctx.storage_buffer("ray ids", &ids, false);
-            k.stratified(&mut rec, params, &b_bounds, &b_ids, &b_t).unwrap();
-            k.resample(&mut rec, params, &b_t, &b_w, &b_ids, &b_f).unwrap();
-            let _ = rec.submit();
-            let tag = format!("{variant:?} {s} samples lindisp {lindisp} randomized {randomized}");
-            bad.extend(mismatches(
-                &format!("{tag} coarse"),
-                &ctx.read_f32(&b_t, nr * (s + 1)).unwrap(),
-                &t_cpu,
-                Tolerance::new(0.0, TOL_GPU_SAMPLE_REL),
-            ));
-            bad.extend(mismatches(
-                &format!("{tag} fine"),
-                &ctx.read_f32(&b_f, nr * (s + 1)).unwrap(),
-                &f_cpu,
-                match variant {
-                    ResampleVariant::PerRay => Tolerance::new(1e-6, TOL_GPU_SAMPLE_REL),
-                    ResampleVariant::Wide => Tolerance::new(TOL_GPU_RESAMPLE_WIDE_ABS, TOL_GPU_SAMPLE_REL),
-                },
-            ));
+            let on_gpu = |w: &[f32]| -> Result<Outputs, GpuError> {
+                let params = SampleParams {
+                    n_rays: nr as u32,
+                    n_samples: s as u32,
+                    lindisp: u32::from(lindisp),
+                    randomized: u32::from(randomized),
+                    seed,
+                    step,
+                    level: 1,
+                    resample_padding: RESAMPLE_PADDING,
+                    ..SampleParams::default()
+                };
+                let bounds: Vec<f32> = rays.iter().flat_map(|r| [r.near, r.far]).collect();
+                let b_bounds = ctx.storage_buffer("bounds", &bounds, false);
+                let b_w = ctx.storage_buffer("weights", w, false);
+                let b_t = ctx.storage_buffer("t coarse", &vec![f32::NAN; nr * (s + 1)], true);
+                let b_f = ctx.storage_buffer("t fine", &vec![f32::NAN; nr * (s + 1)], true);
+                let b_ids = ctx.storage_buffer("ray ids", &ids, false);
+                let mut rec = Recorder::new(&ctx, "sample test");
+                k.stratified(&mut rec, params, &b_bounds, &b_ids, &b_t)?;
+                k.resample(&mut rec, params, &b_t, &b_w, &b_ids, &b_f)?;
+                let _ = rec.submit();
+                Ok(vec![("coarse", ctx.read_f32(&b_t, nr * (s + 1))?), ("fine", ctx.read_f32(&b_f, nr * (s + 1))?)])
+            };
+            let tol = |name: &str| match (name, variant) {
+                ("coarse", _) => Tolerance::new(0.0, TOL_GPU_SAMPLE_REL),
+                (_, ResampleVariant::PerRay) => Tolerance::new(1e-6, TOL_GPU_SAMPLE_REL),
+                (_, ResampleVariant::Wide) => Tolerance::new(TOL_GPU_RESAMPLE_WIDE_ABS, TOL_GPU_SAMPLE_REL),
+            };
+            let label = format!("{variant:?} {s} samples lindisp {lindisp} randomized {randomized}");
+            bad.extend(check_kernel(&label, cpu, on_gpu, &weights[..], tol).into_mismatches());
         }
     }
     assert_none(&bad);
@@ -543,33 +541,35 @@ fn view_direction_encoding_matches_cpu_reference() {
     let Some(ctx) = context_or_skip("view_direction_encoding_matches_cpu_reference") else { return };
     let k = ViewEncKernel::new(&ctx).unwrap();
     let rays = test_rays(9);
-    let dirs: Vec<f32> = rays.iter().flat_map(|r| r.viewdir.to_array()).collect();
     let mut bad = Vec::new();
     // The paper's 4 degrees, and 12 (arguments up to 2^11 = 2048, as NeRF's positions reach):
     // issue 18, item 9, the argument reduction holds far from [-pi, pi] without fused multiply-adds.
     for deg in [4u32, 12] {
-        let len = mip::pos_enc_len(0, deg, true);
-        let mut cpu = vec![0.0; rays.len() * len];
-        for (r, ray) in rays.iter().enumerate() {
-            mip::pos_enc(ray.viewdir, 0, deg, true, &mut cpu[r * len..(r + 1) * len]);
-        }
-        let b_in = ctx.storage_buffer("viewdirs", &dirs, false);
-        let b_out = ctx.storage_buffer("view enc", &vec![f32::NAN; cpu.len()], true);
-        let mut rec = Recorder::new(&ctx, "view enc test");
-        k.encode(&mut rec, rays.len(), deg, &b_in, &b_out).unwrap();
-        let _ = rec.submit();
-        let got = ctx.read_f32(&b_out, cpu.len()).unwrap();
-        let max = got.iter().zip(&cpu).map(|(g, c)| (g - c).abs()).fold(0.0f32, f32::max);
-        eprintln!("view encoding, {deg} degrees, on {}: max |gpu - cpu| = {max:e}", ctx.adapter().name);
-        let tol = Tolerance::new(sin_feature_tolerance(&ctx), 0.0);
-        bad.extend(mismatches(&format!("view encoding, {deg} degrees"), &got, &cpu, tol));
+        let len = rays.len() * mip::pos_enc_len(0, deg, true);
+        let cpu = |rays: &[Ray]| -> Outputs {
+            let mut out = vec![0.0; len];
+            stages::encode_view_directions(rays, deg, &mut out);
+            vec![("encoding", out)]
+        };
+        let on_gpu = |rays: &[Ray]| -> Result<Outputs, GpuError> {
+            let dirs: Vec<f32> = rays.iter().flat_map(|r| r.viewdir.to_array()).collect();
+            let b_in = ctx.storage_buffer("viewdirs", &dirs, false);
+            let b_out = ctx.storage_buffer("view enc", &vec![f32::NAN; len], true);
+            let mut rec = Recorder::new(&ctx, "view enc test");
+            k.encode(&mut rec, rays.len(), deg, &b_in, &b_out)?;
+            let _ = rec.submit();
+            Ok(vec![("encoding", ctx.read_f32(&b_out, len)?)])
+        };
+        let tol = |_: &str| Tolerance::abs(sin_feature_tolerance(&ctx));
+        let label = format!("view encoding, {deg} degrees, on {}", ctx.adapter().name);
+        bad.extend(check_kernel(&label, cpu, on_gpu, &rays[..], tol).into_mismatches());
     }
     assert_none(&bad);
 }
 
 #[test]
 fn a_missing_hardware_gpu_is_an_error_not_a_panic() {
-    use mipnerf_gpu::{AdapterChoice, GpuContext, GpuError};
+    use mipnerf_gpu::{AdapterChoice, GpuContext};
     match GpuContext::new(AdapterChoice::HardwareOnly) {
         Ok(ctx) => assert!(!ctx.adapter().is_software, "HardwareOnly returned {}", ctx.adapter().name),
         Err(e) => {
@@ -596,9 +596,18 @@ fn a_missing_hardware_gpu_is_an_error_not_a_panic() {
 const TOL_GPU_MODEL_REL: f32 = 2e-3;
 const TOL_GPU_MODEL_ABS: f32 = 2e-6;
 
+/// The tolerance of a whole model's outputs: losses and MSE as they are, gradients relative to
+/// their overall scale (`grad_scale`, the CPU's largest).
+fn model_tolerance(grad_scale: f32) -> impl Fn(&str) -> Tolerance {
+    move |name| match name {
+        "grads" => Tolerance::new(TOL_GPU_MODEL_REL * grad_scale, TOL_GPU_MODEL_REL),
+        _ => Tolerance::new(TOL_GPU_MODEL_ABS, TOL_GPU_MODEL_REL),
+    }
+}
+
 #[test]
 fn whole_model_loss_and_gradients_match_cpu_reference() {
-    use mipnerf_core::model::{Mode, Model, ModelConfig, PointEncoding, Preset};
+    use mipnerf_core::model::{Model, ModelConfig, Preset};
     use mipnerf_gpu::model::{GpuModel, KernelSet};
     let Some(ctx) = context_or_skip("whole_model_loss_and_gradients_match_cpu_reference") else { return };
     let rays = test_rays(8);
@@ -632,17 +641,16 @@ fn whole_model_loss_and_gradients_match_cpu_reference() {
             // k x k rays per pixel of the same camera for a supersampled model.
             let k = model.config().supersample;
             let rays: Vec<Ray> = if k > 1 {
-                let cam = test_camera(8);
+                let cam = demo::oblique_camera(8);
                 let mut out = Vec::new();
                 for p in 0..64u32 {
-                    let bounds = (2.0, 6.0);
                     let (x, y) = (p % 8, p / 8);
                     mipnerf_core::data::push_camera_rays(
                         &cam,
                         x,
                         y,
                         PixelCenters::Centered,
-                        bounds,
+                        (2.0, 6.0),
                         1.0,
                         None,
                         k,
@@ -655,35 +663,24 @@ fn whole_model_loss_and_gradients_match_cpu_reference() {
             };
             let mut cpu_grads = vec![0.0; model.num_params()];
             let cpu = model.loss_and_grad(&params, &rays, &targets, mode, &mut cpu_grads);
-            let (g_stats, g_grads) = gpu.loss_and_grad(&ctx, &model, &params, &rays, &targets, mode).unwrap();
             if model.config().density_noise > 0.0 {
                 // The case is only meaningful if the noise moves the loss well beyond the tolerance.
                 let quiet = Model::new(ModelConfig { density_noise: 0.0, ..model.config().clone() }).unwrap();
                 let plain = quiet.loss_and_grad(&params, &rays, &targets, mode, &mut vec![0.0; model.num_params()]);
                 assert!((plain.loss - cpu.loss).abs() > 20.0 * TOL_GPU_MODEL_REL * cpu.loss, "noise changes nothing");
             }
-            eprintln!("{set:?} case {ci}: cpu losses {:?} gpu {:?}", cpu.losses, g_stats.losses);
-            let ci = format!("{set:?} {ci}");
-            bad.extend(mismatches(
-                &format!("case {ci} losses"),
-                &g_stats.losses,
-                &cpu.losses,
-                Tolerance::new(TOL_GPU_MODEL_ABS, TOL_GPU_MODEL_REL),
-            ));
-            bad.extend(mismatches(
-                &format!("case {ci} mse"),
-                &g_stats.mse,
-                &cpu.mse,
-                Tolerance::new(TOL_GPU_MODEL_ABS, TOL_GPU_MODEL_REL),
-            ));
-            // Gradients: compare relative to the gradient's overall scale.
             let scale = cpu_grads.iter().fold(0.0f32, |m, g| m.max(g.abs()));
-            bad.extend(mismatches(
-                &format!("case {ci} grads"),
-                &g_grads,
-                &cpu_grads,
-                Tolerance::new(TOL_GPU_MODEL_REL * scale, TOL_GPU_MODEL_REL),
-            ));
+            let check = check_kernel(
+                &format!("{set:?} case {ci}"),
+                |_: &()| vec![("losses", cpu.losses.clone()), ("mse", cpu.mse.clone()), ("grads", cpu_grads.clone())],
+                |_| {
+                    let (stats, grads) = gpu.loss_and_grad(&ctx, &model, &params, &rays, &targets, mode)?;
+                    Ok::<_, GpuError>(vec![("losses", stats.losses), ("mse", stats.mse), ("grads", grads)])
+                },
+                &(),
+                model_tolerance(scale),
+            );
+            bad.extend(check.into_mismatches());
         }
     }
     assert_none(&bad);
@@ -882,7 +879,6 @@ fn rays_scaled(n_side: u32, scales: &[f32]) -> Vec<Ray> {
 
 #[test]
 fn occupancy_guided_edges_match_cpu_reference() {
-    use mipnerf_core::sampling::sample_along_segments;
     use mipnerf_gpu::kernels::occupancy::{DeviceGrid, OccupancyKernel, OccupancyParams};
     use mipnerf_gpu::model::RayBatch;
     let Some(ctx) = context_or_skip("occupancy_guided_edges_match_cpu_reference") else { return };
@@ -895,55 +891,58 @@ fn occupancy_guided_edges_match_cpu_reference() {
     let nr = rays.len();
     let (s, seed, step) = (24usize, 5u32, 9u32);
     // Scattered batch indices, as the rays an occupancy grid lets through have.
-    let batch_index = |r: usize| 40 + 3 * r as u32;
+    let ids: Vec<u32> = (0..nr as u32).map(|r| 40 + 3 * r).collect();
     // The CPU's spans: the test must see rays with none, one, and several.
-    let spans: Vec<Vec<[f32; 2]>> = rays.iter().map(|r| spans_of(&grid, r)).collect();
-    let count = |f: &dyn Fn(usize) -> bool| spans.iter().filter(|v| f(v.len())).count();
+    let per_ray: Vec<Vec<[f32; 2]>> = rays.iter().map(|r| spans_of(&grid, r)).collect();
+    let count = |f: &dyn Fn(usize) -> bool| per_ray.iter().filter(|v| f(v.len())).count();
     let (none, one, several) = (count(&|n| n == 0), count(&|n| n == 1), count(&|n| n >= 2));
     eprintln!("{nr} rays: {none} meet no occupied cell, {one} one span, {several} several");
     assert!(none > 0 && one > 0 && several > 0, "the rays must cover every case: {none} / {one} / {several}");
+    let starts: Vec<u32> = std::iter::once(0)
+        .chain(per_ray.iter().scan(0u32, |end, v| {
+            *end += v.len() as u32;
+            Some(*end)
+        }))
+        .collect();
+    let spans: Vec<[f32; 2]> = per_ray.concat();
     let targets = vec![[0.0f32; 3]; nr];
     let batch = RayBatch::upload(&ctx, &rays, &targets, 1, false).unwrap();
     let on_device = DeviceGrid::new(&ctx, &grid).unwrap();
     let mut bad = Vec::new();
     for (lindisp, randomized) in [(false, false), (true, false), (false, true), (true, true)] {
-        let mut cpu = vec![0.0f32; nr * (s + 1)];
-        for (r, (ray, sp)) in rays.iter().zip(&spans).enumerate() {
-            let t = &mut cpu[r * (s + 1)..(r + 1) * (s + 1)];
-            if sp.is_empty() {
-                t.fill(ray.near);
-            } else {
-                let jitter = randomized.then(|| RayRng::new(seed, step, Stream::SampleJitter, batch_index(r)));
-                sample_along_segments(sp, lindisp, jitter, t);
-            }
-        }
-        let t_out = ctx.storage_buffer("t coarse", &vec![f32::NAN; nr * (s + 1)], true);
-        let params = OccupancyParams {
-            n_rays: nr as u32,
-            n_samples: s as u32,
-            lindisp: u32::from(lindisp),
-            randomized: u32::from(randomized),
-            seed,
-            step,
-            ..OccupancyParams::default()
+        let mode = mode_of(randomized, seed, step);
+        let cpu = |rays: &[Ray]| -> Outputs {
+            let mut t = vec![0.0f32; nr * (s + 1)];
+            stages::sample_occupied_intervals(rays, (&starts, &spans), s, lindisp, mode, &ids, &mut t);
+            vec![("edges", t)]
         };
-        let mut rec = Recorder::new(&ctx, "occupancy test");
-        let ids = ctx.storage_buffer("ray ids", &(0..nr).map(batch_index).collect::<Vec<u32>>(), false);
-        kernel.sample(&mut rec, params, &on_device, &batch.rays, &batch.bounds, &ids, &t_out).unwrap();
-        let _ = rec.submit();
-        bad.extend(mismatches(
-            &format!("lindisp {lindisp} randomized {randomized}"),
-            &ctx.read_f32(&t_out, nr * (s + 1)).unwrap(),
-            &cpu,
-            Tolerance::new(1e-6, TOL_GPU_SAMPLE_REL),
-        ));
+        let on_gpu = |_: &[Ray]| -> Result<Outputs, GpuError> {
+            let t_out = ctx.storage_buffer("t coarse", &vec![f32::NAN; nr * (s + 1)], true);
+            let params = OccupancyParams {
+                n_rays: nr as u32,
+                n_samples: s as u32,
+                lindisp: u32::from(lindisp),
+                randomized: u32::from(randomized),
+                seed,
+                step,
+                ..OccupancyParams::default()
+            };
+            let mut rec = Recorder::new(&ctx, "occupancy test");
+            let b_ids = ctx.storage_buffer("ray ids", &ids, false);
+            kernel.sample(&mut rec, params, &on_device, &batch.rays, &batch.bounds, &b_ids, &t_out)?;
+            let _ = rec.submit();
+            Ok(vec![("edges", ctx.read_f32(&t_out, nr * (s + 1))?)])
+        };
+        let label = format!("lindisp {lindisp} randomized {randomized}");
+        let tol = |_: &str| Tolerance::new(1e-6, TOL_GPU_SAMPLE_REL);
+        bad.extend(check_kernel(&label, cpu, on_gpu, &rays[..], tol).into_mismatches());
     }
     assert_none(&bad);
 }
 
 #[test]
 fn occupancy_guided_model_matches_cpu_reference() {
-    use mipnerf_core::model::{GradScratch, Mode, Model, ModelConfig, Preset};
+    use mipnerf_core::model::{GradScratch, Model, ModelConfig, Preset};
     use mipnerf_core::occupancy::{OccupancyConfig, OccupancyGrid};
     use mipnerf_gpu::model::{GpuModel, KernelSet};
     let Some(ctx) = context_or_skip("occupancy_guided_model_matches_cpu_reference") else { return };
@@ -968,28 +967,23 @@ fn occupancy_guided_model_matches_cpu_reference() {
             let mut scratch = GradScratch::default();
             let cpu =
                 model.loss_and_grad_guided(&params, &rays, &targets, mode, &mut cpu_grads, &mut scratch, Some(&grid));
-            let before = ctx.counters().model_rays;
-            let (g_stats, g_grads) =
-                gpu.loss_and_grad_guided(&ctx, model, &params, &rays, &targets, mode, Some(&grid)).unwrap();
-            // Only the rays that meet an occupied cell ran through the model, as on the CPU.
-            assert_eq!(ctx.counters().model_rays - before, active as u64, "{set:?} {mode:?}: rays run");
-            let tag = format!("{set:?} {mode:?} random background {}", model.config().random_bkgd);
-            eprintln!("{tag}: cpu losses {:?} gpu {:?}", cpu.losses, g_stats.losses);
-            bad.extend(mismatches(
-                &format!("{tag} losses"),
-                &g_stats.losses,
-                &cpu.losses,
-                Tolerance::new(TOL_GPU_MODEL_ABS, TOL_GPU_MODEL_REL),
-            ));
             let scale = cpu_grads.iter().fold(0.0f32, |m, g| m.max(g.abs()));
-            let worst = g_grads.iter().zip(&cpu_grads).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
-            eprintln!("{tag}: gradient scale {scale:e}, worst |gpu - cpu| {worst:e}");
-            bad.extend(mismatches(
-                &format!("{tag} grads"),
-                &g_grads,
-                &cpu_grads,
-                Tolerance::new(TOL_GPU_MODEL_REL * scale, TOL_GPU_MODEL_REL),
-            ));
+            let tag = format!("{set:?} {mode:?} random background {}", model.config().random_bkgd);
+            let check = check_kernel(
+                &tag,
+                |_: &()| vec![("losses", cpu.losses.clone()), ("grads", cpu_grads.clone())],
+                |_| {
+                    let before = ctx.counters().model_rays;
+                    let (stats, grads) =
+                        gpu.loss_and_grad_guided(&ctx, model, &params, &rays, &targets, mode, Some(&grid))?;
+                    // Only the rays that meet an occupied cell ran through the model, as on the CPU.
+                    assert_eq!(ctx.counters().model_rays - before, active as u64, "{set:?} {mode:?}: rays run");
+                    Ok::<_, GpuError>(vec![("losses", stats.losses), ("grads", grads)])
+                },
+                &(),
+                model_tolerance(scale),
+            );
+            bad.extend(check.into_mismatches());
         }
         // A full grid (the warm-up's) records exactly the paper's sampler: bit for bit.
         let full =

@@ -66,6 +66,38 @@ pub fn view_poses(n: usize, offset: f64) -> Vec<[[f64; 4]; 3]> {
         .collect()
 }
 
+/// `n` training views of the demo scene held in memory, `side x side` pixels each, on the orbit
+/// of [`view_poses`] with a horizontal field of view of 0.69 rad (bounds 2 to 6, composited on
+/// white): data that needs no files, for examples, checks and tests.
+///
+/// # Errors
+/// [`DataError::Invalid`] when `n` or `side` is 0.
+pub fn dataset(n: usize, side: u32) -> Result<super::Dataset, DataError> {
+    let views = view_poses(n, 0.0)
+        .into_iter()
+        .enumerate()
+        .map(|(i, pose)| {
+            let camera = Camera::from_camera_angle_x(side, side, 0.69, pose)
+                .map_err(|e| DataError::invalid(Path::new("<demo scene>"), e.to_string()))?;
+            let pixels = super::Pixels::RgbaF32(render_view(&camera, 1));
+            Ok(super::View::in_memory(&format!("demo view {i}"), camera, pixels, 2.0, 6.0))
+        })
+        .collect::<Result<Vec<_>, DataError>>()?;
+    super::Dataset::from_views(Split::Train, views, true)
+}
+
+/// A `side x side` camera at a fixed oblique pose, 4 units from the scene's centre and looking
+/// at it (not one of the orbit's): the view the GPU kernel checks cast their rays from.
+///
+/// # Panics
+/// If `side` is 0.
+#[must_use]
+pub fn oblique_camera(side: u32) -> Camera {
+    let c2w = [[0.8, 0.0, 0.6, 2.4], [0.36, 0.8, -0.48, -1.92], [-0.48, 0.6, 0.64, 2.56]];
+    Camera::from_camera_angle_x(side, side, 0.69, c2w)
+        .unwrap_or_else(|e| panic!("oblique camera of {side} pixels: {e}"))
+}
+
 /// Period (world units) of the sphere's horizontal bands: `2 pi / 32`, one of the frequencies of
 /// the positional encoding, so a small MLP learns the bands in a minute. The camera sees about 44
 /// px per world unit at 128 px: a band is about 4 px wide there and half a pixel at 1/8, where it

@@ -1,4 +1,6 @@
 //! `shaders/adam.wgsl`: gradient clipping and the Adam update on the device.
+//!
+//! CPU reference: [`mipnerf_core::stages::adam_step`].
 
 use mipnerf_core::train::AdamConfig;
 
@@ -6,7 +8,7 @@ use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of this kernel.
-pub const SOURCE: &str = include_str!("../../../../shaders/adam.wgsl");
+pub const SOURCE: &str = super::shader_source!("adam.wgsl");
 
 /// Gradients per workgroup of the norm's first pass.
 const NORM_GROUP: u64 = kernels::REDUCE_WORKGROUP as u64;

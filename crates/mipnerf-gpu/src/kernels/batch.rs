@@ -1,4 +1,6 @@
 //! `shaders/batch.wgsl`: ray batches made on the device from images and cameras that live there.
+//!
+//! CPU reference: [`mipnerf_core::data::push_camera_rays`] (rays) and the CPU backend's batch draw.
 
 use mipnerf_core::backend::ImageSpec;
 use mipnerf_core::camera::{Camera, PixelCenters};
@@ -10,7 +12,7 @@ use crate::model::RayBatch;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of these kernels.
-pub const SOURCE: &str = include_str!("../../../../shaders/batch.wgsl");
+pub const SOURCE: &str = super::shader_source!("batch.wgsl");
 
 /// Pixel buffers a dataset may span (bindings of `batch.wgsl`).
 pub const PIXEL_SLOTS: usize = 4;

@@ -1,4 +1,6 @@
 //! `shaders/cast_ipe.wgsl`: rays to frustum Gaussians to IPE features.
+//!
+//! CPU reference: [`mipnerf_core::stages::cast_and_encode`].
 
 use mipnerf_core::{Ray, RayShape, mip::ipe_len};
 
@@ -37,7 +39,7 @@ pub struct CastIpeKernel {
 }
 
 /// The WGSL source of this kernel.
-pub const SOURCE: &str = include_str!("../../../../shaders/cast_ipe.wgsl");
+pub const SOURCE: &str = super::shader_source!("cast_ipe.wgsl");
 
 impl CastIpeKernel {
     /// Compiles the kernel on `ctx`'s device.

@@ -6,6 +6,8 @@
 //! Which rays meet an occupied cell is decided on the host, with the CPU's own traversal of the
 //! CPU's own rays (`OccupancyGrid::active_rays`), so both backends skip exactly the same rays;
 //! the host uploads the list ([`Compaction::upload`]) in order with the step's commands.
+//!
+//! CPU reference: the compaction of [`mipnerf_core::model::Model::loss_and_grad_guided`].
 
 use mipnerf_core::occupancy::OccupancyGrid;
 
@@ -14,9 +16,9 @@ use crate::model::RayBatch;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of the gather kernel.
-pub const GATHER_SOURCE: &str = include_str!("../../../../shaders/gather.wgsl");
+pub const GATHER_SOURCE: &str = super::shader_source!("gather.wgsl");
 /// The WGSL source of the expand kernel.
-pub const EXPAND_SOURCE: &str = include_str!("../../../../shaders/expand.wgsl");
+pub const EXPAND_SOURCE: &str = super::shader_source!("expand.wgsl");
 
 /// `slot` of a batch ray that meets no occupied cell (WGSL: `0xffffffffu`).
 pub const NOT_KEPT: u32 = u32::MAX;

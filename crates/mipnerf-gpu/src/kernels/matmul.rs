@@ -1,12 +1,14 @@
 //! `shaders/matmul.wgsl`: matrix products with a bias, ReLU or ReLU-backward epilogue, optionally
 //! split over k into partial products added in a fixed order; register-blocked through workgroup
 //! memory (hardware GPUs) or straight from storage (software adapters).
+//!
+//! CPU reference: [`mipnerf_core::mlp::MlpShape::forward`] and [`mipnerf_core::mlp::MlpShape::backward`].
 
 use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of this kernel.
-pub const SOURCE: &str = include_str!("../../../../shaders/matmul.wgsl");
+pub const SOURCE: &str = super::shader_source!("matmul.wgsl");
 
 /// The uniform block of `matmul.wgsl` (`struct Params`), 64 bytes.
 #[repr(C)]

@@ -1,10 +1,12 @@
 //! `shaders/mlp_aux.wgsl`: column sums (bias gradients) and per-ray sums of per-sample rows.
+//!
+//! CPU reference: [`mipnerf_core::mlp::MlpShape::forward`] and [`mipnerf_core::mlp::MlpShape::backward`].
 
 use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of these kernels.
-pub const SOURCE: &str = include_str!("../../../../shaders/mlp_aux.wgsl");
+pub const SOURCE: &str = super::shader_source!("mlp_aux.wgsl");
 
 /// The uniform block of `mlp_aux.wgsl` (`struct Params`), 32 bytes.
 #[repr(C)]

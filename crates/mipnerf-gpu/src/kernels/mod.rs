@@ -8,8 +8,17 @@ pub const WORKGROUP: u32 = 64;
 /// Invocations per workgroup of the reductions (WGSL: `REDUCE_WORKGROUP`).
 pub const REDUCE_WORKGROUP: u32 = 256;
 
+/// The text of a WGSL file of the workspace's top-level `shaders/` folder, compiled in: the one
+/// place that resolves where the kernels' sources live.
+macro_rules! shader_source {
+    ($file:literal) => {
+        include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shaders/", $file))
+    };
+}
+pub(crate) use shader_source;
+
 /// `shaders/rng.wgsl`: the random numbers every kernel that draws them shares.
-pub const RNG_SOURCE: &str = include_str!("../../../../shaders/rng.wgsl");
+pub const RNG_SOURCE: &str = shader_source!("rng.wgsl");
 
 /// The WGSL constants that must agree with Rust, generated from the Rust definitions (the one
 /// source of truth): workgroup sizes, the codes of the configuration enums, the random stream

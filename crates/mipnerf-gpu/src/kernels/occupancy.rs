@@ -1,4 +1,6 @@
 //! `shaders/occupancy.wgsl`: occupancy-guided coarse edges per ray, and the grid on the device.
+//!
+//! CPU reference: [`mipnerf_core::stages::sample_occupied_intervals`] (the spans from [`mipnerf_core::occupancy::OccupancyGrid::ray_segments`]).
 
 use mipnerf_core::occupancy::OccupancyGrid;
 
@@ -6,7 +8,7 @@ use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of this kernel.
-pub const SOURCE: &str = include_str!("../../../../shaders/occupancy.wgsl");
+pub const SOURCE: &str = super::shader_source!("occupancy.wgsl");
 
 /// Most spans one ray keeps in the kernel (WGSL: `MAX_SPANS`).
 pub const MAX_SPANS: usize = 256;

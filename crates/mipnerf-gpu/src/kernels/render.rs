@@ -1,10 +1,12 @@
 //! `shaders/render.wgsl`: activations, volume rendering, loss and their backward pass per ray.
+//!
+//! CPU reference: [`mipnerf_core::stages::add_density_noise`], [`mipnerf_core::stages::render_rays`] and [`mipnerf_core::stages::render_rays_backward`].
 
 use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of this kernel.
-pub const SOURCE: &str = include_str!("../../../../shaders/render.wgsl");
+pub const SOURCE: &str = super::shader_source!("render.wgsl");
 
 /// The uniform block of `render.wgsl` (`struct Params`), 64 bytes.
 #[repr(C)]

@@ -1,10 +1,12 @@
 //! `shaders/sample.wgsl`: stratified interval edges and inverse-CDF resampling per ray.
+//!
+//! CPU reference: [`mipnerf_core::stages::sample_intervals`] and [`mipnerf_core::stages::resample_intervals`].
 
 use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of these kernels.
-pub const SOURCE: &str = include_str!("../../../../shaders/sample.wgsl");
+pub const SOURCE: &str = super::shader_source!("sample.wgsl");
 
 /// Most samples per ray the resampling kernel handles (its CDF lives in private memory).
 pub const MAX_SAMPLES: usize = 1024;

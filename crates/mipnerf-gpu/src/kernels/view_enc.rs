@@ -1,10 +1,12 @@
 //! `shaders/view_enc.wgsl`: the positional encoding of view directions.
+//!
+//! CPU reference: [`mipnerf_core::stages::encode_view_directions`].
 
 use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of this kernel.
-pub const SOURCE: &str = include_str!("../../../../shaders/view_enc.wgsl");
+pub const SOURCE: &str = super::shader_source!("view_enc.wgsl");
 
 /// The uniform block of `view_enc.wgsl` (`struct Params`), 16 bytes.
 #[repr(C)]
