@@ -176,9 +176,10 @@ impl Trainer {
         let (params, grads, scratch) = (&self.params, &mut self.grads, &mut self.scratch);
         let grid = self.occupancy.as_ref();
         let stats = self.model.loss_and_grad_guided(params, rays, targets, mode, grads, scratch, grid);
-        let grad_norm = clip_gradients(&mut self.grads, self.optim.grad_max_val, self.optim.grad_max_norm);
         let lr = self.optim.lr.lr(self.step);
-        self.adam.update(&self.optim.adam, lr, &mut self.params, &self.grads);
+        let clip = (self.optim.grad_max_val, self.optim.grad_max_norm);
+        let grad_norm =
+            crate::stages::adam_step(&self.optim.adam, lr, clip, &mut self.adam, &mut self.params, &mut self.grads);
         let report = StepReport { step: self.step, lr, stats, grad_norm: Some(grad_norm) };
         self.step += 1;
         report

@@ -25,13 +25,17 @@ enum Kind {
 
 impl Kind {
     fn open(self, setup: BackendSetup) -> Box<dyn Backend> {
+        let opened = self.try_open(setup).unwrap();
+        assert!(opened.fallback.is_none());
+        opened.backend
+    }
+
+    fn try_open(self, setup: BackendSetup) -> Result<mipnerf_gpu::OpenedBackend, mipnerf_gpu::OpenError> {
         let choice = match self {
             Self::Cpu => BackendChoice::Cpu,
             Self::Gpu => BackendChoice::Gpu,
         };
-        let opened = open_backend(choice, setup).unwrap();
-        assert!(opened.fallback.is_none());
-        opened.backend
+        open_backend(choice, setup)
     }
 }
 
@@ -59,6 +63,11 @@ on_every_backend!(
     training_is_bit_for_bit_reproducible_whatever_the_thread_count,
     the_loss_falls_on_a_small_scene,
     rendering_in_chunks_gives_the_same_image_whatever_the_chunk,
+    a_backend_without_data_renders_but_refuses_to_train,
+    a_state_for_another_model_is_refused,
+    losses_are_reported_only_when_asked_and_every_step_counts,
+    an_image_for_another_supersampling_is_refused,
+    a_new_learning_rate_schedule_applies_from_the_next_step,
 );
 
 /// Views of different sizes, poses, bounds and lossmults (a multiscale-like split of lego).
@@ -224,4 +233,85 @@ fn rendering_in_chunks_gives_the_same_image_whatever_the_chunk(kind: Kind) {
             assert_close(&format!("{name}: against the CPU"), &whole, &cpu, tol_vs_cpu);
         }
     }
+}
+
+/// A 12 x 8 view of the demo scene at a pose no training view has, for `model`'s rays per pixel.
+fn novel_view(model: &Model) -> ImageSpec {
+    ImageSpec {
+        camera: Camera::from_camera_angle_x(12, 8, 0.69, demo::camera_pose(1.0, 0.4)).unwrap(),
+        near: 2.0,
+        far: 6.0,
+        centers: PixelCenters::Centered,
+        ndc: None,
+        supersample: model.config().supersample,
+    }
+}
+
+/// Opened without training data: rendering works (both levels of every pixel, colours and
+/// opacities in [0, 1]) and leaves the step alone; a training step is `BackendError::NoData`.
+fn a_backend_without_data_renders_but_refuses_to_train(kind: Kind) {
+    use mipnerf_core::backend::BackendError;
+    let model = Model::new(ModelConfig { num_samples: 16, ..Preset::Tiny.config() }).unwrap();
+    let mut b = kind.open(setup(&model, TrainState::fresh(&model, 3), None));
+    let r = b.render(&novel_view(&model)).unwrap();
+    assert_eq!((r.width, r.height, r.fine.len(), r.coarse.len()), (12, 8, 96, 96));
+    for o in r.fine.iter().chain(&r.coarse) {
+        assert!(o.rgb.iter().chain([&o.acc]).all(|v| (0.0..=1.0).contains(v)), "{kind:?}: {o:?}");
+    }
+    assert_eq!(b.step(), 0);
+    let err = b.train_step(true).unwrap_err();
+    assert!(matches!(err, BackendError::NoData), "{kind:?}: {err:?}");
+    assert_eq!(b.step(), 0, "a refused step counts nothing");
+}
+
+/// A state whose parameters belong to another model is refused when the backend opens, with
+/// both sizes in the message.
+fn a_state_for_another_model_is_refused(kind: Kind) {
+    let model = Model::new(Preset::Tiny.config()).unwrap();
+    let other = Model::new(Preset::Small.config()).unwrap();
+    let Err(err) = kind.try_open(setup(&model, TrainState::fresh(&other, 3), None)) else {
+        panic!("{kind:?}: a state of {} parameters opened a model of {}", other.num_params(), model.num_params());
+    };
+    let msg = err.to_string();
+    assert!(msg.contains(&format!("the model has {}", model.num_params())), "{kind:?}: {msg}");
+    assert!(msg.contains(&other.num_params().to_string()), "{kind:?}: {msg}");
+}
+
+/// `train_step(false)` reports nothing, `train_step(true)` reports that step (its number, the
+/// schedule's learning rate, finite losses per level); every step counts, in `step()` and in the
+/// checkpoint (parameters and Adam's update count).
+fn losses_are_reported_only_when_asked_and_every_step_counts(kind: Kind) {
+    let model = Model::new(ModelConfig { num_samples: 16, ..Preset::Tiny.config() }).unwrap();
+    let ds = mipnerf_gpu::test_support::demo_views(2, 8);
+    let mut b = kind.open(setup(&model, TrainState::fresh(&model, 3), Some((ds, 32))));
+    assert!(b.train_step(false).unwrap().is_none(), "{kind:?}: a report nobody asked for");
+    let r = b.train_step(true).unwrap().expect("a report when asked");
+    assert_eq!(r.step, 1);
+    assert_eq!(r.lr, OptimConfig::default().lr.lr(1));
+    assert_eq!(r.stats.losses.len(), model.config().num_levels);
+    assert!(r.stats.losses.iter().chain([&r.stats.loss]).all(|l| l.is_finite() && *l > 0.0), "{kind:?}: {r:?}");
+    assert_eq!(b.step(), 2);
+    let ck = b.checkpoint().unwrap();
+    assert_eq!((ck.step, ck.adam.t, ck.params.len()), (2, 2, model.num_params()));
+}
+
+/// An image asking for 2x2 rays per pixel of a model that renders one is refused, naming both.
+fn an_image_for_another_supersampling_is_refused(kind: Kind) {
+    let model = Model::new(Preset::Tiny.config()).unwrap();
+    let mut b = kind.open(setup(&model, TrainState::fresh(&model, 3), None));
+    let image = ImageSpec { supersample: 2, ..novel_view(&model) };
+    let err = b.render(&image).unwrap_err().to_string();
+    assert!(err.contains("2x2 rays per pixel") && err.contains("the model renders 1x1"), "{kind:?}: {err}");
+}
+
+/// `set_lr_schedule` takes effect at the next step: its learning rate is the new schedule's.
+fn a_new_learning_rate_schedule_applies_from_the_next_step(kind: Kind) {
+    let model = Model::new(ModelConfig { num_samples: 16, ..Preset::Tiny.config() }).unwrap();
+    let ds = mipnerf_gpu::test_support::demo_views(2, 8);
+    let mut b = kind.open(setup(&model, TrainState::fresh(&model, 3), Some((ds, 32))));
+    b.train_step(false).unwrap();
+    let constant = LrSchedule { lr_init: 0.25, lr_final: 0.25, max_steps: 10, lr_delay_steps: 0, lr_delay_mult: 1.0 };
+    b.set_lr_schedule(constant);
+    let r = b.train_step(true).unwrap().unwrap();
+    assert_eq!(r.lr, 0.25, "{kind:?}");
 }
