@@ -14,6 +14,9 @@ echo "== cargo clippy"
 cargo clippy --workspace --all-targets --locked -- -D warnings
 echo "== cargo test"
 cargo test --workspace --all-targets --locked
+echo "== the CPU-only facade (mipnerf without its gpu feature: no wgpu compiled)"
+cargo clippy -p mipnerf --no-default-features --all-targets --locked -- -D warnings
+cargo test -p mipnerf --no-default-features --locked
 echo "== cargo doc (warnings are errors)"
 RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps --locked
 echo "== doc tests"

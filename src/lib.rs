@@ -1,24 +1,11 @@
 //! # mipnerf
 //!
 //! Anti-aliased neural radiance fields (Mip-NeRF, Barron et al. 2021) in Rust, on any GPU through
-//! wgpu and on the CPU. This facade re-exports the two library crates:
-//! - [`core`] (`mipnerf-core`): the maths on the CPU, the reference for every other path;
-//! - [`gpu`] (`mipnerf-gpu`): the same passes as WGSL compute shaders.
-//!
-//! Training and rendering go through one trait, [`core::backend::Backend`], implemented by
-//! [`core::backend::CpuBackend`] and [`gpu::GpuBackend`]; [`gpu::open_backend`] opens either
-//! (`Cpu`, `Gpu`, or `Auto`: a hardware GPU when there is one, else the CPU, saying why). Train on
-//! your own images held in memory, then render a novel view:
+//! wgpu and on the CPU. Give [`Nerf`] posed images (a dataset folder, or your own images held in
+//! memory), train it for a number of steps or a time budget, render any camera, save and load it:
 //!
 //! ```
-//! use std::sync::Arc;
-//!
-//! use mipnerf::core::Camera;
-//! use mipnerf::core::backend::{ImageSpec, TrainState};
-//! use mipnerf::core::data::{Dataset, Pixels, Split, View, demo};
-//! use mipnerf::core::model::{Model, Preset};
-//! use mipnerf::core::train::OptimConfig;
-//! use mipnerf::gpu::{BackendChoice, BackendSetup, DeviceOptions, open_backend};
+//! use mipnerf::{Camera, Nerf, Options, Pixels, Preset, View, demo};
 //!
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! // Your images and cameras: here four 16x16 renders of the built-in demo scene, straight RGBA
@@ -29,39 +16,86 @@
 //!     let pixels = Pixels::RgbaF32(demo::render_view(&camera, 1));
 //!     views.push(View::in_memory(&format!("view {i}"), camera, pixels, 2.0, 6.0));
 //! }
-//! let data = Arc::new(Dataset::from_views(Split::Train, views, true)?);
-//! let model = Model::new(Preset::Tiny.config())?;
-//! let setup = BackendSetup {
-//!     state: TrainState::fresh(&model, 0),
-//!     model,
-//!     optim: OptimConfig::default(),
-//!     seed: 0,
-//!     data: Some((Arc::clone(&data), 64)),
-//!     render_chunk: None,
-//!     // The best adapter (or the one WGPU_ADAPTER_NAME names), its memory budget from its limits.
-//!     device: DeviceOptions::default(),
-//! };
-//! let opened = open_backend(BackendChoice::Auto, setup)?;
-//! if let Some(why) = &opened.fallback {
-//!     println!("on the CPU: {why}");
-//! }
-//! let mut backend = opened.backend;
-//! for step in 0..3 {
-//!     // Ask for the losses on the last step only (a GPU reads them back only then).
-//!     if let Some(report) = backend.train_step(step == 2)? {
-//!         assert!(report.stats.loss.is_finite());
-//!     }
-//! }
+//! // On a hardware GPU when there is one, else on the CPU (`nerf.fallback()` says why).
+//! let mut nerf = Nerf::from_views(views, Options::preset(Preset::Tiny))?;
+//! let report = nerf.train(3)?;
+//! assert!(report.stats.loss.is_finite());
 //! // A novel view: a camera at a pose no training image has, at 32x24 pixels.
 //! let camera = Camera::from_camera_angle_x(32, 24, 0.69, demo::camera_pose(1.0, 0.4))?;
-//! let spec = ImageSpec { camera, ..ImageSpec::of_view(&data, 0, 1) };
-//! let rendered = backend.render(&spec)?;
-//! let picture: image::RgbImage = rendered.to_rgb_image();
+//! let picture = nerf.render(&camera)?.to_rgb_image();
 //! assert_eq!(picture.dimensions(), (32, 24));
-//! assert!(rendered.fine.iter().all(|o| (0.0..=1.0).contains(&o.acc)));
+//! # let dir = tempfile::tempdir()?;
+//! # let path = dir.path().join("lego.safetensors");
+//! nerf.save(&path)?;
 //! # Ok(())
 //! # }
 //! ```
+//!
+//! The `gpu` feature (on by default) brings the WGSL backend ([`mipnerf_gpu`]); without it,
+//! nothing of wgpu is compiled, [`Device::Auto`] runs on the CPU and [`Device::Gpu`] is
+//! [`Error::NoGpuBackend`].
+//!
+//! Everything else is in the two library crates, re-exported under their own names:
+//! [`mipnerf_core`] (the maths on the CPU, the reference for every other path: cameras, datasets,
+//! the model and its stages, checkpoints, metrics) and [`mipnerf_gpu`] (the same passes as WGSL
+//! compute shaders, and `open_backend` for the `Backend` trait directly).
 
-pub use mipnerf_core as core;
-pub use mipnerf_gpu as gpu;
+mod nerf;
+
+pub use mipnerf_core;
+pub use mipnerf_core::Camera;
+pub use mipnerf_core::backend::RenderedImage;
+pub use mipnerf_core::data::{Dataset, Pixels, View, demo};
+pub use mipnerf_core::model::{ModelConfig, Preset};
+pub use mipnerf_core::train::StepReport;
+#[cfg(feature = "gpu")]
+pub use mipnerf_gpu;
+pub use nerf::{Device, Error, Nerf, Options};
+
+use std::sync::Arc;
+
+use mipnerf_core::backend::{Backend, TrainState};
+use mipnerf_core::model::Model;
+
+/// The backend `options.device` selects, and why `Auto` fell back to the CPU. With the `gpu`
+/// feature, the GPU crate's `open_backend` chooses; without it, the CPU runs `Cpu` and `Auto`.
+fn open_backend(
+    options: &Options,
+    model: Model,
+    state: TrainState,
+    data: Option<(Arc<Dataset>, usize)>,
+) -> Result<(Box<dyn Backend>, Option<String>), Error> {
+    #[cfg(feature = "gpu")]
+    {
+        use mipnerf_gpu::{BackendChoice, BackendSetup};
+        let choice = match options.device {
+            Device::Cpu => BackendChoice::Cpu,
+            Device::Gpu => BackendChoice::Gpu,
+            Device::Auto => BackendChoice::Auto,
+        };
+        let setup = BackendSetup {
+            model,
+            optim: options.optim.clone(),
+            seed: options.seed,
+            state,
+            data,
+            render_chunk: None,
+            device: mipnerf_gpu::DeviceOptions::default(),
+        };
+        let opened = mipnerf_gpu::open_backend(choice, setup)?;
+        Ok((opened.backend, opened.fallback))
+    }
+    #[cfg(not(feature = "gpu"))]
+    {
+        let fallback = match options.device {
+            Device::Gpu => return Err(Error::NoGpuBackend),
+            Device::Auto => Some("this build of mipnerf has no GPU backend (its `gpu` feature is off)".to_owned()),
+            Device::Cpu => None,
+        };
+        let mut cpu = mipnerf_core::backend::CpuBackend::new(model, options.optim.clone(), options.seed, state)?;
+        if let Some((ds, batch)) = data {
+            cpu = cpu.with_data(ds, batch);
+        }
+        Ok((Box::new(cpu), fallback))
+    }
+}

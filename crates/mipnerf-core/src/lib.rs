@@ -24,6 +24,7 @@
 //! ([`bf16`]), about twice the training throughput where the CPU has them.
 
 pub mod backend;
+#[cfg(feature = "bench")]
 pub mod bench;
 pub mod bf16;
 pub mod camera;

@@ -1,0 +1,289 @@
+//! [`Nerf`]: a model with its backend, its training data and its run state, behind the few calls an
+//! app makes (train, render, save, load).
+
+use std::path::Path;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use mipnerf_core::Camera;
+use mipnerf_core::backend::{Backend, BackendError, ImageSpec, RenderedImage, TrainState};
+use mipnerf_core::checkpoint::{self, CheckpointError};
+use mipnerf_core::data::{self, DataError, Dataset, LoadOptions, Split, View};
+use mipnerf_core::model::{Model, ModelConfig, ModelError, Preset};
+use mipnerf_core::occupancy::{OccupancyConfig, OccupancyGrid};
+use mipnerf_core::train::{OptimConfig, StepReport};
+
+/// Where a [`Nerf`] runs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Device {
+    /// The CPU (every core).
+    Cpu,
+    /// Any GPU adapter, software ones (lavapipe) included; an error without the `gpu` feature.
+    Gpu,
+    /// A hardware GPU when there is one and it runs the configuration, else the CPU
+    /// ([`Nerf::fallback`] says why).
+    #[default]
+    Auto,
+}
+
+/// How a [`Nerf`] is made. `Options::default()` is the paper's model on the best device; start
+/// from [`Options::preset`] for a smaller one.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Options {
+    /// The model (its `white_bkgd` is taken from the data).
+    pub model: ModelConfig,
+    /// Learning-rate schedule, Adam and gradient clipping.
+    pub optim: OptimConfig,
+    /// Where to run.
+    pub device: Device,
+    /// The seed of the initial parameters and of every random draw of training.
+    pub seed: u32,
+    /// Rays (pixels) per training step.
+    pub batch_rays: usize,
+    /// Occupancy-guided sampling (what the `fast` preset is meant for): a 64³ grid around the
+    /// scene, seeded with the visual hull of the images' alpha, then kept up to date from the
+    /// model's density, so samples go where the scene is. Bounded scenes only.
+    pub occupancy: bool,
+    /// Near and far bounds of renders when the `Nerf` holds no data (loaded for rendering).
+    pub render_bounds: (f32, f32),
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Self {
+            model: ModelConfig::default(),
+            optim: OptimConfig::default(),
+            device: Device::Auto,
+            seed: 0,
+            batch_rays: 1024,
+            occupancy: false,
+            render_bounds: (2.0, 6.0),
+        }
+    }
+}
+
+impl Options {
+    /// A named model size with the other defaults; [`Preset::Fast`] turns on occupancy-guided
+    /// sampling.
+    #[must_use]
+    pub fn preset(preset: Preset) -> Self {
+        Self { model: preset.config(), occupancy: preset == Preset::Fast, ..Self::default() }
+    }
+}
+
+/// What went wrong, in library terms.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum Error {
+    /// The model configuration is invalid.
+    #[error(transparent)]
+    Model(#[from] ModelError),
+    /// The data could not be loaded or is unusable.
+    #[error(transparent)]
+    Data(#[from] DataError),
+    /// The backend refused or failed.
+    #[error(transparent)]
+    Backend(#[from] BackendError),
+    /// A checkpoint could not be written or read.
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+    /// The GPU backend could not be opened.
+    #[cfg(feature = "gpu")]
+    #[error(transparent)]
+    Open(#[from] mipnerf_gpu::OpenError),
+    /// `Device::Gpu` asked of a build without the `gpu` feature.
+    #[error("this build of mipnerf has no GPU backend (its `gpu` feature is off): use `Device::Cpu` or `Device::Auto`")]
+    NoGpuBackend,
+    /// Occupancy-guided sampling asked of data it cannot guide.
+    #[error("occupancy-guided sampling: {0}")]
+    Occupancy(String),
+    /// The `Nerf` holds no training data (it was loaded for rendering).
+    #[error("this Nerf holds no training data: make it with `Nerf::new`, `from_views` or `from_dir` to train")]
+    NoData,
+}
+
+/// A Mip-NeRF with its backend: train it on posed images, render any camera, save and load it.
+///
+/// ```
+/// use mipnerf::{Camera, Nerf, Options, Preset, demo};
+///
+/// # fn main() -> Result<(), Box<dyn std::error::Error>> {
+/// let mut nerf = Nerf::new(demo::dataset(4, 16)?, Options::preset(Preset::Tiny))?;
+/// let report = nerf.train(3)?;
+/// assert!(report.stats.loss.is_finite());
+/// let camera = Camera::from_camera_angle_x(32, 24, 0.69, demo::camera_pose(1.0, 0.4))?;
+/// assert_eq!(nerf.render(&camera)?.to_rgb_image().dimensions(), (32, 24));
+/// # Ok(())
+/// # }
+/// ```
+pub struct Nerf {
+    backend: Box<dyn Backend>,
+    data: Option<Arc<Dataset>>,
+    fallback: Option<String>,
+    render_bounds: (f32, f32),
+}
+
+impl std::fmt::Debug for Nerf {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Nerf").field("backend", &self.backend.describe()).field("step", &self.step()).finish()
+    }
+}
+
+impl Nerf {
+    /// A fresh model to train on `data` (its training views).
+    ///
+    /// # Errors
+    /// An invalid model, occupancy on data it cannot guide, or a device that cannot be opened.
+    pub fn new(data: Dataset, options: Options) -> Result<Self, Error> {
+        let data = Arc::new(data);
+        let model = model_for(&options, Some(&data))?;
+        let mut state = TrainState::fresh(&model, options.seed);
+        if options.occupancy {
+            state.occupancy = Some(occupancy_grid(&data)?);
+        }
+        Self::open(model, state, Some(data), &options)
+    }
+
+    /// A fresh model to train on images held in memory (straight RGBA, camera-to-world poses in
+    /// OpenGL axes), composited on white.
+    ///
+    /// # Errors
+    /// No views, or as [`Nerf::new`].
+    pub fn from_views(views: Vec<View>, options: Options) -> Result<Self, Error> {
+        Self::new(Dataset::from_views(Split::Train, views, true)?, options)
+    }
+
+    /// A fresh model to train on the training split of a dataset folder (Blender, multiscale
+    /// Blender, LLFF or COLMAP; see `mipnerf_core::data::load`).
+    ///
+    /// # Errors
+    /// A folder that is no dataset or a malformed one (the error names the file), or as
+    /// [`Nerf::new`].
+    pub fn from_dir(dir: impl AsRef<Path>, options: Options) -> Result<Self, Error> {
+        Self::new(data::load(dir.as_ref(), Split::Train, &LoadOptions::default())?, options)
+    }
+
+    /// The model saved at `path` by [`Nerf::save`] with the same `options.model`, to render or to
+    /// train further on `data`.
+    ///
+    /// # Errors
+    /// A missing, damaged or foreign checkpoint (its checksum is verified), or as [`Nerf::new`].
+    pub fn load(path: impl AsRef<Path>, options: Options, data: Option<Dataset>) -> Result<Self, Error> {
+        let data = data.map(Arc::new);
+        let model = model_for(&options, data.as_deref())?;
+        let state = TrainState::from_checkpoint(checkpoint::load(path.as_ref(), &model)?);
+        Self::open(model, state, data, &options)
+    }
+
+    fn open(model: Model, state: TrainState, data: Option<Arc<Dataset>>, options: &Options) -> Result<Self, Error> {
+        let batch = data.as_ref().map(|d| (Arc::clone(d), options.batch_rays));
+        let (backend, fallback) = crate::open_backend(options, model, state, batch)?;
+        Ok(Self { backend, data, fallback, render_bounds: options.render_bounds })
+    }
+
+    /// Takes `steps` training steps (at least one) and reports the last.
+    ///
+    /// # Errors
+    /// [`Error::NoData`], or the backend's error (the state before the failing step is kept).
+    pub fn train(&mut self, steps: u64) -> Result<StepReport, Error> {
+        if self.data.is_none() {
+            return Err(Error::NoData);
+        }
+        for _ in 1..steps {
+            self.backend.train_step(false)?;
+        }
+        Ok(self.backend.train_step(true)?.expect("a backend reports when asked"))
+    }
+
+    /// Trains for `budget` of wall-clock time (at least one step) and reports the last step.
+    ///
+    /// # Errors
+    /// As [`Nerf::train`].
+    pub fn train_for(&mut self, budget: Duration) -> Result<StepReport, Error> {
+        let start = Instant::now();
+        loop {
+            let report = self.train(1)?;
+            if start.elapsed() >= budget {
+                return Ok(report);
+            }
+        }
+    }
+
+    /// Renders `camera` (both levels per pixel; `.fine` is the picture), between the training
+    /// data's bounds (or `Options::render_bounds` without data).
+    ///
+    /// # Errors
+    /// The backend's error.
+    pub fn render(&mut self, camera: &Camera) -> Result<RenderedImage, Error> {
+        let supersample = self.backend.model().config().supersample;
+        let spec = match &self.data {
+            Some(ds) => ImageSpec { camera: camera.clone(), ..ImageSpec::of_view(ds, 0, supersample) },
+            None => ImageSpec {
+                camera: camera.clone(),
+                near: self.render_bounds.0,
+                far: self.render_bounds.1,
+                centers: mipnerf_core::PixelCenters::Centered,
+                ndc: None,
+                supersample,
+            },
+        };
+        Ok(self.backend.render(&spec)?)
+    }
+
+    /// Saves the parameters, Adam's state, the step and the occupancy grid to `path` (one
+    /// safetensors file, written atomically: a failed write keeps the previous file).
+    ///
+    /// # Errors
+    /// The file system, or a non-finite state (nothing is written then).
+    pub fn save(&mut self, path: impl AsRef<Path>) -> Result<(), Error> {
+        let ck = self.backend.checkpoint()?;
+        checkpoint::save(path.as_ref(), self.backend.model(), &ck)?;
+        Ok(())
+    }
+
+    /// Training steps taken.
+    #[must_use]
+    pub fn step(&self) -> u64 {
+        self.backend.step()
+    }
+
+    /// Where it runs, in words (the adapter's name on a GPU).
+    #[must_use]
+    pub fn device(&self) -> String {
+        self.backend.describe()
+    }
+
+    /// Why `Device::Auto` runs on the CPU, when it does.
+    #[must_use]
+    pub fn fallback(&self) -> Option<&str> {
+        self.fallback.as_deref()
+    }
+
+    /// The backend itself, for what this type does not wrap (learning-rate changes, precision,
+    /// work counters).
+    pub fn backend(&mut self) -> &mut dyn Backend {
+        self.backend.as_mut()
+    }
+}
+
+/// The model of `options`, composited as the data is.
+fn model_for(options: &Options, data: Option<&Dataset>) -> Result<Model, Error> {
+    let mut config = options.model.clone();
+    if let Some(ds) = data {
+        config.white_bkgd = ds.white_bkgd;
+    }
+    Ok(Model::new(config)?)
+}
+
+/// A 64³ occupancy grid around the scene of `data`, carved by its images' alpha.
+fn occupancy_grid(data: &Dataset) -> Result<OccupancyGrid, Error> {
+    if data.ndc.is_some() {
+        return Err(Error::Occupancy("forward-facing (NDC) data is unbounded".into()));
+    }
+    let bound = mipnerf_core::occupancy::auto_bound(data)
+        .ok_or_else(|| Error::Occupancy("a camera's near bound reaches the origin: no cube fits the scene".into()))?;
+    let mut grid = OccupancyGrid::new(OccupancyConfig { resolution: 64, bound, ..OccupancyConfig::default() })
+        .map_err(|e| Error::Occupancy(e.to_string()))?;
+    grid.carve_with_masks(data);
+    Ok(grid)
+}

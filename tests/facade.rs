@@ -1,0 +1,139 @@
+//! The facade's small API (`Nerf`, `Options`, `Device`): what an embedder writes, on the CPU (and
+//! the same calls on whatever `Device::Auto` finds), and the CPU-only build without the `gpu`
+//! feature.
+#![allow(clippy::unwrap_used, missing_docs)]
+
+use std::path::{Path, PathBuf};
+
+use mipnerf::{Camera, Device, Error, Nerf, Options, Preset, demo};
+
+fn cpu_tiny() -> Options {
+    Options { device: Device::Cpu, batch_rays: 64, ..Options::preset(Preset::Tiny) }
+}
+
+fn novel_camera() -> Camera {
+    Camera::from_camera_angle_x(12, 8, 0.69, demo::camera_pose(1.0, 0.4)).unwrap()
+}
+
+fn lego_tiny() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/lego_tiny")
+}
+
+/// Trains, renders, saves; the loaded model renders the same picture bit for bit and trains on
+/// from the saved step when given the data again.
+#[test]
+fn a_nerf_trains_renders_saves_and_loads_as_it_was() {
+    let mut nerf = Nerf::new(demo::dataset(3, 12).unwrap(), cpu_tiny()).unwrap();
+    assert!(nerf.fallback().is_none(), "Device::Cpu falls back from nothing");
+    let report = nerf.train(4).unwrap();
+    assert_eq!((report.step, nerf.step()), (3, 4));
+    assert!(report.stats.loss.is_finite() && report.stats.loss > 0.0);
+    let before = nerf.render(&novel_camera()).unwrap();
+    assert_eq!((before.width, before.height, before.fine.len()), (12, 8, 96));
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("nerf.safetensors");
+    nerf.save(&path).unwrap();
+    // For rendering only: the demo's bounds are the default render bounds (2 to 6).
+    let mut loaded = Nerf::load(&path, cpu_tiny(), None).unwrap();
+    assert_eq!(loaded.step(), 4);
+    assert_eq!(loaded.render(&novel_camera()).unwrap(), before);
+    assert!(matches!(loaded.train(1), Err(Error::NoData)));
+    // With data: it trains on from step 4, as the original does.
+    let mut resumed = Nerf::load(&path, cpu_tiny(), Some(demo::dataset(3, 12).unwrap())).unwrap();
+    assert_eq!(resumed.train(1).unwrap().stats, nerf.train(1).unwrap().stats);
+}
+
+/// A dataset folder: the training split of the committed lego subset trains a step; a folder
+/// that is none is an error naming it.
+#[test]
+fn a_dataset_folder_trains_and_a_missing_one_is_named() {
+    let mut nerf = Nerf::from_dir(lego_tiny(), cpu_tiny()).unwrap();
+    assert!(nerf.train(1).unwrap().stats.loss.is_finite());
+    let missing = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/no_such_scene");
+    let err = Nerf::from_dir(&missing, cpu_tiny()).unwrap_err();
+    assert!(matches!(err, Error::Data(_)) && err.to_string().contains("no_such_scene"), "{err}");
+}
+
+/// A time budget takes at least one step and stops soon after the budget.
+#[test]
+fn training_for_a_budget_takes_steps_until_it_is_spent() {
+    let mut nerf = Nerf::new(demo::dataset(2, 8).unwrap(), cpu_tiny()).unwrap();
+    let report = nerf.train_for(std::time::Duration::from_millis(200)).unwrap();
+    assert!(nerf.step() >= 1 && report.step + 1 == nerf.step(), "{} steps, last {}", nerf.step(), report.step);
+}
+
+/// The fast preset guides sampling with an occupancy grid carved from the images' alpha (the
+/// demo's empty space is not full), saved with the parameters.
+#[test]
+fn the_fast_preset_trains_with_an_occupancy_grid() {
+    let options = Options { device: Device::Cpu, batch_rays: 256, ..Options::preset(Preset::Fast) };
+    assert!(options.occupancy);
+    let mut nerf = Nerf::new(demo::dataset(6, 16).unwrap(), options).unwrap();
+    nerf.train(2).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("fast.safetensors");
+    nerf.save(&path).unwrap();
+    let ck = mipnerf::mipnerf_core::checkpoint::load(&path, nerf.backend().model()).unwrap();
+    let grid = ck.occupancy.expect("the grid is saved with the parameters");
+    assert!(!grid.is_full(), "the carved grid leaves empty space");
+}
+
+/// Without the `gpu` feature: `Device::Gpu` is a clear error, `Device::Auto` runs on the CPU
+/// and says why.
+#[cfg(not(feature = "gpu"))]
+#[test]
+fn without_the_gpu_feature_auto_is_the_cpu_and_gpu_an_error() {
+    let data = || demo::dataset(2, 8).unwrap();
+    let err = Nerf::new(data(), Options { device: Device::Gpu, ..cpu_tiny() }).unwrap_err();
+    assert!(matches!(err, Error::NoGpuBackend) && err.to_string().contains("`gpu` feature is off"), "{err}");
+    let mut auto = Nerf::new(data(), Options { device: Device::Auto, ..cpu_tiny() }).unwrap();
+    assert!(auto.fallback().unwrap().contains("no GPU backend"), "{:?}", auto.fallback());
+    assert!(auto.train(1).unwrap().stats.loss.is_finite());
+}
+
+/// The packages a build of the facade compiles (normal dependencies), from `cargo tree`.
+fn normal_dependencies(features: &[&str]) -> Vec<String> {
+    let out = std::process::Command::new(env!("CARGO"))
+        .args(["tree", "-p", "mipnerf", "-e", "normal", "--prefix", "none", "--format", "{p}", "--offline"])
+        .args(features)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "cargo tree: {}", String::from_utf8_lossy(&out.stderr));
+    String::from_utf8(out.stdout).unwrap().lines().map(|l| l.split(' ').next().unwrap_or("").to_owned()).collect()
+}
+
+/// A CPU-only embedder (`default-features = false`) compiles neither the GPU crate nor wgpu or
+/// naga; the default build has them.
+#[test]
+fn a_cpu_only_build_compiles_nothing_of_wgpu() {
+    let gpu_crates = ["mipnerf-gpu", "wgpu", "wgpu-core", "wgpu-hal", "naga"];
+    let cpu_only = normal_dependencies(&["--no-default-features"]);
+    assert!(cpu_only.iter().any(|p| p == "mipnerf-core"), "{cpu_only:?}");
+    let found: Vec<&String> = cpu_only.iter().filter(|p| gpu_crates.contains(&p.as_str())).collect();
+    assert!(found.is_empty(), "a CPU-only build compiles {found:?}");
+    let default = normal_dependencies(&[]);
+    for c in ["mipnerf-gpu", "wgpu"] {
+        assert!(default.iter().any(|p| p == c), "the default build lacks {c}");
+    }
+}
+
+/// The README's library example is the crate's doctest, line for line (the doctest's hidden
+/// `# ` lines aside), so the README shows code the test command runs.
+#[test]
+fn the_readme_example_is_the_doctest() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let readme = std::fs::read_to_string(root.join("README.md")).unwrap();
+    let section = readme.split("## Use it as a library").nth(1).expect("the README's library section");
+    let readme_block: Vec<&str> =
+        section.split("```rust\n").nth(1).unwrap().split("\n```").next().unwrap().lines().collect();
+    let lib = std::fs::read_to_string(root.join("src/lib.rs")).unwrap();
+    let doc: Vec<&str> =
+        lib.lines().filter_map(|l| l.strip_prefix("//!")).map(|l| l.strip_prefix(' ').unwrap_or(l)).collect();
+    let start = doc.iter().position(|l| *l == "```").unwrap() + 1;
+    let len = doc[start..].iter().position(|l| *l == "```").unwrap();
+    let doctest: Vec<&str> =
+        doc[start..start + len].iter().copied().filter(|l| !l.starts_with("# ") && *l != "#").collect();
+    assert_eq!(readme_block, doctest, "README.md's library example differs from src/lib.rs's doctest");
+    assert!(doctest.len() > 10, "{doctest:?}");
+}
