@@ -1,6 +1,7 @@
 //! `--backend cpu|gpu|auto`: the library's [`mipnerf_gpu::open_backend`], saying which backend
 //! runs and why.
 
+use crate::session::Session;
 use anyhow::{Context, Result};
 use mipnerf_gpu::{AdapterChoice, BackendChoice, BackendSetup, DeviceOptions, open_backend};
 
@@ -19,6 +20,7 @@ pub fn open(
     choice: Backend,
     setup: BackendSetup,
     precision: PrecisionArg,
+    session: &Session,
 ) -> Result<(Box<dyn mipnerf_core::backend::Backend>, Precision)> {
     let c = match choice {
         Backend::Cpu => BackendChoice::Cpu,
@@ -28,7 +30,7 @@ pub fn open(
     let opened =
         open_backend(c, setup).with_context(|| format!("--backend {}", format!("{choice:?}").to_lowercase()))?;
     if let Some(why) = &opened.fallback {
-        say_once(crate::hints::in_flags(&format!("backend auto: {why}; using the CPU")));
+        session.say_once(crate::hints::in_flags(&format!("backend auto: {why}; using the CPU")));
     }
     let mut be = opened.backend;
     let ran = match precision {
@@ -55,19 +57,8 @@ pub fn open(
             },
         },
     };
-    say_once(format!("backend: {}", be.describe()));
+    session.say_once(format!("backend: {}", be.describe()));
     Ok((be, ran))
-}
-
-/// Prints `line` to standard error unless this process has printed it already (the demo opens a
-/// backend for each of its phases; the choice is said once).
-fn say_once(line: String) {
-    static SAID: std::sync::Mutex<Vec<String>> = std::sync::Mutex::new(Vec::new());
-    let mut said = SAID.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-    if !said.contains(&line) {
-        eprintln!("{line}");
-        said.push(line);
-    }
 }
 
 /// The GPU flags of every command that takes `--backend`.

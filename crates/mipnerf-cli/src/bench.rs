@@ -1,6 +1,7 @@
 //! `mipnerf bench`: training samples/s and rendering rays/s of the backends on this machine, on
 //! a synthetic dataset in memory (`mipnerf_core::bench`), as a markdown table.
 
+use crate::session::Session;
 use std::sync::Arc;
 
 use anyhow::{Context, Result};
@@ -52,7 +53,7 @@ pub struct BenchArgs {
 ///
 /// # Errors
 /// Bad sizes, or a backend that cannot be opened or fails.
-pub fn bench(a: &BenchArgs) -> Result<()> {
+pub fn bench(a: &BenchArgs, session: &Session) -> Result<()> {
     anyhow::ensure!(a.steps > 0, "--steps must be positive");
     anyhow::ensure!(
         (1..=crate::config::MAX_BATCH_RAYS).contains(&a.batch),
@@ -94,7 +95,7 @@ pub fn bench(a: &BenchArgs) -> Result<()> {
                 render_chunk: None,
                 device: a.device.clone(),
             };
-            let (mut b, _) = backend::open(choice, setup, precision)?;
+            let (mut b, _) = backend::open(choice, setup, precision, session)?;
             let work = device_work(b.as_mut(), a.render_side).with_context(|| format!("counting {}", b.describe()))?;
             let r = backend_throughput(b.as_mut(), a.batch, a.steps, a.render_side)
                 .with_context(|| format!("measuring {}", b.describe()))?;

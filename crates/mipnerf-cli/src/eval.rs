@@ -1,6 +1,7 @@
 //! `mipnerf eval`: render a split, measure it, and write metrics.json, a markdown table and a
 //! per-image PSNR chart.
 
+use crate::session::Session;
 use std::path::Path;
 
 use anyhow::{Context, Result};
@@ -141,6 +142,7 @@ pub fn eval(
     device: &mipnerf_gpu::DeviceOptions,
     precision: Option<PrecisionArg>,
     weights: &LpipsWeights,
+    session: &Session,
 ) -> Result<Metrics> {
     let s = read_config(run)?;
     let (lpips, lpips_absent) = match weights.open()? {
@@ -153,7 +155,7 @@ pub fn eval(
     let lpips = lpips.as_ref();
     let lpips_absent = lpips_absent.as_deref();
     let ds = load_split(&s, split)?;
-    let (mut be, step, precision) = open_trained(run, &s, backend, precision, device)?;
+    let (mut be, step, precision) = open_trained(run, &s, backend, precision, device, session)?;
     // Everything goes to eval.partial/, renamed to eval/ once whole: an interrupted or failed
     // eval leaves the previous results as they were and nothing that looks complete.
     let out = run.join(EVAL_PARTIAL);
@@ -164,7 +166,7 @@ pub fn eval(
     let k = be.model().config().supersample;
     let mut per_image = Vec::new();
     let mut entries = Vec::new();
-    let mut pb = crate::progress::Progress::new("eval", 0, ds.views().len() as u64);
+    let mut pb = session.progress("eval", 0, ds.views().len() as u64);
     for v in 0..ds.views().len() {
         let view = &ds.views()[v];
         let (w, h) = (view.camera.width as usize, view.camera.height as usize);

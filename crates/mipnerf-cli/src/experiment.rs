@@ -10,6 +10,7 @@
 //! every row's JSON present, so rows run at different times or on different machines meet in one
 //! table.
 
+use crate::session::Session;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -246,7 +247,7 @@ fn comparable(s: &TrainSettings) -> TrainSettings {
 /// # Errors
 /// Bad experiment files, data of the wrong size, a run directory made with other settings, and
 /// every error of training and evaluation.
-pub fn experiment(args: &ExperimentArgs) -> Result<()> {
+pub fn experiment(args: &ExperimentArgs, session: &Session) -> Result<()> {
     let (exp, rows) = read(&args.dir)?;
     for o in &args.only {
         if !exp.rows.contains(o) {
@@ -275,7 +276,7 @@ pub fn experiment(args: &ExperimentArgs) -> Result<()> {
         std::fs::create_dir_all(&results).with_context(|| results.display().to_string())?;
         for (id, row) in rows.iter().filter(|(id, _)| args.only.is_empty() || args.only.contains(id)) {
             let settings = TrainSettings { data: Some(data.clone()), ..exp.protocol.overridden_by(&row.settings) };
-            if !run_row(id, row, &settings, &out.join(id), &results, &args.lpips)? {
+            if !run_row(id, row, &settings, &out.join(id), &results, &args.lpips, session)? {
                 eprintln!("experiment interrupted in row {id}; run the same command again to continue");
                 std::process::exit(crate::signals::EXIT_INTERRUPTED);
             }
@@ -295,6 +296,7 @@ fn run_row(
     run_dir: &Path,
     results: &Path,
     lpips: &LpipsWeights,
+    session: &Session,
 ) -> Result<bool> {
     // Defaults that depend on the kind of data (LLFF and COLMAP against the rest) as `train` resolves them.
     let llff = settings
@@ -329,7 +331,7 @@ fn run_row(
                 run_dir.display()
             );
         }
-        done_steps = run::load_trained(run_dir, &saved)?.1.step;
+        done_steps = run::load_trained(run_dir, &saved, session)?.1.step;
     }
     let trained = done_steps >= steps || budget.is_some_and(|b| run::train_seconds(run_dir).is_some_and(|t| t >= b));
     if !trained {
@@ -347,6 +349,7 @@ fn run_row(
             TrainSettings::default(),
             done_steps > 0,
             &mipnerf_gpu::DeviceOptions::default(),
+            session,
         )?;
         if outcome.interrupted {
             return Ok(false);
@@ -356,7 +359,7 @@ fn run_row(
     let have_lpips = lpips.open()?.is_ok();
     let sha = mipnerf_core::checkpoint::file_sha256(&ckpt)?;
     let old = std::fs::read_to_string(&json_path).ok().and_then(|t| serde_json::from_str::<RowResult>(&t).ok());
-    let marks = evaluate_marks(id, run_dir, old.as_ref().map_or(&[][..], |o| &o.marks), lpips)?;
+    let marks = evaluate_marks(id, run_dir, old.as_ref().map_or(&[][..], |o| &o.marks), lpips, session)?;
     if let Some(old) = &old
         && old.checkpoint_sha256.as_deref() == Some(sha.as_str())
         && (old.lpips.is_some() || !have_lpips)
@@ -375,8 +378,8 @@ fn run_row(
     println!("== row {id} ({}): evaluating", row.label);
     let t = Instant::now();
     let saved = run::read_config(run_dir)?;
-    let m = evaluate(run_dir, &saved, lpips)?;
-    let (model, ck) = run::load_trained(run_dir, &saved)?;
+    let m = evaluate(run_dir, &saved, lpips, session)?;
+    let (model, ck) = run::load_trained(run_dir, &saved, session)?;
     let r = RowResult {
         row: id.to_string(),
         label: row.label.clone(),
@@ -410,7 +413,13 @@ fn run_row(
 
 /// Evaluates the test split on each of the run's snapshots (`RUN/snapshots/*/`, see
 /// `train --snapshots`), reusing a result of `known` measured on the same checkpoint.
-fn evaluate_marks(id: &str, run_dir: &Path, known: &[MarkResult], lpips: &LpipsWeights) -> Result<Vec<MarkResult>> {
+fn evaluate_marks(
+    id: &str,
+    run_dir: &Path,
+    known: &[MarkResult],
+    lpips: &LpipsWeights,
+    session: &Session,
+) -> Result<Vec<MarkResult>> {
     let dir = run_dir.join("snapshots");
     let mut snaps: Vec<PathBuf> = match std::fs::read_dir(&dir) {
         Ok(entries) => entries.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.is_dir()).collect(),
@@ -433,7 +442,7 @@ fn evaluate_marks(id: &str, run_dir: &Path, known: &[MarkResult], lpips: &LpipsW
         println!("== row {id}: evaluating the snapshot at {mark_seconds:.0} s");
         let t = Instant::now();
         let saved = run::read_config(&snap)?;
-        let m = evaluate(&snap, &saved, lpips)?;
+        let m = evaluate(&snap, &saved, lpips, session)?;
         let psnr = m.column(|s| s.psnr);
         out.push(MarkResult {
             mark_seconds,
@@ -622,7 +631,12 @@ fn write_table(dir: &Path, exp: &Experiment) -> Result<PathBuf> {
 }
 
 /// The test split's scores of a row's run (or snapshot) on the backend it trained on.
-fn evaluate(run_dir: &Path, saved: &TrainSettings, lpips: &LpipsWeights) -> Result<crate::eval::Metrics> {
+fn evaluate(
+    run_dir: &Path,
+    saved: &TrainSettings,
+    lpips: &LpipsWeights,
+    session: &Session,
+) -> Result<crate::eval::Metrics> {
     let backend = saved.backend.unwrap_or(crate::config::Backend::Cpu);
-    crate::eval::eval(run_dir, Split::Test, backend, &mipnerf_gpu::DeviceOptions::default(), None, lpips)
+    crate::eval::eval(run_dir, Split::Test, backend, &mipnerf_gpu::DeviceOptions::default(), None, lpips, session)
 }

@@ -2,6 +2,7 @@
 //! density field (marching cubes, vertex colours from the model) and coloured points at the
 //! expected depth of its training rays (`mipnerf_core::export`).
 
+use crate::session::Session;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
@@ -53,7 +54,7 @@ pub struct ExportArgs {
 /// # Errors
 /// Bad values, a run that cannot be read, a forward-facing (NDC) run, existing outputs without
 /// `--overwrite`, and I/O errors, each naming the file or flag.
-pub fn export(a: &ExportArgs) -> Result<()> {
+pub fn export(a: &ExportArgs, session: &Session) -> Result<()> {
     if a.mesh.is_none() && a.points.is_none() {
         bail!("nothing to export: pass --mesh FILE.ply and/or --points FILE.ply");
     }
@@ -78,7 +79,7 @@ pub fn export(a: &ExportArgs) -> Result<()> {
         check_output(path, a.overwrite)?;
     }
     let s = read_config(&a.run)?;
-    let (model, ck) = load_trained(&a.run, &s)?;
+    let (model, ck) = load_trained(&a.run, &s, session)?;
     let ds = load_split(&s, Split::Train)?;
     if ds.ndc.is_some() {
         bail!(

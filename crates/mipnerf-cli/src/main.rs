@@ -18,10 +18,12 @@ mod plot;
 mod progress;
 mod render;
 mod run;
+mod session;
 mod signals;
 mod view;
 mod view_bench;
 
+use crate::session::Session;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
@@ -527,6 +529,7 @@ fn train_cmd(
     resume: bool,
     flags: &TrainFlags,
     device: &mipnerf_gpu::DeviceOptions,
+    session: &Session,
 ) -> Result<run::TrainOutcome> {
     if resume && let Some(p) = &config {
         bail!(
@@ -536,7 +539,7 @@ fn train_cmd(
         );
     }
     let file = config.map(|p| TrainSettings::from_file(&p)).transpose()?;
-    let outcome = run::train(out, file, flags.settings(), resume, device)?;
+    let outcome = run::train(out, file, flags.settings(), resume, device, session)?;
     if let Some((loss, psnr)) = outcome.last {
         println!(
             "trained to step {}: loss {loss:.5}, training PSNR {psnr:.2} dB; run in {}",
@@ -643,7 +646,7 @@ fn convert_llff(input: &Path, output: &Path, size: Option<u32>, factor: u32) -> 
     Ok(())
 }
 
-fn demo_cmd(out: &Path, d: &DemoArgs) -> Result<()> {
+fn demo_cmd(out: &Path, d: &DemoArgs, session: &Session) -> Result<()> {
     let data_dir = out.join("data");
     if !data_dir.join("metadata.json").is_file() {
         let cfg =
@@ -680,20 +683,20 @@ fn demo_cmd(out: &Path, d: &DemoArgs) -> Result<()> {
             ..TrainFlags::default()
         };
         let resume = dir.join(run::CHECKPOINT).is_file();
-        let outcome = train_cmd(dir, None, resume, &flags, &d.device)?;
+        let outcome = train_cmd(dir, None, resume, &flags, &d.device, session)?;
         if outcome.interrupted {
             eprintln!("demo interrupted while training {name}; run the same command again to continue");
             std::process::exit(signals::EXIT_INTERRUPTED);
         }
-        let metrics = eval::eval(dir, Split::Test, d.backend, &d.device, None, &weights)?;
+        let metrics = eval::eval(dir, Split::Test, d.backend, &d.device, None, &weights, session)?;
         println!("{name} test metrics:");
         print_eval(&metrics);
         scores.push((name, metrics));
     }
     let test = render::Target::Split(Split::Test);
-    let renders = render::render(out, &out.join("render"), test, None, d.backend, &d.device, None, false)?;
+    let renders = render::render(out, &out.join("render"), test, None, d.backend, &d.device, None, false, session)?;
     let orbit = render::Target::Path(render::PathKind::Orbit, 36, render::DEFAULT_FPS);
-    let path = render::render(out, &out.join("render_orbit"), orbit, None, d.backend, &d.device, None, false)?;
+    let path = render::render(out, &out.join("render_orbit"), orbit, None, d.backend, &d.device, None, false, session)?;
     let fig_path = out.join("antialiasing.png");
     let fig = figure::FigureArgs {
         runs: vec![nerf_dir.clone(), out.to_path_buf()],
@@ -759,9 +762,8 @@ struct DemoArgs {
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
-    progress::set_quiet(cli.quiet);
+    let session = session::Session::new(cli.quiet, cli.allow_unverified);
     signals::install();
-    run::set_allow_unverified(cli.allow_unverified);
     if let Err(e) = init_threads() {
         eprintln!("error: {e:#}");
         return std::process::ExitCode::FAILURE;
@@ -773,18 +775,19 @@ fn main() -> std::process::ExitCode {
         }
         Command::Check { backend, device } => check::check(backend, &device.options()),
         Command::Train { out, config, resume, view, view_port, flags, device } => {
-            let viewer = if view { view::beside_training(&out, view_port) } else { Ok(()) };
-            viewer.and_then(|()| train_cmd(&out, config, resume, &flags, &device.options())).map(|o| {
+            let viewer = if view { view::beside_training(&out, view_port, &session) } else { Ok(()) };
+            viewer.and_then(|()| train_cmd(&out, config, resume, &flags, &device.options(), &session)).map(|o| {
                 if o.interrupted {
                     std::process::exit(signals::EXIT_INTERRUPTED);
                 }
             })
         }
         Command::View { run, port, host, backend, device } => {
-            view::serve(&view::ViewArgs { run, host, port, backend, share: None, device: device.options() })
+            let session = session.clone();
+            view::serve(&view::ViewArgs { run, host, port, backend, share: None, device: device.options(), session })
         }
         Command::Eval { run, split, backend, device, precision, lpips } => {
-            eval::eval(&run, split.into(), backend, &device.options(), precision, &lpips).map(|m| {
+            eval::eval(&run, split.into(), backend, &device.options(), precision, &lpips, &session).map(|m| {
                 println!("wrote {}", run.join("eval/metrics.json").display());
                 print_eval(&m);
             })
@@ -807,7 +810,8 @@ fn main() -> std::process::ExitCode {
                 Some(kind) => render::Target::Path(kind, frames, fps),
                 None => render::Target::Split(split.unwrap_or(SplitArg::Test).into()),
             };
-            render::render(&run, &out, target, width.zip(height), backend, &device.options(), precision, overwrite)
+            let size = width.zip(height);
+            render::render(&run, &out, target, size, backend, &device.options(), precision, overwrite, &session)
                 .map(|files| println!("wrote {} files to {}", files.len(), out.display()))
         }
         Command::Figure { runs, labels, view, cell, crop, out, overwrite } => {
@@ -822,46 +826,45 @@ fn main() -> std::process::ExitCode {
             })
         }
         Command::Export { run, mesh, points, resolution, threshold, bound, count, min_opacity, overwrite } => {
-            export::export(&export::ExportArgs {
-                run,
-                mesh,
-                points,
-                resolution,
-                threshold,
-                bound,
-                count,
-                min_opacity,
-                overwrite,
-            })
+            export::export(
+                &export::ExportArgs { run, mesh, points, resolution, threshold, bound, count, min_opacity, overwrite },
+                &session,
+            )
         }
         Command::Compare { a, b, json, lpips, require_lpips } => eval::compare(&a, &b, json, &lpips, require_lpips),
         Command::Experiment { dir, data, out, only, table_only, lpips } => {
-            experiment::experiment(&experiment::ExperimentArgs { dir, data, out, only, table_only, lpips })
+            experiment::experiment(&experiment::ExperimentArgs { dir, data, out, only, table_only, lpips }, &session)
         }
         Command::Bench {
             viewer: Some(run), backend, device, viewer_size, viewer_frames, viewer_stall_steps, ..
-        } => view_bench::bench(&view_bench::ViewerBenchArgs {
-            run,
-            device: device.options(),
-            backend: match backend {
-                bench::BenchBackends::Gpu => Backend::Gpu,
-                bench::BenchBackends::Auto => Backend::Auto,
-                bench::BenchBackends::Cpu | bench::BenchBackends::Both => Backend::Cpu,
-            },
-            size: viewer_size,
-            frames: viewer_frames,
-            stall_steps: viewer_stall_steps,
-        }),
-        Command::Bench { backend, device, preset, batch_rays, steps, render_side, precision, viewer: None, .. } => {
-            bench::bench(&bench::BenchArgs {
+        } => view_bench::bench(
+            &view_bench::ViewerBenchArgs {
+                run,
                 device: device.options(),
-                backends: backend,
-                presets: preset,
-                batch: batch_rays,
-                steps,
-                render_side,
-                precisions: precision,
-            })
+                backend: match backend {
+                    bench::BenchBackends::Gpu => Backend::Gpu,
+                    bench::BenchBackends::Auto => Backend::Auto,
+                    bench::BenchBackends::Cpu | bench::BenchBackends::Both => Backend::Cpu,
+                },
+                size: viewer_size,
+                frames: viewer_frames,
+                stall_steps: viewer_stall_steps,
+            },
+            &session,
+        ),
+        Command::Bench { backend, device, preset, batch_rays, steps, render_side, precision, viewer: None, .. } => {
+            bench::bench(
+                &bench::BenchArgs {
+                    device: device.options(),
+                    backends: backend,
+                    presets: preset,
+                    batch: batch_rays,
+                    steps,
+                    render_side,
+                    precisions: precision,
+                },
+                &session,
+            )
         }
         Command::FetchLpipsWeights { dir } => lpips::fetch(dir),
         Command::Colmap { input, output, max_size, min_views, overwrite } => {
@@ -880,7 +883,11 @@ fn main() -> std::process::ExitCode {
         }
         Command::Demo { out, preset, time_budget, steps, backend, device, seed, size, views, batch_rays } => {
             let device = device.options();
-            demo_cmd(&out, &DemoArgs { preset, time_budget, steps, backend, device, seed, size, views, batch_rays })
+            demo_cmd(
+                &out,
+                &DemoArgs { preset, time_budget, steps, backend, device, seed, size, views, batch_rays },
+                &session,
+            )
         }
     };
     match result {

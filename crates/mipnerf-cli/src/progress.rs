@@ -6,17 +6,9 @@
 //! task.
 
 use std::io::IsTerminal;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressStyle};
-
-static QUIET: AtomicBool = AtomicBool::new(false);
-
-/// Silences every progress bar and line of this process (`--quiet`).
-pub fn set_quiet(quiet: bool) {
-    QUIET.store(quiet, Ordering::Relaxed);
-}
 
 /// Seconds between plain progress lines: `MIPNERF_PROGRESS_SECONDS` (tests and busy logs set it),
 /// else 30.
@@ -57,10 +49,11 @@ pub struct Progress {
 }
 
 impl Progress {
-    /// Starts a task of `total` units at position `pos`.
+    /// Starts a task of `total` units at position `pos`; nothing is shown when `quiet`
+    /// (`--quiet`, see `Session::progress`).
     #[must_use]
-    pub fn new(what: &str, pos: u64, total: u64) -> Self {
-        let mode = if QUIET.load(Ordering::Relaxed) {
+    pub fn new(quiet: bool, what: &str, pos: u64, total: u64) -> Self {
+        let mode = if quiet {
             Mode::Hidden
         } else if std::io::stderr().is_terminal() {
             let bar = ProgressBar::new(total);

@@ -1,6 +1,7 @@
 //! `mipnerf render`: a split's views or a camera path, as colour PNGs, depth and opacity EXRs,
 //! colour-mapped depth PNGs, and an animated preview for paths.
 
+use crate::session::Session;
 use std::path::Path;
 
 use anyhow::{Context, Result, bail};
@@ -99,6 +100,7 @@ pub fn render(
     device: &mipnerf_gpu::DeviceOptions,
     precision: Option<PrecisionArg>,
     overwrite: bool,
+    session: &Session,
 ) -> Result<Vec<std::path::PathBuf>> {
     let s = read_config(run)?;
     if let Some((w, h)) = size
@@ -149,7 +151,7 @@ pub fn render(
     // Never into a folder of files mipnerf did not write (a dataset's images, say).
     crate::outputs::check_dir(out, "--out", overwrite)?;
     // Load the data first: a bad split fails before the device is opened.
-    let (mut be, _, _) = open_trained(run, &s, backend, precision, device)?;
+    let (mut be, _, _) = open_trained(run, &s, backend, precision, device, session)?;
     // Only now, with every argument checked and the model open, is anything created. The
     // manifest names every file before any is written, so an interrupted render can be redone.
     let mut names: Vec<String> = jobs
@@ -179,7 +181,7 @@ pub fn render(
     }
     let mut written = Vec::new();
     let mut preview = Vec::new();
-    let mut pb = crate::progress::Progress::new("render", 0, jobs.len() as u64);
+    let mut pb = session.progress("render", 0, jobs.len() as u64);
     // A signal stops the render between images; every file on disk is whole.
     let _cooperation = crate::signals::Cooperation::start();
     for (i, (name, image)) in jobs.iter().enumerate() {

@@ -16,6 +16,7 @@ use mipnerf_core::occupancy::{OccupancyConfig, OccupancyGrid};
 use crate::backend;
 use crate::config::{Backend, PrecisionArg, TrainSettings};
 use crate::progress::Progress;
+use crate::session::Session;
 
 /// File names inside a run directory.
 pub const CONFIG: &str = "config.toml";
@@ -116,8 +117,9 @@ pub fn open_trained(
     choice: Backend,
     precision: Option<PrecisionArg>,
     device: &mipnerf_gpu::DeviceOptions,
+    session: &Session,
 ) -> Result<(Box<dyn mipnerf_core::backend::Backend>, u64, Precision)> {
-    let (model, ck) = load_trained(run, s)?;
+    let (model, ck) = load_trained(run, s, session)?;
     let step = ck.step;
     let setup = mipnerf_gpu::BackendSetup {
         model,
@@ -128,7 +130,7 @@ pub fn open_trained(
         render_chunk: None,
         device: device.clone(),
     };
-    let (be, ran) = backend::open(choice, setup, precision_for(s.precision, precision))?;
+    let (be, ran) = backend::open(choice, setup, precision_for(s.precision, precision), session)?;
     Ok((be, step, ran))
 }
 
@@ -156,42 +158,32 @@ pub fn precision_arg(p: Precision) -> PrecisionArg {
 ///
 /// # Errors
 /// A missing or mismatched checkpoint.
-pub fn load_trained(run: &Path, s: &TrainSettings) -> Result<(Model, Checkpoint)> {
+pub fn load_trained(run: &Path, s: &TrainSettings, session: &Session) -> Result<(Model, Checkpoint)> {
     let model = Model::new(s.model_config()?)?;
-    let ck = load_checkpoint(&run.join(CHECKPOINT), &model)?;
+    let ck = load_checkpoint(&run.join(CHECKPOINT), &model, session)?;
     Ok((model, ck))
 }
 
-static ALLOW_UNVERIFIED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
-
-/// `--allow-unverified`: read checkpoints without a checksum instead of refusing them.
-pub fn set_allow_unverified(allow: bool) {
-    ALLOW_UNVERIFIED.store(allow, std::sync::atomic::Ordering::Relaxed);
-}
-
 /// Reads a checkpoint, verifying its checksum; a file without one (written before checksums
-/// existed, or edited) is refused unless `--allow-unverified`, then read as it is, which is said
-/// once per process.
+/// existed, or edited) is refused unless `--allow-unverified` (`session.allow_unverified`), then
+/// read as it is, which is said once per session and file.
 ///
 /// # Errors
 /// A missing, damaged, unverifiable or mismatched checkpoint.
-pub fn load_checkpoint(path: &Path, model: &Model) -> Result<Checkpoint> {
-    static SAID: std::sync::Once = std::sync::Once::new();
+pub fn load_checkpoint(path: &Path, model: &Model, session: &Session) -> Result<Checkpoint> {
     let (ck, integrity) = checkpoint::load_checked(path, model)?;
     if integrity == checkpoint::Integrity::Unchecked {
-        if !ALLOW_UNVERIFIED.load(std::sync::atomic::Ordering::Relaxed) {
+        if !session.allow_unverified {
             bail!(
                 "{} has no checksum, so whether it is intact cannot be verified (it was written before checksums \
                  existed, or edited); pass --allow-unverified to read it anyway (the next save adds a checksum)",
                 path.display()
             );
         }
-        SAID.call_once(|| {
-            eprintln!(
-                "note: {} has no checksum and was read unverified (--allow-unverified; the next save adds one)",
-                path.display()
-            );
-        });
+        session.say_once(format!(
+            "note: {} has no checksum and was read unverified (--allow-unverified; the next save adds one)",
+            path.display()
+        ));
     }
     Ok(ck)
 }
@@ -225,6 +217,7 @@ pub fn train(
     flag_settings: TrainSettings,
     resume: bool,
     device: &mipnerf_gpu::DeviceOptions,
+    session: &Session,
 ) -> Result<TrainOutcome> {
     let (s, format, model) = resolve_settings(run_dir, file_settings, &flag_settings, resume)?;
     std::fs::create_dir_all(run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
@@ -244,7 +237,7 @@ pub fn train(
     let ds = Arc::new(load_training_data(&s, format, &model)?);
     let seed = s.seed.unwrap_or(0);
     let mut state = if resume {
-        let ck = load_checkpoint(&ckpt_path, &model)?;
+        let ck = load_checkpoint(&ckpt_path, &model, session)?;
         let steps = s.steps.unwrap_or(0);
         let budget = s.time_budget_seconds()?;
         let spent = train_seconds(run_dir).unwrap_or(0.0);
@@ -291,7 +284,7 @@ pub fn train(
     } else {
         s.precision.unwrap_or(PrecisionArg::F32)
     };
-    let (be, precision) = backend::open(s.backend.unwrap_or(Backend::Auto), setup, precision)?;
+    let (be, precision) = backend::open(s.backend.unwrap_or(Backend::Auto), setup, precision, session)?;
     // Before the first step allocates it: does a step's memory fit?
     let need = be.host_training_bytes(batch);
     if let Err(e) = mipnerf_core::memory::check(need, &format!("a training step of --batch-rays {batch}")) {
@@ -302,7 +295,7 @@ pub fn train(
     // The saved configuration records the precision that ran.
     let s = TrainSettings { precision: Some(precision_arg(precision)), ..s };
     s.save(&run_dir.join(CONFIG))?;
-    TrainLoop::new(run_dir, &s, be, resume)?.run()
+    TrainLoop::new(run_dir, &s, be, resume, session.quiet)?.run()
 }
 
 /// A run's occupancy grid before training: its cube from the settings or the cameras, seeded
@@ -460,6 +453,8 @@ struct TrainLoop<'a> {
     estimated: bool,
     /// `--val-every`: the test images it renders, and the step it last rendered them at.
     val: Option<Validation>,
+    /// `--quiet`: no progress.
+    quiet: bool,
 }
 
 /// Validation during training (`--val-every`): a fixed few test images at every scale.
@@ -568,6 +563,7 @@ impl<'a> TrainLoop<'a> {
         s: &TrainSettings,
         be: Box<dyn mipnerf_core::backend::Backend>,
         resume: bool,
+        quiet: bool,
     ) -> Result<Self> {
         let csv_path = run_dir.join(METRICS_CSV);
         let csv = open_csv(&csv_path, be.step())?;
@@ -598,6 +594,7 @@ impl<'a> TrainLoop<'a> {
                 every => Some(Validation::new(s, every, s.val_images.unwrap_or(2))?),
             },
             be,
+            quiet,
         })
     }
 
@@ -725,8 +722,8 @@ impl<'a> TrainLoop<'a> {
         let _cooperation = crate::signals::Cooperation::start();
         // With a time budget the bar counts seconds of training, and the message the steps.
         let mut pb = match self.budget {
-            Some((b, _)) => Progress::new("train (s)", self.elapsed() as u64, b.ceil() as u64),
-            None => Progress::new("train", self.be.step(), self.steps),
+            Some((b, _)) => Progress::new(self.quiet, "train (s)", self.elapsed() as u64, b.ceil() as u64),
+            None => Progress::new(self.quiet, "train", self.be.step(), self.steps),
         };
         let mut window = (Instant::now(), 0u64);
         let mut last = None;

@@ -9,6 +9,7 @@
 //! one frame at a time, so threads suffice and no async runtime is pulled in. Rendering happens on
 //! one thread that owns the backend (backends are not `Send`); requests queue for it.
 
+use crate::session::Session;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::mpsc;
@@ -51,6 +52,8 @@ pub struct ViewArgs {
     pub share: Option<f64>,
     /// The GPU to open when `backend` is one (`--adapter`, `--gpu-memory`).
     pub device: mipnerf_gpu::DeviceOptions,
+    /// The invocation's global flags.
+    pub session: Session,
 }
 
 /// A rendered frame.
@@ -112,7 +115,7 @@ pub fn serve(a: &ViewArgs) -> Result<()> {
 ///
 /// # Errors
 /// A port that cannot be bound.
-pub fn beside_training(run_dir: &Path, port: u16) -> Result<()> {
+pub fn beside_training(run_dir: &Path, port: u16, session: &Session) -> Result<()> {
     let args = ViewArgs {
         run: run_dir.to_path_buf(),
         host: "127.0.0.1".into(),
@@ -120,6 +123,7 @@ pub fn beside_training(run_dir: &Path, port: u16) -> Result<()> {
         backend: Backend::Cpu,
         share: Some(SHARE_BESIDE_TRAINING),
         device: mipnerf_gpu::DeviceOptions::default(),
+        session: session.clone(),
     };
     let (server, url) = bind(&args)?;
     println!("view: {url} (the run's latest checkpoint, while it trains)");
@@ -197,7 +201,7 @@ fn renderer(a: &ViewArgs, s: &TrainSettings, template: &ImageSpec, jobs: &mpsc::
             if loaded.as_ref().is_none_or(|l| l.2 != mtime) {
                 // A checkpoint that is being replaced is renamed into place whole, so a failed
                 // load is only a missing one: keep the model we have.
-                match open_trained(run, s, a.backend, None, &a.device) {
+                match open_trained(run, s, a.backend, None, &a.device, &a.session) {
                     Ok((be, step, _)) => loaded = Some((be, step, mtime)),
                     Err(e) if loaded.is_none() => return Err(e),
                     Err(_) => {}

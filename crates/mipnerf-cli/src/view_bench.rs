@@ -12,6 +12,7 @@
 //!    pause (five moving, one resting, by turns: the viewer never idle). The stall is the share of
 //!    training time lost, `1 - alone / with_viewer`, from the two runs' own `train_seconds.txt`.
 
+use crate::session::Session;
 use std::io::{BufRead, BufReader, Write};
 use std::net::TcpStream;
 use std::path::{Path, PathBuf};
@@ -55,7 +56,7 @@ struct Timed {
 ///
 /// # Errors
 /// An unreadable run, a server that cannot start, or a failing child run.
-pub fn bench(a: &ViewerBenchArgs) -> Result<()> {
+pub fn bench(a: &ViewerBenchArgs, session: &Session) -> Result<()> {
     anyhow::ensure!((8..=view::MAX_SIDE).contains(&a.size), "--viewer-size must be 8 to {}", view::MAX_SIDE);
     anyhow::ensure!(a.frames > 0, "--viewer-frames must be positive");
     let settings = crate::run::read_config(&a.run)?;
@@ -80,6 +81,7 @@ pub fn bench(a: &ViewerBenchArgs) -> Result<()> {
         backend: a.backend,
         share: None,
         device: a.device.clone(),
+        session: session.clone(),
     };
     let (server, url) = view::bind(&args)?;
     let addr = url.trim_start_matches("http://").trim_end_matches('/').to_string();
