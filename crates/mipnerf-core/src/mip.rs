@@ -41,7 +41,7 @@ pub struct Gaussian {
 /// - `r_var = r² (t_mu²/4 + (5/12) t_delta² - (4/15) t_delta⁴ / (3 t_mu² + t_delta²))`
 ///
 /// This form keeps full `f32` precision for thin, distant frustums, where the textbook formula
-/// ([`conical_frustum_moments_naive`]) subtracts huge nearly equal powers of `t`.
+/// (`tests/precision.rs` keeps it, to show where) subtracts huge nearly equal powers of `t`.
 ///
 /// `t0 = t1 = 0` is the one input that gives NaN (0/0), exactly as the official code does.
 #[must_use]
@@ -58,21 +58,6 @@ pub fn conical_frustum_moments(t0: f32, t1: f32, base_radius: f32) -> FrustumMom
     let t_var = hw2 / 3.0 - (4.0 / 15.0) * ((hw4 * (12.0 * mu2 - hw2)) / (denom * denom));
     let r_var = base_radius * base_radius * (mu2 / 4.0 + (5.0 / 12.0) * hw2 - 4.0 / 15.0 * hw4 / denom);
     FrustumMoments { t_mean, t_var, r_var }
-}
-
-/// The textbook (unstable) moments of a conical frustum, as the paper's Eq. 7 writes them.
-///
-/// Kept only to show, in tests, where `f32` loses precision: `t1⁵ - t0⁵` of two close, large `t`
-/// cancels catastrophically. Use [`conical_frustum_moments`] instead.
-#[must_use]
-pub fn conical_frustum_moments_naive(t0: f32, t1: f32, base_radius: f32) -> FrustumMoments {
-    let d3 = t1.powi(3) - t0.powi(3);
-    let d4 = t1.powi(4) - t0.powi(4);
-    let d5 = t1.powi(5) - t0.powi(5);
-    let t_mean = (3.0 * d4) / (4.0 * d3);
-    let r_var = base_radius * base_radius * (3.0 / 20.0 * d5 / d3);
-    let t_mosq = 3.0 / 5.0 * d5 / d3;
-    FrustumMoments { t_mean, t_var: t_mosq - t_mean * t_mean, r_var }
 }
 
 /// The moments of the cylinder between `t0` and `t1` with radius `radius`: mean `t_mu`,

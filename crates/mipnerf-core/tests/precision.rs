@@ -1,7 +1,7 @@
 //! Where f32 loses precision: the textbook conical-frustum moments against the stable form.
 #![allow(clippy::unwrap_used, missing_docs)]
 
-use mipnerf_core::mip::{conical_frustum_moments, conical_frustum_moments_naive};
+use mipnerf_core::mip::{FrustumMoments, conical_frustum_moments};
 
 /// The stable form in f64: the truth the f32 results are measured against.
 fn stable_f64(t0: f64, t1: f64) -> (f64, f64) {
@@ -44,4 +44,18 @@ fn both_forms_agree_where_f32_is_comfortable() {
     assert!((s.t_mean - n.t_mean).abs() < 1e-5);
     assert!((s.t_var - n.t_var).abs() < 1e-4 * s.t_var.abs().max(1e-3));
     assert!((s.r_var - n.r_var).abs() < 1e-5 * s.r_var);
+}
+
+/// The textbook (unstable) moments of a conical frustum, as the paper's Eq. 7 writes them.
+///
+/// Kept here only to show where `f32` loses precision: `t1⁵ - t0⁵` of two close, large `t`
+/// cancels catastrophically. Use [`conical_frustum_moments`] instead.
+fn conical_frustum_moments_naive(t0: f32, t1: f32, base_radius: f32) -> FrustumMoments {
+    let d3 = t1.powi(3) - t0.powi(3);
+    let d4 = t1.powi(4) - t0.powi(4);
+    let d5 = t1.powi(5) - t0.powi(5);
+    let t_mean = (3.0 * d4) / (4.0 * d3);
+    let r_var = base_radius * base_radius * (3.0 / 20.0 * d5 / d3);
+    let t_mosq = 3.0 / 5.0 * d5 / d3;
+    FrustumMoments { t_mean, t_var: t_mosq - t_mean * t_mean, r_var }
 }
