@@ -241,7 +241,7 @@ fn render_forward_loss_and_backward_match_cpu_reference() {
     use mipnerf_core::model::{ModelConfig, pixel_loss_gradient};
     use mipnerf_core::render::{self, DensityActivation, RenderedRay};
     use mipnerf_gpu::kernels::render::{
-        BACKGROUND_BLACK, BACKGROUND_RANDOM, BACKGROUND_WHITE, RenderBuffers, RenderKernel, RenderParams, RenderVariant,
+        BACKGROUND_BLACK, BACKGROUND_RANDOM, BACKGROUND_WHITE, RenderInputs, RenderKernel, RenderParams, RenderVariant,
     };
     use rand::{Rng, SeedableRng, rngs::SmallRng};
     let Some(ctx) = context_or_skip("render_forward_loss_and_backward_match_cpu_reference") else { return };
@@ -342,48 +342,25 @@ fn render_forward_loss_and_backward_match_cpu_reference() {
         };
         // GPU, outputs poisoned with NaN.
         let on_gpu = |c: &RenderCase| -> Result<Outputs, GpuError> {
-            let buf = |name: &str, v: &[f32], out: bool| ctx.storage_buffer(name, v, out);
-            let packed: Vec<[f32; 4]> = c
-                .rays
-                .iter()
-                .flat_map(|r| [r.origin.extend(r.radius).to_array(), r.direction.extend(r.lossmult).to_array()])
-                .collect();
-            let targets: Vec<[f32; 4]> = c.targets.iter().map(|t| [t[0], t[1], t[2], 0.0]).collect();
-            let (b_rgb, b_den, b_t) =
-                (buf("raw rgb", &c.raw_rgb, false), buf("raw density", &c.raw_density, false), buf("t", &c.t, false));
-            let (b_rays, b_targets) =
-                (buf("rays", packed.as_flattened(), false), buf("targets", targets.as_flattened(), false));
-            let (b_w, b_drgb, b_dden, b_out) = (
-                buf("w", &vec![f32::NAN; n], true),
-                buf("d rgb", &vec![f32::NAN; n * 3], true),
-                buf("d den", &vec![f32::NAN; n], true),
-                buf("out", &vec![f32::NAN; nr * 8], true),
-            );
-            let mut rec = Recorder::new(&ctx, "render test");
-            let rb = RenderBuffers {
-                raw_rgb: &b_rgb,
-                raw_density: &b_den,
-                t_vals: &b_t,
-                rays: &b_rays,
-                targets: &b_targets,
-                weights: &b_w,
-                d_raw_rgb: &b_drgb,
-                d_raw_density: &b_dden,
-                ray_out: &b_out,
-                norm: &buf("norm", &[norm], false),
-                ray_ids: &ctx.storage_buffer("ray ids", &c.ids, false),
-            };
             let mut params = RenderParams::new(&cfg, nr, level_weight, true);
             if bg == BACKGROUND_RANDOM {
                 params = params.with_random_background(seed, step);
             }
-            kernel.encode(&mut rec, params, &rb)?;
-            let _ = rec.submit();
+            let input = RenderInputs {
+                raw_rgb: &c.raw_rgb,
+                raw_density: &c.raw_density,
+                t: &c.t,
+                rays: &c.rays,
+                ids: &c.ids,
+                targets: &c.targets,
+                norm,
+            };
+            let o = kernel.run(&ctx, params, &input)?;
             Ok(vec![
-                ("weights", ctx.read_f32(&b_w, n)?),
-                ("ray outputs", ctx.read_f32(&b_out, nr * 8)?),
-                ("d raw rgb", ctx.read_f32(&b_drgb, n * 3)?),
-                ("d raw density", ctx.read_f32(&b_dden, n)?),
+                ("weights", o.weights),
+                ("ray outputs", o.ray_out),
+                ("d raw rgb", o.d_raw_rgb),
+                ("d raw density", o.d_raw_density),
             ])
         };
         let tol = |_: &str| Tolerance::new(TOL_GPU_RENDER_ABS, TOL_GPU_RENDER_REL);

@@ -241,6 +241,105 @@ impl RenderKernel {
     }
 }
 
+/// What `render.wgsl` reads, held on the host: the inputs of [`RenderKernel::run`].
+#[derive(Clone, Copy, Debug)]
+pub struct RenderInputs<'a> {
+    /// `n x 3` raw colours (`n` = rays x samples).
+    pub raw_rgb: &'a [f32],
+    /// `n` raw densities.
+    pub raw_density: &'a [f32],
+    /// `rays x (samples + 1)` interval edges.
+    pub t: &'a [f32],
+    /// The rays (origin, radius, direction and `lossmult` are read).
+    pub rays: &'a [mipnerf_core::Ray],
+    /// Each ray's index in the batch (its random streams).
+    pub ids: &'a [u32],
+    /// Each ray's target colour.
+    pub targets: &'a [[f32; 3]],
+    /// The loss's denominator, `3 * sum(lossmult)` over the batch.
+    pub norm: f32,
+}
+
+/// What `render.wgsl` writes, read back by [`RenderKernel::run`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct RenderOutputs {
+    /// `n` rendering weights.
+    pub weights: Vec<f32>,
+    /// Eight floats per ray: colour, distance, opacity, `lossmult * se`, `se`, 0.
+    pub ray_out: Vec<f32>,
+    /// `n x 3` gradients of the raw colours (training).
+    pub d_raw_rgb: Vec<f32>,
+    /// `n` gradients of the raw densities (training).
+    pub d_raw_density: Vec<f32>,
+}
+
+impl RenderKernel {
+    /// Runs the kernel once on host data (for checks and tests; training records it into a step
+    /// with [`encode`](Self::encode)). The outputs are filled with NaN first, so anything the
+    /// kernel fails to write reads back as NaN.
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for lengths that disagree with `params`, or any error wgpu
+    /// reports.
+    pub fn run(
+        &self,
+        ctx: &GpuContext,
+        params: RenderParams,
+        input: &RenderInputs<'_>,
+    ) -> Result<RenderOutputs, GpuError> {
+        let (nr, s) = (params.n_rays as usize, params.n_samples as usize);
+        let n = nr * s;
+        let lengths = [input.raw_rgb.len(), input.raw_density.len(), input.t.len(), input.rays.len(), input.ids.len()];
+        if lengths != [3 * n, n, nr * (s + 1), nr, nr] || input.targets.len() != nr {
+            return Err(GpuError::InvalidInput(format!("render: lengths {lengths:?} for {nr} rays of {s} samples")));
+        }
+        let packed: Vec<[f32; 4]> = input
+            .rays
+            .iter()
+            .flat_map(|r| [r.origin.extend(r.radius).to_array(), r.direction.extend(r.lossmult).to_array()])
+            .collect();
+        let targets: Vec<[f32; 4]> = input.targets.iter().map(|t| [t[0], t[1], t[2], 0.0]).collect();
+        let buf = |name: &str, v: &[f32], out: bool| ctx.storage_buffer(name, v, out);
+        let poisoned = |name: &str, len: usize| ctx.storage_buffer(name, &vec![f32::NAN; len], true);
+        let (raw_rgb, raw_density, t_vals) = (
+            buf("raw rgb", input.raw_rgb, false),
+            buf("raw density", input.raw_density, false),
+            buf("t", input.t, false),
+        );
+        let (rays, targets) =
+            (buf("rays", packed.as_flattened(), false), buf("targets", targets.as_flattened(), false));
+        let (weights, d_raw_rgb, d_raw_density, ray_out) = (
+            poisoned("weights", n),
+            poisoned("d raw rgb", 3 * n),
+            poisoned("d raw density", n),
+            poisoned("ray out", 8 * nr),
+        );
+        let (norm, ray_ids) = (buf("norm", &[input.norm], false), ctx.storage_buffer("ray ids", input.ids, false));
+        let b = RenderBuffers {
+            raw_rgb: &raw_rgb,
+            raw_density: &raw_density,
+            t_vals: &t_vals,
+            rays: &rays,
+            targets: &targets,
+            weights: &weights,
+            d_raw_rgb: &d_raw_rgb,
+            d_raw_density: &d_raw_density,
+            ray_out: &ray_out,
+            norm: &norm,
+            ray_ids: &ray_ids,
+        };
+        let mut rec = Recorder::new(ctx, "render (host data)");
+        self.encode(&mut rec, params, &b)?;
+        let _ = rec.submit();
+        Ok(RenderOutputs {
+            weights: ctx.read_f32(&weights, n)?,
+            ray_out: ctx.read_f32(&ray_out, 8 * nr)?,
+            d_raw_rgb: ctx.read_f32(&d_raw_rgb, 3 * n)?,
+            d_raw_density: ctx.read_f32(&d_raw_density, n)?,
+        })
+    }
+}
+
 super::wgsl_struct!(
     RenderParams,
     "Params",
