@@ -9,7 +9,7 @@ use std::sync::Arc;
 
 use mipnerf_core::backend::{Backend, CpuBackend, ImageSpec, TrainState};
 use mipnerf_core::camera::{Camera, PixelCenters};
-use mipnerf_core::compare::{Tolerance, assert_none, mismatches};
+use mipnerf_core::compare::{Outputs, Tolerance, assert_none, check_kernel, mismatches};
 use mipnerf_core::data::{self, Dataset, LoadOptions, Pixels, Split, View, demo};
 use mipnerf_core::model::{LevelOutput, Model, ModelConfig, Preset};
 use mipnerf_core::train::OptimConfig;
@@ -93,41 +93,47 @@ fn device_batches_are_the_cpu_batches() {
             let tag = format!(
                 "f32 {f32_pixels} white {white} random {random_bkgd} slots {slot_bytes:?} seed {seed} step {step}"
             );
-            let batch = RayBatch::new(&ctx, n);
-            let mut rec = Recorder::new(&ctx, "batch");
-            kernel.encode(&mut rec, &images, Draw::Random { seed, step, random_bkgd }, area_loss, 1, &batch).unwrap();
-            let _ = rec.submit();
-            let [rays, bounds, viewdirs, targets, norm] = read_batch(&ctx, &batch);
-            let (mut cpu_rays, mut cpu_targets) = (Vec::new(), Vec::new());
-            ds.sample_batch(n, seed, step, 1, random_bkgd, &mut cpu_rays, &mut cpu_targets);
-            let col = |f: &dyn Fn(&mipnerf_core::Ray) -> Vec<f32>| cpu_rays.iter().flat_map(f).collect::<Vec<f32>>();
-            let packed = col(&|r| {
-                let mut v = r.origin.extend(r.radius).to_array().to_vec();
-                v.extend(r.direction.extend(r.lossmult).to_array());
-                v
-            });
-            bad.extend(mismatches(&format!("{tag} rays"), &rays, &packed, Tolerance::abs(TOL_BATCH_DIR_ABS)));
-            bad.extend(mismatches(
-                &format!("{tag} bounds"),
-                &bounds,
-                &col(&|r| vec![r.near, r.far]),
-                Tolerance::abs(0.0),
-            ));
-            bad.extend(mismatches(
-                &format!("{tag} viewdirs"),
-                &viewdirs,
-                &col(&|r| r.viewdir.to_array().to_vec()),
-                Tolerance::abs(1e-6),
-            ));
-            let tg: Vec<f32> = cpu_targets.iter().flat_map(|t| [t[0], t[1], t[2], 0.0]).collect();
-            bad.extend(mismatches(&format!("{tag} targets"), &targets, &tg, Tolerance::abs(TOL_BATCH_TARGET_ABS)));
-            let lm: f64 = cpu_rays.iter().map(|r| if area_loss { f64::from(r.lossmult) } else { 1.0 }).sum();
-            bad.extend(mismatches(
-                &format!("{tag} norm"),
-                &norm,
-                &[(3.0 * lm) as f32],
-                Tolerance::abs(1e-6 * (3.0 * lm) as f32),
-            ));
+            // The CPU reference: the CPU backend's batch of the same seed and step.
+            let cpu = |ds: &Dataset| -> Outputs {
+                let (mut rays, mut targets) = (Vec::new(), Vec::new());
+                ds.sample_batch(n, seed, step, 1, random_bkgd, &mut rays, &mut targets);
+                let col = |f: &dyn Fn(&mipnerf_core::Ray) -> Vec<f32>| rays.iter().flat_map(f).collect::<Vec<f32>>();
+                let lm: f64 = rays.iter().map(|r| if area_loss { f64::from(r.lossmult) } else { 1.0 }).sum();
+                vec![
+                    (
+                        "rays",
+                        col(&|r| {
+                            [r.origin.extend(r.radius).to_array(), r.direction.extend(r.lossmult).to_array()].concat()
+                        }),
+                    ),
+                    ("bounds", col(&|r| vec![r.near, r.far])),
+                    ("viewdirs", col(&|r| r.viewdir.to_array().to_vec())),
+                    ("targets", targets.iter().flat_map(|t| [t[0], t[1], t[2], 0.0]).collect()),
+                    ("norm", vec![(3.0 * lm) as f32]),
+                ]
+            };
+            let on_gpu = |_: &Dataset| -> Result<Outputs, mipnerf_gpu::GpuError> {
+                let batch = RayBatch::new(&ctx, n);
+                let mut rec = Recorder::new(&ctx, "batch");
+                kernel.encode(&mut rec, &images, Draw::Random { seed, step, random_bkgd }, area_loss, 1, &batch)?;
+                let _ = rec.submit();
+                let [rays, bounds, viewdirs, targets, norm] = read_batch(&ctx, &batch);
+                Ok(vec![
+                    ("rays", rays),
+                    ("bounds", bounds),
+                    ("viewdirs", viewdirs),
+                    ("targets", targets),
+                    ("norm", norm),
+                ])
+            };
+            let tol = |name: &str| match name {
+                "rays" => Tolerance::abs(TOL_BATCH_DIR_ABS),
+                "bounds" => Tolerance::abs(0.0),
+                "viewdirs" => Tolerance::abs(1e-6),
+                "targets" => Tolerance::abs(TOL_BATCH_TARGET_ABS),
+                _ => Tolerance::rel(1e-6),
+            };
+            bad.extend(check_kernel(&tag, cpu, on_gpu, &ds, tol).into_mismatches());
         }
     }
     assert_none(&bad);
@@ -176,40 +182,42 @@ fn device_ndc_batches_match_the_cpu() {
     let ds = ndc_dataset();
     let images = DeviceImages::upload(&ctx, &ds).unwrap();
     let n = 400;
-    let batch = RayBatch::new(&ctx, n);
-    let mut rec = Recorder::new(&ctx, "ndc batch");
-    kernel.encode(&mut rec, &images, Draw::Random { seed: 5, step: 1, random_bkgd: false }, false, 1, &batch).unwrap();
-    let _ = rec.submit();
-    let [rays, bounds, viewdirs, _, _] = read_batch(&ctx, &batch);
-    let (mut cpu, mut targets) = (Vec::new(), Vec::new());
-    ds.sample_batch(n, 5, 1, 1, false, &mut cpu, &mut targets);
-    let mut bad = Vec::new();
-    let (mut worst_ray, mut worst_radius) = (0.0f32, 0.0f32);
-    for (i, r) in cpu.iter().enumerate() {
-        let g = &rays[8 * i..8 * i + 8];
-        let want = [r.origin.x, r.origin.y, r.origin.z, r.direction.x, r.direction.y, r.direction.z, r.lossmult];
-        let got = [g[0], g[1], g[2], g[4], g[5], g[6], g[7]];
-        worst_ray = want.iter().zip(&got).map(|(a, b)| (a - b).abs()).fold(worst_ray, f32::max);
-        worst_radius = worst_radius.max((g[3] - r.radius).abs() / r.radius);
-        bad.extend(mismatches(&format!("ray {i}"), &got, &want, Tolerance::abs(TOL_NDC_RAY_ABS)));
-        let rel = [(g[3] - r.radius) / r.radius];
-        bad.extend(mismatches(&format!("ray {i} radius (relative)"), &rel, &[0.0], Tolerance::abs(TOL_NDC_RADIUS_REL)));
-        bad.extend(mismatches(
-            &format!("ray {i} bounds"),
-            &bounds[2 * i..2 * i + 2],
-            &[r.near, r.far],
-            Tolerance::abs(0.0),
-        ));
-        let vd = r.viewdir.to_array();
-        bad.extend(mismatches(
-            &format!("ray {i} viewdir"),
-            &viewdirs[3 * i..3 * i + 3],
-            &vd,
-            Tolerance::abs(TOL_BATCH_DIR_ABS),
-        ));
-    }
-    eprintln!("NDC batch: worst |ray - cpu| {worst_ray:e}, worst radius relative {worst_radius:e}");
-    assert_none(&bad);
+    // Each ray's origin, direction and lossmult (7 values), its radius, bounds and view direction.
+    let split = |packed: &[f32]| -> (Vec<f32>, Vec<f32>) {
+        let rays = packed.chunks(8).flat_map(|g| [g[0], g[1], g[2], g[4], g[5], g[6], g[7]]).collect();
+        (rays, packed.chunks(8).map(|g| g[3]).collect())
+    };
+    let cpu = |ds: &Dataset| -> Outputs {
+        let (mut rays, mut targets) = (Vec::new(), Vec::new());
+        ds.sample_batch(n, 5, 1, 1, false, &mut rays, &mut targets);
+        let packed: Vec<f32> = rays
+            .iter()
+            .flat_map(|r| [r.origin.extend(r.radius).to_array(), r.direction.extend(r.lossmult).to_array()].concat())
+            .collect();
+        let (rays_part, radius) = split(&packed);
+        vec![
+            ("rays", rays_part),
+            ("radius", radius),
+            ("bounds", rays.iter().flat_map(|r| [r.near, r.far]).collect()),
+            ("viewdirs", rays.iter().flat_map(|r| r.viewdir.to_array()).collect()),
+        ]
+    };
+    let on_gpu = |_: &Dataset| -> Result<Outputs, mipnerf_gpu::GpuError> {
+        let batch = RayBatch::new(&ctx, n);
+        let mut rec = Recorder::new(&ctx, "ndc batch");
+        kernel.encode(&mut rec, &images, Draw::Random { seed: 5, step: 1, random_bkgd: false }, false, 1, &batch)?;
+        let _ = rec.submit();
+        let [packed, bounds, viewdirs, _, _] = read_batch(&ctx, &batch);
+        let (rays, radius) = split(&packed);
+        Ok(vec![("rays", rays), ("radius", radius), ("bounds", bounds), ("viewdirs", viewdirs)])
+    };
+    let tol = |name: &str| match name {
+        "rays" => Tolerance::abs(TOL_NDC_RAY_ABS),
+        "radius" => Tolerance::rel(TOL_NDC_RADIUS_REL),
+        "bounds" => Tolerance::abs(0.0),
+        _ => Tolerance::abs(TOL_BATCH_DIR_ABS),
+    };
+    assert_none(&check_kernel("NDC batch", cpu, on_gpu, &ds, tol).into_mismatches());
     // A forward-facing view rendered by both backends (rays made on the device, in NDC).
     let model = Model::new(ModelConfig { num_samples: 16, white_bkgd: false, ..Preset::Tiny.config() }).unwrap();
     let state = TrainState::fresh(&model, 1);
