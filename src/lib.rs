@@ -44,6 +44,7 @@ mod nerf;
 
 pub use mipnerf_core;
 pub use mipnerf_core::Camera;
+pub use mipnerf_core::backend::MAX_BATCH_RAYS;
 pub use mipnerf_core::backend::RenderedImage;
 pub use mipnerf_core::data::{Dataset, Pixels, View, demo};
 pub use mipnerf_core::model::{ModelConfig, Preset};

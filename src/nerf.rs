@@ -6,7 +6,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use mipnerf_core::Camera;
-use mipnerf_core::backend::{Backend, BackendError, ImageSpec, RenderedImage, TrainState};
+use mipnerf_core::backend::{Backend, BackendError, ImageSpec, MAX_BATCH_RAYS, RenderedImage, TrainState};
 use mipnerf_core::checkpoint::{self, CheckpointError};
 use mipnerf_core::data::{self, DataError, Dataset, LoadOptions, Split, View};
 use mipnerf_core::model::{Model, ModelConfig, ModelError, Preset};
@@ -63,6 +63,23 @@ impl Default for Options {
 }
 
 impl Options {
+    /// Refuses values no run can use, naming the option.
+    fn check(&self) -> Result<(), Error> {
+        if !(1..=MAX_BATCH_RAYS).contains(&self.batch_rays) {
+            return Err(Error::Options(format!(
+                "`Options::batch_rays` must be between 1 and {MAX_BATCH_RAYS}, got {}",
+                self.batch_rays
+            )));
+        }
+        let (near, far) = self.render_bounds;
+        if !(near.is_finite() && far.is_finite() && 0.0 <= near && near < far) {
+            return Err(Error::Options(format!(
+                "`Options::render_bounds` must be finite with 0 <= near < far, got ({near}, {far})"
+            )));
+        }
+        Ok(())
+    }
+
     /// A named model size with the other defaults; [`Preset::Fast`] turns on occupancy-guided
     /// sampling.
     #[must_use]
@@ -97,6 +114,9 @@ pub enum Error {
     /// Occupancy-guided sampling asked of data it cannot guide.
     #[error("occupancy-guided sampling: {0}")]
     Occupancy(String),
+    /// An option is out of range, or a training step would not fit in memory.
+    #[error("{0}")]
+    Options(String),
     /// The `Nerf` holds no training data (it was loaded for rendering).
     #[error("this Nerf holds no training data: make it with `Nerf::new`, `from_views` or `from_dir` to train")]
     NoData,
@@ -176,8 +196,14 @@ impl Nerf {
     }
 
     fn open(model: Model, state: TrainState, data: Option<Arc<Dataset>>, options: &Options) -> Result<Self, Error> {
+        options.check()?;
         let batch = data.as_ref().map(|d| (Arc::clone(d), options.batch_rays));
         let (backend, fallback) = crate::open_backend(options, model, state, batch)?;
+        if data.is_some() {
+            let need = backend.host_training_bytes(options.batch_rays);
+            let what = format!("a training step of {} rays (`Options::batch_rays`)", options.batch_rays);
+            mipnerf_core::memory::check(need, &what).map_err(Error::Options)?;
+        }
         Ok(Self { backend, data, fallback, render_bounds: options.render_bounds })
     }
 

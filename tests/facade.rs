@@ -137,3 +137,18 @@ fn the_readme_example_is_the_doctest() {
     assert_eq!(readme_block, doctest, "README.md's library example differs from src/lib.rs's doctest");
     assert!(doctest.len() > 10, "{doctest:?}");
 }
+
+/// Options no run can use are errors naming the option, before anything is opened.
+#[test]
+fn options_out_of_range_are_errors_naming_the_option() {
+    let data = || demo::dataset(2, 8).unwrap();
+    for (options, words) in [
+        (Options { batch_rays: 0, ..cpu_tiny() }, "`Options::batch_rays` must be between 1 and"),
+        (Options { batch_rays: mipnerf::MAX_BATCH_RAYS + 1, ..cpu_tiny() }, "`Options::batch_rays`"),
+        (Options { render_bounds: (6.0, 2.0), ..cpu_tiny() }, "`Options::render_bounds`"),
+        (Options { render_bounds: (f32::NAN, 2.0), ..cpu_tiny() }, "`Options::render_bounds`"),
+    ] {
+        let err = Nerf::new(data(), options).unwrap_err();
+        assert!(matches!(err, Error::Options(_)) && err.to_string().contains(words), "{err}");
+    }
+}

@@ -122,9 +122,8 @@ pub fn parse_duration(text: &str) -> Result<f64> {
 /// The most training steps a run can take: the step number seeds the random numbers as a `u32`.
 pub const MAX_STEPS: u64 = u32::MAX as u64;
 
-/// The most rays per batch: 1,024 times the paper's 4,096, and far below where a ray index or a
-/// buffer offset (`u32` on the GPU) would overflow.
-pub const MAX_BATCH_RAYS: usize = 1 << 22;
+/// The most rays per batch (the library's bound, `mipnerf_core::backend::MAX_BATCH_RAYS`).
+pub const MAX_BATCH_RAYS: usize = mipnerf_core::backend::MAX_BATCH_RAYS;
 
 /// Every training setting. In a `--config` TOML file the keys are these field names
 /// (e.g. `steps = 5000`, `ipe = false`); every key is optional.

@@ -17,6 +17,10 @@ use crate::occupancy::OccupancyGrid;
 use crate::schedule::LrSchedule;
 use crate::train::{AdamState, OptimConfig, StepReport, Trainer};
 
+/// The most rays a training batch may hold: 1,024 times the paper's 4,096, and far below where a
+/// ray index or a buffer offset (`u32` on the GPU) would overflow.
+pub const MAX_BATCH_RAYS: usize = 1 << 22;
+
 /// Why a backend could not do what was asked.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]

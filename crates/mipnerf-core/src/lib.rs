@@ -14,6 +14,10 @@
 //!    composites them into a pixel colour, depth and opacity, with weights per interval.
 //! 5. [`sampling::resample_along_rays`]: the fine level's edges from the coarse weights.
 //!
+//! [`stages`] runs this flow over a batch of rays, one public function per GPU kernel on the
+//! kernel's buffer layout; [`model::Model`] composes them, and each kernel's test compares the
+//! kernel with its function through [`compare::check_kernel`].
+//!
 //! Backward passes ([`render::volumetric_rendering_backward`], the activation derivatives) are
 //! analytic and checked against finite differences.
 //!
