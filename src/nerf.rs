@@ -30,7 +30,9 @@ pub enum Device {
 /// from [`Options::preset`] for a smaller one.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Options {
-    /// The model (its `white_bkgd` is taken from the data).
+    /// The model. Two settings follow the data: `white_bkgd` (composited as the data is), and
+    /// for forward-facing data in NDC (LLFF, COLMAP) `ray_shape`, cylinders as the official LLFF
+    /// configuration.
     pub model: ModelConfig,
     /// Learning-rate schedule, Adam and gradient clipping.
     pub optim: OptimConfig,
@@ -292,11 +294,14 @@ impl Nerf {
     }
 }
 
-/// The model of `options`, composited as the data is.
+/// The model of `options`, composited as the data is, with cylinders for NDC data.
 fn model_for(options: &Options, data: Option<&Dataset>) -> Result<Model, Error> {
     let mut config = options.model.clone();
     if let Some(ds) = data {
         config.white_bkgd = ds.white_bkgd;
+        if ds.ndc.is_some() {
+            config.ray_shape = mipnerf_core::RayShape::Cylinder;
+        }
     }
     Ok(Model::new(config)?)
 }

@@ -152,3 +152,16 @@ fn options_out_of_range_are_errors_naming_the_option() {
         assert!(matches!(err, Error::Options(_)) && err.to_string().contains(words), "{err}");
     }
 }
+
+/// A COLMAP capture (forward-facing, in NDC) trains with the official LLFF settings the data
+/// implies: cylinders, no white background; occupancy-guided sampling is refused for it.
+#[test]
+fn forward_facing_data_trains_with_cylinders_and_refuses_occupancy() {
+    let colmap = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/colmap_lego");
+    let mut nerf = Nerf::from_dir(&colmap, cpu_tiny()).unwrap();
+    let config = nerf.backend().model().config().clone();
+    assert_eq!((config.ray_shape, config.white_bkgd), (mipnerf::mipnerf_core::RayShape::Cylinder, false));
+    assert!(nerf.train(1).unwrap().stats.loss.is_finite());
+    let err = Nerf::from_dir(&colmap, Options { occupancy: true, ..cpu_tiny() }).unwrap_err();
+    assert!(matches!(err, Error::Occupancy(_)) && err.to_string().contains("forward-facing"), "{err}");
+}

@@ -243,7 +243,11 @@ pub fn render_rays(
     let s = cfg.num_samples;
     let n = rays.len() * s;
     assert!(
-        raw_rgb.len() == 3 * n && raw_density.len() == n && t.len() == rays.len() * (s + 1),
+        raw_rgb.len() == 3 * n
+            && raw_density.len() == n
+            && t.len() == rays.len() * (s + 1)
+            && backgrounds.len() >= rays.len()
+            && out.len() >= rays.len(),
         "render_rays: lengths"
     );
     samples.resize(n);
@@ -286,7 +290,10 @@ pub fn render_rays_backward(
 ) {
     let s = cfg.num_samples;
     let n = rays.len() * s;
-    assert!(d_raw_rgb.len() == 3 * n && d_raw_density.len() == n, "render_rays_backward: lengths");
+    assert!(
+        d_raw_rgb.len() == 3 * n && d_raw_density.len() == n && d_ray_rgb.len() >= rays.len(),
+        "render_rays_backward: lengths"
+    );
     let (mut g_rgb, mut g_density) = (vec![[0.0f32; 3]; s], vec![0.0f32; s]);
     for (r, ray) in rays.iter().enumerate() {
         let sl = r * s..(r + 1) * s;
