@@ -8,7 +8,7 @@ use anyhow::{Context, Result};
 use clap::ValueEnum;
 use mipnerf_core::backend::{Backend as _, CpuBackend, TrainState};
 use mipnerf_core::compare::{KernelCheck, Tolerance, check_kernel};
-use mipnerf_core::data::{Dataset, demo};
+use mipnerf_core::data::demo;
 use mipnerf_core::model::{Mode, Model, ModelConfig, PointEncoding, Preset};
 use mipnerf_core::train::OptimConfig;
 use mipnerf_core::{Ray, RayShape, stages};
@@ -126,13 +126,9 @@ fn model_step(ctx: &GpuContext, rays: &[Ray]) -> Result<()> {
     report(&step)
 }
 
-/// Eight 32x32 views of the demo scene, in memory.
-fn demo_views() -> Result<Dataset> {
-    Ok(demo::dataset(8, 32)?)
-}
-
 fn training(ctx: GpuContext) -> Result<()> {
-    let ds = Arc::new(demo_views()?);
+    // Eight 32x32 views of the demo scene, in memory.
+    let ds = Arc::new(demo::dataset(8, 32)?);
     let model = Model::new(Preset::Tiny.config())?;
     let (seed, batch, steps) = (2u32, 64usize, 5u64);
     let optim = OptimConfig::default();

@@ -36,6 +36,18 @@ pub enum PointEncoding {
     Nerf = 2,
 }
 
+impl PointEncoding {
+    /// Features per point for degrees `min_deg..max_deg`: `6 (max - min)` for IPE and its
+    /// zero-covariance ablation, `3 + 6 (max - min)` for NeRF's encoding (with the identity).
+    #[must_use]
+    pub fn width(self, min_deg: u32, max_deg: u32) -> usize {
+        match self {
+            Self::Integrated | Self::Mean => mip::ipe_len(min_deg, max_deg),
+            Self::Nerf => mip::pos_enc_len(min_deg, max_deg, true),
+        }
+    }
+}
+
 /// Everything that defines the model. Defaults are the official Mip-NeRF (Blender) settings.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -206,10 +218,7 @@ impl ModelConfig {
     /// Width of the sample encoding.
     #[must_use]
     pub fn x_dim(&self) -> usize {
-        match self.point_encoding {
-            PointEncoding::Integrated | PointEncoding::Mean => mip::ipe_len(self.min_deg_point, self.max_deg_point),
-            PointEncoding::Nerf => mip::pos_enc_len(self.min_deg_point, self.max_deg_point, true),
-        }
+        self.point_encoding.width(self.min_deg_point, self.max_deg_point)
     }
 
     /// Width of the view-direction encoding.

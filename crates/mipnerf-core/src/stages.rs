@@ -13,8 +13,8 @@
 //! | density noise, activations, volume rendering, area loss and their backward pass | [`add_density_noise`], [`render_rays`], [`render_rays_backward`], [`crate::model::pixel_loss_gradient`] | `render.wgsl` (`render.rs`) |
 //! | gradient clipping and Adam | [`adam_step`] | `adam.wgsl` (`adam.rs`) |
 //!
-//! Every function writes its outputs in place (no allocation beyond a per-call scratch of one
-//! ray's Gaussians) and runs in `f32`, in the order the paper's equations are written.
+//! Every function writes its outputs in place (allocating at most a per-call scratch the size of
+//! one ray's samples) and runs in `f32`, in the order the paper's equations are written.
 
 use glam::Vec3;
 
@@ -35,6 +35,7 @@ use crate::train::{AdamConfig, AdamState, clip_gradients};
 /// If `t` is not `rays.len() * (n_samples + 1)` long or `ray_ids` is shorter than `rays`.
 pub fn sample_intervals(rays: &[Ray], n_samples: usize, lindisp: bool, mode: Mode, ray_ids: &[u32], t: &mut [f32]) {
     assert_eq!(t.len(), rays.len() * (n_samples + 1), "sample_intervals: t values");
+    assert!(ray_ids.len() >= rays.len(), "sample_intervals: {} ray ids for {} rays", ray_ids.len(), rays.len());
     for ((ray, &id), t) in rays.iter().zip(ray_ids).zip(t.chunks_exact_mut(n_samples + 1)) {
         sampling::sample_along_rays(ray.near, ray.far, lindisp, jitter(mode, id), t);
     }
@@ -58,6 +59,13 @@ pub fn sample_occupied_intervals(
     t: &mut [f32],
 ) {
     assert_eq!(t.len(), rays.len() * (n_samples + 1), "sample_occupied_intervals: t values");
+    assert!(
+        ray_ids.len() >= rays.len() && starts.len() > rays.len(),
+        "sample_occupied_intervals: {} ray ids and {} span starts for {} rays",
+        ray_ids.len(),
+        starts.len(),
+        rays.len()
+    );
     for (r, ((ray, &id), t)) in rays.iter().zip(ray_ids).zip(t.chunks_exact_mut(n_samples + 1)).enumerate() {
         match &spans[starts[r] as usize..starts[r + 1] as usize] {
             [] => t.fill(ray.near),
@@ -147,7 +155,7 @@ pub fn cast_and_encode(
     x: &mut [f32],
 ) {
     assert_eq!(t.len(), rays.len() * (n_samples + 1), "cast_and_encode: t values");
-    let width = x.len() / (rays.len() * n_samples).max(1);
+    let width = encoding.width(min_deg, max_deg);
     assert_eq!(x.len(), rays.len() * n_samples * width, "cast_and_encode: features");
     let mut gauss = vec![Gaussian::default(); n_samples];
     for (r, ray) in rays.iter().enumerate() {
@@ -183,6 +191,9 @@ pub fn encode_view_directions(rays: &[Ray], deg_view: u32, out: &mut [f32]) {
 /// Training only: Gaussian noise of standard deviation `std` on each ray's `n_samples` raw
 /// densities, from the ray's `DensityNoise` stream at `level`. Nothing in evaluation or for
 /// `std <= 0`. Kernel: `render.wgsl` (before the activations).
+///
+/// # Panics
+/// If `raw_density` is not `ray_ids.len() * n_samples` long.
 pub fn add_density_noise(
     std: f32,
     level: usize,
@@ -191,6 +202,7 @@ pub fn add_density_noise(
     n_samples: usize,
     raw_density: &mut [f32],
 ) {
+    assert_eq!(raw_density.len(), ray_ids.len() * n_samples, "add_density_noise: raw densities");
     let (Mode::Train { seed, step }, true) = (mode, std > 0.0) else {
         return;
     };

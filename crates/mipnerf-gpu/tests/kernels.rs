@@ -36,11 +36,6 @@ fn test_rays(n_side: u32) -> Vec<Ray> {
     demo::oblique_camera(n_side).generate_rays(PixelCenters::Centered, 2.0, 6.0, 1.0)
 }
 
-/// The indices `0..n` (the batch indices of `n` consecutive rays).
-fn consecutive(n: usize) -> Vec<u32> {
-    (0..n as u32).collect()
-}
-
 /// A mode that draws random numbers (training, `seed` and `step`) when `randomized`, else
 /// evaluation.
 fn mode_of(randomized: bool, seed: u32, step: u32) -> Mode {
@@ -56,7 +51,8 @@ fn cast_ipe_matches_cpu_reference() {
     let rays = test_rays(12);
     let n = 16usize;
     let mut t = vec![0.0; rays.len() * (n + 1)];
-    stages::sample_intervals(&rays, n, false, Mode::Train { seed: 7, step: 0 }, &consecutive(rays.len()), &mut t);
+    let ids: Vec<u32> = (0..rays.len() as u32).collect();
+    stages::sample_intervals(&rays, n, false, Mode::Train { seed: 7, step: 0 }, &ids, &mut t);
     let degrees = (0, 16);
     let mut bad = Vec::new();
     for shape in [RayShape::Cone, RayShape::Cylinder] {
