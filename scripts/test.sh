@@ -6,6 +6,21 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp}"
 start=$(date +%s)
+# Tests that need a CPU feature this machine lacks (AMX-BF16, AVX-512 BF16) append a line here
+# (mipnerf_core::test_support); the summary at the end counts them by feature.
+export MIPNERF_SKIP_LOG="$(mktemp -t mipnerf-skips.XXXXXX)"
+summarise_skips() {
+    if [ -s "$MIPNERF_SKIP_LOG" ]; then
+        echo "== skipped for missing CPU features ($(lscpu | sed -n 's/^Model name: *//p')):"
+        cut -f1 "$MIPNERF_SKIP_LOG" | sort | uniq -c | while read -r count feature; do
+            echo "   $count test(s) need $feature: $(awk -F'\t' -v f="$feature" '$1 == f { print $2 }' "$MIPNERF_SKIP_LOG" | sort -u | paste -sd, - | sed 's/,/, /g')"
+        done
+    else
+        echo "== no test skipped for a missing CPU feature"
+    fi
+    rm -f "$MIPNERF_SKIP_LOG"
+}
+trap summarise_skips EXIT
 bash scripts/ensure-vulkan.sh
 bash scripts/ensure-chromium.sh
 echo "== cargo fmt --check"

@@ -15,7 +15,7 @@ use crate::config::{Backend, PrecisionArg};
 ///
 /// # Errors
 /// `gpu` without a usable adapter, or with a configuration or data the GPU path does not support;
-/// `--precision bf16` where it cannot run (a device backend, or a CPU without AMX-BF16).
+/// `--precision bf16` where it cannot run (a device backend, or a CPU with neither AMX-BF16 nor AVX-512 BF16).
 pub fn open(
     choice: Backend,
     setup: BackendSetup,
@@ -45,9 +45,9 @@ pub fn open(
                 eprintln!("precision auto: f32 ({why})");
                 Precision::F32
             }
-            Bf16Support::Amx => match be.set_precision(Precision::Bf16) {
+            Bf16Support::Available(kernel) => match be.set_precision(Precision::Bf16) {
                 Ok(()) => {
-                    eprintln!("precision auto: bf16 (AMX-BF16 present)");
+                    eprintln!("precision auto: bf16 ({})", kernel.name());
                     Precision::Bf16
                 }
                 Err(e) => {

@@ -31,10 +31,10 @@ pub enum Backend {
 pub enum PrecisionArg {
     /// f32 throughout: the paper's precision, the reference and every golden test's.
     F32,
-    /// bf16 operands with f32 accumulation (Intel AMX; CPU backend only). Parameters, Adam and
-    /// checkpoints stay f32.
+    /// bf16 operands with f32 accumulation (Intel AMX or AVX-512 BF16; CPU backend only).
+    /// Parameters, Adam and checkpoints stay f32.
     Bf16,
-    /// bf16 where the CPU backend runs on a CPU with AMX-BF16, else f32.
+    /// bf16 where the CPU backend runs on a CPU with AMX-BF16 or AVX-512 BF16, else f32.
     Auto,
 }
 
@@ -59,7 +59,7 @@ pub enum PresetArg {
     /// The paper's 8 x 256 trunk, 128 + 128 samples (612K parameters).
     Paper,
     /// Time to quality: the small trunk with 16 + 16 samples, occupancy-guided sampling, bf16
-    /// where the CPU has AMX, and the batch and learning rates measured fastest to a sharp
+    /// where the CPU has AMX or AVX-512 BF16, and the batch and learning rates measured fastest to a sharp
     /// picture (CPU backend).
     Fast,
 }
@@ -396,7 +396,8 @@ impl TrainSettings {
             val_every: Some(self.val_every.unwrap_or(0)),
             val_images: Some(self.val_images.unwrap_or(2)),
             // The fast preset computes in bf16 where the CPU has AMX (2.3 times the training
-            // rate, +1.8 dB at 2 minutes); every other preset in f32, the paper's precision.
+            // rate, +1.8 dB at 2 minutes) or AVX-512 BF16 (docs/results/precision/); every other
+            // preset in f32, the paper's precision.
             precision: Some(self.precision.unwrap_or(if fast { PrecisionArg::Auto } else { PrecisionArg::F32 })),
         }
     }
@@ -695,7 +696,7 @@ pub struct TrainFlags {
     pub snapshots: Option<Vec<String>>,
     /// Precision of the MLP's matrix products [default: f32; auto for the fast preset; a resumed
     /// run keeps its own]:
-    /// bf16 (operands rounded to bf16, f32 sums; Intel AMX, CPU backend) or auto (bf16 where
+    /// bf16 (operands rounded to bf16, f32 sums; AMX or AVX-512 BF16, CPU backend) or auto (bf16 where
     /// available). May change on --resume.
     #[arg(long, value_enum)]
     pub precision: Option<PrecisionArg>,

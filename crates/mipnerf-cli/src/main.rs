@@ -169,7 +169,7 @@ enum Command {
         backend: Backend,
         #[command(flatten)]
         device: backend::DeviceArgs,
-        /// Precision of the MLP's matrix products: f32, bf16 (Intel AMX, CPU backend) or auto
+        /// Precision of the MLP's matrix products: f32, bf16 (AMX or AVX-512 BF16, CPU backend) or auto
         /// [default: the precision the run trained with].
         #[arg(long, value_enum)]
         precision: Option<PrecisionArg>,
@@ -307,7 +307,7 @@ enum Command {
         backend: Backend,
         #[command(flatten)]
         device: backend::DeviceArgs,
-        /// Precision of the MLP's matrix products: f32, bf16 (Intel AMX, CPU backend) or auto
+        /// Precision of the MLP's matrix products: f32, bf16 (AMX or AVX-512 BF16, CPU backend) or auto
         /// [default: the precision the run trained with].
         #[arg(long, value_enum)]
         precision: Option<PrecisionArg>,

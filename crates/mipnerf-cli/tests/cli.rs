@@ -304,8 +304,8 @@ fn bench_prints_throughput_of_each_backend() {
     let both =
         mipnerf_gpu::test_support::context_or_skip("bench_prints_throughput_of_each_backend (GPU row)").is_some();
     let which = if both { "both" } else { "cpu" };
-    let amx = mipnerf_core::bf16::Bf16Support::detect().available();
-    let precision = if amx { "f32,bf16" } else { "f32" };
+    let bf16 = mipnerf_core::bf16::Bf16Support::detect().kernel();
+    let precision = if bf16.is_some() { "f32,bf16" } else { "f32" };
     let text = run_ok(&[
         "bench",
         "--backend",
@@ -323,14 +323,20 @@ fn bench_prints_throughput_of_each_backend() {
     ]);
     let rows: Vec<&str> = text.lines().filter(|l| l.starts_with("| tiny") || l.starts_with("| small")).collect();
     // Per preset: the CPU in each precision, and the GPU once (f32).
-    let per_preset = if amx { 2 } else { 1 } + usize::from(both);
+    let per_preset = if bf16.is_some() { 2 } else { 1 } + usize::from(both);
     assert_eq!(rows.len(), 2 * per_preset, "{text}");
     for row in &rows {
         let cells: Vec<&str> = row.split('|').map(str::trim).filter(|c| !c.is_empty()).collect();
         let numbers: Vec<f64> = cells[2..].iter().map(|c| c.parse().unwrap()).collect();
         assert!(numbers.len() == 3 && numbers.iter().all(|&x| x > 0.0), "{row}");
     }
-    assert_eq!(rows.iter().filter(|r| r.contains("bf16 on AMX")).count(), if amx { 2 } else { 0 }, "{text}");
+    match bf16 {
+        Some(kernel) => {
+            let named = format!("bf16 on {}", kernel.name());
+            assert_eq!(rows.iter().filter(|r| r.contains(&named)).count(), 2, "{text}");
+        }
+        None => assert!(!text.contains("bf16 on"), "{text}"),
+    }
     if both {
         // The device work per step and per render chunk (issue 18): after the first step and the
         // first chunk, nothing is made; a step reads nothing back unless it reports its losses.
@@ -903,21 +909,22 @@ fn an_experiment_row_is_evaluated_again_when_its_json_came_from_another_run() {
 }
 
 #[test]
-fn precision_flag_runs_bf16_where_amx_is_and_says_clearly_where_it_cannot() {
-    use mipnerf_core::bf16::{Bf16Support, DISABLE_AMX_ENV};
+fn precision_flag_runs_bf16_where_a_kernel_is_and_says_clearly_where_it_cannot() {
+    use mipnerf_core::bf16::{Bf16Kernel, DISABLE_AMX_ENV, DISABLE_AVX512_BF16_ENV};
+    use mipnerf_core::test_support::skipped_for_cpu_feature;
     let dir = tempfile::tempdir().unwrap();
     let data = small_demo_scene(dir.path(), 2);
     let d = data.to_str().unwrap();
-    let with_env = |args: &[&str], env: Option<(&str, &str)>| {
+    let with_env = |args: &[&str], env: &[(&str, &str)]| {
         let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_mipnerf"));
-        c.args(args).env("XDG_RUNTIME_DIR", "/tmp").env_remove(DISABLE_AMX_ENV);
-        if let Some((k, v)) = env {
+        c.args(args).env("XDG_RUNTIME_DIR", "/tmp").env_remove(DISABLE_AMX_ENV).env_remove(DISABLE_AVX512_BF16_ENV);
+        for &(k, v) in env {
             c.env(k, v);
         }
         let out = c.output().unwrap();
         (out.status.code(), String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr))
     };
-    let train = |name: &str, precision: &str, env| {
+    let train = |name: &str, precision: &str, env: &[(&str, &str)]| {
         let run = dir.path().join(name);
         let r = run.to_str().unwrap().to_string();
         let out = with_env(
@@ -940,15 +947,18 @@ fn precision_flag_runs_bf16_where_amx_is_and_says_clearly_where_it_cannot() {
         );
         (run, out)
     };
-    let no_amx = Some((DISABLE_AMX_ENV, "1"));
-    // Without AMX: bf16 is refused, naming the feature, and nothing is written; auto says f32.
-    let (run, (code, text)) = train("refused", "bf16", no_amx);
+    let no_kernel: &[(&str, &str)] = &[(DISABLE_AMX_ENV, "1"), (DISABLE_AVX512_BF16_ENV, "1")];
+    // Without either kernel: bf16 is refused, naming both, and nothing is written; auto says f32.
+    let (run, (code, text)) = train("refused", "bf16", no_kernel);
     assert_eq!(code, Some(1), "{text}");
-    assert!(text.contains("--precision bf16") && text.contains("amx-bf16"), "{text}");
+    assert!(
+        text.contains("--precision bf16") && text.contains("AMX-BF16 is switched off") && text.contains("AVX-512 BF16"),
+        "{text}"
+    );
     assert!(!run.join("checkpoint.safetensors").exists(), "a refused run wrote a checkpoint");
-    let (run, (code, text)) = train("auto-f32", "auto", no_amx);
+    let (run, (code, text)) = train("auto-f32", "auto", no_kernel);
     assert_eq!(code, Some(0), "{text}");
-    assert!(text.contains("precision auto: f32 (AMX (amx-bf16) is switched off"), "{text}");
+    assert!(text.contains("precision auto: f32 (AMX-BF16 is switched off"), "{text}");
     let cfg = std::fs::read_to_string(run.join("config.toml")).unwrap();
     assert!(cfg.contains("precision = \"f32\""), "the config records what ran:\n{cfg}");
     // A device backend runs f32 only.
@@ -968,24 +978,39 @@ fn precision_flag_runs_bf16_where_amx_is_and_says_clearly_where_it_cannot() {
                 "--precision",
                 "bf16",
             ],
-            None,
+            &[],
         );
         assert_eq!(code, Some(1), "{text}");
         assert!(text.contains("bf16 precision runs on the CPU backend only"), "{text}");
     }
-    if !Bf16Support::detect().available() {
-        eprintln!("bf16 runs not made on this CPU: {:?}", Bf16Support::detect());
-        return;
+    // With AMX switched off, auto takes AVX-512 BF16 where the CPU has it, and says so.
+    match Bf16Kernel::Avx512.check() {
+        Ok(()) => {
+            let (run, (code, text)) = train("auto-avx512", "auto", &[(DISABLE_AMX_ENV, "1")]);
+            assert_eq!(code, Some(0), "{text}");
+            assert!(text.contains("precision auto: bf16 (AVX-512 BF16)"), "{text}");
+            assert!(text.contains("bf16 on AVX-512 BF16"), "{text}");
+            let cfg = std::fs::read_to_string(run.join("config.toml")).unwrap();
+            assert!(cfg.contains("precision = \"bf16\""), "{cfg}");
+        }
+        Err(why) => skipped_for_cpu_feature("precision_flag (auto on AVX-512 BF16)", "avx512_bf16", why),
     }
-    // With AMX: bf16 trains, is recorded, and eval and render use it (or the flag's choice).
-    let (run, (code, text)) = train("bf16", "bf16", None);
+    // The kernel the binary picks with neither variable set (this process's own environment may
+    // set them).
+    let Some(kernel) = Bf16Kernel::ALL.into_iter().find(|k| k.check().is_ok()) else {
+        let why = Bf16Kernel::Avx512.check().err().unwrap_or_default();
+        skipped_for_cpu_feature("precision_flag (bf16 runs)", "avx512_bf16", why);
+        return;
+    };
+    // With a kernel: bf16 trains, is recorded, and eval and render use it (or the flag's choice).
+    let (run, (code, text)) = train("bf16", "bf16", &[]);
     assert_eq!(code, Some(0), "{text}");
-    assert!(text.contains("backend: CPU (") && text.contains("bf16 on AMX"), "{text}");
+    assert!(text.contains("backend: CPU (") && text.contains(&format!("bf16 on {}", kernel.name())), "{text}");
     let cfg = std::fs::read_to_string(run.join("config.toml")).unwrap();
     assert!(cfg.contains("precision = \"bf16\""), "{cfg}");
     let r = run.to_str().unwrap();
     let metrics = |args: &[&str]| {
-        let (code, text) = with_env(args, None);
+        let (code, text) = with_env(args, &[]);
         assert_eq!(code, Some(0), "{text}");
         let m: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(run.join("eval/metrics.json")).unwrap()).unwrap();
@@ -997,7 +1022,7 @@ fn precision_flag_runs_bf16_where_amx_is_and_says_clearly_where_it_cannot() {
     assert!((psnr16 - psnr32).abs() < 0.1, "bf16 eval {psnr16} dB vs f32 {psnr32} dB");
     // Resuming may change the precision.
     let (code, text) =
-        with_env(&["train", "--out", r, "--resume", "--steps", "6", "--precision", "f32", "--backend", "cpu"], None);
+        with_env(&["train", "--out", r, "--resume", "--steps", "6", "--precision", "f32", "--backend", "cpu"], &[]);
     assert_eq!(code, Some(0), "{text}");
     assert!(std::fs::read_to_string(run.join("config.toml")).unwrap().contains("precision = \"f32\""));
 }

@@ -386,7 +386,11 @@ impl Backend for CpuBackend {
     fn describe(&self) -> String {
         match self.trainer.model.precision() {
             Precision::F32 => format!("CPU ({} threads)", rayon::current_num_threads()),
-            Precision::Bf16 => format!("CPU ({} threads, bf16 on AMX)", rayon::current_num_threads()),
+            Precision::Bf16 => format!(
+                "CPU ({} threads, bf16 on {})",
+                rayon::current_num_threads(),
+                crate::bf16::Bf16Support::detect().kernel().map_or("no bf16 kernel", crate::bf16::Bf16Kernel::name)
+            ),
         }
     }
 

@@ -99,6 +99,29 @@ pub fn sgemm_gflops(m: usize, k: usize, n: usize, reps: usize) -> f64 {
     2.0 * (m * k * n) as f64 / times[times.len() / 2] / 1e9
 }
 
+/// A matrix product with [`matmul`]'s signature: `c (m x n) = [c +] a · b`.
+pub type Product = dyn Fn(&mut [f32], &[f32], Layout, &[f32], Layout, usize, usize, usize, bool) + Sync;
+
+/// GFLOP/s of one thread's product of the given shape and layouts (`a` is `m x k`, `b` `k x n`
+/// as the product sees them), median of `reps` after one untimed run: to compare the f32 and
+/// bf16 kernels on the MLP's three products (forward, input gradient, weight gradient).
+#[must_use]
+pub fn product_gflops(product: &Product, la: Layout, lb: Layout, m: usize, k: usize, n: usize, reps: usize) -> f64 {
+    let a: Vec<f32> = (0..m * k).map(|i| ((i * 7919 % 1000) as f32 - 500.0) * 1e-3).collect();
+    let b: Vec<f32> = (0..k * n).map(|i| ((i * 104_729 % 1000) as f32 - 500.0) * 1e-3).collect();
+    let mut c = vec![0.0f32; m * n];
+    product(&mut c, &a, la, &b, lb, m, k, n, false);
+    let mut times: Vec<f64> = (0..reps.max(1))
+        .map(|_| {
+            let t = Instant::now();
+            product(&mut c, &a, la, &b, lb, m, k, n, false);
+            t.elapsed().as_secs_f64()
+        })
+        .collect();
+    times.sort_by(f64::total_cmp);
+    2.0 * (m * k * n) as f64 / times[times.len() / 2] / 1e9
+}
+
 /// A training set for throughput measurements: `views` views of `side x side` pixels around the
 /// demo scene's cameras, with pseudo-random RGBA8 pixels (throughput does not depend on them).
 ///

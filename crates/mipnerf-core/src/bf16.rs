@@ -2,19 +2,25 @@
 //!
 //! bf16 keeps f32's 8-bit exponent and 7 of its 23 mantissa bits (8 significant bits with the
 //! implicit one), so rounding an operand to it changes it by at most `2^-8` relatively
-//! ([`BF16_UNIT_ROUNDOFF`]). The products run on Intel's AMX tiles (`tdpbf16ps`: a 16 x 16 f32
-//! block += a 16 x 32 bf16 block times a 32 x 16 bf16 block, accumulated in f32), which on the
-//! Xeons these runs use do 33 times the f32 FMA rate of one core (3.7 TFLOP/s against 112 GFLOP/s,
-//! measured by `mipnerf bench --peak`). AVX-512's `vdpbf16ps` alone was measured at the *same*
-//! flop rate as f32 FMA on this processor, so it is not used: without AMX, [`Precision::Bf16`] is
-//! refused ([`Bf16Support::detect`] says which feature is missing).
+//! ([`BF16_UNIT_ROUNDOFF`]). Two kernels run the products ([`Bf16Kernel`]), on the same packed
+//! operands and so with the same rounding:
+//! - Intel's AMX tiles (`tdpbf16ps`: a 16 x 16 f32 block += a 16 x 32 bf16 block times a 32 x 16
+//!   bf16 block, accumulated in f32), which on the Xeons these runs use do 33 times the f32 FMA
+//!   rate of one core (3.7 TFLOP/s against 112 GFLOP/s, measured by `mipnerf bench --peak`);
+//! - AVX-512 BF16 alone (`vdpbf16ps`: sixteen f32 lanes each += the dot product of a bf16 pair),
+//!   on CPUs without AMX such as AMD Zen 4 and Zen 5. Each instruction does twice the flops of an
+//!   f32 FMA; measured on an AMD EPYC (Zen 4) in `docs/results/precision/`. On the Sapphire
+//!   Rapids Xeons it ran at the f32 rate, so AMX is preferred wherever both are present.
+//!
+//! [`Bf16Support::detect`] chooses the kernel and says why; without either, [`Precision::Bf16`]
+//! is refused naming what is missing.
 //!
 //! What stays f32 (the parameters, Adam's state, the checkpoints, every non-matrix operation,
 //! and the products too small to gain: fewer than [`MIN_BF16_DIM`] rows or columns, such as the
 //! density and colour heads) is listed in [`matmul_bf16`]'s docs.
 //!
 //! [`matmul_bf16_emulated`] computes the same rounding on any CPU (operands rounded to bf16 as
-//! f32 values, then the f32 product); it is the reference the AMX kernel is tested against.
+//! f32 values, then the f32 product); it is the reference both kernels are tested against.
 #![allow(unsafe_code)]
 
 use std::cell::RefCell;
@@ -33,8 +39,13 @@ pub const F32_UNIT_ROUNDOFF: f64 = 1.0 / 16_777_216.0;
 /// the product.
 pub const MIN_BF16_DIM: usize = 16;
 
-/// Set to `1`, this environment variable makes [`Bf16Support::detect`] report AMX as absent.
+/// Set to `1`, this environment variable makes [`Bf16Support::detect`] report AMX as absent, so
+/// that an AMX machine runs (and tests, and times) the AVX-512 BF16 kernel.
 pub const DISABLE_AMX_ENV: &str = "MIPNERF_DISABLE_AMX";
+
+/// Set to `1`, this environment variable makes [`Bf16Support::detect`] report AVX-512 BF16 as
+/// absent (with [`DISABLE_AMX_ENV`], a CPU without any bf16 kernel, as the refusals are tested).
+pub const DISABLE_AVX512_BF16_ENV: &str = "MIPNERF_DISABLE_AVX512_BF16";
 
 /// The precision of the MLP's matrix products on the CPU.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
@@ -57,47 +68,118 @@ impl std::fmt::Display for Precision {
     }
 }
 
-/// Whether this CPU runs [`Precision::Bf16`] products, and if not, why.
+/// A kernel that runs the bf16 products.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Bf16Kernel {
+    /// Intel AMX tiles (`tdpbf16ps`), with AVX-512 BF16 for the packing.
+    Amx,
+    /// AVX-512 BF16 (`vdpbf16ps`) alone: AMD Zen 4 and Zen 5, Intel Cooper Lake.
+    Avx512,
+}
+
+impl Bf16Kernel {
+    /// Both kernels, AMX first (the one [`Bf16Support::detect`] prefers).
+    pub const ALL: [Self; 2] = [Self::Amx, Self::Avx512];
+
+    /// The CPU feature the kernel is named by in logs: `AMX-BF16` or `AVX-512 BF16`.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Amx => "AMX-BF16",
+            Self::Avx512 => "AVX-512 BF16",
+        }
+    }
+
+    /// Whether this CPU (and operating system) can run the kernel, whatever the environment
+    /// variables say; the error names the missing feature as `/proc/cpuinfo` spells it
+    /// (`amx_tile`, `amx_bf16`, `avx512_bf16`, ...). Cached.
+    ///
+    /// # Errors
+    /// The reason the kernel cannot run here.
+    pub fn check(self) -> Result<(), &'static str> {
+        static AMX: OnceLock<Result<(), String>> = OnceLock::new();
+        static AVX512: OnceLock<Result<(), String>> = OnceLock::new();
+        let (cell, probe): (_, fn() -> Result<(), String>) = match self {
+            Self::Amx => (&AMX, probe_amx),
+            Self::Avx512 => (&AVX512, probe_avx512),
+        };
+        cell.get_or_init(probe).as_ref().map(|_| ()).map_err(String::as_str)
+    }
+}
+
+fn probe_avx512() -> Result<(), String> {
+    #[cfg(target_arch = "x86_64")]
+    return avx512::detect();
+    #[cfg(not(target_arch = "x86_64"))]
+    Err("this CPU lacks avx512_bf16 (bf16 products need an x86_64 CPU with AVX-512 BF16 or AMX)".into())
+}
+
+fn probe_amx() -> Result<(), String> {
+    #[cfg(target_arch = "x86_64")]
+    return amx::detect();
+    #[cfg(not(target_arch = "x86_64"))]
+    Err("this CPU lacks amx_bf16 (Intel AMX needs an x86_64 CPU)".into())
+}
+
+/// Whether this CPU runs [`Precision::Bf16`] products, on which kernel, and if not, why.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Bf16Support {
-    /// AMX tiles with bf16 are present and the operating system granted their use.
-    Amx,
-    /// Not available; the reason names the missing CPU feature or the refusal.
+    /// The products run on this kernel.
+    Available(Bf16Kernel),
+    /// Not available; the reason names the missing CPU features or the refusal.
     Unavailable(String),
 }
 
 impl Bf16Support {
-    /// Detects AMX-BF16 (CPUID leaf 7: `amx-tile`, `amx-bf16`; and AVX-512 BF16 for the
-    /// conversions) and asks Linux for the tile state (`arch_prctl(ARCH_REQ_XCOMP_PERM,
-    /// XTILEDATA)`), once per process. The environment variable [`DISABLE_AMX_ENV`] set to `1`
-    /// reports AMX as absent (to compare, or to avoid a hypervisor's faulty AMX). Cached.
+    /// Chooses the kernel once per process: AMX where the CPU has AMX-BF16 (CPUID leaf 7:
+    /// `amx-tile`, `amx-bf16`; AVX-512 BF16 for the conversions) and Linux grants the tile state
+    /// (`arch_prctl(ARCH_REQ_XCOMP_PERM, XTILEDATA)`), else AVX-512 BF16 where the CPU has
+    /// `avx512f`, `avx512bw`, `avx512vl` and `avx512_bf16`, else unavailable, naming what each
+    /// lacks. [`DISABLE_AMX_ENV`] and [`DISABLE_AVX512_BF16_ENV`] set to `1` report a kernel as
+    /// absent (to compare the two, or to avoid a hypervisor's faulty AMX). Cached.
     #[must_use]
     pub fn detect() -> &'static Self {
         static SUPPORT: OnceLock<Bf16Support> = OnceLock::new();
         SUPPORT.get_or_init(|| {
-            if std::env::var(DISABLE_AMX_ENV).is_ok_and(|v| v == "1") {
-                return Self::Unavailable(format!("AMX (amx-bf16) is switched off by {DISABLE_AMX_ENV}=1"));
-            }
-            #[cfg(target_arch = "x86_64")]
-            return amx::detect();
-            #[cfg(not(target_arch = "x86_64"))]
-            Self::Unavailable("bf16 products need an x86_64 CPU with Intel AMX (amx-bf16)".into())
+            let switched_off = |env: &str| std::env::var(env).is_ok_and(|v| v == "1");
+            let why_not = |kernel: Bf16Kernel, env: &str| -> Option<String> {
+                if switched_off(env) {
+                    return Some(format!("{} is switched off by {env}=1", kernel.name()));
+                }
+                kernel.check().err().map(str::to_string)
+            };
+            let Some(amx) = why_not(Bf16Kernel::Amx, DISABLE_AMX_ENV) else {
+                return Self::Available(Bf16Kernel::Amx);
+            };
+            let Some(avx512) = why_not(Bf16Kernel::Avx512, DISABLE_AVX512_BF16_ENV) else {
+                return Self::Available(Bf16Kernel::Avx512);
+            };
+            Self::Unavailable(format!("{amx}; {avx512}"))
         })
     }
 
-    /// One line for logs: `bf16: AMX-BF16` or `bf16: unavailable (why)`.
+    /// One line for logs: `bf16: AVX-512 BF16` or `bf16: unavailable (why)`.
     #[must_use]
     pub fn describe(&self) -> String {
         match self {
-            Self::Amx => "bf16: AMX-BF16 present".into(),
+            Self::Available(kernel) => format!("bf16: {}", kernel.name()),
             Self::Unavailable(why) => format!("bf16: unavailable ({why})"),
         }
     }
 
-    /// True for [`Bf16Support::Amx`].
+    /// True where a kernel runs the products.
     #[must_use]
     pub fn available(&self) -> bool {
-        matches!(self, Self::Amx)
+        matches!(self, Self::Available(_))
+    }
+
+    /// The kernel that runs the products, if any.
+    #[must_use]
+    pub fn kernel(&self) -> Option<Bf16Kernel> {
+        match self {
+            Self::Available(kernel) => Some(*kernel),
+            Self::Unavailable(_) => None,
+        }
     }
 }
 
@@ -154,13 +236,36 @@ pub fn uses_bf16(m: usize, k: usize, n: usize) -> bool {
 }
 
 /// `c (m x n) = [c +] a (m x k) · b (k x n)` as [`matmul`], with `a` and `b` rounded to bf16 and
-/// the products accumulated in f32 on AMX tiles. Shapes below [`MIN_BF16_DIM`] run [`matmul`]
-/// in f32.
+/// the products accumulated in f32, on the kernel [`Bf16Support::detect`] chose. Shapes below
+/// [`MIN_BF16_DIM`] run [`matmul`] in f32.
 ///
 /// # Panics
-/// If a slice is shorter than its shape needs, or if the CPU lacks AMX-BF16
+/// If a slice is shorter than its shape needs, or if the CPU has no bf16 kernel
 /// ([`Bf16Support::detect`]): callers choose [`Precision::Bf16`] only after checking it.
 pub fn matmul_bf16(
+    c: &mut [f32],
+    a: &[f32],
+    la: Layout,
+    b: &[f32],
+    lb: Layout,
+    m: usize,
+    k: usize,
+    n: usize,
+    accumulate: bool,
+) {
+    let kernel = Bf16Support::detect().kernel();
+    let kernel = kernel.unwrap_or_else(|| panic!("matmul_bf16 without a bf16 kernel: {:?}", Bf16Support::detect()));
+    matmul_bf16_on(kernel, c, a, la, b, lb, m, k, n, accumulate);
+}
+
+/// [`matmul_bf16`] on the given kernel, whichever [`Bf16Support::detect`] prefers: to test and
+/// time each kernel on a CPU that has both.
+///
+/// # Panics
+/// If a slice is shorter than its shape needs, if a size product overflows, or if the CPU cannot
+/// run `kernel` ([`Bf16Kernel::check`]).
+pub fn matmul_bf16_on(
+    kernel: Bf16Kernel,
     c: &mut [f32],
     a: &[f32],
     la: Layout,
@@ -175,22 +280,33 @@ pub fn matmul_bf16(
         matmul(c, a, la, b, lb, m, k, n, accumulate);
         return;
     }
-    assert!(c.len() >= m * n, "matmul_bf16: c has {} < {m}x{n}", c.len());
-    assert!(a.len() >= m * k, "matmul_bf16: a has {} < {m}x{k}", a.len());
-    assert!(b.len() >= k * n, "matmul_bf16: b has {} < {k}x{n}", b.len());
-    assert!(Bf16Support::detect().available(), "matmul_bf16 on a CPU without AMX-BF16: {:?}", Bf16Support::detect());
+    let size = |x: usize, y: usize| x.checked_mul(y).unwrap_or_else(|| panic!("matmul_bf16: {x}x{y} overflows"));
+    assert!(c.len() >= size(m, n), "matmul_bf16: c has {} < {m}x{n}", c.len());
+    assert!(a.len() >= size(m, k), "matmul_bf16: a has {} < {m}x{k}", a.len());
+    assert!(b.len() >= size(k, n), "matmul_bf16: b has {} < {k}x{n}", b.len());
+    if let Err(why) = kernel.check() {
+        panic!("matmul_bf16 on {}: {why}", kernel.name());
+    }
     #[cfg(not(target_arch = "x86_64"))]
-    unreachable!("Bf16Support::detect reports no AMX off x86_64");
+    unreachable!("no bf16 kernel passes its check off x86_64");
     #[cfg(target_arch = "x86_64")]
     PACKED.with(|p| {
         let p = &mut *p.borrow_mut();
-        let (mp, kp, np) =
-            (m.next_multiple_of(amx::BLOCK), k.next_multiple_of(amx::K_STEP), n.next_multiple_of(amx::BLOCK));
+        let (mp, kp, np) = (m.next_multiple_of(BLOCK), k.next_multiple_of(K_STEP), n.next_multiple_of(BLOCK));
         simd::pack_rows(&mut p.a, a, la, m, k, mp, kp);
         simd::pack_pairs(&mut p.b, b, lb, k, n, kp, np);
-        amx::product(c, &p.a, &p.b, m, n, mp, kp, np, accumulate);
+        match kernel {
+            Bf16Kernel::Amx => amx::product(c, &p.a, &p.b, m, n, mp, kp, np, accumulate),
+            Bf16Kernel::Avx512 => avx512::product(c, &p.a, &p.b, m, n, mp, kp, np, accumulate),
+        }
     });
 }
+
+/// The packed operands' row and column padding: 2 x 2 tiles of 16 x 16 (AMX's block per step;
+/// the AVX-512 kernel's 8 x 32 steps divide it).
+const BLOCK: usize = 32;
+/// The packed operands' padding of k: the bf16 values of k per tile multiply-add.
+const K_STEP: usize = 32;
 
 /// The same rounding as [`matmul_bf16`] on any CPU: `a` and `b` rounded to bf16 (as f32 values),
 /// then the f32 product. Differs from the AMX kernel only in the order of the f32 additions.
@@ -272,8 +388,8 @@ fn pack_pairs(out: &mut Vec<u32>, b: &[f32], lb: Layout, k: usize, n: usize, kp:
     }
 }
 
-/// The packing with AVX-512 (`vcvtneps2bf16`), which every AMX-BF16 processor has
-/// ([`Bf16Support::detect`] checks it): the same bits as the scalar [`pack_rows`] and
+/// The packing with AVX-512 (`vcvtneps2bf16`), which both kernels need (every AMX-BF16 processor
+/// has it; [`Bf16Kernel::check`] checks it): the same bits as the scalar [`pack_rows`] and
 /// [`pack_pairs`] (a test compares them).
 #[cfg(target_arch = "x86_64")]
 mod simd {
@@ -285,11 +401,11 @@ mod simd {
 
     use super::{Layout, a_index, b_index, f32_to_bf16_bits};
 
-    const FEATURES_CHECKED: &str = "bf16 packing needs AVX-512 BF16 (checked by Bf16Support::detect)";
+    const FEATURES_CHECKED: &str = "bf16 packing needs AVX-512 BF16 (checked by Bf16Kernel::check)";
 
     /// [`super::pack_rows`], vectorised.
     pub(super) fn pack_rows(out: &mut Vec<u16>, a: &[f32], la: Layout, m: usize, k: usize, mp: usize, kp: usize) {
-        assert!(super::Bf16Support::detect().available(), "{FEATURES_CHECKED}");
+        assert!(super::Bf16Kernel::Avx512.check().is_ok(), "{FEATURES_CHECKED}");
         assert!(a.len() >= m * k && mp >= m && kp >= k && kp.is_multiple_of(32) && mp.is_multiple_of(16));
         // Every element below (m, k) is written; only the padding is zeroed.
         out.resize(mp * kp, 0);
@@ -299,7 +415,7 @@ mod simd {
                 out[a_index(i, p, kp)] = 0;
             }
         }
-        // SAFETY: the CPU has AVX-512 F/BW/VL/BF16 (asserted above: `detect` requires them).
+        // SAFETY: the CPU has AVX-512 F/BW/VL/BF16 (asserted above: the check requires them).
         unsafe {
             match la {
                 Layout::Normal => rows_normal(out, a, m, k, kp),
@@ -311,7 +427,7 @@ mod simd {
     /// [`super::pack_pairs`], vectorised where `b` is stored `k x n` (the large operands: weight
     /// gradients' `dz`); the transposed case (a layer's kernel, small) is the scalar reference.
     pub(super) fn pack_pairs(out: &mut Vec<u32>, b: &[f32], lb: Layout, k: usize, n: usize, kp: usize, np: usize) {
-        assert!(super::Bf16Support::detect().available(), "{FEATURES_CHECKED}");
+        assert!(super::Bf16Kernel::Avx512.check().is_ok(), "{FEATURES_CHECKED}");
         assert!(b.len() >= k * n && kp >= k && np >= n && kp.is_multiple_of(2));
         match lb {
             Layout::Normal => {
@@ -451,12 +567,16 @@ mod simd {
 
     #[cfg(test)]
     mod tests {
-        use super::super::{Bf16Support, Layout};
+        use super::super::{Bf16Kernel, Layout};
 
         #[test]
         fn vectorised_packing_gives_the_scalar_bits() {
-            if !Bf16Support::detect().available() {
-                eprintln!("no AMX-BF16 here: {:?}", Bf16Support::detect());
+            if let Err(why) = Bf16Kernel::Avx512.check() {
+                crate::test_support::skipped_for_cpu_feature(
+                    "vectorised_packing_gives_the_scalar_bits",
+                    "avx512_bf16",
+                    why,
+                );
                 return;
             }
             let vals = |len: usize| -> Vec<f32> {
@@ -497,23 +617,17 @@ mod simd {
 mod amx {
     use std::arch::asm;
 
-    /// Output block per step: 2 x 2 tiles of 16 x 16.
-    pub(super) const BLOCK: usize = 32;
-    /// bf16 values of k per tile multiply-add.
-    pub(super) const K_STEP: usize = 32;
+    use super::{BLOCK, K_STEP};
 
-    pub(super) fn detect() -> super::Bf16Support {
-        use super::Bf16Support::{Amx, Unavailable};
+    /// Whether this CPU and operating system run the AMX kernel, and if not, why.
+    pub(super) fn detect() -> Result<(), String> {
         {
             // CPUID leaf 7 exists when leaf 0 reports a maximum leaf of at least 7.
             let edx =
                 if std::arch::x86_64::__cpuid(0).eax >= 7 { std::arch::x86_64::__cpuid_count(7, 0).edx } else { 0 };
             let (tile, bf16) = (edx & (1 << 24) != 0, edx & (1 << 22) != 0);
             if !tile || !bf16 {
-                return Unavailable(format!(
-                    "this CPU lacks {} (Intel AMX; bf16 products need it)",
-                    if tile { "amx-bf16" } else { "amx-tile" }
-                ));
+                return Err(format!("this CPU lacks {} (Intel AMX)", if tile { "amx_bf16" } else { "amx_tile" }));
             }
             for feature in ["avx512f", "avx512bw", "avx512vl", "avx512bf16"] {
                 let present = match feature {
@@ -523,20 +637,20 @@ mod amx {
                     _ => std::arch::is_x86_feature_detected!("avx512bf16"),
                 };
                 if !present {
-                    return Unavailable(format!("this CPU has AMX but lacks {feature} (used to convert to bf16)"));
+                    return Err(format!("this CPU has AMX but lacks {feature} (used to convert to bf16)"));
                 }
             }
             if !cfg!(target_os = "linux") {
-                return Unavailable("AMX tiles are only enabled on Linux in this build".into());
+                return Err("AMX tiles are only enabled on Linux in this build".into());
             }
             let ret = request_tile_permission();
             if ret != 0 {
-                return Unavailable(format!(
+                return Err(format!(
                     "the operating system refused the AMX tile state (arch_prctl returned {ret}; Linux 5.16 or later \
                      is needed)"
                 ));
             }
-            Amx
+            Ok(())
         }
     }
 
@@ -600,13 +714,13 @@ mod amx {
         np: usize,
         accumulate: bool,
     ) {
-        assert!(super::Bf16Support::detect().available());
+        assert!(super::Bf16Kernel::Amx.check().is_ok(), "the AMX kernel on a CPU without AMX");
         assert!(mp.is_multiple_of(BLOCK) && np.is_multiple_of(BLOCK) && kp.is_multiple_of(K_STEP));
         assert!(a.len() >= mp * kp && b.len() >= kp / 2 * np && c.len() >= m * n);
         let cfg = TileConfig::all_16x64();
         let k_tiles = kp / K_STEP;
         let mut scratch = [0f32; BLOCK * BLOCK];
-        // SAFETY: the process holds the tile permission (`detect` checked above), and the
+        // SAFETY: the process holds the tile permission (the check above), and the
         // configuration is a valid palette-1 layout; no other code in this program uses tiles.
         unsafe { asm!("ldtilecfg [{}]", in(reg) cfg.0.as_ptr(), options(nostack, readonly)) };
         for i0 in (0..mp).step_by(BLOCK) {
@@ -703,6 +817,158 @@ mod amx {
         }
         // SAFETY: returns the tile state to its initial configuration.
         unsafe { asm!("tilerelease", options(nostack, nomem)) };
+    }
+}
+
+/// The AVX-512 BF16 kernel (`vdpbf16ps`), on the packed operands the AMX kernel reads. Every
+/// `unsafe` block is here and justified where it is.
+#[cfg(target_arch = "x86_64")]
+mod avx512 {
+    use std::arch::x86_64::{
+        __m512bh, __m512i, _mm512_dpbf16_ps, _mm512_loadu_si512, _mm512_mask_storeu_ps, _mm512_maskz_loadu_ps,
+        _mm512_set1_epi32, _mm512_setzero_ps,
+    };
+
+    use super::{BLOCK, K_STEP, a_index, b_index};
+
+    /// Output rows per step of the micro-kernel: half a packed 16-row tile.
+    const ROWS: usize = 8;
+    const _: () = assert!(16 % ROWS == 0, "a step's rows lie in one packed tile");
+    /// Output columns per step: two vectors of 16 f32 (one packed column block each).
+    const COLS: usize = 32;
+    /// Values of k per pass over the output: the packed `b` of one pass (`KC / 2` pair rows of
+    /// every column) stays in L2 while every row block reads it, and one row block's `a`
+    /// (8 rows of `KC` bf16, 8 KiB) in L1 while it meets every column block.
+    const KC: usize = 512;
+
+    /// Whether this CPU has what the kernel and the packing use (AVX-512 F, BW, VL and BF16).
+    pub(super) fn detect() -> Result<(), String> {
+        let features = [
+            ("avx512f", std::arch::is_x86_feature_detected!("avx512f")),
+            ("avx512bw", std::arch::is_x86_feature_detected!("avx512bw")),
+            ("avx512vl", std::arch::is_x86_feature_detected!("avx512vl")),
+            ("avx512_bf16", std::arch::is_x86_feature_detected!("avx512bf16")),
+        ];
+        let missing: Vec<&str> = features.iter().filter(|(_, present)| !present).map(|(name, _)| *name).collect();
+        if missing.is_empty() { Ok(()) } else { Err(format!("this CPU lacks {} (AVX-512 BF16)", missing.join(", "))) }
+    }
+
+    /// `c (m x n, row-major) = [c +] A · B` from the packed operands ([`a_index`], [`b_index`]):
+    /// k in passes of [`KC`], each pass sweeping the output in 8 x 32 blocks held in sixteen
+    /// registers. Rows and columns past `m` and `n` are computed on the zero padding and
+    /// neither read nor written in `c`.
+    pub(super) fn product(
+        c: &mut [f32],
+        a: &[u16],
+        b: &[u32],
+        m: usize,
+        n: usize,
+        mp: usize,
+        kp: usize,
+        np: usize,
+        accumulate: bool,
+    ) {
+        assert!(super::Bf16Kernel::Avx512.check().is_ok(), "the AVX-512 BF16 kernel on a CPU without it");
+        assert!(mp.is_multiple_of(BLOCK) && np.is_multiple_of(BLOCK) && kp.is_multiple_of(K_STEP));
+        assert!(mp >= m && np >= n);
+        assert!(a.len() >= mp * kp && b.len() >= kp / 2 * np && c.len() >= m * n);
+        for k0 in (0..kp).step_by(KC) {
+            let k1 = (k0 + KC).min(kp);
+            for i0 in (0..m).step_by(ROWS) {
+                for j0 in (0..n).step_by(COLS) {
+                    // SAFETY: the CPU has AVX-512 F and BF16 (asserted above); the block's rows
+                    // lie below mp and its columns below np (m <= mp, n <= np, both multiples of
+                    // the block), k0..k1 below kp, and the sizes of the buffers are asserted.
+                    unsafe { block(c, a, b, m, n, kp, i0, j0, k0, k1, accumulate || k0 > 0) };
+                }
+            }
+        }
+    }
+
+    /// One 8 x 32 block of `c` at `(i0, j0)` over k in `k0..k1` (whole k tiles): sixteen
+    /// accumulators; per pair of k values, two vectors of `b` and eight broadcast pairs of `a`.
+    ///
+    /// # Safety
+    /// The CPU has AVX-512 F and BF16; `i0 + 8 <= mp`, `j0 + 32 <= np`, `k1 <= kp` with `k0` and
+    /// `k1` multiples of [`K_STEP`]; `a` holds `mp x kp` packed values, `b` `kp / 2 x np` pairs,
+    /// and `c` at least `m x n`.
+    #[target_feature(enable = "avx512f,avx512bf16")]
+    unsafe fn block(
+        c: &mut [f32],
+        a: &[u16],
+        b: &[u32],
+        m: usize,
+        n: usize,
+        kp: usize,
+        i0: usize,
+        j0: usize,
+        k0: usize,
+        k1: usize,
+        accumulate: bool,
+    ) {
+        // Valid columns of each of the two vectors, as load and store masks.
+        let masks: [u16; 2] = std::array::from_fn(|v| {
+            let valid = n.saturating_sub(j0 + 16 * v).min(16);
+            ((1u32 << valid) - 1) as u16
+        });
+        let rows = m.saturating_sub(i0).min(ROWS);
+        let mut acc = [_mm512_setzero_ps(); 2 * ROWS];
+        if accumulate {
+            for r in 0..rows {
+                for v in 0..2 {
+                    if masks[v] != 0 {
+                        // SAFETY: row i0 + r < m and column j0 + 16 v < n lie inside `c`; the
+                        // mask reads only the columns below n (masked lanes are not accessed).
+                        acc[2 * r + v] =
+                            unsafe { _mm512_maskz_loadu_ps(masks[v], c.as_ptr().add((i0 + r) * n + j0 + 16 * v)) };
+                    }
+                }
+            }
+        }
+        for kt in k0 / K_STEP..k1 / K_STEP {
+            // The 16 pairs of k tile kt: for the 8 rows of `a`, 16 contiguous pairs each, the
+            // rows 64 bytes apart (i0 is a multiple of 8, so the 8 rows share one packed tile:
+            // one base pointer, constant offsets); for each column block of `b`, one 64-byte
+            // row of 16 pairs per pair row.
+            // SAFETY: row i0 < mp and k tile kt < kp / 32 index inside the packed `a`; pair row
+            // 16 kt < kp / 2 and columns j0, j0 + 16 < np index inside `b`.
+            let (pa, pb0, pb1) = unsafe {
+                (
+                    a.as_ptr().add(a_index(i0, kt * K_STEP, kp)).cast::<u32>(),
+                    b.as_ptr().add(b_index(kt * K_STEP / 2, j0, kp)),
+                    b.as_ptr().add(b_index(kt * K_STEP / 2, j0 + 16, kp)),
+                )
+            };
+            for q in 0..K_STEP / 2 {
+                // SAFETY: 16 pairs at pair row 16 kt + q of each column block, inside `b`.
+                let (b0, b1): (__m512bh, __m512bh) = unsafe {
+                    (
+                        std::mem::transmute::<__m512i, __m512bh>(_mm512_loadu_si512(pb0.add(16 * q).cast())),
+                        std::mem::transmute::<__m512i, __m512bh>(_mm512_loadu_si512(pb1.add(16 * q).cast())),
+                    )
+                };
+                for r in 0..ROWS {
+                    // SAFETY: pair q (values 2q, 2q + 1) of row i0 + r's k tile (16 pairs per
+                    // 64-byte row), inside `a`; the u16 buffer gives no 4-byte alignment, hence
+                    // the unaligned read.
+                    let pair = unsafe { pa.add(16 * r + q).read_unaligned() };
+                    // SAFETY: __m512i and __m512bh are both 512 plain bits.
+                    let av = unsafe { std::mem::transmute::<__m512i, __m512bh>(_mm512_set1_epi32(pair as i32)) };
+                    acc[2 * r] = _mm512_dpbf16_ps(acc[2 * r], av, b0);
+                    acc[2 * r + 1] = _mm512_dpbf16_ps(acc[2 * r + 1], av, b1);
+                }
+            }
+        }
+        for r in 0..rows {
+            for v in 0..2 {
+                if masks[v] != 0 {
+                    // SAFETY: as for the loads above.
+                    unsafe {
+                        _mm512_mask_storeu_ps(c.as_mut_ptr().add((i0 + r) * n + j0 + 16 * v), masks[v], acc[2 * r + v]);
+                    }
+                }
+            }
+        }
     }
 }
 

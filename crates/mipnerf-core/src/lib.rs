@@ -24,8 +24,8 @@
 //! Randomness is counter-based ([`rng`]) so that the CPU and the GPU draw the same numbers.
 //!
 //! The MLP's matrix products run in `f32` ([`linalg`]) unless a model is set to
-//! [`bf16::Precision::Bf16`]: operands rounded to bf16, sums in `f32`, on Intel AMX tiles
-//! ([`bf16`]), about twice the training throughput where the CPU has them.
+//! [`bf16::Precision::Bf16`]: operands rounded to bf16, sums in `f32`, on Intel AMX tiles or
+//! AVX-512 BF16 (AMD Zen 4 and 5) ([`bf16`]), where the CPU has either.
 
 pub mod backend;
 #[cfg(feature = "bench")]
@@ -50,6 +50,8 @@ pub mod rng;
 pub mod sampling;
 pub mod schedule;
 pub mod stages;
+#[cfg(any(test, feature = "test-support"))]
+pub mod test_support;
 pub mod train;
 
 pub use camera::{Camera, PixelCenters};

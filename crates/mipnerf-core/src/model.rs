@@ -377,8 +377,8 @@ impl Model {
     /// Sets the precision of the MLP's matrix products (on the CPU; a device backend runs f32).
     ///
     /// # Errors
-    /// [`ModelError::Config`] for [`Precision::Bf16`] on a CPU without AMX-BF16, naming the
-    /// missing feature ([`Bf16Support::detect`]); the precision is then unchanged.
+    /// [`ModelError::Config`] for [`Precision::Bf16`] on a CPU with neither AMX-BF16 nor AVX-512
+    /// BF16, naming the missing features ([`Bf16Support::detect`]); the precision is then unchanged.
     pub fn set_precision(&mut self, precision: Precision) -> Result<(), ModelError> {
         if let (Precision::Bf16, Bf16Support::Unavailable(why)) = (precision, Bf16Support::detect()) {
             return Err(ModelError::Config(format!("bf16 precision is not available: {why}")));

@@ -1,9 +1,15 @@
-//! The bf16 matrix product (AMX tiles) against an f64 product, under the bound that bf16's 8-bit
-//! significand and f32 accumulation over `k` terms allow.
+//! The bf16 matrix products (AMX tiles, AVX-512 BF16) against an f64 product, under the bound
+//! that bf16's 8-bit significand and f32 accumulation over `k` terms allow, and against the
+//! emulation; the model and a run in bf16 against f32. A kernel this CPU lacks is reported as
+//! skipped (`mipnerf_core::test_support`), never passed in silence.
 #![allow(clippy::unwrap_used, missing_docs)]
 
-use mipnerf_core::bf16::{Bf16Support, bf16_product_relative_bound, matmul_bf16, matmul_bf16_emulated, round_to_bf16};
+use mipnerf_core::bf16::{
+    Bf16Kernel, Bf16Support, bf16_product_relative_bound, matmul_bf16, matmul_bf16_emulated, matmul_bf16_on,
+    round_to_bf16,
+};
 use mipnerf_core::linalg::{Layout, matmul};
+use mipnerf_core::test_support::skipped_for_cpu_feature;
 
 /// Deterministic values spread over [-2, 2] with a few exact zeros, away from subnormals.
 fn values(len: usize, seed: u64) -> Vec<f32> {
@@ -22,13 +28,13 @@ fn at(x: &[f32], l: Layout, rows: usize, cols: usize, r: usize, c: usize) -> f64
     f64::from(if l == Layout::Normal { x[r * cols + c] } else { x[c * rows + r] })
 }
 
-type Product = fn(&mut [f32], &[f32], Layout, &[f32], Layout, usize, usize, usize, bool);
+type Product<'a> = &'a dyn Fn(&mut [f32], &[f32], Layout, &[f32], Layout, usize, usize, usize, bool);
 
 /// Checks `product` on `m x k x n` for all four layouts, overwriting and accumulating, against the
 /// exact product of the **f32** operands in f64; the error of each element must stay under
 /// `bf16_product_relative_bound(k) * sum |a| |b|` (plus the accumulated start value's rounding).
 /// Returns the largest ratio of error to bound seen; reports every mismatch in one message.
-fn check(product: Product, m: usize, k: usize, n: usize) -> f64 {
+fn check(product: Product<'_>, m: usize, k: usize, n: usize) -> f64 {
     let a = values(m * k, (m * 31 + k) as u64);
     let b = values(k * n, (n * 17 + k) as u64);
     let bound = bf16_product_relative_bound(k);
@@ -65,15 +71,25 @@ fn check(product: Product, m: usize, k: usize, n: usize) -> f64 {
     worst
 }
 
-/// Shapes of the MLP (full tiles) and ragged ones (every edge of the 32 x 32 blocks and the
-/// 32-wide k steps), and one below the bf16 threshold (runs in f32).
-const SHAPES: [(usize, usize, usize); 6] =
-    [(64, 128, 128), (2048, 64, 32), (37, 45, 53), (129, 96, 17), (16, 300, 40), (8, 20, 3)];
+/// Shapes of the MLP (full tiles) and ragged ones (every edge of the 32 x 32 blocks, the AVX-512
+/// kernel's 8 x 32 steps and the 32-wide k steps), a weight gradient's long k (more than one of
+/// the AVX-512 kernel's 512-value passes, the last one short), and one below the bf16 threshold
+/// (runs in f32).
+const SHAPES: [(usize, usize, usize); 8] = [
+    (64, 128, 128),
+    (2048, 64, 32),
+    (37, 45, 53),
+    (129, 96, 17),
+    (16, 300, 40),
+    (21, 1100, 35),
+    (67, 64, 100),
+    (8, 20, 3),
+];
 
 #[test]
 fn emulated_bf16_product_stays_within_the_bf16_bound_of_the_f64_product() {
     for (m, k, n) in SHAPES {
-        let worst = check(matmul_bf16_emulated, m, k, n);
+        let worst = check(&matmul_bf16_emulated, m, k, n);
         // The bound is not vacuous: the rounding of the operands is seen.
         if k >= 32 && m >= 16 && n >= 16 {
             assert!(worst > 0.01, "{m}x{k}x{n}: error only {worst:.3} of the bound: were the operands rounded?");
@@ -81,34 +97,99 @@ fn emulated_bf16_product_stays_within_the_bf16_bound_of_the_f64_product() {
     }
 }
 
-#[test]
-fn amx_bf16_product_stays_within_the_bf16_bound_and_matches_the_emulation() {
-    match Bf16Support::detect() {
-        Bf16Support::Unavailable(why) => {
-            // The refusal must say what is missing; the kernel itself cannot run here.
-            assert!(why.contains("amx") || why.contains("AMX"), "unhelpful reason: {why}");
-            eprintln!("AMX kernel not run on this CPU: {why}");
-        }
-        Bf16Support::Amx => {
-            for (m, k, n) in SHAPES {
-                check(matmul_bf16, m, k, n);
-                // Same rounded operands: the two differ only in the order of the f32 sums.
-                let a = values(m * k, 3);
-                let b = values(k * n, 4);
-                let (mut got, mut want) = (vec![f32::NAN; m * n], vec![0.0; m * n]);
-                matmul_bf16(&mut got, &a, Layout::Normal, &b, Layout::Normal, m, k, n, false);
-                matmul_bf16_emulated(&mut want, &a, Layout::Normal, &b, Layout::Normal, m, k, n, false);
-                let ra: Vec<f32> = a.iter().map(|&x| round_to_bf16(x).abs()).collect();
-                let rb: Vec<f32> = b.iter().map(|&x| round_to_bf16(x).abs()).collect();
-                let mut abs = vec![0.0; m * n];
-                matmul(&mut abs, &ra, Layout::Normal, &rb, Layout::Normal, m, k, n, false);
-                for (idx, (g, w)) in got.iter().zip(&want).enumerate() {
-                    let tol = 2.0 * k as f32 * f32::EPSILON * abs[idx];
-                    assert!((g - w).abs() <= tol, "{m}x{k}x{n} [{idx}]: AMX {g} vs emulated {w}");
-                }
-            }
+/// Checks one kernel: under the bound for every shape, layout and accumulation, and within the
+/// reordering of the f32 sums of the emulation (same rounded operands).
+fn check_kernel(kernel: Bf16Kernel) {
+    for (m, k, n) in SHAPES {
+        let product = |c: &mut [f32], a: &[f32], la, b: &[f32], lb, m, k, n, acc| {
+            matmul_bf16_on(kernel, c, a, la, b, lb, m, k, n, acc);
+        };
+        check(&product, m, k, n);
+        // Same rounded operands: the two differ only in the order of the f32 sums.
+        let a = values(m * k, 3);
+        let b = values(k * n, 4);
+        let (mut got, mut want) = (vec![f32::NAN; m * n], vec![0.0; m * n]);
+        matmul_bf16_on(kernel, &mut got, &a, Layout::Normal, &b, Layout::Normal, m, k, n, false);
+        matmul_bf16_emulated(&mut want, &a, Layout::Normal, &b, Layout::Normal, m, k, n, false);
+        let ra: Vec<f32> = a.iter().map(|&x| round_to_bf16(x).abs()).collect();
+        let rb: Vec<f32> = b.iter().map(|&x| round_to_bf16(x).abs()).collect();
+        let mut abs = vec![0.0; m * n];
+        matmul(&mut abs, &ra, Layout::Normal, &rb, Layout::Normal, m, k, n, false);
+        for (idx, (g, w)) in got.iter().zip(&want).enumerate() {
+            let tol = 2.0 * k as f32 * f32::EPSILON * abs[idx];
+            assert!((g - w).abs() <= tol, "{} {m}x{k}x{n} [{idx}]: {g} vs emulated {w}", kernel.name());
         }
     }
+}
+
+#[test]
+fn amx_bf16_product_stays_within_the_bf16_bound_and_matches_the_emulation() {
+    match Bf16Kernel::Amx.check() {
+        Ok(()) => check_kernel(Bf16Kernel::Amx),
+        Err(why) => {
+            // The refusal must say what is missing.
+            assert!(why.contains("amx") || why.contains("AMX"), "unhelpful reason: {why}");
+            skipped_for_cpu_feature("amx_bf16_product_stays_within_the_bf16_bound", "amx_bf16", why);
+        }
+    }
+}
+
+#[test]
+fn avx512_bf16_product_stays_within_the_bf16_bound_and_matches_the_emulation() {
+    match Bf16Kernel::Avx512.check() {
+        Ok(()) => check_kernel(Bf16Kernel::Avx512),
+        Err(why) => {
+            assert!(why.contains("avx512"), "unhelpful reason: {why}");
+            skipped_for_cpu_feature("avx512_bf16_product_stays_within_the_bf16_bound", "avx512_bf16", why);
+        }
+    }
+}
+
+/// Where the CPU has both kernels, they compute the same products from the same packed operands:
+/// equal up to the order of the f32 sums.
+#[test]
+fn amx_and_avx512_kernels_agree() {
+    for kernel in Bf16Kernel::ALL {
+        if let Err(why) = kernel.check() {
+            let feature = if kernel == Bf16Kernel::Amx { "amx_bf16" } else { "avx512_bf16" };
+            skipped_for_cpu_feature("amx_and_avx512_kernels_agree", feature, why);
+            return;
+        }
+    }
+    let (m, k, n) = (256, 256, 256);
+    let (a, b) = (values(m * k, 8), values(k * n, 9));
+    let run = |kernel| {
+        let mut c = vec![f32::NAN; m * n];
+        matmul_bf16_on(kernel, &mut c, &a, Layout::Transposed, &b, Layout::Normal, m, k, n, false);
+        c
+    };
+    let (amx, avx) = (run(Bf16Kernel::Amx), run(Bf16Kernel::Avx512));
+    let ra: Vec<f32> = a.iter().map(|&x| round_to_bf16(x).abs()).collect();
+    let rb: Vec<f32> = b.iter().map(|&x| round_to_bf16(x).abs()).collect();
+    let mut abs = vec![0.0; m * n];
+    matmul(&mut abs, &ra, Layout::Transposed, &rb, Layout::Normal, m, k, n, false);
+    for (idx, (x, y)) in amx.iter().zip(&avx).enumerate() {
+        assert!((x - y).abs() <= 2.0 * k as f32 * f32::EPSILON * abs[idx], "[{idx}]: AMX {x} vs AVX-512 {y}");
+    }
+}
+
+/// Where the CPU has no bf16 kernel, `matmul_bf16` is not reached: the model refuses bf16.
+/// Where it has one, `matmul_bf16` runs the kernel `detect` chose.
+#[test]
+fn matmul_bf16_runs_the_detected_kernel() {
+    let Some(kernel) = Bf16Support::detect().kernel() else {
+        let mut m = Model::new(Preset::Small.config()).unwrap();
+        let err = m.set_precision(Precision::Bf16).unwrap_err().to_string();
+        assert!(err.contains("amx") && err.contains("avx512"), "the refusal names both features: {err}");
+        skipped_for_cpu_feature("matmul_bf16_runs_the_detected_kernel", "avx512_bf16", &err);
+        return;
+    };
+    let (m, k, n) = (40, 64, 48);
+    let (a, b) = (values(m * k, 1), values(k * n, 2));
+    let (mut got, mut want) = (vec![0.0; m * n], vec![0.0; m * n]);
+    matmul_bf16(&mut got, &a, Layout::Normal, &b, Layout::Normal, m, k, n, false);
+    matmul_bf16_on(kernel, &mut want, &a, Layout::Normal, &b, Layout::Normal, m, k, n, false);
+    assert_eq!(got, want, "matmul_bf16 is {}'s product", kernel.name());
 }
 
 mod common;
@@ -134,13 +215,10 @@ fn norm(v: &[f32]) -> f64 {
 
 #[test]
 fn bf16_model_loss_and_gradients_follow_the_f32_model() {
-    let Bf16Support::Amx = Bf16Support::detect() else {
-        let mut m = Model::new(Preset::Small.config()).unwrap();
-        let err = m.set_precision(Precision::Bf16).unwrap_err().to_string();
-        assert!(err.contains("amx") || err.contains("AMX") || err.contains("avx512"), "{err}");
-        eprintln!("bf16 model not run on this CPU: {err}");
+    if let Bf16Support::Unavailable(why) = Bf16Support::detect() {
+        skipped_for_cpu_feature("bf16_model_loss_and_gradients_follow_the_f32_model", "avx512_bf16", why);
         return;
-    };
+    }
     let (rays, colours) = ball_scene(4, 16);
     let (rays, colours) = (&rays[..512], &colours[..512]);
     let f32_model = Model::new(Preset::Small.config()).unwrap();
@@ -194,8 +272,8 @@ const TOL_RUN_LOSS_BAND: f64 = 0.10;
 
 #[test]
 fn a_bf16_run_follows_the_f32_run_from_one_seed() {
-    if !Bf16Support::detect().available() {
-        eprintln!("bf16 run not made on this CPU: {:?}", Bf16Support::detect());
+    if let Bf16Support::Unavailable(why) = Bf16Support::detect() {
+        skipped_for_cpu_feature("a_bf16_run_follows_the_f32_run_from_one_seed", "avx512_bf16", why);
         return;
     }
     let (rays, colours) = ball_scene(8, 16);
