@@ -9,7 +9,7 @@ use mipnerf_core::Camera;
 use mipnerf_core::backend::{Backend, BackendError, ImageSpec, MAX_BATCH_RAYS, RenderedImage, TrainState};
 use mipnerf_core::checkpoint::{self, CheckpointError};
 use mipnerf_core::data::{self, DataError, Dataset, LoadOptions, Split, View};
-use mipnerf_core::model::{Model, ModelConfig, ModelError, Preset};
+use mipnerf_core::model::{FastRecipe, Model, ModelConfig, ModelError, Preset};
 use mipnerf_core::occupancy::{OccupancyConfig, OccupancyGrid};
 use mipnerf_core::train::{OptimConfig, StepReport};
 
@@ -48,6 +48,9 @@ pub struct Options {
     pub occupancy: bool,
     /// Near and far bounds of renders when the `Nerf` holds no data (loaded for rendering).
     pub render_bounds: (f32, f32),
+    /// The MLP's products in bf16 on the CPU where it has a kernel for them (AMX or AVX-512
+    /// BF16; see `mipnerf_core::bf16`), f32 elsewhere and on a GPU. [`Preset::Fast`] sets it.
+    pub bf16: bool,
 }
 
 impl Default for Options {
@@ -60,6 +63,7 @@ impl Default for Options {
             batch_rays: 1024,
             occupancy: false,
             render_bounds: (2.0, 6.0),
+            bf16: false,
         }
     }
 }
@@ -82,11 +86,20 @@ impl Options {
         Ok(())
     }
 
-    /// A named model size with the other defaults; [`Preset::Fast`] turns on occupancy-guided
-    /// sampling.
+    /// A named model size with the other defaults; [`Preset::Fast`] trains as the CLI's
+    /// `--preset fast` does ([`FastRecipe`]: occupancy-guided sampling, its batch and learning
+    /// rates, bf16 where the CPU has it).
     #[must_use]
     pub fn preset(preset: Preset) -> Self {
-        Self { model: preset.config(), occupancy: preset == Preset::Fast, ..Self::default() }
+        let mut options = Self { model: preset.config(), ..Self::default() };
+        if preset == Preset::Fast {
+            let recipe = FastRecipe::RECIPE;
+            options.occupancy = true;
+            options.batch_rays = recipe.batch_rays;
+            options.optim.lr = recipe.schedule(options.optim.lr.max_steps);
+            options.bf16 = recipe.bf16_where_available;
+        }
+        options
     }
 }
 
@@ -142,7 +155,18 @@ pub struct Nerf {
     backend: Box<dyn Backend>,
     data: Option<Arc<Dataset>>,
     fallback: Option<String>,
-    render_bounds: (f32, f32),
+    /// How pixels become rays without data: from the checkpoint it was loaded from, else
+    /// `Options::render_bounds` through pixel centres.
+    rays: RaySettings,
+}
+
+/// How a camera's pixels become rays: bounds, pixel centres, the NDC mapping.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct RaySettings {
+    near: f32,
+    far: f32,
+    centers: mipnerf_core::PixelCenters,
+    ndc: Option<mipnerf_core::data::Ndc>,
 }
 
 impl std::fmt::Debug for Nerf {
@@ -185,28 +209,49 @@ impl Nerf {
         Self::new(data::load(dir.as_ref(), Split::Train, &LoadOptions::default())?, options)
     }
 
-    /// The model saved at `path` by [`Nerf::save`] with the same `options.model`, to render or to
-    /// train further on `data`.
+    /// The model saved at `path` by [`Nerf::save`], to render or to train further on `data`. The
+    /// checkpoint holds the model's configuration and how its pixels become rays (bounds, pixel
+    /// centres, the NDC mapping of forward-facing data), so a model loaded without data renders
+    /// as it did; `options.model` and `options.render_bounds` serve only for a checkpoint saved
+    /// without them (by the CLI, whose run folder keeps them in `config.toml`).
     ///
     /// # Errors
     /// A missing, damaged or foreign checkpoint (its checksum is verified), or as [`Nerf::new`].
     pub fn load(path: impl AsRef<Path>, options: Options, data: Option<Dataset>) -> Result<Self, Error> {
         let data = data.map(Arc::new);
-        let model = model_for(&options, data.as_deref())?;
+        let stored = checkpoint::render_settings(path.as_ref())?;
+        let mut options = options;
+        if let Some(r) = &stored {
+            options.model = r.model.clone();
+        }
+        let model = match &data {
+            Some(ds) => model_for(&options, Some(ds))?,
+            None => Model::new(options.model.clone())?,
+        };
         let state = TrainState::from_checkpoint(checkpoint::load(path.as_ref(), &model)?);
-        Self::open(model, state, data, &options)
+        let mut nerf = Self::open(model, state, data, &options)?;
+        if let Some(r) = stored {
+            nerf.rays = RaySettings { near: r.near, far: r.far, centers: r.centers, ndc: r.ndc };
+        }
+        Ok(nerf)
     }
 
     fn open(model: Model, state: TrainState, data: Option<Arc<Dataset>>, options: &Options) -> Result<Self, Error> {
         options.check()?;
         let batch = data.as_ref().map(|d| (Arc::clone(d), options.batch_rays));
-        let (backend, fallback) = crate::open_backend(options, model, state, batch)?;
+        let (mut backend, fallback) = crate::open_backend(options, model, state, batch)?;
+        if options.bf16 && mipnerf_core::bf16::Bf16Support::detect().available() {
+            // A device backend runs f32 only and says so: it keeps f32, as the option promises.
+            let _ = backend.set_precision(mipnerf_core::bf16::Precision::Bf16);
+        }
         if data.is_some() {
             let need = backend.host_training_bytes(options.batch_rays);
             let what = format!("a training step of {} rays (`Options::batch_rays`)", options.batch_rays);
             mipnerf_core::memory::check(need, &what).map_err(Error::Options)?;
         }
-        Ok(Self { backend, data, fallback, render_bounds: options.render_bounds })
+        let (near, far) = options.render_bounds;
+        let rays = RaySettings { near, far, centers: mipnerf_core::PixelCenters::Centered, ndc: None };
+        Ok(Self { backend, data, fallback, rays })
     }
 
     /// Takes `steps` training steps (at least one) and reports the last.
@@ -237,35 +282,57 @@ impl Nerf {
         }
     }
 
-    /// Renders `camera` (both levels per pixel; `.fine` is the picture), between the training
-    /// data's bounds (or `Options::render_bounds` without data).
+    /// Renders `camera` (both levels per pixel; `.fine` is the picture), as the training data's
+    /// rays are made (bounds, pixel centres, NDC), or without data as the loaded checkpoint
+    /// says (`Options::render_bounds` for one that says nothing).
     ///
     /// # Errors
     /// The backend's error.
     pub fn render(&mut self, camera: &Camera) -> Result<RenderedImage, Error> {
-        let supersample = self.backend.model().config().supersample;
-        let spec = match &self.data {
-            Some(ds) => ImageSpec { camera: camera.clone(), ..ImageSpec::of_view(ds, 0, supersample) },
-            None => ImageSpec {
-                camera: camera.clone(),
-                near: self.render_bounds.0,
-                far: self.render_bounds.1,
-                centers: mipnerf_core::PixelCenters::Centered,
-                ndc: None,
-                supersample,
-            },
-        };
+        let spec = self.image_spec(camera);
         Ok(self.backend.render(&spec)?)
     }
 
+    /// How `camera`'s pixels become rays here.
+    fn image_spec(&self, camera: &Camera) -> ImageSpec {
+        let supersample = self.backend.model().config().supersample;
+        match &self.data {
+            Some(ds) => ImageSpec { camera: camera.clone(), ..ImageSpec::of_view(ds, 0, supersample) },
+            None => {
+                let r = self.rays;
+                ImageSpec {
+                    camera: camera.clone(),
+                    near: r.near,
+                    far: r.far,
+                    centers: r.centers,
+                    ndc: r.ndc,
+                    supersample,
+                }
+            }
+        }
+    }
+
     /// Saves the parameters, Adam's state, the step and the occupancy grid to `path` (one
-    /// safetensors file, written atomically: a failed write keeps the previous file).
+    /// safetensors file, written atomically: a failed write keeps the previous file), with the
+    /// model's configuration and how its pixels become rays, so that [`Nerf::load`] without data
+    /// renders as this does.
     ///
     /// # Errors
     /// The file system, or a non-finite state (nothing is written then).
     pub fn save(&mut self, path: impl AsRef<Path>) -> Result<(), Error> {
         let ck = self.backend.checkpoint()?;
-        checkpoint::save(path.as_ref(), self.backend.model(), &ck)?;
+        let any =
+            Camera::from_camera_angle_x(1, 1, 1.0, [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
+                .map_err(|e| Error::Options(e.to_string()))?;
+        let spec = self.image_spec(&any);
+        let render = checkpoint::RenderSettings {
+            model: self.backend.model().config().clone(),
+            near: spec.near,
+            far: spec.far,
+            centers: spec.centers,
+            ndc: spec.ndc,
+        };
+        checkpoint::save_for_rendering(path.as_ref(), self.backend.model(), &ck, &render)?;
         Ok(())
     }
 
@@ -313,7 +380,8 @@ fn occupancy_grid(data: &Dataset) -> Result<OccupancyGrid, Error> {
     }
     let bound = mipnerf_core::occupancy::auto_bound(data)
         .ok_or_else(|| Error::Occupancy("a camera's near bound reaches the origin: no cube fits the scene".into()))?;
-    let mut grid = OccupancyGrid::new(OccupancyConfig { resolution: 64, bound, ..OccupancyConfig::default() })
+    let resolution = FastRecipe::RECIPE.occupancy_resolution;
+    let mut grid = OccupancyGrid::new(OccupancyConfig { resolution, bound, ..OccupancyConfig::default() })
         .map_err(|e| Error::Occupancy(e.to_string()))?;
     grid.carve_with_masks(data);
     Ok(grid)

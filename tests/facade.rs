@@ -165,3 +165,48 @@ fn forward_facing_data_trains_with_cylinders_and_refuses_occupancy() {
     let err = Nerf::from_dir(&colmap, Options { occupancy: true, ..cpu_tiny() }).unwrap_err();
     assert!(matches!(err, Error::Occupancy(_)) && err.to_string().contains("forward-facing"), "{err}");
 }
+
+/// A model saved by `Nerf::save` and loaded without its data renders as before: the checkpoint
+/// holds its configuration (background, ray shape) and how its pixels become rays (bounds, pixel
+/// centres, NDC), for forward-facing COLMAP data and for Blender data, whatever `Options` the
+/// loader passes.
+#[test]
+fn a_saved_model_loaded_without_data_renders_as_before_on_any_data() {
+    let colmap = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/colmap_lego");
+    let dir = tempfile::tempdir().unwrap();
+    for (name, data) in [("colmap", colmap), ("blender", lego_tiny())] {
+        let mut nerf = Nerf::from_dir(&data, cpu_tiny()).unwrap();
+        nerf.train(2).unwrap();
+        let camera = {
+            let ds = mipnerf::mipnerf_core::data::load(
+                &data,
+                mipnerf::mipnerf_core::data::Split::Train,
+                &Default::default(),
+            )
+            .unwrap();
+            let c = ds.views()[0].camera.clone();
+            Camera::from_camera_angle_x(16, 12, 0.8, c.cam2world).unwrap()
+        };
+        let before = nerf.render(&camera).unwrap();
+        let path = dir.path().join(format!("{name}.safetensors"));
+        nerf.save(&path).unwrap();
+        // Loaded with the default options (another model size, the default bounds): the stored
+        // settings win.
+        let options = Options { device: Device::Cpu, ..Options::preset(Preset::Small) };
+        let mut loaded = Nerf::load(&path, options, None).unwrap();
+        assert_eq!(loaded.backend().model().config(), nerf.backend().model().config(), "{name}");
+        assert_eq!(loaded.render(&camera).unwrap(), before, "{name}: the loaded model renders otherwise");
+    }
+}
+
+/// `Options::preset(Preset::Fast)` is the CLI's fast preset: the same recipe from core.
+#[test]
+fn the_fast_preset_of_the_library_is_the_clis() {
+    use mipnerf::mipnerf_core::model::FastRecipe;
+    let fast = Options::preset(Preset::Fast);
+    let recipe = FastRecipe::RECIPE;
+    assert!(fast.occupancy && fast.bf16 == recipe.bf16_where_available);
+    assert_eq!(fast.batch_rays, recipe.batch_rays);
+    assert_eq!(fast.optim.lr, recipe.schedule(fast.optim.lr.max_steps));
+    assert_eq!((fast.optim.lr.lr_init, fast.optim.lr.lr_final), (5e-3, 5e-4), "not the paper's rates");
+}

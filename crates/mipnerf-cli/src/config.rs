@@ -8,7 +8,7 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 use mipnerf_core::PixelCenters;
 use mipnerf_core::RayShape;
-use mipnerf_core::model::{ModelConfig, PointEncoding, Preset};
+use mipnerf_core::model::{FastRecipe, ModelConfig, PointEncoding, Preset};
 use mipnerf_core::schedule::LrSchedule;
 use mipnerf_core::train::OptimConfig;
 use serde::{Deserialize, Serialize};
@@ -77,15 +77,12 @@ impl PresetArg {
     }
 }
 
-/// Rays per batch of the fast preset (drawn pixels; those an occupancy grid finds empty cost no
-/// MLP work). 512 scored 0.08 dB more at a 2-minute budget with the other settings of the preset,
-/// within one seed's noise; 1024 is kept for the longer budgets (`experiments/fast-preset-sweep`).
-pub const FAST_BATCH_RAYS: usize = 1024;
-/// Initial and final learning rates of the fast preset: at a 2-minute budget 5e-3 beat 2e-3 and
-/// 1e-3, and a decay to a tenth beat the decay to a hundredth (`experiments/fast-preset-sweep`).
-pub const FAST_LR: (f32, f32) = (5e-3, 5e-4);
+/// Rays per batch of the fast preset (core's [`FastRecipe`], shared with the library).
+pub const FAST_BATCH_RAYS: usize = FastRecipe::RECIPE.batch_rays;
+/// Initial and final learning rates of the fast preset ([`FastRecipe`]).
+pub const FAST_LR: (f32, f32) = FastRecipe::RECIPE.lr;
 /// Learning-rate warm-up steps of the fast preset (and of any run with a time budget).
-pub const FAST_LR_DELAY_STEPS: u64 = 100;
+pub const FAST_LR_DELAY_STEPS: u64 = FastRecipe::RECIPE.lr_delay_steps;
 
 /// A duration: `90`, `90s`, `30m`, `1h`, `1h30m`, `2.5m` (seconds when no unit is given).
 ///
@@ -116,8 +113,14 @@ pub fn parse_duration(text: &str) -> Result<f64> {
     if !(total.is_finite() && total > 0.0) {
         bail!("not a positive duration: {t:?} (write e.g. 90s, 30m, 1h30m)");
     }
+    if total > MAX_DURATION_SECONDS {
+        bail!("{t:?} is longer than a year (366 days); no run of this tool takes that long");
+    }
     Ok(total)
 }
+
+/// The longest duration a flag takes (`--time-budget`, `--snapshots`): a year.
+pub const MAX_DURATION_SECONDS: f64 = 366.0 * 24.0 * 3600.0;
 
 /// The most training steps a run can take: the step number seeds the random numbers as a `u32`.
 pub const MAX_STEPS: u64 = u32::MAX as u64;
@@ -388,7 +391,8 @@ impl TrainSettings {
             llff_factor: Some(self.llff_factor.unwrap_or(4)),
             spherify: Some(self.spherify.unwrap_or(false)),
             occupancy: Some(occupancy),
-            occupancy_resolution: occupancy.then(|| self.occupancy_resolution.unwrap_or(64)),
+            occupancy_resolution: occupancy
+                .then(|| self.occupancy_resolution.unwrap_or(FastRecipe::RECIPE.occupancy_resolution)),
             occupancy_bound: self.occupancy_bound,
             occupancy_masks: occupancy.then(|| self.occupancy_masks.unwrap_or(true)),
             time_budget: self.time_budget.clone(),
@@ -398,7 +402,11 @@ impl TrainSettings {
             // The fast preset computes in bf16 where the CPU has AMX (2.3 times the training
             // rate, +1.8 dB at 2 minutes) or AVX-512 BF16 (docs/results/precision/); every other
             // preset in f32, the paper's precision.
-            precision: Some(self.precision.unwrap_or(if fast { PrecisionArg::Auto } else { PrecisionArg::F32 })),
+            precision: Some(self.precision.unwrap_or(if fast && FastRecipe::RECIPE.bf16_where_available {
+                PrecisionArg::Auto
+            } else {
+                PrecisionArg::F32
+            })),
         }
     }
 
@@ -416,7 +424,8 @@ impl TrainSettings {
     /// The snapshot marks in seconds, sorted.
     ///
     /// # Errors
-    /// A malformed duration, named.
+    /// A malformed duration, a mark given twice, or one at or past the time budget (no snapshot
+    /// would be taken there), named.
     pub fn snapshot_seconds(&self) -> Result<Vec<f64>> {
         let mut v = self
             .snapshots
@@ -425,6 +434,17 @@ impl TrainSettings {
             .map(|t| parse_duration(t).with_context(|| format!("--snapshots {t:?}")))
             .collect::<Result<Vec<_>>>()?;
         v.sort_by(f64::total_cmp);
+        if let Some(w) = v.windows(2).find(|w| w[0] == w[1]) {
+            bail!("--snapshots names {} s twice; give each time once", w[0]);
+        }
+        if let (Some(budget), Some(&last)) = (self.time_budget_seconds()?, v.last())
+            && last >= budget
+        {
+            bail!(
+                "--snapshots {last} s is at or past the end of --time-budget ({budget} s), where no snapshot is \
+                 taken (the run's checkpoint is the model at its end)"
+            );
+        }
         Ok(v)
     }
 
@@ -800,5 +820,22 @@ mod tests {
         // A rate given is kept.
         let given = TrainSettings { lr_init: Some(1e-3), ..TrainSettings::default() }.resolved(true);
         assert_eq!(given.lr_init, Some(1e-3));
+    }
+
+    /// `--preset fast` is core's fast recipe, the one `Options::preset(Preset::Fast)` takes too
+    /// (tests/facade.rs checks that side).
+    #[test]
+    fn the_fast_preset_is_cores_fast_recipe() {
+        use mipnerf_core::model::FastRecipe;
+        let r = TrainSettings { preset: Some(PresetArg::Fast), ..TrainSettings::default() }.resolved(false);
+        let recipe = FastRecipe::RECIPE;
+        assert_eq!(r.batch_rays, Some(recipe.batch_rays));
+        assert_eq!((r.lr_init.unwrap(), r.lr_final.unwrap()), recipe.lr);
+        assert_eq!((r.lr_delay_steps, r.lr_delay_mult), (Some(recipe.lr_delay_steps), Some(0.01)));
+        assert_eq!((r.occupancy, r.occupancy_resolution), (Some(true), Some(recipe.occupancy_resolution)));
+        assert_eq!(
+            r.precision,
+            Some(if recipe.bf16_where_available { super::PrecisionArg::Auto } else { super::PrecisionArg::F32 })
+        );
     }
 }

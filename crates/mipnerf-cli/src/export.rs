@@ -75,8 +75,15 @@ pub fn export(a: &ExportArgs, session: &Session) -> Result<()> {
     {
         bail!("--bound must be a positive half side, got {b}");
     }
-    for path in [&a.mesh, &a.points].into_iter().flatten() {
-        check_output(path, a.overwrite)?;
+    for (flag, path) in [("--mesh", &a.mesh), ("--points", &a.points)] {
+        if let Some(path) = path {
+            check_output(flag, path, a.overwrite)?;
+        }
+    }
+    if let (Some(mesh), Some(points)) = (&a.mesh, &a.points)
+        && same_file(mesh, points)
+    {
+        bail!("--mesh and --points name the same file ({}); give each its own", mesh.display());
     }
     let s = read_config(&a.run)?;
     let (model, ck) = load_trained(&a.run, &s, session)?;
@@ -96,6 +103,12 @@ pub fn export(a: &ExportArgs, session: &Session) -> Result<()> {
     if let Some(path) = &a.mesh {
         let t = std::time::Instant::now();
         let region = (Vec3::splat(-bound), Vec3::splat(bound));
+        let nodes = export::mesh_nodes(region.1 - region.0, a.resolution);
+        mipnerf_core::memory::check(
+            nodes.saturating_mul(export::MESH_BYTES_PER_NODE),
+            &format!("a mesh at --resolution {} ({nodes} grid nodes)", a.resolution),
+        )
+        .map_err(|e| anyhow::anyhow!("{e}; choose a lower --resolution"))?;
         let sampled = export::sampled_space(&ds, ck.occupancy.as_ref());
         let mesh = export::extract_mesh(&model, &ck.params, region, a.resolution, a.threshold, &sampled);
         if mesh.triangles.is_empty() {
@@ -138,14 +151,47 @@ pub fn export(a: &ExportArgs, session: &Session) -> Result<()> {
     Ok(())
 }
 
-/// Refuses an output that exists (unless `overwrite`) or whose folder does not.
-fn check_output(path: &Path, overwrite: bool) -> Result<()> {
-    if path.exists() && !overwrite {
-        bail!("{} exists; pass --overwrite to replace it", path.display());
+/// Refuses an output whose folder does not exist, and one that exists unless it is a PLY file
+/// export wrote and `overwrite` is set: a folder, a link, a device or any other file is never
+/// replaced, `--overwrite` or not.
+fn check_output(flag: &str, path: &Path, overwrite: bool) -> Result<()> {
+    if let Ok(meta) = std::fs::symlink_metadata(path) {
+        let kind = meta.file_type();
+        if !kind.is_file() {
+            let what = if kind.is_dir() {
+                "a folder"
+            } else if kind.is_symlink() {
+                "a symbolic link"
+            } else {
+                "not a regular file (a device, pipe or socket)"
+            };
+            bail!(
+                "{flag} {} is {what}; export writes only a new file or one it wrote, --overwrite or not",
+                path.display()
+            );
+        }
+        if !export::written_by_export(path) {
+            bail!(
+                "{flag} {} exists and is not a PLY file mipnerf export wrote; it is left as it is (choose another name)",
+                path.display()
+            );
+        }
+        if !overwrite {
+            bail!("{flag} {} exists; pass --overwrite to replace it", path.display());
+        }
     }
-    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let dir = mipnerf_core::io::parent_dir(path);
     if !dir.is_dir() {
         bail!("{}: no such folder for {}", dir.display(), path.display());
     }
     Ok(())
+}
+
+/// Whether two output paths name one file: the same name in the same folder once the folders'
+/// links and `..` are resolved (both folders exist: [`check_output`] ran first).
+fn same_file(a: &Path, b: &Path) -> bool {
+    let resolved = |p: &Path| {
+        std::fs::canonicalize(mipnerf_core::io::parent_dir(p)).ok().map(|d| d.join(p.file_name().unwrap_or_default()))
+    };
+    a == b || matches!((resolved(a), resolved(b)), (Some(x), Some(y)) if x == y)
 }

@@ -10,20 +10,13 @@ pub fn rgb_to_png(img: &[[f32; 3]]) -> Vec<u8> {
     img.iter().flat_map(|p| p.map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8)).collect()
 }
 
-/// The prefix of the temporary name a picture is written under before it is renamed into place
-/// (the extension is kept, so that the encoder is chosen by it).
-pub const PARTIAL_PREFIX: &str = ".mipnerf-partial-";
+pub use mipnerf_core::io::PARTIAL_PREFIX;
 
-/// Runs `write` on a temporary name beside `path` ([`PARTIAL_PREFIX`]) and renames the result
-/// over `path`: a picture on disk is always whole, even when the process is killed mid-write.
+/// Runs `write` on a temporary name beside `path` ([`PARTIAL_PREFIX`]), flushed and renamed over
+/// `path` (`mipnerf_core::io::replace_with`): a picture on disk is always whole, even when the
+/// process is killed mid-write.
 fn atomically(path: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
-    let name = path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
-    let tmp = path.with_file_name(format!("{PARTIAL_PREFIX}{name}"));
-    if let Err(e) = write(&tmp) {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(e);
-    }
-    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))
+    mipnerf_core::io::replace_with(path, write)
 }
 
 /// Writes 8-bit RGB as PNG, whole or not at all.

@@ -395,9 +395,15 @@ enum Command {
         /// images/) for --to llff.
         #[arg(long, value_name = "DIR")]
         input: PathBuf,
-        /// Output directory (created).
+        /// Output directory (created). A folder holding files mipnerf did not write is refused
+        /// unless --overwrite; the image folders are replaced whole, never mixed.
         #[arg(long, value_name = "DIR")]
         output: PathBuf,
+        /// Write into a folder that holds files mipnerf did not write (a metadata.json or
+        /// poses_bounds.npy of the same name is replaced; an image folder mipnerf did not
+        /// write is still refused, and other files are left alone).
+        #[arg(long)]
+        overwrite: bool,
         /// What to write: the multiscale Blender format (from a Blender scene), or LLFF's
         /// poses_bounds.npy and images (from a COLMAP scene, as LLFF's imgs2poses does).
         #[arg(long, value_enum, default_value_t = ConvertTo::Multiscale)]
@@ -553,7 +559,16 @@ fn train_cmd(
 /// The recommended first run on a processed COLMAP scene (measured: docs/results/own-photos).
 const COLMAP_FIRST_RUN: &str = "--preset fast --time-budget 15m";
 
+/// The smallest `--max-size` of `mipnerf colmap` (besides 0, full size): smaller photos hold too
+/// little of the scene to train on.
+const MIN_COLMAP_SIZE: u32 = 32;
+
 fn colmap_cmd(input: &Path, output: &Path, max_size: u32, min_views: usize, overwrite: bool) -> Result<()> {
+    if max_size != 0 && max_size < MIN_COLMAP_SIZE {
+        bail!(
+            "--max-size {max_size}: the photos' longer side must be at least {MIN_COLMAP_SIZE} px (or 0 for full size)"
+        );
+    }
     let opts = data::process::ProcessOptions {
         max_size,
         min_views,
@@ -623,6 +638,41 @@ fn colmap_cmd(input: &Path, output: &Path, max_size: u32, min_views: usize, over
         if r.all_around { " --spherify" } else { "" },
     );
     Ok(())
+}
+
+/// Runs `write`, which writes `names` (files and folders) into `output`, under the outputs
+/// manifest's rule (`outputs::check_dir`): a folder holding files mipnerf did not write is
+/// refused unless `overwrite`; a folder among `names` that mipnerf did not write is refused
+/// even then (it would be replaced whole); the names are recorded before they are written. A
+/// folder that did not exist and is left with nothing written is removed again.
+fn into_output_folder(
+    output: &Path,
+    names: &[&str],
+    overwrite: bool,
+    write: impl FnOnce() -> Result<()>,
+) -> Result<()> {
+    outputs::check_dir(output, "--output", overwrite)?;
+    let ours = mipnerf_core::io::recorded(output).context("reading the outputs manifest")?;
+    for name in names {
+        let path = output.join(name);
+        if path.is_dir() && !ours.contains(*name) {
+            bail!(
+                "--output {}: {name}/ is a folder mipnerf did not write; it would be replaced whole, so it is left \
+                 alone, --overwrite or not (choose another --output, or move it away)",
+                output.display()
+            );
+        }
+    }
+    let existed = output.exists();
+    outputs::record(output, names.iter().map(|n| (*n).to_string()))?;
+    let done = write();
+    if done.is_err() && !existed {
+        let written = std::fs::read_dir(output).map(|d| d.filter_map(Result::ok).map(|e| e.file_name()).collect());
+        if written.is_ok_and(|w: Vec<_>| w.iter().all(|n| n == outputs::MANIFEST)) {
+            let _ = std::fs::remove_dir_all(output);
+        }
+    }
+    done
 }
 
 fn convert_llff(input: &Path, output: &Path, size: Option<u32>, factor: u32) -> Result<()> {
@@ -870,16 +920,22 @@ fn main() -> std::process::ExitCode {
         Command::Colmap { input, output, max_size, min_views, overwrite } => {
             colmap_cmd(&input, &output, max_size, min_views, overwrite)
         }
-        Command::Convert { input, output, to: ConvertTo::Multiscale, size, .. } => {
-            let done = data::multiscale::convert_resized(&input, &output, size)
-                .map(|splits| println!("converted {splits:?} into {}", output.display()));
-            match size {
-                Some(n) => done.map_err(anyhow::Error::from).with_context(|| format!("--size {n}")),
-                None => done.map_err(Into::into),
-            }
+        Command::Convert { input, output, to: ConvertTo::Multiscale, size, overwrite, .. } => {
+            let names = ["metadata.json", "images_train", "images_val", "images_test"];
+            into_output_folder(&output, &names, overwrite, || {
+                let done = data::multiscale::convert_resized(&input, &output, size)
+                    .map(|splits| println!("converted {splits:?} into {}", output.display()));
+                match size {
+                    Some(n) => done.map_err(anyhow::Error::from).with_context(|| format!("--size {n}")),
+                    None => done.map_err(Into::into),
+                }
+            })
         }
-        Command::Convert { input, output, to: ConvertTo::Llff, size, factor } => {
-            convert_llff(&input, &output, size, factor)
+        Command::Convert { input, output, to: ConvertTo::Llff, size, factor, overwrite } => {
+            let folder = if factor > 1 { format!("images_{factor}") } else { "images".to_string() };
+            into_output_folder(&output, &["poses_bounds.npy", &folder], overwrite, || {
+                convert_llff(&input, &output, size, factor)
+            })
         }
         Command::Demo { out, preset, time_budget, steps, backend, device, seed, size, views, batch_rays } => {
             let device = device.options();

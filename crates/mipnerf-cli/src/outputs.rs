@@ -11,20 +11,14 @@ use std::path::Path;
 
 use anyhow::{Context, Result, bail};
 
-/// The manifest's file name, in the output folder.
-pub const MANIFEST: &str = ".mipnerf-outputs";
+pub use mipnerf_core::io::MANIFEST;
 
 /// How many foreign names an error lists.
 const NAMES_SHOWN: usize = 5;
 
 /// The names the manifest of `dir` lists (none when it has no manifest).
 fn recorded(dir: &Path) -> Result<BTreeSet<String>> {
-    let path = dir.join(MANIFEST);
-    match std::fs::read_to_string(&path) {
-        Ok(text) => Ok(text.lines().filter(|l| !l.is_empty()).map(str::to_owned).collect()),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(BTreeSet::new()),
-        Err(e) => Err(e).with_context(|| format!("reading {}", path.display())),
-    }
+    mipnerf_core::io::recorded(dir).context("reading the outputs manifest")
 }
 
 fn list(names: &[String]) -> String {
@@ -91,26 +85,35 @@ pub fn check_file(path: &Path, flag: &str, overwrite: bool) -> Result<()> {
     Ok(())
 }
 
+/// Removes every file a previous run wrote into `dir` (its manifest lists them), so that a folder
+/// never mixes two runs' outputs (fewer frames, another size, an interrupted run), and records
+/// `names`, the files this run will write, before any is written. Files mipnerf did not write
+/// are left alone.
+///
+/// # Errors
+/// A file that cannot be removed, or an unwritable folder.
+pub fn replace_outputs(dir: &Path, names: Vec<String>) -> Result<()> {
+    let old = recorded(dir)?;
+    for name in &old {
+        let path = dir.join(name);
+        // Only plain files: a name the manifest lists is never a way out of the folder.
+        let plain = !name.contains('/') && !name.contains('\\') && name != ".." && name != ".";
+        if plain && std::fs::symlink_metadata(&path).is_ok_and(|m| m.is_file()) {
+            std::fs::remove_file(&path).with_context(|| format!("removing the earlier output {}", path.display()))?;
+        }
+    }
+    let new: BTreeSet<String> = names.into_iter().collect();
+    mipnerf_core::io::forget(dir, &old.difference(&new).cloned().collect())?;
+    record(dir, new)
+}
+
 /// Adds `names` to the manifest of `dir` (created if needed), written atomically
-/// (`checkpoint::write_atomic`) so that a crash never leaves a half-written manifest.
+/// (`mipnerf_core::io::record`) so that a crash never leaves a half-written manifest.
 ///
 /// # Errors
 /// An unwritable folder.
 pub fn record(dir: &Path, names: impl IntoIterator<Item = String>) -> Result<()> {
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    let mut all = recorded(dir)?;
-    let before = all.len();
-    all.extend(names);
-    if all.len() == before && dir.join(MANIFEST).exists() {
-        return Ok(());
-    }
-    let text: String = all.iter().map(|n| format!("{n}\n")).collect();
-    mipnerf_core::checkpoint::write_atomic(
-        &dir.join(MANIFEST),
-        text.as_bytes(),
-        &mut mipnerf_core::checkpoint::RealFs,
-    )?;
-    Ok(())
+    Ok(mipnerf_core::io::record(dir, names)?)
 }
 
 #[cfg(test)]

@@ -153,7 +153,9 @@ pub fn render(
     // Load the data first: a bad split fails before the device is opened.
     let (mut be, _, _) = open_trained(run, &s, backend, precision, device, session)?;
     // Only now, with every argument checked and the model open, is anything created. The
-    // manifest names every file before any is written, so an interrupted render can be redone.
+    // outputs of an earlier render into this folder go first (a folder never mixes two renders),
+    // and the manifest names every file before any is written, so an interrupted render can be
+    // redone.
     let mut names: Vec<String> = jobs
         .iter()
         .flat_map(|(n, _)| {
@@ -167,7 +169,7 @@ pub fn render(
         names.extend(["preview.gif".to_owned(), VIDEO.to_owned()]);
     }
     names.push(DEPTH_SCALE.to_owned());
-    crate::outputs::record(out, names)?;
+    crate::outputs::replace_outputs(out, names)?;
     // The depth PNGs' colours, explained once for the folder.
     if let Some((_, first)) = jobs.first() {
         let title = "depth (transparent: white)";

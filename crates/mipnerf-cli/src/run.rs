@@ -298,6 +298,11 @@ pub fn train(
     TrainLoop::new(run_dir, &s, be, resume, session.quiet)?.run()
 }
 
+/// How far `--occupancy-bound` may stray from the cube the cameras give, either way: a factor of
+/// 100 (a hundredth of the scene's size holds none of it; a hundred times spends the grid's
+/// cells on empty space).
+pub const OCCUPANCY_BOUND_RANGE: f32 = 100.0;
+
 /// A run's occupancy grid before training: its cube from the settings or the cameras, seeded
 /// with the visual hull of the training masks where the data has transparency (and the settings
 /// allow it), said in one line.
@@ -308,9 +313,21 @@ fn new_occupancy_grid(s: &TrainSettings, ds: &Dataset) -> Result<OccupancyGrid> 
              space: drop --occupancy (or use --spherify for photos all around an object)"
         );
     }
+    let auto = mipnerf_core::occupancy::auto_bound(ds);
+    if let (Some(b), Some(auto)) = (s.occupancy_bound, auto)
+        && !(auto / OCCUPANCY_BOUND_RANGE..=auto * OCCUPANCY_BOUND_RANGE).contains(&b)
+    {
+        bail!(
+            "--occupancy-bound {b} is far from this scene's size: its cameras give a cube of half side {auto:.3}, \
+             and a bound under {:.3} holds none of the scene (nothing would be trained) while one over {:.1} spends the \
+             grid on empty space; leave it out to take {auto:.3}",
+            auto / OCCUPANCY_BOUND_RANGE,
+            auto * OCCUPANCY_BOUND_RANGE
+        );
+    }
     let bound = match s.occupancy_bound {
         Some(b) => b,
-        None => mipnerf_core::occupancy::auto_bound(ds).context(
+        None => auto.context(
             "the occupancy grid's cube cannot be taken from the cameras (a camera's near bound reaches the \
              origin): pass --occupancy-bound B (half the side of a cube around the origin that holds the scene)",
         )?,
@@ -572,6 +589,14 @@ impl<'a> TrainLoop<'a> {
             Some(b) => Some((b, s.optim_config()?.lr)),
             None => None,
         };
+        if let (Some(_), Some(steps)) = (budget, s.steps)
+            && steps != crate::config::MAX_STEPS
+        {
+            eprintln!(
+                "--steps {steps} and --time-budget {} both given: the run stops at whichever comes first",
+                s.time_budget.as_deref().unwrap_or_default()
+            );
+        }
         let snapshots = s.snapshot_seconds()?.into_iter().filter(|&m| m > seconds_before).collect();
         Ok(Self {
             run_dir,

@@ -26,8 +26,13 @@ use crate::run::{CHECKPOINT, METRICS_CSV, MetricsRows, load_split, open_trained,
 
 /// The page.
 const PAGE: &str = include_str!("../assets/view.html");
-/// The largest frame side a request may ask for.
+/// The largest frame side a stream may ask for.
 pub const MAX_SIDE: u32 = 1024;
+/// The largest side of a single frame (`/api/render`; the page's scales panel asks for 256 at
+/// most): a still is rendered whole, so its cost is bounded here.
+pub const MAX_STILL_SIDE: u32 = 512;
+/// Stills queued or rendering at once (the page asks for four); one more is answered 503.
+pub const MAX_QUEUED_STILLS: usize = 4;
 /// Refinement levels of a streamed view: 1/8, 1/4, 1/2 and full size.
 pub const LEVELS: u32 = 4;
 /// Beside training (`train --view`), the most of the wall-clock time the viewer may spend
@@ -99,6 +104,76 @@ pub const BAND_PIXELS: u32 = 4096;
 pub const REST_ALLOWANCE: Duration = Duration::from_secs(1);
 /// What a superseded stream level answers.
 const SUPERSEDED: &str = "superseded by a newer view";
+/// What a still answers when a stream (the camera moved) takes the renderer from it.
+const PREEMPTED: &str = "preempted by the moving view; ask again";
+
+/// Which `Host` (and `Origin`) names a request may carry: the loopback names (`127.0.0.1`,
+/// `localhost`, `[::1]`), with the server's port if any port is given, and the name `--host`
+/// gave when it is not a loopback one (any name when it is `0.0.0.0` or `::`, which the user chose
+/// knowing that the viewer is then reachable from other machines). A page on another site
+/// cannot read the viewer through DNS rebinding (its Host is that site's name) nor make the
+/// browser load frames from it (`Origin` or `Sec-Fetch-Site` names another site).
+#[derive(Clone, Debug)]
+struct HostPolicy {
+    port: u16,
+    named: Option<String>,
+    any: bool,
+}
+
+impl HostPolicy {
+    fn new(host: &str, port: u16) -> Self {
+        let unspecified = host.parse::<std::net::IpAddr>().is_ok_and(|ip| ip.is_unspecified());
+        let loopback = host.parse::<std::net::IpAddr>().is_ok_and(|ip| ip.is_loopback()) || host == "localhost";
+        let named = (!loopback && !unspecified)
+            .then(|| if host.contains(':') && !host.starts_with('[') { format!("[{host}]") } else { host.to_string() });
+        Self { port, named, any: unspecified }
+    }
+
+    fn allows_host(&self, host: &str) -> bool {
+        if self.any {
+            return true;
+        }
+        // `name` or `name:port`; an IPv6 name comes in brackets.
+        let (name, port) = match host.rfind(':') {
+            Some(i) if !host[i..].contains(']') => (&host[..i], Some(&host[i + 1..])),
+            _ => (host, None),
+        };
+        if port.is_some_and(|p| p.parse::<u16>().ok() != Some(self.port)) {
+            return false;
+        }
+        let name = name.to_ascii_lowercase();
+        matches!(name.as_str(), "127.0.0.1" | "localhost" | "[::1]")
+            || self.named.as_deref().is_some_and(|n| n.eq_ignore_ascii_case(&name))
+    }
+
+    /// Why `request` is refused (403), if it is.
+    fn refusal(&self, request: &tiny_http::Request) -> Option<String> {
+        let header = |name: &'static str| {
+            request.headers().iter().find(|h| h.field.equiv(name)).map(|h| h.value.as_str().to_string())
+        };
+        match header("Host") {
+            None => return Some("no Host header".into()),
+            Some(h) if !self.allows_host(&h) => {
+                return Some(format!(
+                    "Host {h:?} is not this viewer's address (127.0.0.1, localhost or [::1], port {})",
+                    self.port
+                ));
+            }
+            Some(_) => {}
+        }
+        if let Some(origin) = header("Origin")
+            && !origin.strip_prefix("http://").is_some_and(|h| self.allows_host(h))
+        {
+            return Some(format!("a request from another site (Origin {origin:?})"));
+        }
+        if let Some(site) = header("Sec-Fetch-Site")
+            && !matches!(site.as_str(), "same-origin" | "none")
+        {
+            return Some(format!("a request from another site (Sec-Fetch-Site: {site})"));
+        }
+        None
+    }
+}
 
 /// Starts the server and serves until the process ends; prints the URL first.
 ///
@@ -171,9 +246,16 @@ pub fn run_server(server: tiny_http::Server, a: &ViewArgs) -> Result<()> {
         .name("view renderer".into())
         .spawn(move || renderer(&args, &s, &template, &rx))
         .context("starting the render thread")?;
+    let port = server.server_addr().to_ip().map_or(a.port, |addr| addr.port());
+    let shared = std::sync::Arc::new(Shared {
+        info,
+        run: a.run.clone(),
+        policy: HostPolicy::new(&a.host, port),
+        stills: std::sync::atomic::AtomicUsize::new(0),
+    });
     for request in server.incoming_requests() {
-        let (tx, info, run) = (tx.clone(), info.clone(), a.run.clone());
-        std::thread::spawn(move || handle(request, &tx, &info, &run));
+        let (tx, shared) = (tx.clone(), std::sync::Arc::clone(&shared));
+        std::thread::spawn(move || handle(request, &tx, &shared));
     }
     Ok(())
 }
@@ -195,7 +277,9 @@ fn renderer(a: &ViewArgs, s: &TrainSettings, template: &ImageSpec, jobs: &mpsc::
     // The rest owed, as of `paid_at`: any time not spent rendering pays it, idle time included.
     let (mut owed, mut paid_at) = (Duration::ZERO, Instant::now());
     loop {
-        let Some(job) = waiting.pop_front().or_else(|| jobs.recv().ok()) else { return };
+        // Streams first: a moving camera's frame never waits behind stills.
+        let next = waiting.iter().position(|j: &Job| j.kind == Kind::Stream).or((!waiting.is_empty()).then_some(0));
+        let Some(job) = next.and_then(|i| waiting.remove(i)).or_else(|| jobs.recv().ok()) else { return };
         let result = (|| -> Result<Frame> {
             let mtime = std::fs::metadata(&ckpt).and_then(|m| m.modified()).ok();
             if loaded.as_ref().is_none_or(|l| l.2 != mtime) {
@@ -213,9 +297,9 @@ fn renderer(a: &ViewArgs, s: &TrainSettings, template: &ImageSpec, jobs: &mpsc::
             let image = ImageSpec { camera, ..template.clone() };
             let mut rgb: Vec<[f32; 3]> = Vec::with_capacity(image.pixels());
             let mut busy = Duration::ZERO;
-            let superseded = |waiting: &std::collections::VecDeque<Job>| {
-                job.kind == Kind::Stream && waiting.iter().any(|j| j.kind == Kind::Stream)
-            };
+            // A newer stream supersedes a stream's level, and takes the renderer from a still.
+            let superseded = |waiting: &std::collections::VecDeque<Job>| waiting.iter().any(|j| j.kind == Kind::Stream);
+            let stop = if job.kind == Kind::Stream { SUPERSEDED } else { PREEMPTED };
             for (i, (y0, y1)) in bands(req.width, req.height).into_iter().enumerate() {
                 let allowance = if i == 0 && job.kind == Kind::Stream { REST_ALLOWANCE } else { Duration::ZERO };
                 // Rest what is owed beyond the allowance, listening for newer requests.
@@ -229,7 +313,7 @@ fn renderer(a: &ViewArgs, s: &TrainSettings, template: &ImageSpec, jobs: &mpsc::
                         waiting.push_back(j);
                     }
                     if superseded(&waiting) {
-                        bail!(SUPERSEDED);
+                        bail!(stop);
                     }
                 }
                 let t = Instant::now();
@@ -246,7 +330,7 @@ fn renderer(a: &ViewArgs, s: &TrainSettings, template: &ImageSpec, jobs: &mpsc::
                 paid_at = Instant::now();
                 waiting.extend(jobs.try_iter());
                 if y1 < req.height && superseded(&waiting) {
-                    bail!(SUPERSEDED);
+                    bail!(stop);
                 }
             }
             let mut png = Vec::new();
@@ -311,8 +395,10 @@ fn info_json(run: &Path, s: &TrainSettings, train: &mipnerf_core::data::Dataset)
     }
     let n = up.iter().map(|x| x * x).sum::<f64>().sqrt().max(1e-12);
     let start = test_poses.first().or(train_poses.first()).copied().context("no cameras")?;
+    // The run's folder name only: the API never tells a page where the run lies on the disk.
+    let name = run.canonicalize().ok().and_then(|p| p.file_name().map(|n| n.to_string_lossy().to_string()));
     Ok(serde_json::json!({
-        "run": run.display().to_string(),
+        "run": name.unwrap_or_else(|| "run".into()),
         "fov": fov,
         "up": up.map(|x| x / n),
         "start": start,
@@ -347,7 +433,7 @@ fn metrics_json(run: &Path) -> String {
 }
 
 /// A request's query parameters as a frame, or what is wrong with them.
-fn parse_frame(query: &str) -> Result<FrameRequest, String> {
+fn parse_frame(query: &str, max_side: u32) -> Result<FrameRequest, String> {
     let get = |k: &str| {
         query.split('&').find_map(|kv| kv.strip_prefix(k).and_then(|r| r.strip_prefix('='))).ok_or(format!("no {k}"))
     };
@@ -359,16 +445,19 @@ fn parse_frame(query: &str) -> Result<FrameRequest, String> {
         return Err("c2w must be 12 finite numbers (3 rows of 4)".into());
     }
     let side = |k: &str| -> Result<u32, String> {
-        get(k)?.parse::<u32>().ok().filter(|v| (1..=MAX_SIDE).contains(v)).ok_or(format!("{k} must be 1 to {MAX_SIDE}"))
+        get(k)?.parse::<u32>().ok().filter(|v| (1..=max_side).contains(v)).ok_or(format!("{k} must be 1 to {max_side}"))
     };
     let fov =
         get("fov")?.parse::<f64>().ok().filter(|f| *f > 0.01 && *f < 3.1).ok_or("fov must be 0.01 to 3.1 radians")?;
-    Ok(FrameRequest {
+    let req = FrameRequest {
         c2w: std::array::from_fn(|r| std::array::from_fn(|c| c2w[4 * r + c])),
         width: side("width")?,
         height: side("height")?,
         fov,
-    })
+    };
+    // The camera the renderer will make: one it would refuse is the request's fault (400).
+    Camera::from_camera_angle_x(req.width, req.height, req.fov, req.c2w).map_err(|e| format!("invalid camera: {e}"))?;
+    Ok(req)
 }
 
 fn render(tx: &mpsc::Sender<Job>, req: FrameRequest, kind: Kind) -> Result<Frame, String> {
@@ -382,8 +471,25 @@ fn respond(request: tiny_http::Request, code: u16, content_type: &str, body: Vec
     let _ = request.respond(tiny_http::Response::from_data(body).with_status_code(code).with_header(header));
 }
 
+/// What every request's thread shares.
+struct Shared {
+    /// The run's info (`/api/info`).
+    info: String,
+    /// The run folder.
+    run: PathBuf,
+    /// Who may ask.
+    policy: HostPolicy,
+    /// Stills queued or rendering ([`MAX_QUEUED_STILLS`]).
+    stills: std::sync::atomic::AtomicUsize,
+}
+
 /// One request: the page, the run's info and metrics, a frame, or a stream of frames.
-fn handle(request: tiny_http::Request, tx: &mpsc::Sender<Job>, info: &str, run: &Path) {
+fn handle(request: tiny_http::Request, tx: &mpsc::Sender<Job>, shared: &Shared) {
+    use std::sync::atomic::Ordering;
+    let (info, run) = (shared.info.as_str(), shared.run.as_path());
+    if let Some(why) = shared.policy.refusal(&request) {
+        return respond(request, 403, "text/plain", format!("forbidden: {why}").into_bytes());
+    }
     let url = request.url().to_string();
     let (path, query) = url.split_once('?').unwrap_or((&url, ""));
     if *request.method() != tiny_http::Method::Get {
@@ -393,12 +499,22 @@ fn handle(request: tiny_http::Request, tx: &mpsc::Sender<Job>, info: &str, run: 
         "/" | "/index.html" => respond(request, 200, "text/html; charset=utf-8", PAGE.as_bytes().to_vec()),
         "/api/info" => respond(request, 200, "application/json", info.as_bytes().to_vec()),
         "/api/metrics" => respond(request, 200, "application/json", metrics_json(run).into_bytes()),
-        "/api/render" => match parse_frame(query) {
+        "/api/render" => match parse_frame(query, MAX_STILL_SIDE) {
             Err(e) => respond(request, 400, "text/plain", e.into_bytes()),
-            Ok(req) => match render(tx, req, Kind::Still) {
-                Ok(f) => respond(request, 200, "image/png", f.png),
-                Err(e) => respond(request, 500, "text/plain", e.into_bytes()),
-            },
+            Ok(req) => {
+                if shared.stills.fetch_add(1, Ordering::SeqCst) >= MAX_QUEUED_STILLS {
+                    shared.stills.fetch_sub(1, Ordering::SeqCst);
+                    let busy = format!("busy: {MAX_QUEUED_STILLS} frames are already waiting; ask again");
+                    return respond(request, 503, "text/plain", busy.into_bytes());
+                }
+                let answer = render(tx, req, Kind::Still);
+                shared.stills.fetch_sub(1, Ordering::SeqCst);
+                match answer {
+                    Ok(f) => respond(request, 200, "image/png", f.png),
+                    Err(e) if e == PREEMPTED => respond(request, 503, "text/plain", e.into_bytes()),
+                    Err(e) => respond(request, 500, "text/plain", e.into_bytes()),
+                }
+            }
         },
         p if p.starts_with("/api/val/") => {
             // The latest validation render of one scale (`train --val-every`).
@@ -412,7 +528,7 @@ fn handle(request: tiny_http::Request, tx: &mpsc::Sender<Job>, info: &str, run: 
                 },
             }
         }
-        "/api/stream" => match parse_frame(query) {
+        "/api/stream" => match parse_frame(query, MAX_SIDE) {
             Err(e) => respond(request, 400, "text/plain", e.into_bytes()),
             Ok(req) => stream(request, tx, req),
         },

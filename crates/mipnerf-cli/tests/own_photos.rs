@@ -8,7 +8,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use common::{STDERR_FOLLOWS, mipnerf, run_ok};
+use common::{STDERR_FOLLOWS, copy_dir, run_err, run_ok};
 
 fn fixtures() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data")
@@ -30,29 +30,6 @@ fn pngs(dir: &Path) -> Vec<PathBuf> {
         .collect();
     v.sort();
     v
-}
-
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for e in std::fs::read_dir(from).unwrap() {
-        let e = e.unwrap();
-        let dest = to.join(e.file_name());
-        if e.file_type().unwrap().is_dir() {
-            copy_dir(&e.path(), &dest);
-        } else {
-            std::fs::copy(e.path(), dest).unwrap();
-        }
-    }
-}
-
-/// Fails with everything the binary said.
-fn run_err(args: &[&str]) -> String {
-    let out = mipnerf(args);
-    let text =
-        String::from_utf8_lossy(&out.stdout).to_string() + STDERR_FOLLOWS + &String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "mipnerf {args:?} should fail:\n{text}");
-    assert!(!text.contains("panicked"), "{text}");
-    text
 }
 
 #[test]

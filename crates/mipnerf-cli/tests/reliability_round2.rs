@@ -77,19 +77,6 @@ fn edited(data: &Path, to: &Path, key: &str, index: Option<usize>, value: &serde
     to.to_path_buf()
 }
 
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for e in std::fs::read_dir(from).unwrap() {
-        let p = e.unwrap().path();
-        let dest = to.join(p.file_name().unwrap());
-        if p.is_dir() {
-            copy_dir(&p, &dest);
-        } else {
-            std::fs::copy(&p, &dest).unwrap();
-        }
-    }
-}
-
 /// Finding 1: `render --out DATASET/images_test` wrote over the ground truth.
 #[test]
 fn a_render_never_replaces_files_mipnerf_did_not_write() {

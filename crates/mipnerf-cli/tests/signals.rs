@@ -124,17 +124,20 @@ fn convert_stops_on_a_signal_without_leaving_a_dataset_that_looks_complete() {
     }
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("lego64");
-    // A dataset converted before, then converted again and interrupted: no metadata.json is left,
-    // so nothing reads the half-written folder as a dataset.
+    // A dataset there before, converted over (--overwrite) and interrupted: the old dataset is
+    // left as it was (its index and no image of the new one beside it), the new images only in
+    // their temporary folder, so nothing reads a half-written folder as a dataset.
     std::fs::create_dir_all(&out).unwrap();
     std::fs::write(out.join("metadata.json"), "{}").unwrap();
-    let mut child =
-        spawn(&["convert", "--input", lego.to_str().unwrap(), "--output", out.to_str().unwrap(), "--size", "64"]);
-    wait_until(&mut child, "convert wrote an image", || !pngs(&out.join("images_train")).is_empty());
+    let args = ["convert", "--input", lego.to_str().unwrap(), "--output", out.to_str().unwrap(), "--size", "64"];
+    let mut child = spawn(&[&args[..], &["--overwrite"]].concat());
+    let partial = out.join(".mipnerf-partial-images_train");
+    wait_until(&mut child, "convert wrote an image", || !pngs(&partial).is_empty());
     signal(&child, "INT");
     let (code, err) = finish_within(child, 10);
     assert_eq!(code, Some(130), "{err}");
-    assert!(!out.join("metadata.json").exists(), "an interrupted convert left metadata.json");
+    assert_eq!(std::fs::read_to_string(out.join("metadata.json")).unwrap(), "{}", "the old index is kept");
+    assert!(!out.join("images_train").exists(), "an interrupted convert moved half a split in");
 }
 
 #[test]

@@ -46,9 +46,14 @@ fn start(args: &[&str]) -> Server {
 
 /// A GET over one connection: status, content type and body.
 fn get(addr: &str, path: &str) -> (u16, String, Vec<u8>) {
+    get_with(addr, path, &format!("Host: {addr}\r\n"))
+}
+
+/// [`get`] with the given header lines (each ending in CRLF) instead of the Host header.
+fn get_with(addr: &str, path: &str, headers: &str) -> (u16, String, Vec<u8>) {
     let mut s = TcpStream::connect(addr).unwrap();
     s.set_read_timeout(Some(Duration::from_secs(120))).unwrap();
-    write!(s, "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n").unwrap();
+    write!(s, "GET {path} HTTP/1.1\r\n{headers}Connection: close\r\n\r\n").unwrap();
     let mut bytes = Vec::new();
     s.read_to_end(&mut bytes).unwrap();
     let end = bytes.windows(4).position(|w| w == b"\r\n\r\n").expect("no header end") + 4;
@@ -210,7 +215,8 @@ fn the_viewer_serves_frames_coarse_to_fine_and_a_browser_moves_its_camera() {
         ("/nowhere", 404, "no such page"),
         ("/api/render?width=8&height=8&fov=0.7", 400, "no c2w"),
         ("/api/render?c2w=1,2,3&width=8&height=8&fov=0.7", 400, "12 finite numbers"),
-        (&format!("/api/render?{}", query(&info, 100_000, 8)), 400, "width must be 1 to 1024"),
+        (&format!("/api/render?{}", query(&info, 100_000, 8)), 400, "width must be 1 to 512"),
+        (&format!("/api/stream?{}", query(&info, 100_000, 8)), 400, "width must be 1 to 1024"),
         (&format!("/api/render?{}", query(&info, 8, 8)).replace("c2w=", "c2w=NaN,"), 400, "c2w"),
         (&format!("/api/stream?{}", query(&info, 8, 0)), 400, "height must be 1 to 1024"),
         ("/api/render?c2w=1,0,0,0,0,1,0,0,0,0,1,4&width=8&height=8&fov=9", 400, "fov"),
@@ -220,7 +226,7 @@ fn the_viewer_serves_frames_coarse_to_fine_and_a_browser_moves_its_camera() {
         assert!(String::from_utf8_lossy(&body).contains(why), "{path}: {}", String::from_utf8_lossy(&body));
     }
     let mut s = TcpStream::connect(addr).unwrap();
-    write!(s, "POST /api/render HTTP/1.1\r\nHost: x\r\nContent-Length: 0\r\nConnection: close\r\n\r\n").unwrap();
+    write!(s, "POST /api/render HTTP/1.1\r\nHost: {addr}\r\nContent-Length: 0\r\nConnection: close\r\n\r\n").unwrap();
     let mut reply = String::new();
     s.read_to_string(&mut reply).unwrap();
     assert!(reply.starts_with("HTTP/1.1 405"), "{reply}");
@@ -368,4 +374,75 @@ fn the_viewer_refuses_a_missing_run_and_a_busy_port_and_says_when_it_is_reachabl
     let _ = open.kill();
     let _ = open.wait();
     assert!(line.contains("reachable from other machines"), "{line}");
+}
+
+/// DNS rebinding and other sites' pages: a Host that is not the viewer's, an Origin or a
+/// Sec-Fetch-Site of another site are refused (403), and the info names no absolute path; an
+/// invalid camera is the request's fault (400); a still is capped in size, and a stream (the
+/// camera moved) takes the renderer from a still at once instead of waiting behind it.
+#[test]
+fn the_viewer_answers_only_its_own_pages_and_a_moving_camera_never_waits_behind_stills() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = common::small_demo_scene(dir.path(), 2);
+    let run = dir.path().join("run");
+    let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
+    run_ok(&["train", "--data", d, "--out", r, "--steps", "2", "--batch-rays", "16", "--backend", "cpu", "--quiet"]);
+    let server = start(&["view", "--run", r, "--port", "0"]);
+    let addr = server.addr.as_str();
+    let port = addr.rsplit(':').next().unwrap();
+    for host in ["attacker.example", &format!("attacker.example:{port}"), "127.0.0.1:1", "localhost.evil:80"] {
+        let (status, _, body) = get_with(addr, "/api/info", &format!("Host: {host}\r\n"));
+        assert_eq!(status, 403, "Host {host}: {}", String::from_utf8_lossy(&body));
+    }
+    let (status, _, _) = get_with(addr, "/api/info", "");
+    assert_eq!(status, 403, "no Host header");
+    for host in [format!("localhost:{port}"), format!("[::1]:{port}"), "127.0.0.1".to_string()] {
+        assert_eq!(get_with(addr, "/", &format!("Host: {host}\r\n")).0, 200, "Host {host}");
+    }
+    let own = format!("Host: {addr}\r\n");
+    let (status, _, _) = get_with(addr, "/api/info", &format!("{own}Origin: http://attacker.example\r\n"));
+    assert_eq!(status, 403, "another site's Origin");
+    let (status, _, _) = get_with(addr, "/api/info", &format!("{own}Origin: http://{addr}\r\n"));
+    assert_eq!(status, 200, "the page's own Origin");
+    let (status, _, _) = get_with(addr, "/api/metrics", &format!("{own}Sec-Fetch-Site: cross-site\r\n"));
+    assert_eq!(status, 403, "an <img> or fetch from another site");
+    let (status, _, _) = get_with(addr, "/api/metrics", &format!("{own}Sec-Fetch-Site: same-origin\r\n"));
+    assert_eq!(status, 200);
+    let (_, _, info) = get(addr, "/api/info");
+    let info: serde_json::Value = serde_json::from_slice(&info).unwrap();
+    assert_eq!(info["run"], "run", "the run's folder name, not where it lies: {info}");
+    assert!(!String::from_utf8_lossy(&serde_json::to_vec(&info).unwrap()).contains(dir.path().to_str().unwrap()));
+
+    // An invalid camera is a 400; a still larger than 512 px is refused.
+    let zero = "c2w=0,0,0,0,0,0,0,0,0,0,0,0&width=8&height=8&fov=0.7";
+    let (status, _, body) = get(addr, &format!("/api/render?{zero}"));
+    assert_eq!(status, 400, "{}", String::from_utf8_lossy(&body));
+    assert!(String::from_utf8_lossy(&body).contains("invalid camera"));
+    let (status, _, _) = get(addr, &format!("/api/render?{}", query(&info, 1024, 1024)));
+    assert_eq!(status, 400);
+
+    // A 512 px still is under way; a stream's first (1/8) frame comes without waiting for it,
+    // and the still is answered 503 (ask again).
+    let still = {
+        let (addr, q) = (addr.to_string(), query(&info, 512, 512));
+        std::thread::spawn(move || {
+            let t = Instant::now();
+            let (status, _, _) = get(&addr, &format!("/api/render?{q}"));
+            (status, t.elapsed())
+        })
+    };
+    std::thread::sleep(Duration::from_millis(300));
+    let t = Instant::now();
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(120))).unwrap();
+    write!(s, "GET /api/stream?{} HTTP/1.1\r\nHost: {addr}\r\n\r\n", query(&info, 256, 256)).unwrap();
+    let mut reader = BufReader::new(s);
+    let mut line = String::new();
+    while !line.starts_with("data: ") {
+        line.clear();
+        assert!(reader.read_line(&mut line).unwrap() > 0, "the stream ended without a frame");
+    }
+    let first_frame = t.elapsed();
+    let (status, took) = still.join().unwrap();
+    assert_eq!(status, 503, "the still gave way to the stream (it ran {took:?}; the frame came after {first_frame:?})");
 }

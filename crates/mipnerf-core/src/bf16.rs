@@ -280,7 +280,7 @@ pub fn matmul_bf16_on(
         matmul(c, a, la, b, lb, m, k, n, accumulate);
         return;
     }
-    let size = |x: usize, y: usize| x.checked_mul(y).unwrap_or_else(|| panic!("matmul_bf16: {x}x{y} overflows"));
+    let size = crate::linalg::checked_len;
     assert!(c.len() >= size(m, n), "matmul_bf16: c has {} < {m}x{n}", c.len());
     assert!(a.len() >= size(m, k), "matmul_bf16: a has {} < {m}x{k}", a.len());
     assert!(b.len() >= size(k, n), "matmul_bf16: b has {} < {k}x{n}", b.len());
@@ -325,8 +325,8 @@ pub fn matmul_bf16_emulated(
         matmul(c, a, la, b, lb, m, k, n, accumulate);
         return;
     }
-    let a: Vec<f32> = a[..m * k].iter().map(|&x| round_to_bf16(x)).collect();
-    let b: Vec<f32> = b[..k * n].iter().map(|&x| round_to_bf16(x)).collect();
+    let a: Vec<f32> = a[..crate::linalg::checked_len(m, k)].iter().map(|&x| round_to_bf16(x)).collect();
+    let b: Vec<f32> = b[..crate::linalg::checked_len(k, n)].iter().map(|&x| round_to_bf16(x)).collect();
     matmul(c, &a, la, &b, lb, m, k, n, accumulate);
 }
 
@@ -406,9 +406,10 @@ mod simd {
     /// [`super::pack_rows`], vectorised.
     pub(super) fn pack_rows(out: &mut Vec<u16>, a: &[f32], la: Layout, m: usize, k: usize, mp: usize, kp: usize) {
         assert!(super::Bf16Kernel::Avx512.check().is_ok(), "{FEATURES_CHECKED}");
-        assert!(a.len() >= m * k && mp >= m && kp >= k && kp.is_multiple_of(32) && mp.is_multiple_of(16));
+        let size = crate::linalg::checked_len;
+        assert!(a.len() >= size(m, k) && mp >= m && kp >= k && kp.is_multiple_of(32) && mp.is_multiple_of(16));
         // Every element below (m, k) is written; only the padding is zeroed.
-        out.resize(mp * kp, 0);
+        out.resize(size(mp, kp), 0);
         for i in 0..mp {
             let from = if i < m { k } else { 0 };
             for p in from..kp {
@@ -428,12 +429,13 @@ mod simd {
     /// gradients' `dz`); the transposed case (a layer's kernel, small) is the scalar reference.
     pub(super) fn pack_pairs(out: &mut Vec<u32>, b: &[f32], lb: Layout, k: usize, n: usize, kp: usize, np: usize) {
         assert!(super::Bf16Kernel::Avx512.check().is_ok(), "{FEATURES_CHECKED}");
-        assert!(b.len() >= k * n && kp >= k && np >= n && kp.is_multiple_of(2));
+        let size = crate::linalg::checked_len;
+        assert!(b.len() >= size(k, n) && kp >= k && np >= n && kp.is_multiple_of(2));
         match lb {
             Layout::Normal => {
                 // Every pair row below k (the last one's high half zero when k is odd) and column
                 // below n is written; only the padding is zeroed.
-                out.resize(kp / 2 * np, 0);
+                out.resize(size(kp / 2, np), 0);
                 for q in 0..kp / 2 {
                     let from = if q < k.div_ceil(2) { n } else { 0 };
                     for j in from..np {
@@ -716,7 +718,8 @@ mod amx {
     ) {
         assert!(super::Bf16Kernel::Amx.check().is_ok(), "the AMX kernel on a CPU without AMX");
         assert!(mp.is_multiple_of(BLOCK) && np.is_multiple_of(BLOCK) && kp.is_multiple_of(K_STEP));
-        assert!(a.len() >= mp * kp && b.len() >= kp / 2 * np && c.len() >= m * n);
+        let size = crate::linalg::checked_len;
+        assert!(a.len() >= size(mp, kp) && b.len() >= size(kp / 2, np) && c.len() >= size(m, n));
         let cfg = TileConfig::all_16x64();
         let k_tiles = kp / K_STEP;
         let mut scratch = [0f32; BLOCK * BLOCK];
@@ -871,7 +874,8 @@ mod avx512 {
         assert!(super::Bf16Kernel::Avx512.check().is_ok(), "the AVX-512 BF16 kernel on a CPU without it");
         assert!(mp.is_multiple_of(BLOCK) && np.is_multiple_of(BLOCK) && kp.is_multiple_of(K_STEP));
         assert!(mp >= m && np >= n);
-        assert!(a.len() >= mp * kp && b.len() >= kp / 2 * np && c.len() >= m * n);
+        let size = crate::linalg::checked_len;
+        assert!(a.len() >= size(mp, kp) && b.len() >= size(kp / 2, np) && c.len() >= size(m, n));
         for k0 in (0..kp).step_by(KC) {
             let k1 = (k0 + KC).min(kp);
             for i0 in (0..m).step_by(ROWS) {

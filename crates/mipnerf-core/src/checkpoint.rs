@@ -90,77 +90,16 @@ fn le_bytes(v: &[f32]) -> Vec<u8> {
 /// tensors).
 pub const CHECKSUM_KEY: &str = "sha256";
 
-/// The file operations of an atomic write, a seam so that tests can make any of them fail.
-pub trait FileOps {
-    /// Creates (or truncates) `path`, writes `bytes` and flushes them to the disk (`fsync`).
-    ///
-    /// # Errors
-    /// What the system said.
-    fn write_synced(&mut self, path: &Path, bytes: &[u8]) -> std::io::Result<()>;
-    /// Renames `from` to `to`, replacing `to` atomically.
-    ///
-    /// # Errors
-    /// What the system said.
-    fn rename(&mut self, from: &Path, to: &Path) -> std::io::Result<()>;
-    /// Flushes the directory `dir` itself (the rename) to the disk.
-    ///
-    /// # Errors
-    /// What the system said.
-    fn sync_dir(&mut self, dir: &Path) -> std::io::Result<()>;
-}
+pub use crate::io::{FileOps, RealFs};
 
-/// The real file system.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct RealFs;
-
-impl FileOps for RealFs {
-    fn write_synced(&mut self, path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-        use std::io::Write;
-        let mut f = std::fs::File::create(path)?;
-        f.write_all(bytes)?;
-        f.sync_all()
-    }
-
-    fn rename(&mut self, from: &Path, to: &Path) -> std::io::Result<()> {
-        std::fs::rename(from, to)
-    }
-
-    fn sync_dir(&mut self, dir: &Path) -> std::io::Result<()> {
-        // Directories can be opened and synced on Unix; elsewhere the rename is what we have.
-        #[cfg(unix)]
-        {
-            std::fs::File::open(dir)?.sync_all()
-        }
-        #[cfg(not(unix))]
-        {
-            let _ = dir;
-            Ok(())
-        }
-    }
-}
-
-/// Writes `bytes` to `path` so that `path` holds either its previous content or all of
-/// `bytes`, never a mix, even across a crash or a power loss: to `path` + `.tmp` (synced), renamed
-/// over `path`, then the directory synced. A failure removes the temporary file and leaves `path`
-/// as it was.
+/// Writes `bytes` to `path` atomically through `fs` ([`crate::io::write_atomic_with`]): `path`
+/// holds either its previous content or all of `bytes`, never a mix, even across a crash or a
+/// power loss. A failure removes the temporary file and leaves `path` as it was.
 ///
 /// # Errors
 /// The failing operation's error, naming the file.
 pub fn write_atomic(path: &Path, bytes: &[u8], fs: &mut dyn FileOps) -> Result<(), CheckpointError> {
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    let tmp = std::path::PathBuf::from(tmp);
-    let io = |p: &Path, e: std::io::Error| CheckpointError::Io { path: p.to_path_buf(), error: e };
-    if let Err(e) = fs.write_synced(&tmp, bytes) {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(io(&tmp, e));
-    }
-    if let Err(e) = fs.rename(&tmp, path) {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(io(path, e));
-    }
-    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    fs.sync_dir(dir).map_err(|e| io(dir, e))
+    crate::io::write_atomic_with(path, bytes, fs).map_err(|e| CheckpointError::Io { path: e.path, error: e.error })
 }
 
 /// The SHA-256 (lower-case hex) of a checkpoint's content: every metadata entry but the checksum
@@ -245,6 +184,72 @@ pub fn save(path: &Path, model: &Model, ckpt: &Checkpoint) -> Result<(), Checkpo
 /// # Errors
 /// As [`save`].
 pub fn save_with(path: &Path, model: &Model, ckpt: &Checkpoint, fs: &mut dyn FileOps) -> Result<(), CheckpointError> {
+    save_inner(path, model, ckpt, None, fs)
+}
+
+/// What rendering a saved model needs beside its parameters: the model's configuration (its
+/// background, ray shape, encodings) and how pixels become rays (bounds, pixel centres, the NDC
+/// mapping of forward-facing data). [`save_for_rendering`] stores it in the metadata (`render`,
+/// as JSON) and [`render_settings`] reads it back, so that a model loaded without its data
+/// renders as it did.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RenderSettings {
+    /// The model's configuration.
+    pub model: crate::model::ModelConfig,
+    /// Near bound along every ray.
+    pub near: f32,
+    /// Far bound along every ray.
+    pub far: f32,
+    /// Rays through pixel centres or corners.
+    pub centers: crate::camera::PixelCenters,
+    /// The NDC mapping of forward-facing scenes.
+    pub ndc: Option<crate::data::Ndc>,
+}
+
+/// The metadata key of [`RenderSettings`].
+pub const RENDER_KEY: &str = "render";
+
+/// [`save`], with the settings a render needs stored beside the state ([`RenderSettings`]).
+///
+/// # Errors
+/// As [`save`].
+pub fn save_for_rendering(
+    path: &Path,
+    model: &Model,
+    ckpt: &Checkpoint,
+    render: &RenderSettings,
+) -> Result<(), CheckpointError> {
+    save_inner(path, model, ckpt, Some(render), &mut RealFs)
+}
+
+/// The [`RenderSettings`] stored in the checkpoint at `path`, or `None` for a checkpoint saved
+/// without them. The checksum covers them; [`load`] verifies it.
+///
+/// # Errors
+/// An unreadable, damaged or foreign file, or settings that cannot be read.
+pub fn render_settings(path: &Path) -> Result<Option<RenderSettings>, CheckpointError> {
+    let bytes = std::fs::read(path).map_err(|e| CheckpointError::Io { path: path.to_path_buf(), error: e })?;
+    let (_, header) =
+        SafeTensors::read_metadata(&bytes).map_err(|e| invalid(path, format!("not a safetensors file: {e}")))?;
+    let meta = header.metadata().clone().unwrap_or_default();
+    if meta.get("format").map(String::as_str) != Some(FORMAT) {
+        return Err(invalid(path, format!("not a {FORMAT} file (format {:?})", meta.get("format"))));
+    }
+    meta.get(RENDER_KEY)
+        .map(|text| {
+            serde_json::from_str(text).map_err(|e| invalid(path, format!("the render settings are not readable: {e}")))
+        })
+        .transpose()
+}
+
+fn save_inner(
+    path: &Path,
+    model: &Model,
+    ckpt: &Checkpoint,
+    render: Option<&RenderSettings>,
+    fs: &mut dyn FileOps,
+) -> Result<(), CheckpointError> {
     let n = model.num_params();
     if ckpt.params.len() != n || ckpt.adam.m.len() != n || ckpt.adam.v.len() != n {
         return Err(invalid(path, format!("state has {} parameters, the model {n}", ckpt.params.len())));
@@ -279,6 +284,12 @@ pub fn save_with(path: &Path, model: &Model, ckpt: &Checkpoint, fs: &mut dyn Fil
         let cfg = serde_json::to_string(&g.config).map_err(|e| invalid(path, e.to_string()))?;
         meta.push(("occupancy", cfg));
         meta.push(("occupancy_warmed_up", g.warmed_up.to_string()));
+    }
+    if let Some(render) = render {
+        if render.model != *model.config() {
+            return Err(invalid(path, "the render settings describe another model than the one saved"));
+        }
+        meta.push((RENDER_KEY, serde_json::to_string(render).map_err(|e| invalid(path, e.to_string()))?));
     }
     write_atomic(path, &safetensors_bytes(buffers, &meta), fs)
 }

@@ -384,7 +384,7 @@ pub fn write_mesh_ply(path: &Path, mesh: &Mesh) -> std::io::Result<()> {
     let mut out = Vec::with_capacity(mesh.vertices.len() * 27 + mesh.triangles.len() * 13 + 512);
     write!(
         out,
-        "ply\nformat binary_little_endian 1.0\ncomment made by mipnerf export (marching cubes of the density)\n\
+        "{PLY_SIGNATURE} (marching cubes of the density)\n\
          element vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
          property float nx\nproperty float ny\nproperty float nz\n\
          property uchar red\nproperty uchar green\nproperty uchar blue\n\
@@ -417,7 +417,7 @@ pub fn write_points_ply(path: &Path, points: &[Vec3], colors: &[[u8; 3]]) -> std
     let mut out = Vec::with_capacity(points.len() * 15 + 256);
     write!(
         out,
-        "ply\nformat binary_little_endian 1.0\ncomment made by mipnerf export (expected depth of rays)\n\
+        "{PLY_SIGNATURE} (expected depth of rays)\n\
          element vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
          property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n",
         points.len()
@@ -431,11 +431,42 @@ pub fn write_points_ply(path: &Path, points: &[Vec3], colors: &[[u8; 3]]) -> std
     write_atomically(path, &out)
 }
 
+/// How every PLY file [`write_mesh_ply`] and [`write_points_ply`] write begins: what tells a file
+/// `mipnerf export --overwrite` may replace ([`written_by_export`]) from any other.
+pub const PLY_SIGNATURE: &str = "ply\nformat binary_little_endian 1.0\ncomment made by mipnerf export";
+
+/// Whether `path` is a regular file (not a link, a folder or a device) that begins with
+/// [`PLY_SIGNATURE`].
+#[must_use]
+pub fn written_by_export(path: &Path) -> bool {
+    use std::io::Read;
+    let regular = std::fs::symlink_metadata(path).is_ok_and(|m| m.file_type().is_file());
+    let mut head = vec![0u8; PLY_SIGNATURE.len()];
+    regular
+        && std::fs::File::open(path).and_then(|mut f| f.read_exact(&mut head)).is_ok()
+        && head == PLY_SIGNATURE.as_bytes()
+}
+
+/// Bytes of memory [`extract_mesh`] holds per node of its grid at its peak, inside
+/// [`density_field`]: every node's Gaussian and view direction, the model's output per node, and
+/// the field's values (the marching cubes' mesh and the mask of sampled space come after the
+/// first three are freed). Against the peak resident memory of real exports:
+/// `docs/results/export/memory.txt`.
+pub const MESH_BYTES_PER_NODE: u64 = (std::mem::size_of::<Gaussian>()
+    + std::mem::size_of::<Vec3>()
+    + std::mem::size_of::<(f32, [f32; 3])>()
+    + std::mem::size_of::<f32>()) as u64;
+
+/// The nodes of the grid [`extract_mesh`] evaluates for `resolution` cells along the longest side
+/// of a box of `size`.
+#[must_use]
+pub fn mesh_nodes(size: Vec3, resolution: usize) -> u64 {
+    let cell = size.max_element() / resolution as f32;
+    [size.x, size.y, size.z].iter().map(|s| ((s / cell).round() as u64).max(1) + 1).product()
+}
+
 fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let name = path.file_name().map_or_else(|| "export".into(), |n| n.to_string_lossy().into_owned());
-    let tmp = path.with_file_name(format!(".{name}.partial"));
-    std::fs::write(&tmp, bytes)?;
-    std::fs::rename(&tmp, path)
+    crate::io::write_atomic(path, bytes).map_err(|e| e.error)
 }
 
 #[cfg(test)]

@@ -37,6 +37,7 @@ pub mod compare;
 pub mod cone;
 pub mod data;
 pub mod export;
+pub mod io;
 pub mod linalg;
 pub mod lpips;
 pub mod memory;

@@ -14,11 +14,22 @@ pub enum Layout {
     Transposed,
 }
 
+/// The element count of a `rows x cols` matrix, checked: every size an `unsafe` block's bounds
+/// rest on is computed here, so that sizes whose product overflows are a panic, never a wrapped
+/// count that a short slice would pass.
+///
+/// # Panics
+/// If `rows * cols` overflows `usize`.
+#[must_use]
+pub fn checked_len(rows: usize, cols: usize) -> usize {
+    rows.checked_mul(cols).unwrap_or_else(|| panic!("a {rows} x {cols} matrix has more elements than usize holds"))
+}
+
 /// `c (m x n) = [c +] a (m x k) · b (k x n)`, with `a` and `b` stored as `la` and `lb` say, and
 /// `c` overwritten (`accumulate == false`) or added to.
 ///
 /// # Panics
-/// If a slice is shorter than its shape needs.
+/// If a slice is shorter than its shape needs, or a size product overflows ([`checked_len`]).
 pub fn matmul(
     c: &mut [f32],
     a: &[f32],
@@ -30,9 +41,9 @@ pub fn matmul(
     n: usize,
     accumulate: bool,
 ) {
-    assert!(c.len() >= m * n, "matmul: c has {} < {m}x{n}", c.len());
-    assert!(a.len() >= m * k, "matmul: a has {} < {m}x{k}", a.len());
-    assert!(b.len() >= k * n, "matmul: b has {} < {k}x{n}", b.len());
+    assert!(c.len() >= checked_len(m, n), "matmul: c has {} < {m}x{n}", c.len());
+    assert!(a.len() >= checked_len(m, k), "matmul: a has {} < {m}x{k}", a.len());
+    assert!(b.len() >= checked_len(k, n), "matmul: b has {} < {k}x{n}", b.len());
     if m == 0 || n == 0 {
         return;
     }
@@ -82,6 +93,35 @@ pub fn matmul(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Sizes whose products overflow `usize` would wrap to small counts that empty slices pass,
+    /// and `gemm` would then read far out of bounds: they panic before any `unsafe` code.
+    #[test]
+    fn sizes_whose_product_overflows_panic_before_the_product() {
+        for (m, k, n) in [(1usize << 60, 1 << 4, 1), (1, 1 << 60, 1 << 4), (1 << 33, 1, 1 << 33)] {
+            let caught = std::panic::catch_unwind(|| {
+                let mut c = Vec::new();
+                matmul(&mut c, &[], Layout::Normal, &[], Layout::Normal, m, k, n, false);
+            });
+            let message = caught.expect_err("an overflowing shape must panic");
+            let text = message.downcast_ref::<String>().cloned().unwrap_or_default();
+            assert!(text.contains("matrix") || text.contains("matmul"), "{m}x{k}x{n}: {text}");
+        }
+        let caught = std::panic::catch_unwind(|| {
+            crate::bf16::matmul_bf16_emulated(
+                &mut [],
+                &[],
+                Layout::Normal,
+                &[],
+                Layout::Normal,
+                1 << 60,
+                1 << 4,
+                16,
+                false,
+            )
+        });
+        assert!(caught.is_err(), "the bf16 emulation checks its sizes too");
+    }
 
     fn naive(a: &[f32], la: Layout, b: &[f32], lb: Layout, m: usize, k: usize, n: usize) -> Vec<f32> {
         let at = |i: usize, p: usize| {

@@ -56,3 +56,28 @@ pub fn chromium(what: &str) -> Option<&'static str> {
     }
     found
 }
+
+/// Runs the binary, asserts that it fails with exit code 1 and without a panic, and returns its
+/// standard output, [`STDERR_FOLLOWS`] and its standard error.
+pub fn run_err(args: &[&str]) -> String {
+    let out = mipnerf(args);
+    let text =
+        String::from_utf8_lossy(&out.stdout).to_string() + STDERR_FOLLOWS + &String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "mipnerf {args:?} should fail:\n{text}");
+    assert!(!text.contains("panicked"), "{text}");
+    text
+}
+
+/// Copies the folder `from` to `to`, recursively.
+pub fn copy_dir(from: &std::path::Path, to: &std::path::Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        let dest = to.join(e.file_name());
+        if e.file_type().unwrap().is_dir() {
+            copy_dir(&e.path(), &dest);
+        } else {
+            std::fs::copy(e.path(), dest).unwrap();
+        }
+    }
+}

@@ -466,6 +466,7 @@ fn read_points_txt(path: &Path) -> Result<Vec<ColmapPoint>, DataError> {
 /// off-centre principal point), an unsupported camera model, an image with an unknown camera,
 /// a non-unit or non-finite rotation, an image that sees no 3D point (no bounds), or no images.
 pub fn poses_bounds(model: &ColmapModel, model_dir: &Path) -> Result<(Vec<[f64; 17]>, Vec<String>), DataError> {
+    check_model(model, model_dir)?;
     let cams = model_dir.join("cameras");
     let imgs = model_dir.join("images");
     let first = model.cameras.first().ok_or_else(|| DataError::invalid(&cams, "no cameras"))?;
@@ -545,6 +546,33 @@ pub fn poses_bounds(model: &ColmapModel, model_dir: &Path) -> Result<(Vec<[f64; 
         }
         d.sort_by(f64::total_cmp);
         let (near, far) = (llff::percentile(d, 0.1), llff::percentile(d, 99.9));
+        let im = &model.images[i];
+        if near.is_nan() || near <= 0.0 {
+            return Err(DataError::invalid(
+                &imgs,
+                format!(
+                    "image {} ({}): its 3D points lie behind it (near bound {}): the model's poses or points are \
+                     wrong; reconstruct again",
+                    im.id,
+                    im.name,
+                    super::show(near)
+                ),
+            ));
+        }
+        if !(far.is_finite() && far <= MAX_DEPTH_RATIO * near) {
+            return Err(DataError::invalid(
+                &imgs,
+                format!(
+                    "image {} ({}): its 3D points reach from {} to {} away, more than {} times as far as near: an \
+                     outlier point the model should not hold; remove it (or reconstruct again)",
+                    im.id,
+                    im.name,
+                    super::show(near),
+                    super::show(far),
+                    super::show(MAX_DEPTH_RATIO)
+                ),
+            ));
+        }
         let (a, b, c, t) = poses[i];
         let hwf = [h, w, f];
         let mut row = [0.0; 17];
@@ -556,6 +584,56 @@ pub fn poses_bounds(model: &ColmapModel, model_dir: &Path) -> Result<(Vec<[f64; 
         rows.push(row);
     }
     Ok((rows, order.iter().map(|&i| model.images[i].name.clone()).collect()))
+}
+
+/// The most the far bound of a photo may be over its near bound: real scenes span far less (the
+/// LLFF scenes 10 to 100); more means an outlier 3D point, whose far bound would stretch every
+/// sample of that photo's rays over empty space.
+pub const MAX_DEPTH_RATIO: f64 = 1e6;
+
+/// Refuses a model whose images or points make no sense, naming the image or point: duplicate
+/// image ids or names, an image of a camera the model does not have, an image name that leads
+/// out of `images/` (`..`, an absolute path), a 3D point that is not finite.
+///
+/// # Errors
+/// The first problem found, naming the file of the model it is in.
+pub fn check_model(model: &ColmapModel, model_dir: &Path) -> Result<(), DataError> {
+    let imgs = model_dir.join("images");
+    let camera_ids: HashSet<u32> = model.cameras.iter().map(|c| c.id).collect();
+    let (mut ids, mut names) = (HashSet::new(), HashSet::new());
+    for im in &model.images {
+        let what = format!("image {} ({})", im.id, im.name);
+        if !ids.insert(im.id) {
+            return Err(DataError::invalid(&imgs, format!("{what}: image id {} is given twice", im.id)));
+        }
+        if !names.insert(im.name.as_str()) {
+            return Err(DataError::invalid(&imgs, format!("{what}: the name {:?} is given twice", im.name)));
+        }
+        if !camera_ids.contains(&im.camera_id) {
+            return Err(DataError::invalid(
+                &imgs,
+                format!("{what} uses camera {}, which the model's cameras do not have", im.camera_id),
+            ));
+        }
+        let inside = !im.name.is_empty()
+            && Path::new(&im.name).components().all(|c| matches!(c, std::path::Component::Normal(_)));
+        if !inside {
+            return Err(DataError::invalid(
+                &imgs,
+                format!("{what}: the name leads out of images/ (only names inside the folder are read)"),
+            ));
+        }
+        if im.qvec.iter().chain(&im.tvec).any(|x| !x.is_finite()) {
+            return Err(DataError::invalid(&imgs, format!("{what}: its pose is not finite")));
+        }
+    }
+    if let Some(p) = model.points.iter().find(|p| p.xyz.iter().any(|x| !x.is_finite())) {
+        return Err(DataError::invalid(
+            &model_dir.join("points3D"),
+            format!("a 3D point at {:?} is not finite", p.xyz),
+        ));
+    }
+    Ok(())
 }
 
 /// Refuses a camera the LLFF format cannot hold, with what to do instead.
@@ -693,24 +771,28 @@ impl Scene {
 
 /// `mipnerf convert --to llff`: writes `out/poses_bounds.npy` for the COLMAP scene in `input` and
 /// its registered images, sorted by name, as PNGs in `out/images` (factor 0 or 1) or
-/// `out/images_{factor}`, so that the LLFF loader (or the official code) reads `out`.
+/// `out/images_{factor}`, so that the LLFF loader (or the official code) reads `out`. The images
+/// are written under a temporary name and replace the folder whole (never mixed into it), and
+/// `poses_bounds.npy` is written last; nothing in `out` is touched before the scene is read.
 ///
 /// # Errors
 /// The errors of [`load`]'s steps, and unwritable files.
 pub fn convert_to_llff(input: &Path, out: &Path, factor: u32) -> Result<Vec<String>, DataError> {
     let Scene { rows, names, images, .. } = Scene::read(input, factor)?;
     let folder = if factor > 1 { out.join(format!("images_{factor}")) } else { out.join("images") };
-    std::fs::create_dir_all(&folder).map_err(|e| DataError::io(&folder, e))?;
-    // poses_bounds.npy is written last, so a conversion that stops part-way never looks complete.
+    std::fs::create_dir_all(out).map_err(|e| DataError::io(out, e))?;
+    let partial = crate::io::start_partial_dir(&folder)?;
+    for (i, im) in images.iter().enumerate() {
+        // Numbered in name order, so any reader that sorts the folder finds them in the rows' order.
+        let stem = Path::new(&names[i]).file_stem().map_or_else(String::new, |s| s.to_string_lossy().into_owned());
+        super::write_png_rgba(&partial.join(format!("{i:04}_{stem}.png")), im.width, im.height, &im.rgba)?;
+    }
+    // The new images are whole: only now does the old dataset stop being whole.
     let npy = out.join("poses_bounds.npy");
     if npy.is_file() {
         std::fs::remove_file(&npy).map_err(|e| DataError::io(&npy, e))?;
     }
-    for (i, im) in images.iter().enumerate() {
-        // Numbered in name order, so any reader that sorts the folder finds them in the rows' order.
-        let stem = Path::new(&names[i]).file_stem().map_or_else(String::new, |s| s.to_string_lossy().into_owned());
-        super::write_png_rgba(&folder.join(format!("{i:04}_{stem}.png")), im.width, im.height, &im.rgba)?;
-    }
+    crate::io::swap_in_dir(&folder)?;
     llff::write_poses_bounds(&npy, &rows)?;
     Ok(names)
 }

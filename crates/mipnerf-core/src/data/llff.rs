@@ -172,21 +172,24 @@ pub fn read_poses_bounds(path: &Path) -> Result<Vec<[f64; 17]>, DataError> {
     Ok(values.chunks_exact(17).map(|c| std::array::from_fn(|i| c[i])).collect())
 }
 
-/// Writes `poses_bounds.npy` (float64, `N x 17`).
+/// Writes `poses_bounds.npy` (float64, `N x 17`) atomically ([`crate::io::write_atomic`]).
 ///
 /// # Errors
 /// [`DataError`] for an unwritable file.
 pub fn write_poses_bounds(path: &Path, rows: &[[f64; 17]]) -> Result<(), DataError> {
     use npyz::WriterBuilder;
-    let file = std::fs::File::create(path).map_err(|e| DataError::io(path, e))?;
-    let mut w = npyz::WriteOptions::new()
-        .default_dtype()
-        .shape(&[rows.len() as u64, 17])
-        .writer(std::io::BufWriter::new(file))
-        .begin_nd()
-        .map_err(|e| DataError::io(path, e))?;
-    w.extend(rows.iter().flatten().copied()).map_err(|e| DataError::io(path, e))?;
-    w.finish().map_err(|e| DataError::io(path, e))
+    let mut bytes = Vec::with_capacity(128 + rows.len() * 17 * 8);
+    {
+        let mut w = npyz::WriteOptions::new()
+            .default_dtype()
+            .shape(&[rows.len() as u64, 17])
+            .writer(std::io::Cursor::new(&mut bytes))
+            .begin_nd()
+            .map_err(|e| DataError::io(path, e))?;
+        w.extend(rows.iter().flatten().copied()).map_err(|e| DataError::io(path, e))?;
+        w.finish().map_err(|e| DataError::io(path, e))?;
+    }
+    Ok(crate::io::write_atomic(path, &bytes)?)
 }
 
 fn image_files(dir: &Path) -> Result<Vec<std::path::PathBuf>, DataError> {

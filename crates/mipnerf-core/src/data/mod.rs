@@ -172,7 +172,7 @@ impl View {
 
 /// Maps rays to normalised device coordinates (forward-facing scenes, the official
 /// `convert_to_ndc` with the near plane at 1).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Ndc {
     /// Focal length in pixels.
     pub focal: f32,
@@ -565,10 +565,34 @@ pub fn load(dir: &Path, split: Split, opts: &LoadOptions) -> Result<Dataset, Dat
 pub(crate) fn read_png_rgba(path: &Path) -> Result<(u32, u32, Vec<u8>, u8), DataError> {
     let reader = image::ImageReader::open(path).map_err(|e| DataError::io(path, e))?;
     let reader = reader.with_guessed_format().map_err(|e| DataError::io(path, e))?;
+    if reader.format() == Some(image::ImageFormat::Jpeg) {
+        check_jpeg_end(path)?;
+    }
     let img = reader.decode().map_err(|e| DataError::invalid(path, format!("cannot decode the image: {e}")))?;
     let channels = img.color().channel_count();
     let rgba = img.to_rgba8();
     Ok((rgba.width(), rgba.height(), rgba.into_raw(), channels))
+}
+
+/// Refuses a JPEG cut short: the decoder fills what is missing with grey and says nothing, so a
+/// file must end with its end-of-image marker (`FF D9`; trailing zero bytes allowed), as every
+/// camera and encoder writes it.
+fn check_jpeg_end(path: &Path) -> Result<(), DataError> {
+    use std::io::{Read, Seek, SeekFrom};
+    let mut f = std::fs::File::open(path).map_err(|e| DataError::io(path, e))?;
+    let len = f.metadata().map_err(|e| DataError::io(path, e))?.len();
+    let mut tail = vec![0u8; len.min(4096) as usize];
+    f.seek(SeekFrom::Start(len - tail.len() as u64))
+        .and_then(|_| f.read_exact(&mut tail))
+        .map_err(|e| DataError::io(path, e))?;
+    let end = tail.iter().rposition(|&b| b != 0).map_or(0, |i| i + 1);
+    if end < 2 || tail[end - 2..end] != [0xFF, 0xD9] {
+        return Err(DataError::invalid(
+            path,
+            "the JPEG is cut short (no end-of-image marker): the file was not copied whole; copy it again",
+        ));
+    }
+    Ok(())
 }
 
 /// Checks that `pixels` images' worth of straight RGBA8 (4 bytes a pixel, as loaded) fits in
@@ -590,10 +614,18 @@ pub(crate) fn image_pixels(path: &Path) -> Result<u64, DataError> {
     Ok(u64::from(w) * u64::from(h))
 }
 
-/// Writes straight RGBA8 as a PNG.
+/// Writes straight RGBA8 as a PNG, whole or not at all ([`crate::io::replace_with`]).
 pub(crate) fn write_png_rgba(path: &Path, width: u32, height: u32, rgba: &[u8]) -> Result<(), DataError> {
-    image::save_buffer(path, rgba, width, height, image::ExtendedColorType::Rgba8)
-        .map_err(|e| DataError::invalid(path, format!("cannot write the PNG: {e}")))
+    crate::io::replace_with(path, |tmp| {
+        image::save_buffer(tmp, rgba, width, height, image::ExtendedColorType::Rgba8)
+            .map_err(|e| DataError::invalid(path, format!("cannot write the PNG: {e}")))
+    })
+}
+
+impl From<crate::io::IoError> for DataError {
+    fn from(e: crate::io::IoError) -> Self {
+        Self::Io { path: e.path, error: e.error }
+    }
 }
 
 /// A 3x4 camera-to-world matrix from a JSON 4x4 (or 3x4) array, checked for finiteness.

@@ -38,7 +38,9 @@ pub fn quantise(rgba: &[f32]) -> Vec<u8> {
 }
 
 /// Writes one split's images at `n_scales` scales into `out/images_{split}/` and returns its
-/// `metadata.json` entry. `focal` is the full-resolution focal length in pixels.
+/// `metadata.json` entry. `focal` is the full-resolution focal length in pixels. The folder is
+/// filled under a temporary name and replaces `out/images_{split}/` only when whole
+/// ([`crate::io::swap_in_dir`]).
 ///
 /// # Errors
 /// [`DataError`] for sizes not divisible by `2^n_scales` (the official converter's requirement)
@@ -52,8 +54,24 @@ pub fn write_split(
     near: f64,
     far: f64,
 ) -> Result<Value, DataError> {
+    let meta = fill_split(out, split, images, focal, n_scales, near, far)?;
+    crate::io::swap_in_dir(&out.join(format!("images_{split}")))?;
+    Ok(meta)
+}
+
+/// [`write_split`] up to the swap: the images are left in the temporary folder
+/// ([`crate::io::partial_dir`] of `out/images_{split}`).
+fn fill_split(
+    out: &Path,
+    split: Split,
+    images: &[SourceImage],
+    focal: f64,
+    n_scales: u32,
+    near: f64,
+    far: f64,
+) -> Result<Value, DataError> {
     let imgdir = format!("images_{split}");
-    std::fs::create_dir_all(out.join(&imgdir)).map_err(|e| DataError::io(&out.join(&imgdir), e))?;
+    let partial = crate::io::start_partial_dir(&out.join(&imgdir))?;
     let mut meta: Vec<(&str, Vec<Value>)> =
         ["file_path", "cam2world", "width", "height", "focal", "label", "near", "far", "lossmult", "pix2cam"]
             .into_iter()
@@ -69,8 +87,9 @@ pub fn write_split(
         }
         let (mut w, mut h, mut px) = (img.width, img.height, img.rgba.clone());
         for j in 0..n_scales {
-            let rel = format!("{imgdir}/{i:03}_d{j}.png");
-            write_png_rgba(&out.join(&rel), w, h, &quantise(&px))?;
+            let name = format!("{i:03}_d{j}.png");
+            write_png_rgba(&partial.join(&name), w, h, &quantise(&px))?;
+            let rel = format!("{imgdir}/{name}");
             let f = focal / f64::from(1u32 << j);
             let c2w: Vec<Vec<f64>> =
                 img.cam2world.iter().map(|r| r.to_vec()).chain([vec![0.0, 0.0, 0.0, 1.0]]).collect();
@@ -126,18 +145,30 @@ pub fn convert_resized(input: &Path, output: &Path, width: Option<u32>) -> Resul
             format!("a width of {n} px: the width must be at least 16 and divisible by 8 (for the 1/8 scale)"),
         ));
     }
-    std::fs::create_dir_all(output).map_err(|e| DataError::io(output, e))?;
-    // metadata.json is written last, so a conversion that stops part-way never looks complete.
-    let meta_path = output.join("metadata.json");
-    if meta_path.is_file() {
-        std::fs::remove_file(&meta_path).map_err(|e| DataError::io(&meta_path, e))?;
+    let present: Vec<Split> = [Split::Train, Split::Val, Split::Test]
+        .into_iter()
+        .filter(|split| input.join(format!("transforms_{split}.json")).is_file())
+        .collect();
+    if present.is_empty() {
+        let why = if input.join("sparse").is_dir() {
+            "no transforms_{train,val,test}.json: this is a COLMAP workspace (sparse/); convert it with `colmap::convert_to_llff`"
+        } else if input.join("metadata.json").is_file() {
+            "no transforms_{train,val,test}.json: this is already a multiscale dataset (metadata.json); train on it \
+             as it is"
+        } else {
+            "no transforms_{train,val,test}.json to convert (a Blender scene has them; a COLMAP workspace has \
+             sparse/ and converts with `colmap::convert_to_llff`)"
+        };
+        return Err(DataError::invalid(input, why));
     }
+    // Nothing in `output` is touched before the input is known to convert; every split's images
+    // are filled under a temporary name and moved in whole, and metadata.json is written last, so
+    // a conversion that stops part-way never looks complete and never mixes two conversions.
+    std::fs::create_dir_all(output).map_err(|e| DataError::io(output, e))?;
+    let meta_path = output.join("metadata.json");
     let mut all = serde_json::Map::new();
     let mut done = Vec::new();
-    for split in [Split::Train, Split::Val, Split::Test] {
-        if !input.join(format!("transforms_{split}.json")).is_file() {
-            continue;
-        }
+    for &split in &present {
         let (angle, frames) = blender::read_transforms(input, split)?;
         let mut images = Vec::with_capacity(frames.len());
         for fr in &frames {
@@ -153,21 +184,16 @@ pub fn convert_resized(input: &Path, output: &Path, width: Option<u32>) -> Resul
         // The focal length follows the width: the field of view is unchanged.
         let focal = crate::camera::focal_from_camera_angle_x(images[0].width, angle);
         let meta =
-            write_split(output, split, &images, focal, NUM_SCALES, f64::from(blender::NEAR), f64::from(blender::FAR))?;
+            fill_split(output, split, &images, focal, NUM_SCALES, f64::from(blender::NEAR), f64::from(blender::FAR))?;
         all.insert(split.name().to_string(), meta);
         done.push(split);
     }
-    if done.is_empty() {
-        let why = if input.join("sparse").is_dir() {
-            "no transforms_{train,val,test}.json: this is a COLMAP workspace (sparse/); convert it with `colmap::convert_to_llff`"
-        } else if input.join("metadata.json").is_file() {
-            "no transforms_{train,val,test}.json: this is already a multiscale dataset (metadata.json); train on it \
-             as it is"
-        } else {
-            "no transforms_{train,val,test}.json to convert (a Blender scene has them; a COLMAP workspace has \
-             sparse/ and converts with `colmap::convert_to_llff`)"
-        };
-        return Err(DataError::invalid(input, why));
+    // Every split is whole beside the old dataset: only now does the old one stop being whole.
+    if meta_path.is_file() {
+        std::fs::remove_file(&meta_path).map_err(|e| DataError::io(&meta_path, e))?;
+    }
+    for split in &done {
+        crate::io::swap_in_dir(&output.join(format!("images_{split}")))?;
     }
     write_metadata(output, &Value::Object(all))?;
     Ok(done)
@@ -191,15 +217,11 @@ fn resized_shape(file: &Path, w: u32, h: u32, width: u32) -> Result<(u32, u32), 
     Ok((width, (hh / u64::from(w)) as u32))
 }
 
-/// Writes `metadata.json` atomically ([`crate::checkpoint::write_atomic`]).
+/// Writes `metadata.json` atomically ([`crate::io::write_atomic`]).
 pub(crate) fn write_metadata(dir: &Path, meta: &Value) -> Result<(), DataError> {
-    use crate::checkpoint::{CheckpointError, RealFs, write_atomic};
     let path = dir.join("metadata.json");
     let text = serde_json::to_string_pretty(meta).map_err(|e| DataError::invalid(&path, e.to_string()))?;
-    write_atomic(&path, text.as_bytes(), &mut RealFs).map_err(|e| match e {
-        CheckpointError::Io { path, error } => DataError::io(&path, error),
-        other => DataError::invalid(&path, other.to_string()),
-    })
+    crate::io::write_atomic(&path, text.as_bytes()).map_err(|e| DataError::io(&e.path, e.error))
 }
 
 fn list<'a>(

@@ -159,7 +159,25 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
         ));
     }
     let cams = best.1.join("cameras");
+    colmap::check_model(&model, &best.1)?;
     let first = model.cameras.first().cloned().ok_or_else(|| DataError::invalid(&cams, "no cameras"))?;
+    // The camera's size against a photo's, before anything is computed from the camera (a
+    // camera 2^32 pixels wide would otherwise be undistorted pixel by pixel).
+    if let Some(im) = model.images.iter().find(|im| im.camera_id == first.id) {
+        let file = images_dir.join(&im.name);
+        let (w, h) = image::image_dimensions(&file)
+            .map_err(|e| DataError::invalid(&file, format!("cannot read the photo's size: {e}")))?;
+        if (u64::from(w), u64::from(h)) != (first.width, first.height) {
+            return Err(DataError::invalid(
+                &cams,
+                format!(
+                    "camera {} is {}x{}, but its photo {} is {w}x{h}: the model is not of these photos (or they were \
+                     resized after COLMAP ran)",
+                    first.id, first.width, first.height, im.name
+                ),
+            ));
+        }
+    }
     let used: std::collections::HashSet<u32> = model.images.iter().map(|im| im.camera_id).collect();
     if let Some(c) = model.cameras.iter().find(|c| {
         used.contains(&c.id)
@@ -193,27 +211,17 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
     }
     let (rows, names) = colmap::poses_bounds(&model, &best.1)?;
 
-    // The output folder: new, empty, or (with overwrite) a dataset this step wrote.
+    // The output folder: new, empty, or (with overwrite) one whose dataset this step wrote. The
+    // new dataset is built beside the old one and swapped in only when whole, so an interrupted
+    // run leaves the old dataset as it was; only what this step wrote (its manifest,
+    // `io::MANIFEST`, lists it) is ever replaced, and nothing else in the folder is touched.
     let npy = output.join("poses_bounds.npy");
-    if output.exists() {
-        let mut entries = std::fs::read_dir(output).map_err(|e| DataError::io(output, e))?;
-        if entries.next().is_some() && !opts.overwrite {
-            return Err(DataError::invalid(
-                output,
-                "is not empty; choose a new folder, or set `ProcessOptions::overwrite` to replace the dataset in it",
-            ));
-        }
-    }
-    std::fs::create_dir_all(output).map_err(|e| DataError::io(output, e))?;
-    if npy.is_file() {
-        std::fs::remove_file(&npy).map_err(|e| DataError::io(&npy, e))?;
-    }
     let folder = output.join(format!("images_{factor}"));
-    let partial = output.join(format!(".mipnerf-partial-images_{factor}"));
-    if partial.exists() {
-        std::fs::remove_dir_all(&partial).map_err(|e| DataError::io(&partial, e))?;
-    }
-    std::fs::create_dir_all(&partial).map_err(|e| DataError::io(&partial, e))?;
+    let ours = [String::from("poses_bounds.npy"), format!("images_{factor}")];
+    check_output(output, &ours, opts.overwrite)?;
+    std::fs::create_dir_all(output).map_err(|e| DataError::io(output, e))?;
+    crate::io::record(output, ours.iter().cloned())?;
+    let partial = crate::io::start_partial_dir(&folder)?;
     let target = LensCamera::from(pinhole);
     let counts = names.par_iter().enumerate().map(|(i, name)| -> Result<[u64; 3], DataError> {
         let file = images_dir.join(name);
@@ -245,10 +253,12 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
     } else {
         None
     };
-    if folder.exists() {
-        std::fs::remove_dir_all(&folder).map_err(|e| DataError::io(&folder, e))?;
+    // The new images are whole: only now does the old dataset stop being whole (its index goes
+    // first, so that a crash in these three steps leaves no index over mixed images).
+    if npy.is_file() {
+        std::fs::remove_file(&npy).map_err(|e| DataError::io(&npy, e))?;
     }
-    std::fs::rename(&partial, &folder).map_err(|e| DataError::io(&folder, e))?;
+    crate::io::swap_in_dir(&folder)?;
     super::llff::write_poses_bounds(&npy, &rows)?;
 
     let near = rows.iter().map(|r| r[15]).fold(f64::INFINITY, f64::min);
@@ -279,6 +289,46 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
         border_shares: (white, black),
         warnings,
     })
+}
+
+/// Refuses an output folder that holds anything (but this step's manifest and temporary folders)
+/// unless `overwrite`, and, with it, one where a name this step writes (`ours`) is taken by
+/// something this step did not write.
+fn check_output(output: &Path, ours: &[String], overwrite: bool) -> Result<(), DataError> {
+    if std::fs::symlink_metadata(output).is_err() {
+        return Ok(());
+    }
+    if !output.is_dir() {
+        return Err(DataError::invalid(output, "is a file, not a folder"));
+    }
+    let recorded = crate::io::recorded(output)?;
+    let mut entries = Vec::new();
+    for entry in std::fs::read_dir(output).map_err(|e| DataError::io(output, e))? {
+        let name = entry.map_err(|e| DataError::io(output, e))?.file_name().to_string_lossy().to_string();
+        if name != crate::io::MANIFEST && !name.starts_with(crate::io::PARTIAL_PREFIX) {
+            entries.push(name);
+        }
+    }
+    if !entries.is_empty() && !overwrite {
+        return Err(DataError::invalid(
+            output,
+            "is not empty; choose a new folder, or set `ProcessOptions::overwrite` to replace the dataset in it",
+        ));
+    }
+    let mut taken: Vec<&String> = ours.iter().filter(|n| entries.contains(n) && !recorded.contains(*n)).collect();
+    taken.sort();
+    if !taken.is_empty() {
+        return Err(DataError::invalid(
+            output,
+            format!(
+                "holds {} that this step did not write (they are not in its {}); they are left as they are: \
+                 choose another folder, or move them away",
+                taken.iter().map(|n| n.as_str()).collect::<Vec<_>>().join(" and "),
+                crate::io::MANIFEST
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// `[near white, near black, all]` counts of the pixels on the outermost two-pixel ring of an

@@ -146,6 +146,7 @@ impl LensCamera {
     /// are supported), a parameter count that does not fit the model, or a size or focal length
     /// that is not positive and finite.
     pub fn from_colmap(c: &ColmapCamera) -> Result<Self, String> {
+        const MAX_DISTORTION: f64 = 2.0;
         let name = model_name(c.model_id);
         let Some(model) = model_of(c.model_id) else {
             return Err(format!(
@@ -172,6 +173,37 @@ impl LensCamera {
             return Err(format!(
                 "camera {}: focal lengths {fx}, {fy} and size {}x{} must be positive and finite",
                 c.id, c.width, c.height
+            ));
+        }
+        // Lens values no photo has: a field of view outside what the loaders take, a principal
+        // point outside the picture, a distortion that folds the picture over itself.
+        let (lo, hi) = (crate::camera::MIN_FIELD_OF_VIEW_DEG, crate::camera::MAX_FIELD_OF_VIEW_DEG);
+        for (axis, focal, side) in [("horizontal", fx, f64::from(width)), ("vertical", fy, f64::from(height))] {
+            let fov = 2.0 * (side / (2.0 * focal)).atan().to_degrees();
+            if !(lo..=hi).contains(&fov) {
+                return Err(format!(
+                    "camera {}: a focal length of {} px gives a {axis} field of view of {} degrees over {side} px; \
+                     photos have {lo} to {hi}",
+                    c.id,
+                    super::show(focal),
+                    super::show(fov),
+                ));
+            }
+        }
+        if !((0.0..=f64::from(width)).contains(&cx) && (0.0..=f64::from(height)).contains(&cy)) {
+            return Err(format!(
+                "camera {}: the principal point ({}, {}) lies outside the {width}x{height} picture",
+                c.id,
+                super::show(cx),
+                super::show(cy)
+            ));
+        }
+        if let Some(&bad) = k.iter().find(|x| !(x.is_finite() && x.abs() <= MAX_DISTORTION)) {
+            return Err(format!(
+                "camera {} ({name}): a distortion coefficient of {} is beyond any lens's (at most {MAX_DISTORTION} in \
+                 size)",
+                c.id,
+                super::show(bad)
             ));
         }
         Ok(Self { fx, fy, cx, cy, width, height, distortion })

@@ -1,0 +1,258 @@
+//! Writing files so that nothing a user has is lost: every file mipnerf writes goes through
+//! [`write_atomic`] (or [`replace_with`] for encoders that write to a path), and every folder it
+//! fills records what it wrote in a manifest ([`MANIFEST`]), so that a later run replaces only
+//! its own files.
+//!
+//! An atomic write puts the bytes under a temporary name beside the file, flushes them to the
+//! disk (`fsync`), renames them over the file and flushes the folder: the file holds either its
+//! previous content or all of the new, never a mix, across a crash, a kill or a power loss. A
+//! failure removes the temporary file and leaves the file as it was.
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+/// An I/O failure and the file or folder it concerns.
+#[derive(Debug, thiserror::Error)]
+#[error("{}: {error}", path.display())]
+pub struct IoError {
+    /// The file or folder.
+    pub path: PathBuf,
+    /// What the system said.
+    #[source]
+    pub error: std::io::Error,
+}
+
+impl IoError {
+    /// `error` on `path`.
+    #[must_use]
+    pub fn new(path: &Path, error: std::io::Error) -> Self {
+        Self { path: path.to_path_buf(), error }
+    }
+}
+
+/// The file operations of an atomic write, a seam so that tests can make any of them fail.
+pub trait FileOps {
+    /// Creates (or truncates) `path`, writes `bytes` and flushes them to the disk (`fsync`).
+    ///
+    /// # Errors
+    /// What the system said.
+    fn write_synced(&mut self, path: &Path, bytes: &[u8]) -> std::io::Result<()>;
+    /// Renames `from` to `to`, replacing `to` atomically.
+    ///
+    /// # Errors
+    /// What the system said.
+    fn rename(&mut self, from: &Path, to: &Path) -> std::io::Result<()>;
+    /// Flushes the directory `dir` itself (the rename) to the disk.
+    ///
+    /// # Errors
+    /// What the system said.
+    fn sync_dir(&mut self, dir: &Path) -> std::io::Result<()>;
+}
+
+/// The real file system.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct RealFs;
+
+impl FileOps for RealFs {
+    fn write_synced(&mut self, path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+        use std::io::Write;
+        let mut f = std::fs::File::create(path)?;
+        f.write_all(bytes)?;
+        f.sync_all()
+    }
+
+    fn rename(&mut self, from: &Path, to: &Path) -> std::io::Result<()> {
+        std::fs::rename(from, to)
+    }
+
+    fn sync_dir(&mut self, dir: &Path) -> std::io::Result<()> {
+        // Directories can be opened and synced on Unix; elsewhere the rename is what we have.
+        #[cfg(unix)]
+        {
+            std::fs::File::open(dir)?.sync_all()
+        }
+        #[cfg(not(unix))]
+        {
+            let _ = dir;
+            Ok(())
+        }
+    }
+}
+
+/// The folder a file lies in (`.` for a bare name).
+#[must_use]
+pub fn parent_dir(path: &Path) -> &Path {
+    path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."))
+}
+
+/// Writes `bytes` to `path` atomically (see the module docs), the temporary file being `path` +
+/// `.tmp`.
+///
+/// # Errors
+/// The failing operation's error, naming the file.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
+    write_atomic_with(path, bytes, &mut RealFs)
+}
+
+/// [`write_atomic`] through `fs` (tests inject failures).
+///
+/// # Errors
+/// The failing operation's error, naming the file.
+pub fn write_atomic_with(path: &Path, bytes: &[u8], fs: &mut dyn FileOps) -> Result<(), IoError> {
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    let tmp = PathBuf::from(tmp);
+    if let Err(e) = fs.write_synced(&tmp, bytes) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(IoError::new(&tmp, e));
+    }
+    if let Err(e) = fs.rename(&tmp, path) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(IoError::new(path, e));
+    }
+    let dir = parent_dir(path);
+    fs.sync_dir(dir).map_err(|e| IoError::new(dir, e))
+}
+
+/// The prefix of the temporary name [`replace_with`] writes under (the extension is kept, so
+/// that an encoder choosing its format by the name still sees it).
+pub const PARTIAL_PREFIX: &str = ".mipnerf-partial-";
+
+/// Runs `write` on a temporary name beside `path` ([`PARTIAL_PREFIX`]), flushes the result to
+/// the disk, renames it over `path` and flushes the folder: for encoders that write to a path
+/// (PNG, EXR). A failure removes the temporary file and leaves `path` as it was.
+///
+/// # Errors
+/// `write`'s error, or the failing operation's, naming the file.
+pub fn replace_with<E: From<IoError>>(path: &Path, write: impl FnOnce(&Path) -> Result<(), E>) -> Result<(), E> {
+    let name = path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
+    let tmp = path.with_file_name(format!("{PARTIAL_PREFIX}{name}"));
+    let finish = || -> Result<(), IoError> {
+        std::fs::File::open(&tmp).and_then(|f| f.sync_all()).map_err(|e| IoError::new(&tmp, e))?;
+        std::fs::rename(&tmp, path).map_err(|e| IoError::new(path, e))?;
+        RealFs.sync_dir(parent_dir(path)).map_err(|e| IoError::new(parent_dir(path), e))
+    };
+    let done = write(&tmp).and_then(|()| finish().map_err(E::from));
+    if done.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    done
+}
+
+/// The temporary name beside `dest` that [`swap_in_dir`] moves into place: a folder is filled
+/// there and appears under its name only when whole.
+#[must_use]
+pub fn partial_dir(dest: &Path) -> PathBuf {
+    let name = dest.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
+    dest.with_file_name(format!("{PARTIAL_PREFIX}{name}"))
+}
+
+/// A fresh, empty [`partial_dir`] for `dest` (a stale one, left by an interrupted run, removed).
+///
+/// # Errors
+/// An unwritable folder.
+pub fn start_partial_dir(dest: &Path) -> Result<PathBuf, IoError> {
+    let partial = partial_dir(dest);
+    if std::fs::symlink_metadata(&partial).is_ok() {
+        std::fs::remove_dir_all(&partial).map_err(|e| IoError::new(&partial, e))?;
+    }
+    std::fs::create_dir_all(&partial).map_err(|e| IoError::new(&partial, e))?;
+    Ok(partial)
+}
+
+/// Moves the whole [`partial_dir`] of `dest` into place, replacing `dest` (which the caller has
+/// checked is its own to replace), and flushes the parent folder.
+///
+/// # Errors
+/// An unwritable folder.
+pub fn swap_in_dir(dest: &Path) -> Result<(), IoError> {
+    let partial = partial_dir(dest);
+    if std::fs::symlink_metadata(dest).is_ok() {
+        std::fs::remove_dir_all(dest).map_err(|e| IoError::new(dest, e))?;
+    }
+    std::fs::rename(&partial, dest).map_err(|e| IoError::new(dest, e))?;
+    RealFs.sync_dir(parent_dir(dest)).map_err(|e| IoError::new(parent_dir(dest), e))
+}
+
+/// The manifest's file name, in a folder mipnerf writes outputs into: the names (one a line) of
+/// the files and folders it wrote there, recorded before they are written.
+pub const MANIFEST: &str = ".mipnerf-outputs";
+
+/// The names the manifest of `dir` lists (none when it has no manifest).
+///
+/// # Errors
+/// A manifest that exists but cannot be read.
+pub fn recorded(dir: &Path) -> Result<BTreeSet<String>, IoError> {
+    let path = dir.join(MANIFEST);
+    match std::fs::read_to_string(&path) {
+        Ok(text) => Ok(text.lines().filter(|l| !l.is_empty()).map(str::to_owned).collect()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(BTreeSet::new()),
+        Err(e) => Err(IoError::new(&path, e)),
+    }
+}
+
+/// Adds `names` to the manifest of `dir` (the folder created if needed), written atomically.
+///
+/// # Errors
+/// An unwritable folder.
+pub fn record(dir: &Path, names: impl IntoIterator<Item = String>) -> Result<(), IoError> {
+    std::fs::create_dir_all(dir).map_err(|e| IoError::new(dir, e))?;
+    let mut all = recorded(dir)?;
+    let before = all.len();
+    all.extend(names);
+    if all.len() == before && dir.join(MANIFEST).exists() {
+        return Ok(());
+    }
+    let text: String = all.iter().map(|n| format!("{n}\n")).collect();
+    write_atomic(&dir.join(MANIFEST), text.as_bytes())
+}
+
+/// Removes `names` from the manifest of `dir` (after the files themselves are gone).
+///
+/// # Errors
+/// An unreadable or unwritable manifest.
+pub fn forget(dir: &Path, names: &BTreeSet<String>) -> Result<(), IoError> {
+    let all = recorded(dir)?;
+    if all.is_disjoint(names) {
+        return Ok(());
+    }
+    let text: String = all.difference(names).map(|n| format!("{n}\n")).collect();
+    write_atomic(&dir.join(MANIFEST), text.as_bytes())
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+
+    #[test]
+    fn an_atomic_write_replaces_whole_and_a_failed_one_leaves_the_file() {
+        let t = tempfile::tempdir().unwrap();
+        let path = t.path().join("a.txt");
+        write_atomic(&path, b"one").unwrap();
+        write_atomic(&path, b"two").unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), b"two");
+        let failed: Result<(), IoError> = replace_with(&path, |tmp: &Path| {
+            std::fs::write(tmp, b"half").unwrap();
+            Err(IoError::new(tmp, std::io::Error::other("encoder failed")))
+        });
+        assert!(failed.is_err());
+        assert_eq!(std::fs::read(&path).unwrap(), b"two");
+        let names: Vec<_> = std::fs::read_dir(t.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(names, vec![std::ffi::OsString::from("a.txt")], "no temporary file is left");
+        replace_with::<IoError>(&path, |tmp| std::fs::write(tmp, b"three").map_err(|e| IoError::new(tmp, e))).unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), b"three");
+    }
+
+    #[test]
+    fn the_manifest_records_and_forgets_names() {
+        let t = tempfile::tempdir().unwrap();
+        let dir = t.path().join("out");
+        assert!(recorded(&dir).unwrap().is_empty());
+        record(&dir, ["b".to_string(), "a".to_string()]).unwrap();
+        record(&dir, ["a".to_string()]).unwrap();
+        assert_eq!(std::fs::read_to_string(dir.join(MANIFEST)).unwrap(), "a\nb\n");
+        forget(&dir, &BTreeSet::from(["a".to_string()])).unwrap();
+        assert_eq!(recorded(&dir).unwrap(), BTreeSet::from(["b".to_string()]));
+    }
+}
