@@ -86,8 +86,8 @@ fn sources() -> (String, Vec<PathBuf>) {
 }
 
 /// Names from outside the workspace that the document mentions: the browser's `EventSource`,
-/// Rust's `Send` and `include_str!`, the `tiny_http` crate, wgpu's `WGPU_ADAPTER_NAME`.
-const EXTERNAL: [&str; 5] = ["EventSource", "Send", "include_str", "tiny_http", "WGPU_ADAPTER_NAME"];
+/// Rust's `Send` and `include_str!`, the `httparse` crate, wgpu's `WGPU_ADAPTER_NAME`.
+const EXTERNAL: [&str; 5] = ["EventSource", "Send", "include_str", "httparse", "WGPU_ADAPTER_NAME"];
 
 /// Whether `name` is defined in `src`: a function, type, trait, constant, static, module,
 /// macro, enum variant or field.

@@ -11,6 +11,7 @@ mod export;
 mod figure;
 mod hints;
 mod html;
+mod http;
 mod images;
 mod lpips;
 mod outputs;

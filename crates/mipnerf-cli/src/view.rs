@@ -5,8 +5,10 @@
 //! training and test curves from `metrics.csv`, and the same view at the four scales of
 //! Mip-NeRF side by side. The run's latest checkpoint is reloaded whenever a new one lands.
 //!
-//! The server is `tiny_http` with a thread per request: the viewer serves one person and renders
-//! one frame at a time, so threads suffice and no async runtime is pulled in. Rendering happens on
+//! The server is `http.rs` (requests parsed by `httparse`) with a thread per connection: the
+//! viewer serves one person and renders one frame at a time, so threads suffice and no async
+//! runtime is pulled in; owning the connection bounds what a client can make it hold and tells
+//! when a client has gone, so its frame is dropped. Rendering happens on
 //! one thread that owns the backend (backends are not `Send`); requests queue for it.
 
 use crate::session::Session;
@@ -92,6 +94,8 @@ struct Job {
     req: FrameRequest,
     kind: Kind,
     reply: mpsc::Sender<Result<Frame, String>>,
+    /// Set when the client that asked has gone: the frame is dropped at the next band.
+    cancel: std::sync::Arc<std::sync::atomic::AtomicBool>,
 }
 
 /// Pixels rendered between two checks for a newer stream (and, beside training, two rests):
@@ -106,6 +110,10 @@ pub const REST_ALLOWANCE: Duration = Duration::from_secs(1);
 const SUPERSEDED: &str = "superseded by a newer view";
 /// What a still answers when a stream (the camera moved) takes the renderer from it.
 const PREEMPTED: &str = "preempted by the moving view; ask again";
+/// What a frame whose client has gone ends with (nobody reads it).
+const CLIENT_GONE: &str = "the client has gone";
+/// How often a request's thread looks whether its client is still there while its frame renders.
+const CLIENT_CHECK: Duration = Duration::from_millis(100);
 
 /// Which `Host` (and `Origin`) names a request may carry: the loopback names (`127.0.0.1`,
 /// `localhost`, `[::1]`), with the server's port if any port is given, and the name `--host`
@@ -147,10 +155,8 @@ impl HostPolicy {
     }
 
     /// Why `request` is refused (403), if it is.
-    fn refusal(&self, request: &tiny_http::Request) -> Option<String> {
-        let header = |name: &'static str| {
-            request.headers().iter().find(|h| h.field.equiv(name)).map(|h| h.value.as_str().to_string())
-        };
+    fn refusal(&self, request: &crate::http::Request) -> Option<String> {
+        let header = |name: &'static str| request.header(name).map(str::to_string);
         match header("Host") {
             None => return Some("no Host header".into()),
             Some(h) if !self.allows_host(&h) => {
@@ -220,10 +226,10 @@ pub fn beside_training(run_dir: &Path, port: u16, session: &Session) -> Result<(
 ///
 /// # Errors
 /// An address that cannot be bound.
-pub fn bind(a: &ViewArgs) -> Result<(tiny_http::Server, String)> {
-    let server = tiny_http::Server::http((a.host.as_str(), a.port))
+pub fn bind(a: &ViewArgs) -> Result<(std::net::TcpListener, String)> {
+    let server = crate::http::bind(&a.host, a.port)
         .map_err(|e| anyhow::anyhow!("cannot listen on {}:{}: {e}", a.host, a.port))?;
-    let addr = server.server_addr().to_ip().context("the viewer's address")?;
+    let addr = server.local_addr().context("the viewer's address")?;
     if !addr.ip().is_loopback() {
         eprintln!("view: listening on {addr}, reachable from other machines (--host); the default is 127.0.0.1");
     }
@@ -234,7 +240,7 @@ pub fn bind(a: &ViewArgs) -> Result<(tiny_http::Server, String)> {
 ///
 /// # Errors
 /// An unreadable run.
-pub fn run_server(server: tiny_http::Server, a: &ViewArgs) -> Result<()> {
+pub fn run_server(server: std::net::TcpListener, a: &ViewArgs) -> Result<()> {
     let s = read_config(&a.run)?;
     let train = load_split(&s, Split::Train)?;
     let info = info_json(&a.run, &s, &train)?;
@@ -246,16 +252,21 @@ pub fn run_server(server: tiny_http::Server, a: &ViewArgs) -> Result<()> {
         .name("view renderer".into())
         .spawn(move || renderer(&args, &s, &template, &rx))
         .context("starting the render thread")?;
-    let port = server.server_addr().to_ip().map_or(a.port, |addr| addr.port());
+    let port = server.local_addr().map_or(a.port, |addr| addr.port());
     let shared = std::sync::Arc::new(Shared {
         info,
         run: a.run.clone(),
         policy: HostPolicy::new(&a.host, port),
         stills: std::sync::atomic::AtomicUsize::new(0),
     });
-    for request in server.incoming_requests() {
+    for connection in server.incoming() {
+        let Ok(connection) = connection else { continue };
         let (tx, shared) = (tx.clone(), std::sync::Arc::clone(&shared));
-        std::thread::spawn(move || handle(request, &tx, &shared));
+        std::thread::spawn(move || {
+            if let Some(request) = crate::http::read_request(connection) {
+                handle(request, &tx, &shared);
+            }
+        });
     }
     Ok(())
 }
@@ -297,9 +308,20 @@ fn renderer(a: &ViewArgs, s: &TrainSettings, template: &ImageSpec, jobs: &mpsc::
             let image = ImageSpec { camera, ..template.clone() };
             let mut rgb: Vec<[f32; 3]> = Vec::with_capacity(image.pixels());
             let mut busy = Duration::ZERO;
-            // A newer stream supersedes a stream's level, and takes the renderer from a still.
-            let superseded = |waiting: &std::collections::VecDeque<Job>| waiting.iter().any(|j| j.kind == Kind::Stream);
-            let stop = if job.kind == Kind::Stream { SUPERSEDED } else { PREEMPTED };
+            // A newer stream supersedes a stream's level, and takes the renderer from a still; a
+            // frame whose client has gone is dropped.
+            let gone = || job.cancel.load(std::sync::atomic::Ordering::SeqCst);
+            let superseded =
+                |waiting: &std::collections::VecDeque<Job>| gone() || waiting.iter().any(|j| j.kind == Kind::Stream);
+            let stop = || {
+                if gone() {
+                    CLIENT_GONE
+                } else if job.kind == Kind::Stream {
+                    SUPERSEDED
+                } else {
+                    PREEMPTED
+                }
+            };
             for (i, (y0, y1)) in bands(req.width, req.height).into_iter().enumerate() {
                 let allowance = if i == 0 && job.kind == Kind::Stream { REST_ALLOWANCE } else { Duration::ZERO };
                 // Rest what is owed beyond the allowance, listening for newer requests.
@@ -313,7 +335,7 @@ fn renderer(a: &ViewArgs, s: &TrainSettings, template: &ImageSpec, jobs: &mpsc::
                         waiting.push_back(j);
                     }
                     if superseded(&waiting) {
-                        bail!(stop);
+                        bail!(stop());
                     }
                 }
                 let t = Instant::now();
@@ -330,7 +352,7 @@ fn renderer(a: &ViewArgs, s: &TrainSettings, template: &ImageSpec, jobs: &mpsc::
                 paid_at = Instant::now();
                 waiting.extend(jobs.try_iter());
                 if y1 < req.height && superseded(&waiting) {
-                    bail!(stop);
+                    bail!(stop());
                 }
             }
             let mut png = Vec::new();
@@ -460,15 +482,33 @@ fn parse_frame(query: &str, max_side: u32) -> Result<FrameRequest, String> {
     Ok(req)
 }
 
-fn render(tx: &mpsc::Sender<Job>, req: FrameRequest, kind: Kind) -> Result<Frame, String> {
+/// Renders `req` on the render thread and waits for it, looking every [`CLIENT_CHECK`] whether
+/// the client is still there (`client_gone`); if not, the frame is dropped at its next band.
+fn render(
+    tx: &mpsc::Sender<Job>,
+    req: FrameRequest,
+    kind: Kind,
+    client_gone: &dyn Fn() -> bool,
+) -> Result<Frame, String> {
     let (reply, answer) = mpsc::channel();
-    tx.send(Job { req, kind, reply }).map_err(|_| "the renderer has stopped".to_string())?;
-    answer.recv().map_err(|_| "the renderer has stopped".to_string())?
+    let cancel = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let job = Job { req, kind, reply, cancel: std::sync::Arc::clone(&cancel) };
+    tx.send(job).map_err(|_| "the renderer has stopped".to_string())?;
+    loop {
+        match answer.recv_timeout(CLIENT_CHECK) {
+            Ok(result) => return result,
+            Err(mpsc::RecvTimeoutError::Timeout) => {
+                if client_gone() {
+                    cancel.store(true, std::sync::atomic::Ordering::SeqCst);
+                }
+            }
+            Err(mpsc::RecvTimeoutError::Disconnected) => return Err("the renderer has stopped".to_string()),
+        }
+    }
 }
 
-fn respond(request: tiny_http::Request, code: u16, content_type: &str, body: Vec<u8>) {
-    let header = tiny_http::Header::from_bytes("Content-Type", content_type).expect("a valid header");
-    let _ = request.respond(tiny_http::Response::from_data(body).with_status_code(code).with_header(header));
+fn respond(request: crate::http::Request, code: u16, content_type: &str, body: Vec<u8>) {
+    request.respond(code, content_type, &body);
 }
 
 /// What every request's thread shares.
@@ -484,7 +524,7 @@ struct Shared {
 }
 
 /// One request: the page, the run's info and metrics, a frame, or a stream of frames.
-fn handle(request: tiny_http::Request, tx: &mpsc::Sender<Job>, shared: &Shared) {
+fn handle(request: crate::http::Request, tx: &mpsc::Sender<Job>, shared: &Shared) {
     use std::sync::atomic::Ordering;
     let (info, run) = (shared.info.as_str(), shared.run.as_path());
     if let Some(why) = shared.policy.refusal(&request) {
@@ -492,7 +532,7 @@ fn handle(request: tiny_http::Request, tx: &mpsc::Sender<Job>, shared: &Shared) 
     }
     let url = request.url().to_string();
     let (path, query) = url.split_once('?').unwrap_or((&url, ""));
-    if *request.method() != tiny_http::Method::Get {
+    if request.method() != "GET" {
         return respond(request, 405, "text/plain", b"only GET".to_vec());
     }
     match path {
@@ -507,7 +547,7 @@ fn handle(request: tiny_http::Request, tx: &mpsc::Sender<Job>, shared: &Shared) 
                     let busy = format!("busy: {MAX_QUEUED_STILLS} frames are already waiting; ask again");
                     return respond(request, 503, "text/plain", busy.into_bytes());
                 }
-                let answer = render(tx, req, Kind::Still);
+                let answer = render(tx, req, Kind::Still, &|| request.client_gone());
                 shared.stills.fetch_sub(1, Ordering::SeqCst);
                 match answer {
                     Ok(f) => respond(request, 200, "image/png", f.png),
@@ -538,8 +578,8 @@ fn handle(request: tiny_http::Request, tx: &mpsc::Sender<Job>, shared: &Shared) 
 
 /// Server-sent events: the frame at 1/8, 1/4, 1/2 and full size, each as soon as it is rendered;
 /// stops early when the page closes the stream (the camera moved).
-fn stream(request: tiny_http::Request, tx: &mpsc::Sender<Job>, req: FrameRequest) {
-    let mut w = request.into_writer();
+fn stream(request: crate::http::Request, tx: &mpsc::Sender<Job>, req: FrameRequest) {
+    let mut w = request.into_stream();
     let head =
         "HTTP/1.1 200 OK\r\nContent-Type: text/event-stream\r\nCache-Control: no-cache\r\nConnection: close\r\n\r\n";
     if w.write_all(head.as_bytes()).and_then(|()| w.flush()).is_err() {
@@ -548,7 +588,7 @@ fn stream(request: tiny_http::Request, tx: &mpsc::Sender<Job>, req: FrameRequest
     for level in (0..LEVELS).rev() {
         let scaled = |s: u32| (s >> level).max(8.min(s));
         let r = FrameRequest { width: scaled(req.width), height: scaled(req.height), ..req };
-        let event = match render(tx, r, Kind::Stream) {
+        let event = match render(tx, r, Kind::Stream, &|| crate::http::gone(&w)) {
             Ok(f) => serde_json::json!({
                 "level": level, "width": f.width, "height": f.height, "ms": f.ms, "step": f.step,
                 "png": base64::engine::general_purpose::STANDARD.encode(&f.png),

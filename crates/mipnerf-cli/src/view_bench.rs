@@ -153,7 +153,7 @@ impl Info {
         let mut text = String::new();
         std::io::Read::read_to_string(&mut s, &mut text)?;
         let body = text.split_once("\r\n\r\n").map(|(_, b)| b).context("the viewer's /api/info had no body")?;
-        // tiny_http may chunk the body; the JSON object is what lies between the outer braces.
+        // The JSON object is what lies between the outer braces of the body.
         let json = &body[body.find('{').context("no JSON")?..=body.rfind('}').context("no JSON")?];
         let v: serde_json::Value = serde_json::from_str(json).context("the viewer's /api/info")?;
         let num = |x: &serde_json::Value| x.as_f64().context("a number");

@@ -446,3 +446,43 @@ fn the_viewer_answers_only_its_own_pages_and_a_moving_camera_never_waits_behind_
     let (status, took) = still.join().unwrap();
     assert_eq!(status, 503, "the still gave way to the stream (it ran {took:?}; the frame came after {first_frame:?})");
 }
+
+/// A request head larger than 16 KiB is answered 431 without being held (a 100 MB header once
+/// took the process from 13 MB to 235 MB), and the server goes on serving; a still whose client
+/// has gone is dropped, so the next frame does not wait for it.
+#[test]
+fn the_viewer_bounds_what_a_client_can_make_it_hold_and_drops_frames_nobody_reads() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = common::small_demo_scene(dir.path(), 2);
+    let run = dir.path().join("run");
+    let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
+    run_ok(&["train", "--data", d, "--out", r, "--steps", "2", "--batch-rays", "16", "--backend", "cpu", "--quiet"]);
+    let server = start(&["view", "--run", r, "--port", "0"]);
+    let addr = server.addr.as_str();
+    // 1 MB of header: refused after 16 KiB.
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(60))).unwrap();
+    let head = format!("GET /api/info HTTP/1.1\r\nHost: {addr}\r\nX-Big: {}\r\n\r\n", "a".repeat(1 << 20));
+    let _ = s.write_all(head.as_bytes());
+    let mut reply = Vec::new();
+    let _ = s.read_to_end(&mut reply);
+    assert!(String::from_utf8_lossy(&reply).starts_with("HTTP/1.1 431"), "{}", String::from_utf8_lossy(&reply));
+    let (status, _, info) = get(addr, "/api/info");
+    assert_eq!(status, 200, "still serving");
+    let info: serde_json::Value = serde_json::from_slice(&info).unwrap();
+
+    // How long a 512 px still takes here, whole.
+    let t = Instant::now();
+    assert_eq!(get(addr, &format!("/api/render?{}", query(&info, 512, 512))).0, 200);
+    let whole = t.elapsed();
+    // The same still again, its client gone after 200 ms: an 8 px still asked next comes long
+    // before the big one would have been done.
+    let mut s = TcpStream::connect(addr).unwrap();
+    write!(s, "GET /api/render?{} HTTP/1.1\r\nHost: {addr}\r\n\r\n", query(&info, 512, 512)).unwrap();
+    std::thread::sleep(Duration::from_millis(200));
+    drop(s);
+    let t = Instant::now();
+    assert_eq!(get(addr, &format!("/api/render?{}", query(&info, 8, 8))).0, 200);
+    let next = t.elapsed();
+    assert!(next < whole / 2, "the next frame waited {next:?} for a still nobody reads (a whole one takes {whole:?})");
+}
