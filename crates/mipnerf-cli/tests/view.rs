@@ -376,18 +376,24 @@ fn the_viewer_refuses_a_missing_run_and_a_busy_port_and_says_when_it_is_reachabl
     assert!(line.contains("reachable from other machines"), "{line}");
 }
 
-/// DNS rebinding and other sites' pages: a Host that is not the viewer's, an Origin or a
-/// Sec-Fetch-Site of another site are refused (403), and the info names no absolute path; an
-/// invalid camera is the request's fault (400); a still is capped in size, and a stream (the
-/// camera moved) takes the renderer from a still at once instead of waiting behind it.
-#[test]
-fn the_viewer_answers_only_its_own_pages_and_a_moving_camera_never_waits_behind_stills() {
+/// `mipnerf view` of a 2-step run of a 16 px demo scene (the folder is kept while the server runs).
+fn viewer_of_a_small_run() -> (tempfile::TempDir, Server) {
     let dir = tempfile::tempdir().unwrap();
     let data = common::small_demo_scene(dir.path(), 2);
     let run = dir.path().join("run");
     let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
     run_ok(&["train", "--data", d, "--out", r, "--steps", "2", "--batch-rays", "16", "--backend", "cpu", "--quiet"]);
     let server = start(&["view", "--run", r, "--port", "0"]);
+    (dir, server)
+}
+
+/// DNS rebinding and other sites' pages: a Host that is not the viewer's, an Origin or a
+/// Sec-Fetch-Site of another site are refused (403), and the info names no absolute path; an
+/// invalid camera is the request's fault (400); a still is capped in size, and a stream (the
+/// camera moved) takes the renderer from a still at once instead of waiting behind it.
+#[test]
+fn the_viewer_answers_only_its_own_pages_and_a_moving_camera_never_waits_behind_stills() {
+    let (dir, server) = viewer_of_a_small_run();
     let addr = server.addr.as_str();
     let port = addr.rsplit(':').next().unwrap();
     for host in ["attacker.example", &format!("attacker.example:{port}"), "127.0.0.1:1", "localhost.evil:80"] {
@@ -452,12 +458,7 @@ fn the_viewer_answers_only_its_own_pages_and_a_moving_camera_never_waits_behind_
 /// has gone is dropped, so the next frame does not wait for it.
 #[test]
 fn the_viewer_bounds_what_a_client_can_make_it_hold_and_drops_frames_nobody_reads() {
-    let dir = tempfile::tempdir().unwrap();
-    let data = common::small_demo_scene(dir.path(), 2);
-    let run = dir.path().join("run");
-    let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
-    run_ok(&["train", "--data", d, "--out", r, "--steps", "2", "--batch-rays", "16", "--backend", "cpu", "--quiet"]);
-    let server = start(&["view", "--run", r, "--port", "0"]);
+    let (_dir, server) = viewer_of_a_small_run();
     let addr = server.addr.as_str();
     // 1 MB of header: refused after 16 KiB.
     let mut s = TcpStream::connect(addr).unwrap();
