@@ -297,7 +297,12 @@ fn colmap_models_that_make_no_sense_are_refused_at_once_naming_what_is_wrong() {
     // lengths, a principal point outside the picture, a distortion no lens has.
     // cameras.txt: ID MODEL WIDTH HEIGHT fx fy cx cy
     let cases: [ModelEdit; 5] = [
-        ("wide", &|l| set_field(l, 0, 2, "4294967295"), "camera 1 is 4294967295x200, but its photo"),
+        // A distorted camera: before, undistortion walked its 2^32 border pixels (a hang).
+        (
+            "wide",
+            &|l| l[0] = "1 SIMPLE_RADIAL 4294967295 200 273.18 100 100 0.01".into(),
+            "camera 1 is 4294967295x200, but its photo",
+        ),
         ("focal", &|l| (set_field(l, 0, 4, "1e-3"), set_field(l, 0, 5, "1e-3")).1, "field of view"),
         ("tiny-focal", &|l| (set_field(l, 0, 4, "1e-300"), set_field(l, 0, 5, "1e-300")).1, "field of view"),
         ("centre", &|l| set_field(l, 0, 6, "1e9"), "the principal point (1e9, 100) lies outside"),
