@@ -220,7 +220,34 @@ pub fn train(
     session: &Session,
 ) -> Result<TrainOutcome> {
     let (s, format, model) = resolve_settings(run_dir, file_settings, &flag_settings, resume)?;
+    let created = std::fs::symlink_metadata(run_dir).is_err();
     std::fs::create_dir_all(run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
+    let outcome = train_locked(run_dir, s, format, model, &flag_settings, resume, device, session);
+    // A run refused before it wrote anything (its data, its options) leaves no folder behind
+    // that it made: only its released lock would be in it.
+    if outcome.is_err() && created {
+        let names: Vec<_> = std::fs::read_dir(run_dir)
+            .map(|d| d.filter_map(Result::ok).map(|e| e.file_name()).collect())
+            .unwrap_or_default();
+        if names.iter().all(|n| n == LOCK) {
+            let _ = std::fs::remove_dir_all(run_dir);
+        }
+    }
+    outcome
+}
+
+/// [`train`] once its settings are resolved and its folder exists: the folder locked, then
+/// everything else.
+fn train_locked(
+    run_dir: &Path,
+    s: TrainSettings,
+    format: Format,
+    model: Model,
+    flag_settings: &TrainSettings,
+    resume: bool,
+    device: &mipnerf_gpu::DeviceOptions,
+    session: &Session,
+) -> Result<TrainOutcome> {
     let _lock = lock_run_dir(run_dir)?;
     // Temporary files that a kill during a save left behind (no other writer exists: we hold the
     // lock); the files they were to replace are intact.
