@@ -224,10 +224,7 @@ impl Nerf {
         if let Some(r) = &stored {
             options.model = r.model.clone();
         }
-        let model = match &data {
-            Some(ds) => model_for(&options, Some(ds))?,
-            None => Model::new(options.model.clone())?,
-        };
+        let model = model_for(&options, data.as_deref())?;
         let state = TrainState::from_checkpoint(checkpoint::load(path.as_ref(), &model)?);
         let mut nerf = Self::open(model, state, data, &options)?;
         if let Some(r) = stored {
@@ -293,23 +290,22 @@ impl Nerf {
         Ok(self.backend.render(&spec)?)
     }
 
+    /// How pixels become rays here: as the training data's are, or as loaded.
+    fn ray_settings(&self) -> RaySettings {
+        match &self.data {
+            Some(ds) => {
+                let view = &ds.views()[0];
+                RaySettings { near: view.near, far: view.far, centers: ds.centers, ndc: ds.ndc }
+            }
+            None => self.rays,
+        }
+    }
+
     /// How `camera`'s pixels become rays here.
     fn image_spec(&self, camera: &Camera) -> ImageSpec {
+        let RaySettings { near, far, centers, ndc } = self.ray_settings();
         let supersample = self.backend.model().config().supersample;
-        match &self.data {
-            Some(ds) => ImageSpec { camera: camera.clone(), ..ImageSpec::of_view(ds, 0, supersample) },
-            None => {
-                let r = self.rays;
-                ImageSpec {
-                    camera: camera.clone(),
-                    near: r.near,
-                    far: r.far,
-                    centers: r.centers,
-                    ndc: r.ndc,
-                    supersample,
-                }
-            }
-        }
+        ImageSpec { camera: camera.clone(), near, far, centers, ndc, supersample }
     }
 
     /// Saves the parameters, Adam's state, the step and the occupancy grid to `path` (one
@@ -321,17 +317,9 @@ impl Nerf {
     /// The file system, or a non-finite state (nothing is written then).
     pub fn save(&mut self, path: impl AsRef<Path>) -> Result<(), Error> {
         let ck = self.backend.checkpoint()?;
-        let any =
-            Camera::from_camera_angle_x(1, 1, 1.0, [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
-                .map_err(|e| Error::Options(e.to_string()))?;
-        let spec = self.image_spec(&any);
-        let render = checkpoint::RenderSettings {
-            model: self.backend.model().config().clone(),
-            near: spec.near,
-            far: spec.far,
-            centers: spec.centers,
-            ndc: spec.ndc,
-        };
+        let RaySettings { near, far, centers, ndc } = self.ray_settings();
+        let render =
+            checkpoint::RenderSettings { model: self.backend.model().config().clone(), near, far, centers, ndc };
         checkpoint::save_for_rendering(path.as_ref(), self.backend.model(), &ck, &render)?;
         Ok(())
     }

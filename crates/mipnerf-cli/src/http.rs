@@ -43,14 +43,7 @@ impl Request {
     /// Answers with `code` and `body`, then closes the connection. A client that has gone is
     /// no error: there is nobody to tell.
     pub fn respond(mut self, code: u16, content_type: &str, body: &[u8]) {
-        let head = format!(
-            "HTTP/1.1 {code} {}\r\nContent-Type: {content_type}\r\nContent-Length: {}\r\nCache-Control: no-cache\r\n\
-             Connection: close\r\n\r\n",
-            reason(code),
-            body.len()
-        );
-        let _ = self.stream.write_all(head.as_bytes()).and_then(|()| self.stream.write_all(body));
-        let _ = self.stream.flush();
+        write_response(&mut self.stream, code, content_type, body);
     }
 
     /// The connection, to write a response of one's own (a stream of events).
@@ -80,6 +73,17 @@ pub fn gone(stream: &TcpStream) -> bool {
     closed
 }
 
+/// Writes a whole response (`Connection: close`) to `stream`; a client that has gone is no error.
+fn write_response(stream: &mut TcpStream, code: u16, content_type: &str, body: &[u8]) {
+    let head = format!(
+        "HTTP/1.1 {code} {}\r\nContent-Type: {content_type}\r\nContent-Length: {}\r\nCache-Control: no-cache\r\n\
+         Connection: close\r\n\r\n",
+        reason(code),
+        body.len()
+    );
+    let _ = stream.write_all(head.as_bytes()).and_then(|()| stream.write_all(body)).and_then(|()| stream.flush());
+}
+
 /// The reason phrase of the codes the viewer answers with.
 fn reason(code: u16) -> &'static str {
     match code {
@@ -102,12 +106,7 @@ pub fn read_request(mut stream: TcpStream) -> Option<Request> {
     let mut buf = vec![0u8; MAX_HEAD_BYTES];
     let mut len = 0;
     let refuse = |mut stream: TcpStream, code: u16, why: &str| {
-        let head = format!(
-            "HTTP/1.1 {code} {}\r\nContent-Type: text/plain\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{why}",
-            reason(code),
-            why.len()
-        );
-        let _ = stream.write_all(head.as_bytes());
+        write_response(&mut stream, code, "text/plain", why.as_bytes());
         None
     };
     loop {

@@ -1,8 +1,10 @@
-//! Writing pictures: PNG, float EXR, colour-mapped depth, animated GIF.
+//! Writing pictures: PNG, float EXR, colour-mapped depth, animated GIF, H.264 video; each written
+//! whole or not at all (`mipnerf_core::io::replace_with`: a temporary name, synced, renamed).
 
 use std::path::Path;
 
 use anyhow::{Context, Result, anyhow};
+use mipnerf_core::io::replace_with;
 
 /// Linear `[0, 1]` RGB to 8-bit RGB (clamped, rounded).
 #[must_use]
@@ -10,21 +12,12 @@ pub fn rgb_to_png(img: &[[f32; 3]]) -> Vec<u8> {
     img.iter().flat_map(|p| p.map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8)).collect()
 }
 
-pub use mipnerf_core::io::PARTIAL_PREFIX;
-
-/// Runs `write` on a temporary name beside `path` ([`PARTIAL_PREFIX`]), flushed and renamed over
-/// `path` (`mipnerf_core::io::replace_with`): a picture on disk is always whole, even when the
-/// process is killed mid-write.
-fn atomically(path: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
-    mipnerf_core::io::replace_with(path, write)
-}
-
 /// Writes 8-bit RGB as PNG, whole or not at all.
 ///
 /// # Errors
 /// Unwritable file.
 pub fn write_png(path: &Path, w: u32, h: u32, rgb: &[u8]) -> Result<()> {
-    atomically(path, |tmp| {
+    replace_with(path, |tmp| {
         image::save_buffer(tmp, rgb, w, h, image::ExtendedColorType::Rgb8)
             .with_context(|| format!("writing {}", path.display()))
     })
@@ -39,7 +32,7 @@ pub fn write_exr(path: &Path, w: usize, h: usize, channel: &str, values: &[f32])
     let channels =
         AnyChannels::sort(SmallVec::from_vec(vec![AnyChannel::new(channel, FlatSamples::F32(values.to_vec()))]));
     let image = Image::from_channels((w, h), channels);
-    atomically(path, |tmp| image.write().to_file(tmp).map_err(|e| anyhow!("writing {}: {e}", path.display())))
+    replace_with(path, |tmp| image.write().to_file(tmp).map_err(|e| anyhow!("writing {}: {e}", path.display())))
 }
 
 /// The "turbo" colour map (Mikhailov 2019), polynomial approximation, `t` in `[0, 1]`.
@@ -67,7 +60,7 @@ pub fn depth_to_png(depth: &[f32], acc: &[f32], lo: f32, hi: f32) -> Vec<u8> {
 /// Unwritable file or encoder failure.
 pub fn write_gif(path: &Path, w: u32, h: u32, frames: &[Vec<u8>], delay_ms: u32) -> Result<()> {
     use image::codecs::gif::{GifEncoder, Repeat};
-    atomically(path, |tmp| {
+    replace_with(path, |tmp| {
         let file = std::fs::File::create(tmp).with_context(|| format!("writing {}", path.display()))?;
         let mut enc = GifEncoder::new_with_speed(std::io::BufWriter::new(file), 10);
         enc.set_repeat(Repeat::Infinite).map_err(|e| anyhow!("{}: {e}", path.display()))?;
@@ -153,7 +146,7 @@ pub fn write_mp4(path: &Path, w: u32, h: u32, frames: &[Vec<u8>], fps: u32) -> R
     let (Some(sps), Some(pps)) = (sps, pps) else {
         anyhow::bail!("{}: the H.264 encoder gave no parameter sets", path.display());
     };
-    atomically(path, |tmp| {
+    replace_with(path, |tmp| {
         let err = |e: mp4::Error| anyhow!("writing {}: {e}", path.display());
         let file = std::fs::File::create(tmp).with_context(|| format!("writing {}", path.display()))?;
         let brand = |s: &str| s.parse::<mp4::FourCC>().map_err(|e| anyhow!("{e}"));

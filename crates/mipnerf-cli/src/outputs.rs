@@ -43,16 +43,8 @@ pub fn check_dir(dir: &Path, flag: &str, overwrite: bool) -> Result<()> {
         bail!("{flag} {} is a file, not a folder", dir.display());
     }
     let ours = recorded(dir)?;
-    let mut foreign = Vec::new();
-    for entry in std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))? {
-        let name =
-            entry.with_context(|| format!("reading {}", dir.display()))?.file_name().to_string_lossy().to_string();
-        // A picture killed mid-write is left under its temporary name, which is ours too.
-        if name != MANIFEST && !name.starts_with(crate::images::PARTIAL_PREFIX) && !ours.contains(&name) {
-            foreign.push(name);
-        }
-    }
-    foreign.sort();
+    let mut foreign = mipnerf_core::io::names_in(dir)?;
+    foreign.retain(|name| !ours.contains(name));
     if !foreign.is_empty() {
         bail!(
             "{flag} {} holds {} file(s) that mipnerf did not write ({}); writing there could replace them. \

@@ -507,10 +507,6 @@ fn render(
     }
 }
 
-fn respond(request: crate::http::Request, code: u16, content_type: &str, body: Vec<u8>) {
-    request.respond(code, content_type, &body);
-}
-
 /// What every request's thread shares.
 struct Shared {
     /// The run's info (`/api/info`).
@@ -528,51 +524,49 @@ fn handle(request: crate::http::Request, tx: &mpsc::Sender<Job>, shared: &Shared
     use std::sync::atomic::Ordering;
     let (info, run) = (shared.info.as_str(), shared.run.as_path());
     if let Some(why) = shared.policy.refusal(&request) {
-        return respond(request, 403, "text/plain", format!("forbidden: {why}").into_bytes());
+        return request.respond(403, "text/plain", format!("forbidden: {why}").as_bytes());
     }
     let url = request.url().to_string();
     let (path, query) = url.split_once('?').unwrap_or((&url, ""));
     if request.method() != "GET" {
-        return respond(request, 405, "text/plain", b"only GET".to_vec());
+        return request.respond(405, "text/plain", b"only GET");
     }
     match path {
-        "/" | "/index.html" => respond(request, 200, "text/html; charset=utf-8", PAGE.as_bytes().to_vec()),
-        "/api/info" => respond(request, 200, "application/json", info.as_bytes().to_vec()),
-        "/api/metrics" => respond(request, 200, "application/json", metrics_json(run).into_bytes()),
+        "/" | "/index.html" => request.respond(200, "text/html; charset=utf-8", PAGE.as_bytes()),
+        "/api/info" => request.respond(200, "application/json", info.as_bytes()),
+        "/api/metrics" => request.respond(200, "application/json", metrics_json(run).as_bytes()),
         "/api/render" => match parse_frame(query, MAX_STILL_SIDE) {
-            Err(e) => respond(request, 400, "text/plain", e.into_bytes()),
+            Err(e) => request.respond(400, "text/plain", e.as_bytes()),
             Ok(req) => {
                 if shared.stills.fetch_add(1, Ordering::SeqCst) >= MAX_QUEUED_STILLS {
                     shared.stills.fetch_sub(1, Ordering::SeqCst);
                     let busy = format!("busy: {MAX_QUEUED_STILLS} frames are already waiting; ask again");
-                    return respond(request, 503, "text/plain", busy.into_bytes());
+                    return request.respond(503, "text/plain", busy.as_bytes());
                 }
                 let answer = render(tx, req, Kind::Still, &|| request.client_gone());
                 shared.stills.fetch_sub(1, Ordering::SeqCst);
                 match answer {
-                    Ok(f) => respond(request, 200, "image/png", f.png),
-                    Err(e) if e == PREEMPTED => respond(request, 503, "text/plain", e.into_bytes()),
-                    Err(e) => respond(request, 500, "text/plain", e.into_bytes()),
+                    Ok(f) => request.respond(200, "image/png", &f.png),
+                    Err(e) if e == PREEMPTED => request.respond(503, "text/plain", e.as_bytes()),
+                    Err(e) => request.respond(500, "text/plain", e.as_bytes()),
                 }
             }
         },
         p if p.starts_with("/api/val/") => {
             // The latest validation render of one scale (`train --val-every`).
             match p["/api/val/".len()..].parse::<u32>().ok().filter(|j| *j < 16) {
-                None => respond(request, 404, "text/plain", format!("no such page: {path}").into_bytes()),
+                None => request.respond(404, "text/plain", format!("no such page: {path}").as_bytes()),
                 Some(j) => match std::fs::read(run.join(crate::run::VAL_DIR).join(format!("scale{j}.png"))) {
-                    Ok(png) => respond(request, 200, "image/png", png),
-                    Err(_) => {
-                        respond(request, 404, "text/plain", b"no validation render yet (train --val-every)".to_vec())
-                    }
+                    Ok(png) => request.respond(200, "image/png", &png),
+                    Err(_) => request.respond(404, "text/plain", b"no validation render yet (train --val-every)"),
                 },
             }
         }
         "/api/stream" => match parse_frame(query, MAX_SIDE) {
-            Err(e) => respond(request, 400, "text/plain", e.into_bytes()),
+            Err(e) => request.respond(400, "text/plain", e.as_bytes()),
             Ok(req) => stream(request, tx, req),
         },
-        _ => respond(request, 404, "text/plain", format!("no such page: {path}").into_bytes()),
+        _ => request.respond(404, "text/plain", format!("no such page: {path}").as_bytes()),
     }
 }
 

@@ -308,6 +308,30 @@ const BLOCK: usize = 32;
 /// The packed operands' padding of k: the bf16 values of k per tile multiply-add.
 const K_STEP: usize = 32;
 
+/// What every kernel's `product` rests its `unsafe` code on: the CPU runs `kernel`, the padded
+/// sizes are whole blocks at least the real ones, and the packed `a` (`mp x kp`), the packed `b`
+/// (`kp / 2 x np` pairs) and `c` (`m x n`) are that large (sizes checked against overflow).
+#[cfg(target_arch = "x86_64")]
+fn assert_packed(
+    kernel: Bf16Kernel,
+    c: &[f32],
+    a: &[u16],
+    b: &[u32],
+    m: usize,
+    n: usize,
+    mp: usize,
+    kp: usize,
+    np: usize,
+) {
+    if let Err(why) = kernel.check() {
+        panic!("the {} kernel on a CPU without it: {why}", kernel.name());
+    }
+    assert!(mp.is_multiple_of(BLOCK) && np.is_multiple_of(BLOCK) && kp.is_multiple_of(K_STEP));
+    assert!(mp >= m && np >= n);
+    let size = crate::linalg::checked_len;
+    assert!(a.len() >= size(mp, kp) && b.len() >= size(kp / 2, np) && c.len() >= size(m, n));
+}
+
 /// The same rounding as [`matmul_bf16`] on any CPU: `a` and `b` rounded to bf16 (as f32 values),
 /// then the f32 product. Differs from the AMX kernel only in the order of the f32 additions.
 pub fn matmul_bf16_emulated(
@@ -631,16 +655,9 @@ mod amx {
             if !tile || !bf16 {
                 return Err(format!("this CPU lacks {} (Intel AMX)", if tile { "amx_bf16" } else { "amx_tile" }));
             }
-            for feature in ["avx512f", "avx512bw", "avx512vl", "avx512bf16"] {
-                let present = match feature {
-                    "avx512f" => std::arch::is_x86_feature_detected!("avx512f"),
-                    "avx512bw" => std::arch::is_x86_feature_detected!("avx512bw"),
-                    "avx512vl" => std::arch::is_x86_feature_detected!("avx512vl"),
-                    _ => std::arch::is_x86_feature_detected!("avx512bf16"),
-                };
-                if !present {
-                    return Err(format!("this CPU has AMX but lacks {feature} (used to convert to bf16)"));
-                }
+            // The packing converts to bf16 with AVX-512, which the AVX-512 kernel's check covers.
+            if let Err(why) = super::Bf16Kernel::Avx512.check() {
+                return Err(format!("this CPU has AMX, but for the conversions to bf16 {why}"));
             }
             if !cfg!(target_os = "linux") {
                 return Err("AMX tiles are only enabled on Linux in this build".into());
@@ -716,10 +733,7 @@ mod amx {
         np: usize,
         accumulate: bool,
     ) {
-        assert!(super::Bf16Kernel::Amx.check().is_ok(), "the AMX kernel on a CPU without AMX");
-        assert!(mp.is_multiple_of(BLOCK) && np.is_multiple_of(BLOCK) && kp.is_multiple_of(K_STEP));
-        let size = crate::linalg::checked_len;
-        assert!(a.len() >= size(mp, kp) && b.len() >= size(kp / 2, np) && c.len() >= size(m, n));
+        super::assert_packed(super::Bf16Kernel::Amx, c, a, b, m, n, mp, kp, np);
         let cfg = TileConfig::all_16x64();
         let k_tiles = kp / K_STEP;
         let mut scratch = [0f32; BLOCK * BLOCK];
@@ -832,7 +846,7 @@ mod avx512 {
         _mm512_set1_epi32, _mm512_setzero_ps,
     };
 
-    use super::{BLOCK, K_STEP, a_index, b_index};
+    use super::{K_STEP, a_index, b_index};
 
     /// Output rows per step of the micro-kernel: half a packed 16-row tile.
     const ROWS: usize = 8;
@@ -871,11 +885,7 @@ mod avx512 {
         np: usize,
         accumulate: bool,
     ) {
-        assert!(super::Bf16Kernel::Avx512.check().is_ok(), "the AVX-512 BF16 kernel on a CPU without it");
-        assert!(mp.is_multiple_of(BLOCK) && np.is_multiple_of(BLOCK) && kp.is_multiple_of(K_STEP));
-        assert!(mp >= m && np >= n);
-        let size = crate::linalg::checked_len;
-        assert!(a.len() >= size(mp, kp) && b.len() >= size(kp / 2, np) && c.len() >= size(m, n));
+        super::assert_packed(super::Bf16Kernel::Avx512, c, a, b, m, n, mp, kp, np);
         for k0 in (0..kp).step_by(KC) {
             let k1 = (k0 + KC).min(kp);
             for i0 in (0..m).step_by(ROWS) {

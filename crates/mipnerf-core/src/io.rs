@@ -191,6 +191,24 @@ pub fn recorded(dir: &Path) -> Result<BTreeSet<String>, IoError> {
     }
 }
 
+/// The names in the folder `dir` that are outputs, sorted: everything but its manifest and the
+/// temporary files and folders mipnerf fills before renaming them ([`PARTIAL_PREFIX`]: what a
+/// kill mid-write leaves is mipnerf's own too).
+///
+/// # Errors
+/// An unreadable folder.
+pub fn names_in(dir: &Path) -> Result<Vec<String>, IoError> {
+    let mut names = Vec::new();
+    for entry in std::fs::read_dir(dir).map_err(|e| IoError::new(dir, e))? {
+        let name = entry.map_err(|e| IoError::new(dir, e))?.file_name().to_string_lossy().to_string();
+        if name != MANIFEST && !name.starts_with(PARTIAL_PREFIX) {
+            names.push(name);
+        }
+    }
+    names.sort();
+    Ok(names)
+}
+
 /// Adds `names` to the manifest of `dir` (the folder created if needed), written atomically.
 ///
 /// # Errors

@@ -486,17 +486,11 @@ pub fn poses_bounds(model: &ColmapModel, model_dir: &Path) -> Result<(Vec<[f64; 
             ));
         }
     }
-    let camera_ids: HashSet<u32> = model.cameras.iter().map(|c| c.id).collect();
     let (h, w, f) = (first.height as f64, first.width as f64, first.params[0]);
-    // Camera-to-world poses with LLFF's column order [down, right, back], in file order.
+    // Camera-to-world poses with LLFF's column order [down, right, back], in file order (every
+    // image's camera exists: `check_model`).
     let mut poses = Vec::with_capacity(model.images.len());
     for im in &model.images {
-        if !camera_ids.contains(&im.camera_id) {
-            return Err(DataError::invalid(
-                &imgs,
-                format!("image {} ({}) uses camera {}, which cameras does not have", im.id, im.name, im.camera_id),
-            ));
-        }
         let [qw, qx, qy, qz] = im.qvec;
         let norm = (qw * qw + qx * qx + qy * qy + qz * qz).sqrt();
         if (norm - 1.0).abs() > 1e-3 {

@@ -302,13 +302,7 @@ fn check_output(output: &Path, ours: &[String], overwrite: bool) -> Result<(), D
         return Err(DataError::invalid(output, "is a file, not a folder"));
     }
     let recorded = crate::io::recorded(output)?;
-    let mut entries = Vec::new();
-    for entry in std::fs::read_dir(output).map_err(|e| DataError::io(output, e))? {
-        let name = entry.map_err(|e| DataError::io(output, e))?.file_name().to_string_lossy().to_string();
-        if name != crate::io::MANIFEST && !name.starts_with(crate::io::PARTIAL_PREFIX) {
-            entries.push(name);
-        }
-    }
+    let entries = crate::io::names_in(output)?;
     if !entries.is_empty() && !overwrite {
         return Err(DataError::invalid(
             output,
