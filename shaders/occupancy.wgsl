@@ -3,9 +3,11 @@
 // - the ray is clipped to the grid's cube (slab test) and walked cell by cell (Amanatides-Woo),
 //   in the grid dilated to the cone's footprint where it leaves the cube; consecutive occupied
 //   cells make one span;
-// - the stratified edges (jittered in training, the same random stream as `sample.wgsl`'s
-//   `stratified`) are laid over the spans joined end to end and mapped back into them; one span
-//   is exactly `stratified` between its ends;
+// - one span is exactly `stratified` between its ends; several get an edge at each end, so no
+//   interval straddles an empty gap: each gap is one interval, the others are shared out among
+//   the spans by length and stratified inside each (jittered in training by the same random
+//   stream as `sample.wgsl`'s `stratified`), the spans with the narrowest gaps joined first when
+//   there are too many;
 // - a ray that meets no occupied cell gets every edge at `near`: intervals of zero length, so it
 //   renders the background (no opacity, distance `near`) and adds nothing to the gradient, as the
 //   CPU's compacted path renders it.
@@ -192,21 +194,62 @@ fn sample_occupied(@builtin(global_invocation_id) gid: vec3<u32>) {
         sample_along(base, spans[0].x, spans[0].y, p.lindisp != 0u, key);
         return;
     }
+    // `sampling::join_narrowest_gaps`: the spans with the narrowest gaps joined first until
+    // every span has an interval and every gap one.
+    var ns = n_spans;
+    while (ns > 1u && 2u * ns - 1u > n) {
+        var k = 0u;
+        for (var i = 1u; i < ns - 1u; i = i + 1u) {
+            if (spans[i + 1u].x - spans[i].y < spans[k + 1u].x - spans[k].y) {
+                k = i;
+            }
+        }
+        spans[k].y = spans[k + 1u].y;
+        for (var i = k + 1u; i < ns - 1u; i = i + 1u) {
+            spans[i] = spans[i + 1u];
+        }
+        ns = ns - 1u;
+    }
+    if (ns == 1u) {
+        sample_along(base, spans[0].x, spans[0].y, false, key);
+        return;
+    }
+    // `sampling::sample_along_segments`: an edge at each end of every span; each gap one
+    // interval; the spare intervals shared out by length (`sampling::span_intervals`).
     var total = 0.0;
-    for (var k = 0u; k < n_spans; k = k + 1u) {
+    for (var k = 0u; k < ns; k = k + 1u) {
         total = total + (spans[k].y - spans[k].x);
     }
-    sample_along(base, 0.0, total, false, key);
-    // Each joined coordinate back into its span; the edges are sorted, so walk the spans once.
-    var k = 0u;
-    var start = 0.0;
-    let last = n_spans - 1u;
-    for (var i = 0u; i <= n; i = i + 1u) {
-        let t = t_out[base + i];
-        while (k < last && t > start + (spans[k].y - spans[k].x)) {
-            start = start + (spans[k].y - spans[k].x);
-            k = k + 1u;
+    let spare = n - (2u * ns - 1u);
+    var cum = 0.0;
+    var prev_share = 0u;
+    var e = 0u;
+    for (var k = 0u; k < ns; k = k + 1u) {
+        cum = cum + (spans[k].y - spans[k].x);
+        var share = spare;
+        if (k + 1u < ns) {
+            share = min(u32(floor(f32(spare) * (cum / total) + 0.5)), spare);
         }
-        t_out[base + i] = clamp(spans[k].x + (t - start), spans[k].x, spans[k].y);
+        let m = 1u + share - prev_share;
+        prev_share = share;
+        let t0 = spans[k].x;
+        let t1 = spans[k].y;
+        for (var j = 0u; j <= m; j = j + 1u) {
+            let base_t = span_edge(t0, t1, j, m);
+            var t = base_t;
+            if (p.randomized != 0u && j > 0u && j < m) {
+                let lower = 0.5 * (span_edge(t0, t1, j - 1u, m) + base_t);
+                let upper = 0.5 * (span_edge(t0, t1, j + 1u, m) + base_t);
+                t = lower + (upper - lower) * uniform01(key, e + j);
+            }
+            t_out[base + e + j] = t;
+        }
+        e = e + m + 1u;
     }
+}
+
+// Edge `j` of `m` intervals evenly spaced over [t0, t1].
+fn span_edge(t0: f32, t1: f32, j: u32, m: u32) -> f32 {
+    let s = f32(j) / f32(m);
+    return t0 * (1.0 - s) + t1 * s;
 }

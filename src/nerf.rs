@@ -361,16 +361,17 @@ fn model_for(options: &Options, data: Option<&Dataset>) -> Result<Model, Error> 
     Ok(Model::new(config)?)
 }
 
-/// A 64³ occupancy grid around the scene of `data`, carved by its images' alpha.
+/// A 64³ occupancy grid around the scene of `data`, carved by its images' alpha; for
+/// forward-facing data, over the NDC cube, carved where no training ray reaches.
 fn occupancy_grid(data: &Dataset) -> Result<OccupancyGrid, Error> {
-    if data.ndc.is_some() {
-        return Err(Error::Occupancy("forward-facing (NDC) data is unbounded".into()));
-    }
     let bound = mipnerf_core::occupancy::auto_bound(data)
         .ok_or_else(|| Error::Occupancy("a camera's near bound reaches the origin: no cube fits the scene".into()))?;
     let resolution = FastRecipe::RECIPE.occupancy_resolution;
     let mut grid = OccupancyGrid::new(OccupancyConfig { resolution, bound, ..OccupancyConfig::default() })
         .map_err(|e| Error::Occupancy(e.to_string()))?;
     grid.carve_with_masks(data);
+    if data.ndc.is_some() {
+        grid.carve_unreached(data);
+    }
     Ok(grid)
 }

@@ -334,12 +334,6 @@ pub const OCCUPANCY_BOUND_RANGE: f32 = 100.0;
 /// with the visual hull of the training masks where the data has transparency (and the settings
 /// allow it), said in one line.
 fn new_occupancy_grid(s: &TrainSettings, ds: &Dataset) -> Result<OccupancyGrid> {
-    if ds.ndc.is_some() {
-        bail!(
-            "occupancy-guided sampling (--occupancy) needs a bounded scene; this forward-facing dataset trains in NDC \
-             space: drop --occupancy (or use --spherify for photos all around an object)"
-        );
-    }
     let auto = mipnerf_core::occupancy::auto_bound(ds);
     if let (Some(b), Some(auto)) = (s.occupancy_bound, auto)
         && !(auto / OCCUPANCY_BOUND_RANGE..=auto * OCCUPANCY_BOUND_RANGE).contains(&b)
@@ -364,9 +358,19 @@ fn new_occupancy_grid(s: &TrainSettings, ds: &Dataset) -> Result<OccupancyGrid> 
     let mut grid = OccupancyGrid::new(config)?;
     let t = Instant::now();
     let carved = if s.occupancy_masks.unwrap_or(true) { grid.carve_with_masks(ds) } else { 0 };
+    // An NDC grid's cube reaches past the cameras' frustums: the cells no training ray reaches
+    // are never sampled nor updated.
+    let unreached = if ds.ndc.is_some() { grid.carve_unreached(ds) } else { 0 };
     eprintln!(
-        "occupancy: {r}^3 cells over [-{bound:.3}, {bound:.3}]^3; {} ({:.1}% of cells left, {:.1}s)",
-        if carved > 0 { format!("{carved} carved by the training masks") } else { "no masks carved".to_string() },
+        "occupancy: {r}^3 cells over [-{bound:.3}, {bound:.3}]^3{}; {} ({:.1}% of cells left, {:.1}s)",
+        if ds.ndc.is_some() { " in NDC space" } else { "" },
+        if ds.ndc.is_some() {
+            format!("{unreached} that no training ray reaches carved")
+        } else if carved > 0 {
+            format!("{carved} carved by the training masks")
+        } else {
+            "no masks carved".to_string()
+        },
         100.0 * grid.occupied_fraction(),
         t.elapsed().as_secs_f64(),
         r = config.resolution,
@@ -387,7 +391,12 @@ fn resolve_settings(
     if resume {
         check_resume_flags(run_dir, &base, flag_settings)?;
     }
-    let merged = base.overridden_by(flag_settings);
+    let mut merged = base.overridden_by(flag_settings);
+    // A saved configuration without density noise ran without it (it is recorded when not 0;
+    // runs before the setting had none), whatever the default for its data is now.
+    if resume && merged.density_noise.is_none() {
+        merged.density_noise = Some(0.0);
+    }
     let data_dir = merged.data.clone().context("no dataset: pass --data DIR (or data = \"DIR\" in --config)")?;
     let format = data::detect_format(&data_dir)?;
     // The dataset is stored as an absolute path, so that eval, render and --resume work from any

@@ -422,6 +422,8 @@ fn info_json(run: &Path, s: &TrainSettings, train: &mipnerf_core::data::Dataset)
     Ok(serde_json::json!({
         "run": name.unwrap_or_else(|| "run".into()),
         "fov": fov,
+        "aspect": f64::from(first.width) / f64::from(first.height.max(1)),
+        "forward_facing": train.ndc.is_some(),
         "up": up.map(|x| x / n),
         "start": start,
         "cameras": { "train": train_poses, "test": test_poses },

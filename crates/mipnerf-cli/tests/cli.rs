@@ -868,6 +868,50 @@ fn the_fast_preset_skips_empty_space_and_its_grid_reaches_eval_and_render() {
     assert!(ck.occupancy.is_some(), "the GPU run's checkpoint lost its grid");
 }
 
+/// Issue 38: the fast preset on a forward-facing capture (the fern fixture, NDC rays), refused
+/// before: its grid lives in NDC space over the cube that holds every training ray, carved where
+/// no training ray reaches, learnt past its warm-up, and used by eval, the spiral's video and
+/// (where there is an adapter) the GPU backend.
+#[test]
+fn the_fast_preset_trains_forward_facing_photos_with_its_grid_in_ndc() {
+    use mipnerf_core::data::{self, LoadOptions, Split};
+    let dir = tempfile::tempdir().unwrap();
+    let data = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/llff_fern_tiny");
+    let run = dir.path().join("run");
+    let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
+    let args = ["train", "--data", d, "--llff-factor", "64", "--out", r, "--preset", "fast", "--steps", "300"];
+    let text = run_ok(&[&args[..], &["--batch-rays", "128"]].concat());
+    assert!(text.contains("in NDC space") && text.contains("that no training ray reaches carved"), "{text}");
+    let ds = data::load(&data, Split::Train, &LoadOptions { llff_factor: 64, ..LoadOptions::default() }).unwrap();
+    let bound = mipnerf_core::occupancy::ndc_bound(&ds).unwrap();
+    assert!((1.0..2.0).contains(&bound), "the NDC cube's half side: {bound}");
+    let model = mipnerf_core::model::Model::new(mipnerf_core::model::ModelConfig {
+        ray_shape: mipnerf_core::RayShape::Cylinder,
+        white_bkgd: false,
+        ..mipnerf_core::model::Preset::Fast.config()
+    })
+    .unwrap();
+    let ck = mipnerf_core::checkpoint::load(&run.join("checkpoint.safetensors"), &model).unwrap();
+    let grid = ck.occupancy.expect("the checkpoint holds the grid");
+    assert_eq!(grid.config.bound, bound);
+    assert!(grid.warmed_up && !grid.is_full(), "{}", grid.occupied_fraction());
+    run_ok(&["eval", "--run", r, "--no-lpips"]);
+    let out = dir.path().join("spiral");
+    let o = out.to_str().unwrap();
+    run_ok(&[
+        "render", "--run", r, "--out", o, "--path", "spiral", "--frames", "4", "--width", "128", "--height", "96",
+    ]);
+    assert!(out.join("video.mp4").is_file(), "no spiral video");
+    if mipnerf_gpu::test_support::context_or_skip("the_fast_preset_trains_forward_facing_photos::gpu").is_none() {
+        return;
+    }
+    let text = run_ok(&["train", "--out", r, "--resume", "--steps", "302", "--backend", "gpu"]);
+    assert!(text.contains("backend: GPU"), "{text}");
+    let ck = mipnerf_core::checkpoint::load(&run.join("checkpoint.safetensors"), &model).unwrap();
+    assert_eq!(ck.step, 302);
+    assert!(ck.occupancy.is_some(), "the GPU run's checkpoint lost its grid");
+}
+
 #[test]
 fn an_experiment_row_is_evaluated_again_when_its_json_came_from_another_run() {
     let dir = tempfile::tempdir().unwrap();

@@ -371,16 +371,30 @@ fn colmap_models_that_make_no_sense_are_refused_at_once_naming_what_is_wrong() {
     assert!(e.contains("r_10.jpg") && e.contains("cut short"), "{e}");
 }
 
-/// A `train` refused before it writes anything (here occupancy on forward-facing data, issue 38's
-/// first report) leaves no folder behind that it made; a folder that was there stays.
+/// A `train` refused before it writes anything (here an occupancy grid far larger than the scene;
+/// issue 38's first report was occupancy on forward-facing data, now accepted) leaves no folder
+/// behind that it made; a folder that was there stays.
 #[test]
 fn a_refused_train_leaves_no_folder_it_made() {
     let dir = tempfile::tempdir().unwrap();
     let colmap = fixtures().join("colmap_lego");
     let run = dir.path().join("run");
-    let args = ["train", "--data", s(&colmap), "--out", s(&run), "--occupancy", "--steps", "2", "--backend", "cpu"];
+    let args = [
+        "train",
+        "--data",
+        s(&colmap),
+        "--out",
+        s(&run),
+        "--occupancy",
+        "--occupancy-bound",
+        "100000",
+        "--steps",
+        "2",
+        "--backend",
+        "cpu",
+    ];
     let e = run_err(&args);
-    assert!(e.contains("needs a bounded scene"), "{e}");
+    assert!(e.contains("is far from this scene's size"), "{e}");
     assert!(!run.exists(), "the refused run left {:?}", names(&run));
     std::fs::create_dir_all(&run).unwrap();
     run_err(&args);

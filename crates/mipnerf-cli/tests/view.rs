@@ -487,3 +487,40 @@ fn the_viewer_bounds_what_a_client_can_make_it_hold_and_drops_frames_nobody_read
     let next = t.elapsed();
     assert!(next < whole / 2, "the next frame waited {next:?} for a still nobody reads (a whole one takes {whole:?})");
 }
+
+/// A forward-facing capture in the viewer: the frame keeps the photos' aspect ratio (not a
+/// square), and the camera stays where the photos were: the page's own drag (`#drive`) swings
+/// the orbit further than the capture's cameras go, and the page holds it back.
+#[test]
+fn a_forward_facing_capture_keeps_its_aspect_and_its_camera_stays_where_the_photos_were() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/llff_fern_tiny");
+    let run = dir.path().join("run");
+    let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
+    let args =
+        ["train", "--data", d, "--llff-factor", "64", "--out", r, "--preset", "fast", "--steps", "30", "--quiet"];
+    run_ok(&args);
+    let server = start(&["view", "--run", r, "--port", "0"]);
+    let addr = server.addr.as_str();
+    let (status, _, info) = get(addr, "/api/info");
+    assert_eq!(status, 200);
+    let info: serde_json::Value = serde_json::from_slice(&info).unwrap();
+    assert_eq!(info["forward_facing"], true, "{info}");
+    assert!((info["aspect"].as_f64().unwrap() - 63.0 / 47.0).abs() < 1e-9, "{info}");
+    let Some(chromium) = common::chromium("the forward-facing viewer") else { return };
+    let out = std::process::Command::new(chromium)
+        .args(["--headless", "--no-sandbox", "--disable-gpu", "--virtual-time-budget=60000", "--dump-dom"])
+        .arg(format!("http://{addr}/?size=126#drive"))
+        .output()
+        .unwrap();
+    let dom = String::from_utf8_lossy(&out.stdout).to_string();
+    let canvas = dom.lines().find(|l| l.contains("id=\"view\"")).unwrap_or_else(|| panic!("no canvas in {dom}"));
+    let attr = |name: &str| -> Option<i64> {
+        let at = canvas.find(&format!("{name}=\""))? + name.len() + 2;
+        canvas[at..].split('"').next()?.parse().ok()
+    };
+    assert_eq!((attr("width"), attr("height")), (Some(126), Some(94)), "63:47 at 126 px wide: {canvas}");
+    assert!(attr("data-moved-at").unwrap_or(0) >= 1, "the camera moved after the first frame: {canvas}");
+    assert!(attr("data-clamped").unwrap_or(0) >= 1, "the drag past the capture was held back: {canvas}");
+    assert!(attr("data-frames").unwrap_or(0) > attr("data-moved-at").unwrap_or(0), "a frame after the move: {canvas}");
+}

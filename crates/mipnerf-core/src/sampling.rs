@@ -47,35 +47,89 @@ pub fn sample_along_rays(near: f32, far: f32, lindisp: bool, jitter: Option<RayR
 }
 
 /// Fills `t_vals` for the coarse level of a ray cut to the occupied `spans` (sorted, disjoint
-/// `[t0, t1]`, at least one): the stratified edges of [`sample_along_rays`] laid over the spans'
-/// total length, as if the spans were joined end to end, then mapped back into them. An interval
-/// whose edges fall in two spans also covers the gap between them (the frustums are built on the
-/// actual edges, which need not be uniform).
+/// `[t0, t1]`, at least one), with an edge at each end of every span, so that no interval
+/// straddles an empty gap: each gap between two spans is one interval of its own (its sample
+/// is run like any other, so the model learns it empty, or fills it and the grid follows), and
+/// the others are shared out among the spans by length ([`span_intervals`]), at least one each,
+/// stratified inside each span: evenly spaced, each inner edge jittered in training between the
+/// midpoints to its neighbours (edge `i` of the ray uses number `i` of its stream), the span's
+/// ends fixed. When the spans need more intervals than there are (`2 spans - 1 > n`), the spans
+/// with the narrowest gaps between them are joined first (the gap then lies inside a span).
 ///
 /// With one span `[near, far]` this is exactly [`sample_along_rays`]`(near, far, ...)`, bit for
-/// bit. `lindisp` applies only then (several spans are joined linearly in depth).
+/// bit. `lindisp` applies only then (several spans are spaced linearly in depth).
 ///
 /// # Panics
 /// If `spans` is empty or `t_vals.len() < 2`.
 pub fn sample_along_segments(spans: &[[f32; 2]], lindisp: bool, jitter: Option<RayRng>, t_vals: &mut [f32]) {
     assert!(!spans.is_empty(), "sample_along_segments: no span");
+    assert!(t_vals.len() >= 2, "sample_along_segments: need at least two edges");
     if let [[near, far]] = *spans {
         sample_along_rays(near, far, lindisp, jitter, t_vals);
         return;
     }
-    let total: f32 = spans.iter().map(|s| s[1] - s[0]).sum();
-    sample_along_rays(0.0, total, false, jitter, t_vals);
-    // Map each joined coordinate back to its span; edges are sorted, so walk the spans once.
-    let mut k = 0;
-    let mut start = 0.0f32; // joined coordinate where span k begins
-    let last = spans.len() - 1;
-    for t in t_vals.iter_mut() {
-        while k < last && *t > start + (spans[k][1] - spans[k][0]) {
-            start += spans[k][1] - spans[k][0];
-            k += 1;
-        }
-        *t = crate::render::clamp_to(spans[k][0] + (*t - start), spans[k][0], spans[k][1]);
+    let n = t_vals.len() - 1;
+    let mut spans = spans.to_vec();
+    join_narrowest_gaps(&mut spans, n);
+    if let [[near, far]] = *spans {
+        sample_along_rays(near, far, false, jitter, t_vals);
+        return;
     }
+    let mut e = 0; // the ray's edge index where the current span starts
+    for (k, &[t0, t1]) in spans.iter().enumerate() {
+        let m = span_intervals(&spans, n, k);
+        for j in 0..=m {
+            let edge = |j: usize| {
+                let s = j as f32 / m as f32;
+                t0 * (1.0 - s) + t1 * s
+            };
+            let base = edge(j);
+            t_vals[e + j] = match jitter {
+                Some(rng) if j > 0 && j < m => {
+                    let lower = 0.5 * (edge(j - 1) + base);
+                    let upper = 0.5 * (edge(j + 1) + base);
+                    lower + (upper - lower) * rng.uniform((e + j) as u32)
+                }
+                _ => base,
+            };
+        }
+        e += m + 1;
+    }
+    debug_assert_eq!(e, n + 1);
+}
+
+/// Joins the spans with the narrowest gap between them (the first on a tie) until every span
+/// can have an interval and every gap one: `2 spans - 1 <= n`.
+pub fn join_narrowest_gaps(spans: &mut Vec<[f32; 2]>, n: usize) {
+    while spans.len() > 1 && 2 * spans.len() - 1 > n {
+        let mut k = 0;
+        for i in 1..spans.len() - 1 {
+            if spans[i + 1][0] - spans[i][1] < spans[k + 1][0] - spans[k][1] {
+                k = i;
+            }
+        }
+        spans[k][1] = spans[k + 1][1];
+        spans.remove(k + 1);
+    }
+}
+
+/// The intervals span `k` of `spans` gets out of a ray's `n` (after
+/// [`join_narrowest_gaps`]): one, plus its share by length of the `n - (2 spans - 1)` spare ones,
+/// by cumulative rounding (`floor(spare · cumulative length / total + 1/2)`, the last span's
+/// cumulative share exactly `spare`), so the shares add up to `n - (spans - 1)`.
+#[must_use]
+pub fn span_intervals(spans: &[[f32; 2]], n: usize, k: usize) -> usize {
+    let s = spans.len();
+    let spare = n - (2 * s - 1);
+    let total: f32 = spans.iter().map(|v| v[1] - v[0]).sum();
+    let share = |k: usize| -> usize {
+        if k + 1 == s {
+            return spare;
+        }
+        let cum: f32 = spans[..=k].iter().map(|v| v[1] - v[0]).sum();
+        ((spare as f32 * (cum / total) + 0.5).floor() as usize).min(spare)
+    };
+    1 + share(k) - if k == 0 { 0 } else { share(k - 1) }
 }
 
 /// Where the inverse-CDF samples come from.

@@ -157,27 +157,59 @@ fn coarse_samples_are_stratified_inside_the_occupied_spans() {
         assert_eq!(a, b, "one span is the paper's sampler");
     }
     let spans = [[2.0f32, 2.5], [3.0, 3.25], [4.0, 5.25]];
-    let total: f32 = spans.iter().map(|s| s[1] - s[0]).sum();
+    let n = 32;
     for j in [None, jitter] {
-        let mut t = vec![0.0; 33];
+        let mut t = vec![0.0; n + 1];
         sample_along_segments(&spans, false, j, &mut t);
         assert!(t.windows(2).all(|w| w[0] <= w[1]), "sorted: {t:?}");
-        if j.is_none() {
-            assert_eq!((t[0], t[32]), (2.0, 5.25), "ends");
-        }
         for (i, x) in t.iter().enumerate() {
             assert!(spans.iter().any(|s| s[0] <= *x && *x <= s[1]), "edge {i} = {x} outside {spans:?}");
         }
+        // An edge at each end of every span: no interval straddles a gap, and each gap is
+        // exactly one interval.
+        for s in spans {
+            assert!(t.contains(&s[0]) && t.contains(&s[1]), "span {s:?} has no edge at an end: {t:?}");
+        }
+        let gaps: Vec<[f32; 2]> = t
+            .windows(2)
+            .filter(|w| !spans.iter().any(|s| s[0] <= w[0] && w[1] <= s[1]))
+            .map(|w| [w[0], w[1]])
+            .collect();
+        assert_eq!(gaps, vec![[2.5, 3.0], [3.25, 4.0]], "{t:?}");
+        // The 30 intervals inside spans shared by length (0.5 : 0.25 : 1.25 of 2.0), one each
+        // first: 1 + 27 · cumulative share rounded.
+        let per_span: Vec<usize> =
+            spans.iter().map(|s| t.windows(2).filter(|w| s[0] <= w[0] && w[1] <= s[1]).count()).collect();
+        assert_eq!(per_span, vec![8, 4, 18], "{t:?}");
         if j.is_none() {
-            // Evenly spaced along the joined length: within a span, every step is total / 32.
-            for w in t.windows(2) {
-                let same = spans.iter().any(|s| s[0] <= w[0] && w[1] <= s[1]);
-                if same {
-                    assert!((w[1] - w[0] - total / 32.0).abs() < 1e-5, "step {w:?}");
+            // Evenly spaced inside each span.
+            for (s, &m) in spans.iter().zip(&per_span) {
+                for w in t.windows(2).filter(|w| s[0] <= w[0] && w[1] <= s[1]) {
+                    assert!((w[1] - w[0] - (s[1] - s[0]) / m as f32).abs() < 1e-6, "step {w:?} in {s:?}");
                 }
             }
         }
     }
+}
+
+#[test]
+fn too_many_spans_for_the_samples_join_across_the_narrowest_gaps() {
+    // Five spans need 9 intervals; with 6 the two narrowest gaps (0.1 and 0.2) are joined,
+    // leaving three spans and two gaps: one interval each, and one to spare.
+    let spans = [[1.0f32, 1.5], [1.6, 2.0], [3.0, 3.5], [3.7, 4.0], [5.0, 5.5]];
+    let mut t = vec![0.0; 7];
+    sample_along_segments(&spans, false, None, &mut t);
+    let joined = [[1.0f32, 2.0], [3.0, 4.0], [5.0, 5.5]];
+    for s in joined {
+        assert!(t.contains(&s[0]) && t.contains(&s[1]), "joined span {s:?} has no edge at an end: {t:?}");
+    }
+    assert!(t.windows(2).all(|w| w[0] <= w[1]) && t[0] == 1.0 && t[6] == 5.5, "{t:?}");
+    // So few samples that only one span fits: the paper's sampler over their hull.
+    let mut two = vec![0.0; 3];
+    let mut hull = vec![0.0; 3];
+    sample_along_segments(&spans, false, None, &mut two);
+    sample_along_rays(1.0, 5.5, false, None, &mut hull);
+    assert_eq!(two, hull);
 }
 
 #[test]

@@ -406,15 +406,7 @@ fn a_batch_run_in_chunks_trains_as_the_cpu() {
     let (mut cpu, gpu) = cpu_and_gpu(ctx, &ds, &model, seed, batch);
     // 64 rays in chunks of 24, 24 and 16.
     let mut gpu = gpu.with_data_in_chunks(&ds, batch, 24).unwrap();
-    let mut bad = Vec::new();
-    for step in 0..steps {
-        let c = cpu.train_step(true).unwrap().unwrap();
-        let g = gpu.train_step(true).unwrap().unwrap();
-        for (what, gv, cv) in [("loss", g.stats.loss, c.stats.loss), ("fine mse", g.stats.mse[1], c.stats.mse[1])] {
-            compare_loss(&mut bad, &format!("step {step} {what}"), gv, cv);
-        }
-    }
-    assert_none(&bad);
+    losses_agree(&mut cpu, &mut gpu, steps);
     let (ck_c, ck_g) = (cpu.checkpoint().unwrap(), gpu.checkpoint().unwrap());
     let worst = ck_c.params.iter().zip(&ck_g.params).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
     // Eight Adam steps of 5e-4 move a parameter by at most 4e-3; rounding moves it by far less.
@@ -496,6 +488,64 @@ fn occupancy_guided_training_follows_the_cpu_in_chunks() {
 fn occupancy_guided_training_follows_the_cpu_in_one_pass() {
     let Some(ctx) = context_or_skip("occupancy_guided_training_follows_the_cpu_in_one_pass") else { return };
     guided_training_follows_the_cpu(ctx, None);
+}
+
+/// Trains `steps` steps on both backends, comparing each step's loss and fine MSE.
+fn losses_agree(cpu: &mut dyn Backend, gpu: &mut dyn Backend, steps: u64) {
+    let mut bad = Vec::new();
+    for step in 0..steps {
+        let c = cpu.train_step(true).unwrap().unwrap();
+        let g = gpu.train_step(true).unwrap().unwrap();
+        for (what, gv, cv) in [("loss", g.stats.loss, c.stats.loss), ("fine mse", g.stats.mse[1], c.stats.mse[1])] {
+            compare_loss(&mut bad, &format!("step {step} {what}"), gv, cv);
+        }
+    }
+    assert_none(&bad);
+}
+
+#[test]
+fn occupancy_guided_training_in_ndc_follows_the_cpu() {
+    use mipnerf_core::occupancy::{OccupancyConfig, OccupancyGrid, auto_bound};
+    let Some(ctx) = context_or_skip("occupancy_guided_training_in_ndc_follows_the_cpu") else { return };
+    // The forward-facing fixture in NDC space: the grid over the NDC cube, learnt within the run
+    // from each backend's own parameters.
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/llff_fern_tiny");
+    let ds =
+        Arc::new(data::load(&dir, Split::Train, &LoadOptions { llff_factor: 64, ..LoadOptions::default() }).unwrap());
+    assert!(ds.ndc.is_some());
+    let model = Model::new(ModelConfig {
+        num_samples: 16,
+        ray_shape: mipnerf_core::RayShape::Cylinder,
+        ..Preset::Tiny.config()
+    })
+    .unwrap();
+    let config = OccupancyConfig {
+        resolution: 24,
+        bound: auto_bound(&ds).unwrap(),
+        update_every: 4,
+        warmup_steps: 8,
+        ..OccupancyConfig::default()
+    };
+    let (seed, batch, steps) = (4u32, 64usize, 16u64);
+    let optim = OptimConfig::default();
+    // Carved where no training ray reaches, as `train` does for NDC data.
+    let mut grid = OccupancyGrid::new(config).unwrap();
+    let carved = grid.carve_unreached(&ds);
+    assert!(carved > 0, "the NDC cube reaches past the frustums, yet nothing was carved");
+    let state = TrainState { occupancy: Some(grid), ..TrainState::fresh(&model, seed) };
+    let mut cpu =
+        CpuBackend::new(model.clone(), optim.clone(), seed, state.clone()).unwrap().with_data(Arc::clone(&ds), batch);
+    let mut gpu = GpuBackend::new(ctx, model.clone(), optim, seed, state).unwrap().with_data(&ds, batch).unwrap();
+    losses_agree(&mut cpu, &mut gpu, steps);
+    let (grid_c, grid_g) = (cpu.checkpoint().unwrap().occupancy.unwrap(), gpu.checkpoint().unwrap().occupancy.unwrap());
+    assert!(grid_g.warmed_up, "the GPU run's grid was not updated past its warm-up");
+    let worst = grid_c.opacity.iter().zip(&grid_g.opacity).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+    assert!(worst < 1e-3, "the backends' grids differ by {worst:e} in a cell's opacity");
+    let image = ImageSpec::of_view(&ds, 0, 1);
+    let (r_cpu, r_gpu) = (both_levels(&mut cpu, &image), both_levels(&mut gpu, &image));
+    let psnr = psnr_between(&r_cpu, &r_gpu);
+    eprintln!("NDC guided renders after {steps} steps: CPU vs GPU PSNR {psnr:.1} dB");
+    assert!(psnr >= MIN_RENDER_AGREEMENT_PSNR, "CPU and GPU guided renders differ in NDC: {psnr:.1} dB");
 }
 
 /// Guided training on both backends from one seed and one mask-carved grid (updated within the

@@ -852,21 +852,60 @@ fn rays_scaled(n_side: u32, scales: &[f32]) -> Vec<Ray> {
 
 #[test]
 fn occupancy_guided_edges_match_cpu_reference() {
-    use mipnerf_gpu::kernels::occupancy::{DeviceGrid, OccupancyKernel, OccupancyParams};
-    use mipnerf_gpu::model::RayBatch;
     let Some(ctx) = context_or_skip("occupancy_guided_edges_match_cpu_reference") else { return };
-    let kernel = OccupancyKernel::new(&ctx).unwrap();
     let grid = two_blob_grid(24);
     assert!(!grid.is_full());
     // A 16-pixel camera's cones reach about 2 cells of this grid where they leave it: scaled by
     // 0 (the axis alone), 0.2, 1 and 3, they use every layer (no dilation to the widest).
-    let rays = rays_scaled(16, &[0.0, 0.2, 1.0, 3.0]);
+    guided_edges_match_cpu(&ctx, &grid, &rays_scaled(16, &[0.0, 0.2, 1.0, 3.0]), 24);
+    // With 6 samples the rays with four spans or more join their spans across the narrowest
+    // gaps first.
+    guided_edges_match_cpu(&ctx, &grid, &rays_scaled(16, &[0.0, 1.0]), 6);
+}
+
+#[test]
+fn occupancy_guided_edges_match_cpu_reference_in_ndc() {
+    use mipnerf_core::data::{self, LoadOptions, Split};
+    use mipnerf_core::occupancy::{OccupancyConfig, OccupancyGrid, ndc_bound};
+    let Some(ctx) = context_or_skip("occupancy_guided_edges_match_cpu_reference_in_ndc") else { return };
+    // The forward-facing fixture's rays in NDC space, under a grid over the NDC cube with the
+    // near leaves (a slab in depth with holes) and part of the far wall occupied.
+    let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/llff_fern_tiny");
+    let ds = data::load(&dir, Split::Train, &LoadOptions { llff_factor: 64, ..LoadOptions::default() }).unwrap();
+    assert!(ds.ndc.is_some());
+    let bound = ndc_bound(&ds).unwrap();
+    let config = OccupancyConfig { resolution: 32, bound, ..OccupancyConfig::default() };
+    let probe = OccupancyGrid::new(config).unwrap();
+    let opacity: Vec<f32> = (0..32 * 32 * 32)
+        .map(|i| {
+            let c = probe.cell_center(i);
+            let leaves = (-0.3..0.1).contains(&c.z) && ((c.x * 7.0).sin() * (c.y * 5.0).cos()) > 0.2;
+            if leaves || (c.z > 0.8 && c.x < 0.3) { 1.0 } else { 0.0 }
+        })
+        .collect();
+    let grid = OccupancyGrid::from_state(config, opacity, true).unwrap();
+    let rays: Vec<Ray> = (0..ds.views().len()).step_by(4).flat_map(|v| ds.view_rays(v)).collect();
+    guided_edges_match_cpu(&ctx, &grid, &rays, 16);
+}
+
+/// The occupancy kernel's coarse edges for `rays` under `grid` with `s` samples against the
+/// CPU's (`stages::sample_occupied_intervals`), for every sampler setting: the rays must include
+/// some that meet no occupied cell, some with one span and some with several.
+fn guided_edges_match_cpu(
+    ctx: &mipnerf_gpu::GpuContext,
+    grid: &mipnerf_core::occupancy::OccupancyGrid,
+    rays: &[Ray],
+    s: usize,
+) {
+    use mipnerf_gpu::kernels::occupancy::{DeviceGrid, OccupancyKernel, OccupancyParams};
+    use mipnerf_gpu::model::RayBatch;
+    let kernel = OccupancyKernel::new(ctx).unwrap();
     let nr = rays.len();
-    let (s, seed, step) = (24usize, 5u32, 9u32);
+    let (seed, step) = (5u32, 9u32);
     // Scattered batch indices, as the rays an occupancy grid lets through have.
     let ids: Vec<u32> = (0..nr as u32).map(|r| 40 + 3 * r).collect();
     // The CPU's spans: the test must see rays with none, one, and several.
-    let per_ray: Vec<Vec<[f32; 2]>> = rays.iter().map(|r| spans_of(&grid, r)).collect();
+    let per_ray: Vec<Vec<[f32; 2]>> = rays.iter().map(|r| spans_of(grid, r)).collect();
     let count = |f: &dyn Fn(usize) -> bool| per_ray.iter().filter(|v| f(v.len())).count();
     let (none, one, several) = (count(&|n| n == 0), count(&|n| n == 1), count(&|n| n >= 2));
     eprintln!("{nr} rays: {none} meet no occupied cell, {one} one span, {several} several");
@@ -879,8 +918,8 @@ fn occupancy_guided_edges_match_cpu_reference() {
         .collect();
     let spans: Vec<[f32; 2]> = per_ray.concat();
     let targets = vec![[0.0f32; 3]; nr];
-    let batch = RayBatch::upload(&ctx, &rays, &targets, 1, false).unwrap();
-    let on_device = DeviceGrid::new(&ctx, &grid).unwrap();
+    let batch = RayBatch::upload(ctx, &rays, &targets, 1, false).unwrap();
+    let on_device = DeviceGrid::new(ctx, grid).unwrap();
     let mut bad = Vec::new();
     for (lindisp, randomized) in [(false, false), (true, false), (false, true), (true, true)] {
         let mode = mode_of(randomized, seed, step);
@@ -900,7 +939,7 @@ fn occupancy_guided_edges_match_cpu_reference() {
                 step,
                 ..OccupancyParams::default()
             };
-            let mut rec = Recorder::new(&ctx, "occupancy test");
+            let mut rec = Recorder::new(ctx, "occupancy test");
             let b_ids = ctx.storage_buffer("ray ids", &ids, false);
             kernel.sample(&mut rec, params, &on_device, &batch.rays, &batch.bounds, &b_ids, &t_out)?;
             let _ = rec.submit();
@@ -908,7 +947,7 @@ fn occupancy_guided_edges_match_cpu_reference() {
         };
         let label = format!("lindisp {lindisp} randomized {randomized}");
         let tol = |_: &str| Tolerance::new(1e-6, TOL_GPU_SAMPLE_REL);
-        bad.extend(check_kernel(&label, cpu, on_gpu, &rays[..], tol).into_mismatches());
+        bad.extend(check_kernel(&label, cpu, on_gpu, rays, tol).into_mismatches());
     }
     assert_none(&bad);
 }
