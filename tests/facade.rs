@@ -154,16 +154,22 @@ fn options_out_of_range_are_errors_naming_the_option() {
 }
 
 /// A COLMAP capture (forward-facing, in NDC) trains with the official LLFF settings the data
-/// implies: cylinders, no white background; occupancy-guided sampling is refused for it.
+/// implies: cylinders, no white background; occupancy-guided sampling runs on it with its grid
+/// over the NDC cube (issue 38).
 #[test]
-fn forward_facing_data_trains_with_cylinders_and_refuses_occupancy() {
+fn forward_facing_data_trains_with_cylinders_and_occupancy_in_ndc() {
     let colmap = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/colmap_lego");
     let mut nerf = Nerf::from_dir(&colmap, cpu_tiny()).unwrap();
     let config = nerf.backend().model().config().clone();
     assert_eq!((config.ray_shape, config.white_bkgd), (mipnerf::mipnerf_core::RayShape::Cylinder, false));
     assert!(nerf.train(1).unwrap().stats.loss.is_finite());
-    let err = Nerf::from_dir(&colmap, Options { occupancy: true, ..cpu_tiny() }).unwrap_err();
-    assert!(matches!(err, Error::Occupancy(_)) && err.to_string().contains("forward-facing"), "{err}");
+    let mut guided = Nerf::from_dir(&colmap, Options { occupancy: true, ..cpu_tiny() }).unwrap();
+    assert!(guided.train(1).unwrap().stats.loss.is_finite());
+    let grid = guided.backend().checkpoint().unwrap().occupancy.expect("the run keeps its grid");
+    let data =
+        mipnerf::mipnerf_core::data::load(&colmap, mipnerf::mipnerf_core::data::Split::Train, &Default::default());
+    let bound = data.ok().and_then(|d| mipnerf::mipnerf_core::occupancy::ndc_bound(&d));
+    assert_eq!(Some(grid.config.bound), bound, "the grid covers the NDC cube");
 }
 
 /// A model saved by `Nerf::save` and loaded without its data renders as before: the checkpoint

@@ -918,7 +918,7 @@ fn guided_edges_match_cpu(
         .collect();
     let spans: Vec<[f32; 2]> = per_ray.concat();
     let targets = vec![[0.0f32; 3]; nr];
-    let batch = RayBatch::upload(ctx, &rays, &targets, 1, false).unwrap();
+    let batch = RayBatch::upload(ctx, rays, &targets, 1, false).unwrap();
     let on_device = DeviceGrid::new(ctx, grid).unwrap();
     let mut bad = Vec::new();
     for (lindisp, randomized) in [(false, false), (true, false), (false, true), (true, true)] {
