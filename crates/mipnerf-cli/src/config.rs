@@ -192,12 +192,20 @@ pub struct TrainSettings {
     /// (`--background random`; evaluation and renders use `white_bkgd`). Needs images with alpha
     /// [default: false].
     pub random_bkgd: Option<bool>,
+    /// Photos (LLFF, COLMAP): a folder of foreground masks, one per photo (named as the photo,
+    /// PNG or JPEG, white = the object), taken as the photos' alpha: the object trains alone
+    /// [default: none].
+    pub masks: Option<PathBuf>,
     /// Blender: load at half resolution [default: false].
     pub half_res: Option<bool>,
     /// LLFF: image folder factor, images_N [default: 4].
     pub llff_factor: Option<u32>,
     /// LLFF: spherical poses instead of NDC [default: false].
     pub spherify: Option<bool>,
+    /// With `spherify`: the cameras' distance from the scene's centre, in world units, with the
+    /// up axis that of the ring they stand on [default: 4 for new runs; a saved run without it
+    /// used the official spherical poses: the unit sphere, the mean offset up].
+    pub spherify_radius: Option<f32>,
     /// Occupancy-guided sampling [default: true for the fast preset, else false].
     pub occupancy: Option<bool>,
     /// Cells along each axis of the occupancy grid [default: 64].
@@ -283,9 +291,11 @@ impl TrainSettings {
             density_noise,
             white_bkgd,
             random_bkgd,
+            masks,
             half_res,
             llff_factor,
             spherify,
+            spherify_radius,
             occupancy,
             occupancy_resolution,
             occupancy_bound,
@@ -318,7 +328,7 @@ impl TrainSettings {
         let given = toml::Value::try_from(flags)?;
         let Some(given) = given.as_table() else { return Ok(None) };
         for (key, value) in given {
-            if key == "data" || RESUMABLE.contains(&key.as_str()) {
+            if key == "data" || key == "masks" || RESUMABLE.contains(&key.as_str()) {
                 continue;
             }
             let before = saved.get(key);
@@ -393,11 +403,19 @@ impl TrainSettings {
             // when it is not 0, so that the configurations of other runs read as they always did.
             density_noise: Some(self.density_noise.unwrap_or(if forward_facing { 1.0 } else { 0.0 }))
                 .filter(|&d| d != 0.0),
-            white_bkgd: Some(self.white_bkgd.unwrap_or(!llff)),
-            random_bkgd: Some(self.random_bkgd.unwrap_or(false)),
+            // Masked photos are an object alone: composited as Blender's objects are, trained on
+            // random backgrounds (so that the model learns where the object ends rather than a
+            // backdrop's colour), evaluated and rendered on white.
+            white_bkgd: Some(self.white_bkgd.unwrap_or(!llff || self.masks.is_some())),
+            random_bkgd: Some(self.random_bkgd.unwrap_or(self.masks.is_some())),
+            masks: self.masks.clone(),
             half_res: Some(self.half_res.unwrap_or(false)),
             llff_factor: Some(self.llff_factor.unwrap_or(4)),
             spherify: Some(self.spherify.unwrap_or(false)),
+            spherify_radius: self
+                .spherify
+                .unwrap_or(false)
+                .then(|| self.spherify_radius.unwrap_or(mipnerf_core::data::llff::SPHERIFY_RADIUS as f32)),
             occupancy: Some(occupancy),
             occupancy_resolution: occupancy
                 .then(|| self.occupancy_resolution.unwrap_or(FastRecipe::RECIPE.occupancy_resolution)),
@@ -573,6 +591,11 @@ impl TrainSettings {
         {
             bail!("{} must be a positive number, got {b}", name("occupancy_bound"));
         }
+        if let Some(r) = self.spherify_radius
+            && !(r.is_finite() && r > 0.0)
+        {
+            bail!("{} must be a positive number, got {r}", name("spherify_radius"));
+        }
         if let Some(r) = self.occupancy_resolution
             && !(2..=256).contains(&r)
         {
@@ -683,6 +706,12 @@ pub struct TrainFlags {
     /// uses 1 on LLFF scenes) [default: 1 for forward-facing photos (NDC), else 0].
     #[arg(long, value_name = "STD")]
     pub density_noise: Option<f32>,
+    /// Photos (LLFF, COLMAP): foreground masks, one image per photo named as the photo (PNG or
+    /// JPEG, white = the object, the photo's size or larger), taken as the photos' alpha: the
+    /// object trains alone, on random backgrounds unless --background says otherwise, and
+    /// evaluates and renders on white.
+    #[arg(long, value_name = "DIR")]
+    pub masks: Option<PathBuf>,
     /// Blender: load images at half resolution.
     #[arg(long)]
     pub half_res: bool,
@@ -692,6 +721,12 @@ pub struct TrainFlags {
     /// LLFF: spherical poses and world-space rays instead of NDC.
     #[arg(long)]
     pub spherify: bool,
+    /// With --spherify: the cameras' distance from the scene's centre, in world units [default:
+    /// 4, the Blender scenes' camera distance, at which a captured object is about a unit across
+    /// as Mip-NeRF's density and encoding expect; the official code's is 1]. The up axis is
+    /// that of the ring the cameras stand on.
+    #[arg(long, value_name = "R")]
+    pub spherify_radius: Option<f32>,
     /// What the renders are composited on where the rays meet nothing [default: white for
     /// Blender and multiscale data, black (no compositing) for LLFF and COLMAP]. White or black
     /// suits an object photographed on a plain backdrop of that colour (the backdrop then need
@@ -748,7 +783,8 @@ pub enum BackgroundArg {
     Black,
     /// In training, each pixel on its own random colour (its target composited on the same), so
     /// that the model learns where the object is transparent rather than the backdrop's colour;
-    /// evaluation and renders on white. Needs images with alpha (Blender, multiscale).
+    /// evaluation and renders on white. Needs images with alpha (Blender, multiscale, photos
+    /// with --masks).
     Random,
 }
 
@@ -797,9 +833,11 @@ impl TrainFlags {
             density_noise: self.density_noise,
             white_bkgd: self.background.map(|b| b != BackgroundArg::Black),
             random_bkgd: self.background.map(|b| b == BackgroundArg::Random),
+            masks: self.masks.clone(),
             half_res: yes(self.half_res),
             llff_factor: self.llff_factor,
             spherify: yes(self.spherify),
+            spherify_radius: self.spherify_radius,
             occupancy: yes(self.occupancy).or(no(self.no_occupancy)),
             occupancy_resolution: self.occupancy_resolution,
             occupancy_bound: self.occupancy_bound,

@@ -275,7 +275,11 @@ pub fn experiment(args: &ExperimentArgs, session: &Session) -> Result<()> {
         }
         std::fs::create_dir_all(&results).with_context(|| results.display().to_string())?;
         for (id, row) in rows.iter().filter(|(id, _)| args.only.is_empty() || args.only.contains(id)) {
-            let settings = TrainSettings { data: Some(data.clone()), ..exp.protocol.overridden_by(&row.settings) };
+            let mut settings = TrainSettings { data: Some(data.clone()), ..exp.protocol.overridden_by(&row.settings) };
+            // Masks, as the data, are named from the working directory and stored absolute.
+            if let Some(m) = &settings.masks {
+                settings.masks = Some(std::path::absolute(m).with_context(|| m.display().to_string())?);
+            }
             if !run_row(id, row, &settings, &out.join(id), &results, &args.lpips, session)? {
                 eprintln!("experiment interrupted in row {id}; run the same command again to continue");
                 std::process::exit(crate::signals::EXIT_INTERRUPTED);

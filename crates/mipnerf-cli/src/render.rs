@@ -72,6 +72,43 @@ fn path_cameras(train: &Dataset, test: Option<&Dataset>, kind: PathKind, frames:
         .collect()
 }
 
+/// How far (degrees, seen from the scene's centre) a path's camera may be from the nearest
+/// training photo's before the render says it starts outside the region the photos saw.
+pub const OUTSIDE_DEGREES: f64 = 20.0;
+
+/// A sentence naming the frames of a path (in world space, around the origin) whose cameras
+/// are more than [`OUTSIDE_DEGREES`] from every training photo's, as seen from the origin:
+/// there the model shows what it guesses, not what was photographed. `None` when every frame is
+/// within reach.
+#[must_use]
+pub fn outside_the_photos(train: &Dataset, path: &[Camera]) -> Option<String> {
+    let dirs: Vec<glam::DVec3> = train
+        .views()
+        .iter()
+        .filter(|v| v.scale == 0)
+        .map(|v| glam::DVec3::from_array(v.camera.origin()).normalize_or_zero())
+        .collect();
+    let off: Vec<(usize, f64)> = path
+        .iter()
+        .enumerate()
+        .map(|(i, c)| {
+            let d = glam::DVec3::from_array(c.origin()).normalize_or_zero();
+            let nearest = dirs.iter().map(|p| p.dot(d).clamp(-1.0, 1.0).acos()).fold(f64::INFINITY, f64::min);
+            (i, nearest.to_degrees())
+        })
+        .filter(|(_, deg)| *deg > OUTSIDE_DEGREES)
+        .collect();
+    let worst = off.iter().map(|(_, d)| *d).fold(0.0, f64::max);
+    let (first, last) = (off.first()?.0, off.last()?.0);
+    Some(format!(
+        "{} of the {} frames (from frame {first} to {last}) start outside the region the photos saw, up to {worst:.0} \
+         degrees from the nearest photo as seen from the scene's centre: there the render shows what the model \
+         guesses",
+        off.len(),
+        path.len()
+    ))
+}
+
 /// `camera` at `w x h` pixels (the focal length scaled with the width).
 fn resized(camera: &Camera, w: u32, h: u32) -> Result<Camera> {
     let s = f64::from(camera.width) / f64::from(w);
@@ -139,7 +176,13 @@ pub fn render(
                 bail!("forward-facing (NDC) scenes only have the spiral path: pass --path spiral");
             }
             let template = ImageSpec::of_view(&train, 0, k);
-            for (i, cam) in path_cameras(&train, test.as_ref(), kind, frames)?.into_iter().enumerate() {
+            let cameras = path_cameras(&train, test.as_ref(), kind, frames)?;
+            if train.ndc.is_none()
+                && let Some(note) = outside_the_photos(&train, &cameras)
+            {
+                eprintln!("note: {note}");
+            }
+            for (i, cam) in cameras.into_iter().enumerate() {
                 let camera = match size {
                     None => cam,
                     Some((w, h)) => resized(&cam, w, h)?,
@@ -247,4 +290,31 @@ pub fn render(
         }
     }
     Ok(written)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{PathKind, outside_the_photos, path_cameras};
+    use mipnerf_core::Camera;
+
+    /// An orbit through the photos' own region says nothing; frames from below the floor, where
+    /// no photo was taken, are named.
+    #[test]
+    fn frames_outside_the_photos_region_are_named() {
+        let train = mipnerf_core::data::demo::dataset(16, 8).unwrap();
+        let orbit = path_cameras(&train, None, PathKind::Orbit, 12).unwrap();
+        assert_eq!(outside_the_photos(&train, &orbit), None);
+        let base = &train.views()[0].camera;
+        let below = |az: f64| {
+            let pose = mipnerf_core::data::demo::camera_pose(az, -60f64.to_radians());
+            Camera::from_pix2cam(base.width, base.height, base.pix2cam, pose).unwrap()
+        };
+        let mut path = orbit[..4].to_vec();
+        path.extend([below(0.0), below(1.0)]);
+        let note = outside_the_photos(&train, &path).unwrap();
+        assert!(
+            note.starts_with("2 of the 6 frames (from frame 4 to 5) start outside the region the photos saw"),
+            "{note}"
+        );
+    }
 }

@@ -84,10 +84,12 @@ impl MetricsRows {
 pub fn load_split(s: &TrainSettings, split: Split) -> Result<Dataset> {
     let dir = s.data.as_ref().context("no dataset: pass --data DIR")?;
     let opts = LoadOptions {
-        white_bkgd: s.white_bkgd.unwrap_or(true),
+        white_bkgd: s.white_bkgd,
+        masks: s.masks.clone(),
         half_res: s.half_res.unwrap_or(false),
         llff_factor: s.llff_factor.unwrap_or(4),
         llff_spherify: s.spherify.unwrap_or(false),
+        spherify_radius: s.spherify_radius.map(f64::from),
         centers: s.centers(),
     };
     Ok(data::load(dir, split, &opts)?)
@@ -402,8 +404,17 @@ fn resolve_settings(
     // The dataset is stored as an absolute path, so that eval, render and --resume work from any
     // working directory.
     let data_dir = std::path::absolute(&data_dir).with_context(|| format!("resolving {}", data_dir.display()))?;
+    // A saved spherified run without a radius used the official spherical poses (the unit
+    // sphere, the mean offset up), and keeps them.
+    let official_spherify = resume && merged.spherify == Some(true) && merged.spherify_radius.is_none();
     let mut s = merged.resolved(format.is_photos());
+    if official_spherify {
+        s.spherify_radius = None;
+    }
     s.data = Some(data_dir);
+    if let Some(m) = &s.masks {
+        s.masks = Some(std::path::absolute(m).with_context(|| format!("resolving {}", m.display()))?);
+    }
     s.optim_config()?;
     let model = Model::new(s.model_config()?)?;
     s.validate(mipnerf_gpu::model::ModelBuffers::bytes_per_ray(&model))?;
@@ -436,6 +447,12 @@ fn check_resume_flags(run_dir: &Path, saved: &TrainSettings, flags: &TrainSettin
     {
         return Err(new_run(format!("--data {} is not this run's dataset ({})", given.display(), ours.display())));
     }
+    if let Some(given) = &flags.masks
+        && !saved.masks.as_ref().is_some_and(|ours| same_path(given, ours))
+    {
+        let ours = saved.masks.as_ref().map_or_else(|| "none".to_owned(), |m| m.display().to_string());
+        return Err(new_run(format!("--masks {} is not this run's masks ({ours})", given.display())));
+    }
     if let Some((key, before, after)) = saved.resume_conflict(flags)? {
         return Err(new_run(format!("{} {after} would change this run, which has {key} = {before}", flag(&key))));
     }
@@ -467,7 +484,11 @@ fn load_training_data(s: &TrainSettings, format: Format, model: &Model) -> Resul
              but none of the {} training images in {} has any{}; use --background white or black",
             ds.views().len(),
             data_dir.display(),
-            if format.is_photos() { " (photos from COLMAP or LLFF have no alpha)" } else { "" }
+            if format.is_photos() {
+                " (photos from COLMAP or LLFF have no alpha: give their masks with --masks DIR)"
+            } else {
+                ""
+            }
         );
     }
     eprintln!(

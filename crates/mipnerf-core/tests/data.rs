@@ -299,7 +299,7 @@ fn llff_scene_loads_with_ndc_rays_holdout_and_spiral() {
     let dir = tempfile::tempdir().unwrap();
     make_llff(dir.path());
     assert_eq!(data::detect_format(dir.path()).unwrap(), data::Format::Llff);
-    let opts = LoadOptions { white_bkgd: false, ..LoadOptions::default() };
+    let opts = LoadOptions { white_bkgd: Some(false), ..LoadOptions::default() };
     let train = data::load(dir.path(), Split::Train, &opts).unwrap();
     let test = data::load(dir.path(), Split::Test, &opts).unwrap();
     assert_eq!((train.views().len(), test.views().len()), (7, 2), "every 8th image (0 and 8) is held out");
@@ -326,6 +326,175 @@ fn llff_scene_loads_with_ndc_rays_holdout_and_spiral() {
     assert!(sph.ndc.is_none() && sph.render_path.len() == llff::RENDER_FRAMES);
     let r = sph.ray(0, 3, 3);
     assert!(r.near > 0.0 && r.far > r.near && r.origin.is_finite());
+}
+
+/// Foreground masks (`LoadOptions::masks`) become the photos' alpha, matched by file name:
+/// a mask of the photo's size as it is, a larger one of the same aspect area-resampled, a JPEG's
+/// near-black and near-white levels snapped to 0 and 1; composited on white, the targets keep the
+/// object and leave out the rest (before issue 39 an LLFF photo's alpha never reached its
+/// targets).
+#[test]
+fn llff_photos_take_their_masks_as_alpha_and_composite_on_white() {
+    let dir = tempfile::tempdir().unwrap();
+    make_llff(dir.path());
+    let masks = dir.path().join("masks");
+    std::fs::create_dir_all(&masks).unwrap();
+    let (w, h) = (32u32, 24u32);
+    // The left half is the object; img_03's mask is twice the size, img_05's a JPEG with noise.
+    let half = |scale: u32, lo: u8, hi: u8| {
+        image::GrayImage::from_fn(w * scale, h * scale, |x, _| image::Luma([if x < w * scale / 2 { hi } else { lo }]))
+    };
+    for i in 0..9 {
+        let path = masks.join(format!("img_{i:02}.png"));
+        match i {
+            3 => half(2, 0, 255).save(&path).unwrap(),
+            5 => half(1, 5, 250).save(masks.join("img_05.jpg")).unwrap(),
+            _ => half(1, 0, 255).save(&path).unwrap(),
+        }
+    }
+    let opts = LoadOptions { white_bkgd: Some(true), masks: Some(masks.clone()), ..LoadOptions::default() };
+    let train = data::load(dir.path(), Split::Train, &opts).unwrap();
+    assert!(train.white_bkgd && train.has_transparency());
+    assert!(train.notes.iter().any(|n| n.contains("7 photos masked by")), "{:?}", train.notes);
+    let plain = data::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap();
+    assert!(!plain.white_bkgd && !plain.has_transparency(), "photos are not composited by default");
+    for (v, view) in train.views().iter().enumerate() {
+        for y in 0..h {
+            for x in 0..w {
+                let i = (y * w + x) as usize;
+                let alpha = view.pixels.rgba(i)[3];
+                let object = x < w / 2;
+                assert_eq!(alpha, if object { 1.0 } else { 0.0 }, "{} ({x}, {y})", view.file.display());
+                let photo = plain.views()[v].pixels.rgba(i);
+                let target = train.target(v, x, y);
+                let want = if object { [photo[0], photo[1], photo[2]] } else { [1.0; 3] };
+                assert_eq!(target, want, "{} ({x}, {y})", view.file.display());
+            }
+        }
+    }
+}
+
+/// `spherify_radius` puts the spherified cameras at that root-mean-square distance from the
+/// centre, scaling the bounds and the render path with them (the official code's is 1).
+#[test]
+fn spherified_cameras_sit_at_the_radius_asked_for() {
+    let dir = tempfile::tempdir().unwrap();
+    make_llff(dir.path());
+    let load = |radius: f64, split: Split| {
+        let opts = LoadOptions { llff_spherify: true, spherify_radius: Some(radius), ..LoadOptions::default() };
+        data::load(dir.path(), split, &opts).unwrap()
+    };
+    let rms = |ds: &Dataset| {
+        let d2: f64 = ds.views().iter().map(|v| glam::DVec3::from_array(v.camera.origin()).length_squared()).sum();
+        (d2 / ds.views().len() as f64).sqrt()
+    };
+    let (unit, four) = (load(1.0, Split::Train), load(4.0, Split::Train));
+    let (unit_test, four_test) = (load(1.0, Split::Test), load(4.0, Split::Test));
+    // Over all 9 cameras (train and test) the mean square distance is the radius squared.
+    let all = |a: &Dataset, b: &Dataset| {
+        let n = (a.views().len() + b.views().len()) as f64;
+        ((rms(a).powi(2) * a.views().len() as f64 + rms(b).powi(2) * b.views().len() as f64) / n).sqrt()
+    };
+    assert!((all(&unit, &unit_test) - 1.0).abs() < 1e-9, "{}", all(&unit, &unit_test));
+    assert!((all(&four, &four_test) - 4.0).abs() < 1e-9, "{}", all(&four, &four_test));
+    for (a, b) in unit.views().iter().zip(four.views()) {
+        let (oa, ob) = (glam::DVec3::from_array(a.camera.origin()), glam::DVec3::from_array(b.camera.origin()));
+        assert!((ob - 4.0 * oa).length() < 1e-9);
+        assert!((b.near - 4.0 * a.near).abs() < 1e-5 && (b.far - 4.0 * a.far).abs() < 1e-5);
+    }
+    for (a, b) in unit_test.render_path.iter().zip(&four_test.render_path) {
+        let (oa, ob) = (glam::DVec3::from_array(a.origin()), glam::DVec3::from_array(b.origin()));
+        assert!((ob - 4.0 * oa).length() < 1e-9);
+    }
+}
+
+/// A 360-degree capture: 16 cameras on a ring of radius 3 tilted 30 degrees from the world's
+/// `z`, 1 unit above the point they all look at and centred 0.8 to the side of it (so the mean
+/// offset from that point leans 39 degrees off the ring's axis), images 8x6 (blank: only the
+/// poses matter here).
+fn make_tilted_ring(dir: &Path) -> glam::DVec3 {
+    std::fs::create_dir_all(dir.join("images_1")).unwrap();
+    let tilt = 30f64.to_radians();
+    let axis = glam::DVec3::new(0.0, -tilt.sin(), tilt.cos());
+    let u = glam::DVec3::X;
+    let v = axis.cross(u);
+    let target = glam::DVec3::new(0.5, -0.2, 0.3);
+    let mut rows = Vec::new();
+    for i in 0..16 {
+        let th = std::f64::consts::TAU * i as f64 / 16.0;
+        let pos = target + 3.0 * (th.cos() * u + th.sin() * v) + axis + 0.8 * u;
+        let back = (pos - target).normalize();
+        let right = axis.cross(back).normalize();
+        let up = back.cross(right);
+        image::RgbImage::new(8, 6).save(dir.join(format!("images_1/img_{i:02}.png"))).unwrap();
+        let mut row = [0.0; 17];
+        for r in 0..3 {
+            let m = [-up[r], right[r], back[r], pos[r], [6.0, 8.0, 10.0][r]];
+            row[r * 5..r * 5 + 5].copy_from_slice(&m);
+        }
+        row[15] = 2.0;
+        row[16] = 4.5;
+        rows.push(row);
+    }
+    llff::write_poses_bounds(&dir.join("poses_bounds.npy"), &rows).unwrap();
+    axis
+}
+
+/// With the ring's axis (`spherify_radius` given), the spherified frame's `z` is the axis of the
+/// ring the cameras stand on: every camera at one height, the render path the cameras' own
+/// circle at that height looking at the centre with `z` up. The official up axis (the mean
+/// offset from the centre) tilts with the capture.
+#[test]
+fn spherified_poses_take_the_axis_of_the_cameras_ring() {
+    let dir = tempfile::tempdir().unwrap();
+    let axis = make_tilted_ring(dir.path());
+    let load = |radius: Option<f64>, split: Split| {
+        let opts =
+            LoadOptions { llff_factor: 1, llff_spherify: true, spherify_radius: radius, ..LoadOptions::default() };
+        data::load(dir.path(), split, &opts).unwrap()
+    };
+    let heights = |ds: &Dataset| -> Vec<f64> { ds.views().iter().map(|v| v.camera.origin()[2]).collect() };
+    let spread = |h: &[f64]| {
+        h.iter().copied().fold(f64::NEG_INFINITY, f64::max) - h.iter().copied().fold(f64::INFINITY, f64::min)
+    };
+    let (ring, ring_test) = (load(Some(4.0), Split::Train), load(Some(4.0), Split::Test));
+    let h = heights(&ring);
+    assert!(spread(&h) < 1e-9, "cameras on the ring at one height: {h:?}");
+    for v in ring.views() {
+        // The camera's up axis is the ring's: its x axis stays level.
+        assert!(v.camera.cam2world[2][0].abs() < 1e-9, "a rolled camera: {:?}", v.camera.cam2world);
+    }
+    // The path is the cameras' own circle: every camera (train and test) lies on it, at its
+    // height, and every frame is upright and looks at the centre.
+    assert_eq!(ring_test.render_path.len(), llff::RENDER_FRAMES);
+    let path: Vec<glam::DVec3> = ring_test.render_path.iter().map(|c| glam::DVec3::from_array(c.origin())).collect();
+    let centre = path.iter().sum::<glam::DVec3>() / path.len() as f64;
+    let rho = (path[0] - centre).length();
+    for (p, cam) in path.iter().zip(&ring_test.render_path) {
+        assert!(((*p - centre).length() - rho).abs() < 1e-9 && (p.z - h[0]).abs() < 1e-9, "{p:?}");
+        assert!(cam.cam2world[2][0].abs() < 1e-9 && cam.cam2world[2][1] > 0.0, "upright: {:?}", cam.cam2world);
+        let back = glam::DVec3::new(cam.cam2world[0][2], cam.cam2world[1][2], cam.cam2world[2][2]);
+        assert!((back - p.normalize()).length() < 1e-9, "looks at the centre");
+    }
+    for v in ring.views().iter().chain(ring_test.views()) {
+        let o = glam::DVec3::from_array(v.camera.origin());
+        assert!(((o - centre).length() - rho).abs() < 1e-9, "camera {o:?} off the path's circle");
+    }
+    // The official frame is tilted against the ring: its cameras' heights differ.
+    let official = load(None, Split::Train);
+    assert!(spread(&heights(&official)) > 0.1, "{:?}", heights(&official));
+    // The ring's axis itself, recovered from the world-space poses and oriented by their ups.
+    let centres: Vec<glam::DVec3> = (0..16)
+        .map(|i| {
+            let th = std::f64::consts::TAU * i as f64 / 16.0;
+            3.0 * (th.cos() * glam::DVec3::X + th.sin() * axis.cross(glam::DVec3::X)) + axis
+        })
+        .collect();
+    let found = llff::ring_axis(&centres, &vec![axis; 16]).unwrap();
+    assert!((found - axis).length() < 1e-9, "{found:?}");
+    assert!((llff::ring_axis(&centres, &vec![-axis; 16]).unwrap() + axis).length() < 1e-9);
+    let line: Vec<glam::DVec3> = (0..5).map(|i| glam::DVec3::X * f64::from(i)).collect();
+    assert_eq!(llff::ring_axis(&line, &[glam::DVec3::Z; 5]), None, "centres along a line have no plane");
 }
 
 /// Asserts that the error names `file` and contains `problem`.

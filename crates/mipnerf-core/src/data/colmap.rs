@@ -735,9 +735,9 @@ pub fn read_images(
 /// # Errors
 /// Every [`DataError`] of [`find_model`], [`read_model`], [`poses_bounds`], [`read_images`] and
 /// the LLFF loader.
-pub fn load(dir: &Path, split: Split, factor: u32, spherical: bool) -> Result<Dataset, DataError> {
+pub fn load(dir: &Path, split: Split, factor: u32, spherify: Option<llff::Spherify>) -> Result<Dataset, DataError> {
     let s = Scene::read(dir, factor)?;
-    let mut ds = llff::from_rows(dir, &s.model_dir, &s.rows, s.images, factor, split, spherical)?;
+    let mut ds = llff::from_rows(dir, &s.model_dir, &s.rows, s.images, factor, split, spherify)?;
     ds.notes.extend(s.notes);
     Ok(ds)
 }

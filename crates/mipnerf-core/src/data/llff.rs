@@ -91,10 +91,108 @@ pub(crate) fn percentile(sorted: &[f64], q: f64) -> f64 {
     sorted[lo] + (sorted[hi] - sorted[lo]) * (pos - lo as f64)
 }
 
-/// The official `generate_spherical_poses`: recentre on the point closest to all optical axes,
-/// scale to a unit sphere, and a 120-frame circle. Returns the new poses, the scale applied, and
-/// the path.
-fn spherify(poses: &[Pose]) -> Option<(Vec<Pose>, f64, Vec<Pose>)> {
+/// The cameras' root-mean-square distance from the centre in the official spherical poses
+/// ([`Spherify::Official`]): a unit sphere.
+pub const OFFICIAL_SPHERIFY_RADIUS: f64 = 1.0;
+
+/// The cameras' distance from the centre that spherified scenes train at by default: the Blender
+/// scenes' 4. Volume density is per unit of length and the positional encoding's lowest
+/// frequency is one radian per unit, both sized for objects of about a unit across; on the unit
+/// sphere a captured object is a few tenths across, so it starts nearly transparent and its
+/// lowest frequencies barely vary over it (trained at radius 1, a masked real capture drew its
+/// object in exact greys in 3 of 6 seeds; at 4, in colour in 6 of 6 and 2 to 3 dB sharper after
+/// 300 steps, `docs/results/masks`).
+pub const SPHERIFY_RADIUS: f64 = 4.0;
+
+/// How spherical poses are made for a capture all around its scene.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Spherify {
+    /// The official `generate_spherical_poses`: the up axis the mean of the cameras' offsets from
+    /// the centre, the cameras on the unit sphere, the official 120-frame circle.
+    Official,
+    /// The up axis that of the ring the cameras stand on ([`ring_axis`]), the cameras at `radius`
+    /// (root-mean-square distance from the centre), and the render path that ring's own circle.
+    /// The mean offset tilts with the capture (27 degrees off the ring's axis on a real 360
+    /// capture, issue 39), and every orbit and spiral with it.
+    Ring {
+        /// The cameras' root-mean-square distance from the centre.
+        radius: f64,
+    },
+}
+
+/// The axis of the ring the camera centres stand on: the normal of the plane that fits them
+/// best (the direction along which they spread least, from their covariance's eigenvectors),
+/// pointing the way the cameras' up axes (`ups`) do on average. `None` for fewer than three
+/// centres or centres along a line (no plane).
+#[must_use]
+pub fn ring_axis(centres: &[DVec3], ups: &[DVec3]) -> Option<DVec3> {
+    if centres.len() < 3 {
+        return None;
+    }
+    let n = centres.len() as f64;
+    let mean = centres.iter().sum::<DVec3>() / n;
+    let mut cov = DMat3::ZERO;
+    for c in centres {
+        let d = *c - mean;
+        cov += DMat3::from_cols(d * d.x, d * d.y, d * d.z);
+    }
+    let (values, vectors) = symmetric_eigen(cov * (1.0 / n));
+    // values ascending: [0] the least spread (the axis), [1] must be clearly above 0.
+    if !(values[1] > 1e-12 * values[2].max(f64::MIN_POSITIVE) && values[2] > 0.0) {
+        return None;
+    }
+    let axis = vectors[0];
+    let up = ups.iter().sum::<DVec3>();
+    Some(if axis.dot(up) < 0.0 { -axis } else { axis })
+}
+
+/// Eigenvalues (ascending) and unit eigenvectors of a symmetric 3x3 matrix, by cyclic Jacobi
+/// rotations (`A <- Jᵀ A J`, `V <- V J`, Numerical Recipes' convention), `a[row][col]`.
+fn symmetric_eigen(m: DMat3) -> ([f64; 3], [DVec3; 3]) {
+    let mut a: [[f64; 3]; 3] = std::array::from_fn(|r| std::array::from_fn(|c| m.col(c)[r]));
+    let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    for _ in 0..50 {
+        let off = a[0][1].powi(2) + a[0][2].powi(2) + a[1][2].powi(2);
+        let diag = a[0][0].powi(2) + a[1][1].powi(2) + a[2][2].powi(2);
+        if off <= 1e-30 * diag.max(f64::MIN_POSITIVE) {
+            break;
+        }
+        for (p, q) in [(0, 1), (0, 2), (1, 2)] {
+            if a[p][q] == 0.0 {
+                continue;
+            }
+            let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
+            let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
+            let c = 1.0 / (t * t + 1.0).sqrt();
+            let s = t * c;
+            for row in &mut a {
+                let (kp, kq) = (row[p], row[q]);
+                row[p] = c * kp - s * kq;
+                row[q] = s * kp + c * kq;
+            }
+            for k in 0..3 {
+                let (pk, qk) = (a[p][k], a[q][k]);
+                a[p][k] = c * pk - s * qk;
+                a[q][k] = s * pk + c * qk;
+            }
+            for row in &mut v {
+                let (kp, kq) = (row[p], row[q]);
+                row[p] = c * kp - s * kq;
+                row[q] = s * kp + c * kq;
+            }
+        }
+    }
+    // Eigenvector k is column k of V.
+    let mut pairs: Vec<(f64, DVec3)> =
+        (0..3).map(|k| (a[k][k], DVec3::new(v[0][k], v[1][k], v[2][k]).normalize())).collect();
+    pairs.sort_by(|x, y| x.0.total_cmp(&y.0));
+    ([pairs[0].0, pairs[1].0, pairs[2].0], [pairs[0].1, pairs[1].1, pairs[2].1])
+}
+
+/// Spherical poses (see [`Spherify`]): recentre on the point closest to all optical axes, turn
+/// the up axis to `z`, scale the cameras to the radius, and the path. Returns the new poses, the
+/// scale applied, and the path.
+fn spherify(poses: &[Pose], how: Spherify) -> Option<(Vec<Pose>, f64, Vec<Pose>)> {
     // Point of least squared distance to every camera's optical axis.
     let mut a_sum = DMat3::ZERO;
     let mut b_sum = DVec3::ZERO;
@@ -112,20 +210,35 @@ fn spherify(poses: &[Pose]) -> Option<(Vec<Pose>, f64, Vec<Pose>)> {
         return None; // parallel optical axes: no point closest to all of them
     }
     let center = -(a_mean.inverse() * (b_sum / n));
-    let up = poses.iter().map(|p| col(p, 3) - center).sum::<DVec3>() / n;
+    let radius = match how {
+        Spherify::Official => OFFICIAL_SPHERIFY_RADIUS,
+        Spherify::Ring { radius } => radius,
+    };
+    let up = match how {
+        Spherify::Official => poses.iter().map(|p| col(p, 3) - center).sum::<DVec3>() / n,
+        Spherify::Ring { .. } => {
+            let centres: Vec<DVec3> = poses.iter().map(|p| col(p, 3)).collect();
+            let ups: Vec<DVec3> = poses.iter().map(|p| col(p, 1)).collect();
+            ring_axis(&centres, &ups)?
+        }
+    };
     let vec0 = up.normalize();
     let vec1 = DVec3::new(0.1, 0.2, 0.3).cross(vec0).normalize();
     let vec2 = vec0.cross(vec1).normalize();
     let c2w = pose_from_cols(vec1, vec2, vec0, center);
     let mut reset: Vec<Pose> = poses.iter().map(|p| relative(&c2w, p)).collect();
     let rad = (reset.iter().map(|p| col(p, 3).length_squared()).sum::<f64>() / n).sqrt();
-    let sc = 1.0 / rad;
+    let sc = radius / rad;
     for p in &mut reset {
         for row in p.iter_mut() {
             row[3] *= sc;
         }
     }
-    let zh = reset.iter().map(|p| p[2][3]).sum::<f64>() / n;
+    if let Spherify::Ring { .. } = how {
+        return Some((reset.clone(), sc, ring_path(&reset)));
+    }
+    // The path's circle on the unit sphere, scaled to the cameras' radius.
+    let zh = reset.iter().map(|p| p[2][3]).sum::<f64>() / n / radius;
     let radcircle = (1.0 - zh * zh).max(0.0).sqrt();
     let path = (0..RENDER_FRAMES)
         .map(|i| {
@@ -135,10 +248,53 @@ fn spherify(poses: &[Pose]) -> Option<(Vec<Pose>, f64, Vec<Pose>)> {
             let v2 = origin.normalize();
             let v0 = v2.cross(up).normalize();
             let v1 = v2.cross(v0).normalize();
-            pose_from_cols(v0, v1, v2, origin)
+            pose_from_cols(v0, v1, v2, origin * radius)
         })
         .collect();
     Some((reset, sc, path))
+}
+
+/// The cameras' own circle for poses whose `z` is their ring's axis: the circle that fits their
+/// centres best in `x` and `y` (least squares, Kåsa's fit; their mean distance from its centre),
+/// at their mean height, every frame looking at the origin (the point closest to all optical
+/// axes) with `z` up. [`RENDER_FRAMES`] frames, one turn.
+fn ring_path(poses: &[Pose]) -> Vec<Pose> {
+    let n = poses.len() as f64;
+    let height = poses.iter().map(|p| p[2][3]).sum::<f64>() / n;
+    let (centre, rho) = fit_circle(&poses.iter().map(|p| (p[0][3], p[1][3])).collect::<Vec<_>>());
+    (0..RENDER_FRAMES)
+        .map(|i| {
+            let th = std::f64::consts::TAU * i as f64 / RENDER_FRAMES as f64;
+            let pos = DVec3::new(centre.0 + rho * th.cos(), centre.1 + rho * th.sin(), height);
+            let back = pos.normalize();
+            let right = DVec3::Z.cross(back).normalize();
+            let up = back.cross(right);
+            pose_from_cols(right, up, back, pos)
+        })
+        .collect()
+}
+
+/// The circle through 2D points in the least-squares sense of Kåsa (`x² + y² + a x + b y + c`
+/// minimal): its centre, and the points' mean distance from it. For points that fit no circle (a
+/// singular system), their centroid and mean distance from it.
+fn fit_circle(points: &[(f64, f64)]) -> ((f64, f64), f64) {
+    let n = points.len() as f64;
+    let (mut m, mut r) = (DMat3::ZERO, DVec3::ZERO);
+    for &(x, y) in points {
+        let row = DVec3::new(x, y, 1.0);
+        m += DMat3::from_cols(row * x, row * y, row);
+        r += row * -(x * x + y * y);
+    }
+    let centroid = (points.iter().map(|p| p.0).sum::<f64>() / n, points.iter().map(|p| p.1).sum::<f64>() / n);
+    let centre =
+        if m.determinant().abs() > 1e-12 * m.to_cols_array().iter().map(|v| v.abs()).fold(0.0, f64::max).powi(3) {
+            let abc = m.inverse() * r;
+            (-abc.x / 2.0, -abc.y / 2.0)
+        } else {
+            centroid
+        };
+    let rho = points.iter().map(|p| (p.0 - centre.0).hypot(p.1 - centre.1)).sum::<f64>() / n;
+    (centre, rho)
 }
 
 /// Reads `poses_bounds.npy`: `N x 17` float64 (or float32), C order.
@@ -206,13 +362,14 @@ fn image_files(dir: &Path) -> Result<Vec<std::path::PathBuf>, DataError> {
 }
 
 /// Loads `split` of an LLFF scene (see the module docs). `factor` picks `images_{factor}`
-/// (0: `images`). The test split also gets the render path.
+/// (0: `images`); `spherify`, how to make spherical poses (`None`: forward-facing, NDC). The
+/// test split also gets the render path.
 ///
 /// # Errors
 /// [`DataError`] naming the file: unreadable or malformed `poses_bounds.npy`, a missing image
 /// folder, a count of images that differs from the poses, images of different sizes or
 /// undecodable, non-positive bounds, singular poses.
-pub fn load(dir: &Path, split: Split, factor: u32, spherical: bool) -> Result<Dataset, DataError> {
+pub fn load(dir: &Path, split: Split, factor: u32, spherify: Option<Spherify>) -> Result<Dataset, DataError> {
     let npy = dir.join("poses_bounds.npy");
     let rows = read_poses_bounds(&npy)?;
     let imgdir = if factor > 0 { dir.join(format!("images_{factor}")) } else { dir.join("images") };
@@ -233,7 +390,7 @@ pub fn load(dir: &Path, split: Split, factor: u32, spherical: bool) -> Result<Da
         let (w, h, rgba, _) = read_png_rgba(&f)?;
         images.push(LlffImage { file: f, width: w, height: h, rgba });
     }
-    from_rows(dir, &npy, &rows, images, factor, split, spherical)
+    from_rows(dir, &npy, &rows, images, factor, split, spherify)
 }
 
 /// One image of an LLFF scene: its file, size and straight RGBA8 pixels.
@@ -262,7 +419,7 @@ pub fn from_rows(
     images: Vec<LlffImage>,
     factor: u32,
     split: Split,
-    spherical: bool,
+    spherify: Option<Spherify>,
 ) -> Result<Dataset, DataError> {
     let npy = npy.to_path_buf();
     if images.len() != rows.len() || images.is_empty() {
@@ -304,9 +461,13 @@ pub fn from_rows(
     let (min_b, max_b) = (min_b * scale, max_b * scale);
     let avg = poses_avg(&poses);
     let mut poses: Vec<Pose> = poses.iter().map(|p| relative(&avg, p)).collect();
-    let (near, far, path, ndc) = if spherical {
-        let (reset, sc, path) = spherify(&poses).ok_or_else(|| {
-            DataError::invalid(&npy, "spherical poses need cameras whose optical axes converge; these are parallel")
+    let (near, far, path, ndc) = if let Some(how) = spherify {
+        let (reset, sc, path) = self::spherify(&poses, how).ok_or_else(|| {
+            DataError::invalid(
+                &npy,
+                "spherical poses need cameras whose optical axes converge (and, for the ring's axis, centres that \
+                 spread in a plane); these do not",
+            )
         })?;
         poses = reset;
         ((min_b * sc * 0.9) as f32, (max_b * sc) as f32, path, None)

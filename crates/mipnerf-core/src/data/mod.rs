@@ -17,6 +17,7 @@ pub mod blender;
 pub mod colmap;
 pub mod demo;
 pub mod llff;
+pub mod masks;
 pub mod multiscale;
 pub mod process;
 pub mod undistort;
@@ -249,6 +250,11 @@ impl Dataset {
     #[must_use]
     pub fn views(&self) -> &[View] {
         &self.views
+    }
+
+    /// The views, to change their pixels (not their sizes: the offsets are derived from them).
+    pub(crate) fn views_mut(&mut self) -> &mut [View] {
+        &mut self.views
     }
 
     /// Total pixels over all views.
@@ -522,25 +528,36 @@ pub fn detect_format(dir: &Path) -> Result<Format, DataError> {
 /// Options that apply when loading any format.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LoadOptions {
-    /// Composite on white (Blender formats); LLFF never does.
-    pub white_bkgd: bool,
+    /// Composite the images' alpha on white (`Some(true)`) or drop it (`Some(false)`, black);
+    /// `None`: the format's own choice (white for the Blender formats, none for photos, as the
+    /// official loaders do).
+    pub white_bkgd: Option<bool>,
     /// Blender: load at half resolution (2x2 area filter), as the official `factor = 2`.
     pub half_res: bool,
     /// LLFF and COLMAP: the image folder's downsampling factor (`images_{factor}`; 0 = `images`).
     pub llff_factor: u32,
-    /// LLFF: spherical poses instead of forward-facing NDC.
+    /// LLFF and COLMAP: spherical poses instead of forward-facing NDC.
     pub llff_spherify: bool,
+    /// With `llff_spherify`: `None` for the official spherical poses ([`llff::Spherify::Official`],
+    /// the default), or the cameras' distance from the centre with the up axis their ring's
+    /// ([`llff::Spherify::Ring`]; the CLI trains new runs at [`llff::SPHERIFY_RADIUS`]).
+    pub spherify_radius: Option<f64>,
     /// Rays through pixel centres or corners.
     pub centers: PixelCenters,
+    /// Photos (LLFF, COLMAP): a folder of foreground masks, one per photo, taken as the photos'
+    /// alpha ([`masks::apply`]).
+    pub masks: Option<PathBuf>,
 }
 
 impl Default for LoadOptions {
     fn default() -> Self {
         Self {
-            white_bkgd: true,
+            white_bkgd: None,
+            masks: None,
             half_res: false,
             llff_factor: 4,
             llff_spherify: false,
+            spherify_radius: None,
             centers: PixelCenters::Centered,
         }
     }
@@ -551,12 +568,30 @@ impl Default for LoadOptions {
 /// # Errors
 /// Any [`DataError`] of the format's loader.
 pub fn load(dir: &Path, split: Split, opts: &LoadOptions) -> Result<Dataset, DataError> {
-    let mut ds = match detect_format(dir)? {
-        Format::Blender => blender::load(dir, split, opts.white_bkgd, opts.half_res)?,
-        Format::Multiscale => multiscale::load(dir, split, opts.white_bkgd)?,
-        Format::Llff => llff::load(dir, split, opts.llff_factor, opts.llff_spherify)?,
-        Format::Colmap => colmap::load(dir, split, opts.llff_factor, opts.llff_spherify)?,
+    let format = detect_format(dir)?;
+    let white = opts.white_bkgd.unwrap_or(!format.is_photos());
+    let spherify = opts.llff_spherify.then_some(match opts.spherify_radius {
+        None => llff::Spherify::Official,
+        Some(radius) => llff::Spherify::Ring { radius },
+    });
+    let mut ds = match format {
+        Format::Blender => blender::load(dir, split, white, opts.half_res)?,
+        Format::Multiscale => multiscale::load(dir, split, white)?,
+        Format::Llff => llff::load(dir, split, opts.llff_factor, spherify)?,
+        Format::Colmap => colmap::load(dir, split, opts.llff_factor, spherify)?,
     };
+    // Photos with alpha (their own, or their masks') are composited as Blender's images are.
+    ds.white_bkgd = white;
+    if let Some(masks) = &opts.masks {
+        if !format.is_photos() {
+            return Err(DataError::invalid(
+                masks,
+                "masks are for photos (LLFF or COLMAP data); Blender images carry theirs as their alpha",
+            ));
+        }
+        let n = masks::apply(&mut ds, masks)?;
+        ds.notes.push(format!("{n} photos masked by {} (the object trained alone)", masks.display()));
+    }
     ds.centers = opts.centers;
     Ok(ds)
 }
