@@ -235,7 +235,8 @@ fn spherify(poses: &[Pose], how: Spherify) -> Option<(Vec<Pose>, f64, Vec<Pose>)
         }
     }
     if let Spherify::Ring { .. } = how {
-        return Some((reset.clone(), sc, ring_path(&reset)));
+        let path = ring_path(&reset);
+        return Some((reset, sc, path));
     }
     // The path's circle on the unit sphere, scaled to the cameras' radius.
     let zh = reset.iter().map(|p| p[2][3]).sum::<f64>() / n / radius;
@@ -266,10 +267,7 @@ fn ring_path(poses: &[Pose]) -> Vec<Pose> {
         .map(|i| {
             let th = std::f64::consts::TAU * i as f64 / RENDER_FRAMES as f64;
             let pos = DVec3::new(centre.0 + rho * th.cos(), centre.1 + rho * th.sin(), height);
-            let back = pos.normalize();
-            let right = DVec3::Z.cross(back).normalize();
-            let up = back.cross(right);
-            pose_from_cols(right, up, back, pos)
+            view_matrix(pos, DVec3::Z, pos)
         })
         .collect()
 }

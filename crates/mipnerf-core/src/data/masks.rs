@@ -8,7 +8,7 @@
 
 use std::path::{Path, PathBuf};
 
-use super::{DataError, Dataset, Pixels, box_resize};
+use super::{DataError, Dataset, Pixels, box_resize, read_png_rgba};
 
 /// Mask values within this many 8-bit levels of 0 or 255 are taken as exactly 0 or 255: a JPEG's
 /// ringing (or a painted mask's stray levels) must not make the backdrop slightly opaque, nor
@@ -46,14 +46,11 @@ pub fn mask_file(dir: &Path, photo: &Path) -> Result<PathBuf, DataError> {
 /// [`DataError::Invalid`] naming the file: undecodable, of another aspect ratio or smaller than
 /// the photo, or all black (no object).
 pub fn read_mask(path: &Path, width: u32, height: u32) -> Result<Vec<f32>, DataError> {
-    let img = image::ImageReader::open(path)
-        .map_err(|e| DataError::io(path, e))?
-        .with_guessed_format()
-        .map_err(|e| DataError::io(path, e))?
-        .decode()
-        .map_err(|e| DataError::invalid(path, format!("cannot decode the mask: {e}")))?;
-    let grey = img.to_luma8();
-    let (mw, mh) = grey.dimensions();
+    // The photos' reader: a JPEG cut short is refused, not filled with grey.
+    let (mw, mh, rgba, _) = read_png_rgba(path)?;
+    let rgba = image::RgbaImage::from_raw(mw, mh, rgba)
+        .ok_or_else(|| DataError::invalid(path, "cannot decode the mask: its size does not match its pixels"))?;
+    let grey = image::DynamicImage::ImageRgba8(rgba).to_luma8();
     let snap = |v: u8| -> f32 {
         if v <= MASK_SNAP_LEVELS {
             0.0
