@@ -7,6 +7,12 @@
 // there (2^-11 absolute). Neither reduction relies on a fused multiply-add: the leading parts of
 // the constants have few enough bits that their products with the quotient are exact.
 //
+// Unbounded scenes (`unbounded` 1) carry each Gaussian through mip-NeRF 360's contraction, as
+// mipnerf-core's `contract::contract_frustum`: unchanged inside the unit ball; outside it the mean
+// is contracted and the covariance is the diagonal of J Sigma J^T for the frustum's full
+// covariance, t_var u^2 + r_var |J_i x d|^2 / |d|^2 with u = J d, J the contraction's Jacobian at
+// the mean (formed as `contract_jacobian` forms it).
+//
 // Output layout, per sample: [sin part | cos part], index (deg - min_deg) * 3 + axis inside a part,
 // samples of a ray contiguous: out[(ray * n_samples + sample) * ipe_len + feature]. NeRF's
 // encoding (`encoding` 2) puts the mean's 3 coordinates first.
@@ -24,7 +30,8 @@ struct Params {
     // ablation); 2: NeRF's positional encoding of the means: [mean | sin | cos], plain sines
     // without the 100*pi guard (mipnerf-core's `pos_enc` with the identity).
     encoding: u32,
-    _pad1: u32,
+    // 1: an unbounded scene (the scene contraction).
+    unbounded: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -74,6 +81,23 @@ fn safe_sin(x: f32) -> f32 {
     return sin_reduced(safe_trig_arg(x));
 }
 
+// The scene contraction's Jacobian at x, |x| > 1 (mipnerf-core's `contract_jacobian`): scale
+// a = (2 - 1/r)/r across x, c = 1/r^2 along it; the diagonal as (a (r^2 - x_i^2) + c x_i^2)/r^2.
+fn contract_jacobian(x: vec3<f32>) -> mat3x3<f32> {
+    let x2 = x * x;
+    let r2 = x2.x + x2.y + x2.z;
+    let r = sqrt(r2);
+    let a = (2.0 - 1.0 / r) / r;
+    let c = 1.0 / r2;
+    let others = vec3<f32>(x2.y + x2.z, x2.x + x2.z, x2.x + x2.y);
+    let diag = (others * a + x2 * c) / r2;
+    let off = -2.0 * (r - 1.0) / (r2 * r2);
+    let xy = off * x.x * x.y;
+    let xz = off * x.x * x.z;
+    let yz = off * x.y * x.z;
+    return mat3x3<f32>(vec3<f32>(diag.x, xy, xz), vec3<f32>(xy, diag.y, yz), vec3<f32>(xz, yz, diag.z));
+}
+
 @compute @workgroup_size(WORKGROUP)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let idx = gid.y * (params.groups_x * WORKGROUP) + gid.x;
@@ -110,8 +134,22 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let d2 = d * d;
     let d_mag_sq = max(d2.x + d2.y + d2.z, 1e-10);
-    let mean = o_r.xyz + d * t_mean;
+    var mean = o_r.xyz + d * t_mean;
     var cov = t_var * d2 + r_var * (vec3<f32>(1.0) - d2 / d_mag_sq);
+    let r2 = dot(mean, mean);
+    if (params.unbounded != 0u && r2 > 1.0) {
+        // J is symmetric: its columns are its rows.
+        let j = contract_jacobian(mean);
+        let u = j * d;
+        let inv_d_mag_sq = 1.0 / d_mag_sq;
+        let c0 = cross(j[0], d);
+        let c1 = cross(j[1], d);
+        let c2 = cross(j[2], d);
+        let across = vec3<f32>(dot(c0, c0), dot(c1, c1), dot(c2, c2)) * inv_d_mag_sq;
+        cov = u * u * t_var + across * r_var;
+        let r = sqrt(r2);
+        mean = mean * ((2.0 - 1.0 / r) / r);
+    }
     if (params.encoding != ENCODING_INTEGRATED) {
         cov = vec3<f32>(0.0);
     }

@@ -3,12 +3,16 @@
 //   with the same counter-based random numbers as the CPU (`rng.rs`);
 // - `resample`: the fine level's edges from the coarse weights: pad, 2-tap max, 2-tap blur,
 //   + resample_padding, then inverse-CDF sampling (deterministic or stratified offsets).
+// With `spacing` 2 (unbounded scenes, mipnerf-core's `contract` module) both work in the
+// normalised distance s = t/2 (t < 1), 1 - 1/(2t) (beyond): the coarse edges are stratified in s,
+// the histogram is resampled over the coarse edges' s, and every new edge is mapped back to t.
 
 struct Params {
     n_rays: u32,
     // Samples per ray; each ray has n_samples + 1 edges.
     n_samples: u32,
-    lindisp: u32,
+    // 0: linear in depth; 1: linear in disparity; 2: unbounded (in s, see above).
+    spacing: u32,
     randomized: u32,
     seed: u32,
     step: u32,
@@ -34,6 +38,49 @@ struct Params {
 const F32_EPS: f32 = 1.1920929e-7;
 const PDF_WEIGHT_EPS: f32 = 1e-5;
 const MAX_EDGES: u32 = 1025u;
+const SPACING_DISPARITY: u32 = 1u;
+const SPACING_UNBOUNDED: u32 = 2u;
+
+// mipnerf-core's `contract::ray_distance_to_s` and `s_to_ray_distance`.
+fn ray_distance_to_s(t: f32) -> f32 {
+    if (t < 1.0) {
+        return 0.5 * t;
+    }
+    return 1.0 - 0.5 / t;
+}
+
+fn s_to_ray_distance(s: f32) -> f32 {
+    if (s < 0.5) {
+        return 2.0 * s;
+    }
+    return 1.0 / (2.0 - 2.0 * s);
+}
+
+// The coarse edge at index `i` of `src_a`, in the coordinate resampling works in.
+fn coarse_edge(i: u32) -> f32 {
+    let t = src_a[i];
+    if (p.spacing == SPACING_UNBOUNDED) {
+        return ray_distance_to_s(t);
+    }
+    return t;
+}
+
+// A resampled edge back in t.
+fn fine_edge(v: f32) -> f32 {
+    if (p.spacing == SPACING_UNBOUNDED) {
+        return s_to_ray_distance(v);
+    }
+    return v;
+}
+
+// Output `i` of `n_out` of the ray whose edges start at `tb`, resampled to `v` (in t): in an
+// unbounded scene the first and last stay at the coarse level's (the ray's domain).
+fn pinned_edge(tb: u32, i: u32, n_out: u32, v: f32) -> f32 {
+    if (p.spacing == SPACING_UNBOUNDED && (i == 0u || i + 1u == n_out)) {
+        return src_a[tb + i];
+    }
+    return v;
+}
 
 fn ray_key(stream: u32, ray: u32) -> u32 {
     return stream_key(p.seed, p.step, stream, ray);
@@ -54,8 +101,19 @@ fn stratified(@builtin(global_invocation_id) gid: vec3<u32>) {
     let n = p.n_samples;
     let base = r * (n + 1u);
     let key = ray_key(STREAM_SAMPLE_JITTER, ray_ids[r]);
+    if (p.spacing == SPACING_UNBOUNDED) {
+        let s_near = ray_distance_to_s(near);
+        let s_far = ray_distance_to_s(far);
+        // The first and last edges stay at near and far: the intervals span the ray's domain.
+        t_out[base] = near;
+        for (var i = 1u; i < n; i = i + 1u) {
+            t_out[base + i] = s_to_ray_distance(stratified_edge(i, n, s_near, s_far, false, p.randomized != 0u, key));
+        }
+        t_out[base + n] = far;
+        return;
+    }
     for (var i = 0u; i <= n; i = i + 1u) {
-        t_out[base + i] = stratified_edge(i, n, near, far, p.lindisp != 0u, p.randomized != 0u, key);
+        t_out[base + i] = stratified_edge(i, n, near, far, p.spacing == SPACING_DISPARITY, p.randomized != 0u, key);
     }
 }
 
@@ -139,10 +197,10 @@ fn resample(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
         let i0 = max(k, 1u) - 1u;
         let i1 = min(k, nw);
-        var v = edge_at(u, cdf[i0], cdf[i1], src_a[tb + i0], src_a[tb + i1]);
+        var v = edge_at(u, cdf[i0], cdf[i1], coarse_edge(tb + i0), coarse_edge(tb + i1));
         v = max(v, prev);
         prev = v;
-        t_out[tb + i] = v;
+        t_out[tb + i] = pinned_edge(tb, i, n_out, fine_edge(v));
     }
 }
 
@@ -239,9 +297,9 @@ fn resample_wide(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation
         let k = lo;
         let i_lo = max(k, 1u) - 1u;
         let i_hi = min(k, nw);
-        let v = edge_at(u, w_cdf[i_lo], w_cdf[i_hi], src_a[tb + i_lo], src_a[tb + i_hi]);
+        let v = edge_at(u, w_cdf[i_lo], w_cdf[i_hi], coarse_edge(tb + i_lo), coarse_edge(tb + i_hi));
         run_max = max(v, run_max);
-        t_out[tb + i] = run_max;
+        t_out[tb + i] = pinned_edge(tb, i, n_out, fine_edge(run_max));
     }
     // The running maximum over the blocks before this one, then applied to this block.
     workgroupBarrier();
@@ -251,7 +309,13 @@ fn resample_wide(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation
     for (var j = 0u; j < lane; j = j + 1u) {
         before = max(before, w_lane[j]);
     }
+    // The edges are in t and the maxima in s: the map between them is increasing.
+    // (No block before: nothing to raise, and the sentinel is not mapped.)
+    var before_t = before;
+    if (before > -3.4e38) {
+        before_t = fine_edge(before);
+    }
     for (var i = o0; i < o1; i = i + 1u) {
-        t_out[tb + i] = max(t_out[tb + i], before);
+        t_out[tb + i] = pinned_edge(tb, i, n_out, max(t_out[tb + i], before_t));
     }
 }

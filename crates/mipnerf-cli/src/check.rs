@@ -10,6 +10,7 @@ use mipnerf_core::backend::{Backend as _, CpuBackend, TrainState};
 use mipnerf_core::compare::{KernelCheck, Tolerance, check_kernel};
 use mipnerf_core::data::demo;
 use mipnerf_core::model::{Mode, Model, ModelConfig, PointEncoding, Preset};
+use mipnerf_core::sampling::Spacing;
 use mipnerf_core::train::OptimConfig;
 use mipnerf_core::{Ray, RayShape, stages};
 use mipnerf_gpu::{GpuBackend, GpuContext};
@@ -60,18 +61,20 @@ pub fn check(backend: CheckBackend, device: &mipnerf_gpu::DeviceOptions) -> Resu
     let n = 32usize;
     let ids: Vec<u32> = (0..rays.len() as u32).collect();
     let mut t = vec![0.0; rays.len() * (n + 1)];
-    stages::sample_intervals(&rays, n, false, Mode::Eval, &ids, &mut t);
+    stages::sample_intervals(&rays, n, Spacing::Depth, Mode::Eval, &ids, &mut t);
     let kernel = mipnerf_gpu::kernels::cast_ipe::CastIpeKernel::new(&ctx)?;
     let degrees = (0, 16);
     let ipe = check_kernel(
         "cast_ipe",
         |(rays, t): &(&[Ray], &[f32])| {
             let mut x = vec![0.0; rays.len() * n * mipnerf_core::mip::ipe_len(degrees.0, degrees.1)];
-            stages::cast_and_encode(rays, t, n, RayShape::Cone, PointEncoding::Integrated, degrees, &mut x);
+            stages::cast_and_encode(rays, t, (n, false), RayShape::Cone, PointEncoding::Integrated, degrees, &mut x);
             vec![("features", x)]
         },
         |(rays, t)| {
-            kernel.run(&ctx, rays, t, n as u32, RayShape::Cone, degrees.0, degrees.1).map(|x| vec![("features", x)])
+            kernel
+                .run(&ctx, rays, t, n as u32, (RayShape::Cone, false), degrees.0, degrees.1)
+                .map(|x| vec![("features", x)])
         },
         &(&rays[..], &t[..]),
         |_| Tolerance::abs(TOL_IPE_ABS),

@@ -206,6 +206,10 @@ pub struct TrainSettings {
     /// up axis that of the ring they stand on [default: 4 for new runs; a saved run without it
     /// used the official spherical poses: the unit sphere, the mean offset up].
     pub spherify_radius: Option<f32>,
+    /// An unbounded scene (mip-NeRF 360's contraction of space, samples out to infinity): photos
+    /// taken all around with their surroundings, spherified with the farthest camera on the unit
+    /// sphere [default: false; recorded only when set].
+    pub unbounded: Option<bool>,
     /// Occupancy-guided sampling [default: true for the fast preset, else false].
     pub occupancy: Option<bool>,
     /// Cells along each axis of the occupancy grid [default: 64].
@@ -296,6 +300,7 @@ impl TrainSettings {
             llff_factor,
             spherify,
             spherify_radius,
+            unbounded,
             occupancy,
             occupancy_resolution,
             occupancy_bound,
@@ -360,12 +365,16 @@ impl TrainSettings {
         let kind = self.model.unwrap_or(ModelKind::Mipnerf);
         let mip = kind == ModelKind::Mipnerf;
         // Forward-facing photos train in NDC space.
-        let forward_facing = llff && !self.spherify.unwrap_or(false);
+        // Unbounded scenes are spherified photos (or refused by the loader).
+        let unbounded = self.unbounded.unwrap_or(false);
+        let spherify = self.spherify.unwrap_or(unbounded);
+        let forward_facing = llff && !spherify;
         let preset = self.preset.unwrap_or(PresetArg::Tiny);
         let fast = preset == PresetArg::Fast;
         // A time budget ends the run, so the step count only caps it when given.
         let steps = self.steps.unwrap_or(if self.time_budget.is_some() { MAX_STEPS } else { 2000 });
-        let occupancy = self.occupancy.unwrap_or(fast);
+        // The occupancy grid covers a box, not yet the contracted ball of an unbounded scene.
+        let occupancy = self.occupancy.unwrap_or(fast && !unbounded);
         // On photos (LLFF, COLMAP) the tiny preset learns at the fast preset's rate: 21.86 dB
         // against 19.10 dB at the official 5e-4 after 5 minutes on 40 lego photos
         // (docs/results/own-photos/lr); small and paper keep the paper's rate everywhere.
@@ -411,11 +420,15 @@ impl TrainSettings {
             masks: self.masks.clone(),
             half_res: Some(self.half_res.unwrap_or(false)),
             llff_factor: Some(self.llff_factor.unwrap_or(4)),
-            spherify: Some(self.spherify.unwrap_or(false)),
-            spherify_radius: self
-                .spherify
-                .unwrap_or(false)
-                .then(|| self.spherify_radius.unwrap_or(mipnerf_core::data::llff::SPHERIFY_RADIUS as f32)),
+            spherify: Some(spherify),
+            // An unbounded scene's cameras lie in the unit ball instead (a radius given with it is
+            // kept, for `validate` to refuse).
+            spherify_radius: if unbounded {
+                self.spherify_radius
+            } else {
+                spherify.then(|| self.spherify_radius.unwrap_or(mipnerf_core::data::llff::SPHERIFY_RADIUS as f32))
+            },
+            unbounded: self.unbounded.filter(|&u| u),
             occupancy: Some(occupancy),
             occupancy_resolution: occupancy
                 .then(|| self.occupancy_resolution.unwrap_or(FastRecipe::RECIPE.occupancy_resolution)),
@@ -512,6 +525,7 @@ impl TrainSettings {
         if !(m.density_noise.is_finite() && (0.0..=100.0).contains(&m.density_noise)) {
             bail!("--density-noise must be between 0 and 100, got {}", m.density_noise);
         }
+        m.unbounded = self.unbounded.unwrap_or(false);
         m.white_bkgd = self.white_bkgd.unwrap_or(true);
         m.random_bkgd = self.random_bkgd.unwrap_or(false);
         if m.supersample == 0 || m.supersample > 16 {
@@ -600,6 +614,28 @@ impl TrainSettings {
             && !(2..=256).contains(&r)
         {
             bail!("{} must be between 2 and 256, got {r}", name("occupancy_resolution"));
+        }
+        if self.unbounded == Some(true) {
+            if self.occupancy == Some(true) {
+                bail!(
+                    "occupancy-guided sampling (--occupancy) covers a box; it does not yet cover an unbounded scene's \
+                     contracted space: drop --occupancy (an unbounded run samples the paper's way)"
+                );
+            }
+            if self.spherify == Some(false) {
+                bail!("an unbounded scene is spherified (its cameras in the unit ball): drop spherify = false");
+            }
+            if self.spherify_radius.is_some() {
+                bail!(
+                    "--spherify-radius does not apply to an unbounded scene, whose farthest camera lies on the unit \
+                     sphere: drop it"
+                );
+            }
+            if self.ray_shape == Some(RayShape::Cylinder) {
+                bail!(
+                    "an unbounded scene casts cones (cylinders are for forward-facing scenes in NDC): drop --ray-shape"
+                );
+            }
         }
         if self.occupancy == Some(true) && self.supersample.unwrap_or(1) > 1 {
             bail!("occupancy-guided sampling (--occupancy) does not guide supersampled pixels: drop --supersample");
@@ -727,6 +763,12 @@ pub struct TrainFlags {
     /// that of the ring the cameras stand on.
     #[arg(long, value_name = "R")]
     pub spherify_radius: Option<f32>,
+    /// Photos taken all around a scene with its surroundings (a room, a landscape): the space
+    /// beyond the cameras is contracted into a shell (mip-NeRF 360), so the background is learnt
+    /// out to infinity instead of being cut off at a box. Implies --spherify (the farthest
+    /// camera on the unit sphere); samples the paper's way (no occupancy grid).
+    #[arg(long)]
+    pub unbounded: bool,
     /// What the renders are composited on where the rays meet nothing [default: white for
     /// Blender and multiscale data, black (no compositing) for LLFF and COLMAP]. White or black
     /// suits an object photographed on a plain backdrop of that colour (the backdrop then need
@@ -838,6 +880,7 @@ impl TrainFlags {
             llff_factor: self.llff_factor,
             spherify: yes(self.spherify),
             spherify_radius: self.spherify_radius,
+            unbounded: yes(self.unbounded),
             occupancy: yes(self.occupancy).or(no(self.no_occupancy)),
             occupancy_resolution: self.occupancy_resolution,
             occupancy_bound: self.occupancy_bound,

@@ -91,6 +91,7 @@ pub fn load_split(s: &TrainSettings, split: Split) -> Result<Dataset> {
         llff_spherify: s.spherify.unwrap_or(false),
         spherify_radius: s.spherify_radius.map(f64::from),
         centers: s.centers(),
+        unbounded: s.unbounded.unwrap_or(false),
     };
     Ok(data::load(dir, split, &opts)?)
 }

@@ -1207,3 +1207,85 @@ fn validation_logs_the_test_psnr_per_scale_that_eval_then_reports() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("--val-images"), "{err}");
 }
+
+/// `--unbounded` on a real COLMAP reconstruction: the photos spherified with the farthest camera
+/// on the unit sphere, the paper's sampler out to infinity in the contracted space; the run
+/// records it, learns, resumes and renders an orbit; what it cannot take is refused, named.
+#[test]
+fn an_unbounded_scene_trains_resumes_and_renders_and_refuses_what_it_cannot_take() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    let (scene, r) = (colmap_scene(), run.to_str().unwrap().to_owned());
+    let train = |extra: &[&str]| {
+        let mut args = vec!["train", "--data", scene.to_str().unwrap(), "--out", &r, "--backend", "cpu"];
+        args.extend_from_slice(extra);
+        mipnerf(&args)
+    };
+    let ok = |o: std::process::Output| {
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+    };
+    let text = ok(train(&["--unbounded", "--steps", "60", "--batch-rays", "256", "--lr-init", "5e-3"]));
+    assert!(text.contains("unbounded: the farthest camera on the unit sphere"), "{text}");
+    let config = std::fs::read_to_string(run.join("config.toml")).unwrap();
+    for line in ["unbounded = true", "spherify = true", "occupancy = false", "ray_shape = \"cone\""] {
+        assert!(config.lines().any(|l| l == line), "{line} not in {config}");
+    }
+    assert!(!config.contains("spherify_radius"), "{config}");
+    let csv = std::fs::read_to_string(run.join("metrics.csv")).unwrap();
+    let losses: Vec<f64> = csv.lines().skip(1).map(|l| l.split(',').nth(1).unwrap().parse().unwrap()).collect();
+    let (first, last) = (losses[0], *losses.last().unwrap());
+    assert!(last < first / 2.0, "the loss went from {first} to {last}: {csv}");
+    ok(train(&["--resume", "--steps", "70"]));
+    let frames = dir.path().join("orbit");
+    let out = ok(mipnerf(&[
+        "render",
+        "--run",
+        &r,
+        "--path",
+        "orbit",
+        "--frames",
+        "2",
+        "--width",
+        "24",
+        "--height",
+        "24",
+        "--out",
+        frames.to_str().unwrap(),
+        "--backend",
+        "cpu",
+    ]));
+    assert!(!out.contains("panicked"), "{out}");
+    let pngs =
+        std::fs::read_dir(&frames).unwrap().filter(|e| e.as_ref().unwrap().path().extension() == Some("png".as_ref()));
+    assert!(pngs.count() >= 2, "{out}");
+    // Refused before anything is written, each naming what to drop.
+    for (flags, says) in [
+        (&["--unbounded", "--occupancy"][..], "--occupancy"),
+        (&["--unbounded", "--spherify-radius", "2"][..], "--spherify-radius"),
+        (&["--unbounded", "--ray-shape", "cylinder"][..], "cones"),
+    ] {
+        let fresh = dir.path().join(format!("refused{}", flags.len() + says.len()));
+        let mut args =
+            vec!["train", "--data", scene.to_str().unwrap(), "--out", fresh.to_str().unwrap(), "--steps", "2"];
+        args.extend_from_slice(flags);
+        let o = mipnerf(&args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && err.contains(says) && !err.contains("panicked"), "{flags:?}: {err}");
+        assert!(!fresh.exists(), "{flags:?}: a refused run left {}", fresh.display());
+    }
+    let blender = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/lego_tiny");
+    let fresh = dir.path().join("blender");
+    let o = mipnerf(&[
+        "train",
+        "--data",
+        blender.to_str().unwrap(),
+        "--out",
+        fresh.to_str().unwrap(),
+        "--unbounded",
+        "--steps",
+        "2",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("Blender") && !err.contains("panicked"), "{err}");
+}

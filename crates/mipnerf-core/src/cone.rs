@@ -10,7 +10,8 @@
 
 use glam::Vec3;
 
-use crate::mip::{Gaussian, conical_frustum_to_gaussian, cylinder_to_gaussian};
+use crate::contract::contract_frustum;
+use crate::mip::{Gaussian, conical_frustum_moments, cylinder_moments};
 
 /// One ray (a cone) through one pixel, in the official code's terms.
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
@@ -63,11 +64,36 @@ pub enum RayShape {
 pub fn cast_ray(t_vals: &[f32], origin: Vec3, direction: Vec3, radius: f32, shape: RayShape, out: &mut [Gaussian]) {
     assert_eq!(out.len() + 1, t_vals.len(), "cast_ray: need one more t value than Gaussians");
     for (g, t) in out.iter_mut().zip(t_vals.windows(2)) {
-        let mut lifted = match shape {
-            RayShape::Cone => conical_frustum_to_gaussian(direction, t[0], t[1], radius),
-            RayShape::Cylinder => cylinder_to_gaussian(direction, t[0], t[1], radius),
-        };
+        let mut lifted = crate::mip::lift_gaussian(direction, moments(shape, t[0], t[1], radius));
         lifted.mean += origin;
         *g = lifted;
+    }
+}
+
+/// [`cast_ray`] in an unbounded scene: each interval's Gaussian carried through the scene
+/// contraction ([`contract_frustum`]: unchanged inside the unit ball, linearised outside it).
+///
+/// # Panics
+/// If `out.len() + 1 != t_vals.len()`.
+pub fn cast_ray_contracted(
+    t_vals: &[f32],
+    origin: Vec3,
+    direction: Vec3,
+    radius: f32,
+    shape: RayShape,
+    out: &mut [Gaussian],
+) {
+    assert_eq!(out.len() + 1, t_vals.len(), "cast_ray_contracted: need one more t value than Gaussians");
+    for (g, t) in out.iter_mut().zip(t_vals.windows(2)) {
+        *g = contract_frustum(origin, direction, moments(shape, t[0], t[1], radius));
+    }
+}
+
+/// The moments of the interval `[t0, t1]` of a ray of this shape.
+#[inline]
+fn moments(shape: RayShape, t0: f32, t1: f32, radius: f32) -> crate::mip::FrustumMoments {
+    match shape {
+        RayShape::Cone => conical_frustum_moments(t0, t1, radius),
+        RayShape::Cylinder => cylinder_moments(t0, t1, radius),
     }
 }

@@ -14,6 +14,10 @@
 //!    composites them into a pixel colour, depth and opacity, with weights per interval.
 //! 5. [`sampling::resample_along_rays`]: the fine level's edges from the coarse weights.
 //!
+//! Unbounded scenes (a room around the object) go through [`contract`]: the Gaussians of step 3
+//! are contracted into a ball of radius 2 (mip-NeRF 360), and steps 2 and 5 space the edges in
+//! a normalised distance that reaches infinity.
+//!
 //! [`stages`] runs this flow over a batch of rays, one public function per GPU kernel on the
 //! kernel's buffer layout; [`model::Model`] composes them, and each kernel's test compares the
 //! kernel with its function through [`compare::check_kernel`].
@@ -35,6 +39,7 @@ pub mod camera;
 pub mod checkpoint;
 pub mod compare;
 pub mod cone;
+pub mod contract;
 pub mod data;
 pub mod export;
 pub mod io;

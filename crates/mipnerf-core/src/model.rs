@@ -18,7 +18,7 @@ use crate::mip::{self, Gaussian};
 use crate::mlp::{MlpCache, MlpConfig, MlpConfigError, MlpShape};
 use crate::occupancy::OccupancyGrid;
 use crate::render::{self, DensityActivation};
-use crate::sampling;
+use crate::sampling::{self, Spacing};
 use crate::stages;
 
 /// How a sample's Gaussian is encoded for the MLP.
@@ -80,6 +80,11 @@ pub struct ModelConfig {
     pub ray_shape: RayShape,
     /// Sample linearly in disparity instead of depth.
     pub lindisp: bool,
+    /// An unbounded scene (mip-NeRF 360): every Gaussian is carried through the scene
+    /// contraction, and edges are spaced linearly near and in disparity far, out to infinity
+    /// ([`crate::contract`]). The rays' far bound is then
+    /// [`UNBOUNDED_FAR`](crate::contract::UNBOUNDED_FAR) and the cameras lie in the unit ball.
+    pub unbounded: bool,
     /// Constant added to the blurred weights before resampling.
     pub resample_padding: f32,
     /// Density activation.
@@ -125,6 +130,7 @@ impl Default for ModelConfig {
             point_encoding: PointEncoding::Integrated,
             ray_shape: RayShape::Cone,
             lindisp: false,
+            unbounded: false,
             resample_padding: sampling::RESAMPLE_PADDING,
             density_activation: DensityActivation::Softplus,
             density_bias: -1.0,
@@ -257,6 +263,17 @@ impl ModelConfig {
         self.density_bias = 0.0;
         self.rgb_padding = 0.0;
         self
+    }
+
+    /// How the coarse level spaces its edges: unbounded scenes in the contraction's normalised
+    /// distance, else in disparity with `lindisp`, else in depth.
+    #[must_use]
+    pub fn spacing(&self) -> Spacing {
+        match (self.unbounded, self.lindisp) {
+            (true, _) => Spacing::Unbounded,
+            (false, true) => Spacing::Disparity,
+            (false, false) => Spacing::Depth,
+        }
     }
 
     /// Width of the sample encoding.
@@ -400,6 +417,13 @@ impl Model {
         }
         if config.supersample < 1 {
             return Err(ModelError::Config("supersample must be at least 1".into()));
+        }
+        if config.unbounded && config.ray_shape != RayShape::Cone {
+            return Err(ModelError::Config(
+                "an unbounded scene casts cones: a cylinder keeps its pixel's width out to infinity, where the \
+                 contraction squeezes it to nothing but along the ray (cylinders are for forward-facing scenes in NDC)"
+                    .into(),
+            ));
         }
         let n_mlps = if config.separate_mlps { config.num_levels } else { 1 };
         let mut mlps = Vec::with_capacity(n_mlps);
@@ -773,15 +797,17 @@ impl Model {
                     &ws.ids,
                     &mut ws.t,
                 ),
-                (0, None) => stages::sample_intervals(rays, s, c.lindisp, mode, &ws.ids, &mut ws.t),
+                (0, None) => stages::sample_intervals(rays, s, c.spacing(), mode, &ws.ids, &mut ws.t),
                 _ => {
                     let (t, w) = (&ws.t, &ws.samples.weights);
-                    stages::resample_intervals(t, w, s, c.resample_padding, level, mode, &ws.ids, &mut ws.t_next);
+                    let spaced = (s, c.spacing());
+                    stages::resample_intervals(t, w, spaced, c.resample_padding, level, mode, &ws.ids, &mut ws.t_next);
                     std::mem::swap(&mut ws.t, &mut ws.t_next);
                 }
             }
             let degrees = (c.min_deg_point, c.max_deg_point);
-            stages::cast_and_encode(rays, &ws.t, s, c.ray_shape, c.point_encoding, degrees, &mut ws.x);
+            let shape = (c.ray_shape, c.point_encoding);
+            stages::cast_and_encode(rays, &ws.t, (s, c.unbounded), shape.0, shape.1, degrees, &mut ws.x);
             let mlp = self.mlp_for_level(level);
             mlp.forward(params, &ws.x, &ws.view, rays.len(), s, &mut ws.cache);
             stages::add_density_noise(c.density_noise, level, mode, &ws.ids, s, &mut ws.cache.raw_density[..n]);
@@ -820,11 +846,13 @@ impl Model {
         ws.pixel_rgb.resize(nr / self.rays_per_pixel(), [0.0; 3]);
     }
 
-    /// One Gaussian encoded by the configured point encoding into `dst` (`x_dim` values): IPE,
-    /// PE of the mean ("w/o IPE"), or NeRF's PE ([`stages::encode_gaussian`]).
+    /// One Gaussian (world space) encoded by the configured point encoding into `dst` (`x_dim`
+    /// values): IPE, PE of the mean ("w/o IPE"), or NeRF's PE ([`stages::encode_gaussian`]); in an
+    /// unbounded scene, after the scene contraction ([`crate::contract::contract_gaussian`]).
     pub fn encode_point(&self, g: &Gaussian, dst: &mut [f32]) {
         let c = &self.config;
-        stages::encode_gaussian(g, c.point_encoding, c.min_deg_point, c.max_deg_point, dst);
+        let g = if c.unbounded { crate::contract::contract_gaussian(g) } else { *g };
+        stages::encode_gaussian(&g, c.point_encoding, c.min_deg_point, c.max_deg_point, dst);
     }
 
     /// Each pixel's colour: the mean of its rays' rendered colours.

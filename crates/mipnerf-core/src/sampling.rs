@@ -46,6 +46,60 @@ pub fn sample_along_rays(near: f32, far: f32, lindisp: bool, jitter: Option<RayR
     }
 }
 
+/// How the coarse level spaces a ray's edges between its near and far bounds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Spacing {
+    /// Linearly in depth (`t`), the paper's.
+    #[default]
+    Depth,
+    /// Linearly in disparity (`1/t`), the official `lindisp`.
+    Disparity,
+    /// Unbounded scenes: linearly in the normalised distance `s` of [`crate::contract`] (linear
+    /// in `t` up to 1, in disparity beyond, out to infinity); the fine level resamples in `s` too.
+    Unbounded,
+}
+
+impl Spacing {
+    /// The kernels' code for it (`sample.wgsl`'s `spacing`): 0, 1, 2.
+    #[must_use]
+    pub fn code(self) -> u32 {
+        match self {
+            Self::Depth => 0,
+            Self::Disparity => 1,
+            Self::Unbounded => 2,
+        }
+    }
+}
+
+/// Fills `t_vals` (`num_samples + 1` edges) between `near` and `far` as `spacing` says:
+/// [`sample_along_rays`] for depth and disparity; for unbounded scenes, the same stratification
+/// between `s(near)` and `s(far)` ([`crate::contract::ray_distance_to_s`]), each edge mapped back
+/// to `t`, except the first and the last, which stay at `near` and `far` (the successor's
+/// intervals always span the ray's whole domain; jittered, the last edge would stop short of
+/// infinity, as far in as `t ≈ n` on some steps, and drop the background beyond it).
+///
+/// # Panics
+/// If `t_vals.len() < 2`.
+pub fn sample_spaced(near: f32, far: f32, spacing: Spacing, jitter: Option<RayRng>, t_vals: &mut [f32]) {
+    use crate::contract::{ray_distance_to_s, s_to_ray_distance};
+    match spacing {
+        Spacing::Depth | Spacing::Disparity => {
+            sample_along_rays(near, far, spacing == Spacing::Disparity, jitter, t_vals);
+        }
+        Spacing::Unbounded => {
+            sample_along_rays(ray_distance_to_s(near), ray_distance_to_s(far), false, jitter, t_vals);
+            let last = t_vals.len() - 1;
+            for (i, t) in t_vals.iter_mut().enumerate() {
+                *t = match i {
+                    0 => near,
+                    i if i == last => far,
+                    _ => s_to_ray_distance(*t),
+                };
+            }
+        }
+    }
+}
+
 /// Fills `t_vals` for the coarse level of a ray cut to the occupied `spans` (sorted, disjoint
 /// `[t0, t1]`, at least one), with an edge at each end of every span, so that no interval
 /// straddles an empty gap: each gap between two spans is one interval of its own (its sample

@@ -18,26 +18,26 @@
 
 use glam::Vec3;
 
-use crate::cone::{Ray, RayShape, cast_ray};
+use crate::cone::{Ray, RayShape, cast_ray, cast_ray_contracted};
 use crate::mip::{self, Gaussian};
 use crate::model::{Mode, ModelConfig, PointEncoding};
 use crate::render::{self, RenderedRay};
 use crate::rng::{RayRng, Stream, ray_level_index};
-use crate::sampling::{self, PdfSamples};
+use crate::sampling::{self, PdfSamples, Spacing};
 use crate::train::{AdamConfig, AdamState, clip_gradients};
 
 /// The interval edges of the coarse level: `n_samples + 1` edges per ray between its `near` and
-/// `far` ([`sampling::sample_along_rays`]), jittered in training by the ray's `SampleJitter`
-/// stream (`ray_ids[r]`: the ray's index in the batch, which picks its random numbers).
-/// Kernel: `sample.wgsl`, entry point `stratified`.
+/// `far`, spaced as `spacing` says ([`sampling::sample_spaced`]), jittered in training by the
+/// ray's `SampleJitter` stream (`ray_ids[r]`: the ray's index in the batch, which picks its
+/// random numbers). Kernel: `sample.wgsl`, entry point `stratified`.
 ///
 /// # Panics
 /// If `t` is not `rays.len() * (n_samples + 1)` long or `ray_ids` is shorter than `rays`.
-pub fn sample_intervals(rays: &[Ray], n_samples: usize, lindisp: bool, mode: Mode, ray_ids: &[u32], t: &mut [f32]) {
+pub fn sample_intervals(rays: &[Ray], n_samples: usize, spacing: Spacing, mode: Mode, ray_ids: &[u32], t: &mut [f32]) {
     assert_eq!(t.len(), rays.len() * (n_samples + 1), "sample_intervals: t values");
     assert!(ray_ids.len() >= rays.len(), "sample_intervals: {} ray ids for {} rays", ray_ids.len(), rays.len());
     for ((ray, &id), t) in rays.iter().zip(ray_ids).zip(t.chunks_exact_mut(n_samples + 1)) {
-        sampling::sample_along_rays(ray.near, ray.far, lindisp, jitter(mode, id), t);
+        sampling::sample_spaced(ray.near, ray.far, spacing, jitter(mode, id), t);
     }
 }
 
@@ -85,25 +85,33 @@ fn jitter(mode: Mode, id: u32) -> Option<RayRng> {
 /// The edges of level `level` (1 or more) drawn from the previous level's: per ray, the inverse
 /// CDF of its `weights` (blurred and padded by `padding`, [`sampling::resample_along_rays`]) at
 /// stratified random offsets in training (the ray's `ResampleOffsets` stream at this level), at
-/// evenly spaced ones in evaluation. Kernel: `sample.wgsl`, entry point `resample`.
+/// evenly spaced ones in evaluation. With [`Spacing::Unbounded`] the histogram is taken over the
+/// edges' normalised distances `s` ([`crate::contract::ray_distance_to_s`]) and the new edges
+/// mapped back to `t`, as the successor resamples (in `t` the last interval reaches infinity),
+/// the first and last kept at the coarse level's (the ray's whole domain, as
+/// [`sampling::sample_spaced`] keeps it).
+/// Kernel: `sample.wgsl`, entry point `resample`.
 ///
 /// # Panics
 /// If the lengths disagree with `ray_ids.len()` rays of `n_samples` intervals.
 pub fn resample_intervals(
     t_coarse: &[f32],
     weights: &[f32],
-    n_samples: usize,
+    (n_samples, spacing): (usize, Spacing),
     padding: f32,
     level: usize,
     mode: Mode,
     ray_ids: &[u32],
     t_fine: &mut [f32],
 ) {
+    use crate::contract::{ray_distance_to_s, s_to_ray_distance};
     let (s, nr) = (n_samples, ray_ids.len());
     assert!(
         t_coarse.len() == nr * (s + 1) && t_fine.len() == nr * (s + 1) && weights.len() == nr * s,
         "resample_intervals: lengths"
     );
+    let unbounded = spacing == Spacing::Unbounded;
+    let mut s_coarse = vec![0.0f32; if unbounded { s + 1 } else { 0 }];
     for (r, &id) in ray_ids.iter().enumerate() {
         let samples = match mode {
             Mode::Train { seed, step } => PdfSamples::Stratified(RayRng::new(
@@ -114,13 +122,17 @@ pub fn resample_intervals(
             )),
             Mode::Eval => PdfSamples::Deterministic,
         };
-        sampling::resample_along_rays(
-            &t_coarse[r * (s + 1)..(r + 1) * (s + 1)],
-            &weights[r * s..(r + 1) * s],
-            padding,
-            samples,
-            &mut t_fine[r * (s + 1)..(r + 1) * (s + 1)],
-        );
+        let edges = &t_coarse[r * (s + 1)..(r + 1) * (s + 1)];
+        let out = &mut t_fine[r * (s + 1)..(r + 1) * (s + 1)];
+        let w = &weights[r * s..(r + 1) * s];
+        if unbounded {
+            s_coarse.iter_mut().zip(edges).for_each(|(sv, &t)| *sv = ray_distance_to_s(t));
+            sampling::resample_along_rays(&s_coarse, w, padding, samples, out);
+            out.iter_mut().for_each(|t| *t = s_to_ray_distance(*t));
+            (out[0], out[s]) = (edges[0], edges[s]);
+        } else {
+            sampling::resample_along_rays(edges, w, padding, samples, out);
+        }
     }
 }
 
@@ -139,7 +151,8 @@ pub fn encode_gaussian(g: &Gaussian, encoding: PointEncoding, min_deg: u32, max_
 }
 
 /// Casts each ray's intervals (`t`: `n_samples + 1` edges per ray) as conical frustums (or
-/// cylinders), each a Gaussian ([`cast_ray`]), and encodes them ([`encode_gaussian`]) into `x`:
+/// cylinders), each a Gaussian ([`cast_ray`]; in an unbounded scene carried through the scene
+/// contraction, [`cast_ray_contracted`]), and encodes them ([`encode_gaussian`]) into `x`:
 /// `rays.len() * n_samples` rows of the encoding's width, sample after sample. Kernel:
 /// `cast_ipe.wgsl`.
 ///
@@ -148,7 +161,7 @@ pub fn encode_gaussian(g: &Gaussian, encoding: PointEncoding, min_deg: u32, max_
 pub fn cast_and_encode(
     rays: &[Ray],
     t: &[f32],
-    n_samples: usize,
+    (n_samples, unbounded): (usize, bool),
     shape: RayShape,
     encoding: PointEncoding,
     (min_deg, max_deg): (u32, u32),
@@ -158,8 +171,9 @@ pub fn cast_and_encode(
     let width = encoding.width(min_deg, max_deg);
     assert_eq!(x.len(), rays.len() * n_samples * width, "cast_and_encode: features");
     let mut gauss = vec![Gaussian::default(); n_samples];
+    let cast = if unbounded { cast_ray_contracted } else { cast_ray };
     for (r, ray) in rays.iter().enumerate() {
-        cast_ray(
+        cast(
             &t[r * (n_samples + 1)..(r + 1) * (n_samples + 1)],
             ray.origin,
             ray.direction,

@@ -845,3 +845,65 @@ fn a_pix2cam_whose_corner_direction_overflows_is_refused() {
     assert!(mipnerf_core::camera::Camera::from_pix2cam(32, 32, tiny, pose).is_err());
     assert!(mipnerf_core::camera::Camera::from_pix2cam(32, 32, fine, pose).is_ok());
 }
+
+/// An unbounded scene's photos (`unbounded`): spherified with the ring's axis as at any radius,
+/// scaled so that the farthest camera of the whole capture (train and test alike) lies on the
+/// unit sphere and the others inside it, and every ray reaching
+/// [`UNBOUNDED_FAR`](mipnerf_core::contract::UNBOUNDED_FAR).
+#[test]
+fn unbounded_photos_put_the_farthest_camera_on_the_unit_sphere() {
+    use mipnerf_core::contract::UNBOUNDED_FAR;
+    let dir = tempfile::tempdir().unwrap();
+    make_tilted_ring(dir.path());
+    let load = |unbounded: bool, split: Split| {
+        let opts = LoadOptions {
+            llff_factor: 1,
+            llff_spherify: true,
+            spherify_radius: (!unbounded).then_some(4.0),
+            unbounded,
+            ..LoadOptions::default()
+        };
+        data::load(dir.path(), split, &opts).unwrap()
+    };
+    let origins = |ds: &Dataset| -> Vec<glam::DVec3> {
+        ds.views().iter().map(|v| glam::DVec3::from_array(v.camera.origin())).collect()
+    };
+    let (train, test) = (load(true, Split::Train), load(true, Split::Test));
+    let all: Vec<f64> = origins(&train).iter().chain(&origins(&test)).map(|o| o.length()).collect();
+    let farthest = all.iter().copied().fold(0.0, f64::max);
+    let nearest = all.iter().copied().fold(f64::INFINITY, f64::min);
+    assert!((farthest - 1.0).abs() < 1e-9, "the farthest camera at {farthest}");
+    // The ring is off-centre, so the other cameras lie strictly inside.
+    assert!(nearest < 0.9, "cameras at {all:?}");
+    for ds in [&train, &test] {
+        assert!(ds.notes.iter().any(|n| n.contains("unbounded")), "{:?}", ds.notes);
+        for v in ds.views() {
+            assert_eq!(v.far, UNBOUNDED_FAR, "{}", v.file.display());
+            assert!(v.near > 0.0 && v.near < 1.0, "{}: near {}", v.file.display(), v.near);
+        }
+    }
+    // The same frame as the ring's at radius 4, scaled by one factor.
+    let ring = origins(&load(false, Split::Train));
+    let k = ring[0].length() / origins(&train)[0].length();
+    for (a, b) in origins(&train).iter().zip(&ring) {
+        assert!((*a * k - *b).length() < 1e-9, "{a:?} x {k} vs {b:?}");
+    }
+}
+
+/// `unbounded` is for world-space photos: forward-facing photos in NDC space and Blender scenes
+/// are refused, naming the folder and what to do.
+#[test]
+fn unbounded_scenes_need_spherified_photos() {
+    let dir = tempfile::tempdir().unwrap();
+    make_tilted_ring(dir.path());
+    let opts = LoadOptions { llff_factor: 1, unbounded: true, ..LoadOptions::default() };
+    let err = data::load(dir.path(), Split::Train, &opts).unwrap_err().to_string();
+    assert!(
+        err.contains("NDC") && err.contains("--spherify") && err.contains(&dir.path().display().to_string()),
+        "{err}"
+    );
+    let err = data::load(&lego_tiny(), Split::Train, &LoadOptions { unbounded: true, ..LoadOptions::default() })
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("Blender") && err.contains("lego_tiny"), "{err}");
+}

@@ -2,10 +2,16 @@
 #![allow(clippy::unwrap_used, missing_docs)]
 
 use glam::Vec3;
+use mipnerf_core::cone::cast_ray_contracted;
+use mipnerf_core::contract::UNBOUNDED_FAR;
 use mipnerf_core::mip::{self, Gaussian};
+use mipnerf_core::model::Mode;
 use mipnerf_core::render::volumetric_rendering;
 use mipnerf_core::rng::{RayRng, Stream};
-use mipnerf_core::sampling::{PdfSamples, RESAMPLE_PADDING, resample_along_rays, sample_along_rays};
+use mipnerf_core::sampling::{
+    PdfSamples, RESAMPLE_PADDING, Spacing, resample_along_rays, sample_along_rays, sample_spaced,
+};
+use mipnerf_core::{Ray, RayShape, stages};
 use proptest::prelude::*;
 
 /// Tolerance of `sum(weights) == acc`: both are the same f32 sum in the same order.
@@ -69,6 +75,35 @@ proptest! {
     }
 
     #[test]
+    fn unbounded_edges_are_sorted_and_reach_from_near_to_infinity(
+        near in 0.02f32..3.0, seed in any::<u32>(), ray in any::<u32>(), randomized in any::<bool>(),
+        weights in prop::collection::vec(prop_oneof![Just(0.0f32), 0.0f32..1.0], 32),
+    ) {
+        // The coarse edges in s, then the fine ones resampled in s: sorted, inside [near, far]
+        // (to the rounding of s near 1, where an ulp of s is a relative 1.2e-7 t of t), and the
+        // contracted Gaussians of every interval inside the ball of radius 2.
+        let far = UNBOUNDED_FAR;
+        let jitter = randomized.then(|| RayRng::new(seed, 3, Stream::SampleJitter, ray));
+        let mut t = vec![0.0; 33];
+        sample_spaced(near, far, Spacing::Unbounded, jitter, &mut t);
+        let inside = |x: f32| x >= near * (1.0 - 1e-6) && x <= far * (1.0 + 0.2);
+        prop_assert!(t.windows(2).all(|p| p[0] <= p[1]), "not sorted: {:?}", t);
+        prop_assert!(t.iter().all(|&x| inside(x)), "outside [{}, {}]: {:?}", near, far, t);
+        prop_assert!(t[0] == near && t[32] == far, "the domain [{}, {}] not kept: {:?}", near, far, t);
+        let rays = [Ray { origin: Vec3::new(0.3, -0.2, 0.1), direction: Vec3::new(0.6, 0.8, -0.3), radius: 0.002, near, far, ..Ray::default() }];
+        let mut fine = vec![0.0; 33];
+        let mode = if randomized { Mode::Train { seed, step: 3 } } else { Mode::Eval };
+        stages::resample_intervals(&t, &weights, (32, Spacing::Unbounded), RESAMPLE_PADDING, 1, mode, &[ray], &mut fine);
+        prop_assert!(fine.windows(2).all(|p| p[0] <= p[1]), "not sorted: {:?}", fine);
+        prop_assert!(fine.iter().all(|&x| inside(x)), "outside [{}, {}]: {:?}", near, far, fine);
+        let mut gs = vec![Gaussian::default(); 32];
+        cast_ray_contracted(&fine, rays[0].origin, rays[0].direction, rays[0].radius, RayShape::Cone, &mut gs);
+        for g in &gs {
+            prop_assert!(g.mean.length() <= 2.0 + 1e-5 && g.cov_diag.is_finite() && g.cov_diag.min_element() >= 0.0, "{:?}", g);
+        }
+    }
+
+    #[test]
     fn ipe_features_are_bounded_and_shrink_as_variance_grows(
         mean in prop::array::uniform3(-8.0f32..8.0),
         var in prop::array::uniform3(0.0f32..0.5),
@@ -85,4 +120,31 @@ proptest! {
             prop_assert!(b.abs() <= a.abs(), "feature {}: |{}| grew to |{}|", i, a, b);
         }
     }
+}
+
+/// The fine level of an unbounded scene resamples the coarse histogram in `s`, as the successor
+/// does: all the weight in the last coarse interval (from a few units out to infinity) gives fine
+/// edges spread evenly in `s` across it, most of them at moderate distances. Resampled in `t`
+/// they would be spread evenly in `t`, nearly all beyond `1e5`.
+#[test]
+fn unbounded_resampling_is_even_in_s_not_in_t() {
+    use mipnerf_core::contract::ray_distance_to_s;
+    let n = 16;
+    let mut t = vec![0.0; n + 1];
+    sample_spaced(0.1, UNBOUNDED_FAR, Spacing::Unbounded, None, &mut t);
+    let mut weights = vec![0.0f32; n];
+    weights[n - 1] = 1.0;
+    let mut fine = vec![0.0; n + 1];
+    stages::resample_intervals(&t, &weights, (n, Spacing::Unbounded), 0.0, 1, Mode::Eval, &[0], &mut fine);
+    let (s0, s1) = (ray_distance_to_s(t[n - 1]), ray_distance_to_s(t[n]));
+    // The blur spreads the weight onto the interval before the last: look at the last one's.
+    let last: Vec<f32> = fine.iter().copied().filter(|&x| x >= t[n - 1]).collect();
+    assert!(last.len() >= n / 2, "{fine:?}");
+    let s: Vec<f32> = last.iter().map(|&x| ray_distance_to_s(x)).collect();
+    for pair in s.windows(2) {
+        let step = pair[1] - pair[0];
+        assert!((step - (s1 - s0) / (s.len() - 1) as f32).abs() < 0.2 * (s1 - s0) / (s.len() - 1) as f32, "{s:?}");
+    }
+    let median = last[last.len() / 2];
+    assert!(median < 100.0, "fine edges {last:?}: median {median} (in t they would be near {})", 0.5 * UNBOUNDED_FAR);
 }

@@ -383,7 +383,7 @@ impl GpuModel {
             let sp = SampleParams {
                 n_rays: nr as u32,
                 n_samples: s as u32,
-                lindisp: u32::from(c.lindisp),
+                spacing: c.spacing().code(),
                 randomized: u32::from(randomized),
                 seed,
                 step,
@@ -398,7 +398,7 @@ impl GpuModel {
                         let op = OccupancyParams {
                             n_rays: sp.n_rays,
                             n_samples: sp.n_samples,
-                            lindisp: sp.lindisp,
+                            lindisp: u32::from(c.lindisp),
                             randomized: sp.randomized,
                             seed,
                             step,
@@ -419,7 +419,7 @@ impl GpuModel {
                 ray_shape: c.ray_shape as u32,
                 groups_x: 0,
                 encoding: c.point_encoding as u32,
-                _pad: 0,
+                unbounded: u32::from(c.unbounded),
             };
             self.cast.encode(rec, cp, &batch.rays, &t[level], &bufs.x)?;
             // One MLP for all levels, or one per level (the same shape at its own offset).

@@ -300,10 +300,45 @@ fn gpu_and_cpu_backends_train_alike_on_random_backgrounds() {
     train_alike(ctx, ModelConfig { random_bkgd: true, ..Preset::Tiny.config() }, 20);
 }
 
+/// lego_tiny as an unbounded scene (mip-NeRF 360's setting): the world scaled so that its
+/// cameras (4 units out) stand just inside the unit ball, with the object around the centre, and
+/// every ray reaching [`UNBOUNDED_FAR`](mipnerf_core::contract::UNBOUNDED_FAR), so that each
+/// ray's samples lie inside the ball (unchanged) and beyond it (contracted), out to infinity.
+fn lego_tiny_unbounded() -> Dataset {
+    let ds = lego_tiny();
+    let farthest = ds.views().iter().map(|v| glam::DVec3::from_array(v.camera.origin()).length()).fold(0.0, f64::max);
+    let scale = 0.99 / farthest;
+    let views = ds
+        .views()
+        .iter()
+        .map(|v| {
+            let mut v = v.clone();
+            v.camera.cam2world.iter_mut().for_each(|row| row[3] *= scale);
+            v.near = (f64::from(v.near) * scale) as f32;
+            v
+        })
+        .collect();
+    let mut ds = Dataset::from_views(Split::Train, views, true).unwrap();
+    ds.make_unbounded().unwrap();
+    ds
+}
+
+#[test]
+fn gpu_and_cpu_backends_train_alike_on_an_unbounded_scene() {
+    // The contraction in cast_ipe.wgsl and the sampler in s (sample.wgsl), through whole steps.
+    let Some(ctx) = context_or_skip("gpu_and_cpu_backends_train_alike_on_an_unbounded_scene") else { return };
+    train_alike_on(ctx, lego_tiny_unbounded(), ModelConfig { unbounded: true, ..Preset::Tiny.config() }, 30);
+}
+
 /// Trains `cfg` on lego_tiny for `steps` on both backends from one seed: the loss curves and the
 /// final renders agree.
 fn train_alike(ctx: mipnerf_gpu::GpuContext, cfg: ModelConfig, steps: u64) {
-    let ds = Arc::new(lego_tiny());
+    train_alike_on(ctx, lego_tiny(), cfg, steps);
+}
+
+/// [`train_alike`] on `ds`.
+fn train_alike_on(ctx: mipnerf_gpu::GpuContext, ds: Dataset, cfg: ModelConfig, steps: u64) {
+    let ds = Arc::new(ds);
     let model = Model::new(cfg).unwrap();
     let (seed, batch) = (3u32, 32usize);
     let (mut cpu, gpu) = cpu_and_gpu(ctx, &ds, &model, seed, batch);

@@ -5,9 +5,11 @@
 
 use glam::Vec3;
 use mipnerf_core::compare::{Outputs, Tolerance, assert_none, check_kernel, mismatches};
+use mipnerf_core::contract::UNBOUNDED_FAR;
 use mipnerf_core::data::demo;
 use mipnerf_core::mip::{self, ipe_len};
 use mipnerf_core::model::{Mode, PointEncoding};
+use mipnerf_core::sampling::Spacing;
 use mipnerf_core::{PixelCenters, Ray, RayShape, stages};
 use mipnerf_gpu::GpuError;
 use mipnerf_gpu::kernels::Recorder;
@@ -52,19 +54,34 @@ fn cast_ipe_matches_cpu_reference() {
     let n = 16usize;
     let mut t = vec![0.0; rays.len() * (n + 1)];
     let ids: Vec<u32> = (0..rays.len() as u32).collect();
-    stages::sample_intervals(&rays, n, false, Mode::Train { seed: 7, step: 0 }, &ids, &mut t);
+    let mode = Mode::Train { seed: 7, step: 0 };
+    stages::sample_intervals(&rays, n, Spacing::Depth, mode, &ids, &mut t);
+    // An unbounded scene: the same camera moved into the unit ball, edges out to infinity, so
+    // that each ray has Gaussians inside the ball (unchanged) and outside it (contracted).
+    let inside: Vec<Ray> = rays
+        .iter()
+        .map(|r| Ray { origin: r.origin * (0.9 / r.origin.length()), near: 0.1, far: UNBOUNDED_FAR, ..*r })
+        .collect();
+    let mut t_inside = vec![0.0; rays.len() * (n + 1)];
+    stages::sample_intervals(&inside, n, Spacing::Unbounded, mode, &ids, &mut t_inside);
     let degrees = (0, 16);
     let mut bad = Vec::new();
-    for shape in [RayShape::Cone, RayShape::Cylinder] {
+    // Unbounded scenes cast cones only (`Model::new` refuses cylinders there).
+    for (shape, unbounded) in [(RayShape::Cone, false), (RayShape::Cylinder, false), (RayShape::Cone, true)] {
+        let input = if unbounded { (&inside[..], &t_inside[..]) } else { (&rays[..], &t[..]) };
         let check = check_kernel(
-            &format!("cast_ipe {shape:?} on {}", ctx.adapter().name),
+            &format!("cast_ipe {shape:?} unbounded {unbounded} on {}", ctx.adapter().name),
             |(rays, t): &(&[Ray], &[f32])| {
                 let mut x = vec![0.0; rays.len() * n * ipe_len(degrees.0, degrees.1)];
-                stages::cast_and_encode(rays, t, n, shape, PointEncoding::Integrated, degrees, &mut x);
+                stages::cast_and_encode(rays, t, (n, unbounded), shape, PointEncoding::Integrated, degrees, &mut x);
                 vec![("features", x)]
             },
-            |(rays, t)| kernel.run(&ctx, rays, t, n as u32, shape, degrees.0, degrees.1).map(|x| vec![("features", x)]),
-            &(&rays[..], &t[..]),
+            |(rays, t)| {
+                kernel
+                    .run(&ctx, rays, t, n as u32, (shape, unbounded), degrees.0, degrees.1)
+                    .map(|x| vec![("features", x)])
+            },
+            &input,
             |_| Tolerance::abs(sin_feature_tolerance(&ctx)),
         );
         bad.extend(check.into_mismatches());
@@ -79,7 +96,7 @@ fn cast_ipe_rejects_inconsistent_sizes() {
     };
     let kernel = CastIpeKernel::new(&ctx).unwrap();
     let rays = vec![Ray { direction: Vec3::NEG_Z, ..Ray::default() }; 2];
-    let err = kernel.run(&ctx, &rays, &[2.0, 3.0, 4.0], 2, RayShape::Cone, 0, 16).unwrap_err();
+    let err = kernel.run(&ctx, &rays, &[2.0, 3.0, 4.0], 2, (RayShape::Cone, false), 0, 16).unwrap_err();
     assert!(err.to_string().contains("3 t values for 2 rays"), "{err}");
 }
 
@@ -434,8 +451,20 @@ const TOL_GPU_SAMPLE_REL: f32 = 2e-6;
 /// which the near-zero weights here make small. Measured up to 4.2e-5 on edges of 0.5 to 8.
 const TOL_GPU_RESAMPLE_WIDE_ABS: f32 = 1e-4;
 
+/// GPU vs CPU edges of an unbounded scene, compared in the normalised distance `s` they are
+/// drawn in (`contract::ray_distance_to_s`), absolutely: `s` lies in `[0, 1)`, and an ulp of `s`
+/// near 1 (6e-8) is a relative change of `t` as large as `t · 1.2e-7` (6% at `t = 1e6`), so `t`
+/// itself is the wrong scale. The mapping's division (2.5 ulp in WGSL) and the stratification's
+/// own rounding stay within a few ulp of 1.
+const TOL_GPU_SAMPLE_S_ABS: f32 = 1e-6;
+
+/// The same for the fine edges of the wide resampling, whose CDF is summed by block (see
+/// [`TOL_GPU_RESAMPLE_WIDE_ABS`]): measured up to 4.5e-6 in `s` on lavapipe.
+const TOL_GPU_RESAMPLE_WIDE_S_ABS: f32 = 2e-5;
+
 #[test]
 fn sampling_and_resampling_match_cpu_reference() {
+    use mipnerf_core::contract::ray_distance_to_s;
     use mipnerf_core::sampling::RESAMPLE_PADDING;
     use mipnerf_gpu::kernels::sample::{ResampleVariant, SampleKernels, SampleParams};
     use rand::{Rng, SeedableRng, rngs::SmallRng};
@@ -454,29 +483,43 @@ fn sampling_and_resampling_match_cpu_reference() {
         let (nr, seed, step) = (37usize, 5u32, 9u32);
         let ids: Vec<u32> = (0..nr as u32).map(|r| 100 + 3 * r).collect();
         let mut rng = SmallRng::seed_from_u64(s as u64);
-        let rays: Vec<Ray> = (0..nr)
+        let bounded: Vec<Ray> = (0..nr)
             .map(|_| {
                 let near = rng.random_range(0.5..3.0);
                 Ray { near, far: near + rng.random_range(0.5..5.0), ..Ray::default() }
             })
             .collect();
+        // Unbounded scenes: nears inside and outside the unit distance, every far at infinity's
+        // stand-in.
+        let unbounded: Vec<Ray> =
+            (0..nr).map(|r| Ray { near: 0.05 + 0.07 * r as f32, far: UNBOUNDED_FAR, ..Ray::default() }).collect();
         // Weights with zeros and spikes.
         let weights: Vec<f32> =
             (0..nr * s).map(|i| if i % 7 == 0 { 0.0 } else { rng.random_range(0.0..1.0f32).powi(4) }).collect();
-        for (lindisp, randomized) in [(false, false), (true, false), (false, true), (true, true)] {
+        let spacings = [Spacing::Depth, Spacing::Disparity, Spacing::Unbounded];
+        for (spacing, randomized) in spacings.into_iter().flat_map(|sp| [(sp, false), (sp, true)]) {
             let mode = mode_of(randomized, seed, step);
+            let rays = if spacing == Spacing::Unbounded { &unbounded } else { &bounded };
+            // Unbounded edges are compared in s (TOL_GPU_SAMPLE_S_ABS).
+            let compared = |name: &'static str, t: Vec<f32>| -> (&'static str, Vec<f32>) {
+                if spacing == Spacing::Unbounded {
+                    (name, t.into_iter().map(ray_distance_to_s).collect())
+                } else {
+                    (name, t)
+                }
+            };
             let cpu = |w: &[f32]| -> Outputs {
                 let (mut coarse, mut fine) = (vec![0.0; nr * (s + 1)], vec![0.0; nr * (s + 1)]);
-                stages::sample_intervals(&rays, s, lindisp, mode, &ids, &mut coarse);
-                stages::resample_intervals(&coarse, w, s, RESAMPLE_PADDING, 1, mode, &ids, &mut fine);
-                vec![("coarse", coarse), ("fine", fine)]
+                stages::sample_intervals(rays, s, spacing, mode, &ids, &mut coarse);
+                stages::resample_intervals(&coarse, w, (s, spacing), RESAMPLE_PADDING, 1, mode, &ids, &mut fine);
+                vec![compared("coarse", coarse), compared("fine", fine)]
             };
             // GPU, outputs poisoned.
             let on_gpu = |w: &[f32]| -> Result<Outputs, GpuError> {
                 let params = SampleParams {
                     n_rays: nr as u32,
                     n_samples: s as u32,
-                    lindisp: u32::from(lindisp),
+                    spacing: spacing.code(),
                     randomized: u32::from(randomized),
                     seed,
                     step,
@@ -494,14 +537,21 @@ fn sampling_and_resampling_match_cpu_reference() {
                 k.stratified(&mut rec, params, &b_bounds, &b_ids, &b_t)?;
                 k.resample(&mut rec, params, &b_t, &b_w, &b_ids, &b_f)?;
                 let _ = rec.submit();
-                Ok(vec![("coarse", ctx.read_f32(&b_t, nr * (s + 1))?), ("fine", ctx.read_f32(&b_f, nr * (s + 1))?)])
+                Ok(vec![
+                    compared("coarse", ctx.read_f32(&b_t, nr * (s + 1))?),
+                    compared("fine", ctx.read_f32(&b_f, nr * (s + 1))?),
+                ])
             };
             let tol = |name: &str| match (name, variant) {
+                ("fine", ResampleVariant::Wide) if spacing == Spacing::Unbounded => {
+                    Tolerance::abs(TOL_GPU_RESAMPLE_WIDE_S_ABS)
+                }
+                _ if spacing == Spacing::Unbounded => Tolerance::abs(TOL_GPU_SAMPLE_S_ABS),
                 ("coarse", _) => Tolerance::new(0.0, TOL_GPU_SAMPLE_REL),
                 (_, ResampleVariant::PerRay) => Tolerance::new(1e-6, TOL_GPU_SAMPLE_REL),
                 (_, ResampleVariant::Wide) => Tolerance::new(TOL_GPU_RESAMPLE_WIDE_ABS, TOL_GPU_SAMPLE_REL),
             };
-            let label = format!("{variant:?} {s} samples lindisp {lindisp} randomized {randomized}");
+            let label = format!("{variant:?} {s} samples {spacing:?} randomized {randomized}");
             bad.extend(check_kernel(&label, cpu, on_gpu, &weights[..], tol).into_mismatches());
         }
     }

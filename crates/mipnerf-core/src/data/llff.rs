@@ -118,6 +118,10 @@ pub enum Spherify {
         /// The cameras' root-mean-square distance from the centre.
         radius: f64,
     },
+    /// As [`Ring`](Self::Ring), scaled so that the farthest camera lies on the unit sphere: an
+    /// unbounded scene's poses (mip-NeRF 360's normalisation, [`crate::contract`]), the same for
+    /// every split, as it is taken over every photo.
+    UnitBall,
 }
 
 /// The axis of the ring the camera centres stand on: the normal of the plane that fits them
@@ -211,12 +215,12 @@ fn spherify(poses: &[Pose], how: Spherify) -> Option<(Vec<Pose>, f64, Vec<Pose>)
     }
     let center = -(a_mean.inverse() * (b_sum / n));
     let radius = match how {
-        Spherify::Official => OFFICIAL_SPHERIFY_RADIUS,
+        Spherify::Official | Spherify::UnitBall => OFFICIAL_SPHERIFY_RADIUS,
         Spherify::Ring { radius } => radius,
     };
     let up = match how {
         Spherify::Official => poses.iter().map(|p| col(p, 3) - center).sum::<DVec3>() / n,
-        Spherify::Ring { .. } => {
+        Spherify::Ring { .. } | Spherify::UnitBall => {
             let centres: Vec<DVec3> = poses.iter().map(|p| col(p, 3)).collect();
             let ups: Vec<DVec3> = poses.iter().map(|p| col(p, 1)).collect();
             ring_axis(&centres, &ups)?
@@ -227,14 +231,20 @@ fn spherify(poses: &[Pose], how: Spherify) -> Option<(Vec<Pose>, f64, Vec<Pose>)
     let vec2 = vec0.cross(vec1).normalize();
     let c2w = pose_from_cols(vec1, vec2, vec0, center);
     let mut reset: Vec<Pose> = poses.iter().map(|p| relative(&c2w, p)).collect();
-    let rad = (reset.iter().map(|p| col(p, 3).length_squared()).sum::<f64>() / n).sqrt();
-    let sc = radius / rad;
+    let sc = if how == Spherify::UnitBall {
+        1.0 / reset.iter().map(|p| col(p, 3).length()).fold(0.0, f64::max)
+    } else {
+        radius / (reset.iter().map(|p| col(p, 3).length_squared()).sum::<f64>() / n).sqrt()
+    };
+    if !(sc.is_finite() && sc > 0.0) {
+        return None;
+    }
     for p in &mut reset {
         for row in p.iter_mut() {
             row[3] *= sc;
         }
     }
-    if let Spherify::Ring { .. } = how {
+    if let Spherify::Ring { .. } | Spherify::UnitBall = how {
         let path = ring_path(&reset);
         return Some((reset, sc, path));
     }

@@ -257,6 +257,33 @@ impl Dataset {
         &mut self.views
     }
 
+    /// Makes the scene unbounded (mip-NeRF 360's setting, [`crate::contract`]): every ray's far
+    /// bound becomes [`UNBOUNDED_FAR`](crate::contract::UNBOUNDED_FAR). The cameras must lie in
+    /// the unit ball (the region the photos were taken from is what the contraction leaves as it
+    /// is; [`llff::Spherify::UnitBall`] puts them there).
+    ///
+    /// # Errors
+    /// A camera outside the unit ball (beyond rounding), named.
+    pub fn make_unbounded(&mut self) -> Result<(), String> {
+        /// How far past the unit sphere rounding may put the farthest camera.
+        const SLACK: f64 = 1e-6;
+        for v in &self.views {
+            let o = v.camera.origin();
+            let d = (o[0] * o[0] + o[1] * o[1] + o[2] * o[2]).sqrt();
+            if d.is_nan() || d > 1.0 + SLACK {
+                return Err(format!(
+                    "{}: its camera is {d:.4} from the scene's centre; an unbounded scene needs every camera in the unit \
+                     ball",
+                    v.file.display()
+                ));
+            }
+        }
+        for v in &mut self.views {
+            v.far = crate::contract::UNBOUNDED_FAR;
+        }
+        Ok(())
+    }
+
     /// Total pixels over all views.
     #[must_use]
     pub fn num_pixels(&self) -> u64 {
@@ -538,7 +565,8 @@ pub struct LoadOptions {
     pub llff_factor: u32,
     /// LLFF and COLMAP: spherical poses instead of forward-facing NDC.
     pub llff_spherify: bool,
-    /// With `llff_spherify`: `None` for the official spherical poses ([`llff::Spherify::Official`],
+    /// With `llff_spherify` (and not `unbounded`, whose poses are [`llff::Spherify::UnitBall`]'s):
+    /// `None` for the official spherical poses ([`llff::Spherify::Official`],
     /// the default), or the cameras' distance from the centre with the up axis their ring's
     /// ([`llff::Spherify::Ring`]; the CLI trains new runs at [`llff::SPHERIFY_RADIUS`]).
     pub spherify_radius: Option<f64>,
@@ -547,6 +575,11 @@ pub struct LoadOptions {
     /// Photos (LLFF, COLMAP): a folder of foreground masks, one per photo, taken as the photos'
     /// alpha ([`masks::apply`]).
     pub masks: Option<PathBuf>,
+    /// An unbounded scene ([`crate::contract`]): photos spherified with the farthest camera on the
+    /// unit sphere ([`llff::Spherify::UnitBall`]), every ray's far bound at
+    /// [`UNBOUNDED_FAR`](crate::contract::UNBOUNDED_FAR) ([`Dataset::make_unbounded`]). Needs
+    /// `llff_spherify` on photos; Blender scenes (an object alone) are refused.
+    pub unbounded: bool,
 }
 
 impl Default for LoadOptions {
@@ -559,6 +592,7 @@ impl Default for LoadOptions {
             llff_spherify: false,
             spherify_radius: None,
             centers: PixelCenters::Centered,
+            unbounded: false,
         }
     }
 }
@@ -570,9 +604,10 @@ impl Default for LoadOptions {
 pub fn load(dir: &Path, split: Split, opts: &LoadOptions) -> Result<Dataset, DataError> {
     let format = detect_format(dir)?;
     let white = opts.white_bkgd.unwrap_or(!format.is_photos());
-    let spherify = opts.llff_spherify.then_some(match opts.spherify_radius {
-        None => llff::Spherify::Official,
-        Some(radius) => llff::Spherify::Ring { radius },
+    let spherify = opts.llff_spherify.then_some(match (opts.unbounded, opts.spherify_radius) {
+        (true, _) => llff::Spherify::UnitBall,
+        (false, None) => llff::Spherify::Official,
+        (false, Some(radius)) => llff::Spherify::Ring { radius },
     });
     let mut ds = match format {
         Format::Blender => blender::load(dir, split, white, opts.half_res)?,
@@ -593,6 +628,26 @@ pub fn load(dir: &Path, split: Split, opts: &LoadOptions) -> Result<Dataset, Dat
         ds.notes.push(format!("{n} photos masked by {} (the object trained alone)", masks.display()));
     }
     ds.centers = opts.centers;
+    if opts.unbounded {
+        if !format.is_photos() {
+            return Err(DataError::invalid(
+                dir,
+                "an unbounded scene is for photos of a scene and its surroundings (LLFF or COLMAP data); a Blender \
+                 scene is an object alone on a transparent background, bounded already",
+            ));
+        }
+        if ds.ndc.is_some() {
+            return Err(DataError::invalid(
+                dir,
+                "an unbounded scene needs world-space rays: these forward-facing photos train in NDC space, which is \
+                 bounded already (pass --spherify for photos taken all around)",
+            ));
+        }
+        ds.make_unbounded().map_err(|e| DataError::invalid(dir, e))?;
+        ds.notes.push(
+            "unbounded: the farthest camera on the unit sphere; rays reach to infinity, contracted beyond it".into(),
+        );
+    }
     Ok(ds)
 }
 

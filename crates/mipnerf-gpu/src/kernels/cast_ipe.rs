@@ -27,8 +27,9 @@ pub struct CastIpeParams {
     /// 0: IPE; 1: zero covariance (the "w/o IPE" ablation); 2: NeRF's positional encoding of the
     /// means with the identity.
     pub encoding: u32,
-    /// Padding to 16-byte alignment.
-    pub _pad: u32,
+    /// 1: an unbounded scene, the Gaussians carried through the scene contraction
+    /// ([`mipnerf_core::contract::contract_frustum`]).
+    pub unbounded: u32,
 }
 
 /// The compiled `cast_ipe.wgsl` pipeline and its bind-group layout.
@@ -85,7 +86,7 @@ impl CastIpeKernel {
         rays: &[Ray],
         t_vals: &[f32],
         n_samples: u32,
-        shape: RayShape,
+        (shape, unbounded): (RayShape, bool),
         min_deg: u32,
         max_deg: u32,
     ) -> Result<Vec<f32>, GpuError> {
@@ -109,7 +110,7 @@ impl CastIpeKernel {
             ray_shape: shape as u32,
             groups_x: gx,
             encoding: 0,
-            _pad: 0,
+            unbounded: u32::from(unbounded),
         };
         let packed: Vec<[f32; 4]> = rays
             .iter()
@@ -126,4 +127,8 @@ impl CastIpeKernel {
     }
 }
 
-super::wgsl_struct!(CastIpeParams, "Params", [n_rays, n_samples, min_deg, max_deg, ray_shape, groups_x, encoding]);
+super::wgsl_struct!(
+    CastIpeParams,
+    "Params",
+    [n_rays, n_samples, min_deg, max_deg, ray_shape, groups_x, encoding, unbounded]
+);

@@ -19,8 +19,9 @@ pub struct SampleParams {
     pub n_rays: u32,
     /// Samples per ray.
     pub n_samples: u32,
-    /// 1: linear in disparity.
-    pub lindisp: u32,
+    /// How edges are spaced ([`mipnerf_core::sampling::Spacing::code`]): 0 linear in depth, 1 in
+    /// disparity, 2 unbounded (the contraction's normalised distance, resampled in it too).
+    pub spacing: u32,
     /// 1: training (jitter, stratified offsets).
     pub randomized: u32,
     /// Run seed.
@@ -147,5 +148,5 @@ impl SampleKernels {
 super::wgsl_struct!(
     SampleParams,
     "Params",
-    [n_rays, n_samples, lindisp, randomized, seed, step, level, resample_padding, groups_x,]
+    [n_rays, n_samples, spacing, randomized, seed, step, level, resample_padding, groups_x,]
 );
