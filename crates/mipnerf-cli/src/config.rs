@@ -373,8 +373,7 @@ impl TrainSettings {
         let fast = preset == PresetArg::Fast;
         // A time budget ends the run, so the step count only caps it when given.
         let steps = self.steps.unwrap_or(if self.time_budget.is_some() { MAX_STEPS } else { 2000 });
-        // The occupancy grid covers a box, not yet the contracted ball of an unbounded scene.
-        let occupancy = self.occupancy.unwrap_or(fast && !unbounded);
+        let occupancy = self.occupancy.unwrap_or(fast);
         // On photos (LLFF, COLMAP) the tiny preset learns at the fast preset's rate: 21.86 dB
         // against 19.10 dB at the official 5e-4 after 5 minutes on 40 lego photos
         // (docs/results/own-photos/lr); small and paper keep the paper's rate everywhere.
@@ -616,10 +615,10 @@ impl TrainSettings {
             bail!("{} must be between 2 and 256, got {r}", name("occupancy_resolution"));
         }
         if self.unbounded == Some(true) {
-            if self.occupancy == Some(true) {
+            if self.occupancy_bound.is_some() {
                 bail!(
-                    "occupancy-guided sampling (--occupancy) covers a box; it does not yet cover an unbounded scene's \
-                     contracted space: drop --occupancy (an unbounded run samples the paper's way)"
+                    "--occupancy-bound does not apply to an unbounded scene, whose grid covers all of its contracted \
+                     space (the cube of half side 2): drop it"
                 );
             }
             if self.spherify == Some(false) {
@@ -766,7 +765,8 @@ pub struct TrainFlags {
     /// Photos taken all around a scene with its surroundings (a room, a landscape): the space
     /// beyond the cameras is contracted into a shell (mip-NeRF 360), so the background is learnt
     /// out to infinity instead of being cut off at a box. Implies --spherify (the farthest
-    /// camera on the unit sphere); samples the paper's way (no occupancy grid).
+    /// camera on the unit sphere); the occupancy grid (the fast preset's) then covers the
+    /// contracted space, on the CPU backend.
     #[arg(long)]
     pub unbounded: bool,
     /// What the renders are composited on where the rays meet nothing [default: white for

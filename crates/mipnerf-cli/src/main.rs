@@ -631,12 +631,25 @@ fn colmap_cmd(input: &Path, output: &Path, max_size: u32, min_views: usize, over
         None => ("", "no plain backdrop (the surroundings are learnt)"),
     };
     println!("photo borders: {:.0}% near white, {:.0}% near black: {backdrop}", 100.0 * white, 100.0 * black);
+    // Photos all around an object in its surroundings (a room): the room reaches past any box
+    // around the cameras, so the scene trains unbounded.
+    let unbounded = r.all_around && r.backdrop.is_none();
+    if unbounded {
+        println!(
+            "surroundings seen all around: training the scene unbounded (--unbounded: space beyond the cameras \
+             contracted into a shell, as mip-NeRF 360 does, so the room is learnt out to infinity)"
+        );
+    }
     let name = output.file_name().map_or_else(|| "scene".to_owned(), |n| n.to_string_lossy().into_owned());
     println!(
         "train with:\n  mipnerf train --data {} --llff-factor {}{}{background} {COLMAP_FIRST_RUN} --out runs/{name}",
         output.display(),
         r.factor,
-        if r.all_around { " --spherify" } else { "" },
+        match (r.all_around, unbounded) {
+            (true, true) => " --unbounded",
+            (true, false) => " --spherify",
+            (false, _) => "",
+        },
     );
     Ok(())
 }

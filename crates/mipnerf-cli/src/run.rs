@@ -337,6 +337,24 @@ pub const OCCUPANCY_BOUND_RANGE: f32 = 100.0;
 /// with the visual hull of the training masks where the data has transparency (and the settings
 /// allow it), said in one line.
 fn new_occupancy_grid(s: &TrainSettings, ds: &Dataset) -> Result<OccupancyGrid> {
+    if s.unbounded == Some(true) {
+        // All of an unbounded scene's space, contracted into the ball of radius 2.
+        let bound = mipnerf_core::occupancy::CONTRACTED_BOUND;
+        let config = OccupancyConfig {
+            resolution: s.occupancy_resolution.unwrap_or(64),
+            bound,
+            contracted: true,
+            ..OccupancyConfig::default()
+        };
+        let grid = OccupancyGrid::new(config)?;
+        eprintln!(
+            "occupancy: {r}^3 cells over the contracted space [-{bound}, {bound}]^3 (an unbounded scene: the cells \
+             beyond the contracted ball never sampled; {:.1}% of cells left)",
+            100.0 * grid.occupied_fraction(),
+            r = config.resolution,
+        );
+        return Ok(grid);
+    }
     let auto = mipnerf_core::occupancy::auto_bound(ds);
     if let (Some(b), Some(auto)) = (s.occupancy_bound, auto)
         && !(auto / OCCUPANCY_BOUND_RANGE..=auto * OCCUPANCY_BOUND_RANGE).contains(&b)

@@ -1210,7 +1210,8 @@ fn validation_logs_the_test_psnr_per_scale_that_eval_then_reports() {
 
 /// `--unbounded` on a real COLMAP reconstruction: the photos spherified with the farthest camera
 /// on the unit sphere, the paper's sampler out to infinity in the contracted space; the run
-/// records it, learns, resumes and renders an orbit; what it cannot take is refused, named.
+/// records it, learns, resumes and renders an orbit; the fast preset's occupancy grid covers the
+/// contracted space; what it cannot take is refused, named.
 #[test]
 fn an_unbounded_scene_trains_resumes_and_renders_and_refuses_what_it_cannot_take() {
     let dir = tempfile::tempdir().unwrap();
@@ -1261,7 +1262,8 @@ fn an_unbounded_scene_trains_resumes_and_renders_and_refuses_what_it_cannot_take
     assert!(pngs.count() >= 2, "{out}");
     // Refused before anything is written, each naming what to drop.
     for (flags, says) in [
-        (&["--unbounded", "--occupancy"][..], "--occupancy"),
+        (&["--unbounded", "--occupancy-bound", "1"][..], "--occupancy-bound"),
+        (&["--unbounded", "--occupancy", "--backend", "gpu"][..], "--backend cpu"),
         (&["--unbounded", "--spherify-radius", "2"][..], "--spherify-radius"),
         (&["--unbounded", "--ray-shape", "cylinder"][..], "cones"),
     ] {
@@ -1274,6 +1276,20 @@ fn an_unbounded_scene_trains_resumes_and_renders_and_refuses_what_it_cannot_take
         assert!(!o.status.success() && err.contains(says) && !err.contains("panicked"), "{flags:?}: {err}");
         assert!(!fresh.exists(), "{flags:?}: a refused run left {}", fresh.display());
     }
+    let fast = dir.path().join("fast");
+    let text = ok(mipnerf(&[
+        "train",
+        "--data",
+        scene.to_str().unwrap(),
+        "--out",
+        fast.to_str().unwrap(),
+        "--unbounded",
+        "--preset",
+        "fast",
+        "--steps",
+        "3",
+    ]));
+    assert!(text.contains("occupancy: 64^3 cells over the contracted space [-2, 2]^3"), "{text}");
     let blender = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/lego_tiny");
     let fresh = dir.path().join("blender");
     let o = mipnerf(&[

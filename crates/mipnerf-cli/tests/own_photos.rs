@@ -257,3 +257,36 @@ fn the_readmes_own_photos_section_works_as_written() {
     assert!(dir.path().join("runs/scene/eval/index.html").is_file());
     assert!(dir.path().join("orbit/preview.gif").is_file());
 }
+
+/// Photos all around an object with surroundings that are no plain backdrop (here the real
+/// workspace's photos with their white borders painted over in varied colours, as a room's
+/// would be): the process step says the scene trains unbounded and prints `--unbounded` in the
+/// train command, which trains.
+#[test]
+fn photos_all_around_in_their_surroundings_train_unbounded() {
+    let dir = tempfile::tempdir().unwrap();
+    let ws = dir.path().join("workspace");
+    copy_dir(&workspace("simple_radial").join("images"), &ws.join("images"));
+    copy_dir(&workspace("simple_radial").join("sparse"), &ws.join("sparse"));
+    for entry in std::fs::read_dir(ws.join("images")).unwrap() {
+        let path = entry.unwrap().path();
+        let mut img = image::open(&path).unwrap().to_rgb8();
+        let (w, h) = img.dimensions();
+        for (x, y, p) in img.enumerate_pixels_mut() {
+            if x < w / 8 || x >= w - w / 8 || y < h / 8 || y >= h - h / 8 {
+                *p = image::Rgb([(x * 7 % 200) as u8 + 30, (y * 5 % 180) as u8 + 40, ((x + y) * 3 % 150) as u8 + 50]);
+            }
+        }
+        img.save(&path).unwrap();
+    }
+    let scene = dir.path().join("scene");
+    let text = run_ok(&["colmap", "--input", s(&ws), "--output", s(&scene), "--max-size", "100"]);
+    assert!(text.contains("no plain backdrop") && text.contains("training the scene unbounded (--unbounded"), "{text}");
+    let line = text.lines().find(|l| l.trim_start().starts_with("mipnerf train")).expect("a train command");
+    assert!(line.contains(" --unbounded ") && !line.contains("--spherify"), "{line}");
+    let run = dir.path().join("run");
+    let shortened = line.replace("--time-budget 15m", "--steps 3").replace("runs/scene", s(&run));
+    let args: Vec<&str> = shortened.split_whitespace().skip(1).collect();
+    let trained = run_ok(&args);
+    assert!(trained.contains("unbounded: the farthest camera on the unit sphere"), "{trained}");
+}

@@ -792,7 +792,7 @@ impl Model {
                     rays,
                     (sp.starts, sp.spans),
                     s,
-                    c.lindisp,
+                    c.spacing(),
                     mode,
                     &ws.ids,
                     &mut ws.t,

@@ -16,6 +16,11 @@
 //! For data with alpha masks the grid can be seeded with the visual hull of the training masks
 //! ([`OccupancyGrid::carve_with_masks`]): a cell whose footprint is transparent in some view that
 //! sees all of it is never a candidate.
+//!
+//! In an unbounded scene ([`crate::contract`]) the grid lies over the contracted space, the cube
+//! `[-2, 2]³` around the ball that holds all of it (`contracted`): a point is looked up at its
+//! contraction, a cell's density probed with its Gaussian there, and a ray, which is a curve in
+//! that space, is walked in even steps of its normalised distance `s` rather than cell by cell.
 
 use glam::Vec3;
 use rayon::prelude::*;
@@ -49,13 +54,33 @@ pub struct OccupancyConfig {
     /// A cell is occupied when its opacity over one cell length exceeds this (or the mean of the
     /// candidate cells, if lower).
     pub threshold: f32,
+    /// The grid lies over an unbounded scene's contracted space ([`crate::contract`]), with
+    /// `bound` [`CONTRACTED_BOUND`]; the cells outside the ball of radius 2 are never candidates.
+    pub contracted: bool,
 }
 
 impl Default for OccupancyConfig {
     fn default() -> Self {
-        Self { resolution: 64, bound: 1.5, update_every: 16, warmup_steps: 256, decay: 0.95, threshold: 0.01 }
+        Self {
+            resolution: 64,
+            bound: 1.5,
+            update_every: 16,
+            warmup_steps: 256,
+            decay: 0.95,
+            threshold: 0.01,
+            contracted: false,
+        }
     }
 }
+
+/// The half side of a contracted grid's cube: the contraction maps all of space into the ball of
+/// radius 2.
+pub const CONTRACTED_BOUND: f32 = 2.0;
+
+/// A ray is walked through a contracted grid in this many even steps of `s` per cell along an
+/// axis (`2 · resolution` steps from near to far): a step of `s` moves a ray from a camera inside
+/// the unit ball by about `2 Δs` in the contracted space, a quarter of a cell.
+pub const CONTRACTED_STEPS_PER_CELL: usize = 2;
 
 /// An occupancy grid: `resolution³` cells over `[-bound, bound]³`, x fastest.
 #[derive(Clone, Debug, PartialEq)]
@@ -104,9 +129,26 @@ impl OccupancyGrid {
         if config.update_every == 0 {
             return Err(OccupancyError("update_every must be at least 1".into()));
         }
+        if config.contracted && config.bound != CONTRACTED_BOUND {
+            return Err(OccupancyError(format!(
+                "a grid over contracted space has bound {CONTRACTED_BOUND}, got {}",
+                config.bound
+            )));
+        }
         let n = r * r * r;
         let dilated = vec![vec![true; n]; MAX_DILATION];
-        Ok(Self { config, opacity: vec![0.0; n], warmed_up: false, occupied: vec![true; n], dilated })
+        let mut g = Self { config, opacity: vec![0.0; n], warmed_up: false, occupied: vec![true; n], dilated };
+        if config.contracted {
+            // The corners of the cube lie outside the ball that holds all of contracted space.
+            let reach = CONTRACTED_BOUND + 0.5 * 3f32.sqrt() * g.cell_size();
+            for i in 0..n {
+                if g.cell_center(i).length() > reach {
+                    g.opacity[i] = CARVED;
+                }
+            }
+            g.refresh();
+        }
+        Ok(g)
     }
 
     /// A grid restored from saved state (see [`opacity`](Self::opacity) and
@@ -160,10 +202,11 @@ impl OccupancyGrid {
         self.occupied[(z * r + y) * r + x]
     }
 
-    /// Whether the point `p` (world units) lies in an occupied cell; outside the grid's cube,
-    /// space is empty.
+    /// Whether the point `p` (world units) lies in an occupied cell (a contracted grid's at its
+    /// contraction); outside the grid's cube, space is empty.
     #[must_use]
     pub fn is_occupied_at(&self, p: Vec3) -> bool {
+        let p = if self.config.contracted { crate::contract::contract(p) } else { p };
         let b = self.config.bound;
         let r = self.config.resolution;
         let cell = (p + b) / self.cell_size();
@@ -173,7 +216,8 @@ impl OccupancyGrid {
         self.is_occupied(cell.x as usize, cell.y as usize, cell.z as usize)
     }
 
-    /// The world-space centre of cell `i` (x fastest).
+    /// The centre of cell `i` (x fastest), in world space (in contracted space for a contracted
+    /// grid).
     #[must_use]
     pub fn cell_center(&self, i: usize) -> Vec3 {
         let r = self.config.resolution;
@@ -227,7 +271,8 @@ impl OccupancyGrid {
     /// full-resolution views (scale 0) are used. Returns the number of cells carved; a dataset
     /// without transparency, or in NDC space (whose grid is not in world units), carves nothing.
     pub fn carve_with_masks(&mut self, ds: &Dataset) -> usize {
-        if ds.ndc.is_some() {
+        // (A contracted grid's cells are not boxes in the world.)
+        if ds.ndc.is_some() || self.config.contracted {
             return 0;
         }
         let masks: Vec<Mask> = ds.views().iter().filter(|v| v.scale == 0).filter_map(Mask::of_view).collect();
@@ -266,6 +311,9 @@ impl OccupancyGrid {
     /// cameras' frustums (beyond `z = ±1` and the image's corners); a cube around an object seen
     /// from all round is crossed nearly everywhere, and the masks carve it better.
     pub fn carve_unreached(&mut self, ds: &Dataset) -> usize {
+        if self.config.contracted {
+            return 0;
+        }
         let r = self.config.resolution;
         let (b, h) = (self.config.bound, self.cell_size());
         let views: Vec<usize> = (0..ds.views().len()).filter(|&v| ds.views()[v].scale == 0).collect();
@@ -337,7 +385,7 @@ impl OccupancyGrid {
         let h = self.cell_size();
         let decay = self.config.decay;
         for (&i, &sigma) in cells.iter().zip(&dens) {
-            let alpha = 1.0 - (-sigma.max(0.0) * h).exp();
+            let alpha = 1.0 - (-sigma.max(0.0) * h * self.world_stretch(i)).exp();
             let alpha = if alpha.is_finite() { alpha } else { 1.0 };
             self.opacity[i] = (self.opacity[i] * decay).max(alpha);
         }
@@ -347,8 +395,22 @@ impl OccupancyGrid {
         self.refresh();
     }
 
+    /// How many world units one unit of cell `i`'s space spans along a ray through it: 1 in a
+    /// world grid; in a contracted grid, outside the unit ball, the contraction's radial stretch
+    /// `r²` at the cell's centre (`r` its world distance, `1/(2 - ρ)` at contracted radius `ρ`),
+    /// the largest of its stretches, so a cell's opacity is never underestimated.
+    fn world_stretch(&self, i: usize) -> f32 {
+        let rho = self.cell_center(i).length();
+        if !self.config.contracted || rho <= 1.0 {
+            return 1.0;
+        }
+        let r = 1.0 / (CONTRACTED_BOUND - rho).max(1e-6);
+        r * r
+    }
+
     /// The model's density (after its activation) at a random point of each of `cells`, with
-    /// the cell's variance (`h² / 12` per axis, a uniform cube's), through the first MLP.
+    /// the cell's variance (`h² / 12` per axis, a uniform cube's), through the first MLP; in a
+    /// contracted grid the probe is a Gaussian of the contracted space, encoded as it is.
     fn densities(&self, model: &Model, params: &[f32], cells: &[usize], seed: u32, step: u32) -> Vec<f32> {
         const CHUNK: usize = 1024;
         let c = model.config();
@@ -365,7 +427,12 @@ impl OccupancyGrid {
                     let rng = RayRng::new(seed, step, Stream::OccupancyUpdate, i as u32);
                     let jitter = Vec3::new(rng.uniform(0), rng.uniform(1), rng.uniform(2)) - 0.5;
                     let g = Gaussian { mean: self.cell_center(i) + h * jitter, cov_diag: Vec3::splat(var) };
-                    model.encode_point(&g, &mut x[k * x_dim..(k + 1) * x_dim]);
+                    let dst = &mut x[k * x_dim..(k + 1) * x_dim];
+                    if self.config.contracted {
+                        crate::stages::encode_gaussian(&g, c.point_encoding, c.min_deg_point, c.max_deg_point, dst);
+                    } else {
+                        model.encode_point(&g, dst);
+                    }
                 }
                 let mut cache = MlpCache::default();
                 mlp.forward(params, &x, &view[..chunk.len() * c.view_dim()], chunk.len(), 1, &mut cache);
@@ -407,6 +474,10 @@ impl OccupancyGrid {
     /// for a ray of zero radius). So a coarse pixel whose footprint covers the object but whose
     /// centre line misses it still samples it.
     pub fn ray_segments(&self, ray: &Ray, out: &mut Vec<[f32; 2]>) {
+        if self.config.contracted {
+            self.contracted_ray_segments(ray, out);
+            return;
+        }
         let (origin, direction, near, far) = (ray.origin, ray.direction, ray.near, ray.far);
         let b = self.config.bound;
         let r = self.config.resolution as i32;
@@ -487,6 +558,56 @@ impl OccupancyGrid {
             && t > s
         {
             out.push([s, t]);
+        }
+    }
+}
+
+impl OccupancyGrid {
+    /// [`ray_segments`](Self::ray_segments) in a contracted grid: the ray walked from `near` to
+    /// `far` in `CONTRACTED_STEPS_PER_CELL · resolution` even steps of its normalised distance
+    /// `s` ([`crate::contract::ray_distance_to_s`]), each step looked up at the contraction of its
+    /// middle point, occupied steps joined into spans between their ends (`near` and `far` at the
+    /// ends of the walk). The cone's footprint there, its radius `radius · t` scaled by the
+    /// contraction across the ray from the origin (`(2 - 1/r)/r`), picks the dilation as in a
+    /// world grid.
+    fn contracted_ray_segments(&self, ray: &Ray, out: &mut Vec<[f32; 2]>) {
+        use crate::contract::{contract, ray_distance_to_s, s_to_ray_distance};
+        let (s0, s1) = (ray_distance_to_s(ray.near), ray_distance_to_s(ray.far));
+        if s0.partial_cmp(&s1) != Some(std::cmp::Ordering::Less) {
+            return;
+        }
+        let n = CONTRACTED_STEPS_PER_CELL * self.config.resolution;
+        let ds = (s1 - s0) / n as f32;
+        let edge = |k: usize| match k {
+            0 => ray.near,
+            k if k == n => ray.far,
+            k => s_to_ray_distance(s0 + k as f32 * ds),
+        };
+        let (b, h, r) = (self.config.bound, self.cell_size(), self.config.resolution);
+        let mut open: Option<f32> = None;
+        for k in 0..n {
+            let t = s_to_ray_distance(s0 + (k as f32 + 0.5) * ds);
+            let x = ray.origin + ray.direction * t;
+            let dist = x.length();
+            let across = if dist > 1.0 { (2.0 - 1.0 / dist) / dist } else { 1.0 };
+            let reach = (2.0 * ray.radius * t * across / h).ceil();
+            let layer =
+                if reach >= 1.0 { &self.dilated[(reach as usize).min(MAX_DILATION) - 1] } else { &self.occupied };
+            let cell = (contract(x) + b) / h;
+            let occ = cell.min_element() >= 0.0
+                && cell.max_element() < r as f32
+                && layer[(cell.z as usize * r + cell.y as usize) * r + cell.x as usize];
+            match (occ, open) {
+                (true, None) => open = Some(edge(k)),
+                (false, Some(start)) => {
+                    out.push([start, edge(k)]);
+                    open = None;
+                }
+                _ => {}
+            }
+        }
+        if let Some(start) = open {
+            out.push([start, edge(n)]);
         }
     }
 }

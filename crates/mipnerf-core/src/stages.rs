@@ -44,7 +44,9 @@ pub fn sample_intervals(rays: &[Ray], n_samples: usize, spacing: Spacing, mode: 
 /// The coarse edges of rays guided by an occupancy grid: ray `r`'s edges spread over its occupied
 /// spans `spans[starts[r]..starts[r + 1]]` ([`sampling::sample_along_segments`]), jittered as in
 /// [`sample_intervals`]; a ray with no span has every edge at its `near` (it renders the
-/// background). Kernel: `occupancy.wgsl`.
+/// background). In an unbounded scene ([`Spacing::Unbounded`]) the spans are shared out and
+/// stratified in the normalised distance `s` and the edges mapped back to `t`, the first and
+/// last kept at the spans' ends. Kernel: `occupancy.wgsl`.
 ///
 /// # Panics
 /// If `starts` has fewer than `rays.len() + 1` entries, `ray_ids` fewer than `rays.len()`, or `t`
@@ -53,11 +55,12 @@ pub fn sample_occupied_intervals(
     rays: &[Ray],
     (starts, spans): (&[u32], &[[f32; 2]]),
     n_samples: usize,
-    lindisp: bool,
+    spacing: Spacing,
     mode: Mode,
     ray_ids: &[u32],
     t: &mut [f32],
 ) {
+    use crate::contract::{ray_distance_to_s, s_to_ray_distance};
     assert_eq!(t.len(), rays.len() * (n_samples + 1), "sample_occupied_intervals: t values");
     assert!(
         ray_ids.len() >= rays.len() && starts.len() > rays.len(),
@@ -66,10 +69,18 @@ pub fn sample_occupied_intervals(
         starts.len(),
         rays.len()
     );
+    let mut in_s: Vec<[f32; 2]> = Vec::new();
     for (r, ((ray, &id), t)) in rays.iter().zip(ray_ids).zip(t.chunks_exact_mut(n_samples + 1)).enumerate() {
         match &spans[starts[r] as usize..starts[r + 1] as usize] {
             [] => t.fill(ray.near),
-            own => sampling::sample_along_segments(own, lindisp, jitter(mode, id), t),
+            own if spacing == Spacing::Unbounded => {
+                in_s.clear();
+                in_s.extend(own.iter().map(|&[a, b]| [ray_distance_to_s(a), ray_distance_to_s(b)]));
+                sampling::sample_along_segments(&in_s, false, jitter(mode, id), t);
+                t.iter_mut().for_each(|v| *v = s_to_ray_distance(*v));
+                (t[0], t[n_samples]) = (own[0][0], own[own.len() - 1][1]);
+            }
+            own => sampling::sample_along_segments(own, spacing == Spacing::Disparity, jitter(mode, id), t),
         }
     }
 }

@@ -10,9 +10,10 @@ use common::scene::{BALL_RADIUS, ball_scene};
 use glam::Vec3;
 use mipnerf_core::checkpoint::{self, Checkpoint};
 use mipnerf_core::compare::{Tolerance, assert_close};
+use mipnerf_core::contract::UNBOUNDED_FAR;
 use mipnerf_core::data::{self, LoadOptions, Split};
 use mipnerf_core::model::{GradScratch, LevelOutput, Mode, Model, ModelConfig, Preset};
-use mipnerf_core::occupancy::{CARVED, OccupancyConfig, OccupancyGrid, auto_bound};
+use mipnerf_core::occupancy::{CARVED, CONTRACTED_BOUND, OccupancyConfig, OccupancyGrid, auto_bound};
 use mipnerf_core::rng::{RayRng, Stream};
 use mipnerf_core::sampling::{sample_along_rays, sample_along_segments};
 use mipnerf_core::schedule::LrSchedule;
@@ -383,4 +384,152 @@ fn the_grid_round_trips_through_a_checkpoint() {
     assert!(e.contains("500 cells") && e.contains("512"), "{e}");
     let e = OccupancyGrid::new(OccupancyConfig { bound: -1.0, ..config }).unwrap_err().to_string();
     assert!(e.contains("bound"), "{e}");
+}
+
+/// The ball scene as an unbounded scene: the world scaled by 1/3.2 so that its cameras (3.2 out)
+/// stand just inside the unit ball, every ray reaching `UNBOUNDED_FAR` (the white beyond the
+/// ball is then the far, contracted, part of the scene, learnt as any other).
+fn unbounded_ball_scene(views: usize, size: u32) -> (Vec<mipnerf_core::Ray>, Vec<[f32; 3]>) {
+    let (rays, colours) = ball_scene(views, size);
+    let k = 1.0 / 3.2;
+    let rays = rays
+        .into_iter()
+        .map(|r| mipnerf_core::Ray { origin: r.origin * k, near: r.near * k, far: UNBOUNDED_FAR, ..r })
+        .collect();
+    (rays, colours)
+}
+
+fn unbounded_model() -> Model {
+    Model::new(ModelConfig { num_samples: 16, unbounded: true, ..Preset::Tiny.config() }).unwrap()
+}
+
+fn contracted_config(resolution: usize) -> OccupancyConfig {
+    OccupancyConfig { resolution, bound: CONTRACTED_BOUND, contracted: true, ..OccupancyConfig::default() }
+}
+
+#[test]
+fn a_fresh_contracted_grid_samples_and_trains_exactly_as_the_unbounded_sampler() {
+    // Every cell the contracted space reaches is a candidate: each ray is one span from near to
+    // far, so the sampler is the unbounded one (in s) bit for bit.
+    let m = unbounded_model();
+    let (rays, colours) = unbounded_ball_scene(4, 8);
+    let params = m.init_params(3);
+    let grid = OccupancyGrid::new(contracted_config(16)).unwrap();
+    let left = grid.occupied_fraction();
+    // The cells of the cube outside the ball of radius 2 are never candidates (a ball fills
+    // pi/6 of its cube; the cells it touches a little more).
+    assert!(left > 0.5 && left < 0.7, "{left}");
+    let mode = Mode::Train { seed: 7, step: 11 };
+    let (mut g_paper, mut g_grid) = (vec![0.0; m.num_params()], vec![0.0; m.num_params()]);
+    let paper = m.loss_and_grad(&params, &rays, &colours, mode, &mut g_paper);
+    let guided =
+        m.loss_and_grad_guided(&params, &rays, &colours, mode, &mut g_grid, &mut GradScratch::default(), Some(&grid));
+    assert_eq!(paper, guided);
+    assert_eq!(g_paper, g_grid);
+    assert_eq!(m.render(&params, &rays), m.render_guided(&params, &rays, Some(&grid)));
+}
+
+#[test]
+fn a_contracted_grid_walks_each_ray_through_the_cells_its_contraction_meets() {
+    use mipnerf_core::contract::{contract, ray_distance_to_s, s_to_ray_distance};
+    use mipnerf_core::occupancy::CONTRACTED_STEPS_PER_CELL;
+    let mut rng = SmallRng::seed_from_u64(12);
+    let resolution = 16;
+    let probe = OccupancyGrid::new(contracted_config(resolution)).unwrap();
+    let opacity = (0..resolution.pow(3))
+        .map(|i| {
+            if probe.opacity[i] == CARVED {
+                CARVED
+            } else if rng.random_bool(0.3) {
+                1.0
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let grid = OccupancyGrid::from_state(contracted_config(resolution), opacity, true).unwrap();
+    let (rays, _) = unbounded_ball_scene(6, 6);
+    let n = CONTRACTED_STEPS_PER_CELL * resolution;
+    let (mut checked, mut dense, mut dense_bad) = (0, 0, 0);
+    for (k, r) in rays.iter().enumerate() {
+        let axis = mipnerf_core::Ray { radius: 0.0, ..*r };
+        let mut spans = Vec::new();
+        grid.ray_segments(&axis, &mut spans);
+        for w in spans.windows(2) {
+            assert!(w[0][1] < w[1][0], "ray {k}: spans overlap or touch: {spans:?}");
+        }
+        let inside = |t: f32| spans.iter().any(|s| s[0] <= t && t <= s[1]);
+        // At the middle of every step of the walk: in a span exactly when its contraction's
+        // cell is occupied.
+        let (s0, s1) = (ray_distance_to_s(r.near), ray_distance_to_s(r.far));
+        for i in 0..n {
+            let t = s_to_ray_distance(s0 + (i as f32 + 0.5) * (s1 - s0) / n as f32);
+            assert_eq!(
+                inside(t),
+                grid.is_occupied_at(r.origin + r.direction * t),
+                "ray {k} step {i} (t {t}): {spans:?}"
+            );
+            checked += 1;
+        }
+        // Between them, a point whose contraction lies in its step's middle's cell is in a span
+        // exactly when that cell is occupied (a step is judged by its middle).
+        let cell = |t: f32| ((contract(r.origin + r.direction * t) + CONTRACTED_BOUND) / grid.cell_size()).floor();
+        for i in 0..1000 {
+            let s = s0 + (i as f32 + 0.37) * (s1 - s0) / 1000.0;
+            let t = s_to_ray_distance(s);
+            let step = (((s - s0) / (s1 - s0) * n as f32) as usize).min(n - 1);
+            let middle = s_to_ray_distance(s0 + (step as f32 + 0.5) * (s1 - s0) / n as f32);
+            if cell(t) != cell(middle) {
+                continue;
+            }
+            dense += 1;
+            dense_bad += usize::from(inside(t) != grid.is_occupied_at(r.origin + r.direction * t));
+        }
+    }
+    assert!(checked > 1000 && dense > 100_000, "{checked} {dense}");
+    assert_eq!(dense_bad, 0, "{dense_bad} of {dense} points between the steps disagree with their step");
+}
+
+/// Training an unbounded scene with a contracted grid: the loss falls, the grid leaves its
+/// warm-up and skips space, and no cell the model has made dense is dropped (probed afresh at
+/// another point of each cell, a cell whose opacity over its length is well above the threshold
+/// is occupied). Where the model puts the ball is the model's affair: from 8 views around it, it
+/// may paint the ball on the far, contracted, shell as well as place it at the centre.
+#[test]
+fn an_unbounded_scene_trains_with_a_contracted_grid_that_keeps_its_dense_cells() {
+    let (rays, colours) = unbounded_ball_scene(8, 16);
+    let steps = 300;
+    let optim = OptimConfig {
+        lr: LrSchedule { lr_init: 5e-3, lr_final: 5e-4, max_steps: steps, lr_delay_steps: 0, lr_delay_mult: 1.0 },
+        ..OptimConfig::default()
+    };
+    let mut trainer = Trainer::new(unbounded_model(), optim, 1);
+    let r = 16;
+    let config = OccupancyConfig { warmup_steps: 100, update_every: 10, threshold: 0.1, ..contracted_config(r) };
+    trainer.occupancy = Some(OccupancyGrid::new(config).unwrap());
+    let mut rng = SmallRng::seed_from_u64(5);
+    let mut losses = Vec::new();
+    for _ in 0..steps {
+        let idx: Vec<usize> = (0..256).map(|_| rng.random_range(0..rays.len())).collect();
+        let r: Vec<_> = idx.iter().map(|&i| rays[i]).collect();
+        let c: Vec<_> = idx.iter().map(|&i| colours[i]).collect();
+        losses.push(trainer.train_step(&r, &c).stats.loss);
+    }
+    let (first, last) = (losses[..10].iter().sum::<f32>(), losses[steps as usize - 10..].iter().sum::<f32>());
+    assert!(last < first / 4.0, "the loss went from {first} to {last} (sums of 10 steps)");
+    let grid = trainer.occupancy.as_ref().unwrap();
+    assert!(grid.warmed_up && !grid.is_full());
+    let mut fresh = OccupancyGrid::new(OccupancyConfig { decay: 0.0, warmup_steps: 0, ..grid.config }).unwrap();
+    fresh.update(&trainer.model, &trainer.params, 99, 12_345);
+    let (mut dense, mut dropped) = (0, Vec::new());
+    for i in 0..r.pow(3) {
+        if fresh.opacity[i] > 0.5 {
+            dense += 1;
+            if !grid.is_occupied(i % r, (i / r) % r, i / (r * r)) {
+                dropped.push((grid.cell_center(i), fresh.opacity[i], grid.opacity[i]));
+            }
+        }
+    }
+    eprintln!("{dense} cells dense, {} of the grid's cells occupied", grid.occupied_fraction());
+    assert!(dense > 0 && dropped.is_empty(), "{} of {dense} dense cells dropped: {dropped:?}", dropped.len());
 }

@@ -975,7 +975,15 @@ fn guided_edges_match_cpu(
         let mode = mode_of(randomized, seed, step);
         let cpu = |rays: &[Ray]| -> Outputs {
             let mut t = vec![0.0f32; nr * (s + 1)];
-            stages::sample_occupied_intervals(rays, (&starts, &spans), s, lindisp, mode, &ids, &mut t);
+            stages::sample_occupied_intervals(
+                rays,
+                (&starts, &spans),
+                s,
+                if lindisp { Spacing::Disparity } else { Spacing::Depth },
+                mode,
+                &ids,
+                &mut t,
+            );
             vec![("edges", t)]
         };
         let on_gpu = |_: &[Ray]| -> Result<Outputs, GpuError> {

@@ -63,6 +63,13 @@ impl DeviceGrid {
     /// [`GpuError::InvalidInput`] for a grid finer than [`MAX_RESOLUTION`].
     pub fn new(ctx: &GpuContext, grid: &OccupancyGrid) -> Result<Self, GpuError> {
         let r = grid.resolution();
+        if grid.config.contracted {
+            return Err(GpuError::InvalidInput(
+                "occupancy-guided sampling of an unbounded scene (a grid over its contracted space) runs on the CPU \
+                 backend only for now: pass --backend cpu, or --no-occupancy"
+                    .into(),
+            ));
+        }
         if r > MAX_RESOLUTION {
             return Err(GpuError::InvalidInput(format!(
                 "an occupancy grid of {r} cells per axis: the GPU sampler takes at most {MAX_RESOLUTION}"
