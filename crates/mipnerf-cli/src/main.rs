@@ -388,6 +388,11 @@ enum Command {
         /// Replace the dataset in a non-empty --output.
         #[arg(long)]
         overwrite: bool,
+        /// Registered photos to leave out, by file name (comma-separated or repeated), such as
+        /// those the step names as possibly wrong (a pose that disagrees with its neighbours, few
+        /// 3D points, a high reprojection error).
+        #[arg(long, value_name = "NAME", value_delimiter = ',')]
+        exclude: Vec<String>,
     },
     /// Convert a Blender scene into the multiscale format (4 scales, metadata.json), exactly as
     /// the official convert_blender_data.py (byte for byte, without --size).
@@ -564,7 +569,14 @@ const COLMAP_FIRST_RUN: &str = "--preset fast --time-budget 15m";
 /// little of the scene to train on.
 const MIN_COLMAP_SIZE: u32 = 32;
 
-fn colmap_cmd(input: &Path, output: &Path, max_size: u32, min_views: usize, overwrite: bool) -> Result<()> {
+fn colmap_cmd(
+    input: &Path,
+    output: &Path,
+    max_size: u32,
+    min_views: usize,
+    overwrite: bool,
+    exclude: Vec<String>,
+) -> Result<()> {
     if max_size != 0 && max_size < MIN_COLMAP_SIZE {
         bail!(
             "--max-size {max_size}: the photos' longer side must be at least {MIN_COLMAP_SIZE} px (or 0 for full size)"
@@ -575,6 +587,7 @@ fn colmap_cmd(input: &Path, output: &Path, max_size: u32, min_views: usize, over
         min_views,
         recommended_views: data::process::RECOMMENDED_VIEWS.max(min_views),
         overwrite,
+        exclude,
     };
     let t = std::time::Instant::now();
     let r = data::process::process(input, output, &opts)?;
@@ -583,7 +596,25 @@ fn colmap_cmd(input: &Path, output: &Path, max_size: u32, min_views: usize, over
         let list: Vec<String> = r.models.iter().map(|(k, c)| format!("sparse/{k} registers {c}")).collect();
         println!("{} COLMAP models ({}): took {taken}, the largest", r.models.len(), list.join(", "));
     }
-    println!("{taken}: {} of {} photos registered", r.registered, r.photos);
+    println!(
+        "{taken}: {} of {} photos registered{}",
+        r.registered + r.excluded.len(),
+        r.photos,
+        if r.excluded.is_empty() {
+            String::new()
+        } else {
+            format!(", {} left out (--exclude): {}; {} kept", r.excluded.len(), r.excluded.join(", "), r.registered)
+        }
+    );
+    if !r.suspects.is_empty() {
+        println!("COLMAP may have got {} photos wrong (trained on, they blur or ghost the scene):", r.suspects.len());
+        for s in &r.suspects {
+            println!("  {}: {}", s.name, s.why);
+        }
+        let names: Vec<&str> =
+            r.suspects.iter().map(|s| s.name.as_str()).chain(r.excluded.iter().map(String::as_str)).collect();
+        println!("to leave them out, run this step again with --exclude {} --overwrite", names.join(","));
+    }
     for w in &r.warnings {
         eprintln!("warning: {w}");
     }
@@ -931,8 +962,8 @@ fn main() -> std::process::ExitCode {
             )
         }
         Command::FetchLpipsWeights { dir } => lpips::fetch(dir),
-        Command::Colmap { input, output, max_size, min_views, overwrite } => {
-            colmap_cmd(&input, &output, max_size, min_views, overwrite)
+        Command::Colmap { input, output, max_size, min_views, overwrite, exclude } => {
+            colmap_cmd(&input, &output, max_size, min_views, overwrite, exclude)
         }
         Command::Convert { input, output, to: ConvertTo::Multiscale, size, overwrite, .. } => {
             let names = ["metadata.json", "images_train", "images_val", "images_test"];

@@ -290,3 +290,39 @@ fn photos_all_around_in_their_surroundings_train_unbounded() {
     let trained = run_ok(&args);
     assert!(trained.contains("unbounded: the farthest camera on the unit sphere"), "{trained}");
 }
+
+/// `--exclude` leaves registered photos out of the dataset (the photos the step names as
+/// possibly wrong, or any), says so, and refuses a name the model does not register, writing
+/// nothing.
+#[test]
+fn photos_named_by_exclude_are_left_out() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene");
+    let ws = workspace("radial");
+    let text = run_ok(&["colmap", "--input", s(&ws), "--output", s(&scene), "--max-size", "100"]);
+    // A photo with few 3D points is named, with the flag that leaves it out.
+    assert!(
+        text.contains("COLMAP may have got 1 photos wrong") && text.contains("r_17.jpg: sees 9 3D points"),
+        "{text}"
+    );
+    assert!(text.contains("run this step again with --exclude r_17.jpg --overwrite"), "{text}");
+    let text = run_ok(&[
+        "colmap",
+        "--input",
+        s(&ws),
+        "--output",
+        s(&scene),
+        "--max-size",
+        "100",
+        "--exclude",
+        "r_17.jpg,r_1.jpg",
+        "--overwrite",
+    ]);
+    assert!(text.contains("35 of 40 photos registered, 2 left out (--exclude): r_17.jpg, r_1.jpg; 33 kept"), "{text}");
+    assert!(!text.contains("may have got"), "{text}");
+    assert_eq!(pngs(&scene.join("images_4")).len(), 33);
+    let fresh = dir.path().join("fresh");
+    let err = run_err(&["colmap", "--input", s(&ws), "--output", s(&fresh), "--exclude", "nope.jpg"]);
+    assert!(err.contains("--exclude nope.jpg: the model registers no photo of that name"), "{err}");
+    assert!(!fresh.exists());
+}

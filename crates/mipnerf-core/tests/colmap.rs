@@ -299,3 +299,76 @@ proptest::proptest! {
         }
     }
 }
+
+/// A capture walked around a ring: 40 photos in name order (`p_00.jpg`...), each 9 degrees on
+/// from the last, looking at the centre, 300 points near the centre seen by every photo with a
+/// reprojection error of 0.5 px.
+fn ring_capture() -> colmap::ColmapModel {
+    let mut images = Vec::new();
+    for i in 0..40u32 {
+        let th = f64::from(i) * 9f64.to_radians();
+        let centre = DVec3::new(3.0 * th.cos(), 3.0 * th.sin(), 0.5);
+        let forward = (-centre).normalize();
+        let right = forward.cross(DVec3::Z).normalize();
+        let down = forward.cross(right);
+        images.push(image_at(i, centre, right, down, forward));
+    }
+    let points = (0..300)
+        .map(|k| {
+            let a = f64::from(k) * 0.7;
+            colmap::ColmapPoint {
+                xyz: [0.3 * a.cos(), 0.3 * a.sin(), 0.2 * (a * 0.3).sin()],
+                image_ids: (1..=40).collect(),
+                error: 0.5,
+            }
+        })
+        .collect();
+    let camera = colmap::ColmapCamera { id: 1, model_id: 0, width: 64, height: 48, params: vec![50.0, 32.0, 24.0] };
+    colmap::ColmapModel { cameras: vec![camera], images, points }
+}
+
+/// COLMAP's image record of a camera at `centre` with axes `right`, `down`, `forward` (world).
+fn image_at(i: u32, centre: DVec3, right: DVec3, down: DVec3, forward: DVec3) -> colmap::ColmapImage {
+    // World-to-camera rotation: rows right, down, forward.
+    let r = glam::DMat3::from_cols(right, down, forward).transpose();
+    let q = glam::DQuat::from_mat3(&r);
+    colmap::ColmapImage {
+        id: i + 1,
+        qvec: [q.w, q.x, q.y, q.z],
+        tvec: (-(r * centre)).to_array(),
+        camera_id: 1,
+        name: format!("p_{i:02}.jpg"),
+    }
+}
+
+#[test]
+fn the_process_step_names_the_photos_colmap_may_have_got_wrong() {
+    use mipnerf_core::data::process::suspect_photos;
+    let clean = ring_capture();
+    assert_eq!(suspect_photos(&clean), vec![], "a clean capture");
+    let mut model = clean.clone();
+    // Three photos in a row turned 120 degrees about the vertical (as COLMAP placed DSC_0071-0073
+    // of a real capture): each still agrees with the other two, not with the path.
+    for i in 20..23 {
+        let th = f64::from(i as u32) * 9f64.to_radians();
+        let centre = DVec3::new(3.0 * th.cos(), 3.0 * th.sin(), 0.5);
+        let turn = glam::DMat3::from_rotation_z(120f64.to_radians());
+        let forward = turn * (-centre).normalize();
+        let right = forward.cross(DVec3::Z).normalize();
+        model.images[i] = image_at(i as u32, centre, right, forward.cross(right), forward);
+    }
+    // One photo far off the path; one that sees few points; one with a high reprojection error.
+    // (Image ids are one more than the photos' numbers.)
+    model.images[5].tvec[0] += 3.0;
+    for p in &mut model.points[..285] {
+        p.image_ids.retain(|&id| id != 32);
+    }
+    model.points.push(colmap::ColmapPoint { xyz: [0.0, 0.0, 0.1], image_ids: vec![37], error: 400.0 });
+    let suspects = suspect_photos(&model);
+    let named: Vec<&str> = suspects.iter().map(|s| s.name.as_str()).collect();
+    assert_eq!(named, ["p_05.jpg", "p_20.jpg", "p_21.jpg", "p_22.jpg", "p_31.jpg", "p_36.jpg"], "{suspects:#?}");
+    assert!(suspects[0].why.contains("steps away from its neighbours"), "{suspects:#?}");
+    assert!(suspects[1..4].iter().all(|s| s.why.contains("degrees away from its neighbours")), "{suspects:#?}");
+    assert!(suspects[4].why.contains("sees 15 3D points (the median photo 300)"), "{suspects:#?}");
+    assert!(suspects[5].why.contains("reprojection error is 1.83 px (the median photo's 0.50)"), "{suspects:#?}");
+}

@@ -129,6 +129,8 @@ pub struct ColmapPoint {
     pub xyz: [f64; 3],
     /// Ids of the images whose features observe it (its track).
     pub image_ids: Vec<u32>,
+    /// Its mean reprojection error over its track (pixels), as COLMAP stores it.
+    pub error: f64,
 }
 
 /// A sparse model, in file order.
@@ -353,14 +355,14 @@ fn read_points_bin(path: &Path) -> Result<Vec<ColmapPoint>, DataError> {
         r.u64("a point id")?;
         let xyz = [r.f64("x")?, r.f64("y")?, r.f64("z")?];
         r.take(3, "a colour")?;
-        r.f64("an error")?;
+        let error = r.f64("an error")?;
         let len = r.count(8, "a track length")?;
         let mut image_ids = Vec::with_capacity(len);
         for _ in 0..len {
             image_ids.push(r.u32("a track's image id")?);
             r.i32("a track's 2D point index")?;
         }
-        out.push(ColmapPoint { xyz, image_ids });
+        out.push(ColmapPoint { xyz, image_ids, error });
     }
     r.done()?;
     Ok(out)
@@ -453,7 +455,8 @@ fn read_points_txt(path: &Path) -> Result<Vec<ColmapPoint>, DataError> {
         ];
         let image_ids =
             t[8..].chunks(2).map(|p| field(path, line, Some(p[0]), "a track's image id")).collect::<Result<_, _>>()?;
-        out.push(ColmapPoint { xyz, image_ids });
+        let error = finite(path, line, Some(t[7]), "the error")?;
+        out.push(ColmapPoint { xyz, image_ids, error });
     }
     Ok(out)
 }

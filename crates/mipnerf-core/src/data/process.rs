@@ -62,6 +62,9 @@ pub struct ProcessOptions {
     pub recommended_views: usize,
     /// Replace a dataset already in the output folder.
     pub overwrite: bool,
+    /// Registered photos to leave out (by file name, as COLMAP names them), such as those
+    /// [`suspect_photos`] names.
+    pub exclude: Vec<String>,
 }
 
 impl Default for ProcessOptions {
@@ -71,6 +74,7 @@ impl Default for ProcessOptions {
             min_views: MIN_REGISTERED_VIEWS,
             recommended_views: RECOMMENDED_VIEWS,
             overwrite: false,
+            exclude: Vec::new(),
         }
     }
 }
@@ -106,8 +110,145 @@ pub struct ProcessReport {
     pub backdrop: Option<Backdrop>,
     /// The shares of the border pixels that are near white and near black.
     pub border_shares: (f64, f64),
+    /// Photos whose reconstruction looks wrong ([`suspect_photos`]), with why.
+    pub suspects: Vec<Suspect>,
+    /// The photos left out (`ProcessOptions::exclude`).
+    pub excluded: Vec<String>,
     /// Warnings for the user.
     pub warnings: Vec<String>,
+}
+
+/// A photo whose reconstruction looks wrong, and why.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Suspect {
+    /// Its file name.
+    pub name: String,
+    /// What is wrong with it, in a few words with the numbers.
+    pub why: String,
+}
+
+/// A photo seeing fewer 3D points than this share of the median photo's is named.
+pub const FEW_POINTS_SHARE: f64 = 0.1;
+
+/// A photo whose points' mean reprojection error exceeds this many times the median photo's (and
+/// [`HIGH_ERROR_MIN_PX`]) is named.
+pub const HIGH_ERROR_FACTOR: f64 = 2.0;
+
+/// Reprojection errors below this (pixels) are never named.
+pub const HIGH_ERROR_MIN_PX: f64 = 1.0;
+
+/// The capture's path around a photo: this many photos on each side of it in name order (the
+/// order a camera numbers them in).
+pub const PATH_WINDOW: usize = 4;
+
+/// A photo looking more than this many degrees away from its neighbours on the path (and
+/// [`PATH_TURN_FACTOR`] times the path's typical turn between photos) is named.
+pub const PATH_TURN_DEGREES: f64 = 30.0;
+
+/// See [`PATH_TURN_DEGREES`].
+pub const PATH_TURN_FACTOR: f64 = 4.0;
+
+/// A photo standing more than this many times the path's typical step between photos away from
+/// its neighbours is named.
+pub const PATH_SHIFT_FACTOR: f64 = 4.0;
+
+/// The photos of `model` that COLMAP may have got wrong, in name order:
+/// - a pose that disagrees with its neighbours on the capture's path (the [`PATH_WINDOW`]
+///   photos on each side in name order): its angle to each neighbour, less the path's median
+///   turn between consecutive photos times their distance in photos, has a median over the
+///   neighbours above [`PATH_TURN_DEGREES`] (and [`PATH_TURN_FACTOR`] median turns); or the same
+///   of its distance to them, in median steps, above [`PATH_SHIFT_FACTOR`] (medians, so that a
+///   few wrong neighbours do not mark a right photo, and a few wrong photos in a row are each
+///   marked);
+/// - seeing fewer than [`FEW_POINTS_SHARE`] of the median photo's 3D points;
+/// - its points' mean reprojection error above [`HIGH_ERROR_FACTOR`] times the median photo's
+///   and [`HIGH_ERROR_MIN_PX`].
+#[must_use]
+pub fn suspect_photos(model: &colmap::ColmapModel) -> Vec<Suspect> {
+    use glam::{DMat3, DQuat, DVec3};
+    let mut order: Vec<usize> = (0..model.images.len()).collect();
+    order.sort_by(|&a, &b| model.images[a].name.cmp(&model.images[b].name));
+    let n = order.len();
+    // Centre and viewing direction of each photo, in name order.
+    let poses: Vec<(DVec3, DVec3)> = order
+        .iter()
+        .map(|&i| {
+            let im = &model.images[i];
+            let [qw, qx, qy, qz] = im.qvec;
+            let r = DMat3::from_quat(DQuat::from_xyzw(qx, qy, qz, qw).normalize());
+            let rt = r.transpose();
+            (-(rt * DVec3::from_array(im.tvec)), rt.z_axis.normalize())
+        })
+        .collect();
+    let slot: std::collections::HashMap<u32, usize> =
+        order.iter().enumerate().map(|(k, &i)| (model.images[i].id, k)).collect();
+    let (mut points, mut error_sum) = (vec![0usize; n], vec![0.0f64; n]);
+    for p in &model.points {
+        let mut seen = std::collections::HashSet::new();
+        for id in &p.image_ids {
+            if let Some(&k) = slot.get(id)
+                && seen.insert(k)
+            {
+                points[k] += 1;
+                error_sum[k] += p.error;
+            }
+        }
+    }
+    // The median (the mean of the middle two of an even count).
+    let median = |mut v: Vec<f64>| -> f64 {
+        if v.is_empty() {
+            return 0.0;
+        }
+        v.sort_by(f64::total_cmp);
+        let m = v.len() / 2;
+        if v.len().is_multiple_of(2) { 0.5 * (v[m - 1] + v[m]) } else { v[m] }
+    };
+    let angle = |a: DVec3, b: DVec3| a.dot(b).clamp(-1.0, 1.0).acos().to_degrees();
+    let typical_turn = median(poses.windows(2).map(|w| angle(w[0].1, w[1].1)).collect());
+    let typical_step = median(poses.windows(2).map(|w| (w[0].0 - w[1].0).length()).collect());
+    let median_points = median(points.iter().map(|&c| c as f64).collect());
+    let mean_error: Vec<f64> =
+        (0..n).map(|k| if points[k] > 0 { error_sum[k] / points[k] as f64 } else { 0.0 }).collect();
+    let median_error = median(mean_error.clone());
+    let mut out = Vec::new();
+    for k in 0..n {
+        let mut why = Vec::new();
+        let around: Vec<usize> =
+            (k.saturating_sub(PATH_WINDOW)..(k + PATH_WINDOW + 1).min(n)).filter(|&j| j != k).collect();
+        if around.len() >= 2 {
+            // How much farther the photo turns from (and stands from) each neighbour than the
+            // path's typical turn (step) times their distance in photos, the median over the
+            // neighbours: about 0 on a smooth path, whatever its own curve.
+            let gap = |j: usize| k.abs_diff(j) as f64;
+            let turn = median(around.iter().map(|&j| angle(poses[k].1, poses[j].1) - gap(j) * typical_turn).collect());
+            let shift =
+                median(around.iter().map(|&j| (poses[k].0 - poses[j].0).length() - gap(j) * typical_step).collect());
+            if turn > PATH_TURN_DEGREES.max(PATH_TURN_FACTOR * typical_turn) {
+                why.push(format!(
+                    "looks {turn:.0} degrees away from its neighbours on the path (they turn {typical_turn:.1} degrees from photo to photo)"
+                ));
+            }
+            if typical_step > 0.0 && shift > PATH_SHIFT_FACTOR * typical_step {
+                why.push(format!(
+                    "stands {:.1} steps away from its neighbours on the path (a step: {typical_step:.3}, the median between photos)",
+                    shift / typical_step
+                ));
+            }
+        }
+        if (points[k] as f64) < FEW_POINTS_SHARE * median_points {
+            why.push(format!("sees {} 3D points (the median photo {median_points:.0})", points[k]));
+        }
+        if mean_error[k] > HIGH_ERROR_MIN_PX.max(HIGH_ERROR_FACTOR * median_error) {
+            why.push(format!(
+                "its points' reprojection error is {:.2} px (the median photo's {median_error:.2})",
+                mean_error[k]
+            ));
+        }
+        if !why.is_empty() {
+            out.push(Suspect { name: model.images[order[k]].name.clone(), why: why.join("; ") });
+        }
+    }
+    out
 }
 
 fn is_image(p: &Path) -> bool {
@@ -139,6 +280,21 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
         .filter(|e| is_image(&e.path()))
         .count();
     let mut model = colmap::read_model(&best.1)?;
+    colmap::check_model(&model, &best.1)?;
+    // The photos left out, each of which must be registered.
+    let mut excluded = Vec::new();
+    for name in &opts.exclude {
+        let before = model.images.len();
+        model.images.retain(|im| im.name != *name);
+        if model.images.len() == before {
+            return Err(DataError::invalid(
+                &best.1,
+                format!("--exclude {name}: the model registers no photo of that name (names are as in images/)"),
+            ));
+        }
+        excluded.push(name.clone());
+    }
+    let suspects = suspect_photos(&model);
     let registered = model.images.len();
     let mut warnings = Vec::new();
     if registered < opts.min_views {
@@ -287,6 +443,8 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
         held_out,
         backdrop,
         border_shares: (white, black),
+        suspects,
+        excluded,
         warnings,
     })
 }
