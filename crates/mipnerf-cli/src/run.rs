@@ -88,7 +88,8 @@ pub fn load_split(s: &TrainSettings, split: Split) -> Result<Dataset> {
         masks: s.masks.clone(),
         half_res: s.half_res.unwrap_or(false),
         llff_factor: s.llff_factor.unwrap_or(4),
-        llff_spherify: s.spherify.unwrap_or(false),
+        // (An unbounded scene is spherified, as `TrainSettings::resolved` says.)
+        llff_spherify: s.spherify.unwrap_or(s.unbounded == Some(true)),
         spherify_radius: s.spherify_radius.map(f64::from),
         centers: s.centers(),
         unbounded: s.unbounded.unwrap_or(false),
