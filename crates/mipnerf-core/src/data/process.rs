@@ -315,7 +315,6 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
         ));
     }
     let cams = best.1.join("cameras");
-    colmap::check_model(&model, &best.1)?;
     let first = model.cameras.first().cloned().ok_or_else(|| DataError::invalid(&cams, "no cameras"))?;
     // The camera's size against a photo's, before anything is computed from the camera (a
     // camera 2^32 pixels wide would otherwise be undistorted pixel by pixel).
