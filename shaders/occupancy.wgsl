@@ -11,12 +11,18 @@
 // - a ray that meets no occupied cell gets every edge at `near`: intervals of zero length, so it
 //   renders the background (no opacity, distance `near`) and adds nothing to the gradient, as the
 //   CPU's compacted path renders it.
+// A grid over an unbounded scene's contracted space (`contracted` 1, `OccupancyGrid::
+// contracted_ray_segments`) is walked in even steps of the normalised distance s instead, each
+// step looked up at its point's contraction; with `spacing` 2 the spans are shared out in s (as
+// `sample.wgsl` spaces an unbounded ray's edges), mapped back to t, the ray's first and last
+// edge kept at its spans' ends.
 
 struct Params {
     n_rays: u32,
     // Samples per ray; each ray has n_samples + 1 edges.
     n_samples: u32,
-    lindisp: u32,
+    // 0: linear in depth; 1: linear in disparity (a ray with one span); 2: unbounded (in s).
+    spacing: u32,
     randomized: u32,
     seed: u32,
     step: u32,
@@ -27,7 +33,8 @@ struct Params {
     // The side of one cell, 2 bound / resolution (computed once, in Rust).
     cell_size: f32,
     groups_x: u32,
-    _pad0: u32,
+    // 1: the grid covers an unbounded scene's contracted space (bound 2).
+    contracted: u32,
     _pad1: u32,
 }
 
@@ -52,6 +59,10 @@ const MAX_SPANS: u32 = 256u;
 const MAX_LAYER: f32 = 4.0;
 // Stands for the CPU's infinity in the traversal (never reached by a real crossing).
 const FAR_AWAY: f32 = 3.4e38;
+// `occupancy::CONTRACTED_STEPS_PER_CELL`: steps of the contracted walk per cell of the grid.
+const CONTRACTED_STEPS_PER_CELL: u32 = 2u;
+const SPACING_DISPARITY: u32 = 1u;
+const SPACING_UNBOUNDED: u32 = 2u;
 
 var<private> spans: array<vec2<f32>, 256>;
 
@@ -74,8 +85,82 @@ fn push_span(n: u32, s: f32, t: f32) -> u32 {
     return n;
 }
 
+// mipnerf-core's `contract::contract`: the identity inside the unit ball, (2 - 1/|x|) x/|x|
+// outside it.
+fn contract_point(x: vec3<f32>) -> vec3<f32> {
+    let r2 = dot(x, x);
+    if (r2 <= 1.0) {
+        return x;
+    }
+    let r = sqrt(r2);
+    return x * ((2.0 - 1.0 / r) / r);
+}
+
+// Edge k of the contracted walk's n steps of s from s0 by ds: the ray's own near and far at
+// either end.
+fn walk_edge(k: u32, n: u32, s0: f32, ds: f32, near: f32, far: f32) -> f32 {
+    if (k == 0u) {
+        return near;
+    }
+    if (k == n) {
+        return far;
+    }
+    return s_to_ray_distance(s0 + f32(k) * ds);
+}
+
+// `OccupancyGrid::contracted_ray_segments`: from near to far in `CONTRACTED_STEPS_PER_CELL`
+// steps of s per cell, each step occupied when the cell of its middle's contraction is (in the
+// layer dilated to the cone's width there, its world width times the contraction's sideways
+// scale); consecutive occupied steps make one span.
+fn contracted_ray_segments(origin: vec3<f32>, direction: vec3<f32>, radius: f32, near: f32, far: f32) -> u32 {
+    let s0 = ray_distance_to_s(near);
+    let s1 = ray_distance_to_s(far);
+    if (!(s0 < s1)) {
+        return 0u;
+    }
+    let r = p.resolution;
+    let h = p.cell_size;
+    let b = p.bound;
+    let steps = CONTRACTED_STEPS_PER_CELL * r;
+    let ds = (s1 - s0) / f32(steps);
+    var open = false;
+    var start = 0.0;
+    var n = 0u;
+    for (var k = 0u; k < steps; k = k + 1u) {
+        let t = s_to_ray_distance(s0 + (f32(k) + 0.5) * ds);
+        let x = origin + direction * t;
+        let dist = length(x);
+        var across = 1.0;
+        if (dist > 1.0) {
+            across = (2.0 - 1.0 / dist) / dist;
+        }
+        let reach = ceil(2.0 * radius * t * across / h);
+        var layer = 0u;
+        if (reach >= 1.0) {
+            layer = u32(min(reach, MAX_LAYER));
+        }
+        let cell = (contract_point(x) + b) / h;
+        let inside = min(min(cell.x, cell.y), cell.z) >= 0.0 && max(max(cell.x, cell.y), cell.z) < f32(r);
+        let occ = inside && occupied(layer, vec3<i32>(cell));
+        if (occ && !open) {
+            open = true;
+            start = walk_edge(k, steps, s0, ds, near, far);
+        } else if (!occ && open) {
+            n = push_span(n, start, walk_edge(k, steps, s0, ds, near, far));
+            open = false;
+        }
+    }
+    if (open) {
+        n = push_span(n, start, far);
+    }
+    return n;
+}
+
 // `OccupancyGrid::ray_segments`: the ray's occupied spans into `spans`, their count returned.
 fn ray_segments(origin: vec3<f32>, direction: vec3<f32>, radius: f32, near: f32, far: f32) -> u32 {
+    if (p.contracted != 0u) {
+        return contracted_ray_segments(origin, direction, radius, near, far);
+    }
     let b = p.bound;
     let r = i32(p.resolution);
     let h = p.cell_size;
@@ -190,8 +275,30 @@ fn sample_occupied(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let key = stream_key(p.seed, p.step, STREAM_SAMPLE_JITTER, ray_ids[r]);
+    // An unbounded ray's spans are shared out in s, its edges mapped back to t at the end.
+    let unbounded = p.spacing == SPACING_UNBOUNDED;
+    let t_first = spans[0].x;
+    let t_last = spans[n_spans - 1u].y;
+    if (unbounded) {
+        for (var k = 0u; k < n_spans; k = k + 1u) {
+            spans[k] = vec2<f32>(ray_distance_to_s(spans[k].x), ray_distance_to_s(spans[k].y));
+        }
+    }
+    edges_in_spans(base, n_spans, key);
+    if (unbounded) {
+        for (var i = 0u; i <= n; i = i + 1u) {
+            t_out[base + i] = s_to_ray_distance(t_out[base + i]);
+        }
+        t_out[base] = t_first;
+        t_out[base + n] = t_last;
+    }
+}
+
+// `sampling::sample_along_segments` of the ray's `n_spans` spans into its edges at `base`.
+fn edges_in_spans(base: u32, n_spans: u32, key: u32) {
+    let n = p.n_samples;
     if (n_spans == 1u) {
-        sample_along(base, spans[0].x, spans[0].y, p.lindisp != 0u, key);
+        sample_along(base, spans[0].x, spans[0].y, p.spacing == SPACING_DISPARITY, key);
         return;
     }
     // `sampling::join_narrowest_gaps`: the spans with the narrowest gaps joined first until

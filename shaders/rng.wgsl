@@ -1,5 +1,6 @@
 // mipnerf-core's counter-based random numbers (crates/mipnerf-core/src/rng.rs) and the stratified
-// draws built on them (crates/mipnerf-core/src/sampling.rs), the one WGSL copy:
+// draws built on them (crates/mipnerf-core/src/sampling.rs), with the normalised distance of
+// unbounded scenes (crates/mipnerf-core/src/contract.rs), the one WGSL copy:
 // composed in front of every kernel's own source, after the generated constants (STREAM_*,
 // RAY_LEVEL_STRIDE) that come from the Rust definitions.
 
@@ -74,4 +75,20 @@ fn stratified_edge(i: u32, n: u32, near: f32, far: f32, lindisp: bool, jitter: b
         upper = 0.5 * (linspace_edge(i + 1u, n, near, far, lindisp) + cur);
     }
     return lower + (upper - lower) * uniform01(key, i);
+}
+
+// mipnerf-core's `contract::ray_distance_to_s` and `s_to_ray_distance`: the normalised distance
+// unbounded scenes space their edges in (`sample.wgsl`, `occupancy.wgsl`).
+fn ray_distance_to_s(t: f32) -> f32 {
+    if (t < 1.0) {
+        return 0.5 * t;
+    }
+    return 1.0 - 0.5 / t;
+}
+
+fn s_to_ray_distance(s: f32) -> f32 {
+    if (s < 0.5) {
+        return 2.0 * s;
+    }
+    return 1.0 / (2.0 - 2.0 * s);
 }

@@ -41,21 +41,6 @@ const MAX_EDGES: u32 = 1025u;
 const SPACING_DISPARITY: u32 = 1u;
 const SPACING_UNBOUNDED: u32 = 2u;
 
-// mipnerf-core's `contract::ray_distance_to_s` and `s_to_ray_distance`.
-fn ray_distance_to_s(t: f32) -> f32 {
-    if (t < 1.0) {
-        return 0.5 * t;
-    }
-    return 1.0 - 0.5 / t;
-}
-
-fn s_to_ray_distance(s: f32) -> f32 {
-    if (s < 0.5) {
-        return 2.0 * s;
-    }
-    return 1.0 / (2.0 - 2.0 * s);
-}
-
 // The coarse edge at index `i` of `src_a`, in the coordinate resampling works in.
 fn coarse_edge(i: u32) -> f32 {
     let t = src_a[i];

@@ -210,6 +210,9 @@ pub struct TrainSettings {
     /// taken all around with their surroundings, spherified with the farthest camera on the unit
     /// sphere [default: false; recorded only when set].
     pub unbounded: Option<bool>,
+    /// Weight of mip-NeRF 360's distortion loss on the last level's weights (CPU backend)
+    /// [default: 0, off; recorded only when set].
+    pub distortion_loss: Option<f32>,
     /// Occupancy-guided sampling [default: true for the fast preset, else false].
     pub occupancy: Option<bool>,
     /// Cells along each axis of the occupancy grid [default: 64].
@@ -301,6 +304,7 @@ impl TrainSettings {
             spherify,
             spherify_radius,
             unbounded,
+            distortion_loss,
             occupancy,
             occupancy_resolution,
             occupancy_bound,
@@ -428,6 +432,7 @@ impl TrainSettings {
                 spherify.then(|| self.spherify_radius.unwrap_or(mipnerf_core::data::llff::SPHERIFY_RADIUS as f32))
             },
             unbounded: self.unbounded.filter(|&u| u),
+            distortion_loss: self.distortion_loss.filter(|&d| d != 0.0),
             occupancy: Some(occupancy),
             occupancy_resolution: occupancy
                 .then(|| self.occupancy_resolution.unwrap_or(FastRecipe::RECIPE.occupancy_resolution)),
@@ -525,6 +530,10 @@ impl TrainSettings {
             bail!("--density-noise must be between 0 and 100, got {}", m.density_noise);
         }
         m.unbounded = self.unbounded.unwrap_or(false);
+        m.distortion_loss_mult = self.distortion_loss.unwrap_or(0.0);
+        if !(m.distortion_loss_mult.is_finite() && (0.0..=1.0).contains(&m.distortion_loss_mult)) {
+            bail!("--distortion-loss must be between 0 and 1 (the successor's: 0.01), got {}", m.distortion_loss_mult);
+        }
         m.white_bkgd = self.white_bkgd.unwrap_or(true);
         m.random_bkgd = self.random_bkgd.unwrap_or(false);
         if m.supersample == 0 || m.supersample > 16 {
@@ -635,6 +644,9 @@ impl TrainSettings {
                     "an unbounded scene casts cones (cylinders are for forward-facing scenes in NDC): drop --ray-shape"
                 );
             }
+        }
+        if self.distortion_loss.is_some_and(|d| d != 0.0) && self.backend == Some(Backend::Gpu) {
+            bail!("the distortion loss (--distortion-loss) runs on the CPU backend only: use --backend cpu");
         }
         if self.occupancy == Some(true) && self.supersample.unwrap_or(1) > 1 {
             bail!("occupancy-guided sampling (--occupancy) does not guide supersampled pixels: drop --supersample");
@@ -766,9 +778,13 @@ pub struct TrainFlags {
     /// beyond the cameras is contracted into a shell (mip-NeRF 360), so the background is learnt
     /// out to infinity instead of being cut off at a box. Implies --spherify (the farthest
     /// camera on the unit sphere); the occupancy grid (the fast preset's) then covers the
-    /// contracted space, on the CPU backend.
+    /// contracted space.
     #[arg(long)]
     pub unbounded: bool,
+    /// Weight of mip-NeRF 360's distortion loss, which gathers each ray's weight into one short
+    /// stretch against floaters (the successor's: 0.01; CPU backend) [default: 0, off].
+    #[arg(long, value_name = "W")]
+    pub distortion_loss: Option<f32>,
     /// What the renders are composited on where the rays meet nothing [default: white for
     /// Blender and multiscale data, black (no compositing) for LLFF and COLMAP]. White or black
     /// suits an object photographed on a plain backdrop of that colour (the backdrop then need
@@ -881,6 +897,7 @@ impl TrainFlags {
             spherify: yes(self.spherify),
             spherify_radius: self.spherify_radius,
             unbounded: yes(self.unbounded),
+            distortion_loss: self.distortion_loss,
             occupancy: yes(self.occupancy).or(no(self.no_occupancy)),
             occupancy_resolution: self.occupancy_resolution,
             occupancy_bound: self.occupancy_bound,

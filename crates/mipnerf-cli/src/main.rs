@@ -393,6 +393,11 @@ enum Command {
         /// 3D points, a high reprojection error).
         #[arg(long, value_name = "NAME", value_delimiter = ',')]
         exclude: Vec<String>,
+        /// Foreground masks, one per photo (named as the photo, PNG or JPEG, white = the object):
+        /// undistorted and downscaled as the photos are, to masks_N/ in --output, for
+        /// `train --masks` (the object alone, without its surroundings).
+        #[arg(long, value_name = "DIR")]
+        masks: Option<PathBuf>,
     },
     /// Convert a Blender scene into the multiscale format (4 scales, metadata.json), exactly as
     /// the official convert_blender_data.py (byte for byte, without --size).
@@ -576,6 +581,7 @@ fn colmap_cmd(
     min_views: usize,
     overwrite: bool,
     exclude: Vec<String>,
+    masks: Option<PathBuf>,
 ) -> Result<()> {
     if max_size != 0 && max_size < MIN_COLMAP_SIZE {
         bail!(
@@ -588,6 +594,7 @@ fn colmap_cmd(
         recommended_views: data::process::RECOMMENDED_VIEWS.max(min_views),
         overwrite,
         exclude,
+        masks,
     };
     let t = std::time::Instant::now();
     let r = data::process::process(input, output, &opts)?;
@@ -633,6 +640,7 @@ fn colmap_cmd(
         r.factor,
         t.elapsed().as_secs_f64()
     );
+    print_focal_check(&r);
     println!(
         "scene bounds: near {:.4}, far {:.4} (COLMAP units; depths of the 3D points each photo sees, 0.1 and 99.9 percentiles)",
         r.bounds.0, r.bounds.1
@@ -672,17 +680,65 @@ fn colmap_cmd(
         );
     }
     let name = output.file_name().map_or_else(|| "scene".to_owned(), |n| n.to_string_lossy().into_owned());
+    let scene = match &r.masks {
+        // The object alone: its surroundings are masked out, so nothing reaches past the cameras.
+        Some(dir) => {
+            println!(
+                "masks: undistorted and downscaled as the photos are, in {} (the object alone, composited on a random \
+                 colour per pixel while training and on white for renders)",
+                dir.display()
+            );
+            format!("{} --masks {}", if r.all_around { " --spherify" } else { "" }, dir.display())
+        }
+        None => format!(
+            "{}{background}",
+            match (r.all_around, unbounded) {
+                (true, true) => " --unbounded",
+                (true, false) => " --spherify",
+                (false, _) => "",
+            }
+        ),
+    };
     println!(
-        "train with:\n  mipnerf train --data {} --llff-factor {}{}{background} {COLMAP_FIRST_RUN} --out runs/{name}",
+        "train with:\n  mipnerf train --data {} --llff-factor {}{scene} {COLMAP_FIRST_RUN} --out runs/{name}",
         output.display(),
         r.factor,
-        match (r.all_around, unbounded) {
-            (true, true) => " --unbounded",
-            (true, false) => " --spherify",
-            (false, _) => "",
-        },
     );
     Ok(())
+}
+
+/// Prints COLMAP's focal length against the photos' EXIF, and what to do when they disagree.
+fn print_focal_check(r: &data::process::ProcessReport) {
+    let Some(c) = &r.focal else {
+        println!("focal length: no photo has an EXIF focal length, so COLMAP's {:.0} px is not checked", r.lens.fx);
+        return;
+    };
+    let from = format!("{} of {} photos have one; the median, {}", c.photos_with_exif, r.registered, c.photo);
+    if !c.disagrees() {
+        println!(
+            "focal length: COLMAP's {:.0} px agrees with the photos' EXIF, {} ({from}), within {:.0}%",
+            c.colmap_px,
+            c.exif,
+            100.0 * (data::focal::FOCAL_MISMATCH_FACTOR - 1.0)
+        );
+        return;
+    }
+    let l = &r.lens;
+    eprintln!(
+        "warning: COLMAP's focal length, {:.0} px, is {:.2}x {} than the one the photos' EXIF implies, {} ({from}). \
+         With the focal length wrong, every pose is wrong with it and the model blurs or ghosts: run COLMAP again \
+         with the focal length given, from feature extraction on:\n  \
+         colmap feature_extractor ... --ImageReader.single_camera 1 --ImageReader.camera_model SIMPLE_RADIAL \
+         --ImageReader.camera_params \"{:.1},{:.1},{:.1},0\"\n  \
+         (pycolmap: ImageReaderOptions(camera_model=\"SIMPLE_RADIAL\", camera_params=\"...\" as above))",
+        c.colmap_px,
+        c.ratio(),
+        if c.colmap_px < c.exif.focal_px { "shorter" } else { "longer" },
+        c.exif,
+        c.exif.focal_px,
+        f64::from(l.width) / 2.0,
+        f64::from(l.height) / 2.0,
+    );
 }
 
 /// Runs `write`, which writes `names` (files and folders) into `output`, under the outputs
@@ -962,8 +1018,8 @@ fn main() -> std::process::ExitCode {
             )
         }
         Command::FetchLpipsWeights { dir } => lpips::fetch(dir),
-        Command::Colmap { input, output, max_size, min_views, overwrite, exclude } => {
-            colmap_cmd(&input, &output, max_size, min_views, overwrite, exclude)
+        Command::Colmap { input, output, max_size, min_views, overwrite, exclude, masks } => {
+            colmap_cmd(&input, &output, max_size, min_views, overwrite, exclude, masks)
         }
         Command::Convert { input, output, to: ConvertTo::Multiscale, size, overwrite, .. } => {
             let names = ["metadata.json", "images_train", "images_val", "images_test"];

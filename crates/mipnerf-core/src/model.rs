@@ -111,6 +111,10 @@ pub struct ModelConfig {
     /// Rays per pixel along each axis for supersampling (1 = one ray per pixel); the rendered
     /// colours of a pixel's `k x k` rays are averaged.
     pub supersample: usize,
+    /// Weight of mip-NeRF 360's distortion loss ([`stages::distortion_loss`]) on the last
+    /// level's weights, averaged over the batch's rays (0: off, Mip-NeRF; the successor's 0.01).
+    /// CPU backend.
+    pub distortion_loss_mult: f32,
 }
 
 impl Default for ModelConfig {
@@ -141,6 +145,7 @@ impl Default for ModelConfig {
             coarse_loss_mult: 0.1,
             area_loss: true,
             supersample: 1,
+            distortion_loss_mult: 0.0,
         }
     }
 }
@@ -354,10 +359,13 @@ pub struct LossStats {
     /// Per level: `sum(lossmult (rgb - gt)²) / (3 sum(lossmult))`, the lossmult-weighted
     /// per-channel mean squared error. (The official code omits the 3, so its losses are 3x these.)
     pub losses: Vec<f32>,
-    /// `coarse_loss_mult * sum(losses[..last]) + losses[last]`.
+    /// `coarse_loss_mult * sum(losses[..last]) + losses[last]`, plus `distortion`.
     pub loss: f32,
     /// Per level, the plain per-channel MSE (no lossmult), what PSNR is computed from.
     pub mse: Vec<f32>,
+    /// The distortion loss's term in `loss`: `distortion_loss_mult` times its mean over the
+    /// batch's rays (0 when off).
+    pub distortion: f32,
 }
 
 impl LossStats {
@@ -424,6 +432,12 @@ impl Model {
                  contraction squeezes it to nothing but along the ray (cylinders are for forward-facing scenes in NDC)"
                     .into(),
             ));
+        }
+        if !(config.distortion_loss_mult.is_finite() && (0.0..=1.0).contains(&config.distortion_loss_mult)) {
+            return Err(ModelError::Config(format!(
+                "the distortion loss's weight must be between 0 and 1 (the successor's: 0.01), got {}",
+                config.distortion_loss_mult
+            )));
         }
         let n_mlps = if config.separate_mlps { config.num_levels } else { 1 };
         let mut mlps = Vec::with_capacity(n_mlps);
@@ -681,6 +695,9 @@ impl Model {
             (r, t)
         });
         let (run_rays, run_targets) = compacted.as_ref().map_or((rays, targets), |(r, t)| (r.as_slice(), t.as_slice()));
+        // The distortion loss is a mean over every ray of the batch (those that meet no
+        // occupied cell have no weights, and add nothing).
+        let dist_scale = self.config.distortion_loss_mult / rays.len().max(1) as f32;
         let chunk_pix = CHUNK_RAYS.div_ceil(rpp);
         let n_chunks = run_targets.len().div_ceil(chunk_pix);
         scratch.chunk_grads.resize_with(n_chunks, Vec::new);
@@ -700,7 +717,7 @@ impl Model {
                 };
                 WORKSPACE.with(|ws| {
                     let ws = &mut ws.borrow_mut();
-                    self.run_chunk(params, rays, ids, spans, Some((tg, norm)), mode, ws, Some(g), None)
+                    self.run_chunk(params, rays, ids, spans, Some((tg, norm, dist_scale)), mode, ws, Some(g), None)
                 })
             })
             .collect();
@@ -744,8 +761,10 @@ impl Model {
         }
         let losses: Vec<f32> = total.iter().map(|s| (s[0] / f64::from(norm)) as f32).collect();
         let mse: Vec<f32> = total.iter().map(|s| (s[1] / (3.0 * f64::from(n_pix))) as f32).collect();
-        let loss = self.level_weights().iter().zip(&losses).map(|(w, l)| w * l).sum();
-        LossStats { losses, loss, mse }
+        // run_chunk's entry after the levels': the chunk's distortion loss, scaled.
+        let distortion = sums.iter().filter_map(|s| s.get(levels)).map(|d| d[0]).sum::<f64>() as f32;
+        let loss = self.level_weights().iter().zip(&losses).map(|(w, l)| w * l).sum::<f32>() + distortion;
+        LossStats { losses, loss, mse, distortion }
     }
 
     /// The loss weight of each level: `coarse_loss_mult` for all but the last, 1 for the last.
@@ -762,16 +781,17 @@ impl Model {
     }
 
     /// Runs all levels over one chunk of whole pixels: the stages of [`crate::stages`] in the
-    /// paper's order (see ARCHITECTURE.md), each the reference of one GPU kernel. With `targets`,
-    /// accumulates the gradient into `grads` and returns per level `[sum lossmult·sq, sum sq]`;
-    /// with `out`, writes the rendered pixels.
+    /// paper's order (see ARCHITECTURE.md), each the reference of one GPU kernel. With `targets`
+    /// (`(colours, norm, distortion scale)`), accumulates the gradient into `grads` and returns
+    /// per level `[sum lossmult·sq, sum sq]`, then `[distortion loss × scale, 0]`; with `out`,
+    /// writes the rendered pixels.
     fn run_chunk(
         &self,
         params: &[f32],
         rays: &[Ray],
         ids: RayIds<'_>,
         spans: Option<ChunkSpans<'_>>,
-        targets: Option<(&[[f32; 3]], f32)>,
+        targets: Option<(&[[f32; 3]], f32, f32)>,
         mode: Mode,
         ws: &mut Workspace,
         mut grads: Option<&mut [f32]>,
@@ -780,7 +800,7 @@ impl Model {
         let c = &self.config;
         let (s, n) = (c.num_samples, rays.len() * c.num_samples);
         self.size_workspace(rays.len(), ws);
-        let mut sums = vec![[0.0f64; 2]; c.num_levels];
+        let mut sums = vec![[0.0f64; 2]; c.num_levels + 1];
         ws.ids.clear();
         ws.ids.extend((0..rays.len()).map(|r| ids.get(r)));
         ws.backgrounds.clear();
@@ -817,17 +837,46 @@ impl Model {
             if let Some(out) = out.as_deref_mut() {
                 self.write_level_output(level, ws, out);
             }
-            let (Some((tg, norm)), Some(grads)) = (targets, grads.as_deref_mut()) else {
+            let (Some((tg, norm, dist_scale)), Some(grads)) = (targets, grads.as_deref_mut()) else {
                 continue;
             };
             self.loss_gradient(level, rays, tg, norm, &mut sums[level], ws);
             let raw = (&ws.cache.raw_rgb[..3 * n], &ws.cache.raw_density[..n]);
             let d_raw = (&mut ws.d_raw_rgb[..], &mut ws.d_raw_density[..]);
             stages::render_rays_backward(c, raw, &ws.t, rays, &ws.backgrounds, &ws.samples, &ws.d_ray_rgb, d_raw);
+            if dist_scale > 0.0 && level + 1 == c.num_levels {
+                sums[c.num_levels][0] += f64::from(self.distortion_backward(rays, dist_scale, ws));
+            }
             let (x, view, cache) = (&ws.x, &ws.view, &mut ws.cache);
             mlp.backward(params, x, view, s, cache, &ws.d_raw_rgb, &ws.d_raw_density, grads);
         }
         sums
+    }
+
+    /// The distortion loss ([`stages::distortion_loss`]) of the level just rendered, times
+    /// `scale`, summed over the chunk's rays; its gradient added to `ws.d_raw_density` through
+    /// the weights ([`render::weights_backward`]) and the density activation.
+    fn distortion_backward(&self, rays: &[Ray], scale: f32, ws: &mut Workspace) -> f32 {
+        let c = &self.config;
+        let s = c.num_samples;
+        let (mut edges, mut d_w, mut d_density) = (vec![0.0f32; s + 1], vec![0.0f32; s], vec![0.0f32; s]);
+        let mut total = 0.0f32;
+        for (r, ray) in rays.iter().enumerate() {
+            let (sl, t) = (r * s..(r + 1) * s, &ws.t[r * (s + 1)..(r + 1) * (s + 1)]);
+            for (e, &tv) in edges.iter_mut().zip(t) {
+                *e = stages::normalised_distance(tv, ray.near, ray.far, c.spacing());
+            }
+            d_w.fill(0.0);
+            d_density.fill(0.0);
+            total += scale * stages::distortion_loss(&edges, &ws.samples.weights[sl.clone()], scale, &mut d_w);
+            let density = &ws.samples.density[sl.clone()];
+            render::weights_backward(density, t, ray.direction, &ws.samples.weights[sl.clone()], &d_w, &mut d_density);
+            for (j, i) in sl.enumerate() {
+                ws.d_raw_density[i] +=
+                    d_density[j] * c.density_activation.derivative(ws.cache.raw_density[i], c.density_bias);
+            }
+        }
+        total
     }
 
     /// Sizes the workspace for `nr` rays.

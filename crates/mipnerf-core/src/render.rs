@@ -148,6 +148,43 @@ pub fn volumetric_rendering_backward(
     }
 }
 
+/// The gradient with respect to each interval's density of a loss whose gradient with respect
+/// to the weights of [`volumetric_rendering`] is `d_weights`, added to `grad_density`:
+/// `dL/d density_k = delta_k (d_weights_k T_{k+1} - sum_{i>k} d_weights_i w_i)` (the weights'
+/// Jacobian, as in [`volumetric_rendering_backward`], whose `g_i` is the colour loss's
+/// `dL/dw_i`). For losses on the weights themselves, such as mip-NeRF 360's distortion loss
+/// ([`crate::stages::distortion_loss`]).
+///
+/// # Panics
+/// If the lengths disagree.
+pub fn weights_backward(
+    density: &[f32],
+    t_vals: &[f32],
+    dir: Vec3,
+    weights: &[f32],
+    d_weights: &[f32],
+    grad_density: &mut [f32],
+) {
+    let n = density.len();
+    assert!(
+        t_vals.len() == n + 1 && weights.len() == n && d_weights.len() == n && grad_density.len() == n,
+        "weights_backward: shapes"
+    );
+    let dir_norm = dir.length();
+    let mut cum = 0.0f32;
+    let mut trans_next = Vec::with_capacity(n);
+    for k in 0..n {
+        cum += density[k] * (t_vals[k + 1] - t_vals[k]) * dir_norm;
+        trans_next.push((-cum).exp());
+    }
+    let mut suffix = 0.0f32; // sum_{i>k} d_weights_i w_i
+    for k in (0..n).rev() {
+        let ds = d_weights[k] * trans_next[k] - suffix;
+        suffix += d_weights[k] * weights[k];
+        grad_density[k] += ds * (t_vals[k + 1] - t_vals[k]) * dir_norm;
+    }
+}
+
 /// How raw density becomes density.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]

@@ -175,3 +175,106 @@ fn activation_derivatives_match_finite_differences() {
     }
     assert!(bad.is_empty(), "{} derivatives disagree:\n{}", bad.len(), bad.join("\n"));
 }
+
+/// mip-NeRF 360's distortion loss (its Eq. 15) in f64, as written: the double sum.
+fn distortion_by_definition(s: &[f32], w: &[f32]) -> f64 {
+    let n = w.len();
+    let mid = |i: usize| 0.5 * (f64::from(s[i]) + f64::from(s[i + 1]));
+    let mut loss = 0.0;
+    for i in 0..n {
+        for j in 0..n {
+            loss += f64::from(w[i]) * f64::from(w[j]) * (mid(i) - mid(j)).abs();
+        }
+        loss += f64::from(w[i]) * f64::from(w[i]) * (f64::from(s[i + 1]) - f64::from(s[i])) / 3.0;
+    }
+    loss
+}
+
+/// Relative difference allowed between the O(n) distortion loss (f32 prefix sums) and the double
+/// sum in f64: a few f32 roundings of sums of up to 64 terms.
+const TOL_DISTORTION_REL: f64 = 1e-5;
+
+/// The distortion loss: its O(n) form against the definition's double sum, its gradient with
+/// respect to the weights and, through [`weights_backward`], the densities, against finite
+/// differences, and its meaning: one short stretch of weight costs less than the same weight
+/// spread along the ray.
+#[test]
+fn distortion_loss_matches_its_definition_and_finite_differences() {
+    use mipnerf_core::render::weights_backward;
+    use mipnerf_core::stages::distortion_loss;
+    let mut rng = SmallRng::seed_from_u64(7);
+    let mut bad = Vec::new();
+    let mut checked = 0;
+    for case in 0..12 {
+        let n = [1, 3, 16, 64][case % 4];
+        let mut s: Vec<f32> = (0..=n).map(|_| rng.random_range(0.0..1.0)).collect();
+        s.sort_by(f32::total_cmp);
+        let w: Vec<f32> = (0..n).map(|_| rng.random_range(0.0..1.0) / n as f32).collect();
+        let scale = rng.random_range(0.1..2.0);
+        let mut d_w = vec![0.0; n];
+        let loss = distortion_loss(&s, &w, scale, &mut d_w);
+        let exact = distortion_by_definition(&s, &w);
+        if (f64::from(loss) - exact).abs() > TOL_DISTORTION_REL * exact.abs().max(1e-6) {
+            bad.push(format!("case {case}: O(n) {loss:e}, definition {exact:e}"));
+        }
+        // d/dw by central differences of the definition (a quadratic: exact up to rounding).
+        for i in 0..n {
+            let h = 1e-3f32;
+            let (mut up, mut down) = (w.clone(), w.clone());
+            up[i] += h;
+            down[i] -= h;
+            let h_eff = (f64::from(up[i]) - f64::from(down[i])) / 2.0;
+            let numeric = f64::from(scale) * (distortion_by_definition(&s, &up) - distortion_by_definition(&s, &down))
+                / (2.0 * h_eff);
+            check(&format!("case {case} d/dw[{i}]"), f64::from(d_w[i]), numeric, &mut bad);
+            checked += 1;
+        }
+        // Through the weights of volume rendering: d/d density.
+        if n <= 16 {
+            let mut r = random_ray(&mut rng, n);
+            let edges: Vec<f32> = r.t.iter().map(|t| (t - r.t[0]) / (r.t[n] - r.t[0])).collect();
+            let through = |r: &RayCase| -> f64 {
+                let mut w = vec![0.0; n];
+                volumetric_rendering(&r.rgb, &r.density, &r.t, r.dir, [0.0; 3], &mut w);
+                distortion_by_definition(&edges, &w)
+            };
+            let mut w = vec![0.0; n];
+            volumetric_rendering(&r.rgb, &r.density, &r.t, r.dir, [0.0; 3], &mut w);
+            let mut d_w = vec![0.0; n];
+            distortion_loss(&edges, &w, 1.0, &mut d_w);
+            let mut g_den = vec![0.0; n];
+            weights_backward(&r.density, &r.t, r.dir, &w, &d_w, &mut g_den);
+            for i in 0..n {
+                let x0 = r.density[i];
+                let h = (FD_STEP * f64::from(x0).abs().max(0.3)) as f32;
+                r.density[i] = x0 + h;
+                let up = through(&r);
+                r.density[i] = x0 - h;
+                let down = through(&r);
+                r.density[i] = x0;
+                let h_eff = (f64::from(x0 + h) - f64::from(x0 - h)) / 2.0;
+                check(
+                    &format!("case {case} d/d density[{i}]"),
+                    f64::from(g_den[i]),
+                    (up - down) / (2.0 * h_eff),
+                    &mut bad,
+                );
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked > 200);
+    assert!(bad.is_empty(), "{} of {checked} checks disagree:\n{}", bad.len(), bad.join("\n"));
+    // A surface (all the weight in one interval of width 0.01) against the same weight in a fog
+    // over the whole ray.
+    let s: Vec<f32> = (0..=100).map(|i| i as f32 / 100.0).collect();
+    let mut surface = vec![0.0; 100];
+    surface[40] = 1.0;
+    let fog = vec![0.01; 100];
+    let mut d_w = vec![0.0; 100];
+    let (at_surface, in_fog) = (distortion_loss(&s, &surface, 1.0, &mut d_w), distortion_loss(&s, &fog, 1.0, &mut d_w));
+    assert!((f64::from(at_surface) - 0.01 / 3.0).abs() < 1e-7, "{at_surface}");
+    // A uniform unit weight over [0, 1]: 1/3 (the mean distance of two uniform points), less the
+    // double sum's discretisation.
+    assert!((f64::from(in_fog) - 1.0 / 3.0).abs() < 1e-4, "{in_fog}");
+}

@@ -372,3 +372,59 @@ fn the_process_step_names_the_photos_colmap_may_have_got_wrong() {
     assert!(suspects[4].why.contains("sees 15 3D points (the median photo 300)"), "{suspects:#?}");
     assert!(suspects[5].why.contains("reprojection error is 1.83 px (the median photo's 0.50)"), "{suspects:#?}");
 }
+
+/// Relative difference allowed between a focal length read from EXIF and the formula's (both
+/// f64 from the same numbers).
+const TOL_EXIF_FOCAL: f64 = 1e-12;
+
+/// The focal length the photos' EXIF implies (`data::focal`), on tags Pillow wrote
+/// (tests/data/exif, scripts/make-exif-fixtures.py).
+#[test]
+fn the_focal_length_a_photos_exif_implies() {
+    use data::focal::{FILM_DIAGONAL_MM, FocalSource, exif_focal};
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/exif");
+    let near = |a: f64, b: f64| ((a - b) / b).abs() < TOL_EXIF_FOCAL;
+    // A square photo is no camera's frame: a crop keeping the frame's short side (24 mm).
+    let f = exif_focal(&dir.join("film35_square.jpg"), 20, 20).unwrap();
+    assert!(near(f.focal_px, 46.0 * 20.0 / 24.0), "{f:?}");
+    assert_eq!(f.source, FocalSource::Film35mm { focal_35mm: 46.0, cropped: true });
+    // The same photo read at twice the size: the focal length in pixels doubles.
+    assert!(near(exif_focal(&dir.join("film35_square.jpg"), 40, 40).unwrap().focal_px, 46.0 * 40.0 / 24.0));
+    // A 3:2 photo is the whole frame: the diagonals correspond.
+    let f = exif_focal(&dir.join("film35_whole.jpg"), 30, 20).unwrap();
+    assert!(near(f.focal_px, 46.0 * 30f64.hypot(20.0) / FILM_DIAGONAL_MM), "{f:?}");
+    assert_eq!(f.source, FocalSource::Film35mm { focal_35mm: 46.0, cropped: false });
+    // The sensor's pixel pitch (6000 px over 23.5 mm), from the 6000x4000 the camera recorded to
+    // the photo's 30x20.
+    let f = exif_focal(&dir.join("focal_plane.jpg"), 30, 20).unwrap();
+    assert!(near(f.focal_px, 31.0 * (6000.0 / 23.5) * (30.0 / 6000.0)), "{f:?}");
+    assert!(matches!(f.source, FocalSource::FocalPlane { focal_mm: 31.0, .. }), "{f:?}");
+    // Recorded 6000x4000 but the photo is square: the pitch is not trusted; the 35 mm route.
+    let f = exif_focal(&dir.join("focal_plane_cropped.jpg"), 20, 20).unwrap();
+    assert_eq!(f.source, FocalSource::Film35mm { focal_35mm: 46.0, cropped: true });
+    // Nothing to read: no check, no error.
+    assert_eq!(exif_focal(&dir.join("no_exif.jpg"), 20, 20), None);
+    assert_eq!(exif_focal(&dir.join("missing.jpg"), 20, 20), None);
+    assert_eq!(exif_focal(&dir.join("film35_square.jpg"), 0, 20), None);
+}
+
+/// On the real capture `ethiopian_head` (../shared; skipped with a line when absent): its 1000
+/// px photos, cut square from a Nikon D3300's 6000x4000 frame, imply 1917 px from their EXIF
+/// (46 mm in 35 mm terms), within 2% of the 1886 px of the capture's own poses, where the 1327 px
+/// of a COLMAP run from a prior that took the square for the whole frame is 1.44x off.
+#[test]
+fn ethiopian_heads_exif_agrees_with_its_poses() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/real/ethiopian_head");
+    let photo = root.join("images_4/DSC_0047.JPG");
+    if !photo.is_file() {
+        eprintln!("skipped: {} is absent (../shared is not beside the checkout)", photo.display());
+        return;
+    }
+    let f = data::focal::exif_focal(&photo, 1000, 1000).unwrap();
+    let rows = llff::read_poses_bounds(&root.join("poses_bounds.npy")).unwrap();
+    let poses = rows[0][14] * 1000.0 / rows[0][4];
+    assert!((f.focal_px / poses - 1.0).abs() < 0.02, "EXIF {f:?}, poses {poses}");
+    let check =
+        data::focal::FocalCheck { colmap_px: 1327.0, exif: f, photo: "DSC_0047.JPG".into(), photos_with_exif: 1 };
+    assert!(check.disagrees() && (check.ratio() - 1.44).abs() < 0.01, "{}", check.ratio());
+}

@@ -69,16 +69,23 @@ const FD_REL: f64 = 3e-2;
 
 #[test]
 fn whole_loss_gradient_matches_finite_differences_for_every_layer() {
-    whole_loss_gradient_matches_finite_differences(false);
+    whole_loss_gradient_matches_finite_differences(false, 0.0);
+}
+
+#[test]
+fn whole_loss_gradient_with_the_distortion_loss_matches_finite_differences() {
+    // A weight far above the successor's 0.01, so that the distortion loss's share of the
+    // gradient is not lost in the tolerance.
+    whole_loss_gradient_matches_finite_differences(false, 0.5);
 }
 
 #[test]
 fn whole_loss_gradient_on_random_backgrounds_matches_finite_differences() {
     // Each ray composited on its pixel's random colour (fixed by the step's seed).
-    whole_loss_gradient_matches_finite_differences(true);
+    whole_loss_gradient_matches_finite_differences(true, 0.0);
 }
 
-fn whole_loss_gradient_matches_finite_differences(random_bkgd: bool) {
+fn whole_loss_gradient_matches_finite_differences(random_bkgd: bool, distortion: f32) {
     let (rays, colours) = ball_scene(2, 6);
     let mut cfg = Preset::Tiny.config();
     cfg.net_depth = 4; // two skip concatenations' worth of layers
@@ -91,6 +98,7 @@ fn whole_loss_gradient_matches_finite_differences(random_bkgd: bool) {
     // the official code's own gradients in golden_model.rs.
     cfg.num_levels = 1;
     cfg.random_bkgd = random_bkgd;
+    cfg.distortion_loss_mult = distortion;
     let model = Model::new(cfg).unwrap();
     let mut params = model.init_params(3);
     // Non-zero biases so every term of the gradient is exercised.
@@ -102,7 +110,13 @@ fn whole_loss_gradient_matches_finite_differences(random_bkgd: bool) {
     }
     let mode = Mode::Train { seed: 1, step: 0 };
     let mut grads = vec![0.0; model.num_params()];
-    model.loss_and_grad(&params, &rays[..40], &colours[..40], mode, &mut grads);
+    let stats = model.loss_and_grad(&params, &rays[..40], &colours[..40], mode, &mut grads);
+    if distortion > 0.0 {
+        // Its share of the loss is not negligible, so the check below tests it.
+        assert!(stats.distortion > 0.1 * stats.loss, "{stats:?}");
+    } else {
+        assert_eq!(stats.distortion, 0.0);
+    }
     let loss = |p: &[f32]| {
         let mut g = vec![0.0; model.num_params()];
         f64::from(model.loss_and_grad(p, &rays[..40], &colours[..40], mode, &mut g).loss)

@@ -155,6 +155,11 @@ impl ModelBuffers {
     /// names the largest batch that fits).
     pub fn new(ctx: &GpuContext, model: &Model, n_rays: usize) -> Result<Self, GpuError> {
         let c = &model.config();
+        if c.distortion_loss_mult != 0.0 {
+            return Err(GpuError::InvalidInput(
+                "the distortion loss runs on the CPU backend only (--backend cpu), not in WGSL".into(),
+            ));
+        }
         let (s, levels) = (c.num_samples, c.num_levels);
         let n = n_rays * s;
         let limit = ctx.max_binding_bytes();
@@ -398,7 +403,7 @@ impl GpuModel {
                         let op = OccupancyParams {
                             n_rays: sp.n_rays,
                             n_samples: sp.n_samples,
-                            lindisp: u32::from(c.lindisp),
+                            spacing: sp.spacing,
                             randomized: sp.randomized,
                             seed,
                             step,
@@ -564,7 +569,7 @@ impl GpuModel {
             mse.push((se / (3.0 * pixels as f64)) as f32);
         }
         let loss = model.level_weights().iter().zip(&losses).map(|(w, l)| w * l).sum();
-        Ok(LossStats { losses, loss, mse })
+        Ok(LossStats { losses, loss, mse, distortion: 0.0 })
     }
 
     /// The outputs of every level for the first `n` rays of the last recorded batch, read back

@@ -562,25 +562,59 @@ fn occupancy_guided_training_in_ndc_follows_the_cpu() {
         ..OccupancyConfig::default()
     };
     let (seed, batch, steps) = (4u32, 64usize, 16u64);
-    let optim = OptimConfig::default();
     // Carved where no training ray reaches, as `train` does for NDC data.
     let mut grid = OccupancyGrid::new(config).unwrap();
     let carved = grid.carve_unreached(&ds);
     assert!(carved > 0, "the NDC cube reaches past the frustums, yet nothing was carved");
     let state = TrainState { occupancy: Some(grid), ..TrainState::fresh(&model, seed) };
+    guided_runs_agree(ctx, &ds, &model, state, (seed, batch, steps), "NDC");
+}
+
+/// Trains `model` on `ds` from `state` (with its occupancy grid, updated within the run) on both
+/// backends, `(seed, batch, steps)`: the losses, the grids and the renders agree.
+fn guided_runs_agree(
+    ctx: mipnerf_gpu::GpuContext,
+    ds: &Arc<Dataset>,
+    model: &Model,
+    state: TrainState,
+    (seed, batch, steps): (u32, usize, u64),
+    what: &str,
+) {
+    let optim = OptimConfig::default();
     let mut cpu =
-        CpuBackend::new(model.clone(), optim.clone(), seed, state.clone()).unwrap().with_data(Arc::clone(&ds), batch);
-    let mut gpu = GpuBackend::new(ctx, model.clone(), optim, seed, state).unwrap().with_data(&ds, batch).unwrap();
+        CpuBackend::new(model.clone(), optim.clone(), seed, state.clone()).unwrap().with_data(Arc::clone(ds), batch);
+    let mut gpu = GpuBackend::new(ctx, model.clone(), optim, seed, state).unwrap().with_data(ds, batch).unwrap();
     losses_agree(&mut cpu, &mut gpu, steps);
     let (grid_c, grid_g) = (cpu.checkpoint().unwrap().occupancy.unwrap(), gpu.checkpoint().unwrap().occupancy.unwrap());
-    assert!(grid_g.warmed_up, "the GPU run's grid was not updated past its warm-up");
+    assert!(grid_g.warmed_up && !grid_g.is_full(), "{what}: the GPU run's grid was not updated past its warm-up");
     let worst = grid_c.opacity.iter().zip(&grid_g.opacity).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
-    assert!(worst < 1e-3, "the backends' grids differ by {worst:e} in a cell's opacity");
-    let image = ImageSpec::of_view(&ds, 0, 1);
+    assert!(worst < 1e-3, "{what}: the backends' grids differ by {worst:e} in a cell's opacity");
+    let image = ImageSpec::of_view(ds, 0, 1);
     let (r_cpu, r_gpu) = (both_levels(&mut cpu, &image), both_levels(&mut gpu, &image));
     let psnr = psnr_between(&r_cpu, &r_gpu);
-    eprintln!("NDC guided renders after {steps} steps: CPU vs GPU PSNR {psnr:.1} dB");
-    assert!(psnr >= MIN_RENDER_AGREEMENT_PSNR, "CPU and GPU guided renders differ in NDC: {psnr:.1} dB");
+    eprintln!("{what} guided renders after {steps} steps: CPU vs GPU PSNR {psnr:.1} dB");
+    assert!(psnr >= MIN_RENDER_AGREEMENT_PSNR, "CPU and GPU guided renders differ ({what}): {psnr:.1} dB");
+}
+
+#[test]
+fn occupancy_guided_training_in_contracted_space_follows_the_cpu() {
+    use mipnerf_core::occupancy::{CONTRACTED_BOUND, OccupancyConfig, OccupancyGrid};
+    let Some(ctx) = context_or_skip("occupancy_guided_training_in_contracted_space_follows_the_cpu") else { return };
+    // An unbounded scene's grid over its contracted space (occupancy.wgsl's walk in steps of s,
+    // its spans shared out in s), learnt within the run from each backend's own parameters.
+    let ds = Arc::new(lego_tiny_unbounded());
+    let model = Model::new(ModelConfig { num_samples: 16, unbounded: true, ..Preset::Tiny.config() }).unwrap();
+    let config = OccupancyConfig {
+        resolution: 24,
+        bound: CONTRACTED_BOUND,
+        contracted: true,
+        update_every: 4,
+        warmup_steps: 8,
+        ..OccupancyConfig::default()
+    };
+    let (seed, batch, steps) = (4u32, 64usize, 16u64);
+    let state = TrainState { occupancy: Some(OccupancyGrid::new(config).unwrap()), ..TrainState::fresh(&model, seed) };
+    guided_runs_agree(ctx, &ds, &model, state, (seed, batch, steps), "contracted");
 }
 
 /// Guided training on both backends from one seed and one mask-carved grid (updated within the

@@ -907,10 +907,43 @@ fn occupancy_guided_edges_match_cpu_reference() {
     assert!(!grid.is_full());
     // A 16-pixel camera's cones reach about 2 cells of this grid where they leave it: scaled by
     // 0 (the axis alone), 0.2, 1 and 3, they use every layer (no dilation to the widest).
-    guided_edges_match_cpu(&ctx, &grid, &rays_scaled(16, &[0.0, 0.2, 1.0, 3.0]), 24);
+    guided_edges_match_cpu(&ctx, &grid, &rays_scaled(16, &[0.0, 0.2, 1.0, 3.0]), 24, BOUNDED);
     // With 6 samples the rays with four spans or more join their spans across the narrowest
     // gaps first.
-    guided_edges_match_cpu(&ctx, &grid, &rays_scaled(16, &[0.0, 1.0]), 6);
+    guided_edges_match_cpu(&ctx, &grid, &rays_scaled(16, &[0.0, 1.0]), 6, BOUNDED);
+}
+
+/// The spacings of a bounded scene's sampler.
+const BOUNDED: &[Spacing] = &[Spacing::Depth, Spacing::Disparity];
+
+/// An unbounded scene's grid over its contracted space (`OccupancyGrid::contracted_ray_segments`,
+/// walked in steps of `s`), its spans shared out in `s`: the test oblique camera moved into the
+/// unit ball, its rays out to infinity, under a blob at the centre and a stretch of the far
+/// shell (the contracted room), cones from the axis alone to three times a pixel's width.
+#[test]
+fn occupancy_guided_edges_match_cpu_reference_in_contracted_space() {
+    use mipnerf_core::contract::UNBOUNDED_FAR;
+    use mipnerf_core::occupancy::{CONTRACTED_BOUND, OccupancyConfig, OccupancyGrid};
+    let Some(ctx) = context_or_skip("occupancy_guided_edges_match_cpu_reference_in_contracted_space") else { return };
+    let r = 24;
+    let config =
+        OccupancyConfig { resolution: r, bound: CONTRACTED_BOUND, contracted: true, ..OccupancyConfig::default() };
+    let probe = OccupancyGrid::new(config).unwrap();
+    let opacity: Vec<f32> = (0..r * r * r)
+        .map(|i| {
+            let c = probe.cell_center(i);
+            let blob = c.length() < 0.35;
+            let shell = (1.6..1.9).contains(&c.length()) && c.x > 0.0;
+            if blob || shell { 1.0 } else { 0.0 }
+        })
+        .collect();
+    let grid = OccupancyGrid::from_state(config, opacity, true).unwrap();
+    let rays: Vec<Ray> = rays_scaled(16, &[0.0, 1.0, 3.0])
+        .iter()
+        .map(|r| Ray { origin: r.origin * (0.9 / r.origin.length()), near: 0.1, far: UNBOUNDED_FAR, ..*r })
+        .collect();
+    guided_edges_match_cpu(&ctx, &grid, &rays, 16, &[Spacing::Unbounded]);
+    guided_edges_match_cpu(&ctx, &grid, &rays, 4, &[Spacing::Unbounded]);
 }
 
 #[test]
@@ -935,18 +968,21 @@ fn occupancy_guided_edges_match_cpu_reference_in_ndc() {
         .collect();
     let grid = OccupancyGrid::from_state(config, opacity, true).unwrap();
     let rays: Vec<Ray> = (0..ds.views().len()).step_by(4).flat_map(|v| ds.view_rays(v)).collect();
-    guided_edges_match_cpu(&ctx, &grid, &rays, 16);
+    guided_edges_match_cpu(&ctx, &grid, &rays, 16, BOUNDED);
 }
 
 /// The occupancy kernel's coarse edges for `rays` under `grid` with `s` samples against the
-/// CPU's (`stages::sample_occupied_intervals`), for every sampler setting: the rays must include
-/// some that meet no occupied cell, some with one span and some with several.
+/// CPU's (`stages::sample_occupied_intervals`), for each of `spacings`, in training and in
+/// evaluation: the rays must include some that meet no occupied cell, some with one span and
+/// some with several. Unbounded edges are compared in `s` (TOL_GPU_SAMPLE_S_ABS).
 fn guided_edges_match_cpu(
     ctx: &mipnerf_gpu::GpuContext,
     grid: &mipnerf_core::occupancy::OccupancyGrid,
     rays: &[Ray],
     s: usize,
+    spacings: &[Spacing],
 ) {
+    use mipnerf_core::contract::ray_distance_to_s;
     use mipnerf_gpu::kernels::occupancy::{DeviceGrid, OccupancyKernel, OccupancyParams};
     use mipnerf_gpu::model::RayBatch;
     let kernel = OccupancyKernel::new(ctx).unwrap();
@@ -971,27 +1007,22 @@ fn guided_edges_match_cpu(
     let batch = RayBatch::upload(ctx, rays, &targets, 1, false).unwrap();
     let on_device = DeviceGrid::new(ctx, grid).unwrap();
     let mut bad = Vec::new();
-    for (lindisp, randomized) in [(false, false), (true, false), (false, true), (true, true)] {
+    let cases = spacings.iter().flat_map(|&spacing| [(spacing, false), (spacing, true)]);
+    for (spacing, randomized) in cases {
         let mode = mode_of(randomized, seed, step);
+        let unbounded = spacing == Spacing::Unbounded;
+        let in_s = |t: Vec<f32>| if unbounded { t.into_iter().map(ray_distance_to_s).collect() } else { t };
         let cpu = |rays: &[Ray]| -> Outputs {
             let mut t = vec![0.0f32; nr * (s + 1)];
-            stages::sample_occupied_intervals(
-                rays,
-                (&starts, &spans),
-                s,
-                if lindisp { Spacing::Disparity } else { Spacing::Depth },
-                mode,
-                &ids,
-                &mut t,
-            );
-            vec![("edges", t)]
+            stages::sample_occupied_intervals(rays, (&starts, &spans), s, spacing, mode, &ids, &mut t);
+            vec![("edges", in_s(t))]
         };
         let on_gpu = |_: &[Ray]| -> Result<Outputs, GpuError> {
             let t_out = ctx.storage_buffer("t coarse", &vec![f32::NAN; nr * (s + 1)], true);
             let params = OccupancyParams {
                 n_rays: nr as u32,
                 n_samples: s as u32,
-                lindisp: u32::from(lindisp),
+                spacing: spacing.code(),
                 randomized: u32::from(randomized),
                 seed,
                 step,
@@ -1001,10 +1032,12 @@ fn guided_edges_match_cpu(
             let b_ids = ctx.storage_buffer("ray ids", &ids, false);
             kernel.sample(&mut rec, params, &on_device, &batch.rays, &batch.bounds, &b_ids, &t_out)?;
             let _ = rec.submit();
-            Ok(vec![("edges", ctx.read_f32(&t_out, nr * (s + 1))?)])
+            Ok(vec![("edges", in_s(ctx.read_f32(&t_out, nr * (s + 1))?))])
         };
-        let label = format!("lindisp {lindisp} randomized {randomized}");
-        let tol = |_: &str| Tolerance::new(1e-6, TOL_GPU_SAMPLE_REL);
+        let label = format!("{spacing:?} randomized {randomized}");
+        let tol = |_: &str| {
+            if unbounded { Tolerance::abs(TOL_GPU_SAMPLE_S_ABS) } else { Tolerance::new(1e-6, TOL_GPU_SAMPLE_REL) }
+        };
         bad.extend(check_kernel(&label, cpu, on_gpu, rays, tol).into_mismatches());
     }
     assert_none(&bad);

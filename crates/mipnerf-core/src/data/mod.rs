@@ -16,6 +16,7 @@
 pub mod blender;
 pub mod colmap;
 pub mod demo;
+pub mod focal;
 pub mod llff;
 pub mod masks;
 pub mod multiscale;

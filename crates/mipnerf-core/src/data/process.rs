@@ -21,6 +21,7 @@ use rayon::prelude::*;
 
 use super::DataError;
 use super::colmap::{self, ColmapCamera};
+use super::focal::{self, FocalCheck};
 use super::llff::LLFF_HOLD;
 use super::undistort::{self, LensCamera, Pinhole};
 
@@ -65,6 +66,10 @@ pub struct ProcessOptions {
     /// Registered photos to leave out (by file name, as COLMAP names them), such as those
     /// [`suspect_photos`] names.
     pub exclude: Vec<String>,
+    /// A folder of foreground masks, one per photo (named as the photo, PNG or JPEG, white = the
+    /// object; [`super::masks`]), carried through the undistortion and the downscaling to
+    /// `masks_{factor}/` beside the images, named as they are, for `train --masks`.
+    pub masks: Option<PathBuf>,
 }
 
 impl Default for ProcessOptions {
@@ -75,6 +80,7 @@ impl Default for ProcessOptions {
             recommended_views: RECOMMENDED_VIEWS,
             overwrite: false,
             exclude: Vec::new(),
+            masks: None,
         }
     }
 }
@@ -114,6 +120,11 @@ pub struct ProcessReport {
     pub suspects: Vec<Suspect>,
     /// The photos left out (`ProcessOptions::exclude`).
     pub excluded: Vec<String>,
+    /// COLMAP's focal length against the one the photos' EXIF implies ([`focal::check_focal`]);
+    /// `None` when no photo has a usable EXIF focal length.
+    pub focal: Option<FocalCheck>,
+    /// The written masks (`masks_{factor}/`), when `ProcessOptions::masks` gave some.
+    pub masks: Option<PathBuf>,
     /// Warnings for the user.
     pub warnings: Vec<String>,
 }
@@ -348,6 +359,21 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
         ));
     }
     let lens = LensCamera::from_colmap(&first).map_err(|e| DataError::invalid(&cams, e))?;
+    let named: Vec<(String, PathBuf)> =
+        model.images.iter().map(|im| (im.name.clone(), images_dir.join(&im.name))).collect();
+    let focal = focal::check_focal((lens.fx * lens.fy).sqrt(), &named, lens.width, lens.height);
+    if let Some(masks) = &opts.masks
+        && !masks.is_dir()
+    {
+        return Err(DataError::invalid(masks, "the masks folder does not exist (or is not a folder)"));
+    }
+    // Every registered photo's mask is there and usable before anything is written.
+    if let Some(masks) = &opts.masks {
+        named.par_iter().try_for_each(|(name, _)| -> Result<(), DataError> {
+            super::masks::read_mask(&super::masks::mask_file(masks, Path::new(name))?, lens.width, lens.height)
+                .map(|_| ())
+        })?;
+    }
     let pinhole = undistort::undistorted_pinhole(&lens);
     let long = pinhole.width.max(pinhole.height);
     let factor = if opts.max_size == 0 { 1 } else { long.div_ceil(opts.max_size).max(1) };
@@ -372,11 +398,16 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
     // `io::MANIFEST`, lists it) is ever replaced, and nothing else in the folder is touched.
     let npy = output.join("poses_bounds.npy");
     let folder = output.join(format!("images_{factor}"));
-    let ours = [String::from("poses_bounds.npy"), format!("images_{factor}")];
+    let masks_folder = opts.masks.as_ref().map(|_| output.join(format!("masks_{factor}")));
+    let mut ours = vec![String::from("poses_bounds.npy"), format!("images_{factor}")];
+    if opts.masks.is_some() {
+        ours.push(format!("masks_{factor}"));
+    }
     check_output(output, &ours, opts.overwrite)?;
     std::fs::create_dir_all(output).map_err(|e| DataError::io(output, e))?;
     crate::io::record(output, ours.iter().cloned())?;
     let partial = crate::io::start_partial_dir(&folder)?;
+    let partial_masks = masks_folder.as_deref().map(crate::io::start_partial_dir).transpose()?;
     let target = LensCamera::from(pinhole);
     let counts = names.par_iter().enumerate().map(|(i, name)| -> Result<[u64; 3], DataError> {
         let file = images_dir.join(name);
@@ -394,7 +425,12 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
         let (nw, nh) = size;
         let out = if factor > 1 { super::box_resize_rgba8(&und, target.width, target.height, nw, nh) } else { und };
         let stem = Path::new(name).file_stem().map_or_else(String::new, |s| s.to_string_lossy().into_owned());
-        super::write_png_rgba(&partial.join(format!("{i:04}_{stem}.png")), nw, nh, &out)?;
+        let written = format!("{i:04}_{stem}.png");
+        super::write_png_rgba(&partial.join(&written), nw, nh, &out)?;
+        if let (Some(dir), Some(partial_masks)) = (&opts.masks, &partial_masks) {
+            let mask = mask_through(&super::masks::mask_file(dir, Path::new(name))?, &lens, &target, size)?;
+            super::write_png_rgba(&partial_masks.join(&written), nw, nh, &mask)?;
+        }
         Ok(border_counts(&out, nw as usize, nh as usize))
     });
     let counts = counts.collect::<Result<Vec<_>, _>>()?;
@@ -414,6 +450,9 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
         std::fs::remove_file(&npy).map_err(|e| DataError::io(&npy, e))?;
     }
     crate::io::swap_in_dir(&folder)?;
+    if let Some(masks_folder) = &masks_folder {
+        crate::io::swap_in_dir(masks_folder)?;
+    }
     super::llff::write_poses_bounds(&npy, &rows)?;
 
     let near = rows.iter().map(|r| r[15]).fold(f64::INFINITY, f64::min);
@@ -444,7 +483,27 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
         border_shares: (white, black),
         suspects,
         excluded,
+        focal,
+        masks: masks_folder,
         warnings,
+    })
+}
+
+/// The mask `path` of a photo of the COLMAP camera `lens` (its size, or larger with its aspect
+/// ratio: [`super::masks::read_mask`]), undistorted to `target` as the photo is and box-filtered
+/// to `size`: grey RGBA8 (`train --masks` reads its luminance).
+///
+/// # Errors
+/// [`super::masks::read_mask`]'s: undecodable, of another size, all black; naming the file.
+fn mask_through(path: &Path, lens: &LensCamera, target: &LensCamera, size: (u32, u32)) -> Result<Vec<u8>, DataError> {
+    let alpha = super::masks::read_mask(path, lens.width, lens.height)?;
+    let grey: Vec<u8> = alpha.iter().map(|a| (a * 255.0).round() as u8).collect();
+    let und = undistort::warp(&grey, 1, lens, target);
+    let rgba: Vec<u8> = und.iter().flat_map(|&v| [v, v, v, 255]).collect();
+    Ok(if size != (target.width, target.height) {
+        super::box_resize_rgba8(&rgba, target.width, target.height, size.0, size.1)
+    } else {
+        rgba
     })
 }
 

@@ -25,8 +25,9 @@ pub struct OccupancyParams {
     pub n_rays: u32,
     /// Samples per ray.
     pub n_samples: u32,
-    /// 1: linear in disparity (a ray with one span).
-    pub lindisp: u32,
+    /// [`mipnerf_core::sampling::Spacing::code`]: 0 linear in depth, 1 in disparity (a ray with
+    /// one span), 2 unbounded (the spans shared out in the normalised distance `s`).
+    pub spacing: u32,
     /// 1: training (jitter).
     pub randomized: u32,
     /// Run seed.
@@ -41,8 +42,10 @@ pub struct OccupancyParams {
     pub cell_size: f32,
     /// Workgroups along x.
     pub groups_x: u32,
+    /// 1: the grid covers an unbounded scene's contracted space (filled from the grid).
+    pub contracted: u32,
     /// Padding.
-    pub _pad: [u32; 2],
+    pub _pad: u32,
 }
 
 /// An [`OccupancyGrid`]'s layers on the device ([`OccupancyGrid::packed_layers`]), with its
@@ -53,6 +56,7 @@ pub struct DeviceGrid {
     resolution: u32,
     bound: f32,
     cell_size: f32,
+    contracted: bool,
     full: bool,
 }
 
@@ -63,13 +67,6 @@ impl DeviceGrid {
     /// [`GpuError::InvalidInput`] for a grid finer than [`MAX_RESOLUTION`].
     pub fn new(ctx: &GpuContext, grid: &OccupancyGrid) -> Result<Self, GpuError> {
         let r = grid.resolution();
-        if grid.config.contracted {
-            return Err(GpuError::InvalidInput(
-                "occupancy-guided sampling of an unbounded scene (a grid over its contracted space) runs on the CPU \
-                 backend only for now: pass --backend cpu, or --no-occupancy"
-                    .into(),
-            ));
-        }
         if r > MAX_RESOLUTION {
             return Err(GpuError::InvalidInput(format!(
                 "an occupancy grid of {r} cells per axis: the GPU sampler takes at most {MAX_RESOLUTION}"
@@ -81,6 +78,7 @@ impl DeviceGrid {
             resolution: r as u32,
             bound: grid.config.bound,
             cell_size: grid.cell_size(),
+            contracted: grid.config.contracted,
             full: grid.is_full(),
         })
     }
@@ -90,7 +88,10 @@ impl DeviceGrid {
     /// # Errors
     /// [`GpuError::InvalidInput`] for a grid of another layout.
     pub fn update(&mut self, ctx: &GpuContext, grid: &OccupancyGrid) -> Result<(), GpuError> {
-        if grid.resolution() as u32 != self.resolution || grid.config.bound != self.bound {
+        if grid.resolution() as u32 != self.resolution
+            || grid.config.bound != self.bound
+            || grid.config.contracted != self.contracted
+        {
             return Err(GpuError::InvalidInput(format!(
                 "an occupancy grid of {} cells over ±{} in place of {} cells over ±{}",
                 grid.resolution(),
@@ -158,6 +159,7 @@ impl OccupancyKernel {
         params.resolution = grid.resolution;
         params.bound = grid.bound;
         params.cell_size = grid.cell_size;
+        params.contracted = u32::from(grid.contracted);
         rec.dispatch(
             "occupancy",
             &self.pipeline,
@@ -173,5 +175,5 @@ impl OccupancyKernel {
 super::wgsl_struct!(
     OccupancyParams,
     "Params",
-    [n_rays, n_samples, lindisp, randomized, seed, step, resolution, bound, cell_size, groups_x,]
+    [n_rays, n_samples, spacing, randomized, seed, step, resolution, bound, cell_size, groups_x, contracted,]
 );
