@@ -727,10 +727,14 @@ fn print_focal_check(r: &data::process::ProcessReport) {
     eprintln!(
         "warning: COLMAP's focal length, {:.0} px, is {:.2}x {} than the one the photos' EXIF implies, {} ({from}). \
          With the focal length wrong, every pose is wrong with it and the model blurs or ghosts: run COLMAP again \
-         with the focal length given, from feature extraction on:\n  \
+         with the focal length given and kept (a mapper that refines it can trade it for lens distortion again), \
+         from feature extraction on:\n  \
          colmap feature_extractor ... --ImageReader.single_camera 1 --ImageReader.camera_model SIMPLE_RADIAL \
          --ImageReader.camera_params \"{:.1},{:.1},{:.1},0\"\n  \
-         (pycolmap: ImageReaderOptions(camera_model=\"SIMPLE_RADIAL\", camera_params=\"...\" as above))",
+         colmap mapper ... --Mapper.ba_refine_focal_length 0 --Mapper.abs_pose_refine_focal_length 0\n  \
+         (pycolmap: ImageReaderOptions(camera_model=\"SIMPLE_RADIAL\", camera_params=\"...\" as above) for \
+         extract_features; IncrementalPipelineOptions' ba_refine_focal_length and mapper.abs_pose_refine_focal_length \
+         False for incremental_mapping)",
         c.colmap_px,
         c.ratio(),
         if c.colmap_px < c.exif.focal_px { "shorter" } else { "longer" },

@@ -382,6 +382,7 @@ fn colmaps_focal_length_is_checked_against_the_photos_exif() {
         "{err}"
     );
     assert!(err.contains("--ImageReader.camera_params \"880.0,160.0,160.0,0\""), "{err}");
+    assert!(err.contains("--Mapper.ba_refine_focal_length 0 --Mapper.abs_pose_refine_focal_length 0"), "{err}");
     // Still written: the check warns, the user decides.
     assert_eq!(pngs(&dir.path().join("b").join("images_4")).len(), 37);
     let text = run_ok(&[
