@@ -1263,7 +1263,8 @@ fn an_unbounded_scene_trains_resumes_and_renders_and_refuses_what_it_cannot_take
     // Refused before anything is written, each naming what to drop.
     for (flags, says) in [
         (&["--unbounded", "--occupancy-bound", "1"][..], "--occupancy-bound"),
-        (&["--unbounded", "--occupancy", "--backend", "gpu"][..], "--backend cpu"),
+        (&["--unbounded", "--distortion-loss", "0.01", "--backend", "gpu"][..], "--backend cpu"),
+        (&["--unbounded", "--distortion-loss", "2"][..], "--distortion-loss must be between 0 and 1"),
         (&["--unbounded", "--spherify-radius", "2"][..], "--spherify-radius"),
         (&["--unbounded", "--ray-shape", "cylinder"][..], "cones"),
     ] {
