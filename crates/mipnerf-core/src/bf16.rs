@@ -2,8 +2,8 @@
 //!
 //! bf16 keeps f32's 8-bit exponent and 7 of its 23 mantissa bits (8 significant bits with the
 //! implicit one), so rounding an operand to it changes it by at most `2^-8` relatively
-//! ([`BF16_UNIT_ROUNDOFF`]). Two kernels run the products ([`Bf16Kernel`]), on the same packed
-//! operands and so with the same rounding:
+//! ([`BF16_UNIT_ROUNDOFF`]). Two kernels run the products ([`Bf16Kernel`]), on operands rounded
+//! to bf16 by the same packing code and so with the same rounding:
 //! - Intel's AMX tiles (`tdpbf16ps`: a 16 x 16 f32 block += a 16 x 32 bf16 block times a 32 x 16
 //!   bf16 block, accumulated in f32), which on the Xeons these runs use do 33 times the f32 FMA
 //!   rate of one core (3.7 TFLOP/s against 112 GFLOP/s, measured by `mipnerf bench --peak`);
@@ -293,11 +293,22 @@ pub fn matmul_bf16_on(
     PACKED.with(|p| {
         let p = &mut *p.borrow_mut();
         let (mp, kp, np) = (m.next_multiple_of(BLOCK), k.next_multiple_of(K_STEP), n.next_multiple_of(BLOCK));
-        simd::pack_rows(&mut p.a, a, la, m, k, mp, kp);
         simd::pack_pairs(&mut p.b, b, lb, k, n, kp, np);
-        match kernel {
-            Bf16Kernel::Amx => amx::product(c, &p.a, &p.b, m, n, mp, kp, np, accumulate),
-            Bf16Kernel::Avx512 => avx512::product(c, &p.a, &p.b, m, n, mp, kp, np, accumulate),
+        match (kernel, la) {
+            (Bf16Kernel::Amx, _) => {
+                simd::pack_rows(&mut p.a, a, la, m, k, mp, kp);
+                amx::product(c, &p.a, &p.b, m, n, mp, kp, np, accumulate);
+            }
+            (Bf16Kernel::Avx512, Layout::Normal) => {
+                simd::pack_rows(&mut p.a, a, la, m, k, mp, kp);
+                avx512::product(c, avx512::PackedA::Tiles(&p.a), &p.b, m, n, mp, kp, np, accumulate);
+            }
+            // `a` stored `k x m` (a weight gradient's activations): its pairs along k are packed
+            // as `b`'s are, with no transpose, and the kernel reads them in that order.
+            (Bf16Kernel::Avx512, Layout::Transposed) => {
+                simd::pack_pairs(&mut p.a_pairs, a, Layout::Normal, k, m, kp, mp);
+                avx512::product(c, avx512::PackedA::Pairs(&p.a_pairs), &p.b, m, n, mp, kp, np, accumulate);
+            }
         }
     });
 }
@@ -309,13 +320,14 @@ const BLOCK: usize = 32;
 const K_STEP: usize = 32;
 
 /// What every kernel's `product` rests its `unsafe` code on: the CPU runs `kernel`, the padded
-/// sizes are whole blocks at least the real ones, and the packed `a` (`mp x kp`), the packed `b`
-/// (`kp / 2 x np` pairs) and `c` (`m x n`) are that large (sizes checked against overflow).
+/// sizes are whole blocks at least the real ones, and the packed `a` (`a_values`, at least
+/// `mp x kp` bf16 values), the packed `b` (`kp / 2 x np` pairs) and `c` (`m x n`) are that large
+/// (sizes checked against overflow).
 #[cfg(target_arch = "x86_64")]
 fn assert_packed(
     kernel: Bf16Kernel,
     c: &[f32],
-    a: &[u16],
+    a_values: usize,
     b: &[u32],
     m: usize,
     n: usize,
@@ -329,7 +341,7 @@ fn assert_packed(
     assert!(mp.is_multiple_of(BLOCK) && np.is_multiple_of(BLOCK) && kp.is_multiple_of(K_STEP));
     assert!(mp >= m && np >= n);
     let size = crate::linalg::checked_len;
-    assert!(a.len() >= size(mp, kp) && b.len() >= size(kp / 2, np) && c.len() >= size(m, n));
+    assert!(a_values >= size(mp, kp) && b.len() >= size(kp / 2, np) && c.len() >= size(m, n));
 }
 
 /// The same rounding as [`matmul_bf16`] on any CPU: `a` and `b` rounded to bf16 (as f32 values),
@@ -361,6 +373,9 @@ struct Packed {
     a: Vec<u16>,
     /// `b` as pairs of bf16 along k (AMX's "VNNI" layout): `kp / 2` rows of `np` 32-bit pairs.
     b: Vec<u32>,
+    /// `a` stored transposed, for the AVX-512 kernel: laid out as `b` is ([`b_index`], `a`'s
+    /// rows as the columns), `kp / 2` rows of `mp` pairs.
+    a_pairs: Vec<u32>,
 }
 
 thread_local! {
@@ -400,10 +415,16 @@ fn pack_rows(out: &mut Vec<u16>, a: &[f32], la: Layout, m: usize, k: usize, mp: 
 
 /// Packs `b (k x n)` into `out`: pairs `(b[2q][j], b[2q + 1][j])`, the first in the low 16 bits,
 /// at [`b_index`], zero-padded to `kp/2 x np`. The scalar reference of [`simd::pack_pairs`],
-/// which uses it for the transposed case (a layer's kernel: small).
+/// which uses its body ([`or_pairs`]) for the transposed case (a layer's kernel: small).
+#[cfg_attr(not(test), allow(dead_code))]
 fn pack_pairs(out: &mut Vec<u32>, b: &[f32], lb: Layout, k: usize, n: usize, kp: usize, np: usize) {
     out.clear();
     out.resize(kp / 2 * np, 0);
+    or_pairs(out, b, lb, k, n, kp);
+}
+
+/// The body of [`pack_pairs`] on a zeroed `out` of at least `kp/2 x np` pairs.
+fn or_pairs(out: &mut [u32], b: &[f32], lb: Layout, k: usize, n: usize, kp: usize) {
     for p in 0..k {
         for j in 0..n {
             let x = if lb == Layout::Normal { b[p * n + j] } else { b[j * k + p] };
@@ -418,9 +439,10 @@ fn pack_pairs(out: &mut Vec<u32>, b: &[f32], lb: Layout, k: usize, n: usize, kp:
 #[cfg(target_arch = "x86_64")]
 mod simd {
     use std::arch::x86_64::{
-        __m256i, __m512i, _mm256_storeu_si256, _mm512_cvtepu16_epi32, _mm512_cvtneps_pbh, _mm512_loadu_ps,
-        _mm512_or_si512, _mm512_shuffle_i32x4, _mm512_slli_epi32, _mm512_storeu_si512, _mm512_unpackhi_epi32,
-        _mm512_unpackhi_epi64, _mm512_unpacklo_epi32, _mm512_unpacklo_epi64,
+        __m256i, __m512i, _mm256_storeu_si256, _mm512_cvtepu16_epi32, _mm512_cvtne2ps_pbh, _mm512_cvtneps_pbh,
+        _mm512_loadu_ps, _mm512_or_si512, _mm512_permutexvar_epi16, _mm512_set_epi16, _mm512_shuffle_i32x4,
+        _mm512_slli_epi32, _mm512_storeu_si512, _mm512_unpackhi_epi32, _mm512_unpackhi_epi64, _mm512_unpacklo_epi32,
+        _mm512_unpacklo_epi64,
     };
 
     use super::{Layout, a_index, b_index, f32_to_bf16_bits};
@@ -432,8 +454,9 @@ mod simd {
         assert!(super::Bf16Kernel::Avx512.check().is_ok(), "{FEATURES_CHECKED}");
         let size = crate::linalg::checked_len;
         assert!(a.len() >= size(m, k) && mp >= m && kp >= k && kp.is_multiple_of(32) && mp.is_multiple_of(16));
-        // Every element below (m, k) is written; only the padding is zeroed.
-        out.resize(size(mp, kp), 0);
+        // Every element below (m, k) is written; only the padding is zeroed. The buffer only
+        // grows (a shrink and regrowth would zero it whole).
+        grow(out, size(mp, kp));
         for i in 0..mp {
             let from = if i < m { k } else { 0 };
             for p in from..kp {
@@ -459,7 +482,7 @@ mod simd {
             Layout::Normal => {
                 // Every pair row below k (the last one's high half zero when k is odd) and column
                 // below n is written; only the padding is zeroed.
-                out.resize(size(kp / 2, np), 0);
+                grow(out, size(kp / 2, np));
                 for q in 0..kp / 2 {
                     let from = if q < k.div_ceil(2) { n } else { 0 };
                     for j in from..np {
@@ -469,7 +492,20 @@ mod simd {
                 // SAFETY: as in `pack_rows`.
                 unsafe { pairs_normal(out, b, k, n, kp) }
             }
-            Layout::Transposed => super::pack_pairs(out, b, lb, k, n, kp, np),
+            Layout::Transposed => {
+                let len = size(kp / 2, np);
+                grow(out, len);
+                out[..len].fill(0);
+                super::or_pairs(out, b, lb, k, n, kp);
+            }
+        }
+    }
+
+    /// Lengthens `out` to `len` if it is shorter; never shortens it. The packing buffers hold
+    /// large operands and small ones in turn: kept long, they are not zeroed again each time.
+    fn grow<T: Copy + Default>(out: &mut Vec<T>, len: usize) {
+        if out.len() < len {
+            out.resize(len, T::default());
         }
     }
 
@@ -571,10 +607,21 @@ mod simd {
     #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512bf16")]
     fn pairs_normal(out: &mut [u32], b: &[f32], k: usize, n: usize, kp: usize) {
         let n_full = n / 16 * 16;
+        // 16-bit lane 2j takes value j (the first row's), lane 2j + 1 value 16 + j (the second's).
+        let interleave = _mm512_set_epi16(
+            31, 15, 30, 14, 29, 13, 28, 12, 27, 11, 26, 10, 25, 9, 24, 8, 23, 7, 22, 6, 21, 5, 20, 4, 19, 3, 18, 2, 17,
+            1, 16, 0,
+        );
         for q in 0..k / 2 {
             let (r0, r1) = (&b[2 * q * n..(2 * q + 1) * n], &b[(2 * q + 1) * n..(2 * q + 2) * n]);
             for j in (0..n_full).step_by(16) {
-                let pair = _mm512_or_si512(bf16_lanes(&r0[j..]), _mm512_slli_epi32::<16>(bf16_lanes(&r1[j..])));
+                // SAFETY: 16 f32 of each row in bounds (j + 16 <= n); unaligned loads.
+                let (lo, hi) =
+                    unsafe { (_mm512_loadu_ps(r0[j..j + 16].as_ptr()), _mm512_loadu_ps(r1[j..j + 16].as_ptr())) };
+                // Both rows rounded in one instruction (`lo`'s values first), then interleaved.
+                // SAFETY: __m512bh and __m512i are both 512 plain bits.
+                let both: __m512i = unsafe { std::mem::transmute(_mm512_cvtne2ps_pbh(hi, lo)) };
+                let pair = _mm512_permutexvar_epi16(interleave, both);
                 let at = b_index(q, j, kp);
                 // SAFETY: out[at..at + 16] is in bounds (the slice is checked).
                 unsafe { _mm512_storeu_si512(out[at..at + 16].as_mut_ptr().cast(), pair) };
@@ -624,14 +671,15 @@ mod simd {
                     let (mut want, mut got) = (Vec::new(), vec![0x7777u16; mp * kp + 5]);
                     super::super::pack_rows(&mut want, &a, la, m, k, mp, kp);
                     super::pack_rows(&mut got, &a, la, m, k, mp, kp);
-                    assert_eq!(got, want, "pack_rows {la:?} {m}x{k}");
+                    // The buffer is not shortened: what lies past the packing is not read.
+                    assert_eq!(got[..want.len()], want, "pack_rows {la:?} {m}x{k}");
                 }
                 let (kp, np) = (m.next_multiple_of(32), k.next_multiple_of(32));
                 for lb in [Layout::Normal, Layout::Transposed] {
-                    let (mut want, mut got) = (Vec::new(), vec![0x7777_7777u32; kp / 2 * np]);
+                    let (mut want, mut got) = (Vec::new(), vec![0x7777_7777u32; kp / 2 * np + 7]);
                     super::super::pack_pairs(&mut want, &a, lb, m, k, kp, np);
                     super::pack_pairs(&mut got, &a, lb, m, k, kp, np);
-                    assert_eq!(got, want, "pack_pairs {lb:?} {m}x{k}");
+                    assert_eq!(got[..want.len()], want, "pack_pairs {lb:?} {m}x{k}");
                 }
             }
         }
@@ -733,7 +781,7 @@ mod amx {
         np: usize,
         accumulate: bool,
     ) {
-        super::assert_packed(super::Bf16Kernel::Amx, c, a, b, m, n, mp, kp, np);
+        super::assert_packed(super::Bf16Kernel::Amx, c, a.len(), b, m, n, mp, kp, np);
         let cfg = TileConfig::all_16x64();
         let k_tiles = kp / K_STEP;
         let mut scratch = [0f32; BLOCK * BLOCK];
@@ -837,8 +885,9 @@ mod amx {
     }
 }
 
-/// The AVX-512 BF16 kernel (`vdpbf16ps`), on the packed operands the AMX kernel reads. Every
-/// `unsafe` block is here and justified where it is.
+/// The AVX-512 BF16 kernel (`vdpbf16ps`), on the packed operands the AMX kernel reads, except
+/// a transposed `a`, which it reads in pairs ([`PackedA::Pairs`]) rather than transposed into
+/// AMX's tiles. Every `unsafe` block is here and justified where it is.
 #[cfg(target_arch = "x86_64")]
 mod avx512 {
     use std::arch::x86_64::{
@@ -870,13 +919,24 @@ mod avx512 {
         if missing.is_empty() { Ok(()) } else { Err(format!("this CPU lacks {} (AVX-512 BF16)", missing.join(", "))) }
     }
 
-    /// `c (m x n, row-major) = [c +] A · B` from the packed operands ([`a_index`], [`b_index`]):
+    /// The packed `a`, in one of two orders; the kernel reads the pair of k values `(2q, 2q + 1)`
+    /// of a row from either.
+    pub(super) enum PackedA<'a> {
+        /// [`a_index`]'s tiles (the AMX kernel's), from `a` stored `m x k`: a row's pairs are
+        /// contiguous.
+        Tiles(&'a [u16]),
+        /// [`b_index`]'s order with `a`'s rows as the columns, from `a` stored `k x m` (packed
+        /// without a transpose): the pairs of 16 rows at one `q` are contiguous.
+        Pairs(&'a [u32]),
+    }
+
+    /// `c (m x n, row-major) = [c +] A · B` from the packed operands ([`PackedA`], [`b_index`]):
     /// k in passes of [`KC`], each pass sweeping the output in 8 x 32 blocks held in sixteen
     /// registers. Rows and columns past `m` and `n` are computed on the zero padding and
     /// neither read nor written in `c`.
     pub(super) fn product(
         c: &mut [f32],
-        a: &[u16],
+        a: PackedA<'_>,
         b: &[u32],
         m: usize,
         n: usize,
@@ -885,31 +945,44 @@ mod avx512 {
         np: usize,
         accumulate: bool,
     ) {
-        super::assert_packed(super::Bf16Kernel::Avx512, c, a, b, m, n, mp, kp, np);
+        let a_values = match a {
+            PackedA::Tiles(a) => a.len(),
+            PackedA::Pairs(a) => a.len().saturating_mul(2),
+        };
+        super::assert_packed(super::Bf16Kernel::Avx512, c, a_values, b, m, n, mp, kp, np);
         for k0 in (0..kp).step_by(KC) {
             let k1 = (k0 + KC).min(kp);
             for i0 in (0..m).step_by(ROWS) {
                 for j0 in (0..n).step_by(COLS) {
+                    let accumulate = accumulate || k0 > 0;
                     // SAFETY: the CPU has AVX-512 F and BF16 (asserted above); the block's rows
                     // lie below mp and its columns below np (m <= mp, n <= np, both multiples of
                     // the block), k0..k1 below kp, and the sizes of the buffers are asserted.
-                    unsafe { block(c, a, b, m, n, kp, i0, j0, k0, k1, accumulate || k0 > 0) };
+                    unsafe {
+                        match a {
+                            PackedA::Tiles(a) => {
+                                block::<false>(c, a.as_ptr().cast(), b, m, n, kp, i0, j0, k0, k1, accumulate);
+                            }
+                            PackedA::Pairs(a) => block::<true>(c, a.as_ptr(), b, m, n, kp, i0, j0, k0, k1, accumulate),
+                        }
+                    }
                 }
             }
         }
     }
 
     /// One 8 x 32 block of `c` at `(i0, j0)` over k in `k0..k1` (whole k tiles): sixteen
-    /// accumulators; per pair of k values, two vectors of `b` and eight broadcast pairs of `a`.
+    /// accumulators; per pair of k values, two vectors of `b` and eight broadcast pairs of `a`,
+    /// read from `a` in [`PackedA::Pairs`]' order if `A_PAIRS`, else [`PackedA::Tiles`]'.
     ///
     /// # Safety
     /// The CPU has AVX-512 F and BF16; `i0 + 8 <= mp`, `j0 + 32 <= np`, `k1 <= kp` with `k0` and
-    /// `k1` multiples of [`K_STEP`]; `a` holds `mp x kp` packed values, `b` `kp / 2 x np` pairs,
-    /// and `c` at least `m x n`.
+    /// `k1` multiples of [`K_STEP`]; `a` points to `mp x kp` packed values (read unaligned), `b`
+    /// holds `kp / 2 x np` pairs, and `c` at least `m x n`.
     #[target_feature(enable = "avx512f,avx512bf16")]
-    unsafe fn block(
+    unsafe fn block<const A_PAIRS: bool>(
         c: &mut [f32],
-        a: &[u16],
+        a: *const u32,
         b: &[u32],
         m: usize,
         n: usize,
@@ -944,11 +1017,18 @@ mod avx512 {
             // rows 64 bytes apart (i0 is a multiple of 8, so the 8 rows share one packed tile:
             // one base pointer, constant offsets); for each column block of `b`, one 64-byte
             // row of 16 pairs per pair row.
-            // SAFETY: row i0 < mp and k tile kt < kp / 32 index inside the packed `a`; pair row
-            // 16 kt < kp / 2 and columns j0, j0 + 16 < np index inside `b`.
+            // In the pairs' order, pair q of the 8 rows at k tile kt is 16 q + r from the tile's
+            // first pair (i0 % 16 is 0 or 8: the 8 rows share one 16-column block).
+            // SAFETY: row i0 < mp and k tile kt < kp / 32 index inside the packed `a` (the tiles'
+            // index is even: i0 % 16 and kt * 32 are); pair row 16 kt < kp / 2 and columns j0,
+            // j0 + 16 < np index inside `b`.
             let (pa, pb0, pb1) = unsafe {
                 (
-                    a.as_ptr().add(a_index(i0, kt * K_STEP, kp)).cast::<u32>(),
+                    if A_PAIRS {
+                        a.add(b_index(kt * K_STEP / 2, i0, kp))
+                    } else {
+                        a.add(a_index(i0, kt * K_STEP, kp) / 2)
+                    },
                     b.as_ptr().add(b_index(kt * K_STEP / 2, j0, kp)),
                     b.as_ptr().add(b_index(kt * K_STEP / 2, j0 + 16, kp)),
                 )
@@ -962,10 +1042,10 @@ mod avx512 {
                     )
                 };
                 for r in 0..ROWS {
-                    // SAFETY: pair q (values 2q, 2q + 1) of row i0 + r's k tile (16 pairs per
-                    // 64-byte row), inside `a`; the u16 buffer gives no 4-byte alignment, hence
-                    // the unaligned read.
-                    let pair = unsafe { pa.add(16 * r + q).read_unaligned() };
+                    // SAFETY: pair q (values 2q, 2q + 1) of row i0 + r's k tile (in the tiles, 16
+                    // pairs per 64-byte row; in the pairs' order, 16 rows per 64 bytes), inside
+                    // `a`; a u16 buffer gives no 4-byte alignment, hence the unaligned read.
+                    let pair = unsafe { pa.add(if A_PAIRS { 16 * q + r } else { 16 * r + q }).read_unaligned() };
                     // SAFETY: __m512i and __m512bh are both 512 plain bits.
                     let av = unsafe { std::mem::transmute::<__m512i, __m512bh>(_mm512_set1_epi32(pair as i32)) };
                     acc[2 * r] = _mm512_dpbf16_ps(acc[2 * r], av, b0);

@@ -105,19 +105,22 @@ fn check_kernel(kernel: Bf16Kernel) {
             matmul_bf16_on(kernel, c, a, la, b, lb, m, k, n, acc);
         };
         check(&product, m, k, n);
-        // Same rounded operands: the two differ only in the order of the f32 sums.
+        // Same rounded operands: the two differ only in the order of the f32 sums. Both of
+        // `a`'s layouts (the AVX-512 kernel reads a transposed `a` from another packing).
         let a = values(m * k, 3);
         let b = values(k * n, 4);
-        let (mut got, mut want) = (vec![f32::NAN; m * n], vec![0.0; m * n]);
-        matmul_bf16_on(kernel, &mut got, &a, Layout::Normal, &b, Layout::Normal, m, k, n, false);
-        matmul_bf16_emulated(&mut want, &a, Layout::Normal, &b, Layout::Normal, m, k, n, false);
-        let ra: Vec<f32> = a.iter().map(|&x| round_to_bf16(x).abs()).collect();
-        let rb: Vec<f32> = b.iter().map(|&x| round_to_bf16(x).abs()).collect();
-        let mut abs = vec![0.0; m * n];
-        matmul(&mut abs, &ra, Layout::Normal, &rb, Layout::Normal, m, k, n, false);
-        for (idx, (g, w)) in got.iter().zip(&want).enumerate() {
-            let tol = 2.0 * k as f32 * f32::EPSILON * abs[idx];
-            assert!((g - w).abs() <= tol, "{} {m}x{k}x{n} [{idx}]: {g} vs emulated {w}", kernel.name());
+        for la in [Layout::Normal, Layout::Transposed] {
+            let (mut got, mut want) = (vec![f32::NAN; m * n], vec![0.0; m * n]);
+            matmul_bf16_on(kernel, &mut got, &a, la, &b, Layout::Normal, m, k, n, false);
+            matmul_bf16_emulated(&mut want, &a, la, &b, Layout::Normal, m, k, n, false);
+            let ra: Vec<f32> = a.iter().map(|&x| round_to_bf16(x).abs()).collect();
+            let rb: Vec<f32> = b.iter().map(|&x| round_to_bf16(x).abs()).collect();
+            let mut abs = vec![0.0; m * n];
+            matmul(&mut abs, &ra, la, &rb, Layout::Normal, m, k, n, false);
+            for (idx, (g, w)) in got.iter().zip(&want).enumerate() {
+                let tol = 2.0 * k as f32 * f32::EPSILON * abs[idx];
+                assert!((g - w).abs() <= tol, "{} {la:?} {m}x{k}x{n} [{idx}]: {g} vs emulated {w}", kernel.name());
+            }
         }
     }
 }
