@@ -51,6 +51,10 @@ pub struct Options {
     /// The MLP's products in bf16 on the CPU where it has a kernel for them (AMX or AVX-512
     /// BF16; see `mipnerf_core::bf16`), f32 elsewhere and on a GPU. [`Preset::Fast`] sets it.
     pub bf16: bool,
+    /// Training steps on the CPU flush subnormal floats to zero (`mipnerf_core::subnormals`):
+    /// faster where gradients in empty space go subnormal, not bit-identical to a run that keeps
+    /// them. [`Options::preset`] sets it for the presets that do ([`Preset::flushes_subnormals`]).
+    pub flush_subnormals: bool,
 }
 
 impl Default for Options {
@@ -64,6 +68,7 @@ impl Default for Options {
             occupancy: false,
             render_bounds: (2.0, 6.0),
             bf16: false,
+            flush_subnormals: false,
         }
     }
 }
@@ -91,7 +96,8 @@ impl Options {
     /// rates, bf16 where the CPU has it).
     #[must_use]
     pub fn preset(preset: Preset) -> Self {
-        let mut options = Self { model: preset.config(), ..Self::default() };
+        let mut options =
+            Self { model: preset.config(), flush_subnormals: preset.flushes_subnormals(), ..Self::default() };
         if preset == Preset::Fast {
             let recipe = FastRecipe::RECIPE;
             options.occupancy = true;
@@ -241,6 +247,7 @@ impl Nerf {
             // A device backend runs f32 only and says so: it keeps f32, as the option promises.
             let _ = backend.set_precision(mipnerf_core::bf16::Precision::Bf16);
         }
+        backend.set_flush_subnormals(options.flush_subnormals);
         if data.is_some() {
             let need = backend.host_training_bytes(options.batch_rays);
             let what = format!("a training step of {} rays (`Options::batch_rays`)", options.batch_rays);

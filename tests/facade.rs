@@ -215,4 +215,10 @@ fn the_fast_preset_of_the_library_is_the_clis() {
     assert_eq!(fast.batch_rays, recipe.batch_rays);
     assert_eq!(fast.optim.lr, recipe.schedule(fast.optim.lr.max_steps));
     assert_eq!((fast.optim.lr.lr_init, fast.optim.lr.lr_final), (5e-3, 5e-4), "not the paper's rates");
+    // Subnormals: flushed where the CLI flushes them by default, kept by the faithful presets.
+    for preset in [Preset::Tiny, Preset::Small, Preset::Fast, Preset::Paper] {
+        assert_eq!(Options::preset(preset).flush_subnormals, preset.flushes_subnormals(), "{preset:?}");
+    }
+    assert!(!Options::preset(Preset::Small).flush_subnormals && !Options::preset(Preset::Paper).flush_subnormals);
+    assert!(!Options::default().flush_subnormals);
 }

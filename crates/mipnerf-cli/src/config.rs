@@ -232,6 +232,10 @@ pub struct TrainSettings {
     /// Precision of the MLP's matrix products: f32, bf16 or auto [default: f32; auto for the
     /// fast preset]. A saved run records the precision that ran (f32 or bf16).
     pub precision: Option<PrecisionArg>,
+    /// Flush subnormal floats to zero in the CPU backend's training steps (x86's FTZ and DAZ,
+    /// `mipnerf_core::subnormals`) [default: the preset's, `Preset::flushes_subnormals`: on for
+    /// tiny and fast].
+    pub flush_subnormals: Option<bool>,
     /// Every this many steps (and at the end), render a few test images and log their PSNR per
     /// scale in metrics.csv's `val_psnr` [default: 0, off]. Not counted as training time.
     pub val_every: Option<u64>,
@@ -248,6 +252,7 @@ pub const RESUMABLE: &[&str] = &[
     "batch_rays",
     "backend",
     "precision",
+    "flush_subnormals",
     "lr_init",
     "lr_final",
     "lr_delay_steps",
@@ -312,6 +317,7 @@ impl TrainSettings {
             time_budget,
             snapshots,
             precision,
+            flush_subnormals,
             val_every,
             val_images
         )
@@ -450,6 +456,7 @@ impl TrainSettings {
             } else {
                 PrecisionArg::F32
             })),
+            flush_subnormals: Some(self.flush_subnormals.unwrap_or(preset.preset().flushes_subnormals())),
         }
     }
 
@@ -829,6 +836,15 @@ pub struct TrainFlags {
     /// available). May change on --resume.
     #[arg(long, value_enum)]
     pub precision: Option<PrecisionArg>,
+    /// Flush subnormal floats to zero in training steps on the CPU (x86 FTZ/DAZ): faster where
+    /// gradients in empty space go subnormal, not bit-identical to a run that keeps them
+    /// [default: on for the tiny and fast presets]. May change on --resume.
+    #[arg(long, conflicts_with = "keep_subnormals")]
+    pub flush_subnormals: bool,
+    /// Keep subnormal floats (IEEE arithmetic throughout; the default for the small and paper
+    /// presets, whose committed results it reproduces bit for bit).
+    #[arg(long)]
+    pub keep_subnormals: bool,
 }
 
 /// `--background` values: what the renders are composited on where the rays meet nothing.
@@ -905,6 +921,7 @@ impl TrainFlags {
             time_budget: self.time_budget.clone(),
             snapshots: self.snapshots.clone(),
             precision: self.precision,
+            flush_subnormals: yes(self.flush_subnormals).or(no(self.keep_subnormals)),
             val_every: self.val_every,
             val_images: self.val_images,
         }
@@ -935,6 +952,25 @@ mod tests {
         // A rate given is kept.
         let given = TrainSettings { lr_init: Some(1e-3), ..TrainSettings::default() }.resolved(true);
         assert_eq!(given.lr_init, Some(1e-3));
+    }
+
+    /// Subnormals are flushed by default where core's preset says so (tiny, fast), kept by the
+    /// faithful presets (small, paper), and a setting given wins either way.
+    #[test]
+    fn subnormals_follow_the_preset_unless_set() {
+        let flush = |preset, set| {
+            TrainSettings { preset: Some(preset), flush_subnormals: set, ..TrainSettings::default() }
+                .resolved(false)
+                .flush_subnormals
+                .unwrap()
+        };
+        for (preset, by_default) in
+            [(PresetArg::Tiny, true), (PresetArg::Fast, true), (PresetArg::Small, false), (PresetArg::Paper, false)]
+        {
+            assert_eq!(flush(preset, None), by_default, "{preset:?}");
+            assert_eq!(by_default, preset.preset().flushes_subnormals());
+            assert!(flush(preset, Some(true)) && !flush(preset, Some(false)));
+        }
     }
 
     /// `--preset fast` is core's fast recipe, the one `Options::preset(Preset::Fast)` takes too

@@ -315,7 +315,8 @@ fn train_locked(
     } else {
         s.precision.unwrap_or(PrecisionArg::F32)
     };
-    let (be, precision) = backend::open(s.backend.unwrap_or(Backend::Auto), setup, precision, session)?;
+    let (mut be, precision) = backend::open(s.backend.unwrap_or(Backend::Auto), setup, precision, session)?;
+    be.set_flush_subnormals(s.flush_subnormals.unwrap_or(false));
     // Before the first step allocates it: does a step's memory fit?
     let need = be.host_training_bytes(batch);
     if let Err(e) = mipnerf_core::memory::check(need, &format!("a training step of --batch-rays {batch}")) {

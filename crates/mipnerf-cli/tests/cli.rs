@@ -218,8 +218,16 @@ fn a_resumed_run_continues_at_the_right_step() {
     let again = mipnerf(&["train", "--data", d, "--out", r, "--steps", "20"]);
     assert!(!again.status.success());
     assert!(String::from_utf8_lossy(&again.stderr).contains("--resume"), "{again:?}");
-    let text = run_ok(&["train", "--out", r, "--resume", "--steps", "30"]);
+    // The tiny preset flushes subnormals by default and says so in its configuration; the
+    // choice may change on --resume, and the two flags exclude each other.
+    let config = || std::fs::read_to_string(run.join("config.toml")).unwrap();
+    assert!(config().contains("flush_subnormals = true"), "{}", config());
+    let both = mipnerf(&["train", "--out", r, "--resume", "--steps", "25", "--keep-subnormals", "--flush-subnormals"]);
+    let err = String::from_utf8_lossy(&both.stderr);
+    assert!(!both.status.success() && err.contains("--keep-subnormals") && !err.contains("panicked"), "{err}");
+    let text = run_ok(&["train", "--out", r, "--resume", "--steps", "30", "--keep-subnormals"]);
     assert!(text.contains("resuming from step 20"), "{text}");
+    assert!(config().contains("flush_subnormals = false"), "{}", config());
     let model = mipnerf_core::model::Model::new(mipnerf_core::model::Preset::Tiny.config()).unwrap();
     let ck = mipnerf_core::checkpoint::load(&run.join("checkpoint.safetensors"), &model).unwrap();
     assert_eq!(ck.step, 30);

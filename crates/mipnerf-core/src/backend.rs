@@ -183,6 +183,11 @@ pub trait Backend {
         }
     }
 
+    /// Whether the training steps that follow flush subnormal floats to zero
+    /// ([`crate::subnormals`]). The default ignores it: a device backend computes in its
+    /// shaders' own float mode.
+    fn set_flush_subnormals(&mut self, _flush: bool) {}
+
     /// The number of the next training step (the steps done so far).
     fn step(&self) -> u64;
 
@@ -341,6 +346,8 @@ pub struct CpuBackend {
     render_chunk: usize,
     rays: Vec<Ray>,
     targets: Vec<[f32; 3]>,
+    /// Training steps flush subnormals to zero ([`Backend::set_flush_subnormals`]).
+    flush_subnormals: bool,
 }
 
 impl CpuBackend {
@@ -355,7 +362,14 @@ impl CpuBackend {
         trainer.adam = state.adam;
         trainer.step = state.step;
         trainer.occupancy = state.occupancy;
-        Ok(Self { trainer, data: None, render_chunk: CPU_RENDER_CHUNK, rays: Vec::new(), targets: Vec::new() })
+        Ok(Self {
+            trainer,
+            data: None,
+            render_chunk: CPU_RENDER_CHUNK,
+            rays: Vec::new(),
+            targets: Vec::new(),
+            flush_subnormals: false,
+        })
     }
 
     /// Renders in chunks of about `rays` rays (whole pixels, at least one; default
@@ -402,6 +416,10 @@ impl Backend for CpuBackend {
         self.trainer.model.set_precision(precision).map_err(|e| BackendError::Invalid(e.to_string()))
     }
 
+    fn set_flush_subnormals(&mut self, flush: bool) {
+        self.flush_subnormals = flush;
+    }
+
     fn step(&self) -> u64 {
         self.trainer.step
     }
@@ -412,6 +430,7 @@ impl Backend for CpuBackend {
         let c = t.model.config();
         check_ndc_supersample(ds.ndc, c.supersample)?;
         ds.sample_batch(*batch, t.seed, t.step as u32, c.supersample, c.random_bkgd, &mut self.rays, &mut self.targets);
+        let _flushed = self.flush_subnormals.then(crate::subnormals::Flushed::begin);
         let rep = self.trainer.train_step(&self.rays, &self.targets);
         // The CPU has the losses anyway; it returns them only when asked, as the trait says.
         Ok(report.then_some(rep))

@@ -56,6 +56,7 @@ pub mod rng;
 pub mod sampling;
 pub mod schedule;
 pub mod stages;
+pub mod subnormals;
 #[cfg(any(test, feature = "test-support"))]
 pub mod test_support;
 pub mod train;

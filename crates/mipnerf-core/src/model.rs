@@ -218,6 +218,15 @@ pub enum Preset {
 }
 
 impl Preset {
+    /// Whether training at this size flushes subnormal floats to zero on the CPU unless told
+    /// otherwise ([`crate::subnormals`]): tiny and fast, whose results are not committed bit for
+    /// bit and which train faster for it at the same PSNR (`docs/results/subnormals/`). The
+    /// paper and small presets keep IEEE arithmetic and reproduce their committed tables.
+    #[must_use]
+    pub fn flushes_subnormals(self) -> bool {
+        matches!(self, Self::Tiny | Self::Fast)
+    }
+
     /// The Mip-NeRF configuration of this size.
     #[must_use]
     pub fn config(self) -> ModelConfig {
