@@ -16,6 +16,9 @@ use std::cell::Cell;
 
 /// MXCSR's flush-to-zero (bit 15) and denormals-are-zero (bit 6) bits.
 const FTZ_DAZ: u32 = (1 << 15) | (1 << 6);
+/// MXCSR's sticky exception flags (bits 0 to 5: invalid, denormal, divide by zero, overflow,
+/// underflow, precision), which arithmetic sets and a restore clears: not control bits.
+const EXCEPTION_FLAGS: u32 = 0x3f;
 
 thread_local! {
     /// How many [`Flushed`] scopes are open on this thread, and its MXCSR before the first.
@@ -113,9 +116,9 @@ fn mxcsr() -> Option<u32> {
 /// Loads `value` into this thread's MXCSR.
 #[cfg(target_arch = "x86_64")]
 fn set_mxcsr(value: u32) {
-    // Only FTZ and DAZ ever differ from the value read back: the rounding mode and the
-    // exception masks stay as they were, so no operation traps or rounds otherwise.
-    debug_assert_eq!(mxcsr().map(|now| (now ^ value) & !FTZ_DAZ & 0xffff), Some(0));
+    // Of the control bits, only FTZ and DAZ ever differ from the value read back: the rounding
+    // mode and the exception masks stay as they were, so no operation traps or rounds otherwise.
+    debug_assert_eq!(mxcsr().map(|now| (now ^ value) & !(FTZ_DAZ | EXCEPTION_FLAGS) & 0xffff), Some(0));
     // SAFETY: `ldmxcsr` reads 32 bits from a live local; the value is a valid MXCSR (the one
     // read back, with FTZ and DAZ set or restored: reserved bits unchanged). LLVM assumes the
     // default floating-point environment: with FTZ/DAZ, an operation on a subnormal value may
