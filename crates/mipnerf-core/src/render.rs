@@ -125,7 +125,29 @@ pub fn volumetric_rendering_backward(
         "volumetric_rendering_backward: shapes"
     );
     let dir_norm = dir.length();
-    // Forward prefix sums again, to get T_{k+1} = exp(-sum_{j<=k} s_j).
+    let g = |k: usize| {
+        d_rgb[0] * (rgb[k][0] - bg[0]) + d_rgb[1] * (rgb[k][1] - bg[1]) + d_rgb[2] * (rgb[k][2] - bg[2]) + d_acc
+    };
+    density_gradient(density, t_vals, dir_norm, weights, g, grad_density, false);
+    for (grad, &w) in grad_rgb.iter_mut().zip(weights) {
+        *grad = d_rgb.map(|d| w * d);
+    }
+}
+
+/// `dL/d density_k = delta_k (g_k T_{k+1} - sum_{i>k} g_i w_i)` from `g_k = dL/dw_k`, written to
+/// `grad_density` or added to it: the weights' Jacobian, which the colour loss
+/// ([`volumetric_rendering_backward`]) and losses on the weights ([`weights_backward`]) share.
+/// `T_{k+1}` is recomputed with the forward pass's prefix sums.
+fn density_gradient(
+    density: &[f32],
+    t_vals: &[f32],
+    dir_norm: f32,
+    weights: &[f32],
+    g: impl Fn(usize) -> f32,
+    grad_density: &mut [f32],
+    accumulate: bool,
+) {
+    let n = density.len();
     let mut cum = 0.0f32;
     let mut trans_next = Vec::with_capacity(n);
     let mut deltas = Vec::with_capacity(n);
@@ -137,14 +159,11 @@ pub fn volumetric_rendering_backward(
     }
     let mut suffix = 0.0f32; // sum_{i>k} g_i w_i
     for k in (0..n).rev() {
-        let g =
-            d_rgb[0] * (rgb[k][0] - bg[0]) + d_rgb[1] * (rgb[k][1] - bg[1]) + d_rgb[2] * (rgb[k][2] - bg[2]) + d_acc;
-        let ds = g * trans_next[k] - suffix;
-        suffix += g * weights[k];
-        grad_density[k] = ds * deltas[k];
-        for c in 0..3 {
-            grad_rgb[k][c] = weights[k] * d_rgb[c];
-        }
+        let gk = g(k);
+        let ds = gk * trans_next[k] - suffix;
+        suffix += gk * weights[k];
+        let grad = ds * deltas[k];
+        grad_density[k] = if accumulate { grad_density[k] + grad } else { grad };
     }
 }
 
@@ -170,19 +189,7 @@ pub fn weights_backward(
         t_vals.len() == n + 1 && weights.len() == n && d_weights.len() == n && grad_density.len() == n,
         "weights_backward: shapes"
     );
-    let dir_norm = dir.length();
-    let mut cum = 0.0f32;
-    let mut trans_next = Vec::with_capacity(n);
-    for k in 0..n {
-        cum += density[k] * (t_vals[k + 1] - t_vals[k]) * dir_norm;
-        trans_next.push((-cum).exp());
-    }
-    let mut suffix = 0.0f32; // sum_{i>k} d_weights_i w_i
-    for k in (0..n).rev() {
-        let ds = d_weights[k] * trans_next[k] - suffix;
-        suffix += d_weights[k] * weights[k];
-        grad_density[k] += ds * (t_vals[k + 1] - t_vals[k]) * dir_norm;
-    }
+    density_gradient(density, t_vals, dir.length(), weights, |k| d_weights[k], grad_density, true);
 }
 
 /// How raw density becomes density.
