@@ -414,22 +414,26 @@ fn pack_rows(out: &mut Vec<u16>, a: &[f32], la: Layout, m: usize, k: usize, mp: 
 }
 
 /// Packs `b (k x n)` into `out`: pairs `(b[2q][j], b[2q + 1][j])`, the first in the low 16 bits,
-/// at [`b_index`], zero-padded to `kp/2 x np`. The scalar reference of [`simd::pack_pairs`],
-/// which uses its body ([`or_pairs`]) for the transposed case (a layer's kernel: small).
-#[cfg_attr(not(test), allow(dead_code))]
+/// at [`b_index`], zero-padded to `kp/2 x np` (`out` only grows: what lies past that is left as
+/// it was). The scalar reference of [`simd::pack_pairs`], which uses it for the transposed case
+/// (a layer's kernel: small).
 fn pack_pairs(out: &mut Vec<u32>, b: &[f32], lb: Layout, k: usize, n: usize, kp: usize, np: usize) {
-    out.clear();
-    out.resize(kp / 2 * np, 0);
-    or_pairs(out, b, lb, k, n, kp);
-}
-
-/// The body of [`pack_pairs`] on a zeroed `out` of at least `kp/2 x np` pairs.
-fn or_pairs(out: &mut [u32], b: &[f32], lb: Layout, k: usize, n: usize, kp: usize) {
+    let len = kp / 2 * np;
+    grow(out, len);
+    out[..len].fill(0);
     for p in 0..k {
         for j in 0..n {
             let x = if lb == Layout::Normal { b[p * n + j] } else { b[j * k + p] };
             out[b_index(p / 2, j, kp)] |= u32::from(f32_to_bf16_bits(x)) << (16 * (p % 2));
         }
+    }
+}
+
+/// Lengthens `out` to `len` if it is shorter; never shortens it. The packing buffers hold large
+/// operands and small ones in turn: kept long, they are not zeroed again each time.
+fn grow<T: Copy + Default>(out: &mut Vec<T>, len: usize) {
+    if out.len() < len {
+        out.resize(len, T::default());
     }
 }
 
@@ -445,7 +449,7 @@ mod simd {
         _mm512_unpacklo_epi64,
     };
 
-    use super::{Layout, a_index, b_index, f32_to_bf16_bits};
+    use super::{Layout, a_index, b_index, f32_to_bf16_bits, grow};
 
     const FEATURES_CHECKED: &str = "bf16 packing needs AVX-512 BF16 (checked by Bf16Kernel::check)";
 
@@ -492,20 +496,7 @@ mod simd {
                 // SAFETY: as in `pack_rows`.
                 unsafe { pairs_normal(out, b, k, n, kp) }
             }
-            Layout::Transposed => {
-                let len = size(kp / 2, np);
-                grow(out, len);
-                out[..len].fill(0);
-                super::or_pairs(out, b, lb, k, n, kp);
-            }
-        }
-    }
-
-    /// Lengthens `out` to `len` if it is shorter; never shortens it. The packing buffers hold
-    /// large operands and small ones in turn: kept long, they are not zeroed again each time.
-    fn grow<T: Copy + Default>(out: &mut Vec<T>, len: usize) {
-        if out.len() < len {
-            out.resize(len, T::default());
+            Layout::Transposed => super::pack_pairs(out, b, lb, k, n, kp, np),
         }
     }
 
