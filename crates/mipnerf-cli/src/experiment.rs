@@ -110,8 +110,11 @@ pub struct RowResult {
     pub cpu: String,
     /// Threads used.
     pub threads: usize,
-    /// The backend it trained and was evaluated on.
+    /// The backend it trained on, and was evaluated on unless `eval_backend` names another.
     pub backend: String,
+    /// The backend it was evaluated on when not the training one (`experiment --eval-backend`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub eval_backend: Option<String>,
     /// The resolved training settings (without the data path).
     pub settings: TrainSettings,
     /// The SHA-256 of the checkpoint these numbers were measured on: the run they belong to. A
@@ -160,6 +163,8 @@ pub struct ExperimentArgs {
     pub only: Vec<String>,
     /// Only rebuild the table.
     pub table_only: bool,
+    /// Evaluate on this backend instead of each row's training backend.
+    pub eval_backend: Option<crate::config::Backend>,
     /// LPIPS weights.
     pub lpips: LpipsWeights,
 }
@@ -280,7 +285,7 @@ pub fn experiment(args: &ExperimentArgs, session: &Session) -> Result<()> {
             if let Some(m) = &settings.masks {
                 settings.masks = Some(std::path::absolute(m).with_context(|| m.display().to_string())?);
             }
-            if !run_row(id, row, &settings, &out.join(id), &results, &args.lpips, session)? {
+            if !run_row(id, row, &settings, &out.join(id), &results, (&args.lpips, args.eval_backend), session)? {
                 eprintln!("experiment interrupted in row {id}; run the same command again to continue");
                 std::process::exit(crate::signals::EXIT_INTERRUPTED);
             }
@@ -299,7 +304,7 @@ fn run_row(
     settings: &TrainSettings,
     run_dir: &Path,
     results: &Path,
-    lpips: &LpipsWeights,
+    (lpips, eval_backend): (&LpipsWeights, Option<crate::config::Backend>),
     session: &Session,
 ) -> Result<bool> {
     // Defaults that depend on the kind of data (LLFF and COLMAP against the rest) as `train` resolves them.
@@ -363,7 +368,7 @@ fn run_row(
     let have_lpips = lpips.open()?.is_ok();
     let sha = mipnerf_core::checkpoint::file_sha256(&ckpt)?;
     let old = std::fs::read_to_string(&json_path).ok().and_then(|t| serde_json::from_str::<RowResult>(&t).ok());
-    let marks = evaluate_marks(id, run_dir, old.as_ref().map_or(&[][..], |o| &o.marks), lpips, session)?;
+    let marks = evaluate_marks(id, run_dir, old.as_ref().map_or(&[][..], |o| &o.marks), (lpips, eval_backend), session)?;
     if let Some(old) = &old
         && old.checkpoint_sha256.as_deref() == Some(sha.as_str())
         && (old.lpips.is_some() || !have_lpips)
@@ -382,7 +387,7 @@ fn run_row(
     println!("== row {id} ({}): evaluating", row.label);
     let t = Instant::now();
     let saved = run::read_config(run_dir)?;
-    let m = evaluate(run_dir, &saved, lpips, session)?;
+    let m = evaluate(run_dir, &saved, (lpips, eval_backend), session)?;
     let (model, ck) = run::load_trained(run_dir, &saved, session)?;
     let r = RowResult {
         row: id.to_string(),
@@ -401,6 +406,7 @@ fn run_row(
         cpu: cpu_name(),
         threads: rayon::current_num_threads(),
         backend: format!("{:?}", saved.backend.unwrap_or(crate::config::Backend::Cpu)).to_lowercase(),
+        eval_backend: eval_backend.map(|b| format!("{b:?}").to_lowercase()),
         settings: TrainSettings { data: None, ..saved },
         checkpoint_sha256: Some(sha),
         marks,
@@ -421,7 +427,7 @@ fn evaluate_marks(
     id: &str,
     run_dir: &Path,
     known: &[MarkResult],
-    lpips: &LpipsWeights,
+    (lpips, eval_backend): (&LpipsWeights, Option<crate::config::Backend>),
     session: &Session,
 ) -> Result<Vec<MarkResult>> {
     let dir = run_dir.join("snapshots");
@@ -430,6 +436,9 @@ fn evaluate_marks(
         Err(_) => return Ok(Vec::new()),
     };
     snaps.sort();
+    // A mark measured without LPIPS (on a machine without the weights) is measured again here
+    // when they are at hand.
+    let have_lpips = lpips.open()?.is_ok();
     let mut out = Vec::new();
     for snap in snaps {
         let mark_seconds: f64 = snap
@@ -439,14 +448,14 @@ fn evaluate_marks(
             .and_then(|n| n.parse().ok())
             .with_context(|| format!("{}: not a snapshot folder (NNNNNs)", snap.display()))?;
         let sha = mipnerf_core::checkpoint::file_sha256(&snap.join(run::CHECKPOINT))?;
-        if let Some(k) = known.iter().find(|k| k.checkpoint_sha256 == sha) {
+        if let Some(k) = known.iter().find(|k| k.checkpoint_sha256 == sha && (k.lpips.is_some() || !have_lpips)) {
             out.push(k.clone());
             continue;
         }
         println!("== row {id}: evaluating the snapshot at {mark_seconds:.0} s");
         let t = Instant::now();
         let saved = run::read_config(&snap)?;
-        let m = evaluate(&snap, &saved, lpips, session)?;
+        let m = evaluate(&snap, &saved, (lpips, eval_backend), session)?;
         let psnr = m.column(|s| s.psnr);
         out.push(MarkResult {
             mark_seconds,
@@ -638,9 +647,9 @@ fn write_table(dir: &Path, exp: &Experiment) -> Result<PathBuf> {
 fn evaluate(
     run_dir: &Path,
     saved: &TrainSettings,
-    lpips: &LpipsWeights,
+    (lpips, eval_backend): (&LpipsWeights, Option<crate::config::Backend>),
     session: &Session,
 ) -> Result<crate::eval::Metrics> {
-    let backend = saved.backend.unwrap_or(crate::config::Backend::Cpu);
+    let backend = eval_backend.or(saved.backend).unwrap_or(crate::config::Backend::Cpu);
     crate::eval::eval(run_dir, Split::Test, backend, &mipnerf_gpu::DeviceOptions::default(), None, lpips, session)
 }

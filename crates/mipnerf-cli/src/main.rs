@@ -212,6 +212,11 @@ enum Command {
         /// Only rebuild the table from the rows' JSON files.
         #[arg(long)]
         table_only: bool,
+        /// Evaluate on this backend rather than the one each row trained on: a run trained on a
+        /// machine's GPU, copied to one without it (or without the LPIPS weights), is evaluated
+        /// here on the CPU. The row's JSON keeps the training backend and names this one.
+        #[arg(long, value_enum, value_name = "BACKEND")]
+        eval_backend: Option<config::Backend>,
         #[command(flatten)]
         lpips: lpips::LpipsWeights,
     },
@@ -987,9 +992,10 @@ fn main() -> std::process::ExitCode {
             )
         }
         Command::Compare { a, b, json, lpips, require_lpips } => eval::compare(&a, &b, json, &lpips, require_lpips),
-        Command::Experiment { dir, data, out, only, table_only, lpips } => {
-            experiment::experiment(&experiment::ExperimentArgs { dir, data, out, only, table_only, lpips }, &session)
-        }
+        Command::Experiment { dir, data, out, only, table_only, eval_backend, lpips } => experiment::experiment(
+            &experiment::ExperimentArgs { dir, data, out, only, table_only, eval_backend, lpips },
+            &session,
+        ),
         Command::Bench {
             viewer: Some(run), backend, device, viewer_size, viewer_frames, viewer_stall_steps, ..
         } => view_bench::bench(
