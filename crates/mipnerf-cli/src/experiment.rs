@@ -319,7 +319,11 @@ fn run_row(
     let mut done_steps = 0;
     if ckpt.is_file() {
         let saved = run::read_config(run_dir)?;
-        let now = settings.resolved(llff);
+        let mut now = settings.resolved(llff);
+        // `auto` precision is whatever the training machine had: the run records which ran.
+        if now.precision == Some(crate::config::PrecisionArg::Auto) {
+            now.precision = saved.precision;
+        }
         // The row's JSON is bound to this checkpoint (its SHA-256), and the checkpoint to the data
         // it trained on: a run on other data is never reported as this row's.
         if let (Some(theirs), Some(ours)) = (&saved.data, &now.data)
@@ -368,7 +372,8 @@ fn run_row(
     let have_lpips = lpips.open()?.is_ok();
     let sha = mipnerf_core::checkpoint::file_sha256(&ckpt)?;
     let old = std::fs::read_to_string(&json_path).ok().and_then(|t| serde_json::from_str::<RowResult>(&t).ok());
-    let marks = evaluate_marks(id, run_dir, old.as_ref().map_or(&[][..], |o| &o.marks), (lpips, eval_backend), session)?;
+    let marks =
+        evaluate_marks(id, run_dir, old.as_ref().map_or(&[][..], |o| &o.marks), (lpips, eval_backend), session)?;
     if let Some(old) = &old
         && old.checkpoint_sha256.as_deref() == Some(sha.as_str())
         && (old.lpips.is_some() || !have_lpips)

@@ -86,6 +86,12 @@ pub struct KernelCheck {
     /// Every value out of tolerance, as [`mismatches`] words it, and any output missing on one
     /// side, of another length, or a kernel that failed.
     pub mismatches: Vec<String>,
+    /// For [`check_kernel_conditioned`]: each output's count of values outside the tolerance
+    /// that the reference's own spread under perturbed inputs admits.
+    pub widened: Vec<(&'static str, usize)>,
+    /// For [`check_kernel_conditioned`] with perturbed inputs: each output's largest widening
+    /// (`factor` times the reference's largest move under them).
+    pub max_spread: Vec<(&'static str, f32)>,
 }
 
 impl KernelCheck {
@@ -93,7 +99,18 @@ impl KernelCheck {
     #[must_use]
     pub fn summary(&self) -> String {
         let diffs: Vec<String> = self.max_abs_diff.iter().map(|(name, d)| format!("{name} {d:.1e}")).collect();
-        format!("{}: max |gpu - cpu|: {}", self.label, diffs.join(", "))
+        let mut line = format!("{}: max |gpu - cpu|: {}", self.label, diffs.join(", "));
+        if !self.max_spread.is_empty() {
+            let spread: Vec<String> = self.max_spread.iter().map(|(name, d)| format!("{name} {d:.1e}")).collect();
+            let _ = write!(line, "; widened by up to: {}", spread.join(", "));
+        }
+        let widened: Vec<String> =
+            self.widened.iter().filter(|(_, n)| *n > 0).map(|(name, n)| format!("{name} {n}")).collect();
+        if !widened.is_empty() {
+            let _ =
+                write!(line, " (within the reference's spread under perturbed inputs only: {})", widened.join(", "));
+        }
+        line
     }
 
     /// The mismatches, after printing [`summary`](Self::summary) to stderr (what a test collects
@@ -118,16 +135,67 @@ pub fn check_kernel<I: ?Sized, E: std::fmt::Display>(
     inputs: &I,
     tolerance: impl Fn(&str) -> Tolerance,
 ) -> KernelCheck {
-    let mut check = KernelCheck { label: label.to_owned(), ..KernelCheck::default() };
     let want = cpu(inputs);
-    let got = match gpu(inputs) {
+    compare_outputs(label, &want, gpu(inputs), None, tolerance)
+}
+
+/// [`check_kernel`] for outputs that are ill-conditioned in the kernel's inputs, on an adapter
+/// whose arithmetic is not the CPU's operation for operation (a hardware GPU: multiply-adds fused
+/// where its compiler likes, division and `sqrt` within the spec's few ulps). Such a GPU computes
+/// the CPU's function of inputs a few roundings away from the given ones, so each value may be as
+/// far from the CPU's as the CPU's own result moves under such changes: `cpu` runs again on each
+/// of `perturbed` (the inputs moved by rounding-sized amounts), and each value's tolerance is
+/// widened by `factor` times the largest move seen there. Where the reference is well
+/// conditioned the check stays as strict as `tolerance`; where a value jumps with its inputs (a
+/// walk deciding which cell a ray enters), a jump the perturbed inputs also make is admitted.
+/// With no `perturbed` inputs this is [`check_kernel`]. The summary counts the values that only
+/// the widened bound admits.
+pub fn check_kernel_conditioned<I: ?Sized, P: std::borrow::Borrow<I>, E: std::fmt::Display>(
+    label: &str,
+    cpu: impl Fn(&I) -> Outputs,
+    gpu: impl FnOnce(&I) -> Result<Outputs, E>,
+    (inputs, perturbed, factor): (&I, &[P], f32),
+    tolerance: impl Fn(&str) -> Tolerance,
+) -> KernelCheck {
+    let want = cpu(inputs);
+    let mut spread: Vec<Vec<f32>> = want.iter().map(|(_, v)| vec![0.0; v.len()]).collect();
+    for p in perturbed {
+        let moved = cpu(p.borrow());
+        for ((name, w), s) in want.iter().zip(&mut spread) {
+            if let Some((_, m)) = moved.iter().find(|(n, m)| n == name && m.len() == w.len()) {
+                for ((s, &m), &w) in s.iter_mut().zip(m).zip(w) {
+                    // A NaN where the given inputs give a number widens nothing.
+                    *s = s.max((m - w).abs() * factor);
+                }
+            }
+        }
+    }
+    let mut check = compare_outputs(label, &want, gpu(inputs), Some(&spread), tolerance);
+    if !perturbed.is_empty() {
+        check.max_spread =
+            want.iter().zip(&spread).map(|((name, _), s)| (*name, s.iter().copied().fold(0.0f32, f32::max))).collect();
+    }
+    check
+}
+
+/// The comparison of [`check_kernel`] and [`check_kernel_conditioned`]: `spread`, when given,
+/// holds for each of `want`'s outputs how far each value may move beyond `tolerance`.
+fn compare_outputs<E: std::fmt::Display>(
+    label: &str,
+    want: &Outputs,
+    got: Result<Outputs, E>,
+    spread: Option<&[Vec<f32>]>,
+    tolerance: impl Fn(&str) -> Tolerance,
+) -> KernelCheck {
+    let mut check = KernelCheck { label: label.to_owned(), ..KernelCheck::default() };
+    let got = match got {
         Ok(got) => got,
         Err(e) => {
             check.mismatches.push(format!("{label}: the kernel failed: {e}"));
             return check;
         }
     };
-    for (name, want) in &want {
+    for (k, (name, want)) in want.iter().enumerate() {
         let what = format!("{label} {name}");
         let Some((_, got)) = got.iter().find(|(n, _)| n == name) else {
             check.mismatches.push(format!("{what}: the kernel gave no such output"));
@@ -151,7 +219,25 @@ pub fn check_kernel<I: ?Sized, E: std::fmt::Display>(
             })
             .fold(0.0f32, f32::max);
         check.max_abs_diff.push((name, max));
-        check.mismatches.extend(mismatches(&what, got, want, tolerance(name)));
+        let tol = tolerance(name);
+        let mut widened = 0;
+        for (i, (&g, &w)) in got.iter().zip(want).enumerate() {
+            if tol.accepts(g, w) {
+                continue;
+            }
+            let allowed = spread.map_or(0.0, |s| s[k][i]);
+            if !g.is_nan()
+                && f64::from(g - w).abs()
+                    <= f64::from(tol.abs) + f64::from(tol.rel) * f64::from(w).abs() + f64::from(allowed)
+            {
+                widened += 1;
+            } else {
+                check.mismatches.push(format!("{what}[{i}]: got {g:e} want {w:e} (off {:e})", (g - w).abs()));
+            }
+        }
+        if spread.is_some() {
+            check.widened.push((name, widened));
+        }
     }
     check
 }
@@ -211,6 +297,37 @@ mod tests {
         let r = std::panic::catch_unwind(|| assert_close("y", &[1.0, 7.0, 8.0], &[1.0, 1.0, 1.0], Tolerance::EXACT));
         let msg = r.unwrap_err().downcast::<String>().unwrap();
         assert!(msg.contains("2 values out of tolerance") && msg.contains("y[1]") && msg.contains("y[2]"), "{msg}");
+    }
+
+    #[test]
+    fn a_conditioned_check_admits_only_what_the_reference_itself_does_under_perturbed_inputs() {
+        // A step (a walk deciding a cell) and a smooth output; 0.5 sits on the step's edge.
+        let cpu = |x: &[f32]| -> Outputs {
+            vec![("step", x.iter().map(|v| v.floor()).collect()), ("smooth", x.iter().map(|v| 2.0 * v).collect())]
+        };
+        let tol = |_: &str| Tolerance::abs(1e-6);
+        let inputs = [0.999_999_9f32, 2.5];
+        let moved = [vec![1.000_000_1f32, 2.500_000_2], vec![0.999_999_8, 2.499_999_8]];
+        // A GPU that steps the other way at the edge and rounds the smooth output a little.
+        let gpu =
+            |_: &[f32]| Ok::<_, String>(vec![("step", vec![1.0, 2.0]), ("smooth", vec![1.999_999_9, 5.000_000_5])]);
+        let ok = check_kernel_conditioned("k", cpu, gpu, (&inputs[..], &moved[..], 2.0), tol);
+        assert!(ok.mismatches.is_empty(), "{ok:?}");
+        assert_eq!(ok.widened, [("step", 1), ("smooth", 0)]);
+        assert!(
+            ok.summary().contains("within the reference's spread under perturbed inputs only: step 1"),
+            "{}",
+            ok.summary()
+        );
+        // The same GPU with the step wrong where the reference does not jump, and the smooth
+        // output off by far more than the reference moves: both caught.
+        let bad = |_: &[f32]| Ok::<_, String>(vec![("step", vec![1.0, 3.0]), ("smooth", vec![1.999_999_9, 5.01])]);
+        let caught = check_kernel_conditioned("k", cpu, bad, (&inputs[..], &moved[..], 2.0), tol);
+        assert_eq!(caught.mismatches.len(), 2, "{caught:?}");
+        assert!(caught.mismatches[0].starts_with("k step[1]") && caught.mismatches[1].starts_with("k smooth[1]"));
+        // No perturbed inputs: as strict as check_kernel.
+        let strict = check_kernel_conditioned("k", cpu, gpu, (&inputs[..], &[] as &[Vec<f32>], 2.0), tol);
+        assert_eq!(strict.mismatches.len(), 1, "{strict:?}");
     }
 
     #[test]

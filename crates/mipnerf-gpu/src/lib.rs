@@ -150,6 +150,67 @@ pub mod test_support {
         Arc::new(demo::dataset(n, side).expect("at least one view of at least one pixel"))
     }
 
+    /// Relative size of the input changes that stand for a hardware GPU's rounding: 2^-20, 8 ulps
+    /// of an f32. Vulkan allows division 2.5 ulp off and `sqrt` and `exp` a few, the driver's
+    /// compiler fuses multiply-adds where it likes, and reductions run in another order, so a
+    /// position or weight a kernel computes lands a few ulps from the CPU's. Measured on an
+    /// NVIDIA H100 (`docs/results/gpu-h100/`): IPE features 1e-5 from the CPU's where lavapipe
+    /// gives 2.4e-7, the inputs of the high-degree sines moved by an ulp or two.
+    pub const HARDWARE_ROUNDING_REL: f32 = 1.0 / 1_048_576.0;
+
+    /// On a hardware adapter, `n` perturbed copies of a kernel's inputs for
+    /// [`check_kernel_conditioned`](mipnerf_core::compare::check_kernel_conditioned), the `i`th
+    /// made by `perturb` with a [`Nudge`] of its own seeded by `i`, each value moved by up to
+    /// `rel` of itself. On a software adapter none: lavapipe's arithmetic is the CPU's operation
+    /// for operation, so there the checks stay as strict as their tolerances.
+    pub fn hardware_perturbations<T>(
+        ctx: &GpuContext,
+        n: usize,
+        rel: f32,
+        mut perturb: impl FnMut(&mut Nudge) -> T,
+    ) -> Vec<T> {
+        // MIPNERF_TEST_PERTURB=1 perturbs on a software adapter too (to see the spreads there).
+        if ctx.adapter().is_software && std::env::var_os("MIPNERF_TEST_PERTURB").is_none_or(|v| v != "1") {
+            return Vec::new();
+        }
+        (0..n).map(|i| perturb(&mut Nudge { state: 0x9e37_79b9_7f4a_7c15 ^ i as u64, rel })).collect()
+    }
+
+    /// Random relative nudges of values: `x (1 + rel u)`, `u` uniform in [-1, 1] (splitmix64).
+    #[derive(Clone, Debug)]
+    pub struct Nudge {
+        state: u64,
+        /// The largest relative change.
+        pub rel: f32,
+    }
+
+    impl Nudge {
+        /// `x` moved by up to `rel` of itself.
+        pub fn value(&mut self, x: f32) -> f32 {
+            self.state = self.state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+            let mut z = self.state;
+            z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+            z ^= z >> 31;
+            let u = (z >> 40) as f32 / (1u64 << 23) as f32 - 1.0;
+            x * (1.0 + self.rel * u)
+        }
+
+        /// `ray` with each coordinate of its origin and direction, its radius, its near bound and
+        /// a finite far bound (not an unbounded scene's stand-in for infinity) moved.
+        pub fn ray(&mut self, ray: &mipnerf_core::Ray) -> mipnerf_core::Ray {
+            let far = if ray.far < mipnerf_core::contract::UNBOUNDED_FAR { self.value(ray.far) } else { ray.far };
+            mipnerf_core::Ray {
+                origin: ray.origin.map(|c| self.value(c)),
+                direction: ray.direction.map(|c| self.value(c)),
+                radius: self.value(ray.radius),
+                near: self.value(ray.near),
+                far,
+                ..*ray
+            }
+        }
+    }
+
     /// The context GPU tests run on, or `None` (after printing one line saying how to get an
     /// adapter) when this machine has none and the tests do not run in CI.
     ///

@@ -16,7 +16,7 @@ use mipnerf_core::train::OptimConfig;
 use mipnerf_gpu::GpuBackend;
 use mipnerf_gpu::kernels::batch::{BatchKernel, DeviceImages, Draw};
 use mipnerf_gpu::model::RayBatch;
-use mipnerf_gpu::test_support::context_or_skip;
+use mipnerf_gpu::test_support::{HARDWARE_ROUNDING_REL, context_or_skip, hardware_perturbations};
 
 /// Ray directions made on the device from the per-view direction field in f32, against the CPU's
 /// f64 directions rounded once: a few ulp of the largest term.
@@ -247,6 +247,9 @@ fn lego_tiny() -> Dataset {
 /// which Adam's normalised steps carry from step to step. Measured on lavapipe (Mesa 25.0.7):
 /// 4e-6 relative at worst over 50 steps; the bound leaves room for devices with coarser `exp`/`sin`.
 const TOL_LOSS_CURVE_REL: f32 = 1e-3;
+/// How far past the CPU's own spread under perturbed inputs a hardware GPU may land: twice it,
+/// the perturbations being a sample (as in the kernel tests).
+const SPREAD_FACTOR: f32 = 2.0;
 /// PSNR between the CPU's and the GPU's renders of a view after the 50 steps, each with its own
 /// trained parameters. Measured on lavapipe: 121 dB.
 const MIN_RENDER_AGREEMENT_PSNR: f64 = 60.0;
@@ -456,15 +459,49 @@ fn supersampled_nerf_trains_and_renders_alike() {
     let cfg = ModelConfig { supersample: 2, num_samples: 16, ..Preset::Tiny.config().nerf() };
     let model = Model::new(cfg).unwrap();
     let (seed, batch, steps) = (9u32, 16usize, 10u64);
+    let ctx_name = ctx.adapter().name.clone();
+    // The NeRF baseline is ill-conditioned in its rays: it takes undamped sines of up to 2^9 x,
+    // and its fine samples follow the coarse weights' inverse CDF. The device draws its rays
+    // itself (`device_batches_are_the_cpu_batches`: directions within 1e-6 of the CPU's), and
+    // that much moves the fine level's loss by up to 9e-4 on lavapipe, against 5e-6 for the
+    // same model given the CPU's rays (the model tests). So on a hardware GPU a step's loss may
+    // differ from the CPU's by as much as the CPU's own curve moves when the cameras move by a
+    // few ulps (each pose entry by up to HARDWARE_ROUNDING_REL of itself): 2e-3 to 2e-2 of the
+    // fine level's loss, 1e-5 to 6e-5 of the coarse level's (MIPNERF_TEST_PERTURB=1 on
+    // lavapipe), so there the coarse level is what this test checks of the training step.
+    let moved: Vec<CpuBackend> = hardware_perturbations(&ctx, 4, HARDWARE_ROUNDING_REL, |n| {
+        let views = ds
+            .views()
+            .iter()
+            .map(|v| {
+                let mut v = v.clone();
+                v.camera.cam2world.iter_mut().flatten().for_each(|x| *x = f64::from(n.value(*x as f32)));
+                v
+            })
+            .collect();
+        let moved_ds = Arc::new(Dataset::from_views(Split::Train, views, ds.white_bkgd).unwrap());
+        let state = TrainState::fresh(&model, seed);
+        CpuBackend::new(model.clone(), OptimConfig::default(), seed, state).unwrap().with_data(moved_ds, batch)
+    });
+    let mut moved = moved;
     let (mut cpu, gpu) = cpu_and_gpu(ctx, &ds, &model, seed, batch);
     let mut gpu = gpu.with_data(&ds, batch).unwrap();
     let mut bad = Vec::new();
     for step in 0..steps {
         let c = cpu.train_step(true).unwrap().unwrap();
         let g = gpu.train_step(true).unwrap().unwrap();
+        let others: Vec<Vec<f32>> =
+            moved.iter_mut().map(|b| b.train_step(true).unwrap().unwrap().stats.losses).collect();
+        let mut line = Vec::new();
         for (l, (&gv, &cv)) in g.stats.losses.iter().zip(&c.stats.losses).enumerate() {
-            compare_loss(&mut bad, &format!("step {step} level {l} loss"), gv, cv);
+            let spread = others.iter().map(|o| (o[l] - cv).abs()).fold(0.0f32, f32::max);
+            let rel = (gv - cv).abs() / cv.abs();
+            if (gv - cv).abs() > SPREAD_FACTOR * spread {
+                compare_loss(&mut bad, &format!("step {step} level {l} loss"), gv, cv);
+            }
+            line.push(format!("{rel:.2e} (the CPU's own {:.2e})", spread / cv.abs()));
         }
+        eprintln!("supersampled NeRF on {ctx_name}: step {step}, relative loss differences {}", line.join(", "));
     }
     assert_none(&bad);
     // A render whose last chunk is partial: 30 x 20 pixels of 4 rays in chunks of 256 rays.
