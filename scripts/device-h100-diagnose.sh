@@ -10,29 +10,16 @@
 set -u
 OUT=${OUT:?set OUT to the folder results go to}
 stamp() { echo "== $(date -u +%T) $*"; }
-for f in .gl/*.deb; do dpkg -x "$f" /; done
-ldconfig
-mkdir -p /tmp/dev && tar -C /tmp/dev -xJf .dev/bin2.tar.xz
+. scripts/device-lib.sh
+device_setup .dev/bin2.tar.xz
 B=/tmp/dev/bin
-mkdir -p /work
-[ -e /work/main ] || ln -s "$PWD" /work/main
 cd crates/mipnerf-gpu || exit 1
 
 {
     for t in $("$B/kernels" --list --format terse 2>/dev/null | sed 's/: test$//'); do
         stamp "kernels $t"
         CI=true "$B/kernels" --exact "$t" --nocapture --test-threads=1 >/tmp/one.log 2>&1 &
-        pid=$!
-        for _ in $(seq 40); do
-            sleep 0.25
-            kill -0 "$pid" 2>/dev/null || break
-        done
-        if kill -0 "$pid" 2>/dev/null; then
-            echo "RAN OVER 10 s: stacks"
-            timeout 40 cuda-gdb -p "$pid" -batch -ex "info threads" -ex "thread apply all bt 14" 2>&1 | grep -vE "^\[New Thread|^warning" | head -150
-            kill -9 "$pid"
-        fi
-        wait "$pid"
+        wait_or_stacks $! 10 2000
         echo "exit status $?"
         grep -E "max \||test result|panicked|values out of|: gpu|: the kernel" /tmp/one.log | head -30
     done

@@ -8,35 +8,21 @@
 set -u
 OUT=${OUT:?set OUT to the folder results go to}
 stamp() { echo "== $(date -u +%T) $*"; }
-for f in .gl/*.deb; do dpkg -x "$f" /; done
-ldconfig
-mkdir -p /tmp/dev && tar -C /tmp/dev -xJf .dev/bin3.tar.xz
+. scripts/device-lib.sh
+device_setup .dev/bin3.tar.xz
 B=/tmp/dev/bin
-mkdir -p /work
-[ -e /work/main ] || ln -s "$PWD" /work/main
 cd crates/mipnerf-gpu || exit 1
 
 {
     stamp "shader cache before: $(du -sh ~/.cache/nvidia 2>/dev/null || echo none)"
-    start=$(date +%s.%N)
+    start=$(date +%s%N)
     CI=true "$B/kernels" >"$OUT/kernels-cold.log" 2>&1 &
-    pid=$!
-    for _ in $(seq 360); do
-        sleep 0.25
-        kill -0 "$pid" 2>/dev/null || break
-    done
-    if kill -0 "$pid" 2>/dev/null; then
-        echo "RAN OVER 90 s: stacks"
-        timeout 30 cuda-gdb -p "$pid" -batch -ex "thread apply all bt 16" 2>&1 | grep -vE "^\[New Thread|^warning" | head -300
-        sleep 20
-        kill -9 "$pid" 2>/dev/null
-    fi
-    wait "$pid"
-    echo "kernels, cold: exit status $?, $(echo "$(date +%s.%N) - $start" | bc) s"
+    wait_or_stacks $! 90 2000
+    echo "kernels, cold: exit status $?, $(( ($(date +%s%N) - start) / 1000000 )) ms"
     stamp "shader cache after: $(du -sh ~/.cache/nvidia 2>/dev/null || echo none)"
-    start=$(date +%s.%N)
+    start=$(date +%s%N)
     CI=true timeout 60 "$B/kernels" >"$OUT/kernels-warm.log" 2>&1
-    echo "kernels, warm: exit status $?, $(echo "$(date +%s.%N) - $start" | bc) s"
+    echo "kernels, warm: exit status $?, $(( ($(date +%s%N) - start) / 1000000 )) ms"
     for t in backend both_backends select robustness shaders; do
         CI=true timeout 60 "$B/$t" --nocapture >>"$OUT/others.log" 2>&1
         echo "$t: exit status $?"

@@ -1,0 +1,31 @@
+#!/usr/bin/env bash
+# Shared by the scripts/device-h100*.sh scripts (sourced): what a bare GPU lease machine needs
+# before the carried binaries run, and stacks of a program that runs too long.
+
+# Unpacks the carried Vulkan loader (.gl/*.deb) and the carried binaries ($1, a .tar.xz of bin/)
+# into /tmp/dev/bin, and links /work/main to this checkout: the test binaries find their data
+# through the CARGO_MANIFEST_DIR they were built with here.
+device_setup() {
+    for f in .gl/*.deb; do dpkg -x "$f" /; done
+    ldconfig
+    mkdir -p /tmp/dev && tar -C /tmp/dev -xJf "$1"
+    mkdir -p /work
+    [ -e /work/main ] || ln -s "$PWD" /work/main
+}
+
+# Waits up to $2 seconds for process $1; if it still runs, prints every thread's stack (cuda-gdb
+# attaches to a CPU program too; at most $3 lines) and kills it. Returns its exit status.
+wait_or_stacks() {
+    local pid=$1 quarters=$(($2 * 4))
+    for _ in $(seq "$quarters"); do
+        sleep 0.25
+        kill -0 "$pid" 2>/dev/null || break
+    done
+    if kill -0 "$pid" 2>/dev/null; then
+        echo "RAN OVER $2 s: stacks"
+        timeout 45 cuda-gdb -p "$pid" -batch -ex "info threads" -ex "thread apply all bt 24" 2>&1 |
+            grep -vE "^\[New Thread|^warning: " | head -"$3"
+        kill -9 "$pid"
+    fi
+    wait "$pid"
+}
