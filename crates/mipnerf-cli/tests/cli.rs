@@ -960,6 +960,52 @@ fn an_experiment_row_is_evaluated_again_when_its_json_came_from_another_run() {
     }
 }
 
+/// A finished row whose protocol asks for `auto` precision is done on a second run (the run
+/// records the precision that ran), and `--eval-backend` evaluates a row on another backend than
+/// it trained on, the JSON naming both (a run trained on a lent GPU, evaluated where the LPIPS
+/// weights are).
+#[test]
+fn an_experiment_reruns_auto_precision_rows_and_evaluates_on_another_backend() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_demo_scene(dir.path(), 2);
+    let exp = small_experiment(dir.path(), 5);
+    let toml = exp.join("experiment.toml");
+    let text = std::fs::read_to_string(&toml).unwrap().replace("[protocol]\n", "[protocol]\nprecision = \"auto\"\n");
+    std::fs::write(&toml, text).unwrap();
+    let out = dir.path().join("runs");
+    let (e, d, o) = (exp.to_str().unwrap(), data.to_str().unwrap(), out.to_str().unwrap());
+    let args = ["experiment", e, "--data", d, "--out", o, "--only", "mipnerf", "--no-lpips"];
+    run_ok(&args);
+    let saved = std::fs::read_to_string(out.join("mipnerf/config.toml")).unwrap();
+    assert!(saved.contains("precision = \"f32\"") || saved.contains("precision = \"bf16\""), "{saved}");
+    assert!(run_ok(&args).contains("row mipnerf (Mip-NeRF): done"));
+    let json = exp.join("results/mipnerf.json");
+    let read = || serde_json::from_str::<serde_json::Value>(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let v = read();
+    assert_eq!(v["backend"], "cpu");
+    assert!(v.get("eval_backend").is_none(), "{v}");
+    if mipnerf_gpu::test_support::context_or_skip("an_experiment_evaluates_on_another_backend (GPU)").is_none() {
+        return;
+    }
+    // Another run's numbers planted: evaluated again, on the GPU this time.
+    let mut other = v.clone();
+    other["checkpoint_sha256"] = serde_json::json!("0".repeat(64));
+    std::fs::write(&json, other.to_string()).unwrap();
+    let text = run_ok(&[&args[..], &["--eval-backend", "gpu"]].concat());
+    assert!(text.contains("evaluating") && text.contains("backend: GPU"), "{text}");
+    let now = read();
+    assert_eq!(
+        (&now["backend"], &now["eval_backend"]),
+        (&serde_json::json!("cpu"), &serde_json::json!("gpu")),
+        "{now}"
+    );
+    // The same checkpoint evaluated on both backends: the same scores to rounding.
+    for key in ["psnr", "ssim"] {
+        let (a, b) = (v[key][0].as_f64().unwrap(), now[key][0].as_f64().unwrap());
+        assert!((a - b).abs() < 1e-3, "{key}: cpu {a} gpu {b}");
+    }
+}
+
 #[test]
 fn precision_flag_runs_bf16_where_a_kernel_is_and_says_clearly_where_it_cannot() {
     use mipnerf_core::bf16::{Bf16Kernel, DISABLE_AMX_ENV, DISABLE_AVX512_BF16_ENV};
