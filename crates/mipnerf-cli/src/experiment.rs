@@ -560,7 +560,7 @@ fn table_markdown(dir: &Path, exp: &Experiment) -> Result<String> {
     }
     // The chart is linked where the table sits beside it.
     let beside = exp.table.parent() == Some(exp.results.as_path());
-    s += &marks_markdown(&results, &exp.rows, beside, n)?;
+    s += &marks_markdown(&results, (&exp.rows, &chart_name(&exp.table)), beside, n)?;
     if two_term {
         s += "\n\\* Without LPIPS: the two-term average error (MSE and sqrt(1 - SSIM)), not the paper's.\n";
     }
@@ -585,10 +585,22 @@ fn table_markdown(dir: &Path, exp: &Experiment) -> Result<String> {
     Ok(s)
 }
 
+/// The chart of a table's rows, named after the table so that experiments sharing a results
+/// folder keep theirs: `psnr-vs-time.png` for `TABLE.md`, `psnr-vs-time-whole-scene.png` for
+/// `TABLE-whole-scene.md`, `psnr-vs-time-NAME.png` for any other `NAME.md`.
+fn chart_name(table: &Path) -> String {
+    let stem = table.file_stem().and_then(|s| s.to_str()).unwrap_or("TABLE");
+    let suffix = match stem.strip_prefix("TABLE") {
+        Some(rest) => rest.to_owned(),
+        None => format!("-{stem}"),
+    };
+    format!("psnr-vs-time{suffix}.png")
+}
+
 /// The rows that were evaluated at fixed training times: a table of every mark (and the final
-/// checkpoint), and `RESULTS/psnr-vs-time.png` of mean PSNR against minutes. Empty when no row
-/// has marks.
-fn marks_markdown(results: &Path, rows: &[String], link_chart: bool, scales: usize) -> Result<String> {
+/// checkpoint), and `RESULTS/CHART` ([`chart_name`]) of mean PSNR against minutes. Empty when no
+/// row has marks.
+fn marks_markdown(results: &Path, (rows, chart): (&[String], &str), link_chart: bool, scales: usize) -> Result<String> {
     let mut curves = Vec::new();
     let mut s = String::new();
     for id in rows {
@@ -627,10 +639,10 @@ fn marks_markdown(results: &Path, rows: &[String], link_chart: bool, scales: usi
     if curves.is_empty() {
         return Ok(s);
     }
-    let png = results.join("psnr-vs-time.png");
+    let png = results.join(chart);
     crate::plot::quality_vs_time(&png, &curves, None)?;
     if link_chart {
-        s += "\n![Mean test PSNR against training time](psnr-vs-time.png)\n";
+        s += &format!("\n![Mean test PSNR against training time]({chart})\n");
     } else {
         s += &format!("\nChart: {}\n", png.display());
     }
@@ -663,4 +675,17 @@ fn evaluate(
 ) -> Result<crate::eval::Metrics> {
     let backend = eval_backend.or(saved.backend).unwrap_or(crate::config::Backend::Cpu);
     crate::eval::eval(run_dir, Split::Test, backend, &mipnerf_gpu::DeviceOptions::default(), None, lpips, session)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::chart_name;
+    use std::path::Path;
+
+    #[test]
+    fn each_table_of_a_results_folder_has_its_own_chart() {
+        assert_eq!(chart_name(Path::new("../../docs/results/x/TABLE.md")), "psnr-vs-time.png");
+        assert_eq!(chart_name(Path::new("../../docs/results/x/TABLE-whole-scene.md")), "psnr-vs-time-whole-scene.png");
+        assert_eq!(chart_name(Path::new("RESULTS.md")), "psnr-vs-time-RESULTS.png");
+    }
 }
