@@ -9,7 +9,6 @@
 # Carried: .gl (the Vulkan loader) and .dev/bin2.tar.xz (the two test binaries with symbols).
 set -u
 OUT=${OUT:?set OUT to the folder results go to}
-stamp() { echo "== $(date -u +%T) $*"; }
 . scripts/device-lib.sh
 device_setup .dev/bin2.tar.xz
 B=/tmp/dev/bin

@@ -7,7 +7,6 @@
 # Carried: .gl (the Vulkan loader) and .dev/bin3.tar.xz (the six test binaries, with symbols).
 set -u
 OUT=${OUT:?set OUT to the folder results go to}
-stamp() { echo "== $(date -u +%T) $*"; }
 . scripts/device-lib.sh
 device_setup .dev/bin3.tar.xz
 B=/tmp/dev/bin

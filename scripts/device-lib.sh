@@ -2,6 +2,9 @@
 # Shared by the scripts/device-h100*.sh scripts (sourced): what a bare GPU lease machine needs
 # before the carried binaries run, and stacks of a program that runs too long.
 
+# A timestamped heading in a log.
+stamp() { echo "== $(date -u +%T) $*"; }
+
 # Unpacks the carried Vulkan loader (.gl/*.deb) and the carried binaries ($1, a .tar.xz of bin/)
 # into /tmp/dev/bin, and links /work/main to this checkout: the test binaries find their data
 # through the CARGO_MANIFEST_DIR they were built with here.

@@ -69,8 +69,13 @@ pub fn mismatches(what: &str, got: &[f32], want: &[f32], tol: Tolerance) -> Vec<
         .zip(want)
         .enumerate()
         .filter(|(_, (g, w))| !tol.accepts(**g, **w))
-        .map(|(i, (g, w))| format!("{what}[{i}]: got {g:e} want {w:e} (off {:e})", (g - w).abs()))
+        .map(|(i, (g, w))| mismatch_line(what, i, *g, *w))
         .collect()
+}
+
+/// One mismatch as [`mismatches`] words it.
+fn mismatch_line(what: &str, i: usize, got: f32, want: f32) -> String {
+    format!("{what}[{i}]: got {got:e} want {want:e} (off {:e})", (got - want).abs())
 }
 
 /// A kernel's outputs, each named, in a fixed order: what both sides of [`check_kernel`] return.
@@ -232,7 +237,7 @@ fn compare_outputs<E: std::fmt::Display>(
             {
                 widened += 1;
             } else {
-                check.mismatches.push(format!("{what}[{i}]: got {g:e} want {w:e} (off {:e})", (g - w).abs()));
+                check.mismatches.push(mismatch_line(&what, i, g, w));
             }
         }
         if spread.is_some() {
