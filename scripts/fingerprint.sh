@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Behaviour fingerprint of a mipnerf binary: the SHA-256 of the checkpoints of 20-step runs on the
-# demo scene (Mip-NeRF tiny and fast presets and the NeRF baseline on the CPU, tiny and fast on the
+# demo scene (Mip-NeRF tiny, fast, small and paper presets in f32 and the NeRF baseline on the CPU, tiny and fast on the
 # GPU backend where an adapter is found, lavapipe included), and of the demo's rendered PNGs. A refactor that must not change
 # behaviour gives the same lines before and after (issue 28):
 #   scripts/fingerprint.sh OLD_BINARY > before.txt; scripts/fingerprint.sh target/release/mipnerf > after.txt
@@ -23,6 +23,8 @@ echo "demo-nerf $(sha256sum < "$dir/demo/nerf/checkpoint.safetensors" | cut -d' 
 echo "demo-renders $(cd "$dir/demo" && find render render_orbit -name '*.png' | sort | xargs sha256sum | sha256sum | cut -d' ' -f1)"
 run tiny-cpu --preset tiny --backend cpu
 run fast-cpu --preset fast --backend cpu --precision f32
+run small-cpu --preset small --backend cpu --precision f32
+run paper-cpu --preset paper --backend cpu --precision f32
 run nerf-cpu --model nerf --preset tiny --backend cpu
 adapters=$("$bin" info 2>/dev/null || true)
 if grep -q "^  \[0\]" <<<"$adapters"; then

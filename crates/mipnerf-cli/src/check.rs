@@ -7,6 +7,7 @@ use std::sync::Arc;
 use anyhow::{Context, Result};
 use clap::ValueEnum;
 use mipnerf_core::backend::{Backend as _, CpuBackend, TrainState};
+use mipnerf_core::bf16::Precision;
 use mipnerf_core::compare::{KernelCheck, Tolerance, check_kernel};
 use mipnerf_core::data::demo;
 use mipnerf_core::model::{Mode, Model, ModelConfig, PointEncoding, Preset};
@@ -68,7 +69,15 @@ pub fn check(backend: CheckBackend, device: &mipnerf_gpu::DeviceOptions) -> Resu
         "cast_ipe",
         |(rays, t): &(&[Ray], &[f32])| {
             let mut x = vec![0.0; rays.len() * n * mipnerf_core::mip::ipe_len(degrees.0, degrees.1)];
-            stages::cast_and_encode(rays, t, (n, false), RayShape::Cone, PointEncoding::Integrated, degrees, &mut x);
+            stages::cast_and_encode(
+                rays,
+                t,
+                (n, false),
+                RayShape::Cone,
+                (PointEncoding::Integrated, Precision::F32),
+                degrees,
+                &mut x,
+            );
             vec![("features", x)]
         },
         |(rays, t)| {

@@ -55,7 +55,9 @@ pub enum Precision {
     #[default]
     F32,
     /// bf16 operands and f32 accumulation for the MLP's matrix products (forward, input gradient
-    /// and weight gradient); f32 everywhere else.
+    /// and weight gradient); f32 everywhere else. The IPE features, rounded to bf16 before their
+    /// only use, are evaluated in f32 arithmetic ([`crate::mip::integrated_pos_enc_for_bf16`])
+    /// rather than through f64 as the reference does.
     Bf16,
 }
 

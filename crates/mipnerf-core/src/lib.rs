@@ -60,6 +60,7 @@ pub mod subnormals;
 #[cfg(any(test, feature = "test-support"))]
 pub mod test_support;
 pub mod train;
+pub mod wide;
 
 pub use camera::{Camera, PixelCenters};
 pub use cone::{Ray, RayShape, cast_ray, radius_from_spacing};

@@ -22,6 +22,7 @@ use rand::{Rng, SeedableRng, rngs::SmallRng};
 
 use crate::bf16::{Precision, matmul_bf16};
 use crate::linalg::{Layout, matmul};
+use crate::wide::wide;
 
 /// The shape of the MLP. Defaults are the official ones (the paper's 612K-parameter network).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -253,37 +254,53 @@ fn product(
 
 /// `out[row] += bias`, then ReLU if `relu`: one pass, vectorised along rows.
 fn add_bias(out: &mut [f32], bias: &[f32], relu: bool) {
-    for row in out.chunks_exact_mut(bias.len()) {
-        if relu {
-            for (o, &b) in row.iter_mut().zip(bias) {
-                *o = (*o + b).max(0.0);
+    wide(
+        #[inline(always)]
+        || {
+            for row in out.chunks_exact_mut(bias.len()) {
+                if relu {
+                    for (o, &b) in row.iter_mut().zip(bias) {
+                        *o = (*o + b).max(0.0);
+                    }
+                } else {
+                    for (o, &b) in row.iter_mut().zip(bias) {
+                        *o += b;
+                    }
+                }
             }
-        } else {
-            for (o, &b) in row.iter_mut().zip(bias) {
-                *o += b;
-            }
-        }
-    }
+        },
+    );
 }
 
 /// ReLU's backward pass in place (`g = g * (h > 0)`), adding the column sums of the result to
-/// `bias_grad`: one pass, branch-free so that it vectorises.
+/// `bias_grad`: one pass, branch-free so that it vectorises ([`wide`]).
 fn relu_backward_bias(g: &mut [f32], h: &[f32], bias_grad: &mut [f32]) {
     let w = bias_grad.len();
-    for (grow, hrow) in g.chunks_exact_mut(w).zip(h.chunks_exact(w)) {
-        for ((gi, &hi), b) in grow.iter_mut().zip(hrow).zip(bias_grad.iter_mut()) {
-            *gi = if hi > 0.0 { *gi } else { 0.0 };
-            *b += *gi;
-        }
-    }
+    wide(
+        #[inline(always)]
+        || {
+            for (grow, hrow) in g.chunks_exact_mut(w).zip(h.chunks_exact(w)) {
+                for ((gi, &hi), b) in grow.iter_mut().zip(hrow).zip(bias_grad.iter_mut()) {
+                    *gi = if hi > 0.0 { *gi } else { 0.0 };
+                    *b += *gi;
+                }
+            }
+        },
+    );
 }
 
+/// `bias_grad += ` the column sums of `g` (rows of `bias_grad.len()`), row after row ([`wide`]).
 fn add_col_sums(bias_grad: &mut [f32], g: &[f32]) {
-    for row in g.chunks_exact(bias_grad.len()) {
-        for (b, &x) in bias_grad.iter_mut().zip(row) {
-            *b += x;
-        }
-    }
+    wide(
+        #[inline(always)]
+        || {
+            for row in g.chunks_exact(bias_grad.len()) {
+                for (b, &x) in bias_grad.iter_mut().zip(row) {
+                    *b += x;
+                }
+            }
+        },
+    );
 }
 
 impl MlpShape {

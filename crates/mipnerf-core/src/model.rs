@@ -835,9 +835,9 @@ impl Model {
                 }
             }
             let degrees = (c.min_deg_point, c.max_deg_point);
-            let shape = (c.ray_shape, c.point_encoding);
-            stages::cast_and_encode(rays, &ws.t, (s, c.unbounded), shape.0, shape.1, degrees, &mut ws.x);
             let mlp = self.mlp_for_level(level);
+            let encoding = (c.point_encoding, mlp.precision);
+            stages::cast_and_encode(rays, &ws.t, (s, c.unbounded), c.ray_shape, encoding, degrees, &mut ws.x);
             mlp.forward(params, &ws.x, &ws.view, rays.len(), s, &mut ws.cache);
             stages::add_density_noise(c.density_noise, level, mode, &ws.ids, s, &mut ws.cache.raw_density[..n]);
             let raw = (&ws.cache.raw_rgb[..3 * n], &ws.cache.raw_density[..n]);

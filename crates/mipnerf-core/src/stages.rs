@@ -18,6 +18,7 @@
 
 use glam::Vec3;
 
+use crate::bf16::Precision;
 use crate::cone::{Ray, RayShape, cast_ray, cast_ray_contracted};
 use crate::mip::{self, Gaussian};
 use crate::model::{Mode, ModelConfig, PointEncoding};
@@ -25,6 +26,7 @@ use crate::render::{self, RenderedRay};
 use crate::rng::{RayRng, Stream, ray_level_index};
 use crate::sampling::{self, PdfSamples, Spacing};
 use crate::train::{AdamConfig, AdamState, clip_gradients};
+use crate::wide::wide;
 
 /// The interval edges of the coarse level: `n_samples + 1` edges per ray between its `near` and
 /// `far`, spaced as `spacing` says ([`sampling::sample_spaced`]), jittered in training by the
@@ -150,6 +152,7 @@ pub fn resample_intervals(
 /// One Gaussian's features under a point encoding, into `dst`: the integrated positional
 /// encoding (Mip-NeRF), the same with zero covariance (the "w/o IPE" ablation), or NeRF's
 /// encoding of the mean with the identity.
+#[inline(always)]
 pub fn encode_gaussian(g: &Gaussian, encoding: PointEncoding, min_deg: u32, max_deg: u32, dst: &mut [f32]) {
     match encoding {
         PointEncoding::Integrated => mip::integrated_pos_enc(g, min_deg, max_deg, dst),
@@ -167,6 +170,12 @@ pub fn encode_gaussian(g: &Gaussian, encoding: PointEncoding, min_deg: u32, max_
 /// `rays.len() * n_samples` rows of the encoding's width, sample after sample. Kernel:
 /// `cast_ipe.wgsl`.
 ///
+/// `precision` is that of the products the features feed: at [`Precision::Bf16`], which rounds
+/// them to bf16 first, the IPE is evaluated in `f32` arithmetic
+/// ([`mip::integrated_pos_enc_for_bf16`], within [`mip::IPE_FOR_BF16_MAX_ERROR`]); at
+/// [`Precision::F32`] it is the reference, bit for bit. The encoding loop runs through
+/// [`wide`]: 512-bit vectors on CPUs with AVX-512, the same bits.
+///
 /// # Panics
 /// If `t` or `x` has the wrong length for `rays.len()` rays.
 pub fn cast_and_encode(
@@ -174,7 +183,7 @@ pub fn cast_and_encode(
     t: &[f32],
     (n_samples, unbounded): (usize, bool),
     shape: RayShape,
-    encoding: PointEncoding,
+    (encoding, precision): (PointEncoding, Precision),
     (min_deg, max_deg): (u32, u32),
     x: &mut [f32],
 ) {
@@ -183,6 +192,7 @@ pub fn cast_and_encode(
     assert_eq!(x.len(), rays.len() * n_samples * width, "cast_and_encode: features");
     let mut gauss = vec![Gaussian::default(); n_samples];
     let cast = if unbounded { cast_ray_contracted } else { cast_ray };
+    let encoding = GaussianEncoding { encoding, precision, degrees: (min_deg, max_deg) };
     for (r, ray) in rays.iter().enumerate() {
         cast(
             &t[r * (n_samples + 1)..(r + 1) * (n_samples + 1)],
@@ -192,9 +202,44 @@ pub fn cast_and_encode(
             shape,
             &mut gauss,
         );
-        for (i, g) in gauss.iter().enumerate() {
-            let row = r * n_samples + i;
-            encode_gaussian(g, encoding, min_deg, max_deg, &mut x[row * width..(row + 1) * width]);
+        encoding.encode(&gauss, &mut x[r * n_samples * width..(r + 1) * n_samples * width]);
+    }
+}
+
+/// How [`cast_and_encode`] encodes a ray's Gaussians: the point encoding, its degrees, and the
+/// precision of the products the features feed.
+#[derive(Clone, Copy)]
+struct GaussianEncoding {
+    encoding: PointEncoding,
+    precision: Precision,
+    degrees: (u32, u32),
+}
+
+impl GaussianEncoding {
+    /// Encodes `gauss` into `x`, one row each, through [`wide`]'s 512-bit vectors where the CPU
+    /// has them.
+    fn encode(self, gauss: &[Gaussian], x: &mut [f32]) {
+        wide(
+            #[inline(always)]
+            || self.encode_rows(gauss, x),
+        );
+    }
+
+    #[inline(always)]
+    fn encode_rows(self, gauss: &[Gaussian], x: &mut [f32]) {
+        let (min_deg, max_deg) = self.degrees;
+        let width = x.len() / gauss.len().max(1);
+        for (g, row) in gauss.iter().zip(x.chunks_exact_mut(width.max(1))) {
+            match (self.encoding, self.precision) {
+                (PointEncoding::Integrated, Precision::Bf16) => {
+                    mip::integrated_pos_enc_for_bf16(g, min_deg, max_deg, row)
+                }
+                (PointEncoding::Mean, Precision::Bf16) => {
+                    let g0 = Gaussian { mean: g.mean, cov_diag: Vec3::ZERO };
+                    mip::integrated_pos_enc_for_bf16(&g0, min_deg, max_deg, row);
+                }
+                _ => encode_gaussian(g, self.encoding, min_deg, max_deg, row),
+            }
         }
     }
 }

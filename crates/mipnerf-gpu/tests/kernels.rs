@@ -4,6 +4,7 @@
 #![allow(clippy::unwrap_used, missing_docs)]
 
 use glam::Vec3;
+use mipnerf_core::bf16::Precision;
 use mipnerf_core::compare::{Outputs, Tolerance, assert_none, check_kernel, check_kernel_conditioned, mismatches};
 use mipnerf_core::contract::UNBOUNDED_FAR;
 use mipnerf_core::data::demo;
@@ -77,7 +78,15 @@ fn cast_ipe_matches_cpu_reference() {
             &format!("cast_ipe {shape:?} unbounded {unbounded} on {}", ctx.adapter().name),
             |(rays, t): &(&[Ray], &[f32])| {
                 let mut x = vec![0.0; rays.len() * n * ipe_len(degrees.0, degrees.1)];
-                stages::cast_and_encode(rays, t, (n, unbounded), shape, PointEncoding::Integrated, degrees, &mut x);
+                stages::cast_and_encode(
+                    rays,
+                    t,
+                    (n, unbounded),
+                    shape,
+                    (PointEncoding::Integrated, Precision::F32),
+                    degrees,
+                    &mut x,
+                );
                 vec![("features", x)]
             },
             |(rays, t)| {

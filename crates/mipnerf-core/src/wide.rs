@@ -1,0 +1,63 @@
+//! Loops compiled for the CPU's widest vectors, chosen when they run.
+//!
+//! The workspace is built for the baseline x86-64 (SSE2), so a plain loop runs 4 `f32` lanes
+//! wide, or 2 `f64`. [`wide`] runs a loop compiled for AVX-512F (16 and 8 lanes) where the CPU
+//! has it. The floating-point results are the same bits either way: Rust neither fuses a
+//! multiply with an add nor reorders a sum unless asked (`mul_add`), so a wider build performs
+//! the same operations on more values at once.
+
+// Calling a function compiled for features the baseline lacks is `unsafe`: the one call here is
+// behind the check that the CPU has them.
+#![allow(unsafe_code)]
+
+/// Calls `f` compiled for AVX-512F and FMA where the CPU has both, else as built.
+///
+/// `f` should be a closure around a loop whose callees are inlined (`#[inline(always)]`): code
+/// behind a call that is not inlined runs as built.
+#[inline(always)]
+pub fn wide<R>(f: impl FnOnce() -> R) -> R {
+    #[cfg(target_arch = "x86_64")]
+    if has_avx512() {
+        // SAFETY: the CPU has AVX-512F and FMA (checked above).
+        return unsafe { avx512(f) };
+    }
+    f()
+}
+
+/// Whether [`wide`] runs 512-bit vectors on this CPU.
+#[must_use]
+pub fn has_avx512() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("fma")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,fma")]
+unsafe fn avx512<R>(f: impl FnOnce() -> R) -> R {
+    f()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_loop_gives_the_same_bits_wide_and_as_built() {
+        let x: Vec<f32> = (0..1000).map(|i| (i as f32 * 0.37).sin() * 1e3).collect();
+        let run = |x: &[f32]| -> (Vec<f32>, f32) {
+            let y: Vec<f32> = x.iter().map(|&v| (v * 1.7 + 0.3).max(0.0) / (1.0 + v * v)).collect();
+            let sum = y.iter().fold(0.0f32, |s, &v| s + v * v);
+            (y, sum)
+        };
+        let (y0, s0) = run(&x);
+        let (y1, s1) = wide(|| run(&x));
+        assert!(y0.iter().zip(&y1).all(|(a, b)| a.to_bits() == b.to_bits()));
+        assert_eq!(s0.to_bits(), s1.to_bits());
+    }
+}
