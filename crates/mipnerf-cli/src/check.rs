@@ -6,22 +6,14 @@ use std::sync::Arc;
 
 use anyhow::{Context, Result};
 use clap::ValueEnum;
+use mipnerf_core::Ray;
 use mipnerf_core::backend::{Backend as _, CpuBackend, TrainState};
-use mipnerf_core::bf16::Precision;
-use mipnerf_core::compare::{KernelCheck, Tolerance, check_kernel};
+use mipnerf_core::compare::KernelCheck;
 use mipnerf_core::data::demo;
-use mipnerf_core::model::{Mode, Model, ModelConfig, PointEncoding, Preset};
-use mipnerf_core::sampling::Spacing;
+use mipnerf_core::model::{Model, Preset};
 use mipnerf_core::train::OptimConfig;
-use mipnerf_core::{Ray, RayShape, stages};
 use mipnerf_gpu::{GpuBackend, GpuContext};
 
-/// IPE features: GPU vs CPU, absolute (features are bounded by 1; lavapipe measures < 5e-6).
-const TOL_IPE_ABS: f32 = 1e-4;
-/// Loss of one model step: GPU vs CPU, relative (the kernels' tests measure about 1e-5).
-const TOL_STEP_LOSS_REL: f32 = 2e-3;
-/// Gradients of one model step: GPU vs CPU, relative to the largest gradient.
-const TOL_STEP_GRAD_REL: f32 = 2e-3;
 /// Losses of the training steps: GPU vs CPU, relative (the test suite measures 4e-6 on lavapipe).
 const TOL_TRAIN_LOSS_REL: f32 = 1e-3;
 
@@ -59,35 +51,7 @@ pub fn check(backend: CheckBackend, device: &mipnerf_gpu::DeviceOptions) -> Resu
     };
     println!("checking on {} ({}, {})", ctx.adapter().name, ctx.adapter().backend, ctx.adapter().device_type);
     let rays = demo::oblique_camera(32).generate_rays(mipnerf_core::PixelCenters::Centered, 2.0, 6.0, 1.0);
-    let n = 32usize;
-    let ids: Vec<u32> = (0..rays.len() as u32).collect();
-    let mut t = vec![0.0; rays.len() * (n + 1)];
-    stages::sample_intervals(&rays, n, Spacing::Depth, Mode::Eval, &ids, &mut t);
-    let kernel = mipnerf_gpu::kernels::cast_ipe::CastIpeKernel::new(&ctx)?;
-    let degrees = (0, 16);
-    let ipe = check_kernel(
-        "cast_ipe",
-        |(rays, t): &(&[Ray], &[f32])| {
-            let mut x = vec![0.0; rays.len() * n * mipnerf_core::mip::ipe_len(degrees.0, degrees.1)];
-            stages::cast_and_encode(
-                rays,
-                t,
-                (n, false),
-                RayShape::Cone,
-                (PointEncoding::Integrated, Precision::F32),
-                degrees,
-                &mut x,
-            );
-            vec![("features", x)]
-        },
-        |(rays, t)| {
-            kernel
-                .run(&ctx, rays, t, n as u32, (RayShape::Cone, false), degrees.0, degrees.1)
-                .map(|x| vec![("features", x)])
-        },
-        &(&rays[..], &t[..]),
-        |_| Tolerance::abs(TOL_IPE_ABS),
-    );
+    let ipe = mipnerf_gpu::check::cast_ipe(&ctx, &rays)?;
     report(&ipe)?;
     model_step(&ctx, &rays)?;
     training(ctx)?;
@@ -109,33 +73,14 @@ fn report(check: &KernelCheck) -> Result<()> {
 }
 
 fn model_step(ctx: &GpuContext, rays: &[Ray]) -> Result<()> {
-    let model = Model::new(ModelConfig { num_samples: 16, ..Preset::Tiny.config() })?;
-    let params = model.init_params(1);
-    let targets: Vec<[f32; 3]> = (0..rays.len()).map(|i| [(i % 5) as f32 / 5.0, 0.5, (i % 3) as f32 / 3.0]).collect();
-    let mode = Mode::Train { seed: 1, step: 0 };
-    let mut grads = vec![0.0; model.num_params()];
-    let cpu = model.loss_and_grad(&params, rays, &targets, mode, &mut grads);
-    let scale = grads.iter().fold(0.0f32, |m, x| m.max(x.abs())).max(1e-20);
-    let gpu = mipnerf_gpu::model::GpuModel::new(ctx)?;
+    let step = mipnerf_gpu::check::model_step(ctx, rays)?;
     println!(
         "model step: {} rays, tiny preset, {} parameters, cpu loss {:.6}",
         rays.len(),
-        model.num_params(),
-        cpu.loss
+        step.num_params,
+        step.cpu_loss
     );
-    let step = check_kernel(
-        "model step (loss; gradients, absolute, against the largest)",
-        |_: &()| vec![("loss", vec![cpu.loss]), ("gradients", grads.clone())],
-        |_| {
-            let (stats, g) = gpu.loss_and_grad(ctx, &model, &params, rays, &targets, mode)?;
-            Ok::<_, mipnerf_gpu::GpuError>(vec![("loss", vec![stats.loss]), ("gradients", g)])
-        },
-        &(),
-        |name| {
-            if name == "loss" { Tolerance::rel(TOL_STEP_LOSS_REL) } else { Tolerance::abs(TOL_STEP_GRAD_REL * scale) }
-        },
-    );
-    report(&step)
+    report(&step.check)
 }
 
 fn training(ctx: GpuContext) -> Result<()> {

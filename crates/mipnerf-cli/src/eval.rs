@@ -7,126 +7,17 @@ use std::path::Path;
 use anyhow::{Context, Result};
 use mipnerf_core::backend::ImageSpec;
 use mipnerf_core::data::Split;
-use mipnerf_core::metrics::{SsimConfig, average_error, mse_to_psnr, ssim};
+use mipnerf_core::metrics::average_error;
 use serde::Serialize;
-
-use mipnerf_core::bf16::Precision;
 
 use crate::config::{Backend, PrecisionArg};
 use crate::images::{rgb_to_png, write_png};
 use crate::lpips::LpipsWeights;
+use crate::outputs::save_keeping_the_old;
 use crate::run::{load_split, open_trained, read_config};
-
-/// One image's scores.
-#[derive(Serialize, Debug, Clone)]
-pub struct ImageScore {
-    /// The image file.
-    pub file: String,
-    /// Its scale (downsampled by `2^scale`).
-    pub scale: u32,
-    /// PSNR in dB.
-    pub psnr: f64,
-    /// SSIM (official settings).
-    pub ssim: f64,
-    /// LPIPS (`lpips_net`), or `null` without the weights.
-    pub lpips: Option<f64>,
-    /// Mean squared error.
-    pub mse: f64,
-}
-
-/// Mean scores of one scale.
-#[derive(Serialize, Debug, Clone)]
-pub struct ScaleScore {
-    /// The scale.
-    pub scale: u32,
-    /// Mean PSNR.
-    pub psnr: f64,
-    /// Mean SSIM.
-    pub ssim: f64,
-    /// Mean LPIPS, or `null` without the weights.
-    pub lpips: Option<f64>,
-    /// The average error of this scale's means ([`mipnerf_core::metrics::average_error`]; its
-    /// terms are `avg_error_terms`).
-    pub avg_error: f64,
-    /// Images averaged.
-    pub images: usize,
-}
-
-/// The contents of `metrics.json`.
-#[derive(Serialize, Debug)]
-pub struct Metrics {
-    /// Per scale means.
-    pub per_scale: Vec<ScaleScore>,
-    /// Per image scores.
-    pub per_image: Vec<ImageScore>,
-    /// The paper's single "average error" of the run: the geometric mean of MSE (from the PSNR
-    /// averaged over scales), sqrt(1 - SSIM) and LPIPS, each averaged over the scales.
-    pub avg_error: f64,
-    /// Which terms the average error's geometric mean has: the paper's three, or the two-term
-    /// variant without LPIPS.
-    pub avg_error_terms: Vec<&'static str>,
-    /// The LPIPS backbone (`vgg16` or `alexnet`), or `null` when LPIPS was not computed.
-    pub lpips_net: Option<String>,
-    /// Why LPIPS is absent, when it is.
-    pub lpips_absent: Option<String>,
-    /// How SSIM was computed.
-    pub ssim_settings: &'static str,
-    /// The split evaluated.
-    pub split: Split,
-    /// The training step of the checkpoint.
-    pub step: u64,
-    /// The precision of the MLP's products in this evaluation.
-    pub precision: Precision,
-}
-
-impl Metrics {
-    /// Per-scale values of one metric, full resolution first.
-    #[must_use]
-    pub fn column(&self, f: impl Fn(&ScaleScore) -> f64) -> Vec<f64> {
-        self.per_scale.iter().map(f).collect()
-    }
-
-    /// Per-scale LPIPS, or `None` when it was not computed.
-    #[must_use]
-    pub fn lpips_column(&self) -> Option<Vec<f64>> {
-        self.per_scale.iter().map(|s| s.lpips).collect()
-    }
-}
-
-/// The official SSIM settings, or for an image smaller than the 11-tap filter (the 1/8 scale of a
-/// small scene) the largest odd filter that fits, with sigma scaled alike: the official code would
-/// return NaN there.
-fn ssim_config(w: usize, h: usize) -> SsimConfig {
-    let d = SsimConfig::default();
-    let side = w.min(h);
-    if side >= d.filter_size {
-        return d;
-    }
-    let fs = if side % 2 == 1 { side } else { side.saturating_sub(1) }.max(1);
-    SsimConfig { filter_size: fs, filter_sigma: d.filter_sigma * fs as f64 / d.filter_size as f64, ..d }
-}
-
-/// MSE, PSNR (dB) and SSIM (official settings) of two `w x h` RGB images in `[0, 1]`: the scores
-/// `eval` and `compare` share.
-fn pixel_scores(a: &[f32], b: &[f32], w: usize, h: usize) -> (f64, f64, f64) {
-    let mse = mse(a, b);
-    (mse, f64::from(mse_to_psnr(mse as f32)), ssim(a, b, h, w, 3, &ssim_config(w, h)))
-}
-
-fn mse(a: &[f32], b: &[f32]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| f64::from(x - y).powi(2)).sum::<f64>() / a.len() as f64
-}
-
-/// A rendered image's colours clamped to `[0, 1]` and flattened, as `eval` scores them.
-fn flat_clamped(img: &[[f32; 3]]) -> Vec<f32> {
-    img.iter().flat_map(|p| p.map(|c| c.clamp(0.0, 1.0))).collect()
-}
-
-/// The PSNR (dB) of a rendered image against its target, exactly as `eval` scores it (training's
-/// validation uses it, so its curve ends where `eval` starts).
-pub(crate) fn render_psnr(rendered: &[[f32; 3]], target: &[[f32; 3]]) -> f64 {
-    f64::from(mse_to_psnr(mse(&flat_clamped(rendered), &flat_clamped(target)) as f32))
-}
+use crate::run_dir::RunDir;
+use crate::scores::{ImageScore, Metrics, ScaleScore};
+use crate::scores::{flat_clamped, pixel_scores};
 
 /// Renders and scores every image of `split`; writes `RUN/eval/`.
 ///
@@ -158,7 +49,7 @@ pub fn eval(
     let (mut be, step, precision) = open_trained(run, &s, backend, precision, device, session)?;
     // Everything goes to eval.partial/, renamed to eval/ once whole: an interrupted or failed
     // eval leaves the previous results as they were and nothing that looks complete.
-    let out = run.join(EVAL_PARTIAL);
+    let out = RunDir::new(run).eval_partial();
     if out.is_dir() {
         std::fs::remove_dir_all(&out).with_context(|| format!("removing the unfinished {}", out.display()))?;
     }
@@ -262,15 +153,9 @@ pub fn eval(
         crate::images::turbo,
     )?;
     crate::html::write_index(&out, run, &metrics, &entries)?;
-    swap_in(&out, &run.join(EVAL))?;
+    swap_in(&out, &RunDir::new(run).eval())?;
     Ok(metrics)
 }
-
-/// The folder `eval` writes.
-pub const EVAL: &str = "eval";
-
-/// Where `eval` writes until it has finished.
-const EVAL_PARTIAL: &str = "eval.partial";
 
 /// Puts the finished `partial` folder in place of `dest`: `dest` is renamed aside (`.old`),
 /// `partial` renamed to `dest`, and the old one removed. A failure before the second rename
@@ -362,18 +247,6 @@ pub struct Comparison {
     pub lpips: Option<f64>,
     /// The LPIPS backbone (`vgg16` or `alexnet`).
     pub lpips_net: &'static str,
-}
-
-/// Writes a result file atomically (a temporary file renamed over it): on a full disk or any
-/// other failure the previous file stays whole, and the error says so.
-///
-/// # Errors
-/// The failure, naming the file.
-pub fn save_keeping_the_old(path: &Path, bytes: &[u8]) -> Result<()> {
-    mipnerf_core::checkpoint::write_atomic(path, bytes, &mut mipnerf_core::checkpoint::RealFs).map_err(|e| {
-        let kept = if path.exists() { "the previous one is unchanged" } else { "nothing was written" };
-        anyhow::anyhow!("{e} ({kept})")
-    })
 }
 
 /// `mipnerf compare A B`: PSNR, SSIM and LPIPS of two images of one size.

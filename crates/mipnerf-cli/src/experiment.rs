@@ -21,6 +21,7 @@ use serde::{Deserialize, Serialize};
 use crate::config::TrainSettings;
 use crate::lpips::LpipsWeights;
 use crate::run;
+use crate::run_dir::RunDir;
 
 /// The file describing an experiment.
 pub const EXPERIMENT_TOML: &str = "experiment.toml";
@@ -315,7 +316,7 @@ fn run_row(
         .is_some_and(mipnerf_core::data::Format::is_photos);
     let steps = settings.resolved(llff).steps.unwrap_or(2000);
     let budget = settings.time_budget_seconds()?;
-    let ckpt = run_dir.join(run::CHECKPOINT);
+    let ckpt = RunDir::new(run_dir).checkpoint();
     let mut done_steps = 0;
     if ckpt.is_file() {
         let saved = run::read_config(run_dir)?;
@@ -356,7 +357,7 @@ fn run_row(
             ),
             None => println!("== row {id} ({}): training, {} of {steps} steps done", row.label, done_steps),
         }
-        let outcome = run::train(
+        let outcome = crate::training::train(
             run_dir,
             Some(settings.clone()),
             TrainSettings::default(),
@@ -416,7 +417,7 @@ fn run_row(
         checkpoint_sha256: Some(sha),
         marks,
     };
-    crate::eval::save_keeping_the_old(&json_path, (serde_json::to_string_pretty(&r)? + "\n").as_bytes())?;
+    crate::outputs::save_keeping_the_old(&json_path, (serde_json::to_string_pretty(&r)? + "\n").as_bytes())?;
     println!(
         "== row {id}: PSNR {} | avg error {:.4} -> {}",
         r.psnr.iter().map(|p| format!("{p:.2}")).collect::<Vec<_>>().join(" / "),
@@ -435,7 +436,7 @@ fn evaluate_marks(
     (lpips, eval_backend): (&LpipsWeights, Option<crate::config::Backend>),
     session: &Session,
 ) -> Result<Vec<MarkResult>> {
-    let dir = run_dir.join("snapshots");
+    let dir = RunDir::new(run_dir).snapshots();
     let mut snaps: Vec<PathBuf> = match std::fs::read_dir(&dir) {
         Ok(entries) => entries.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.is_dir()).collect(),
         Err(_) => return Ok(Vec::new()),
@@ -452,7 +453,7 @@ fn evaluate_marks(
             .and_then(|n| n.strip_suffix('s'))
             .and_then(|n| n.parse().ok())
             .with_context(|| format!("{}: not a snapshot folder (NNNNNs)", snap.display()))?;
-        let sha = mipnerf_core::checkpoint::file_sha256(&snap.join(run::CHECKPOINT))?;
+        let sha = mipnerf_core::checkpoint::file_sha256(&RunDir::new(&snap).checkpoint())?;
         if let Some(k) = known.iter().find(|k| k.checkpoint_sha256 == sha && (k.lpips.is_some() || !have_lpips)) {
             out.push(k.clone());
             continue;
@@ -672,7 +673,7 @@ fn evaluate(
     saved: &TrainSettings,
     (lpips, eval_backend): (&LpipsWeights, Option<crate::config::Backend>),
     session: &Session,
-) -> Result<crate::eval::Metrics> {
+) -> Result<crate::scores::Metrics> {
     let backend = eval_backend.or(saved.backend).unwrap_or(crate::config::Backend::Cpu);
     crate::eval::eval(run_dir, Split::Test, backend, &mipnerf_gpu::DeviceOptions::default(), None, lpips, session)
 }

@@ -7,6 +7,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use plotters::prelude::*;
 
+use crate::run_dir::RunDir;
+
 /// What the figure shows.
 pub struct FigureArgs {
     /// Evaluated run directories (`mipnerf eval` done), one column each.
@@ -59,7 +61,7 @@ pub struct FigureSummary {
 }
 
 fn read_metrics(run: &Path) -> Result<serde_json::Value> {
-    let path = run.join("eval/metrics.json");
+    let path = RunDir::new(run).eval_metrics();
     let text = std::fs::read_to_string(&path)
         .with_context(|| format!("{}: run `mipnerf eval` on it first", path.display()))?;
     serde_json::from_str(&text).with_context(|| format!("{}: malformed JSON", path.display()))
@@ -132,7 +134,7 @@ pub fn figure(args: &FigureArgs) -> Result<FigureSummary> {
     let mut scales = Vec::new();
     for (k, run) in args.runs.iter().enumerate() {
         let m = read_metrics(run)?;
-        let entries = view_entries(&m, args.view, &run.join("eval/metrics.json"))?;
+        let entries = view_entries(&m, args.view, &RunDir::new(run).eval_metrics())?;
         let files: Vec<String> = entries.iter().map(|e| e.0.clone()).collect();
         scales = entries.iter().map(|e| e.1).collect();
         match &gt_files {
@@ -149,7 +151,7 @@ pub fn figure(args: &FigureArgs) -> Result<FigureSummary> {
             .iter()
             .map(|f| {
                 let stem = Path::new(f).file_stem().map_or_else(String::new, |s| s.to_string_lossy().to_string());
-                Img::read(&run.join("eval").join(format!("{stem}.png")))
+                Img::read(&RunDir::new(run).eval().join(format!("{stem}.png")))
             })
             .collect::<Result<Vec<_>>>()?;
         let per_scale =

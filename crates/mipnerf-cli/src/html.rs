@@ -8,7 +8,7 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 
-use crate::eval::Metrics;
+use crate::scores::Metrics;
 
 /// One test image on the page: the files beside `index.html` and its scores.
 pub struct Entry {
@@ -124,5 +124,5 @@ pub fn write_index(out: &Path, run: &Path, metrics: &Metrics, entries: &[Entry])
           bad.forEach(i => console.error('image failed to load: ' + i.getAttribute('src')));\n  \
           document.body.dataset.imagesOk = String(imgs.length - bad.length);\n  \
           document.body.dataset.imagesTotal = String(imgs.length);\n});\n</script>\n</body></html>\n";
-    crate::eval::save_keeping_the_old(&out.join("index.html"), h.as_bytes())
+    crate::outputs::save_keeping_the_old(&out.join("index.html"), h.as_bytes())
 }

@@ -108,6 +108,18 @@ pub fn record(dir: &Path, names: impl IntoIterator<Item = String>) -> Result<()>
     Ok(mipnerf_core::io::record(dir, names)?)
 }
 
+/// Writes a result file atomically (a temporary file renamed over it): on a full disk or any
+/// other failure the previous file stays whole, and the error says so.
+///
+/// # Errors
+/// The failure, naming the file.
+pub fn save_keeping_the_old(path: &Path, bytes: &[u8]) -> Result<()> {
+    mipnerf_core::checkpoint::write_atomic(path, bytes, &mut mipnerf_core::checkpoint::RealFs).map_err(|e| {
+        let kept = if path.exists() { "the previous one is unchanged" } else { "nothing was written" };
+        anyhow::anyhow!("{e} ({kept})")
+    })
+}
+
 #[cfg(test)]
 mod tests {
     #![allow(clippy::unwrap_used)]

@@ -24,7 +24,9 @@ use mipnerf_core::camera::Camera;
 use mipnerf_core::data::Split;
 
 use crate::config::{Backend, TrainSettings};
-use crate::run::{CHECKPOINT, METRICS_CSV, MetricsRows, load_split, open_trained, read_config};
+use crate::metrics_csv::MetricsRows;
+use crate::run::{load_split, open_trained, read_config};
+use crate::run_dir::RunDir;
 
 /// The page.
 const PAGE: &str = include_str!("../assets/view.html");
@@ -211,7 +213,7 @@ pub fn beside_training(run_dir: &Path, port: u16, session: &Session) -> Result<(
     std::thread::Builder::new()
         .name("view server".into())
         .spawn(move || {
-            while !args.run.join(crate::run::CONFIG).is_file() {
+            while !RunDir::new(&args.run).config().is_file() {
                 std::thread::sleep(std::time::Duration::from_millis(200));
             }
             if let Err(e) = run_server(server, &args) {
@@ -282,7 +284,7 @@ pub fn run_server(server: std::net::TcpListener, a: &ViewArgs) -> Result<()> {
 fn renderer(a: &ViewArgs, s: &TrainSettings, template: &ImageSpec, jobs: &mpsc::Receiver<Job>) {
     let run = a.run.as_path();
     let mut loaded: Option<(Box<dyn mipnerf_core::backend::Backend>, u64, Option<SystemTime>)> = None;
-    let ckpt = run.join(CHECKPOINT);
+    let ckpt = RunDir::new(run).checkpoint();
     let mut waiting = std::collections::VecDeque::new();
     let share = a.share.filter(|s| *s > 0.0 && *s < 1.0);
     // The rest owed, as of `paid_at`: any time not spent rendering pays it, idle time included.
@@ -434,8 +436,8 @@ fn info_json(run: &Path, s: &TrainSettings, train: &mipnerf_core::data::Dataset)
 /// `metrics.csv` as columns (step, loss, psnr, lr), the validation rows, and when the
 /// checkpoint last changed.
 fn metrics_json(run: &Path) -> String {
-    let m = MetricsRows::parse(&std::fs::read_to_string(run.join(METRICS_CSV)).unwrap_or_default());
-    let column = |f: fn(&crate::run::TrainRow) -> f64| m.train.iter().map(f).collect::<Vec<f64>>();
+    let m = MetricsRows::parse(&std::fs::read_to_string(RunDir::new(run).metrics_csv()).unwrap_or_default());
+    let column = |f: fn(&crate::metrics_csv::TrainRow) -> f64| m.train.iter().map(f).collect::<Vec<f64>>();
     let (step, loss, psnr, lr) = (
         m.train.iter().map(|r| r.step).collect::<Vec<u64>>(),
         column(|r| r.loss),
@@ -446,7 +448,7 @@ fn metrics_json(run: &Path) -> String {
     let scales = m.scales();
     // When the checkpoint last changed (ms since the epoch): the page re-renders a resting view
     // when it does.
-    let checkpoint = std::fs::metadata(run.join(CHECKPOINT))
+    let checkpoint = std::fs::metadata(RunDir::new(run).checkpoint())
         .and_then(|m| m.modified())
         .ok()
         .and_then(|t| t.duration_since(SystemTime::UNIX_EPOCH).ok())
@@ -558,7 +560,7 @@ fn handle(request: crate::http::Request, tx: &mpsc::Sender<Job>, shared: &Shared
             // The latest validation render of one scale (`train --val-every`).
             match p["/api/val/".len()..].parse::<u32>().ok().filter(|j| *j < 16) {
                 None => request.respond(404, "text/plain", format!("no such page: {path}").as_bytes()),
-                Some(j) => match std::fs::read(run.join(crate::run::VAL_DIR).join(format!("scale{j}.png"))) {
+                Some(j) => match std::fs::read(RunDir::new(run).val().join(format!("scale{j}.png"))) {
                     Ok(png) => request.respond(200, "image/png", &png),
                     Err(_) => request.respond(404, "text/plain", b"no validation render yet (train --val-every)"),
                 },

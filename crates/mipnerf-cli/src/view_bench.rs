@@ -61,7 +61,7 @@ pub fn bench(a: &ViewerBenchArgs, session: &Session) -> Result<()> {
     anyhow::ensure!(a.frames > 0, "--viewer-frames must be positive");
     let settings = crate::run::read_config(&a.run)?;
     anyhow::ensure!(
-        a.run.join(crate::run::CHECKPOINT).is_file(),
+        crate::run_dir::RunDir::new(&a.run).checkpoint().is_file(),
         "{}: no checkpoint; train the run first",
         a.run.display()
     );
@@ -236,7 +236,7 @@ fn stream(addr: &str, query: &str, levels: usize) -> Result<Timed> {
 /// The run's settings for `steps` steps, without a time budget or validation, a checkpoint
 /// every 50 steps (what the viewer reloads), as a config file in `dir`.
 fn stall_config(run: &Path, dir: &Path, steps: u64) -> Result<PathBuf> {
-    let path = run.join(crate::run::CONFIG);
+    let path = crate::run_dir::RunDir::new(run).config();
     let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
     let mut t: toml::Table = toml::from_str(&text).with_context(|| format!("{}: not TOML", path.display()))?;
     t.remove("time_budget");

@@ -107,20 +107,6 @@ mod tests {
             let text = message.downcast_ref::<String>().cloned().unwrap_or_default();
             assert!(text.contains("matrix") || text.contains("matmul"), "{m}x{k}x{n}: {text}");
         }
-        let caught = std::panic::catch_unwind(|| {
-            crate::bf16::matmul_bf16_emulated(
-                &mut [],
-                &[],
-                Layout::Normal,
-                &[],
-                Layout::Normal,
-                1 << 60,
-                1 << 4,
-                16,
-                false,
-            )
-        });
-        assert!(caught.is_err(), "the bf16 emulation checks its sizes too");
     }
 
     fn naive(a: &[f32], la: Layout, b: &[f32], lb: Layout, m: usize, k: usize, n: usize) -> Vec<f32> {

@@ -14,308 +14,13 @@ use rayon::prelude::*;
 
 use crate::bf16::{Bf16Support, Precision};
 use crate::cone::{Ray, RayShape};
-use crate::mip::{self, Gaussian};
-use crate::mlp::{MlpCache, MlpConfig, MlpConfigError, MlpShape};
-use crate::occupancy::OccupancyGrid;
-use crate::render::{self, DensityActivation};
-use crate::sampling::{self, Spacing};
+use crate::mip::Gaussian;
+use crate::mlp::{MlpCache, MlpConfigError, MlpShape};
+use crate::occupancy::{DensityField, OccupancyGrid};
+use crate::render;
 use crate::stages;
 
-/// How a sample's Gaussian is encoded for the MLP.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-#[repr(u32)]
-pub enum PointEncoding {
-    /// Integrated positional encoding of the Gaussian (Mip-NeRF).
-    #[default]
-    Integrated = 0,
-    /// The same features with the covariance set to zero: plain PE of the frustum's mean, no
-    /// identity (the paper's "w/o IPE" ablation; same width as IPE).
-    Mean = 1,
-    /// NeRF's encoding: the mean itself followed by its PE (`3 + 6 (max_deg - min_deg)` features).
-    Nerf = 2,
-}
-
-impl PointEncoding {
-    /// Features per point for degrees `min_deg..max_deg`: `6 (max - min)` for IPE and its
-    /// zero-covariance ablation, `3 + 6 (max - min)` for NeRF's encoding (with the identity).
-    #[must_use]
-    pub fn width(self, min_deg: u32, max_deg: u32) -> usize {
-        match self {
-            Self::Integrated | Self::Mean => mip::ipe_len(min_deg, max_deg),
-            Self::Nerf => mip::pos_enc_len(min_deg, max_deg, true),
-        }
-    }
-}
-
-/// Everything that defines the model. Defaults are the official Mip-NeRF (Blender) settings.
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct ModelConfig {
-    /// Trunk depth.
-    pub net_depth: usize,
-    /// Trunk width.
-    pub net_width: usize,
-    /// Concatenate the encoded input after every trunk layer `i > 0` with `i % skip_layer == 0`.
-    pub skip_layer: usize,
-    /// Depth of the view-conditioned colour branch.
-    pub net_depth_condition: usize,
-    /// Width of the colour branch.
-    pub net_width_condition: usize,
-    /// Samples (intervals) per ray and level.
-    pub num_samples: usize,
-    /// Levels: 1 (coarse only) or more (coarse then fine, ...).
-    pub num_levels: usize,
-    /// One MLP for all levels (Mip-NeRF) or one per level (NeRF).
-    pub separate_mlps: bool,
-    /// First positional-encoding degree of sample positions.
-    pub min_deg_point: u32,
-    /// One past the last degree.
-    pub max_deg_point: u32,
-    /// View directions are encoded with degrees `0..deg_view` plus the identity.
-    pub deg_view: u32,
-    /// How samples are encoded.
-    pub point_encoding: PointEncoding,
-    /// Cone (Mip-NeRF) or cylinder (NDC scenes).
-    pub ray_shape: RayShape,
-    /// Sample linearly in disparity instead of depth.
-    pub lindisp: bool,
-    /// An unbounded scene (mip-NeRF 360): every Gaussian is carried through the scene
-    /// contraction, and edges are spaced linearly near and in disparity far, out to infinity
-    /// ([`crate::contract`]). The rays' far bound is then
-    /// [`UNBOUNDED_FAR`](crate::contract::UNBOUNDED_FAR) and the cameras lie in the unit ball.
-    pub unbounded: bool,
-    /// Constant added to the blurred weights before resampling.
-    pub resample_padding: f32,
-    /// Density activation.
-    pub density_activation: DensityActivation,
-    /// Added to the raw density before the activation.
-    pub density_bias: f32,
-    /// Colour padding: `rgb = sigmoid(raw) (1 + 2p) - p`.
-    pub rgb_padding: f32,
-    /// Standard deviation of Gaussian noise added to raw density in training.
-    pub density_noise: f32,
-    /// Composite on a white background (else black): in evaluation and rendering always, and in
-    /// training unless `random_bkgd`.
-    pub white_bkgd: bool,
-    /// Training only: composite each pixel on its own random colour
-    /// ([`rng::random_background`](crate::rng::random_background) of its place in the batch), on
-    /// which its target is composited too (`Dataset::sample_batch`), so that the model must learn
-    /// where the object is transparent instead of painting the backdrop's colour into the scene.
-    /// Needs images with alpha.
-    pub random_bkgd: bool,
-    /// Weight of every level but the last in the loss.
-    pub coarse_loss_mult: f32,
-    /// Weight each ray by its `lossmult` (its pixel's area; the paper's "area loss").
-    pub area_loss: bool,
-    /// Rays per pixel along each axis for supersampling (1 = one ray per pixel); the rendered
-    /// colours of a pixel's `k x k` rays are averaged.
-    pub supersample: usize,
-    /// Weight of mip-NeRF 360's distortion loss ([`stages::distortion_loss`]) on the last
-    /// level's weights, averaged over the batch's rays (0: off, Mip-NeRF; the successor's 0.01).
-    /// CPU backend.
-    pub distortion_loss_mult: f32,
-}
-
-impl Default for ModelConfig {
-    fn default() -> Self {
-        Self {
-            net_depth: 8,
-            net_width: 256,
-            skip_layer: 4,
-            net_depth_condition: 1,
-            net_width_condition: 128,
-            num_samples: 128,
-            num_levels: 2,
-            separate_mlps: false,
-            min_deg_point: 0,
-            max_deg_point: 16,
-            deg_view: 4,
-            point_encoding: PointEncoding::Integrated,
-            ray_shape: RayShape::Cone,
-            lindisp: false,
-            unbounded: false,
-            resample_padding: sampling::RESAMPLE_PADDING,
-            density_activation: DensityActivation::Softplus,
-            density_bias: -1.0,
-            rgb_padding: 0.001,
-            density_noise: 0.0,
-            white_bkgd: true,
-            random_bkgd: false,
-            coarse_loss_mult: 0.1,
-            area_loss: true,
-            supersample: 1,
-            distortion_loss_mult: 0.0,
-        }
-    }
-}
-
-/// Samples per level of [`Preset::Fast`]: 16 trained to a higher PSNR than 32 and 48 at a
-/// 2-minute budget (`experiments/fast-preset-sweep`): in occupied space, more steps beat more
-/// samples per ray.
-pub const FAST_SAMPLES: usize = 16;
-
-/// How the fast preset trains, beside its model ([`Preset::Fast`]): the one recipe the CLI's
-/// `--preset fast` and the library's `Options::preset(Preset::Fast)` both take, chosen by
-/// measurement (`experiments/fast-preset-sweep`, `docs/RESULTS.md`, "Time to quality").
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct FastRecipe {
-    /// Rays per batch (drawn pixels; those an occupancy grid finds empty cost no MLP work). 512
-    /// scored 0.08 dB more at a 2-minute budget, within one seed's noise; 1024 is kept for the
-    /// longer budgets.
-    pub batch_rays: usize,
-    /// Initial and final learning rates: at a 2-minute budget 5e-3 beat 2e-3 and 1e-3, and a
-    /// decay to a tenth beat the decay to a hundredth.
-    pub lr: (f32, f32),
-    /// Learning-rate warm-up steps (with the official warm-up multiplier, 0.01).
-    pub lr_delay_steps: u64,
-    /// The occupancy grid's cells a side (occupancy-guided sampling is on).
-    pub occupancy_resolution: usize,
-    /// The MLP's products in bf16 where the CPU has a kernel for them (AMX or AVX-512 BF16):
-    /// 2.3 times the training rate and +1.8 dB at 2 minutes on AMX.
-    pub bf16_where_available: bool,
-}
-
-impl FastRecipe {
-    /// The recipe.
-    pub const RECIPE: Self = Self {
-        batch_rays: 1024,
-        lr: (5e-3, 5e-4),
-        lr_delay_steps: 100,
-        occupancy_resolution: 64,
-        bf16_where_available: true,
-    };
-
-    /// Its learning-rate schedule over `max_steps`.
-    #[must_use]
-    pub fn schedule(&self, max_steps: u64) -> crate::schedule::LrSchedule {
-        crate::schedule::LrSchedule {
-            lr_init: self.lr.0,
-            lr_final: self.lr.1,
-            max_steps,
-            lr_delay_steps: self.lr_delay_steps,
-            lr_delay_mult: 0.01,
-        }
-    }
-}
-
-/// Named model sizes.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Preset {
-    /// The official shape: 8 x 256 trunk, 128 + 128 samples (612,740 parameters).
-    Paper,
-    /// 4 x 128 trunk, skip after layer 2, 64-wide colour branch, 64 + 64 samples (101,060
-    /// parameters).
-    Small,
-    /// 3 x 64 trunk, skip after layer 2, 32-wide colour branch, 32 + 32 samples, IPE degrees
-    /// 0..10 (23,392 parameters): trains in minutes on 2 cores.
-    Tiny,
-    /// The shape of the `fast` training preset (chosen by measurement on lego, see
-    /// `docs/RESULTS.md`, "Time to quality"): the small trunk with fewer samples per level, meant
-    /// to run with occupancy-guided sampling, which puts them where the scene is.
-    Fast,
-}
-
-impl Preset {
-    /// Whether training at this size flushes subnormal floats to zero on the CPU unless told
-    /// otherwise ([`crate::subnormals`]): tiny and fast, whose results are not committed bit for
-    /// bit and which train faster for it at the same PSNR (`docs/results/subnormals/`). The
-    /// paper and small presets keep IEEE arithmetic and reproduce their committed tables.
-    #[must_use]
-    pub fn flushes_subnormals(self) -> bool {
-        matches!(self, Self::Tiny | Self::Fast)
-    }
-
-    /// The Mip-NeRF configuration of this size.
-    #[must_use]
-    pub fn config(self) -> ModelConfig {
-        let base = ModelConfig::default();
-        match self {
-            Self::Paper => base,
-            Self::Small => ModelConfig {
-                net_depth: 4,
-                net_width: 128,
-                skip_layer: 2,
-                net_width_condition: 64,
-                num_samples: 64,
-                ..base
-            },
-            Self::Tiny => ModelConfig {
-                net_depth: 3,
-                net_width: 64,
-                skip_layer: 2,
-                net_width_condition: 32,
-                num_samples: 32,
-                max_deg_point: 10,
-                ..base
-            },
-            Self::Fast => ModelConfig { num_samples: FAST_SAMPLES, ..Self::Small.config() },
-        }
-    }
-}
-
-impl ModelConfig {
-    /// The NeRF baseline of the paper's table, at this configuration's size: NeRF's positional
-    /// encoding (degrees 0..10 with the identity), one MLP per level, coarse weight 1, no area
-    /// loss, rays through pixel corners (set on the dataset), ReLU density without bias, no colour
-    /// padding.
-    #[must_use]
-    pub fn nerf(mut self) -> Self {
-        self.point_encoding = PointEncoding::Nerf;
-        self.max_deg_point = self.max_deg_point.min(10);
-        self.separate_mlps = true;
-        self.coarse_loss_mult = 1.0;
-        self.area_loss = false;
-        self.without_misc()
-    }
-
-    /// The "w/o misc" ablation: ReLU density, density bias 0, colour padding 0.
-    #[must_use]
-    pub fn without_misc(mut self) -> Self {
-        self.density_activation = DensityActivation::Relu;
-        self.density_bias = 0.0;
-        self.rgb_padding = 0.0;
-        self
-    }
-
-    /// How the coarse level spaces its edges: unbounded scenes in the contraction's normalised
-    /// distance, else in disparity with `lindisp`, else in depth.
-    #[must_use]
-    pub fn spacing(&self) -> Spacing {
-        match (self.unbounded, self.lindisp) {
-            (true, _) => Spacing::Unbounded,
-            (false, true) => Spacing::Disparity,
-            (false, false) => Spacing::Depth,
-        }
-    }
-
-    /// Width of the sample encoding.
-    #[must_use]
-    pub fn x_dim(&self) -> usize {
-        self.point_encoding.width(self.min_deg_point, self.max_deg_point)
-    }
-
-    /// Width of the view-direction encoding.
-    #[must_use]
-    pub fn view_dim(&self) -> usize {
-        mip::pos_enc_len(0, self.deg_view, true)
-    }
-
-    /// The MLP's shape.
-    #[must_use]
-    pub fn mlp_config(&self) -> MlpConfig {
-        MlpConfig {
-            net_depth: self.net_depth,
-            net_width: self.net_width,
-            skip_layer: self.skip_layer,
-            net_depth_condition: self.net_depth_condition,
-            net_width_condition: self.net_width_condition,
-            x_dim: self.x_dim(),
-            view_dim: self.view_dim(),
-        }
-    }
-}
+pub use crate::config::{FAST_SAMPLES, FastRecipe, Mode, ModelConfig, PointEncoding, Preset};
 
 /// Errors in a model configuration.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -345,21 +50,6 @@ pub struct LevelOutput {
     pub distance: f32,
     /// Accumulated opacity.
     pub acc: f32,
-}
-
-/// Whether a pass is training (randomised, with the seed and step that pick its random numbers)
-/// or evaluation (deterministic).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Mode {
-    /// Stratified jitter, random inverse-CDF offsets, density noise.
-    Train {
-        /// Run seed.
-        seed: u32,
-        /// Step number.
-        step: u32,
-    },
-    /// Deterministic sampling.
-    Eval,
 }
 
 /// Losses of one batch.
@@ -904,6 +594,13 @@ impl Model {
         ws.pixel_rgb.resize(nr / self.rays_per_pixel(), [0.0; 3]);
     }
 
+    /// This model's density with `params`, as the occupancy grid probes it
+    /// ([`OccupancyGrid::update`]).
+    #[must_use]
+    pub fn density_field<'a>(&'a self, params: &'a [f32]) -> ModelDensity<'a> {
+        ModelDensity { model: self, params }
+    }
+
     /// One Gaussian (world space) encoded by the configured point encoding into `dst` (`x_dim`
     /// values): IPE, PE of the mean ("w/o IPE"), or NeRF's PE ([`stages::encode_gaussian`]); in an
     /// unbounded scene, after the scene contraction ([`crate::contract::contract_gaussian`]).
@@ -1027,4 +724,32 @@ pub fn pixel_loss_gradient(
 ) -> [f32; 3] {
     debug_assert!(norm > 0.0, "pixel_loss_gradient: norm {norm}");
     std::array::from_fn(|k| level_weight * 2.0 * lossmult * (rendered[k] - target[k]) / norm)
+}
+
+/// A model's density with its parameters, as the occupancy grid probes it ([`DensityField`]):
+/// the first MLP's density after its activation, the probes encoded as the model encodes a sample
+/// ([`Model::encode_point`]; in a contracted grid, as they are).
+#[derive(Clone, Copy)]
+pub struct ModelDensity<'a> {
+    model: &'a Model,
+    params: &'a [f32],
+}
+
+impl DensityField for ModelDensity<'_> {
+    fn densities(&self, probes: &[Gaussian], contracted: bool) -> Vec<f32> {
+        let c = self.model.config();
+        let (x_dim, n) = (c.x_dim(), probes.len());
+        let mut x = vec![0.0f32; n * x_dim];
+        for (g, dst) in probes.iter().zip(x.chunks_exact_mut(x_dim)) {
+            if contracted {
+                stages::encode_gaussian(g, c.point_encoding, c.min_deg_point, c.max_deg_point, dst);
+            } else {
+                self.model.encode_point(g, dst);
+            }
+        }
+        let view = vec![0.0f32; n * c.view_dim()];
+        let mut cache = MlpCache::default();
+        self.model.mlps()[0].forward(self.params, &x, &view, n, 1, &mut cache);
+        cache.raw_density.iter().map(|&raw| c.density_activation.forward(raw, c.density_bias)).collect()
+    }
 }

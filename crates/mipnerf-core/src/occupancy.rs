@@ -28,9 +28,16 @@ use rayon::prelude::*;
 use crate::cone::Ray;
 use crate::data::Dataset;
 use crate::mip::Gaussian;
-use crate::mlp::MlpCache;
-use crate::model::Model;
 use crate::rng::{RayRng, Stream};
+
+/// What a grid update probes: the density (after its activation) at each of a batch of
+/// Gaussians in the grid's space. The grid depends on the model only through this;
+/// [`crate::model::Model::density_field`] is a model's, with its parameters.
+pub trait DensityField: Sync {
+    /// The density at each of `probes`; `contracted`: they lie in an unbounded scene's
+    /// contracted space, to be encoded as they are.
+    fn densities(&self, probes: &[Gaussian], contracted: bool) -> Vec<f32>;
+}
 
 /// A cell's stored value meaning "outside the visual hull of the masks: never occupied".
 pub const CARVED: f32 = -1.0;
@@ -374,14 +381,15 @@ impl OccupancyGrid {
         step.is_multiple_of(self.config.update_every)
     }
 
-    /// Updates every candidate cell from the model's density at a random point of the cell (from
-    /// `(seed, step)`), at the cell's scale, and ends the warm-up once `step >= warmup_steps`.
+    /// Updates every candidate cell from the density `field` gives at a random point of the cell
+    /// (from `(seed, step)`), at the cell's scale, and ends the warm-up once
+    /// `step >= warmup_steps`. A model's field: [`crate::model::Model::density_field`].
     ///
     /// # Panics
-    /// If `params` does not fit `model`.
-    pub fn update(&mut self, model: &Model, params: &[f32], seed: u32, step: u64) {
+    /// If the field panics (a model's, when its parameters do not fit it).
+    pub fn update(&mut self, field: &impl DensityField, seed: u32, step: u64) {
         let cells: Vec<usize> = (0..self.opacity.len()).filter(|&i| self.opacity[i] != CARVED).collect();
-        let dens = self.densities(model, params, &cells, seed, step as u32);
+        let dens = self.densities(field, &cells, seed, step as u32);
         let h = self.cell_size();
         let decay = self.config.decay;
         for (&i, &sigma) in cells.iter().zip(&dens) {
@@ -408,39 +416,25 @@ impl OccupancyGrid {
         r * r
     }
 
-    /// The model's density (after its activation) at a random point of each of `cells`, with
-    /// the cell's variance (`h² / 12` per axis, a uniform cube's), through the first MLP; in a
-    /// contracted grid the probe is a Gaussian of the contracted space, encoded as it is.
-    fn densities(&self, model: &Model, params: &[f32], cells: &[usize], seed: u32, step: u32) -> Vec<f32> {
+    /// The field's density at a random point of each of `cells`, with the cell's variance
+    /// (`h² / 12` per axis, a uniform cube's); in a contracted grid the probe is a Gaussian of
+    /// the contracted space.
+    fn densities(&self, field: &impl DensityField, cells: &[usize], seed: u32, step: u32) -> Vec<f32> {
         const CHUNK: usize = 1024;
-        let c = model.config();
-        let mlp = &model.mlps()[0];
         let h = self.cell_size();
         let var = h * h / 12.0;
-        let x_dim = c.x_dim();
-        let view = vec![0.0f32; CHUNK * c.view_dim()];
         cells
             .par_chunks(CHUNK)
             .flat_map_iter(|chunk| {
-                let mut x = vec![0.0f32; chunk.len() * x_dim];
-                for (k, &i) in chunk.iter().enumerate() {
-                    let rng = RayRng::new(seed, step, Stream::OccupancyUpdate, i as u32);
-                    let jitter = Vec3::new(rng.uniform(0), rng.uniform(1), rng.uniform(2)) - 0.5;
-                    let g = Gaussian { mean: self.cell_center(i) + h * jitter, cov_diag: Vec3::splat(var) };
-                    let dst = &mut x[k * x_dim..(k + 1) * x_dim];
-                    if self.config.contracted {
-                        crate::stages::encode_gaussian(&g, c.point_encoding, c.min_deg_point, c.max_deg_point, dst);
-                    } else {
-                        model.encode_point(&g, dst);
-                    }
-                }
-                let mut cache = MlpCache::default();
-                mlp.forward(params, &x, &view[..chunk.len() * c.view_dim()], chunk.len(), 1, &mut cache);
-                cache
-                    .raw_density
+                let probes: Vec<Gaussian> = chunk
                     .iter()
-                    .map(|&raw| c.density_activation.forward(raw, c.density_bias))
-                    .collect::<Vec<_>>()
+                    .map(|&i| {
+                        let rng = RayRng::new(seed, step, Stream::OccupancyUpdate, i as u32);
+                        let jitter = Vec3::new(rng.uniform(0), rng.uniform(1), rng.uniform(2)) - 0.5;
+                        Gaussian { mean: self.cell_center(i) + h * jitter, cov_diag: Vec3::splat(var) }
+                    })
+                    .collect();
+                field.densities(&probes, self.config.contracted)
             })
             .collect()
     }

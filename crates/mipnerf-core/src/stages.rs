@@ -20,12 +20,12 @@ use glam::Vec3;
 
 use crate::bf16::Precision;
 use crate::cone::{Ray, RayShape, cast_ray, cast_ray_contracted};
+use crate::config::{Mode, ModelConfig, PointEncoding};
 use crate::mip::{self, Gaussian};
-use crate::model::{Mode, ModelConfig, PointEncoding};
+use crate::optim::{AdamConfig, AdamState, clip_gradients};
 use crate::render::{self, RenderedRay};
 use crate::rng::{RayRng, Stream, ray_level_index};
 use crate::sampling::{self, PdfSamples, Spacing};
-use crate::train::{AdamConfig, AdamState, clip_gradients};
 use crate::wide::wide;
 
 /// The interval edges of the coarse level: `n_samples + 1` edges per ray between its `near` and

@@ -97,6 +97,15 @@ fn emulated_bf16_product_stays_within_the_bf16_bound_of_the_f64_product() {
     }
 }
 
+/// Sizes whose products overflow `usize` panic before any product (as `linalg::matmul`'s do).
+#[test]
+fn the_emulation_panics_on_sizes_whose_product_overflows() {
+    let caught = std::panic::catch_unwind(|| {
+        matmul_bf16_emulated(&mut [], &[], Layout::Normal, &[], Layout::Normal, 1 << 60, 1 << 4, 16, false)
+    });
+    assert!(caught.is_err(), "the bf16 emulation checks its sizes too");
+}
+
 /// Checks one kernel: under the bound for every shape, layout and accumulation, and within the
 /// reordering of the f32 sums of the emulation (same rounded operands).
 fn check_kernel(kernel: Bf16Kernel) {

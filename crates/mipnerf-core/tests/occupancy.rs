@@ -520,7 +520,7 @@ fn an_unbounded_scene_trains_with_a_contracted_grid_that_keeps_its_dense_cells()
     let grid = trainer.occupancy.as_ref().unwrap();
     assert!(grid.warmed_up && !grid.is_full());
     let mut fresh = OccupancyGrid::new(OccupancyConfig { decay: 0.0, warmup_steps: 0, ..grid.config }).unwrap();
-    fresh.update(&trainer.model, &trainer.params, 99, 12_345);
+    fresh.update(&trainer.model.density_field(&trainer.params), 99, 12_345);
     let (mut dense, mut dropped) = (0, Vec::new());
     for i in 0..r.pow(3) {
         if fresh.opacity[i] > 0.5 {

@@ -10,18 +10,34 @@
 //! - `mlp` and `model` (internal): the MLP and the whole two-level model of a batch, forward and
 //!   backward, from those kernels.
 //! - [`GpuBackend`]: training and chunked rendering entirely on the device, behind
-//!   `mipnerf_core::backend::Backend` (the CPU implements the same trait).
+//!   `mipnerf_core::backend::Backend` (the CPU implements the same trait);
+//!   [`GpuBackend::bytes_per_ray`] sizes its batches.
+//! - [`check`]: the device against the CPU reference (`mipnerf check`).
 
+pub mod check;
 pub mod context;
-// The kernels, the MLP and model passes built from them, and the test helpers are public only so
-// that this workspace's tests and benchmarks can check each kernel against the CPU; they are not
-// part of the API an app should build on (that is `open_backend`, `GpuBackend`, `GpuContext`).
+// The kernels, the MLP and model passes built from them, and the test helpers are public only
+// with the `test-support` feature, which this workspace's tests and benchmarks turn on to check
+// each kernel against the CPU; the API an app builds on is `open_backend`, `GpuBackend`,
+// `GpuContext` and `check`. Without the feature, items only the tests call are unused.
+#[cfg(feature = "test-support")]
 #[doc(hidden)]
 pub mod kernels;
+#[cfg(not(feature = "test-support"))]
+#[allow(dead_code)]
+mod kernels;
+#[cfg(feature = "test-support")]
 #[doc(hidden)]
 pub mod mlp;
+#[cfg(not(feature = "test-support"))]
+#[allow(dead_code)]
+mod mlp;
+#[cfg(feature = "test-support")]
 #[doc(hidden)]
 pub mod model;
+#[cfg(not(feature = "test-support"))]
+#[allow(dead_code)]
+mod model;
 pub mod select;
 pub mod trainer;
 

@@ -15,6 +15,7 @@ use mipnerf_core::model::{LevelOutput, LossStats, Mode, Model};
 use mipnerf_core::occupancy::OccupancyGrid;
 
 use crate::kernels::Recorder;
+pub use crate::kernels::batch::RayBatch;
 use crate::kernels::cast_ipe::{CastIpeKernel, CastIpeParams};
 use crate::kernels::compact::{Compaction, ExpandKernel, ExpandParams, GatherKernel, kept_rays};
 use crate::kernels::occupancy::{DeviceGrid, OccupancyKernel, OccupancyParams};
@@ -23,114 +24,6 @@ use crate::kernels::sample::{SampleKernels, SampleParams};
 use crate::kernels::view_enc::ViewEncKernel;
 use crate::mlp::{GpuMlp, MlpBuffers};
 use crate::{GpuContext, GpuError};
-
-/// The rays of a batch on the device, as the model's kernels read them.
-#[derive(Debug)]
-pub struct RayBatch {
-    /// Rays the next pass makes or reads (at most [`capacity`](Self::capacity)).
-    n_rays: usize,
-    capacity: usize,
-    /// `u32` per ray: its index in the step's batch, with which its random numbers (jitter,
-    /// resampling offsets, density noise, background) are drawn: `0..n` for a whole batch (as
-    /// made), the rays' own indices for a chunk of one or the rays an occupancy grid lets
-    /// through (written there).
-    pub ids: wgpu::Buffer,
-    /// Two vec4 per ray: (origin, radius), (direction, lossmult).
-    pub rays: wgpu::Buffer,
-    /// (near, far) per ray.
-    pub bounds: wgpu::Buffer,
-    /// Normalised direction per ray (3 floats).
-    pub viewdirs: wgpu::Buffer,
-    /// Target colour per ray (vec4; w unused).
-    pub targets: wgpu::Buffer,
-    /// One float: `3 * sum(lossmult)` over the batch (the loss's denominator).
-    pub norm: wgpu::Buffer,
-}
-
-impl RayBatch {
-    /// Buffers for `n_rays` rays, filled with NaN (so that anything not written shows).
-    #[must_use]
-    pub fn new(ctx: &GpuContext, n_rays: usize) -> Self {
-        let nan = |label: &str, len: usize| ctx.storage_buffer(label, &vec![f32::NAN; len.max(1)], true);
-        Self {
-            n_rays,
-            capacity: n_rays,
-            ids: ctx.storage_buffer("batch ray indices", &(0..n_rays.max(1) as u32).collect::<Vec<u32>>(), true),
-            rays: nan("batch rays", n_rays * 8),
-            bounds: nan("batch bounds", n_rays * 2),
-            viewdirs: nan("batch view directions", n_rays * 3),
-            targets: nan("batch targets", n_rays * 4),
-            norm: nan("batch loss denominator", 1),
-        }
-    }
-
-    /// A batch uploaded from the host: `rays` (`rays_per_pixel` consecutive ones per pixel) with
-    /// `targets` (one per pixel), weighted by lossmult in the loss when `area_loss`.
-    ///
-    /// # Errors
-    /// [`GpuError::InvalidInput`] for no rays or lengths that disagree.
-    pub fn upload(
-        ctx: &GpuContext,
-        rays: &[Ray],
-        targets: &[[f32; 3]],
-        rays_per_pixel: usize,
-        area_loss: bool,
-    ) -> Result<Self, GpuError> {
-        let rpp = rays_per_pixel.max(1);
-        if rays.len() != targets.len() * rpp || rays.is_empty() {
-            return Err(GpuError::InvalidInput(format!(
-                "{} rays and {} targets ({rpp} rays per pixel)",
-                rays.len(),
-                targets.len()
-            )));
-        }
-        let packed: Vec<[f32; 4]> = rays
-            .iter()
-            .flat_map(|r| [r.origin.extend(r.radius).to_array(), r.direction.extend(r.lossmult).to_array()])
-            .collect();
-        let bounds: Vec<f32> = rays.iter().flat_map(|r| [r.near, r.far]).collect();
-        let viewdirs: Vec<f32> = rays.iter().flat_map(|r| r.viewdir.to_array()).collect();
-        let tg: Vec<[f32; 4]> =
-            targets.iter().flat_map(|t| std::iter::repeat_n([t[0], t[1], t[2], 0.0], rpp)).collect();
-        let lm_sum: f64 = rays.iter().step_by(rpp).map(|r| if area_loss { f64::from(r.lossmult) } else { 1.0 }).sum();
-        Ok(Self {
-            n_rays: rays.len(),
-            capacity: rays.len(),
-            ids: ctx.storage_buffer("batch ray indices", &(0..rays.len() as u32).collect::<Vec<u32>>(), true),
-            rays: ctx.storage_buffer("batch rays", &packed, true),
-            bounds: ctx.storage_buffer("batch bounds", &bounds, true),
-            viewdirs: ctx.storage_buffer("batch view directions", &viewdirs, true),
-            targets: ctx.storage_buffer("batch targets", &tg, true),
-            norm: ctx.storage_buffer("batch loss denominator", &[(3.0 * lm_sum) as f32], true),
-        })
-    }
-}
-
-impl RayBatch {
-    /// Rays the buffers hold.
-    #[must_use]
-    pub fn capacity(&self) -> usize {
-        self.capacity
-    }
-
-    /// Rays the next pass makes or reads (set by [`set_active`](Self::set_active)).
-    #[must_use]
-    pub fn n_rays(&self) -> usize {
-        self.n_rays
-    }
-
-    /// Makes the next passes use the first `n` rays (a chunk's tail).
-    ///
-    /// # Errors
-    /// [`GpuError::InvalidInput`] for `n` of 0 or above the capacity.
-    pub fn set_active(&mut self, n: usize) -> Result<(), GpuError> {
-        if n == 0 || n > self.capacity {
-            return Err(GpuError::InvalidInput(format!("{n} rays in buffers for {}", self.capacity)));
-        }
-        self.n_rays = n;
-        Ok(())
-    }
-}
 
 /// The per-level intermediates of a batch of `n_rays` rays: edges, MLP activations, weights,
 /// output gradients, and the per-ray outputs of every level.
@@ -368,14 +261,15 @@ impl GpuModel {
         grid: Option<&DeviceGrid>,
     ) -> Result<(), GpuError> {
         let grid = grid.filter(|g| !g.is_full() && model.rays_per_pixel() == 1);
-        if batch.n_rays != work.n_rays || batch.n_rays == 0 {
+        if batch.n_rays() != work.n_rays || batch.n_rays() == 0 {
             return Err(GpuError::InvalidInput(format!(
                 "a batch of {} rays with buffers for {}",
-                batch.n_rays, work.n_rays
+                batch.n_rays(),
+                work.n_rays
             )));
         }
         let c = &model.config();
-        let (nr, s) = (batch.n_rays, c.num_samples);
+        let (nr, s) = (batch.n_rays(), c.num_samples);
         let (seed, step, randomized) = match mode {
             Mode::Train { seed, step } => (seed, step, true),
             Mode::Eval => (0, 0, false),
@@ -530,7 +424,7 @@ impl GpuModel {
             Mode::Eval => (0, 0, false),
         };
         let params = ExpandParams {
-            n_rays: batch.n_rays as u32,
+            n_rays: batch.n_rays() as u32,
             background: background_code(c.white_bkgd, train && c.random_bkgd),
             seed,
             step,
@@ -556,7 +450,7 @@ impl GpuModel {
         batch: &RayBatch,
         ray_out: &[wgpu::Buffer],
     ) -> Result<LossStats, GpuError> {
-        let nr = batch.n_rays;
+        let nr = batch.n_rays();
         let pixels = nr / model.rays_per_pixel();
         let norm = f64::from(ctx.read_f32(&batch.norm, 1)?[0]);
         let mut losses = Vec::new();

@@ -104,6 +104,15 @@ pub struct GpuBackend {
 }
 
 impl GpuBackend {
+    /// Device bytes one ray of a batch or render chunk of `model` takes (the model's buffers for
+    /// its samples), for sizing batches to a memory budget.
+    #[must_use]
+    pub fn bytes_per_ray(model: &Model) -> u64 {
+        crate::model::ModelBuffers::bytes_per_ray(model)
+    }
+}
+
+impl GpuBackend {
     /// A backend on `ctx` for `model` starting from `state`, training with `optim` and `seed`.
     ///
     /// # Errors
@@ -260,7 +269,7 @@ impl GpuBackend {
             && grid.updates_at(self.step)
         {
             let params = self.ctx.read_f32(&self.state.params, self.model.num_params())?;
-            grid.update(&self.model, &params, self.seed, self.step);
+            grid.update(&self.model.density_field(&params), self.seed, self.step);
             on_device.update(&self.ctx, grid)?;
             self.in_flight = 0;
         }

@@ -1,14 +1,15 @@
-//! `shaders/batch.wgsl`: ray batches made on the device from images and cameras that live there.
+//! `shaders/batch.wgsl`: ray batches made on the device from images and cameras that live there,
+//! and [`RayBatch`], the batch's buffers that every kernel of the model reads.
 //!
 //! CPU reference: [`mipnerf_core::data::push_camera_rays`] (rays) and the CPU backend's batch draw.
 
+use mipnerf_core::Ray;
 use mipnerf_core::backend::ImageSpec;
 use mipnerf_core::camera::{Camera, PixelCenters};
 use mipnerf_core::data::{Dataset, Ndc, Pixels};
 use mipnerf_core::rng::{RayRng, Stream};
 
 use crate::kernels::Recorder;
-use crate::model::RayBatch;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of these kernels.
@@ -407,3 +408,111 @@ super::wgsl_struct!(
     ]
 );
 super::wgsl_struct!(GpuView, "View", [dir0, step_x, step_y, origin, size]);
+
+/// The rays of a batch on the device, as the model's kernels read them.
+#[derive(Debug)]
+pub struct RayBatch {
+    /// Rays the next pass makes or reads (at most [`capacity`](Self::capacity)).
+    n_rays: usize,
+    capacity: usize,
+    /// `u32` per ray: its index in the step's batch, with which its random numbers (jitter,
+    /// resampling offsets, density noise, background) are drawn: `0..n` for a whole batch (as
+    /// made), the rays' own indices for a chunk of one or the rays an occupancy grid lets
+    /// through (written there).
+    pub ids: wgpu::Buffer,
+    /// Two vec4 per ray: (origin, radius), (direction, lossmult).
+    pub rays: wgpu::Buffer,
+    /// (near, far) per ray.
+    pub bounds: wgpu::Buffer,
+    /// Normalised direction per ray (3 floats).
+    pub viewdirs: wgpu::Buffer,
+    /// Target colour per ray (vec4; w unused).
+    pub targets: wgpu::Buffer,
+    /// One float: `3 * sum(lossmult)` over the batch (the loss's denominator).
+    pub norm: wgpu::Buffer,
+}
+
+impl RayBatch {
+    /// Buffers for `n_rays` rays, filled with NaN (so that anything not written shows).
+    #[must_use]
+    pub fn new(ctx: &GpuContext, n_rays: usize) -> Self {
+        let nan = |label: &str, len: usize| ctx.storage_buffer(label, &vec![f32::NAN; len.max(1)], true);
+        Self {
+            n_rays,
+            capacity: n_rays,
+            ids: ctx.storage_buffer("batch ray indices", &(0..n_rays.max(1) as u32).collect::<Vec<u32>>(), true),
+            rays: nan("batch rays", n_rays * 8),
+            bounds: nan("batch bounds", n_rays * 2),
+            viewdirs: nan("batch view directions", n_rays * 3),
+            targets: nan("batch targets", n_rays * 4),
+            norm: nan("batch loss denominator", 1),
+        }
+    }
+
+    /// A batch uploaded from the host: `rays` (`rays_per_pixel` consecutive ones per pixel) with
+    /// `targets` (one per pixel), weighted by lossmult in the loss when `area_loss`.
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for no rays or lengths that disagree.
+    pub fn upload(
+        ctx: &GpuContext,
+        rays: &[Ray],
+        targets: &[[f32; 3]],
+        rays_per_pixel: usize,
+        area_loss: bool,
+    ) -> Result<Self, GpuError> {
+        let rpp = rays_per_pixel.max(1);
+        if rays.len() != targets.len() * rpp || rays.is_empty() {
+            return Err(GpuError::InvalidInput(format!(
+                "{} rays and {} targets ({rpp} rays per pixel)",
+                rays.len(),
+                targets.len()
+            )));
+        }
+        let packed: Vec<[f32; 4]> = rays
+            .iter()
+            .flat_map(|r| [r.origin.extend(r.radius).to_array(), r.direction.extend(r.lossmult).to_array()])
+            .collect();
+        let bounds: Vec<f32> = rays.iter().flat_map(|r| [r.near, r.far]).collect();
+        let viewdirs: Vec<f32> = rays.iter().flat_map(|r| r.viewdir.to_array()).collect();
+        let tg: Vec<[f32; 4]> =
+            targets.iter().flat_map(|t| std::iter::repeat_n([t[0], t[1], t[2], 0.0], rpp)).collect();
+        let lm_sum: f64 = rays.iter().step_by(rpp).map(|r| if area_loss { f64::from(r.lossmult) } else { 1.0 }).sum();
+        Ok(Self {
+            n_rays: rays.len(),
+            capacity: rays.len(),
+            ids: ctx.storage_buffer("batch ray indices", &(0..rays.len() as u32).collect::<Vec<u32>>(), true),
+            rays: ctx.storage_buffer("batch rays", &packed, true),
+            bounds: ctx.storage_buffer("batch bounds", &bounds, true),
+            viewdirs: ctx.storage_buffer("batch view directions", &viewdirs, true),
+            targets: ctx.storage_buffer("batch targets", &tg, true),
+            norm: ctx.storage_buffer("batch loss denominator", &[(3.0 * lm_sum) as f32], true),
+        })
+    }
+}
+
+impl RayBatch {
+    /// Rays the buffers hold.
+    #[must_use]
+    pub fn capacity(&self) -> usize {
+        self.capacity
+    }
+
+    /// Rays the next pass makes or reads (set by [`set_active`](Self::set_active)).
+    #[must_use]
+    pub fn n_rays(&self) -> usize {
+        self.n_rays
+    }
+
+    /// Makes the next passes use the first `n` rays (a chunk's tail).
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for `n` of 0 or above the capacity.
+    pub fn set_active(&mut self, n: usize) -> Result<(), GpuError> {
+        if n == 0 || n > self.capacity {
+            return Err(GpuError::InvalidInput(format!("{n} rays in buffers for {}", self.capacity)));
+        }
+        self.n_rays = n;
+        Ok(())
+    }
+}

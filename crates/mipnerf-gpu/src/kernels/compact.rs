@@ -12,7 +12,7 @@
 use mipnerf_core::occupancy::OccupancyGrid;
 
 use crate::kernels::Recorder;
-use crate::model::RayBatch;
+use crate::kernels::batch::RayBatch;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of the gather kernel.

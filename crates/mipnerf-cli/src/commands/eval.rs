@@ -1,0 +1,60 @@
+//! `mipnerf eval`: render a split of a trained run and score it.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+
+use super::SplitArg;
+use crate::backend::DeviceArgs;
+use crate::config::{Backend, PrecisionArg};
+use crate::lpips::LpipsWeights;
+use crate::scores::Metrics;
+use crate::session::Session;
+
+/// The flags of `mipnerf eval`.
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The run directory.
+    #[arg(long, value_name = "RUN_DIR")]
+    pub run: PathBuf,
+    /// Which split.
+    #[arg(long, value_enum, default_value_t = SplitArg::Test)]
+    pub split: SplitArg,
+    /// Where to render: cpu, gpu (any adapter, software included), or auto (a hardware GPU if
+    /// present, else the CPU).
+    #[arg(long, value_enum, default_value_t = Backend::Auto)]
+    pub backend: Backend,
+    #[command(flatten)]
+    pub device: DeviceArgs,
+    /// Precision of the MLP's matrix products: f32, bf16 (AMX or AVX-512 BF16, CPU backend) or auto
+    /// [default: the precision the run trained with].
+    #[arg(long, value_enum)]
+    pub precision: Option<PrecisionArg>,
+    #[command(flatten)]
+    pub lpips: LpipsWeights,
+}
+
+/// Evaluates and prints the scores.
+///
+/// # Errors
+/// As [`crate::eval::eval`].
+pub fn run(a: Args, session: &Session) -> Result<()> {
+    let device = a.device.options();
+    crate::eval::eval(&a.run, a.split.into(), a.backend, &device, a.precision, &a.lpips, session).map(|m| {
+        println!("wrote {}", crate::run_dir::RunDir::new(&a.run).eval_metrics().display());
+        print_scores(&m);
+    })
+}
+
+/// Prints each scale's scores and the average error.
+pub fn print_scores(m: &Metrics) {
+    for s in &m.per_scale {
+        let lp = s.lpips.map_or("LPIPS n/a".to_string(), |l| format!("LPIPS {l:.4}"));
+        println!(
+            "  scale {} ({} images): PSNR {:.2} dB, SSIM {:.4}, {lp}, avg error {:.4}",
+            s.scale, s.images, s.psnr, s.ssim, s.avg_error
+        );
+    }
+    let terms = if m.lpips_net.is_some() { "the paper's" } else { "two-term variant, without LPIPS" };
+    println!("  average error over the scales ({terms}): {:.4}", m.avg_error);
+}

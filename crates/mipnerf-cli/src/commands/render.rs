@@ -1,0 +1,69 @@
+//! `mipnerf render`: a trained run's views or a camera path.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+
+use super::SplitArg;
+use crate::backend::DeviceArgs;
+use crate::config::{Backend, PrecisionArg};
+use crate::render;
+use crate::session::Session;
+
+/// The flags of `mipnerf render`.
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The run directory.
+    #[arg(long, value_name = "RUN_DIR")]
+    pub run: PathBuf,
+    /// Output directory (created).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Render every view of this split [default: test, unless --path is given].
+    #[arg(long, value_enum, conflicts_with = "path")]
+    pub split: Option<SplitArg>,
+    /// Render a camera path instead.
+    #[arg(long, value_enum)]
+    pub path: Option<render::PathKind>,
+    /// Frames of the path.
+    #[arg(long, default_value_t = 60)]
+    pub frames: usize,
+    /// Frames per second of the path's video (video.mp4, H.264, beside preview.gif).
+    #[arg(long, default_value_t = render::DEFAULT_FPS)]
+    pub fps: u32,
+    /// Output width in pixels (with --height) [default: the data's].
+    #[arg(long, requires = "height")]
+    pub width: Option<u32>,
+    /// Output height in pixels (with --width).
+    #[arg(long, requires = "width")]
+    pub height: Option<u32>,
+    /// Where to render: cpu, gpu (any adapter, software included), or auto (a hardware GPU if
+    /// present, else the CPU).
+    #[arg(long, value_enum, default_value_t = Backend::Auto)]
+    pub backend: Backend,
+    #[command(flatten)]
+    pub device: DeviceArgs,
+    /// Precision of the MLP's matrix products: f32, bf16 (AMX or AVX-512 BF16, CPU backend) or auto
+    /// [default: the precision the run trained with].
+    #[arg(long, value_enum)]
+    pub precision: Option<PrecisionArg>,
+    /// Write into --out even when it holds files mipnerf did not write (files of the same
+    /// name are replaced); without it such a folder is refused.
+    #[arg(long)]
+    pub overwrite: bool,
+}
+
+/// Renders and prints how many files were written.
+///
+/// # Errors
+/// As [`render::render`].
+pub fn run(a: Args, session: &Session) -> Result<()> {
+    let target = match a.path {
+        Some(kind) => render::Target::Path(kind, a.frames, a.fps),
+        None => render::Target::Split(a.split.unwrap_or(SplitArg::Test).into()),
+    };
+    let size = a.width.zip(a.height);
+    let device = a.device.options();
+    render::render(&a.run, &a.out, target, size, a.backend, &device, a.precision, a.overwrite, session)
+        .map(|files| println!("wrote {} files to {}", files.len(), a.out.display()))
+}

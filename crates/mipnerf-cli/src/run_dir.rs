@@ -1,0 +1,137 @@
+//! A run directory's layout: the one place that names its files and folders. Every command that
+//! reads or writes a run (train, eval, render, view, experiment, figure) asks [`RunDir`] for the
+//! path, so a change of layout is a change here.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+
+/// The resolved configuration of the run.
+pub const CONFIG: &str = "config.toml";
+/// The latest checkpoint.
+pub const CHECKPOINT: &str = "checkpoint.safetensors";
+/// Wall-clock seconds of training up to the checkpoint's step, over every segment of a resumed
+/// run; rewritten after each checkpoint.
+pub const TRAIN_SECONDS: &str = "train_seconds.txt";
+/// Training metrics, one row every `log_every` steps ([`crate::metrics_csv`]).
+pub const METRICS_CSV: &str = "metrics.csv";
+/// The lock file, held by the `train` that writes the run.
+pub const LOCK: &str = "train.lock";
+/// The folder `eval` writes.
+pub const EVAL: &str = "eval";
+/// Where `eval` writes until it has finished.
+pub const EVAL_PARTIAL: &str = "eval.partial";
+/// Where `--val-every` writes its latest renders (`scale{j}.png`: the render on the left, the
+/// test image on the right).
+pub const VAL: &str = "val";
+/// Copies of the run at fixed training times (`train --snapshots`).
+pub const SNAPSHOTS: &str = "snapshots";
+
+/// A run directory, borrowed: the paths of its files.
+#[derive(Clone, Copy, Debug)]
+pub struct RunDir<'a>(&'a Path);
+
+impl<'a> RunDir<'a> {
+    /// The run directory at `path`.
+    #[must_use]
+    pub fn new(path: &'a Path) -> Self {
+        Self(path)
+    }
+
+    /// `config.toml`.
+    #[must_use]
+    pub fn config(self) -> PathBuf {
+        self.0.join(CONFIG)
+    }
+
+    /// The latest checkpoint.
+    #[must_use]
+    pub fn checkpoint(self) -> PathBuf {
+        self.0.join(CHECKPOINT)
+    }
+
+    /// The training seconds file.
+    #[must_use]
+    pub fn train_seconds(self) -> PathBuf {
+        self.0.join(TRAIN_SECONDS)
+    }
+
+    /// `metrics.csv`.
+    #[must_use]
+    pub fn metrics_csv(self) -> PathBuf {
+        self.0.join(METRICS_CSV)
+    }
+
+    /// The finished evaluation's folder.
+    #[must_use]
+    pub fn eval(self) -> PathBuf {
+        self.0.join(EVAL)
+    }
+
+    /// The evaluation's folder while it is written.
+    #[must_use]
+    pub fn eval_partial(self) -> PathBuf {
+        self.0.join(EVAL_PARTIAL)
+    }
+
+    /// The evaluation's scores.
+    #[must_use]
+    pub fn eval_metrics(self) -> PathBuf {
+        self.eval().join("metrics.json")
+    }
+
+    /// The latest validation renders.
+    #[must_use]
+    pub fn val(self) -> PathBuf {
+        self.0.join(VAL)
+    }
+
+    /// The folder of the snapshots.
+    #[must_use]
+    pub fn snapshots(self) -> PathBuf {
+        self.0.join(SNAPSHOTS)
+    }
+
+    /// The snapshot taken at `seconds` of training.
+    #[must_use]
+    pub fn snapshot(self, seconds: u64) -> PathBuf {
+        self.snapshots().join(format!("{seconds:05}s"))
+    }
+
+    /// Takes the exclusive lock of the run for the life of the returned file, so that two `train`
+    /// processes never write one run directory. The lock is the operating system's (`flock` on
+    /// Unix), released when the process ends however it ends, so a killed run leaves no stale
+    /// lock. Readers (`eval`, `render`) take no lock: every file they read is replaced atomically.
+    ///
+    /// # Errors
+    /// Another process holds the lock (the error names it), or the file cannot be made.
+    pub fn lock(self) -> Result<std::fs::File> {
+        let path = self.0.join(LOCK);
+        let mut f = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)
+            .with_context(|| format!("opening {}", path.display()))?;
+        match f.try_lock() {
+            Ok(()) => {}
+            Err(std::fs::TryLockError::WouldBlock) => {
+                let holder = std::fs::read_to_string(&path).unwrap_or_default();
+                bail!(
+                    "{} is in use by another `mipnerf train` ({}); wait for it to finish, or choose another --out",
+                    self.0.display(),
+                    holder.trim()
+                );
+            }
+            Err(std::fs::TryLockError::Error(e)) => {
+                return Err(e).with_context(|| format!("locking {}", path.display()));
+            }
+        }
+        f.set_len(0)?;
+        writeln!(f, "process {}", std::process::id())?;
+        f.flush()?;
+        Ok(f)
+    }
+}

@@ -1,0 +1,481 @@
+//! Mixed-precision matrix products: operands rounded to bf16, products accumulated in f32.
+//!
+//! bf16 keeps f32's 8-bit exponent and 7 of its 23 mantissa bits (8 significant bits with the
+//! implicit one), so rounding an operand to it changes it by at most `2^-8` relatively
+//! ([`BF16_UNIT_ROUNDOFF`]). Two kernels run the products ([`Bf16Kernel`]), on operands rounded
+//! to bf16 by the same packing code and so with the same rounding:
+//! - Intel's AMX tiles (`tdpbf16ps`: a 16 x 16 f32 block += a 16 x 32 bf16 block times a 32 x 16
+//!   bf16 block, accumulated in f32), which on the Xeons these runs use do 33 times the f32 FMA
+//!   rate of one core (3.7 TFLOP/s against 112 GFLOP/s, measured by `mipnerf bench --peak`);
+//! - AVX-512 BF16 alone (`vdpbf16ps`: sixteen f32 lanes each += the dot product of a bf16 pair),
+//!   on CPUs without AMX such as AMD Zen 4 and Zen 5. Each instruction does twice the flops of an
+//!   f32 FMA; measured on an AMD EPYC (Zen 4) in `docs/results/precision/`. On the Sapphire
+//!   Rapids Xeons it ran at the f32 rate, so AMX is preferred wherever both are present.
+//!
+//! [`Bf16Support::detect`] chooses the kernel and says why; without either, [`Precision::Bf16`]
+//! is refused naming what is missing.
+//!
+//! What stays f32 (the parameters, Adam's state, the checkpoints, every non-matrix operation,
+//! and the products too small to gain: fewer than [`MIN_BF16_DIM`] rows or columns, such as the
+//! density and colour heads) is listed in [`matmul_bf16`]'s docs.
+//!
+//! [`matmul_bf16_emulated`] computes the same rounding on any CPU (operands rounded to bf16 as
+//! f32 values, then the f32 product); it is the reference both kernels are tested against.
+#![allow(unsafe_code)]
+
+use std::cell::RefCell;
+use std::sync::OnceLock;
+
+use crate::linalg::{Layout, matmul};
+
+/// Relative rounding error of one f32 -> bf16 conversion (round to nearest even): `2^-8`.
+pub const BF16_UNIT_ROUNDOFF: f64 = 1.0 / 256.0;
+
+/// Relative rounding error of one f32 operation: `2^-24`.
+pub const F32_UNIT_ROUNDOFF: f64 = 1.0 / 16_777_216.0;
+
+/// Products with fewer rows or output columns than this, or a shorter inner dimension, run in f32:
+/// one 16 x 16 tile is the smallest unit of AMX work, and for these the packing costs more than
+/// the product.
+pub const MIN_BF16_DIM: usize = 16;
+
+/// Set to `1`, this environment variable makes [`Bf16Support::detect`] report AMX as absent, so
+/// that an AMX machine runs (and tests, and times) the AVX-512 BF16 kernel.
+pub const DISABLE_AMX_ENV: &str = "MIPNERF_DISABLE_AMX";
+
+/// Set to `1`, this environment variable makes [`Bf16Support::detect`] report AVX-512 BF16 as
+/// absent (with [`DISABLE_AMX_ENV`], a CPU without any bf16 kernel, as the refusals are tested).
+pub const DISABLE_AVX512_BF16_ENV: &str = "MIPNERF_DISABLE_AVX512_BF16";
+
+/// The precision of the MLP's matrix products on the CPU.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Precision {
+    /// f32 throughout: the paper's precision and the reference.
+    #[default]
+    F32,
+    /// bf16 operands and f32 accumulation for the MLP's matrix products (forward, input gradient
+    /// and weight gradient); f32 everywhere else. The IPE features, rounded to bf16 before their
+    /// only use, are evaluated in f32 arithmetic ([`crate::mip::integrated_pos_enc_for_bf16`])
+    /// rather than through f64 as the reference does.
+    Bf16,
+}
+
+impl std::fmt::Display for Precision {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::F32 => "f32",
+            Self::Bf16 => "bf16",
+        })
+    }
+}
+
+/// A kernel that runs the bf16 products.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Bf16Kernel {
+    /// Intel AMX tiles (`tdpbf16ps`), with AVX-512 BF16 for the packing.
+    Amx,
+    /// AVX-512 BF16 (`vdpbf16ps`) alone: AMD Zen 4 and Zen 5, Intel Cooper Lake.
+    Avx512,
+}
+
+impl Bf16Kernel {
+    /// Both kernels, AMX first (the one [`Bf16Support::detect`] prefers).
+    pub const ALL: [Self; 2] = [Self::Amx, Self::Avx512];
+
+    /// The CPU feature the kernel is named by in logs: `AMX-BF16` or `AVX-512 BF16`.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Amx => "AMX-BF16",
+            Self::Avx512 => "AVX-512 BF16",
+        }
+    }
+
+    /// Whether this CPU (and operating system) can run the kernel, whatever the environment
+    /// variables say; the error names the missing feature as `/proc/cpuinfo` spells it
+    /// (`amx_tile`, `amx_bf16`, `avx512_bf16`, ...). Cached.
+    ///
+    /// # Errors
+    /// The reason the kernel cannot run here.
+    pub fn check(self) -> Result<(), &'static str> {
+        static AMX: OnceLock<Result<(), String>> = OnceLock::new();
+        static AVX512: OnceLock<Result<(), String>> = OnceLock::new();
+        let (cell, probe): (_, fn() -> Result<(), String>) = match self {
+            Self::Amx => (&AMX, probe_amx),
+            Self::Avx512 => (&AVX512, probe_avx512),
+        };
+        cell.get_or_init(probe).as_ref().map(|_| ()).map_err(String::as_str)
+    }
+}
+
+fn probe_avx512() -> Result<(), String> {
+    #[cfg(target_arch = "x86_64")]
+    return avx512::detect();
+    #[cfg(not(target_arch = "x86_64"))]
+    Err("this CPU lacks avx512_bf16 (bf16 products need an x86_64 CPU with AVX-512 BF16 or AMX)".into())
+}
+
+fn probe_amx() -> Result<(), String> {
+    #[cfg(target_arch = "x86_64")]
+    return amx::detect();
+    #[cfg(not(target_arch = "x86_64"))]
+    Err("this CPU lacks amx_bf16 (Intel AMX needs an x86_64 CPU)".into())
+}
+
+/// Whether this CPU runs [`Precision::Bf16`] products, on which kernel, and if not, why.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Bf16Support {
+    /// The products run on this kernel.
+    Available(Bf16Kernel),
+    /// Not available; the reason names the missing CPU features or the refusal.
+    Unavailable(String),
+}
+
+impl Bf16Support {
+    /// Chooses the kernel once per process: AMX where the CPU has AMX-BF16 (CPUID leaf 7:
+    /// `amx-tile`, `amx-bf16`; AVX-512 BF16 for the conversions) and Linux grants the tile state
+    /// (`arch_prctl(ARCH_REQ_XCOMP_PERM, XTILEDATA)`), else AVX-512 BF16 where the CPU has
+    /// `avx512f`, `avx512bw`, `avx512vl` and `avx512_bf16`, else unavailable, naming what each
+    /// lacks. [`DISABLE_AMX_ENV`] and [`DISABLE_AVX512_BF16_ENV`] set to `1` report a kernel as
+    /// absent (to compare the two, or to avoid a hypervisor's faulty AMX). Cached.
+    #[must_use]
+    pub fn detect() -> &'static Self {
+        static SUPPORT: OnceLock<Bf16Support> = OnceLock::new();
+        SUPPORT.get_or_init(|| {
+            let switched_off = |env: &str| std::env::var(env).is_ok_and(|v| v == "1");
+            let why_not = |kernel: Bf16Kernel, env: &str| -> Option<String> {
+                if switched_off(env) {
+                    return Some(format!("{} is switched off by {env}=1", kernel.name()));
+                }
+                kernel.check().err().map(str::to_string)
+            };
+            let Some(amx) = why_not(Bf16Kernel::Amx, DISABLE_AMX_ENV) else {
+                return Self::Available(Bf16Kernel::Amx);
+            };
+            let Some(avx512) = why_not(Bf16Kernel::Avx512, DISABLE_AVX512_BF16_ENV) else {
+                return Self::Available(Bf16Kernel::Avx512);
+            };
+            Self::Unavailable(format!("{amx}; {avx512}"))
+        })
+    }
+
+    /// One line for logs: `bf16: AVX-512 BF16` or `bf16: unavailable (why)`.
+    #[must_use]
+    pub fn describe(&self) -> String {
+        match self {
+            Self::Available(kernel) => format!("bf16: {}", kernel.name()),
+            Self::Unavailable(why) => format!("bf16: unavailable ({why})"),
+        }
+    }
+
+    /// True where a kernel runs the products.
+    #[must_use]
+    pub fn available(&self) -> bool {
+        matches!(self, Self::Available(_))
+    }
+
+    /// The kernel that runs the products, if any.
+    #[must_use]
+    pub fn kernel(&self) -> Option<Bf16Kernel> {
+        match self {
+            Self::Available(kernel) => Some(*kernel),
+            Self::Unavailable(_) => None,
+        }
+    }
+}
+
+/// `x` rounded to bf16 (round to nearest, ties to even), as its 16 bits. Subnormal inputs become a
+/// signed zero, as in `vcvtneps2bf16` and the AMX instructions; NaN stays NaN.
+#[must_use]
+#[inline]
+pub fn f32_to_bf16_bits(x: f32) -> u16 {
+    let bits = x.to_bits();
+    if x.is_nan() {
+        return ((bits >> 16) | 0x0040) as u16;
+    }
+    if bits & 0x7f80_0000 == 0 {
+        // Zero exponent: zero or subnormal, read as a signed zero (as `vcvtneps2bf16` does).
+        return ((bits >> 16) & 0x8000) as u16;
+    }
+    // A normal input rounds to a normal value or to infinity.
+    (bits.wrapping_add(0x7fff + ((bits >> 16) & 1)) >> 16) as u16
+}
+
+/// The f32 value of a bf16 bit pattern (exact).
+#[must_use]
+#[inline]
+pub fn bf16_bits_to_f32(b: u16) -> f32 {
+    f32::from_bits(u32::from(b) << 16)
+}
+
+/// `x` rounded to bf16 and back: the value a bf16 product sees.
+#[must_use]
+#[inline]
+pub fn round_to_bf16(x: f32) -> f32 {
+    bf16_bits_to_f32(f32_to_bf16_bits(x))
+}
+
+/// The error bound of one output element of a bf16 product with inner dimension `k`, relative to
+/// `sum_p |a_ip| |b_pj|` (the exact sum of absolute products, computed in f64 by a test):
+/// each operand is rounded once (`(1 + u)^2 - 1` for the product, `u` = [`BF16_UNIT_ROUNDOFF`]),
+/// and the `k` products are summed in f32 in some order with one rounding per addition
+/// (`gamma_k = k u32 / (1 - k u32)`, `u32` = [`F32_UNIT_ROUNDOFF`]). Valid for any summation
+/// order, as long as no value is subnormal.
+#[must_use]
+pub fn bf16_product_relative_bound(k: usize) -> f64 {
+    let u = BF16_UNIT_ROUNDOFF;
+    let operands = (1.0 + u) * (1.0 + u) - 1.0;
+    let ku = k as f64 * F32_UNIT_ROUNDOFF;
+    let gamma = ku / (1.0 - ku);
+    operands + gamma * (1.0 + operands)
+}
+
+/// Whether a product of this shape runs in bf16 (see [`MIN_BF16_DIM`]).
+#[must_use]
+pub fn uses_bf16(m: usize, k: usize, n: usize) -> bool {
+    m >= MIN_BF16_DIM && n >= MIN_BF16_DIM && k >= MIN_BF16_DIM
+}
+
+/// `c (m x n) = [c +] a (m x k) · b (k x n)` as [`matmul`], with `a` and `b` rounded to bf16 and
+/// the products accumulated in f32, on the kernel [`Bf16Support::detect`] chose. Shapes below
+/// [`MIN_BF16_DIM`] run [`matmul`] in f32.
+///
+/// # Panics
+/// If a slice is shorter than its shape needs, or if the CPU has no bf16 kernel
+/// ([`Bf16Support::detect`]): callers choose [`Precision::Bf16`] only after checking it.
+pub fn matmul_bf16(
+    c: &mut [f32],
+    a: &[f32],
+    la: Layout,
+    b: &[f32],
+    lb: Layout,
+    m: usize,
+    k: usize,
+    n: usize,
+    accumulate: bool,
+) {
+    let kernel = Bf16Support::detect().kernel();
+    let kernel = kernel.unwrap_or_else(|| panic!("matmul_bf16 without a bf16 kernel: {:?}", Bf16Support::detect()));
+    matmul_bf16_on(kernel, c, a, la, b, lb, m, k, n, accumulate);
+}
+
+/// [`matmul_bf16`] on the given kernel, whichever [`Bf16Support::detect`] prefers: to test and
+/// time each kernel on a CPU that has both.
+///
+/// # Panics
+/// If a slice is shorter than its shape needs, if a size product overflows, or if the CPU cannot
+/// run `kernel` ([`Bf16Kernel::check`]).
+pub fn matmul_bf16_on(
+    kernel: Bf16Kernel,
+    c: &mut [f32],
+    a: &[f32],
+    la: Layout,
+    b: &[f32],
+    lb: Layout,
+    m: usize,
+    k: usize,
+    n: usize,
+    accumulate: bool,
+) {
+    if !uses_bf16(m, k, n) {
+        matmul(c, a, la, b, lb, m, k, n, accumulate);
+        return;
+    }
+    let size = crate::linalg::checked_len;
+    assert!(c.len() >= size(m, n), "matmul_bf16: c has {} < {m}x{n}", c.len());
+    assert!(a.len() >= size(m, k), "matmul_bf16: a has {} < {m}x{k}", a.len());
+    assert!(b.len() >= size(k, n), "matmul_bf16: b has {} < {k}x{n}", b.len());
+    if let Err(why) = kernel.check() {
+        panic!("matmul_bf16 on {}: {why}", kernel.name());
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    unreachable!("no bf16 kernel passes its check off x86_64");
+    #[cfg(target_arch = "x86_64")]
+    PACKED.with(|p| {
+        let p = &mut *p.borrow_mut();
+        let (mp, kp, np) = (m.next_multiple_of(BLOCK), k.next_multiple_of(K_STEP), n.next_multiple_of(BLOCK));
+        simd::pack_pairs(&mut p.b, b, lb, k, n, kp, np);
+        match (kernel, la) {
+            (Bf16Kernel::Amx, _) => {
+                simd::pack_rows(&mut p.a, a, la, m, k, mp, kp);
+                amx::product(c, &p.a, &p.b, m, n, mp, kp, np, accumulate);
+            }
+            (Bf16Kernel::Avx512, Layout::Normal) => {
+                simd::pack_rows(&mut p.a, a, la, m, k, mp, kp);
+                avx512::product(c, avx512::PackedA::Tiles(&p.a), &p.b, m, n, mp, kp, np, accumulate);
+            }
+            // `a` stored `k x m` (a weight gradient's activations): its pairs along k are packed
+            // as `b`'s are, with no transpose, and the kernel reads them in that order.
+            (Bf16Kernel::Avx512, Layout::Transposed) => {
+                simd::pack_pairs(&mut p.a_pairs, a, Layout::Normal, k, m, kp, mp);
+                avx512::product(c, avx512::PackedA::Pairs(&p.a_pairs), &p.b, m, n, mp, kp, np, accumulate);
+            }
+        }
+    });
+}
+
+/// The packed operands' row and column padding: 2 x 2 tiles of 16 x 16 (AMX's block per step;
+/// the AVX-512 kernel's 8 x 32 steps divide it).
+const BLOCK: usize = 32;
+/// The packed operands' padding of k: the bf16 values of k per tile multiply-add.
+const K_STEP: usize = 32;
+
+/// What every kernel's `product` rests its `unsafe` code on: the CPU runs `kernel`, the padded
+/// sizes are whole blocks at least the real ones, and the packed `a` (`a_values`, at least
+/// `mp x kp` bf16 values), the packed `b` (`kp / 2 x np` pairs) and `c` (`m x n`) are that large
+/// (sizes checked against overflow).
+#[cfg(target_arch = "x86_64")]
+fn assert_packed(
+    kernel: Bf16Kernel,
+    c: &[f32],
+    a_values: usize,
+    b: &[u32],
+    m: usize,
+    n: usize,
+    mp: usize,
+    kp: usize,
+    np: usize,
+) {
+    if let Err(why) = kernel.check() {
+        panic!("the {} kernel on a CPU without it: {why}", kernel.name());
+    }
+    assert!(mp.is_multiple_of(BLOCK) && np.is_multiple_of(BLOCK) && kp.is_multiple_of(K_STEP));
+    assert!(mp >= m && np >= n);
+    let size = crate::linalg::checked_len;
+    assert!(a_values >= size(mp, kp) && b.len() >= size(kp / 2, np) && c.len() >= size(m, n));
+}
+
+/// The same rounding as [`matmul_bf16`] on any CPU: `a` and `b` rounded to bf16 (as f32 values),
+/// then the f32 product. Differs from the AMX kernel only in the order of the f32 additions.
+pub fn matmul_bf16_emulated(
+    c: &mut [f32],
+    a: &[f32],
+    la: Layout,
+    b: &[f32],
+    lb: Layout,
+    m: usize,
+    k: usize,
+    n: usize,
+    accumulate: bool,
+) {
+    if !uses_bf16(m, k, n) {
+        matmul(c, a, la, b, lb, m, k, n, accumulate);
+        return;
+    }
+    let a: Vec<f32> = a[..crate::linalg::checked_len(m, k)].iter().map(|&x| round_to_bf16(x)).collect();
+    let b: Vec<f32> = b[..crate::linalg::checked_len(k, n)].iter().map(|&x| round_to_bf16(x)).collect();
+    matmul(c, &a, la, &b, lb, m, k, n, accumulate);
+}
+
+/// Per-thread packing buffers, kept between products.
+#[derive(Default)]
+struct Packed {
+    /// `a` as bf16, `mp x kp` row-major, zero-padded.
+    a: Vec<u16>,
+    /// `b` as pairs of bf16 along k (AMX's "VNNI" layout): `kp / 2` rows of `np` 32-bit pairs.
+    b: Vec<u32>,
+    /// `a` stored transposed, for the AVX-512 kernel: laid out as `b` is ([`b_index`], `a`'s
+    /// rows as the columns), `kp / 2` rows of `mp` pairs.
+    a_pairs: Vec<u32>,
+}
+
+thread_local! {
+    static PACKED: RefCell<Packed> = RefCell::new(Packed::default());
+}
+
+/// Where element `(i, p)` of `a` goes in the packed `a` (`mp x kp`, bf16): tile after tile, each
+/// tile 16 rows x 32 values of k, 64 contiguous bytes per row, the k tiles of a 16-row block
+/// in order. One tile is 1 KiB read at a stride of 64 bytes, which keeps the tiles of a product
+/// in distinct cache sets.
+#[inline]
+fn a_index(i: usize, p: usize, kp: usize) -> usize {
+    ((i / 16) * (kp / 32) + p / 32) * 512 + (i % 16) * 32 + p % 32
+}
+
+/// Where pair row `q` (k = 2q, 2q + 1), column `j` of `b` goes in the packed `b` (`kp/2 x np`
+/// 32-bit pairs): blocks of 16 columns, each `kp / 2` rows of 64 bytes, so that one tile (16
+/// pair rows x 16 columns) is 1 KiB contiguous.
+#[inline]
+fn b_index(q: usize, j: usize, kp: usize) -> usize {
+    ((j / 16) * (kp / 2) + q) * 16 + j % 16
+}
+
+/// Packs `a (m x k)` into `out` as bf16 at [`a_index`], zero-padded to `mp x kp`. The scalar
+/// reference of [`simd::pack_rows`].
+#[cfg_attr(not(test), allow(dead_code))]
+fn pack_rows(out: &mut Vec<u16>, a: &[f32], la: Layout, m: usize, k: usize, mp: usize, kp: usize) {
+    out.clear();
+    out.resize(mp * kp, 0);
+    for i in 0..m {
+        for p in 0..k {
+            let x = if la == Layout::Normal { a[i * k + p] } else { a[p * m + i] };
+            out[a_index(i, p, kp)] = f32_to_bf16_bits(x);
+        }
+    }
+}
+
+/// Packs `b (k x n)` into `out`: pairs `(b[2q][j], b[2q + 1][j])`, the first in the low 16 bits,
+/// at [`b_index`], zero-padded to `kp/2 x np` (`out` only grows: what lies past that is left as
+/// it was). The scalar reference of [`simd::pack_pairs`], which uses it for the transposed case
+/// (a layer's kernel: small).
+fn pack_pairs(out: &mut Vec<u32>, b: &[f32], lb: Layout, k: usize, n: usize, kp: usize, np: usize) {
+    let len = kp / 2 * np;
+    grow(out, len);
+    out[..len].fill(0);
+    for p in 0..k {
+        for j in 0..n {
+            let x = if lb == Layout::Normal { b[p * n + j] } else { b[j * k + p] };
+            out[b_index(p / 2, j, kp)] |= u32::from(f32_to_bf16_bits(x)) << (16 * (p % 2));
+        }
+    }
+}
+
+/// Lengthens `out` to `len` if it is shorter; never shortens it. The packing buffers hold large
+/// operands and small ones in turn: kept long, they are not zeroed again each time.
+fn grow<T: Copy + Default>(out: &mut Vec<T>, len: usize) {
+    if out.len() < len {
+        out.resize(len, T::default());
+    }
+}
+
+/// The packing with AVX-512 (`vcvtneps2bf16`), which both kernels need (every AMX-BF16 processor
+/// has it; [`Bf16Kernel::check`] checks it): the same bits as the scalar [`pack_rows`] and
+/// [`pack_pairs`] (a test compares them).
+#[cfg(target_arch = "x86_64")]
+mod simd;
+
+/// The AMX kernel. Every `unsafe` block is here and justified where it is.
+#[cfg(target_arch = "x86_64")]
+mod amx;
+
+/// The AVX-512 BF16 kernel (`vdpbf16ps`), on the packed operands the AMX kernel reads, except
+/// a transposed `a`, which it reads in pairs ([`PackedA::Pairs`]) rather than transposed into
+/// AMX's tiles. Every `unsafe` block is here and justified where it is.
+#[cfg(target_arch = "x86_64")]
+mod avx512;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rounding_is_to_nearest_even_with_subnormals_flushed() {
+        assert_eq!(round_to_bf16(1.0), 1.0);
+        // 1 + 2^-8 is halfway between 1 and 1 + 2^-7: ties to the even (1).
+        assert_eq!(round_to_bf16(1.0 + 1.0 / 256.0), 1.0);
+        // 1 + 3 * 2^-8 is halfway between 1 + 2^-7 and 1 + 2^-6: ties to even (1 + 2^-6).
+        assert_eq!(round_to_bf16(1.0 + 3.0 / 256.0), 1.0 + 1.0 / 64.0);
+        assert_eq!(round_to_bf16(1.0 + 1.0 / 256.0 + 1e-6), 1.0 + 1.0 / 128.0);
+        assert_eq!(round_to_bf16(-2.5), -2.5);
+        assert_eq!(round_to_bf16(1e-39).to_bits(), 0);
+        assert_eq!(round_to_bf16(-1e-39).to_bits(), (-0.0f32).to_bits());
+        assert!(round_to_bf16(f32::NAN).is_nan());
+        assert_eq!(round_to_bf16(f32::INFINITY), f32::INFINITY);
+        assert_eq!(round_to_bf16(f32::MAX), f32::INFINITY);
+        for x in [0.1f32, 3.7, -1234.5, 6.02e23, 1.5e-30] {
+            let r = round_to_bf16(x);
+            assert!((f64::from(r) - f64::from(x)).abs() <= BF16_UNIT_ROUNDOFF * f64::from(x).abs(), "{x} -> {r}");
+        }
+    }
+}
