@@ -365,7 +365,7 @@ impl TrainSettings {
             "# mipnerf run configuration (resolved; read back by --resume, eval and render)\n{}",
             toml::to_string(self)?
         );
-        Ok(mipnerf_core::checkpoint::write_atomic(path, text.as_bytes(), &mut mipnerf_core::checkpoint::RealFs)?)
+        Ok(mipnerf_core::io::write_atomic(path, text.as_bytes())?)
     }
 
     /// Fills every unset field with its default (given whether the data is LLFF), so the saved

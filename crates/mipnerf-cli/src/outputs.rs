@@ -114,7 +114,7 @@ pub fn record(dir: &Path, names: impl IntoIterator<Item = String>) -> Result<()>
 /// # Errors
 /// The failure, naming the file.
 pub fn save_keeping_the_old(path: &Path, bytes: &[u8]) -> Result<()> {
-    mipnerf_core::checkpoint::write_atomic(path, bytes, &mut mipnerf_core::checkpoint::RealFs).map_err(|e| {
+    mipnerf_core::io::write_atomic(path, bytes).map_err(|e| {
         let kept = if path.exists() { "the previous one is unchanged" } else { "nothing was written" };
         anyhow::anyhow!("{e} ({kept})")
     })

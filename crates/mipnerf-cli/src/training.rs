@@ -537,7 +537,7 @@ impl<'a> TrainLoop<'a> {
         // The time it took to reach the saved state: a kill loses at most the time since.
         let total = self.seconds_before + self.t0.elapsed().as_secs_f64();
         let path = RunDir::new(self.run_dir).train_seconds();
-        checkpoint::write_atomic(&path, format!("{total:.3}\n").as_bytes(), &mut checkpoint::RealFs)?;
+        mipnerf_core::io::write_atomic(&path, format!("{total:.3}\n").as_bytes())?;
         self.last_saved = Some(self.be.step());
         Ok(())
     }
