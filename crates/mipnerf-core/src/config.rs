@@ -97,7 +97,7 @@ pub struct ModelConfig {
     /// Rays per pixel along each axis for supersampling (1 = one ray per pixel); the rendered
     /// colours of a pixel's `k x k` rays are averaged.
     pub supersample: usize,
-    /// Weight of mip-NeRF 360's distortion loss ([`stages::distortion_loss`]) on the last
+    /// Weight of mip-NeRF 360's distortion loss ([`crate::stages::distortion_loss`]) on the last
     /// level's weights, averaged over the batch's rays (0: off, Mip-NeRF; the successor's 0.01).
     /// CPU backend.
     pub distortion_loss_mult: f32,

@@ -1,9 +1,9 @@
 //! [`GpuBackend`]: training and rendering entirely on the device.
 //!
-//! Uploaded once: the training images and cameras ([`DeviceImages`]), the parameters and Adam's
+//! Uploaded once: the training images and cameras (`DeviceImages`), the parameters and Adam's
 //! moments. Each training step is one command buffer: the batch is drawn on the device
 //! (`batch.wgsl`, the CPU's pixels for the same seed and step), both levels run forward and
-//! backward ([`GpuModel`]), and Adam updates the parameters (`adam.wgsl`). Nothing is read back
+//! backward (`GpuModel`), and Adam updates the parameters (`adam.wgsl`). Nothing is read back
 //! unless the caller asks for the step's losses; checkpoints read the parameters and moments. A
 //! batch whose intermediates would exceed one device binding or the device's memory budget
 //! ([`GpuContext::memory_budget`]) runs in
@@ -15,7 +15,7 @@
 //! parameters read back then (the CPU backend's code, so both backends keep the same grid). The
 //! rays that meet no occupied cell are found on the host (the CPU's traversal of the CPU's rays
 //! for the same pixels: the same rays the CPU backend skips) and compacted away on the device
-//! ([`crate::kernels::compact`]): they render the background without sampling, MLP or rendering
+//! (`kernels::compact`): they render the background without sampling, MLP or rendering
 //! work, in training and in rendering.
 //!
 //! Rendering runs an image in chunks of a fixed number of rays through buffers that are reused
