@@ -607,7 +607,7 @@ impl Model {
     pub fn encode_point(&self, g: &Gaussian, dst: &mut [f32]) {
         let c = &self.config;
         let g = if c.unbounded { crate::contract::contract_gaussian(g) } else { *g };
-        stages::encode_gaussian(&g, c.point_encoding, c.min_deg_point, c.max_deg_point, dst);
+        stages::encode_gaussian(&g, (c.point_encoding, Precision::F32), c.min_deg_point, c.max_deg_point, dst);
     }
 
     /// Each pixel's colour: the mean of its rays' rendered colours.
@@ -742,7 +742,7 @@ impl DensityField for ModelDensity<'_> {
         let mut x = vec![0.0f32; n * x_dim];
         for (g, dst) in probes.iter().zip(x.chunks_exact_mut(x_dim)) {
             if contracted {
-                stages::encode_gaussian(g, c.point_encoding, c.min_deg_point, c.max_deg_point, dst);
+                stages::encode_gaussian(g, (c.point_encoding, Precision::F32), c.min_deg_point, c.max_deg_point, dst);
             } else {
                 self.model.encode_point(g, dst);
             }

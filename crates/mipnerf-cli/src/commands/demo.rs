@@ -1,6 +1,6 @@
 //! `mipnerf demo`: the built-in scene end to end, Mip-NeRF beside the NeRF baseline.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::Result;
 use mipnerf_core::data::{Split, demo};
@@ -52,10 +52,11 @@ pub struct Args {
 /// # Errors
 /// A failure of any step, naming it.
 pub fn run(a: Args, session: &Session) -> Result<()> {
-    demo(&a.out, &a, &a.device.options(), session)
+    demo(&a, &a.device.options(), session)
 }
 
-fn demo(out: &Path, d: &Args, device: &mipnerf_gpu::DeviceOptions, session: &Session) -> Result<()> {
+fn demo(d: &Args, device: &mipnerf_gpu::DeviceOptions, session: &Session) -> Result<()> {
+    let out = d.out.as_path();
     let data_dir = out.join("data");
     if !data_dir.join("metadata.json").is_file() {
         let cfg =

@@ -11,15 +11,23 @@ use crate::wide::wide;
 
 /// One Gaussian's features under a point encoding, into `dst`: the integrated positional
 /// encoding (Mip-NeRF), the same with zero covariance (the "w/o IPE" ablation), or NeRF's
-/// encoding of the mean with the identity.
+/// encoding of the mean with the identity. `precision` is that of the products the features
+/// feed: at [`Precision::Bf16`] the IPE is [`mip::integrated_pos_enc_for_bf16`].
 #[inline(always)]
-pub fn encode_gaussian(g: &Gaussian, encoding: PointEncoding, min_deg: u32, max_deg: u32, dst: &mut [f32]) {
+pub fn encode_gaussian(
+    g: &Gaussian,
+    (encoding, precision): (PointEncoding, Precision),
+    min_deg: u32,
+    max_deg: u32,
+    dst: &mut [f32],
+) {
+    let ipe = |g: &Gaussian, dst: &mut [f32]| match precision {
+        Precision::F32 => mip::integrated_pos_enc(g, min_deg, max_deg, dst),
+        Precision::Bf16 => mip::integrated_pos_enc_for_bf16(g, min_deg, max_deg, dst),
+    };
     match encoding {
-        PointEncoding::Integrated => mip::integrated_pos_enc(g, min_deg, max_deg, dst),
-        PointEncoding::Mean => {
-            let g0 = Gaussian { mean: g.mean, cov_diag: Vec3::ZERO };
-            mip::integrated_pos_enc(&g0, min_deg, max_deg, dst);
-        }
+        PointEncoding::Integrated => ipe(g, dst),
+        PointEncoding::Mean => ipe(&Gaussian { mean: g.mean, cov_diag: Vec3::ZERO }, dst),
         PointEncoding::Nerf => mip::pos_enc(g.mean, min_deg, max_deg, true, dst),
     }
 }
@@ -76,30 +84,18 @@ struct GaussianEncoding {
 }
 
 impl GaussianEncoding {
-    /// Encodes `gauss` into `x`, one row each, through [`wide`]'s 512-bit vectors where the CPU
-    /// has them.
+    /// Encodes `gauss` into `x` ([`encode_gaussian`], one row each), through [`wide`]'s 512-bit
+    /// vectors where the CPU has them.
     fn encode(self, gauss: &[Gaussian], x: &mut [f32]) {
-        wide(
-            #[inline(always)]
-            || self.encode_rows(gauss, x),
-        );
-    }
-
-    #[inline(always)]
-    fn encode_rows(self, gauss: &[Gaussian], x: &mut [f32]) {
         let (min_deg, max_deg) = self.degrees;
         let width = x.len() / gauss.len().max(1);
-        for (g, row) in gauss.iter().zip(x.chunks_exact_mut(width.max(1))) {
-            match (self.encoding, self.precision) {
-                (PointEncoding::Integrated, Precision::Bf16) => {
-                    mip::integrated_pos_enc_for_bf16(g, min_deg, max_deg, row)
+        wide(
+            #[inline(always)]
+            || {
+                for (g, row) in gauss.iter().zip(x.chunks_exact_mut(width.max(1))) {
+                    encode_gaussian(g, (self.encoding, self.precision), min_deg, max_deg, row);
                 }
-                (PointEncoding::Mean, Precision::Bf16) => {
-                    let g0 = Gaussian { mean: g.mean, cov_diag: Vec3::ZERO };
-                    mip::integrated_pos_enc_for_bf16(&g0, min_deg, max_deg, row);
-                }
-                _ => encode_gaussian(g, self.encoding, min_deg, max_deg, row),
-            }
-        }
+            },
+        );
     }
 }
