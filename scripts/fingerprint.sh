@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Behaviour fingerprint of a mipnerf binary: the SHA-256 of the checkpoints of 20-step runs on the
-# demo scene (Mip-NeRF tiny, fast, small and paper presets in f32 and the NeRF baseline on the CPU, tiny and fast on the
+# demo scene (Mip-NeRF tiny, fast, small and paper presets in f32, fast, small and paper in bf16 on each kernel the CPU
+# has, and the NeRF baseline on the CPU, tiny and fast on the
 # GPU backend where an adapter is found, lavapipe included), and of the demo's rendered PNGs. A refactor that must not change
 # behaviour gives the same lines before and after (issue 28):
 #   scripts/fingerprint.sh OLD_BINARY > before.txt; scripts/fingerprint.sh target/release/mipnerf > after.txt
@@ -26,6 +27,19 @@ run fast-cpu --preset fast --backend cpu --precision f32
 run small-cpu --preset small --backend cpu --precision f32
 run paper-cpu --preset paper --backend cpu --precision f32
 run nerf-cpu --model nerf --preset tiny --backend cpu
+# bf16 on each kernel this CPU has (AMX, then AVX-512 BF16 with AMX switched off): the hashes
+# depend on the kernel (its order of f32 additions), so compare them on one machine.
+flags=$(grep -o -w -E "amx_tile|amx_bf16|avx512_bf16" /proc/cpuinfo | sort -u | tr '\n' ' ')
+if [[ $flags == *avx512_bf16* ]]; then
+    for preset in fast small paper; do run "$preset-bf16" --preset "$preset" --backend cpu --precision bf16; done
+    if [[ $flags == *amx_bf16* && $flags == *amx_tile* ]]; then
+        for preset in fast small; do
+            MIPNERF_DISABLE_AMX=1 run "$preset-bf16-avx512" --preset "$preset" --backend cpu --precision bf16
+        done
+    fi
+else
+    echo "no avx512_bf16 on this CPU: bf16 runs skipped" >&2
+fi
 adapters=$("$bin" info 2>/dev/null || true)
 if grep -q "^  \[0\]" <<<"$adapters"; then
     run tiny-gpu --preset tiny --backend gpu

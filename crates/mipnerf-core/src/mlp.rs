@@ -20,7 +20,7 @@
 
 use rand::{Rng, SeedableRng, rngs::SmallRng};
 
-use crate::bf16::{Precision, matmul_bf16};
+use crate::bf16::{Bf16Matrix, Operand, Precision, Reads, matmul_bf16_with, uses_bf16};
 use crate::linalg::{Layout, matmul};
 use crate::wide::wide;
 
@@ -215,6 +215,82 @@ pub struct MlpCache {
     grad_b: Vec<f32>,
     grad_z: Vec<f32>,
     grad_ray: Vec<f32>,
+    /// At [`Precision::Bf16`], the products' operands packed once each ([`Packed`]).
+    packed: PackedOperands,
+    /// Whether the next forward pass packs its activations for a backward pass too.
+    training: bool,
+}
+
+impl MlpCache {
+    /// Whether the next [`MlpShape::forward`] is followed by a [`MlpShape::backward`]. At
+    /// [`Precision::Bf16`] the forward pass then packs each activation for the weight gradient
+    /// too, in the same pass as for the next layer (without it the backward pass packs them
+    /// itself). No effect on the results. `false` by default.
+    pub fn set_training(&mut self, training: bool) {
+        self.training = training;
+    }
+}
+
+/// The bf16 packings of the activations and gradients the MLP's products share.
+#[derive(Default, Debug, Clone)]
+struct PackedOperands {
+    x: Packed,
+    trunk: Vec<Packed>,
+    bottleneck: Packed,
+    cond: Vec<Packed>,
+    /// The gradient `dz` of the layer the backward pass is at.
+    dz: Packed,
+}
+
+/// A matrix's bf16 packing ([`Bf16Matrix`]) and the roles it was packed for this pass.
+#[derive(Default, Debug, Clone)]
+struct Packed {
+    matrix: Bf16Matrix,
+    reads: Reads,
+}
+
+impl Packed {
+    /// Packs `values` (`rows x cols`) in the roles `reads` names ([`input_reads`],
+    /// [`gradient_reads`]); nothing at f32.
+    fn pack(&mut self, precision: Precision, values: &[f32], rows: usize, cols: usize, reads: Reads) {
+        self.reads = if precision == Precision::Bf16 { reads } else { Reads::default() };
+        if self.reads != Reads::default() {
+            self.matrix.pack(values, rows, cols, self.reads);
+        }
+    }
+
+    /// `values` (the matrix packed) as an operand in `layout`, with its packing where the
+    /// role was packed.
+    fn operand<'a>(&'a self, values: &'a [f32], layout: Layout) -> Operand<'a> {
+        let packed = match layout {
+            Layout::Normal => self.reads.left,
+            Layout::Transposed => self.reads.left_transposed,
+        };
+        Operand { values, layout, packed: packed.then_some(&self.matrix) }
+    }
+
+    /// `values` as the right operand, stored as it is read, with its packing if packed so.
+    fn right<'a>(&'a self, values: &'a [f32]) -> Operand<'a> {
+        Operand { values, layout: Layout::Normal, packed: self.reads.right.then_some(&self.matrix) }
+    }
+}
+
+/// The roles a layer's input (`n x width`) plays, read by a layer of `fan_out` outputs: the
+/// forward product, and with `training` the weight gradient, where these run in bf16.
+fn input_reads(n: usize, width: usize, fan_out: usize, training: bool) -> Reads {
+    let bf16 = uses_bf16(n, width, fan_out);
+    Reads { left: bf16, left_transposed: bf16 && training, right: false }
+}
+
+/// The roles a layer's output gradient `dz` (`n x fan_out`, for a layer of `fan_in` inputs)
+/// plays: the right operand of the weight gradient and, with `input_gradient`, the left
+/// operand of the input gradient (to `width` columns), where these run in bf16.
+fn gradient_reads(n: usize, fan_in: usize, fan_out: usize, width: usize, input_gradient: bool) -> Reads {
+    Reads {
+        left: input_gradient && uses_bf16(n, fan_out, width),
+        left_transposed: false,
+        right: uses_bf16(fan_in, n, fan_out),
+    }
 }
 
 fn resize(v: &mut Vec<f32>, len: usize) {
@@ -222,33 +298,31 @@ fn resize(v: &mut Vec<f32>, len: usize) {
 }
 
 /// `out (n x fan_out) = sum over parts of input_p · (the kernel rows of part p)`: a dense layer
-/// without its bias, whose input is the concatenation of the parts `(input, width)` (the first
+/// without its bias, whose input is the concatenation of the parts (each `n x width`, the first
 /// rows of the kernel, in order).
-fn dense(p: Precision, params: &[f32], l: &DenseLayer, parts: &[(&[f32], usize)], n: usize, out: &mut [f32]) {
+fn dense(p: Precision, params: &[f32], l: &DenseLayer, parts: &[(Operand<'_>, usize)], n: usize, out: &mut [f32]) {
     let mut r0 = 0;
     for (k, &(input, width)) in parts.iter().enumerate() {
-        let rows = l.kernel_rows(params, r0, width);
-        product(p, out, input, Layout::Normal, rows, Layout::Normal, n, width, l.fan_out, k > 0);
+        let rows = Operand::f32(l.kernel_rows(params, r0, width), Layout::Normal);
+        product(p, out, input, rows, n, width, l.fan_out, k > 0);
         r0 += width;
     }
 }
 
-/// [`matmul`] or [`matmul_bf16`], as `precision` says.
+/// [`matmul`] or [`matmul_bf16_with`], as `precision` says.
 fn product(
     precision: Precision,
     c: &mut [f32],
-    a: &[f32],
-    la: Layout,
-    b: &[f32],
-    lb: Layout,
+    a: Operand<'_>,
+    b: Operand<'_>,
     m: usize,
     k: usize,
     n: usize,
     accumulate: bool,
 ) {
     match precision {
-        Precision::F32 => matmul(c, a, la, b, lb, m, k, n, accumulate),
-        Precision::Bf16 => matmul_bf16(c, a, la, b, lb, m, k, n, accumulate),
+        Precision::F32 => matmul(c, a.values, a.layout, b.values, b.layout, m, k, n, accumulate),
+        Precision::Bf16 => matmul_bf16_with(c, a, b, m, k, n, accumulate),
     }
 }
 
@@ -327,70 +401,72 @@ impl MlpShape {
         assert_eq!(view.len(), n_rays * c.view_dim, "mlp forward: view");
         cache.n = n;
         cache.n_rays = n_rays;
-        let (w, wc) = (c.net_width, c.net_width_condition);
-        cache.trunk.resize_with(c.net_depth, Vec::new);
+        let (w, wc, p) = (c.net_width, c.net_width_condition, self.precision);
+        let MlpCache { trunk, bottleneck, cond, view_proj, raw_rgb, raw_density, packed, training, .. } = cache;
+        let training = *training;
+        packed.x.pack(p, x, n, c.x_dim, input_reads(n, c.x_dim, w, training));
+        let x_part = (packed.x.operand(x, Layout::Normal), c.x_dim);
+        trunk.resize_with(c.net_depth, Vec::new);
+        packed.trunk.resize_with(c.net_depth, Packed::default);
         for i in 0..c.net_depth {
-            let (before, rest) = cache.trunk.split_at_mut(i);
+            let (before, rest) = trunk.split_at_mut(i);
             let out = &mut rest[0];
             resize(out, n * w);
             let l = self.trunk(i);
             if i == 0 {
-                dense(self.precision, params, l, &[(x, c.x_dim)], n, out);
-            } else if self.concat_after(i - 1) {
-                dense(self.precision, params, l, &[(&before[i - 1], w), (x, c.x_dim)], n, out);
+                dense(p, params, l, &[x_part], n, out);
             } else {
-                dense(self.precision, params, l, &[(&before[i - 1], w)], n, out);
+                let h = (packed.trunk[i - 1].operand(&before[i - 1], Layout::Normal), w);
+                let parts: &[_] = if self.concat_after(i - 1) { &[h, x_part] } else { &[h] };
+                dense(p, params, l, parts, n, out);
             }
             add_bias(out, l.bias(params), true);
+            // Read by the next trunk layer or the bottleneck, both `net_width` wide (the
+            // density head's one output runs in f32).
+            packed.trunk[i].pack(p, out, n, w, input_reads(n, w, w, training));
         }
         // Heads on [top, x?].
-        let top = &cache.trunk[c.net_depth - 1];
-        let top_parts: &[(&[f32], usize)] =
-            if self.concat_after(c.net_depth - 1) { &[(top, w), (x, c.x_dim)] } else { &[(top, w)] };
-        resize(&mut cache.raw_density, n);
-        dense(self.precision, params, self.density_head(), top_parts, n, &mut cache.raw_density);
-        add_bias(&mut cache.raw_density, self.density_head().bias(params), false);
-        resize(&mut cache.bottleneck, n * w);
-        dense(self.precision, params, self.bottleneck(), top_parts, n, &mut cache.bottleneck);
-        add_bias(&mut cache.bottleneck, self.bottleneck().bias(params), false);
+        let top = (packed.trunk[c.net_depth - 1].operand(&trunk[c.net_depth - 1], Layout::Normal), w);
+        let top_parts: &[_] = if self.concat_after(c.net_depth - 1) { &[top, x_part] } else { &[top] };
+        resize(raw_density, n);
+        dense(p, params, self.density_head(), top_parts, n, raw_density);
+        add_bias(raw_density, self.density_head().bias(params), false);
+        resize(bottleneck, n * w);
+        dense(p, params, self.bottleneck(), top_parts, n, bottleneck);
+        add_bias(bottleneck, self.bottleneck().bias(params), false);
+        packed.bottleneck.pack(p, bottleneck, n, w, input_reads(n, w, wc, training));
         // Condition layers. The first takes [bottleneck, view]; its view part, with the bias, is the
         // same for all samples of a ray, so it is computed once per ray and added to each sample.
-        cache.cond.resize_with(c.net_depth_condition, Vec::new);
+        cond.resize_with(c.net_depth_condition, Vec::new);
+        packed.cond.resize_with(c.net_depth_condition, Packed::default);
         let l0 = self.condition(0);
-        resize(&mut cache.view_proj, n_rays * wc);
-        let view_rows = l0.kernel_rows(params, w, c.view_dim);
-        product(
-            self.precision,
-            &mut cache.view_proj,
-            view,
-            Layout::Normal,
-            view_rows,
-            Layout::Normal,
-            n_rays,
-            c.view_dim,
-            wc,
-            false,
-        );
-        add_bias(&mut cache.view_proj, l0.bias(params), false);
+        resize(view_proj, n_rays * wc);
+        let view_rows = Operand::f32(l0.kernel_rows(params, w, c.view_dim), Layout::Normal);
+        product(p, view_proj, Operand::f32(view, Layout::Normal), view_rows, n_rays, c.view_dim, wc, false);
+        add_bias(view_proj, l0.bias(params), false);
         for j in 0..c.net_depth_condition {
-            let (before, rest) = cache.cond.split_at_mut(j);
+            let (before, rest) = cond.split_at_mut(j);
             let out = &mut rest[0];
             resize(out, n * wc);
             let l = self.condition(j);
             if j == 0 {
-                dense(self.precision, params, l, &[(&cache.bottleneck, w)], n, out);
+                dense(p, params, l, &[(packed.bottleneck.operand(bottleneck, Layout::Normal), w)], n, out);
                 for (r, rows) in out.chunks_exact_mut(samples_per_ray * wc).enumerate() {
-                    add_bias(rows, &cache.view_proj[r * wc..(r + 1) * wc], true);
+                    add_bias(rows, &view_proj[r * wc..(r + 1) * wc], true);
                 }
             } else {
-                dense(self.precision, params, l, &[(&before[j - 1], wc)], n, out);
+                dense(p, params, l, &[(packed.cond[j - 1].operand(&before[j - 1], Layout::Normal), wc)], n, out);
                 add_bias(out, l.bias(params), true);
             }
+            // Read by the next condition layer, or by the 3 colours' head (in f32).
+            let next = if j + 1 < c.net_depth_condition { wc } else { self.rgb_head().fan_out };
+            packed.cond[j].pack(p, out, n, wc, input_reads(n, wc, next, training));
         }
-        resize(&mut cache.raw_rgb, n * 3);
+        resize(raw_rgb, n * 3);
         let l = self.rgb_head();
-        dense(self.precision, params, l, &[(&cache.cond[c.net_depth_condition - 1], wc)], n, &mut cache.raw_rgb);
-        add_bias(&mut cache.raw_rgb, l.bias(params), false);
+        let last = c.net_depth_condition - 1;
+        dense(p, params, l, &[(packed.cond[last].operand(&cond[last], Layout::Normal), wc)], n, raw_rgb);
+        add_bias(raw_rgb, l.bias(params), false);
     }
 
     /// Backward pass of the last [`forward`](Self::forward) (same `params`, `x`, `view`, `cache`):
@@ -415,77 +491,53 @@ impl MlpShape {
         assert_eq!(d_raw_rgb.len(), n * 3, "mlp backward: d_raw_rgb");
         assert_eq!(d_raw_density.len(), n, "mlp backward: d_raw_density");
         assert_eq!(n, n_rays * samples_per_ray, "mlp backward: samples per ray");
-        let (w, wc) = (c.net_width, c.net_width_condition);
-        let MlpCache { trunk, bottleneck, cond, grad_a, grad_b, grad_z, grad_ray, .. } = cache;
+        let (w, wc, p) = (c.net_width, c.net_width_condition, self.precision);
+        let MlpCache { trunk, bottleneck, cond, grad_a, grad_b, grad_z, grad_ray, packed, .. } = cache;
+        let (normal, transposed) = (Layout::Normal, Layout::Transposed);
 
         // Accumulate kernel += inᵀ · dz and bias += colsum(dz).
         let weight_grad =
-            |grads: &mut [f32], l: &DenseLayer, r0: usize, input: &[f32], in_w: usize, dz: &[f32], rows: usize| {
+            |grads: &mut [f32], l: &DenseLayer, r0: usize, input: Operand<'_>, in_w: usize, dz: Operand<'_>, rows| {
                 let k = &mut grads[l.kernel + r0 * l.fan_out..l.kernel + (r0 + in_w) * l.fan_out];
-                product(self.precision, k, input, Layout::Transposed, dz, Layout::Normal, in_w, rows, l.fan_out, true);
+                product(p, k, input, dz, in_w, rows, l.fan_out, true);
             };
+        // A layer's kernel (its first `rows` rows), transposed: the input gradient's right operand.
+        let kernel_t = |l: &DenseLayer, rows: usize| Operand::f32(l.kernel_rows(params, 0, rows), transposed);
 
         // rgb head.
         let l = self.rgb_head();
-        let last = &cond[c.net_depth_condition - 1];
-        weight_grad(grads, l, 0, last, wc, d_raw_rgb, n);
+        let last = c.net_depth_condition - 1;
+        let d_rgb = Operand::f32(d_raw_rgb, normal);
+        weight_grad(grads, l, 0, packed.cond[last].operand(&cond[last], transposed), wc, d_rgb, n);
         add_col_sums(&mut grads[l.bias..l.bias + 3], d_raw_rgb);
         resize(grad_a, n * wc);
-        product(
-            self.precision,
-            grad_a,
-            d_raw_rgb,
-            Layout::Normal,
-            l.kernel(params),
-            Layout::Transposed,
-            n,
-            3,
-            wc,
-            false,
-        );
+        product(p, grad_a, d_rgb, kernel_t(l, wc), n, 3, wc, false);
         // Condition layers, top down. grad_a holds d(output of layer j).
         for j in (0..c.net_depth_condition).rev() {
             let l = self.condition(j);
             relu_backward_bias(grad_a, &cond[j], &mut grads[l.bias..l.bias + wc]);
             if j > 0 {
-                weight_grad(grads, l, 0, &cond[j - 1], wc, grad_a, n);
+                packed.dz.pack(p, grad_a, n, wc, gradient_reads(n, wc, wc, wc, true));
+                let input = packed.cond[j - 1].operand(&cond[j - 1], transposed);
+                weight_grad(grads, l, 0, input, wc, packed.dz.right(grad_a), n);
                 resize(grad_b, n * wc);
-                product(
-                    self.precision,
-                    grad_b,
-                    grad_a,
-                    Layout::Normal,
-                    l.kernel(params),
-                    Layout::Transposed,
-                    n,
-                    wc,
-                    wc,
-                    false,
-                );
+                product(p, grad_b, packed.dz.operand(grad_a, normal), kernel_t(l, wc), n, wc, wc, false);
                 std::mem::swap(grad_a, grad_b);
             } else {
-                weight_grad(grads, l, 0, bottleneck, w, grad_a, n);
+                packed.dz.pack(p, grad_a, n, wc, gradient_reads(n, w, wc, w, true));
+                let input = packed.bottleneck.operand(bottleneck, transposed);
+                weight_grad(grads, l, 0, input, w, packed.dz.right(grad_a), n);
                 // View rows: viewᵀ · (per-ray sums of dz).
                 resize(grad_ray, n_rays * wc);
                 grad_ray.fill(0.0);
                 for (r, rows) in grad_a.chunks_exact(samples_per_ray * wc).enumerate() {
                     add_col_sums(&mut grad_ray[r * wc..(r + 1) * wc], rows);
                 }
-                weight_grad(grads, l, w, view, c.view_dim, grad_ray, n_rays);
+                let (view_t, d_ray) = (Operand::f32(view, transposed), Operand::f32(grad_ray, normal));
+                weight_grad(grads, l, w, view_t, c.view_dim, d_ray, n_rays);
                 // d bottleneck.
                 resize(grad_b, n * w);
-                product(
-                    self.precision,
-                    grad_b,
-                    grad_a,
-                    Layout::Normal,
-                    l.kernel_rows(params, 0, w),
-                    Layout::Transposed,
-                    n,
-                    wc,
-                    w,
-                    false,
-                );
+                product(p, grad_b, packed.dz.operand(grad_a, normal), kernel_t(l, w), n, wc, w, false);
             }
         }
         // grad_b = d bottleneck (no activation). Heads read [top, x?].
@@ -493,48 +545,32 @@ impl MlpShape {
         let top = &trunk[c.net_depth - 1];
         resize(grad_z, n * w);
         for (l, dz, first) in [(self.bottleneck(), &grad_b[..], true), (self.density_head(), d_raw_density, false)] {
-            weight_grad(grads, l, 0, top, w, dz, n);
+            packed.dz.pack(p, dz, n, l.fan_out, gradient_reads(n, w, l.fan_out, w, true));
+            let input = packed.trunk[c.net_depth - 1].operand(top, transposed);
+            weight_grad(grads, l, 0, input, w, packed.dz.right(dz), n);
             if top_concat {
-                weight_grad(grads, l, w, x, c.x_dim, dz, n);
+                weight_grad(grads, l, w, packed.x.operand(x, transposed), c.x_dim, packed.dz.right(dz), n);
             }
             add_col_sums(&mut grads[l.bias..l.bias + l.fan_out], dz);
-            product(
-                self.precision,
-                grad_z,
-                dz,
-                Layout::Normal,
-                l.kernel_rows(params, 0, w),
-                Layout::Transposed,
-                n,
-                l.fan_out,
-                w,
-                !first,
-            );
+            product(p, grad_z, packed.dz.operand(dz, normal), kernel_t(l, w), n, l.fan_out, w, !first);
         }
         // Trunk, top down. grad_z holds d(output of layer i).
         for i in (0..c.net_depth).rev() {
             let l = self.trunk(i);
             relu_backward_bias(grad_z, &trunk[i], &mut grads[l.bias..l.bias + w]);
+            // The kernel's first rows take the previous layer's output (the input x at layer 0).
+            let first_part = if i == 0 { c.x_dim } else { w };
+            packed.dz.pack(p, grad_z, n, w, gradient_reads(n, first_part, w, w, i > 0));
             if i == 0 {
-                weight_grad(grads, l, 0, x, c.x_dim, grad_z, n);
+                weight_grad(grads, l, 0, packed.x.operand(x, transposed), c.x_dim, packed.dz.right(grad_z), n);
             } else {
-                weight_grad(grads, l, 0, &trunk[i - 1], w, grad_z, n);
+                let input = packed.trunk[i - 1].operand(&trunk[i - 1], transposed);
+                weight_grad(grads, l, 0, input, w, packed.dz.right(grad_z), n);
                 if self.concat_after(i - 1) {
-                    weight_grad(grads, l, w, x, c.x_dim, grad_z, n);
+                    weight_grad(grads, l, w, packed.x.operand(x, transposed), c.x_dim, packed.dz.right(grad_z), n);
                 }
                 resize(grad_a, n * w);
-                product(
-                    self.precision,
-                    grad_a,
-                    grad_z,
-                    Layout::Normal,
-                    l.kernel_rows(params, 0, w),
-                    Layout::Transposed,
-                    n,
-                    w,
-                    w,
-                    false,
-                );
+                product(p, grad_a, packed.dz.operand(grad_z, normal), kernel_t(l, w), n, w, w, false);
                 std::mem::swap(grad_a, grad_z);
             }
         }

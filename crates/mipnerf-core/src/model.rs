@@ -505,6 +505,7 @@ impl Model {
         ws.backgrounds.clear();
         ws.backgrounds.extend(ws.ids.iter().map(|&id| self.ray_background(mode, id)));
         stages::encode_view_directions(rays, c.deg_view, &mut ws.view);
+        ws.cache.set_training(grads.is_some());
         for level in 0..c.num_levels {
             match (level, spans) {
                 (0, Some(sp)) => stages::sample_occupied_intervals(

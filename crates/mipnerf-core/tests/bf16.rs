@@ -5,8 +5,8 @@
 #![allow(clippy::unwrap_used, missing_docs)]
 
 use mipnerf_core::bf16::{
-    Bf16Kernel, Bf16Support, bf16_product_relative_bound, matmul_bf16, matmul_bf16_emulated, matmul_bf16_on,
-    round_to_bf16,
+    Bf16Kernel, Bf16Matrix, Bf16Support, Operand, Reads, bf16_product_relative_bound, matmul_bf16,
+    matmul_bf16_emulated, matmul_bf16_on, matmul_bf16_with_on, round_to_bf16,
 };
 use mipnerf_core::linalg::{Layout, matmul};
 use mipnerf_core::test_support::skipped_for_cpu_feature;
@@ -183,6 +183,94 @@ fn amx_and_avx512_kernels_agree() {
     for (idx, (x, y)) in amx.iter().zip(&avx).enumerate() {
         assert!((x - y).abs() <= 2.0 * k as f32 * f32::EPSILON * abs[idx], "[{idx}]: AMX {x} vs AVX-512 {y}");
     }
+}
+
+/// A matrix packed once ([`Bf16Matrix`]) and read by a product in each role gives that
+/// product's bits exactly, as packing inside the product does, on every kernel this CPU has:
+/// the forward product's and the input gradient's left operand, the weight gradient's
+/// transposed left operand and right operand, in every combination packed in one pass, on
+/// MLP-sized and ragged shapes, overwriting and accumulating.
+#[test]
+fn operands_packed_once_give_the_bits_of_operands_packed_by_each_product() {
+    let mut ran = false;
+    for kernel in Bf16Kernel::ALL {
+        if let Err(why) = kernel.check() {
+            let feature = if kernel == Bf16Kernel::Amx { "amx_bf16" } else { "avx512_bf16" };
+            skipped_for_cpu_feature(
+                "operands_packed_once_give_the_bits_of_operands_packed_by_each_product",
+                feature,
+                why,
+            );
+            continue;
+        }
+        ran = true;
+        let all_reads =
+            (0..8).map(|bits| Reads { left: bits & 1 != 0, left_transposed: bits & 2 != 0, right: bits & 4 != 0 });
+        for (rows, cols, other) in [(256, 128, 64), (37, 45, 53), (129, 96, 17), (1100, 35, 21), (16, 16, 16)] {
+            let x = values(rows * cols, (rows + cols) as u64);
+            for reads in all_reads.clone() {
+                // A reused matrix, packed before at another shape and in other roles.
+                let mut packed = Bf16Matrix::default();
+                packed.pack_for(
+                    kernel,
+                    &values(50 * 70, 1),
+                    50,
+                    70,
+                    Reads { left: true, left_transposed: true, right: true },
+                );
+                packed.pack_for(kernel, &x, rows, cols, reads);
+                assert_eq!((packed.rows(), packed.cols()), (rows, cols));
+                // Each role this packing serves: (a, b, m, k, n), `x` packed in one of them.
+                let w = values(cols * other, 7);
+                let w_rows = values(other * cols, 8);
+                let g = values(rows * other, 9);
+                let mut roles: Vec<(&str, Operand<'_>, Operand<'_>, usize, usize, usize)> = Vec::new();
+                let with = |values, layout| Operand { values, layout, packed: Some(&packed) };
+                if reads.left {
+                    roles.push(("left", with(&x, Layout::Normal), Operand::f32(&w, Layout::Normal), rows, cols, other));
+                    let wt = Operand::f32(&w_rows, Layout::Transposed);
+                    roles.push(("left, kernel transposed", with(&x, Layout::Normal), wt, rows, cols, other));
+                }
+                if reads.left_transposed {
+                    let right = Operand::f32(&g, Layout::Normal);
+                    roles.push(("left transposed", with(&x, Layout::Transposed), right, cols, rows, other));
+                }
+                if reads.right {
+                    let left = Operand::f32(&g, Layout::Transposed);
+                    roles.push(("right", left, with(&x, Layout::Normal), other, rows, cols));
+                }
+                for (role, a, b, m, k, n) in roles {
+                    for accumulate in [false, true] {
+                        let start = values(m * n, 11);
+                        let (mut got, mut want) = (start.clone(), start.clone());
+                        matmul_bf16_with_on(kernel, &mut got, a, b, m, k, n, accumulate);
+                        matmul_bf16_on(kernel, &mut want, a.values, a.layout, b.values, b.layout, m, k, n, accumulate);
+                        let same = got.iter().zip(&want).all(|(g, w)| g.to_bits() == w.to_bits());
+                        assert!(
+                            same,
+                            "{} {role} {reads:?} {rows}x{cols} acc={accumulate}: not the same bits",
+                            kernel.name()
+                        );
+                    }
+                }
+            }
+        }
+    }
+    if !ran {
+        return;
+    }
+    // A packing read in a role it was not packed for is a caller's error, refused.
+    let kernel = Bf16Support::detect().kernel().unwrap();
+    let x = values(64 * 32, 2);
+    let mut packed = Bf16Matrix::default();
+    packed.pack_for(kernel, &x, 64, 32, Reads { left: true, ..Reads::default() });
+    let g = values(64 * 32, 3);
+    let caught = std::panic::catch_unwind(|| {
+        let mut c = vec![0.0; 32 * 32];
+        let a = Operand { values: &x, layout: Layout::Transposed, packed: Some(&packed) };
+        matmul_bf16_with_on(kernel, &mut c, a, Operand::f32(&g, Layout::Normal), 32, 64, 32, false);
+    });
+    assert!(caught.is_err(), "a matrix packed only as a left operand is refused as a transposed one");
 }
 
 /// Where the CPU has no bf16 kernel, `matmul_bf16` is not reached: the model refuses bf16.

@@ -3,6 +3,7 @@ use std::arch::x86_64::{
     _mm512_set1_epi32, _mm512_setzero_ps,
 };
 
+use super::packed::PackedLeft;
 use super::{K_STEP, a_index, b_index};
 
 /// Output rows per step of the micro-kernel: half a packed 16-row tile.
@@ -27,24 +28,13 @@ pub(super) fn detect() -> Result<(), String> {
     if missing.is_empty() { Ok(()) } else { Err(format!("this CPU lacks {} (AVX-512 BF16)", missing.join(", "))) }
 }
 
-/// The packed `a`, in one of two orders; the kernel reads the pair of k values `(2q, 2q + 1)`
-/// of a row from either.
-pub(super) enum PackedA<'a> {
-    /// [`a_index`]'s tiles (the AMX kernel's), from `a` stored `m x k`: a row's pairs are
-    /// contiguous.
-    Tiles(&'a [u16]),
-    /// [`b_index`]'s order with `a`'s rows as the columns, from `a` stored `k x m` (packed
-    /// without a transpose): the pairs of 16 rows at one `q` are contiguous.
-    Pairs(&'a [u32]),
-}
-
-/// `c (m x n, row-major) = [c +] A · B` from the packed operands ([`PackedA`], [`b_index`]):
+/// `c (m x n, row-major) = [c +] A · B` from the packed operands ([`PackedLeft`], [`b_index`]):
 /// k in passes of [`KC`], each pass sweeping the output in 8 x 32 blocks held in sixteen
 /// registers. Rows and columns past `m` and `n` are computed on the zero padding and
 /// neither read nor written in `c`.
 pub(super) fn product(
     c: &mut [f32],
-    a: PackedA<'_>,
+    a: PackedLeft<'_>,
     b: &[u32],
     m: usize,
     n: usize,
@@ -54,8 +44,8 @@ pub(super) fn product(
     accumulate: bool,
 ) {
     let a_values = match a {
-        PackedA::Tiles(a) => a.len(),
-        PackedA::Pairs(a) => a.len().saturating_mul(2),
+        PackedLeft::Tiles(a) => a.len(),
+        PackedLeft::Pairs(a) => a.len().saturating_mul(2),
     };
     super::assert_packed(super::Bf16Kernel::Avx512, c, a_values, b, m, n, mp, kp, np);
     for k0 in (0..kp).step_by(KC) {
@@ -68,10 +58,10 @@ pub(super) fn product(
                 // the block), k0..k1 below kp, and the sizes of the buffers are asserted.
                 unsafe {
                     match a {
-                        PackedA::Tiles(a) => {
+                        PackedLeft::Tiles(a) => {
                             block::<false>(c, a.as_ptr().cast(), b, m, n, kp, i0, j0, k0, k1, accumulate);
                         }
-                        PackedA::Pairs(a) => block::<true>(c, a.as_ptr(), b, m, n, kp, i0, j0, k0, k1, accumulate),
+                        PackedLeft::Pairs(a) => block::<true>(c, a.as_ptr(), b, m, n, kp, i0, j0, k0, k1, accumulate),
                     }
                 }
             }
@@ -81,7 +71,7 @@ pub(super) fn product(
 
 /// One 8 x 32 block of `c` at `(i0, j0)` over k in `k0..k1` (whole k tiles): sixteen
 /// accumulators; per pair of k values, two vectors of `b` and eight broadcast pairs of `a`,
-/// read from `a` in [`PackedA::Pairs`]' order if `A_PAIRS`, else [`PackedA::Tiles`]'.
+/// read from `a` in [`PackedLeft::Pairs`]' order if `A_PAIRS`, else [`PackedLeft::Tiles`]'.
 ///
 /// # Safety
 /// The CPU has AVX-512 F and BF16; `i0 + 8 <= mp`, `j0 + 32 <= np`, `k1 <= kp` with `k0` and

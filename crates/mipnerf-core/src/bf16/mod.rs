@@ -28,6 +28,9 @@ use std::sync::OnceLock;
 
 use crate::linalg::{Layout, matmul};
 
+use packed::PackedLeft;
+pub use packed::{Bf16Matrix, Operand, Reads};
+
 /// Relative rounding error of one f32 -> bf16 conversion (round to nearest even): `2^-8`.
 pub const BF16_UNIT_ROUNDOFF: f64 = 1.0 / 256.0;
 
@@ -278,14 +281,45 @@ pub fn matmul_bf16_on(
     n: usize,
     accumulate: bool,
 ) {
+    matmul_bf16_with_on(kernel, c, Operand::f32(a, la), Operand::f32(b, lb), m, k, n, accumulate);
+}
+
+/// [`matmul_bf16`] on operands that may have been packed before ([`Operand::packed`],
+/// [`Bf16Matrix`]): those are read as packed, the others packed here. The same bits as
+/// [`matmul_bf16`] on the operands' values.
+///
+/// # Panics
+/// As [`matmul_bf16`]; also if a packed operand's shape or layouts do not match its role.
+pub fn matmul_bf16_with(c: &mut [f32], a: Operand<'_>, b: Operand<'_>, m: usize, k: usize, n: usize, accumulate: bool) {
+    let kernel = Bf16Support::detect().kernel();
+    let kernel = kernel.unwrap_or_else(|| panic!("matmul_bf16 without a bf16 kernel: {:?}", Bf16Support::detect()));
+    matmul_bf16_with_on(kernel, c, a, b, m, k, n, accumulate);
+}
+
+/// [`matmul_bf16_with`] on the given kernel ([`matmul_bf16_on`]); packed operands must have
+/// been packed for it ([`Bf16Matrix::pack_for`]).
+///
+/// # Panics
+/// As [`matmul_bf16_on`] and [`matmul_bf16_with`].
+pub fn matmul_bf16_with_on(
+    kernel: Bf16Kernel,
+    c: &mut [f32],
+    a: Operand<'_>,
+    b: Operand<'_>,
+    m: usize,
+    k: usize,
+    n: usize,
+    accumulate: bool,
+) {
+    let (la, lb) = (a.layout, b.layout);
     if !uses_bf16(m, k, n) {
-        matmul(c, a, la, b, lb, m, k, n, accumulate);
+        matmul(c, a.values, la, b.values, lb, m, k, n, accumulate);
         return;
     }
     let size = crate::linalg::checked_len;
     assert!(c.len() >= size(m, n), "matmul_bf16: c has {} < {m}x{n}", c.len());
-    assert!(a.len() >= size(m, k), "matmul_bf16: a has {} < {m}x{k}", a.len());
-    assert!(b.len() >= size(k, n), "matmul_bf16: b has {} < {k}x{n}", b.len());
+    assert!(a.values.len() >= size(m, k), "matmul_bf16: a has {} < {m}x{k}", a.values.len());
+    assert!(b.values.len() >= size(k, n), "matmul_bf16: b has {} < {k}x{n}", b.values.len());
     if let Err(why) = kernel.check() {
         panic!("matmul_bf16 on {}: {why}", kernel.name());
     }
@@ -295,22 +329,30 @@ pub fn matmul_bf16_on(
     PACKED.with(|p| {
         let p = &mut *p.borrow_mut();
         let (mp, kp, np) = (m.next_multiple_of(BLOCK), k.next_multiple_of(K_STEP), n.next_multiple_of(BLOCK));
-        simd::pack_pairs(&mut p.b, b, lb, k, n, kp, np);
-        match (kernel, la) {
-            (Bf16Kernel::Amx, _) => {
-                simd::pack_rows(&mut p.a, a, la, m, k, mp, kp);
-                amx::product(c, &p.a, &p.b, m, n, mp, kp, np, accumulate);
+        let b_pairs: &[u32] = match b.packed {
+            Some(packed) if lb == Layout::Normal => packed.right(kernel, k, n),
+            _ => {
+                simd::pack_pairs(&mut p.b, b.values, lb, k, n, kp, np);
+                &p.b
             }
-            (Bf16Kernel::Avx512, Layout::Normal) => {
-                simd::pack_rows(&mut p.a, a, la, m, k, mp, kp);
-                avx512::product(c, avx512::PackedA::Tiles(&p.a), &p.b, m, n, mp, kp, np, accumulate);
+        };
+        let a_packed = match (a.packed, kernel, la) {
+            (Some(packed), _, _) => packed.left(kernel, la, m, k),
+            // `a` stored `k x m` (a weight gradient's activations): for the AVX-512 kernel its
+            // pairs along k are packed as `b`'s are, with no transpose, and read in that order.
+            (None, Bf16Kernel::Avx512, Layout::Transposed) => {
+                simd::pack_pairs(&mut p.a_pairs, a.values, Layout::Normal, k, m, kp, mp);
+                PackedLeft::Pairs(&p.a_pairs)
             }
-            // `a` stored `k x m` (a weight gradient's activations): its pairs along k are packed
-            // as `b`'s are, with no transpose, and the kernel reads them in that order.
-            (Bf16Kernel::Avx512, Layout::Transposed) => {
-                simd::pack_pairs(&mut p.a_pairs, a, Layout::Normal, k, m, kp, mp);
-                avx512::product(c, avx512::PackedA::Pairs(&p.a_pairs), &p.b, m, n, mp, kp, np, accumulate);
+            (None, _, _) => {
+                simd::pack_rows(&mut p.a, a.values, la, m, k, mp, kp);
+                PackedLeft::Tiles(&p.a)
             }
+        };
+        match (kernel, a_packed) {
+            (Bf16Kernel::Amx, PackedLeft::Tiles(a)) => amx::product(c, a, b_pairs, m, n, mp, kp, np, accumulate),
+            (Bf16Kernel::Amx, PackedLeft::Pairs(_)) => unreachable!("the AMX kernel's operands are packed in tiles"),
+            (Bf16Kernel::Avx512, a) => avx512::product(c, a, b_pairs, m, n, mp, kp, np, accumulate),
         }
     });
 }
@@ -445,12 +487,15 @@ fn grow<T: Copy + Default>(out: &mut Vec<T>, len: usize) {
 #[cfg(target_arch = "x86_64")]
 mod simd;
 
+/// Operands packed once for several products.
+mod packed;
+
 /// The AMX kernel. Every `unsafe` block is here and justified where it is.
 #[cfg(target_arch = "x86_64")]
 mod amx;
 
 /// The AVX-512 BF16 kernel (`vdpbf16ps`), on the packed operands the AMX kernel reads, except
-/// a transposed `a`, which it reads in pairs ([`PackedA::Pairs`]) rather than transposed into
+/// a transposed `a`, which it reads in pairs ([`PackedLeft::Pairs`]) rather than transposed into
 /// AMX's tiles. Every `unsafe` block is here and justified where it is.
 #[cfg(target_arch = "x86_64")]
 mod avx512;
