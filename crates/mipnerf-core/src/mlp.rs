@@ -18,6 +18,8 @@
 //! concatenation order. The GPU backend and the checkpoints share this layout
 //! ([`MlpShape::layers`] lists the names, offsets and shapes).
 
+use std::ops::Range;
+
 use rand::{Rng, SeedableRng, rngs::SmallRng};
 
 use crate::bf16::{Bf16Matrix, Operand, Precision, Reads, matmul_bf16_with, uses_bf16};
@@ -219,6 +221,8 @@ pub struct MlpCache {
     packed: PackedOperands,
     /// Whether the next forward pass packs its activations for a backward pass too.
     training: bool,
+    /// Whether each product packs its own bf16 operands (the way before [`PackedOperands`]).
+    pack_in_each_product: bool,
 }
 
 impl MlpCache {
@@ -228,6 +232,14 @@ impl MlpCache {
     /// itself). No effect on the results. `false` by default.
     pub fn set_training(&mut self, training: bool) {
         self.training = training;
+    }
+
+    /// At [`Precision::Bf16`], whether every product rounds and packs its own operands
+    /// ([`crate::bf16::matmul_bf16`]) rather than reading each activation and gradient packed
+    /// once for all its products (the default). The same bits either way; kept to measure what
+    /// packing once saves (`benches/mlp_bf16.rs`).
+    pub fn set_pack_in_each_product(&mut self, yes: bool) {
+        self.pack_in_each_product = yes;
     }
 }
 
@@ -256,6 +268,26 @@ impl Packed {
         self.reads = if precision == Precision::Bf16 { reads } else { Reads::default() };
         if self.reads != Reads::default() {
             self.matrix.pack(values, rows, cols, self.reads);
+        }
+    }
+
+    /// Lets `prepare` finish `values` (`rows x cols`) and packs them as [`pack`](Self::pack)
+    /// does, block after block while each block is in the cache ([`Bf16Matrix::pack_after`]);
+    /// at f32, or with no role to pack, `prepare` runs on all rows at once.
+    fn pack_after(
+        &mut self,
+        precision: Precision,
+        values: &mut [f32],
+        rows: usize,
+        cols: usize,
+        reads: Reads,
+        mut prepare: impl FnMut(&mut [f32], Range<usize>),
+    ) {
+        self.reads = if precision == Precision::Bf16 { reads } else { Reads::default() };
+        if self.reads == Reads::default() {
+            prepare(&mut values[..rows * cols], 0..rows);
+        } else {
+            self.matrix.pack_after(values, rows, cols, self.reads, prepare);
         }
     }
 
@@ -346,6 +378,20 @@ fn add_bias(out: &mut [f32], bias: &[f32], relu: bool) {
     );
 }
 
+/// [`add_bias`] with ReLU where the bias is one row per ray (`ray_bias`, `rays x width`):
+/// `rows` (`width` wide) are the samples from `first_sample` on, `samples_per_ray` per ray.
+fn add_ray_bias_relu(rows: &mut [f32], first_sample: usize, ray_bias: &[f32], width: usize, samples_per_ray: usize) {
+    let mut sample = first_sample;
+    let mut rest = rows;
+    while !rest.is_empty() {
+        let ray = sample / samples_per_ray;
+        let here = ((ray + 1) * samples_per_ray - sample).min(rest.len() / width);
+        let (now, later) = rest.split_at_mut(here * width);
+        add_bias(now, &ray_bias[ray * width..(ray + 1) * width], true);
+        (sample, rest) = (sample + here, later);
+    }
+}
+
 /// ReLU's backward pass in place (`g = g * (h > 0)`), adding the column sums of the result to
 /// `bias_grad`: one pass, branch-free so that it vectorises ([`wide`]).
 fn relu_backward_bias(g: &mut [f32], h: &[f32], bias_grad: &mut [f32]) {
@@ -402,9 +448,11 @@ impl MlpShape {
         cache.n = n;
         cache.n_rays = n_rays;
         let (w, wc, p) = (c.net_width, c.net_width_condition, self.precision);
+        // The precision the shared packings are made for: none at f32, or if each product packs.
+        let pack = if cache.pack_in_each_product { Precision::F32 } else { p };
         let MlpCache { trunk, bottleneck, cond, view_proj, raw_rgb, raw_density, packed, training, .. } = cache;
         let training = *training;
-        packed.x.pack(p, x, n, c.x_dim, input_reads(n, c.x_dim, w, training));
+        packed.x.pack(pack, x, n, c.x_dim, input_reads(n, c.x_dim, w, training));
         let x_part = (packed.x.operand(x, Layout::Normal), c.x_dim);
         trunk.resize_with(c.net_depth, Vec::new);
         packed.trunk.resize_with(c.net_depth, Packed::default);
@@ -420,10 +468,11 @@ impl MlpShape {
                 let parts: &[_] = if self.concat_after(i - 1) { &[h, x_part] } else { &[h] };
                 dense(p, params, l, parts, n, out);
             }
-            add_bias(out, l.bias(params), true);
             // Read by the next trunk layer or the bottleneck, both `net_width` wide (the
             // density head's one output runs in f32).
-            packed.trunk[i].pack(p, out, n, w, input_reads(n, w, w, training));
+            let bias = l.bias(params);
+            packed.trunk[i]
+                .pack_after(pack, out, n, w, input_reads(n, w, w, training), |rows, _| add_bias(rows, bias, true));
         }
         // Heads on [top, x?].
         let top = (packed.trunk[c.net_depth - 1].operand(&trunk[c.net_depth - 1], Layout::Normal), w);
@@ -433,8 +482,8 @@ impl MlpShape {
         add_bias(raw_density, self.density_head().bias(params), false);
         resize(bottleneck, n * w);
         dense(p, params, self.bottleneck(), top_parts, n, bottleneck);
-        add_bias(bottleneck, self.bottleneck().bias(params), false);
-        packed.bottleneck.pack(p, bottleneck, n, w, input_reads(n, w, wc, training));
+        let (bias, reads) = (self.bottleneck().bias(params), input_reads(n, w, wc, training));
+        packed.bottleneck.pack_after(pack, bottleneck, n, w, reads, |rows, _| add_bias(rows, bias, false));
         // Condition layers. The first takes [bottleneck, view]; its view part, with the bias, is the
         // same for all samples of a ray, so it is computed once per ray and added to each sample.
         cond.resize_with(c.net_depth_condition, Vec::new);
@@ -449,18 +498,20 @@ impl MlpShape {
             let out = &mut rest[0];
             resize(out, n * wc);
             let l = self.condition(j);
-            if j == 0 {
-                dense(p, params, l, &[(packed.bottleneck.operand(bottleneck, Layout::Normal), w)], n, out);
-                for (r, rows) in out.chunks_exact_mut(samples_per_ray * wc).enumerate() {
-                    add_bias(rows, &view_proj[r * wc..(r + 1) * wc], true);
-                }
-            } else {
-                dense(p, params, l, &[(packed.cond[j - 1].operand(&before[j - 1], Layout::Normal), wc)], n, out);
-                add_bias(out, l.bias(params), true);
-            }
             // Read by the next condition layer, or by the 3 colours' head (in f32).
             let next = if j + 1 < c.net_depth_condition { wc } else { self.rgb_head().fan_out };
-            packed.cond[j].pack(p, out, n, wc, input_reads(n, wc, next, training));
+            let reads = input_reads(n, wc, next, training);
+            if j == 0 {
+                dense(p, params, l, &[(packed.bottleneck.operand(bottleneck, Layout::Normal), w)], n, out);
+                let view_proj = &view_proj[..];
+                packed.cond[j].pack_after(pack, out, n, wc, reads, |block, rows| {
+                    add_ray_bias_relu(block, rows.start, view_proj, wc, samples_per_ray);
+                });
+            } else {
+                dense(p, params, l, &[(packed.cond[j - 1].operand(&before[j - 1], Layout::Normal), wc)], n, out);
+                let bias = l.bias(params);
+                packed.cond[j].pack_after(pack, out, n, wc, reads, |rows, _| add_bias(rows, bias, true));
+            }
         }
         resize(raw_rgb, n * 3);
         let l = self.rgb_head();
@@ -492,6 +543,7 @@ impl MlpShape {
         assert_eq!(d_raw_density.len(), n, "mlp backward: d_raw_density");
         assert_eq!(n, n_rays * samples_per_ray, "mlp backward: samples per ray");
         let (w, wc, p) = (c.net_width, c.net_width_condition, self.precision);
+        let pack = if cache.pack_in_each_product { Precision::F32 } else { p };
         let MlpCache { trunk, bottleneck, cond, grad_a, grad_b, grad_z, grad_ray, packed, .. } = cache;
         let (normal, transposed) = (Layout::Normal, Layout::Transposed);
 
@@ -515,16 +567,19 @@ impl MlpShape {
         // Condition layers, top down. grad_a holds d(output of layer j).
         for j in (0..c.net_depth_condition).rev() {
             let l = self.condition(j);
-            relu_backward_bias(grad_a, &cond[j], &mut grads[l.bias..l.bias + wc]);
+            // The kernel's rows of the previous layer (the bottleneck's at j = 0).
+            let fan_in = if j > 0 { wc } else { w };
+            let (h, bias_grad) = (&cond[j], &mut grads[l.bias..l.bias + wc]);
+            packed.dz.pack_after(pack, grad_a, n, wc, gradient_reads(n, fan_in, wc, fan_in, true), |g, rows| {
+                relu_backward_bias(g, &h[rows.start * wc..rows.end * wc], bias_grad);
+            });
             if j > 0 {
-                packed.dz.pack(p, grad_a, n, wc, gradient_reads(n, wc, wc, wc, true));
                 let input = packed.cond[j - 1].operand(&cond[j - 1], transposed);
                 weight_grad(grads, l, 0, input, wc, packed.dz.right(grad_a), n);
                 resize(grad_b, n * wc);
                 product(p, grad_b, packed.dz.operand(grad_a, normal), kernel_t(l, wc), n, wc, wc, false);
                 std::mem::swap(grad_a, grad_b);
             } else {
-                packed.dz.pack(p, grad_a, n, wc, gradient_reads(n, w, wc, w, true));
                 let input = packed.bottleneck.operand(bottleneck, transposed);
                 weight_grad(grads, l, 0, input, w, packed.dz.right(grad_a), n);
                 // View rows: viewᵀ · (per-ray sums of dz).
@@ -545,7 +600,7 @@ impl MlpShape {
         let top = &trunk[c.net_depth - 1];
         resize(grad_z, n * w);
         for (l, dz, first) in [(self.bottleneck(), &grad_b[..], true), (self.density_head(), d_raw_density, false)] {
-            packed.dz.pack(p, dz, n, l.fan_out, gradient_reads(n, w, l.fan_out, w, true));
+            packed.dz.pack(pack, dz, n, l.fan_out, gradient_reads(n, w, l.fan_out, w, true));
             let input = packed.trunk[c.net_depth - 1].operand(top, transposed);
             weight_grad(grads, l, 0, input, w, packed.dz.right(dz), n);
             if top_concat {
@@ -557,10 +612,12 @@ impl MlpShape {
         // Trunk, top down. grad_z holds d(output of layer i).
         for i in (0..c.net_depth).rev() {
             let l = self.trunk(i);
-            relu_backward_bias(grad_z, &trunk[i], &mut grads[l.bias..l.bias + w]);
             // The kernel's first rows take the previous layer's output (the input x at layer 0).
             let first_part = if i == 0 { c.x_dim } else { w };
-            packed.dz.pack(p, grad_z, n, w, gradient_reads(n, first_part, w, w, i > 0));
+            let (h, bias_grad) = (&trunk[i], &mut grads[l.bias..l.bias + w]);
+            packed.dz.pack_after(pack, grad_z, n, w, gradient_reads(n, first_part, w, w, i > 0), |g, rows| {
+                relu_backward_bias(g, &h[rows.start * w..rows.end * w], bias_grad);
+            });
             if i == 0 {
                 weight_grad(grads, l, 0, packed.x.operand(x, transposed), c.x_dim, packed.dz.right(grad_z), n);
             } else {

@@ -400,3 +400,49 @@ fn a_bf16_run_follows_the_f32_run_from_one_seed() {
     }
     assert!(a[a.len() - 1] * 5.0 < a[0] && b[b.len() - 1] * 5.0 < b[0], "the losses did not fall: {a:?} {b:?}");
 }
+
+/// The MLP at bf16 gives the same bits whether each activation and gradient is packed once for
+/// all its products (the default, with the forward pass packing for the backward pass when it
+/// is told one follows, or not) or every product packs its own operands: the outputs and every
+/// parameter's gradient, on the paper's shape and on a ragged one (37 samples per ray, so that
+/// the 32-row blocks of the packing cross rays, and a batch that is not whole blocks).
+#[test]
+fn the_mlp_packing_once_gives_the_bits_of_packing_in_each_product() {
+    use mipnerf_core::mlp::{MlpCache, MlpConfig, MlpShape};
+    if let Bf16Support::Unavailable(why) = Bf16Support::detect() {
+        skipped_for_cpu_feature("the_mlp_packing_once_gives_the_bits_of_packing_in_each_product", "avx512_bf16", why);
+        return;
+    }
+    let ragged =
+        MlpConfig { net_depth: 3, net_width: 48, skip_layer: 2, net_width_condition: 40, ..MlpConfig::default() };
+    for (config, rays, samples) in [(MlpConfig::default(), 2, 64), (ragged, 3, 37)] {
+        let mut shape = MlpShape::new(config, 0).unwrap();
+        shape.precision = Precision::Bf16;
+        let mut params = vec![0.0f32; shape.num_params];
+        shape.init_glorot(&mut params, 5);
+        let n = rays * samples;
+        let x = values(n * config.x_dim, 21);
+        let view = values(rays * config.view_dim, 22);
+        let d_rgb: Vec<f32> = values(n * 3, 23).iter().map(|v| v * 1e-2).collect();
+        let d_density: Vec<f32> = values(n, 24).iter().map(|v| v * 1e-2).collect();
+        let run = |training: bool, each: bool| {
+            let mut cache = MlpCache::default();
+            cache.set_training(training);
+            cache.set_pack_in_each_product(each);
+            let mut grads = vec![0.0f32; shape.num_params];
+            // Twice through one cache: buffers reused from the pass before.
+            for _ in 0..2 {
+                grads.fill(0.0);
+                shape.forward(&params, &x, &view, rays, samples, &mut cache);
+                shape.backward(&params, &x, &view, samples, &mut cache, &d_rgb, &d_density, &mut grads);
+            }
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+            (bits(&cache.raw_rgb), bits(&cache.raw_density), bits(&grads))
+        };
+        let want = run(true, true);
+        assert!(want.2.iter().any(|&g| g != 0), "the gradient is not all zero");
+        for (training, each) in [(true, false), (false, false), (false, true)] {
+            assert!(run(training, each) == want, "{config:?}: training {training}, each product {each}: other bits");
+        }
+    }
+}

@@ -8,7 +8,15 @@
 //! its products read ([`Reads`]), and [`matmul_bf16_with`](super::matmul_bf16_with) reads it.
 //! The values are the same bits either way: packing is rounding, the same rounding.
 
+use std::ops::Range;
+
 use super::{BLOCK, Bf16Kernel, Bf16Support, K_STEP, Layout};
+
+/// Rows per block of [`Bf16Matrix::pack_after`]: whole pair rows and whole 32-row blocks of the
+/// packings, and few enough that a block (32 KiB of a 256-wide f32 matrix) is still in the
+/// cache when it is packed.
+pub const PACK_BLOCK_ROWS: usize = 32;
+const _: () = assert!(PACK_BLOCK_ROWS.is_multiple_of(32) && BLOCK == K_STEP, "blocks of whole pair rows and tiles");
 
 /// The roles in which products read a [`Bf16Matrix`] `x` (`rows x cols`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -59,31 +67,71 @@ impl Bf16Matrix {
     /// # Panics
     /// If `x` is shorter than `rows x cols`, or if the CPU cannot run `kernel`.
     pub fn pack_for(&mut self, kernel: Bf16Kernel, x: &[f32], rows: usize, cols: usize, reads: Reads) {
-        if let Err(why) = kernel.check() {
-            panic!("Bf16Matrix::pack_for on {}: {why}", kernel.name());
+        self.begin(kernel, rows, cols, reads);
+        self.convert(x, 0..rows);
+    }
+
+    /// Lets `prepare` finish `x` (`rows x cols`, row-major) block after block of
+    /// [`PACK_BLOCK_ROWS`] rows (called with the block's values and its rows), and packs each
+    /// block as [`pack`](Self::pack) does right after, while it is still in the cache: one
+    /// pass over `x` where a pass that writes it (a bias and activation, say) and the packing
+    /// would be two.
+    ///
+    /// # Panics
+    /// If `x` is shorter than `rows x cols`, or if the CPU has no bf16 kernel.
+    pub fn pack_after(
+        &mut self,
+        x: &mut [f32],
+        rows: usize,
+        cols: usize,
+        reads: Reads,
+        mut prepare: impl FnMut(&mut [f32], Range<usize>),
+    ) {
+        let kernel = Bf16Support::detect().kernel();
+        let kernel = kernel.unwrap_or_else(|| panic!("Bf16Matrix::pack_after without a bf16 kernel"));
+        assert!(x.len() >= crate::linalg::checked_len(rows, cols), "Bf16Matrix::pack_after: x is short");
+        self.begin(kernel, rows, cols, reads);
+        for r0 in (0..rows).step_by(PACK_BLOCK_ROWS) {
+            let r1 = (r0 + PACK_BLOCK_ROWS).min(rows);
+            prepare(&mut x[r0 * cols..r1 * cols], r0..r1);
+            self.convert(x, r0..r1);
         }
-        *self = Self { rows, cols, reads, kernel: Some(kernel), ..std::mem::take(self) };
+    }
+
+    /// Sets the shape, roles and kernel, and sizes the buffers, their padding zeroed.
+    fn begin(&mut self, kernel: Bf16Kernel, rows: usize, cols: usize, reads: Reads) {
+        if let Err(why) = kernel.check() {
+            panic!("Bf16Matrix on {}: {why}", kernel.name());
+        }
+        (self.rows, self.cols, self.reads, self.kernel) = (rows, cols, reads, Some(kernel));
+        #[cfg(target_arch = "x86_64")]
+        super::simd::prepare(&mut self.targets(), rows, cols);
+    }
+
+    /// Rounds and packs rows `range` of `x` ([`super::simd::convert`]'s ranges).
+    fn convert(&mut self, x: &[f32], range: Range<usize>) {
         #[cfg(not(target_arch = "x86_64"))]
-        unreachable!("no bf16 kernel passes its check off x86_64");
+        unreachable!("no bf16 kernel passes its check off x86_64: {x:?} {range:?}");
         #[cfg(target_arch = "x86_64")]
         {
-            let (rows_p, cols_p) = (rows.next_multiple_of(BLOCK), cols.next_multiple_of(K_STEP));
-            let pairs_for_left_transposed = reads.left_transposed && kernel == Bf16Kernel::Avx512;
-            let tiles = reads.left.then_some((&mut self.tiles, rows_p, cols_p));
-            if reads.left_transposed && kernel == Bf16Kernel::Amx {
-                // The transpose (m = cols, k = rows) in AMX's tiles, with `x`'s own tiles from
-                // the same rounding; the pairs, if read, in a second pass.
-                let (mp, kp) = (cols.next_multiple_of(BLOCK), rows.next_multiple_of(K_STEP));
-                super::simd::pack_transposed_rows(&mut self.tiles_transposed, tiles, x, cols, rows, mp, kp);
-                if reads.right {
-                    let np = cols.next_multiple_of(BLOCK);
-                    super::simd::pack_rows_and_pairs(None, Some((&mut self.pairs, kp, np)), x, rows, cols);
-                }
-            } else {
-                let (kp, np) = (rows.next_multiple_of(K_STEP), cols.next_multiple_of(BLOCK));
-                let pairs = (reads.right || pairs_for_left_transposed).then_some((&mut self.pairs, kp, np));
-                super::simd::pack_rows_and_pairs(tiles, pairs, x, rows, cols);
-            }
+            let (rows, cols) = (self.rows, self.cols);
+            super::simd::convert(&mut self.targets(), x, rows, cols, range);
+        }
+    }
+
+    /// The buffers this matrix's roles need on its kernel, with their padded sizes (rows and
+    /// columns padded to whole blocks, as the products pad their operands): tiles for `left`,
+    /// pairs for `right` and for the AVX-512 kernel's `left_transposed`, AMX's tiles of the
+    /// transpose for its `left_transposed`.
+    #[cfg(target_arch = "x86_64")]
+    fn targets(&mut self) -> super::simd::Targets<'_> {
+        let (rows_p, cols_p) = (self.rows.next_multiple_of(BLOCK), self.cols.next_multiple_of(BLOCK));
+        let amx = self.kernel == Some(Bf16Kernel::Amx);
+        let r = self.reads;
+        super::simd::Targets {
+            tiles: r.left.then_some((&mut self.tiles, rows_p, cols_p)),
+            pairs: (r.right || r.left_transposed && !amx).then_some((&mut self.pairs, rows_p, cols_p)),
+            transposed: (r.left_transposed && amx).then_some((&mut self.tiles_transposed, cols_p, rows_p)),
         }
     }
 

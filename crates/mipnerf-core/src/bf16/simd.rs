@@ -12,8 +12,9 @@ const FEATURES_CHECKED: &str = "bf16 packing needs AVX-512 BF16 (checked by Bf16
 /// [`super::pack_rows`], vectorised.
 pub(super) fn pack_rows(out: &mut Vec<u16>, a: &[f32], la: Layout, m: usize, k: usize, mp: usize, kp: usize) {
     match la {
-        Layout::Normal => pack_rows_and_pairs(Some((out, mp, kp)), None, a, m, k),
-        Layout::Transposed => pack_transposed_rows(out, None, a, m, k, mp, kp),
+        Layout::Normal => pack(Targets { tiles: Some((out, mp, kp)), ..Targets::default() }, a, m, k),
+        // `a` is stored `k x m`: the transpose of what is stored.
+        Layout::Transposed => pack(Targets { transposed: Some((out, mp, kp)), ..Targets::default() }, a, k, m),
     }
 }
 
@@ -21,7 +22,7 @@ pub(super) fn pack_rows(out: &mut Vec<u16>, a: &[f32], la: Layout, m: usize, k: 
 /// gradients' `dz`); the transposed case (a layer's kernel, small) is the scalar reference.
 pub(super) fn pack_pairs(out: &mut Vec<u32>, b: &[f32], lb: Layout, k: usize, n: usize, kp: usize, np: usize) {
     match lb {
-        Layout::Normal => pack_rows_and_pairs(None, Some((out, kp, np)), b, k, n),
+        Layout::Normal => pack(Targets { pairs: Some((out, kp, np)), ..Targets::default() }, b, k, n),
         Layout::Transposed => {
             assert!(super::Bf16Kernel::Avx512.check().is_ok(), "{FEATURES_CHECKED}");
             super::pack_pairs(out, b, lb, k, n, kp, np);
@@ -29,38 +30,50 @@ pub(super) fn pack_pairs(out: &mut Vec<u32>, b: &[f32], lb: Layout, k: usize, n:
     }
 }
 
-/// `x` stored `rows x cols`, each value rounded once and written to either packing or both:
-/// - `tiles` (buffer, `mp`, `kp`): `x` as [`pack_rows`] packs it with [`Layout::Normal`] (`x` the
-///   left operand, `m = rows`, `k = cols`);
-/// - `pairs` (buffer, `kp`, `np`): as [`pack_pairs`] packs it with [`Layout::Normal`] (`x` the
-///   right operand, `k = rows`, `n = cols`).
-///
-/// One pass reads each pair of rows once, rounds it with one instruction and stores it in both
-/// orders. The buffers only grow (a shrink and regrowth would zero them whole); every element
-/// below `(rows, cols)` is written, and only the padding is zeroed.
-pub(super) fn pack_rows_and_pairs(
-    tiles: Option<(&mut Vec<u16>, usize, usize)>,
-    pairs: Option<(&mut Vec<u32>, usize, usize)>,
-    x: &[f32],
-    rows: usize,
-    cols: usize,
-) {
-    assert!(super::Bf16Kernel::Avx512.check().is_ok(), "{FEATURES_CHECKED}");
+/// The packings one pass over a matrix `x` (`rows x cols`, row-major) writes, each buffer with
+/// its padded sizes; each value is read and rounded once for all of them.
+#[derive(Default)]
+pub(super) struct Targets<'a> {
+    /// `x` as the left operand (`m = rows`, `k = cols`): [`super::a_index`]'s tiles, `mp x kp`
+    /// (as [`pack_rows`] with [`Layout::Normal`]).
+    pub tiles: Option<(&'a mut Vec<u16>, usize, usize)>,
+    /// `x` as the right operand (`k = rows`, `n = cols`): [`super::b_index`]'s pairs,
+    /// `kp / 2 x np` (as [`pack_pairs`] with [`Layout::Normal`]).
+    pub pairs: Option<(&'a mut Vec<u32>, usize, usize)>,
+    /// `xᵀ` as the left operand (`m = cols`, `k = rows`): tiles, `mp x kp` (as [`pack_rows`]
+    /// with [`Layout::Transposed`]).
+    pub transposed: Option<(&'a mut Vec<u16>, usize, usize)>,
+}
+
+/// [`prepare`], then [`convert`] of every row.
+pub(super) fn pack(mut targets: Targets<'_>, x: &[f32], rows: usize, cols: usize) {
+    prepare(&mut targets, rows, cols);
+    convert(&mut targets, x, rows, cols, 0..rows);
+}
+
+/// Sizes the targets for `x` (`rows x cols`) and zeroes their padding, which no row writes.
+/// The buffers only grow (a shrink and regrowth would zero them whole).
+pub(super) fn prepare(targets: &mut Targets<'_>, rows: usize, cols: usize) {
     let size = crate::linalg::checked_len;
-    assert!(x.len() >= size(rows, cols), "packing: x has {} < {rows}x{cols}", x.len());
-    let tiles = tiles.map(|(out, mp, kp)| {
-        assert!(mp >= rows && kp >= cols && kp.is_multiple_of(32) && mp.is_multiple_of(16));
+    let zero_tiles = |out: &mut Vec<u16>, m: usize, k: usize, mp: usize, kp: usize| {
+        assert!(mp >= m && kp >= k && kp.is_multiple_of(32) && mp.is_multiple_of(16), "tiles {m}x{k} in {mp}x{kp}");
         grow(out, size(mp, kp));
         for i in 0..mp {
-            let from = if i < rows { cols } else { 0 };
+            let from = if i < m { k } else { 0 };
             for p in from..kp {
                 out[a_index(i, p, kp)] = 0;
             }
         }
-        (&mut out[..], kp)
-    });
-    let pairs = pairs.map(|(out, kp, np)| {
-        assert!(kp >= rows && np >= cols && kp.is_multiple_of(2));
+    };
+    if let Some((out, mp, kp)) = targets.tiles.as_mut() {
+        zero_tiles(out, rows, cols, *mp, *kp);
+    }
+    if let Some((out, mp, kp)) = targets.transposed.as_mut() {
+        zero_tiles(out, cols, rows, *mp, *kp);
+    }
+    if let Some((out, kp, np)) = targets.pairs.as_mut() {
+        let (kp, np) = (*kp, *np);
+        assert!(kp >= rows && np >= cols && kp.is_multiple_of(2), "pairs {rows}x{cols} in {kp}x{np}");
         grow(out, size(kp / 2, np));
         // Every pair row below `rows` (the last one's high half zero when `rows` is odd) and
         // column below `cols` is written; only the padding is zeroed.
@@ -70,45 +83,35 @@ pub(super) fn pack_rows_and_pairs(
                 out[b_index(q, j, kp)] = 0;
             }
         }
-        (&mut out[..], kp)
-    });
-    // SAFETY: the CPU has AVX-512 F/BW/VL/BF16 (asserted above: the check requires them).
-    unsafe { rows_and_pairs(tiles, pairs, x, rows, cols) }
+    }
 }
 
-/// `a` stored `k x m` and packed as the left operand `aᵀ` ([`pack_rows`] with
-/// [`Layout::Transposed`]) into `out` (`mp x kp`); with `tiles` (buffer, `tiles_mp`,
-/// `tiles_kp`), also `a` itself as a left operand (`k x m`, [`Layout::Normal`]) from the same
-/// rounding. Only the padding is zeroed.
-pub(super) fn pack_transposed_rows(
-    out: &mut Vec<u16>,
-    tiles: Option<(&mut Vec<u16>, usize, usize)>,
-    a: &[f32],
-    m: usize,
-    k: usize,
-    mp: usize,
-    kp: usize,
-) {
+/// Rounds rows `range` of `x` (`rows x cols`) into the targets ([`prepare`]d for this shape).
+/// A range starts at a multiple of 32 (whole pair rows and blocks of the transpose) and ends at
+/// one or at `rows`, so that ranges in turn convert every row once.
+///
+/// # Panics
+/// If the range or `x` do not fit the shape, or a target is smaller than [`prepare`] makes it.
+pub(super) fn convert(targets: &mut Targets<'_>, x: &[f32], rows: usize, cols: usize, range: std::ops::Range<usize>) {
     assert!(super::Bf16Kernel::Avx512.check().is_ok(), "{FEATURES_CHECKED}");
     let size = crate::linalg::checked_len;
-    assert!(a.len() >= size(m, k) && mp >= m && kp >= k && kp.is_multiple_of(32) && mp.is_multiple_of(16));
-    let zero_padding = |out: &mut Vec<u16>, rows: usize, cols: usize, mp: usize, kp: usize| {
-        grow(out, size(mp, kp));
-        for i in 0..mp {
-            let from = if i < rows { cols } else { 0 };
-            for p in from..kp {
-                out[a_index(i, p, kp)] = 0;
+    assert!(x.len() >= size(rows, cols), "packing: x has {} < {rows}x{cols}", x.len());
+    assert!(range.start.is_multiple_of(32) && range.start <= range.end, "packing rows {range:?}");
+    assert!(range.end == rows || range.end.is_multiple_of(32) && range.end < rows, "packing rows {range:?} of {rows}");
+    let tiles = targets.tiles.as_mut().map(|(out, _, kp)| (&mut out[..], *kp));
+    let pairs = targets.pairs.as_mut().map(|(out, kp, _)| (&mut out[..], *kp));
+    // SAFETY: the CPU has AVX-512 F/BW/VL/BF16 (asserted above: the check requires them).
+    unsafe {
+        match targets.transposed.as_mut() {
+            Some((out, _, kp)) => {
+                rows_transposed(out, tiles, x, cols, rows, *kp, range.clone());
+                if pairs.is_some() {
+                    rows_and_pairs(None, pairs, x, rows, cols, range);
+                }
             }
+            None => rows_and_pairs(tiles, pairs, x, rows, cols, range),
         }
-    };
-    zero_padding(out, m, k, mp, kp);
-    let tiles = tiles.map(|(t, tmp, tkp)| {
-        assert!(tmp >= k && tkp >= m && tkp.is_multiple_of(32) && tmp.is_multiple_of(16));
-        zero_padding(t, k, m, tmp, tkp);
-        (&mut t[..], tkp)
-    });
-    // SAFETY: as in `pack_rows_and_pairs`.
-    unsafe { rows_transposed(out, tiles, a, m, k, kp) }
+    }
 }
 
 /// 16 f32 from `src[..16]` rounded to bf16: as 16 contiguous values, and in the low halves of
@@ -123,8 +126,9 @@ fn bf16_lanes(src: &[f32]) -> (__m256i, __m512i) {
     (h, _mm512_cvtepu16_epi32(h))
 }
 
-/// `x` stored `rows x cols`: `tiles[a_index(i, p)] = x[i][p]` and
-/// `pairs[b_index(q, j)] = x[2q][j] | x[2q + 1][j] << 16`, each with its `kp`.
+/// `x` stored `rows x cols`, its rows in `range` (starting at an even row):
+/// `tiles[a_index(i, p)] = x[i][p]` and `pairs[b_index(q, j)] = x[2q][j] | x[2q + 1][j] << 16`,
+/// each with its `kp`.
 #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512bf16")]
 fn rows_and_pairs(
     mut tiles: Option<(&mut [u16], usize)>,
@@ -132,6 +136,7 @@ fn rows_and_pairs(
     x: &[f32],
     rows: usize,
     cols: usize,
+    range: std::ops::Range<usize>,
 ) {
     let full = cols / 16 * 16;
     // 16-bit lane 2j takes value j (the first row's), lane 2j + 1 value 16 + j (the second's).
@@ -139,7 +144,7 @@ fn rows_and_pairs(
         31, 15, 30, 14, 29, 13, 28, 12, 27, 11, 26, 10, 25, 9, 24, 8, 23, 7, 22, 6, 21, 5, 20, 4, 19, 3, 18, 2, 17, 1,
         16, 0,
     );
-    for q in 0..rows.div_ceil(2) {
+    for q in range.start / 2..range.end.div_ceil(2) {
         let first = &x[2 * q * cols..(2 * q + 1) * cols];
         // The last row of an odd count pairs with zeros.
         let second = if 2 * q + 1 < rows { Some(&x[(2 * q + 1) * cols..(2 * q + 2) * cols]) } else { None };
@@ -221,16 +226,25 @@ fn transpose_16x16(r: [__m512i; 16]) -> [__m512i; 16] {
     out
 }
 
-/// `a` stored `k x m`; `out[i][p] = a[p][i]` (and `tiles[a_index(p, i)] = a[p][i]`, each with
-/// its `kp`). Blocks of 32 rows x 16 columns: pairs of rows become 16 32-bit pairs (lane i
+/// `a` stored `k x m`, its rows `p` in `range`: `out[i][p] = a[p][i]` (and
+/// `tiles[a_index(p, i)] = a[p][i]`, each with its `kp`). Blocks of 32 rows x 16 columns: pairs of rows become 16 32-bit pairs (lane i
 /// holds rows 2q and 2q + 1 of column i); transposed, vector i holds the 32 values of column
 /// i, the 64 bytes of one row of a packed tile.
 #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512bf16")]
-fn rows_transposed(out: &mut [u16], mut tiles: Option<(&mut [u16], usize)>, a: &[f32], m: usize, k: usize, kp: usize) {
+fn rows_transposed(
+    out: &mut [u16],
+    mut tiles: Option<(&mut [u16], usize)>,
+    a: &[f32],
+    m: usize,
+    k: usize,
+    kp: usize,
+    range: std::ops::Range<usize>,
+) {
     let (m_full, k_full) = (m / 16 * 16, k / 32 * 32);
     // Rows outer: `a` is read in storage order (32 whole rows at a time), each block's
-    // output is one contiguous 1 KiB tile.
-    for p0 in (0..k_full).step_by(32) {
+    // output is one contiguous 1 KiB tile. Rows of `a` in `range` only (it starts at a
+    // multiple of 32).
+    for p0 in (range.start..range.end.min(k_full)).step_by(32) {
         for i0 in (0..m_full).step_by(16) {
             let pairs: [__m512i; 16] = std::array::from_fn(|q| {
                 let (lo_values, lo) = bf16_lanes(&a[(p0 + 2 * q) * m + i0..]);
@@ -253,7 +267,7 @@ fn rows_transposed(out: &mut [u16], mut tiles: Option<(&mut [u16], usize)>, a: &
         }
     }
     // The ragged edges: columns past m_full (every row), rows past k_full (every column).
-    for p in 0..k {
+    for p in range {
         let cols = if p < k_full { m_full..m } else { 0..m };
         for i in cols {
             let v = f32_to_bf16_bits(a[p * m + i]);
@@ -308,24 +322,42 @@ mod tests {
                 super::pack_pairs(&mut got, &a, lb, m, k, kp, np);
                 assert_eq!(got[..want.len()], want, "pack_pairs {lb:?} {m}x{k}");
             }
-            // One pass into two packings gives each packing's bits.
+            // One pass into several packings gives each packing's bits.
             let (tmp, tkp) = (m.next_multiple_of(32), k.next_multiple_of(32));
             let (pkp, pnp) = (m.next_multiple_of(32), k.next_multiple_of(32));
             let (mut rows_want, mut pairs_want) = (Vec::new(), Vec::new());
             super::super::pack_rows(&mut rows_want, &a, Layout::Normal, m, k, tmp, tkp);
             super::super::pack_pairs(&mut pairs_want, &a, Layout::Normal, m, k, pkp, pnp);
-            let (mut rows_got, mut pairs_got) = (vec![0x5555u16; tmp * tkp + 3], vec![0x5555_5555u32; 9]);
-            super::pack_rows_and_pairs(Some((&mut rows_got, tmp, tkp)), Some((&mut pairs_got, pkp, pnp)), &a, m, k);
-            assert_eq!(rows_got[..rows_want.len()], rows_want, "rows of both {m}x{k}");
-            assert_eq!(pairs_got[..pairs_want.len()], pairs_want, "pairs of both {m}x{k}");
-            // `a` (m x k) packed transposed (k x m as the left operand) and as itself.
-            let (mut t_want, mut t_got) = (Vec::new(), vec![0x3333u16; 4]);
             let (t_mp, t_kp) = (k.next_multiple_of(32), m.next_multiple_of(32));
+            let mut t_want = Vec::new();
             super::super::pack_rows(&mut t_want, &a, Layout::Transposed, k, m, t_mp, t_kp);
-            rows_got.fill(0x4444);
-            super::pack_transposed_rows(&mut t_got, Some((&mut rows_got, tmp, tkp)), &a, k, m, t_mp, t_kp);
-            assert_eq!(t_got[..t_want.len()], t_want, "transposed rows of both {m}x{k}");
-            assert_eq!(rows_got[..rows_want.len()], rows_want, "rows beside the transposed rows {m}x{k}");
+            // Every combination of targets, in one pass and in ranges of 32 rows.
+            for bits in 1..8 {
+                for in_ranges in [false, true] {
+                    let (mut rows_got, mut pairs_got, mut t_got) =
+                        (vec![0x5555u16; tmp * tkp + 3], vec![0x5555_5555u32; 9], vec![0x3333u16; 4]);
+                    let mut targets = super::Targets {
+                        tiles: (bits & 1 != 0).then_some((&mut rows_got, tmp, tkp)),
+                        pairs: (bits & 2 != 0).then_some((&mut pairs_got, pkp, pnp)),
+                        transposed: (bits & 4 != 0).then_some((&mut t_got, t_mp, t_kp)),
+                    };
+                    super::prepare(&mut targets, m, k);
+                    let step = if in_ranges { 32 } else { m.next_multiple_of(32) };
+                    for range in (0..m).step_by(step).map(|r| r..(r + step).min(m)) {
+                        super::convert(&mut targets, &a, m, k, range);
+                    }
+                    let what = format!("targets {bits:03b}, ranges {in_ranges}, {m}x{k}");
+                    if bits & 1 != 0 {
+                        assert_eq!(rows_got[..rows_want.len()], rows_want, "rows: {what}");
+                    }
+                    if bits & 2 != 0 {
+                        assert_eq!(pairs_got[..pairs_want.len()], pairs_want, "pairs: {what}");
+                    }
+                    if bits & 4 != 0 {
+                        assert_eq!(t_got[..t_want.len()], t_want, "transposed: {what}");
+                    }
+                }
+            }
         }
     }
 }
