@@ -459,8 +459,8 @@ fn pack_rows(out: &mut Vec<u16>, a: &[f32], la: Layout, m: usize, k: usize, mp: 
 
 /// Packs `b (k x n)` into `out`: pairs `(b[2q][j], b[2q + 1][j])`, the first in the low 16 bits,
 /// at [`b_index`], zero-padded to `kp/2 x np` (`out` only grows: what lies past that is left as
-/// it was). The scalar reference of [`simd::pack_pairs`], which uses it for the transposed case
-/// (a layer's kernel: small).
+/// it was). The scalar reference of [`simd::pack_pairs`].
+#[cfg_attr(not(test), allow(dead_code))]
 fn pack_pairs(out: &mut Vec<u32>, b: &[f32], lb: Layout, k: usize, n: usize, kp: usize, np: usize) {
     let len = kp / 2 * np;
     grow(out, len);

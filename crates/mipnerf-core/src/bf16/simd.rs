@@ -18,14 +18,26 @@ pub(super) fn pack_rows(out: &mut Vec<u16>, a: &[f32], la: Layout, m: usize, k: 
     }
 }
 
-/// [`super::pack_pairs`], vectorised where `b` is stored `k x n` (the large operands: weight
-/// gradients' `dz`); the transposed case (a layer's kernel, small) is the scalar reference.
+/// [`super::pack_pairs`], vectorised.
 pub(super) fn pack_pairs(out: &mut Vec<u32>, b: &[f32], lb: Layout, k: usize, n: usize, kp: usize, np: usize) {
     match lb {
         Layout::Normal => pack(Targets { pairs: Some((out, kp, np)), ..Targets::default() }, b, k, n),
+        // `b` stored `n x k` (a layer's kernel in the input gradient `dz · Wᵀ`).
         Layout::Transposed => {
             assert!(super::Bf16Kernel::Avx512.check().is_ok(), "{FEATURES_CHECKED}");
-            super::pack_pairs(out, b, lb, k, n, kp, np);
+            let size = crate::linalg::checked_len;
+            assert!(b.len() >= size(k, n) && kp >= k && np >= n && kp.is_multiple_of(32) && np.is_multiple_of(16));
+            grow(out, size(kp / 2, np));
+            // Every pair (its high half zero past k) below column n and pair row k / 2 rounded
+            // up is written; only the padding is zeroed.
+            for q in 0..kp / 2 {
+                let from = if q < k.div_ceil(2) { n } else { 0 };
+                for j in from..np {
+                    out[b_index(q, j, kp)] = 0;
+                }
+            }
+            // SAFETY: the CPU has AVX-512 F/BW/VL/BF16 (asserted above: the check requires them).
+            unsafe { pairs_transposed(out, b, k, n, kp) }
         }
     }
 }
@@ -224,6 +236,41 @@ fn transpose_16x16(r: [__m512i; 16]) -> [__m512i; 16] {
         out[12 + c] = _mm512_shuffle_i32x4::<0xDD>(x2, y2);
     }
     out
+}
+
+/// `b` stored `n x k` (`b[p][j]` at `j * k + p`): `out[b_index(q, j)] = b[2q][j] | b[2q + 1][j] << 16`.
+/// Blocks of 16 columns x 32 values of k: each stored row's 32 values rounded in one instruction
+/// are its 16 pairs in order; transposed, vector q holds pair row q of the 16 columns, 64
+/// contiguous bytes of the packing.
+#[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512bf16")]
+fn pairs_transposed(out: &mut [u32], b: &[f32], k: usize, n: usize, kp: usize) {
+    let (n_full, k_full) = (n / 16 * 16, k / 32 * 32);
+    for j0 in (0..n_full).step_by(16) {
+        for p0 in (0..k_full).step_by(32) {
+            let rows: [__m512i; 16] = std::array::from_fn(|j| {
+                let row = &b[(j0 + j) * k + p0..(j0 + j) * k + p0 + 32];
+                // SAFETY: 32 f32 in bounds (the slice is checked); unaligned loads.
+                let (lo, hi) = unsafe { (_mm512_loadu_ps(row.as_ptr()), _mm512_loadu_ps(row[16..].as_ptr())) };
+                // SAFETY: __m512bh and __m512i are both 512 plain bits.
+                unsafe { std::mem::transmute(_mm512_cvtne2ps_pbh(hi, lo)) }
+            });
+            for (q, pairs) in transpose_16x16(rows).into_iter().enumerate() {
+                let at = b_index(p0 / 2 + q, j0, kp);
+                // SAFETY: out[at..at + 16] is in bounds (the slice is checked).
+                unsafe { _mm512_storeu_si512(out[at..at + 16].as_mut_ptr().cast(), pairs) };
+            }
+        }
+    }
+    // The ragged edges: pairs past k_full (every column), columns past n_full (every pair);
+    // the high half of a last pair past k is zero.
+    for j in 0..n {
+        let row = &b[j * k..(j + 1) * k];
+        let pairs = if j < n_full { k_full / 2..k.div_ceil(2) } else { 0..k.div_ceil(2) };
+        for q in pairs {
+            let hi = row.get(2 * q + 1).map_or(0, |&x| u32::from(f32_to_bf16_bits(x)));
+            out[b_index(q, j, kp)] = u32::from(f32_to_bf16_bits(row[2 * q])) | hi << 16;
+        }
+    }
 }
 
 /// `a` stored `k x m`, its rows `p` in `range`: `out[i][p] = a[p][i]` (and
