@@ -1,6 +1,6 @@
-//! The MLP's forward and backward passes over one chunk on one thread: f32, bf16 with every
+//! The MLP's forward and backward passes over one chunk on each thread at once: f32, bf16 with every
 //! product packing its own operands, and bf16 with each activation and gradient packed once
-//! (the default): `cargo bench -p mipnerf-core --bench mlp_bf16`.
+//! (the default): `cargo bench -p mipnerf-core --bench mlp_bf16 [-- --threads N]`.
 //!
 //! The three run in turn, round after round, so that a shared machine's drift falls on each
 //! alike; the medians and their ratios are printed. The chunk is the training step's
@@ -34,7 +34,18 @@ fn main() {
     let support = Bf16Support::detect();
     println!("{}", support.describe());
     let (rays, rounds) = if quick { (2, 2) } else { (CHUNK_RAYS, 15) };
-    println!("ms per forward + backward pass of one chunk, one thread, median of {} rounds:", rounds - 1);
+    // `-- --threads N`: N threads at once (default: all the machine's).
+    let args: Vec<String> = std::env::args().collect();
+    let threads = args
+        .iter()
+        .position(|a| a == "--threads")
+        .and_then(|i| args.get(i + 1)?.parse().ok())
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, usize::from))
+        .max(1);
+    println!(
+        "ms per forward + backward pass of one chunk on each of {threads} threads at once, median of {} rounds:",
+        rounds - 1
+    );
     println!(
         "| preset | samples | f32 | bf16, packed in each product | bf16, packed once | once vs each | f32 vs once |"
     );
@@ -52,23 +63,34 @@ fn main() {
         let view = values(rays * c.view_dim, 2);
         let d_rgb: Vec<f32> = values(n * 3, 3).iter().map(|v| v * 1e-3).collect();
         let d_density: Vec<f32> = values(n, 4).iter().map(|v| v * 1e-3).collect();
-        let mut grads = vec![0.0f32; shape.num_params];
         // (precision, each product packs its own operands)
         let mut variants = vec![(Precision::F32, false)];
         if support.available() {
             variants.extend([(Precision::Bf16, true), (Precision::Bf16, false)]);
         }
-        let mut caches: Vec<MlpCache> = variants.iter().map(|_| MlpCache::default()).collect();
+        // One cache and gradient per variant and thread: every thread runs the same chunk at
+        // once, as the training step's threads do (they share the memory bandwidth).
+        let mut caches: Vec<Vec<(MlpCache, Vec<f32>)>> = variants
+            .iter()
+            .map(|_| (0..threads).map(|_| (MlpCache::default(), vec![0.0f32; shape.num_params])).collect())
+            .collect();
         let mut times = vec![Vec::new(); variants.len()];
         for round in 0..rounds {
             for (v, &(precision, each)) in variants.iter().enumerate() {
                 shape.precision = precision;
-                let cache = &mut caches[v];
-                cache.set_training(true);
-                cache.set_pack_in_each_product(each);
+                let shape = &shape;
+                let (params, x, view, d_rgb, d_density) = (&params, &x, &view, &d_rgb, &d_density);
                 let t = Instant::now();
-                shape.forward(&params, &x, &view, rays, samples, cache);
-                shape.backward(&params, &x, &view, samples, cache, &d_rgb, &d_density, &mut grads);
+                std::thread::scope(|scope| {
+                    for (cache, grads) in &mut caches[v] {
+                        scope.spawn(move || {
+                            cache.set_training(true);
+                            cache.set_pack_in_each_product(each);
+                            shape.forward(params, x, view, rays, samples, cache);
+                            shape.backward(params, x, view, samples, cache, d_rgb, d_density, grads);
+                        });
+                    }
+                });
                 // The first round warms the buffers and is not counted.
                 if round > 0 {
                     times[v].push(t.elapsed().as_secs_f64() * 1e3);
