@@ -29,7 +29,7 @@ use std::sync::OnceLock;
 use crate::linalg::{Layout, matmul};
 
 use packed::PackedLeft;
-pub use packed::{Bf16Matrix, Operand, Reads};
+pub use packed::{Bf16Matrix, Operand, PACK_BLOCK_ROWS, Reads};
 
 /// Relative rounding error of one f32 -> bf16 conversion (round to nearest even): `2^-8`.
 pub const BF16_UNIT_ROUNDOFF: f64 = 1.0 / 256.0;
