@@ -5,7 +5,7 @@ use crate::session::Session;
 use anyhow::{Context, Result};
 use mipnerf_gpu::{AdapterChoice, BackendChoice, BackendSetup, DeviceOptions, open_backend};
 
-use mipnerf_core::bf16::{Bf16Support, Precision};
+use mipnerf_core::bf16::{AutoPrecision, Bf16Support, Precision};
 
 use crate::config::{Backend, PrecisionArg};
 
@@ -40,14 +40,14 @@ pub fn open(
                 .with_context(|| format!("--precision bf16 on {} (use --precision f32 or auto)", be.describe()))?;
             Precision::Bf16
         }
-        PrecisionArg::Auto => match Bf16Support::detect() {
-            Bf16Support::Unavailable(why) => {
-                eprintln!("precision auto: f32 ({why})");
+        PrecisionArg::Auto => match Bf16Support::auto() {
+            chosen @ AutoPrecision::F32(_) => {
+                eprintln!("{}", chosen.describe());
                 Precision::F32
             }
-            Bf16Support::Available(kernel) => match be.set_precision(Precision::Bf16) {
+            chosen @ AutoPrecision::Bf16(_) => match be.set_precision(Precision::Bf16) {
                 Ok(()) => {
-                    eprintln!("precision auto: bf16 ({})", kernel.name());
+                    eprintln!("{}", chosen.describe());
                     Precision::Bf16
                 }
                 Err(e) => {

@@ -8,6 +8,7 @@ use anyhow::{Context, Result};
 use clap::ValueEnum;
 use mipnerf_core::backend::{ImageSpec, TrainState, WorkCounters};
 use mipnerf_core::bench::{backend_throughput, synthetic_dataset};
+use mipnerf_core::bf16::{Bf16Kernel, Bf16Support};
 use mipnerf_core::data::demo;
 use mipnerf_core::model::Model;
 use mipnerf_core::train::OptimConfig;
@@ -75,7 +76,7 @@ pub fn bench(a: &BenchArgs, session: &Session) -> Result<()> {
         "batches of {} rays, {} timed steps, render {s}x{s}; {}",
         a.batch,
         a.steps,
-        mipnerf_core::bf16::Bf16Support::detect().describe(),
+        bf16_line(),
         s = a.render_side
     );
     let mut rows = Vec::new();
@@ -131,6 +132,22 @@ pub fn bench(a: &BenchArgs, session: &Session) -> Result<()> {
 /// What a device backend records, makes and reads back: the first training step, a later one,
 /// a step that reports its losses, and rendering one chunk (`render_side`^2 pixels in one
 /// chunk at most, the first render and a later one). `None` for the CPU.
+/// The header's bf16 line: the kernel [`Bf16Support::detect`] chose and, for AVX-512 BF16, the
+/// rate of `vdpbf16ps` against the f32 FMA measured here and what `--precision auto` runs.
+fn bf16_line() -> String {
+    let support = Bf16Support::detect();
+    if support.kernel() == Some(Bf16Kernel::Avx512)
+        && let Ok(rate) = mipnerf_core::bf16::avx512_dot_flop_rate_against_fma()
+    {
+        return format!(
+            "{} (vdpbf16ps at {rate:.2}x the flops per second of the f32 FMA here; precision auto runs {})",
+            support.describe(),
+            Bf16Support::auto().precision()
+        );
+    }
+    support.describe()
+}
+
 fn device_work(
     b: &mut dyn mipnerf_core::backend::Backend,
     render_side: u32,

@@ -34,7 +34,9 @@ pub enum PrecisionArg {
     /// bf16 operands with f32 accumulation (Intel AMX or AVX-512 BF16; CPU backend only).
     /// Parameters, Adam and checkpoints stay f32.
     Bf16,
-    /// bf16 where the CPU backend runs on a CPU with AMX-BF16 or AVX-512 BF16, else f32.
+    /// bf16 where the CPU backend runs on a CPU whose bf16 outruns its f32: AMX-BF16, or AVX-512
+    /// BF16 whose `vdpbf16ps` does at least the f32 FMA's flops per second (measured at start:
+    /// about 2x on AMD Zen 4, 0.5x on Intel Xeons); else f32, saying why.
     Auto,
 }
 
@@ -59,8 +61,8 @@ pub enum PresetArg {
     /// The paper's 8 x 256 trunk, 128 + 128 samples (612K parameters).
     Paper,
     /// Time to quality: the small trunk with 16 + 16 samples, occupancy-guided sampling, bf16
-    /// where the CPU has AMX or AVX-512 BF16, and the batch and learning rates measured fastest to a sharp
-    /// picture (CPU backend).
+    /// where it outruns f32 on the CPU (`--precision auto`), and the batch and learning rates
+    /// measured fastest to a sharp picture (CPU backend).
     Fast,
 }
 
@@ -449,8 +451,8 @@ impl TrainSettings {
             val_every: Some(self.val_every.unwrap_or(0)),
             val_images: Some(self.val_images.unwrap_or(2)),
             // The fast preset computes in bf16 where the CPU has AMX (2.3 times the training
-            // rate, +1.8 dB at 2 minutes) or AVX-512 BF16 (docs/results/precision/); every other
-            // preset in f32, the paper's precision.
+            // rate, +1.8 dB at 2 minutes) or an AVX-512 BF16 that outruns f32, as on AMD Zen 4
+            // (docs/results/precision/); every other preset in f32, the paper's precision.
             precision: Some(self.precision.unwrap_or(if fast && FastRecipe::RECIPE.bf16_where_available {
                 PrecisionArg::Auto
             } else {

@@ -157,8 +157,9 @@ pub struct FastRecipe {
     pub lr_delay_steps: u64,
     /// The occupancy grid's cells a side (occupancy-guided sampling is on).
     pub occupancy_resolution: usize,
-    /// The MLP's products in bf16 where the CPU has a kernel for them (AMX or AVX-512 BF16):
-    /// 2.3 times the training rate and +1.8 dB at 2 minutes on AMX.
+    /// The MLP's products in bf16 where the CPU has a kernel for them that outruns f32 (AMX, or
+    /// AVX-512 BF16 where `vdpbf16ps` does, [`crate::bf16::Bf16Support::auto`]): 2.3 times the
+    /// training rate and +1.8 dB at 2 minutes on AMX.
     pub bf16_where_available: bool,
 }
 

@@ -245,7 +245,7 @@ pub struct TrainFlags {
     /// Precision of the MLP's matrix products [default: f32; auto for the fast preset; a resumed
     /// run keeps its own]:
     /// bf16 (operands rounded to bf16, f32 sums; AMX or AVX-512 BF16, CPU backend) or auto (bf16 where
-    /// available). May change on --resume.
+    /// it outruns f32 on this CPU). May change on --resume.
     #[arg(long, value_enum)]
     pub precision: Option<PrecisionArg>,
     /// Flush subnormal floats to zero in training steps on the CPU (x86 FTZ/DAZ): faster where

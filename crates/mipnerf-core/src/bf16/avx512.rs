@@ -1,7 +1,9 @@
 use std::arch::x86_64::{
-    __m512bh, __m512i, _mm512_dpbf16_ps, _mm512_loadu_si512, _mm512_mask_storeu_ps, _mm512_maskz_loadu_ps,
-    _mm512_set1_epi32, _mm512_setzero_ps,
+    __m512, __m512bh, __m512i, _mm512_dpbf16_ps, _mm512_fmadd_ps, _mm512_loadu_si512, _mm512_mask_storeu_ps,
+    _mm512_maskz_loadu_ps, _mm512_set1_epi32, _mm512_set1_ps, _mm512_setzero_ps,
 };
+use std::hint::black_box;
+use std::time::{Duration, Instant};
 
 use super::packed::PackedLeft;
 use super::{K_STEP, a_index, b_index};
@@ -26,6 +28,80 @@ pub(super) fn detect() -> Result<(), String> {
     ];
     let missing: Vec<&str> = features.iter().filter(|(_, present)| !present).map(|(name, _)| *name).collect();
     if missing.is_empty() { Ok(()) } else { Err(format!("this CPU lacks {} (AVX-512 BF16)", missing.join(", "))) }
+}
+
+/// Instructions per timed run of [`dot_flop_rate_against_fma`]: 16 independent chains of
+/// 65,536 each, about a millisecond on the slowest CPU measured.
+const RATE_ROUNDS: usize = 1 << 16;
+
+/// Timed runs of each instruction in [`dot_flop_rate_against_fma`], alternated; the fastest
+/// of each counts (the first may run before the core reaches its AVX-512 clock).
+const RATE_RUNS: usize = 5;
+
+/// The flop rate of `vdpbf16ps` (16 lanes, each two multiplies and two adds) over that of the
+/// f32 FMA `vfmadd231ps` (16 lanes, one of each) on 512-bit registers, on this core, measured
+/// now: each instruction on 16 independent accumulators, so that throughput and not latency
+/// bounds both. About 2 on AMD Zen 4 (each does twice the FMA's flops at the same rate), 0.5 on
+/// an Intel Xeon (Emerald Rapids) with AMX switched off (`docs/results/precision/intel-avx512/`).
+/// Takes a few milliseconds.
+///
+/// # Panics
+/// Without AVX-512 F and BF16 ([`detect`] says what is missing).
+pub(super) fn dot_flop_rate_against_fma() -> f64 {
+    assert!(detect().is_ok(), "dot_flop_rate_against_fma without AVX-512 BF16: {:?}", detect());
+    let (mut dots, mut fmas) = (Duration::MAX, Duration::MAX);
+    for _ in 0..RATE_RUNS {
+        // SAFETY: the CPU has AVX-512 F and BF16 (asserted above).
+        unsafe {
+            dots = dots.min(time_dots(RATE_ROUNDS));
+            fmas = fmas.min(time_fmas(RATE_ROUNDS));
+        }
+    }
+    // Per instruction, a dot does twice the flops of an FMA.
+    2.0 * fmas.as_secs_f64() / dots.as_secs_f64().max(f64::MIN_POSITIVE)
+}
+
+/// The time of `16 rounds` `vdpbf16ps` in 16 independent chains.
+///
+/// # Safety
+/// The CPU has AVX-512 F and BF16.
+#[target_feature(enable = "avx512f,avx512bf16")]
+unsafe fn time_dots(rounds: usize) -> Duration {
+    // Pairs of 1.0 times pairs of 2^-100: each step adds 2^-99 to accumulators at 1.0, which it
+    // leaves unchanged (nothing overflows or goes subnormal to slow a CPU down).
+    // SAFETY: __m512i and __m512bh are both 512 plain bits.
+    let to_pairs = |v: __m512i| -> __m512bh { unsafe { std::mem::transmute::<__m512i, __m512bh>(v) } };
+    let a = to_pairs(black_box(_mm512_set1_epi32(0x3f80_3f80)));
+    let b = to_pairs(black_box(_mm512_set1_epi32(0x0d80_0d80)));
+    time_chains(rounds, |acc| _mm512_dpbf16_ps(acc, a, b))
+}
+
+/// The time of `16 rounds` `vfmadd231ps` in 16 independent chains.
+///
+/// # Safety
+/// The CPU has AVX-512 F.
+#[target_feature(enable = "avx512f")]
+unsafe fn time_fmas(rounds: usize) -> Duration {
+    // 1.0 times 2^-100 added to accumulators at 1.0, as for the dots.
+    let (a, b) = (black_box(_mm512_set1_ps(1.0)), black_box(_mm512_set1_ps(f32::powi(2.0, -100))));
+    time_chains(rounds, |acc| _mm512_fmadd_ps(a, b, acc))
+}
+
+/// The time of `16 rounds` `step`s in 16 independent chains of accumulators held in registers.
+/// Inlined into its callers, so that `step` is compiled with their target features.
+#[inline(always)]
+fn time_chains(rounds: usize, step: impl Fn(__m512) -> __m512) -> Duration {
+    // SAFETY: _mm512_set1_ps only sets a register's value (the callers have AVX-512 F).
+    let mut acc: [__m512; 16] = black_box([unsafe { _mm512_set1_ps(1.0) }; 16]);
+    let start = Instant::now();
+    for _ in 0..rounds {
+        for a in &mut acc {
+            *a = step(*a);
+        }
+    }
+    let elapsed = start.elapsed();
+    black_box(acc);
+    elapsed
 }
 
 /// `c (m x n, row-major) = [c +] A · B` from the packed operands ([`PackedLeft`], [`b_index`]):

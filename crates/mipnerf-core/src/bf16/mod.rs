@@ -9,11 +9,14 @@
 //!   rate of one core (3.7 TFLOP/s against 112 GFLOP/s, measured by `mipnerf bench --peak`);
 //! - AVX-512 BF16 alone (`vdpbf16ps`: sixteen f32 lanes each += the dot product of a bf16 pair),
 //!   on CPUs without AMX such as AMD Zen 4 and Zen 5. Each instruction does twice the flops of an
-//!   f32 FMA; measured on an AMD EPYC (Zen 4) in `docs/results/precision/`. On the Sapphire
-//!   Rapids Xeons it ran at the f32 rate, so AMX is preferred wherever both are present.
+//!   f32 FMA; on an AMD EPYC (Zen 4) at about the FMA's rate, so up to twice its flops
+//!   (`docs/results/precision/`). On an Intel Xeon (Emerald Rapids) it runs at a quarter of the
+//!   FMA's rate, half its flops (`docs/results/precision/intel-avx512/`): AMX is preferred
+//!   wherever both are present, and `--precision auto` takes this kernel only where it outruns
+//!   f32 ([`Bf16Support::auto`]).
 //!
 //! [`Bf16Support::detect`] chooses the kernel and says why; without either, [`Precision::Bf16`]
-//! is refused naming what is missing.
+//! is refused naming what is missing. [`Bf16Support::auto`] says what `--precision auto` runs.
 //!
 //! What stays f32 (the parameters, Adam's state, the checkpoints, every non-matrix operation,
 //! and the products too small to gain: fewer than [`MIN_BF16_DIM`] rows or columns, such as the
@@ -163,6 +166,40 @@ impl Bf16Support {
         })
     }
 
+    /// What `--precision auto` runs here, decided once per process: bf16 on AMX; bf16 on
+    /// AVX-512 BF16 where `vdpbf16ps` does at least [`AVX512_BF16_MIN_FLOP_RATE`] times the f32
+    /// FMA's flops per second (measured the first time this is called, a few milliseconds);
+    /// otherwise f32, saying why. `--precision bf16` runs the kernel whatever its rate.
+    #[must_use]
+    pub fn auto() -> &'static AutoPrecision {
+        static AUTO: OnceLock<AutoPrecision> = OnceLock::new();
+        AUTO.get_or_init(|| {
+            Self::detect().auto_with(|| avx512_dot_flop_rate_against_fma().expect("AVX-512 BF16 was detected"))
+        })
+    }
+
+    /// [`Bf16Support::auto`]'s choice for this support, with `dot_flop_rate` measuring the rate of
+    /// `vdpbf16ps` against the FMA (called only for the AVX-512 BF16 kernel).
+    #[must_use]
+    pub fn auto_with(&self, dot_flop_rate: impl FnOnce() -> f64) -> AutoPrecision {
+        match self {
+            Self::Unavailable(why) => AutoPrecision::F32(why.clone()),
+            Self::Available(Bf16Kernel::Amx) => AutoPrecision::Bf16(Bf16Kernel::Amx),
+            Self::Available(Bf16Kernel::Avx512) => {
+                let rate = dot_flop_rate();
+                if rate >= AVX512_BF16_MIN_FLOP_RATE {
+                    AutoPrecision::Bf16(Bf16Kernel::Avx512)
+                } else {
+                    AutoPrecision::F32(format!(
+                        "AVX-512 BF16 would train slower than f32 here: vdpbf16ps does {rate:.2}x the flops per \
+                         second of the f32 FMA on this CPU, measured now, under the {AVX512_BF16_MIN_FLOP_RATE:.1}x \
+                         it needs; --precision bf16 runs it anyway"
+                    ))
+                }
+            }
+        }
+    }
+
     /// One line for logs: `bf16: AVX-512 BF16` or `bf16: unavailable (why)`.
     #[must_use]
     pub fn describe(&self) -> String {
@@ -184,6 +221,59 @@ impl Bf16Support {
         match self {
             Self::Available(kernel) => Some(*kernel),
             Self::Unavailable(_) => None,
+        }
+    }
+}
+
+/// `--precision auto` takes the AVX-512 BF16 kernel only where `vdpbf16ps` does at least this
+/// many times the flops per second of the f32 FMA on this CPU
+/// ([`avx512_dot_flop_rate_against_fma`]). Below it the bf16 products alone are slower than
+/// f32's, before their operands are packed: on an Intel Xeon (Emerald Rapids) with AMX switched
+/// off the rate is about 0.5, and bf16 trains every preset slower (fast 0.90x, small 0.85x,
+/// paper 0.66x, `docs/results/precision/intel-avx512/`); on AMD Zen 4 it is about 2 and bf16
+/// trains faster (1.4x to 1.7x).
+pub const AVX512_BF16_MIN_FLOP_RATE: f64 = 1.0;
+
+/// The flop rate of AVX-512 BF16's `vdpbf16ps` over the f32 FMA's on this core, measured the
+/// first time it is asked for in a process (a few milliseconds; see
+/// [`AVX512_BF16_MIN_FLOP_RATE`]), or why this CPU cannot run it.
+///
+/// # Errors
+/// The CPU lacks AVX-512 BF16 (the features missing, named as [`Bf16Kernel::check`] does).
+pub fn avx512_dot_flop_rate_against_fma() -> Result<f64, &'static str> {
+    Bf16Kernel::Avx512.check()?;
+    static RATE: OnceLock<f64> = OnceLock::new();
+    #[cfg(target_arch = "x86_64")]
+    return Ok(*RATE.get_or_init(avx512::dot_flop_rate_against_fma));
+    #[cfg(not(target_arch = "x86_64"))]
+    unreachable!("AVX-512 BF16 passed its check on a CPU that is not x86_64 ({RATE:?})")
+}
+
+/// What `--precision auto` (and the fast preset) runs on this CPU ([`Bf16Support::auto`]).
+#[derive(Clone, Debug, PartialEq)]
+pub enum AutoPrecision {
+    /// bf16 products on this kernel: AMX, or AVX-512 BF16 where it outruns f32.
+    Bf16(Bf16Kernel),
+    /// f32, and why not bf16: no kernel, or one slower than f32 here.
+    F32(String),
+}
+
+impl AutoPrecision {
+    /// The precision chosen.
+    #[must_use]
+    pub fn precision(&self) -> Precision {
+        match self {
+            Self::Bf16(_) => Precision::Bf16,
+            Self::F32(_) => Precision::F32,
+        }
+    }
+
+    /// One line for logs: `precision auto: bf16 (AVX-512 BF16)` or `precision auto: f32 (why)`.
+    #[must_use]
+    pub fn describe(&self) -> String {
+        match self {
+            Self::Bf16(kernel) => format!("precision auto: bf16 ({})", kernel.name()),
+            Self::F32(why) => format!("precision auto: f32 ({why})"),
         }
     }
 }
@@ -521,6 +611,42 @@ mod tests {
         for x in [0.1f32, 3.7, -1234.5, 6.02e23, 1.5e-30] {
             let r = round_to_bf16(x);
             assert!((f64::from(r) - f64::from(x)).abs() <= BF16_UNIT_ROUNDOFF * f64::from(x).abs(), "{x} -> {r}");
+        }
+    }
+
+    #[test]
+    fn auto_takes_amx_always_and_avx512_bf16_only_where_it_outruns_the_f32_fma() {
+        let never = || -> f64 { panic!("the rate is measured for the AVX-512 BF16 kernel only") };
+        let amx = Bf16Support::Available(Bf16Kernel::Amx);
+        assert_eq!(amx.auto_with(never), AutoPrecision::Bf16(Bf16Kernel::Amx));
+        let none = Bf16Support::Unavailable("this CPU lacks avx512_bf16".into());
+        assert_eq!(none.auto_with(never), AutoPrecision::F32("this CPU lacks avx512_bf16".into()));
+        let avx512 = Bf16Support::Available(Bf16Kernel::Avx512);
+        // Zen 4's rate, the threshold itself, and an Intel Xeon's with AMX switched off.
+        assert_eq!(avx512.auto_with(|| 2.0), AutoPrecision::Bf16(Bf16Kernel::Avx512));
+        assert_eq!(avx512.auto_with(|| AVX512_BF16_MIN_FLOP_RATE), AutoPrecision::Bf16(Bf16Kernel::Avx512));
+        let slow = avx512.auto_with(|| 0.49);
+        assert_eq!(slow.precision(), Precision::F32);
+        let line = slow.describe();
+        assert!(line.starts_with("precision auto: f32 (AVX-512 BF16 would train slower"), "{line}");
+        assert!(line.contains("0.49x") && line.contains("--precision bf16"), "{line}");
+        assert_eq!(avx512.auto_with(|| 2.0).describe(), "precision auto: bf16 (AVX-512 BF16)");
+    }
+
+    #[test]
+    fn the_dot_flop_rate_is_measured_where_avx512_bf16_runs_and_refused_where_it_does_not() {
+        match (Bf16Kernel::Avx512.check(), avx512_dot_flop_rate_against_fma()) {
+            (Ok(()), Ok(rate)) => {
+                // Each instruction's rate is bounded by its latency (at most ~20 cycles over 16
+                // chains) and by the issue width (at most 2 per cycle): whatever the CPU, the
+                // ratio of flops lies well inside (1/16, 16).
+                assert!(rate.is_finite() && (1.0 / 16.0..16.0).contains(&rate), "{rate}");
+            }
+            (Err(why), Err(refused)) => {
+                assert_eq!(why, refused);
+                crate::test_support::skipped_for_cpu_feature("dot_flop_rate (measured)", "avx512_bf16", why);
+            }
+            (check, rate) => panic!("the check ({check:?}) and the rate ({rate:?}) disagree"),
         }
     }
 }
