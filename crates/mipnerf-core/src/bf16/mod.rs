@@ -5,8 +5,9 @@
 //! ([`BF16_UNIT_ROUNDOFF`]). Two kernels run the products ([`Bf16Kernel`]), on operands rounded
 //! to bf16 by the same packing code and so with the same rounding:
 //! - Intel's AMX tiles (`tdpbf16ps`: a 16 x 16 f32 block += a 16 x 32 bf16 block times a 32 x 16
-//!   bf16 block, accumulated in f32), which on the Xeons these runs use do 33 times the f32 FMA
-//!   rate of one core (3.7 TFLOP/s against 112 GFLOP/s, measured by `mipnerf bench --peak`);
+//!   bf16 block, accumulated in f32). On one core of an Intel Xeon (Emerald Rapids) the MLP's
+//!   products ran 1.5x to 3.4x gemm's f32 GFLOP/s with them, the packing included
+//!   (`cargo bench -p mipnerf-core --bench products`, `docs/results/precision/intel-avx512/`);
 //! - AVX-512 BF16 alone (`vdpbf16ps`: sixteen f32 lanes each += the dot product of a bf16 pair),
 //!   on CPUs without AMX such as AMD Zen 4 and Zen 5. Each instruction does twice the flops of an
 //!   f32 FMA; on an AMD EPYC (Zen 4) at about the FMA's rate, so up to twice its flops
