@@ -150,9 +150,12 @@ pub fn sin_f32(x: f32) -> f32 {
     const PIO2_HI: f64 = std::f64::consts::FRAC_PI_2;
     const PIO2_LO: f64 = 6.123_233_995_736_766e-17;
     let xd = f64::from(x);
-    let kf = (xd * FRAC_2_PI + ROUND_MAGIC) - ROUND_MAGIC;
+    let shifted = xd * FRAC_2_PI + ROUND_MAGIC;
+    let kf = shifted - ROUND_MAGIC;
     let r = (xd - kf * PIO2_HI) - kf * PIO2_LO;
-    let quadrant = (kf as i32) & 3;
+    // k mod 4 from the shifted value's mantissa, which holds `2^51 + k`: `kf as i32 & 3` without
+    // a saturating float-to-int conversion (see `sin_f32_poly`).
+    let quadrant = shifted.to_bits() & 3;
     let z = r * r;
     let s = r + r
         * z
@@ -220,9 +223,20 @@ pub fn integrated_pos_enc(g: &Gaussian, min_deg: u32, max_deg: u32, out: &mut [f
     let half = ipe_arguments(g, min_deg, max_deg, out, &mut damp);
     damp[..half].iter_mut().for_each(|e| *e = e.exp());
     let (sin_part, cos_part) = out.split_at_mut(half);
-    for ((s, c), &d) in sin_part.iter_mut().zip(cos_part.iter_mut()).zip(&damp[..half]) {
-        *s = d * safe_sin(*s);
-        *c = d * safe_sin(*c);
+    // In zero-padded blocks of a fixed length, so that the sine's loop vectorises whole (see
+    // `integrated_pos_enc_for_bf16`).
+    for start in (0..half).step_by(IPE_BLOCK) {
+        let len = (half - start).min(IPE_BLOCK);
+        let (mut s, mut c, mut d) = ([0.0f32; IPE_BLOCK], [0.0f32; IPE_BLOCK], [0.0f32; IPE_BLOCK]);
+        s[..len].copy_from_slice(&sin_part[start..start + len]);
+        c[..len].copy_from_slice(&cos_part[start..start + len]);
+        d[..len].copy_from_slice(&damp[start..start + len]);
+        for j in 0..IPE_BLOCK {
+            s[j] = d[j] * safe_sin(s[j]);
+            c[j] = d[j] * safe_sin(c[j]);
+        }
+        sin_part[start..start + len].copy_from_slice(&s[..len]);
+        cos_part[start..start + len].copy_from_slice(&c[..len]);
     }
 }
 
@@ -294,7 +308,8 @@ pub fn integrated_pos_enc_for_bf16(g: &Gaussian, min_deg: u32, max_deg: u32, out
     }
 }
 
-/// Features per block of [`integrated_pos_enc_for_bf16`]'s loop: one 512-bit vector of `f32`.
+/// Features per block of the IPE's sine loops ([`integrated_pos_enc`],
+/// [`integrated_pos_enc_for_bf16`]): one 512-bit vector of `f32`.
 const IPE_BLOCK: usize = 16;
 
 /// `1.5 · 2^23`: adding and subtracting it rounds an `f32` of magnitude below `2^22` to an
