@@ -129,9 +129,6 @@ pub fn bench(a: &BenchArgs, session: &Session) -> Result<()> {
     Ok(())
 }
 
-/// What a device backend records, makes and reads back: the first training step, a later one,
-/// a step that reports its losses, and rendering one chunk (`render_side`^2 pixels in one
-/// chunk at most, the first render and a later one). `None` for the CPU.
 /// The header's bf16 line: the kernel [`Bf16Support::detect`] chose and, for AVX-512 BF16, the
 /// rate of `vdpbf16ps` against the f32 FMA measured here and what `--precision auto` runs.
 fn bf16_line() -> String {
@@ -148,6 +145,9 @@ fn bf16_line() -> String {
     support.describe()
 }
 
+/// What a device backend records, makes and reads back: the first training step, a later one,
+/// a step that reports its losses, and rendering one chunk (`render_side`^2 pixels in one
+/// chunk at most, the first render and a later one). `None` for the CPU.
 fn device_work(
     b: &mut dyn mipnerf_core::backend::Backend,
     render_side: u32,
