@@ -222,22 +222,12 @@ pub fn integrated_pos_enc(g: &Gaussian, min_deg: u32, max_deg: u32, out: &mut [f
     let mut damp = [0.0f32; 3 * 24];
     let half = ipe_arguments(g, min_deg, max_deg, out, &mut damp);
     damp[..half].iter_mut().for_each(|e| *e = e.exp());
-    let (sin_part, cos_part) = out.split_at_mut(half);
-    // In zero-padded blocks of a fixed length, so that the sine's loop vectorises whole (see
-    // `integrated_pos_enc_for_bf16`).
-    for start in (0..half).step_by(IPE_BLOCK) {
-        let len = (half - start).min(IPE_BLOCK);
-        let (mut s, mut c, mut d) = ([0.0f32; IPE_BLOCK], [0.0f32; IPE_BLOCK], [0.0f32; IPE_BLOCK]);
-        s[..len].copy_from_slice(&sin_part[start..start + len]);
-        c[..len].copy_from_slice(&cos_part[start..start + len]);
-        d[..len].copy_from_slice(&damp[start..start + len]);
-        for j in 0..IPE_BLOCK {
-            s[j] = d[j] * safe_sin(s[j]);
-            c[j] = d[j] * safe_sin(c[j]);
-        }
-        sin_part[start..start + len].copy_from_slice(&s[..len]);
-        cos_part[start..start + len].copy_from_slice(&c[..len]);
-    }
+    in_blocks(
+        out,
+        &damp[..half],
+        #[inline(always)]
+        |d, s, c| (d * safe_sin(s), d * safe_sin(c)),
+    );
 }
 
 /// The IPE's arguments in place in `out` (`ipe_len` long): `2^l x` in its first half and
@@ -288,29 +278,44 @@ pub fn integrated_pos_enc_for_bf16(g: &Gaussian, min_deg: u32, max_deg: u32, out
     assert!(max_deg <= 24, "integrated_pos_enc_for_bf16: degrees up to 24");
     let mut exponent = [0.0f32; 3 * 24];
     let half = ipe_arguments(g, min_deg, max_deg, out, &mut exponent);
+    in_blocks(
+        out,
+        &exponent[..half],
+        #[inline(always)]
+        |e, s, c| {
+            let d = exp_f32_poly(e);
+            (d * sin_f32_poly(safe_trig_arg_f32(s)), d * sin_f32_poly(safe_trig_arg_f32(c)))
+        },
+    );
+}
+
+/// Features per block of [`in_blocks`]: one 512-bit vector of `f32`.
+const IPE_BLOCK: usize = 16;
+
+/// The IPE's last pass over `out` (`[sin part | cos part]`, each as long as `damping`, which
+/// holds each feature's damping or its exponent, as `feature` takes it): feature
+/// `j` of each part becomes `feature(damping[j], sin_part[j], cos_part[j])`, in zero-padded
+/// blocks of [`IPE_BLOCK`]. A loop over the whole half (48 features at the paper's degrees, a
+/// count known only when it runs) compiled to a vector body it never entered and a scalar
+/// remainder that did all the work; a block's loop has a trip count the compiler knows and
+/// vectorises whole. Inlined, so that `feature` is compiled in the caller's loop.
+#[inline(always)]
+fn in_blocks(out: &mut [f32], damping: &[f32], feature: impl Fn(f32, f32, f32) -> (f32, f32)) {
+    let half = damping.len();
     let (sin_part, cos_part) = out.split_at_mut(half);
-    // In blocks of a fixed 16 features, zero-padded, so that the loop over a block has a trip
-    // count the compiler knows and vectorises whole: a loop over `half` (48 at the paper's
-    // degrees) left most of its features to a scalar remainder.
     for start in (0..half).step_by(IPE_BLOCK) {
         let len = (half - start).min(IPE_BLOCK);
-        let (mut s, mut c, mut e) = ([0.0f32; IPE_BLOCK], [0.0f32; IPE_BLOCK], [0.0f32; IPE_BLOCK]);
+        let (mut s, mut c, mut d) = ([0.0f32; IPE_BLOCK], [0.0f32; IPE_BLOCK], [0.0f32; IPE_BLOCK]);
         s[..len].copy_from_slice(&sin_part[start..start + len]);
         c[..len].copy_from_slice(&cos_part[start..start + len]);
-        e[..len].copy_from_slice(&exponent[start..start + len]);
+        d[..len].copy_from_slice(&damping[start..start + len]);
         for j in 0..IPE_BLOCK {
-            let d = exp_f32_poly(e[j]);
-            s[j] = d * sin_f32_poly(safe_trig_arg_f32(s[j]));
-            c[j] = d * sin_f32_poly(safe_trig_arg_f32(c[j]));
+            (s[j], c[j]) = feature(d[j], s[j], c[j]);
         }
         sin_part[start..start + len].copy_from_slice(&s[..len]);
         cos_part[start..start + len].copy_from_slice(&c[..len]);
     }
 }
-
-/// Features per block of the IPE's sine loops ([`integrated_pos_enc`],
-/// [`integrated_pos_enc_for_bf16`]): one 512-bit vector of `f32`.
-const IPE_BLOCK: usize = 16;
 
 /// `1.5 · 2^23`: adding and subtracting it rounds an `f32` of magnitude below `2^22` to an
 /// integer (nearest, ties to even).
