@@ -19,6 +19,7 @@ use crate::mlp::{MlpCache, MlpConfigError, MlpShape};
 use crate::occupancy::{DensityField, OccupancyGrid};
 use crate::render;
 use crate::stages;
+use crate::wide::wide;
 
 pub use crate::config::{FAST_SAMPLES, FastRecipe, Mode, ModelConfig, PointEncoding, Preset};
 
@@ -740,17 +741,36 @@ impl DensityField for ModelDensity<'_> {
     fn densities(&self, probes: &[Gaussian], contracted: bool) -> Vec<f32> {
         let c = self.model.config();
         let (x_dim, n) = (c.x_dim(), probes.len());
-        let mut x = vec![0.0f32; n * x_dim];
-        for (g, dst) in probes.iter().zip(x.chunks_exact_mut(x_dim)) {
-            if contracted {
-                stages::encode_gaussian(g, (c.point_encoding, Precision::F32), c.min_deg_point, c.max_deg_point, dst);
-            } else {
-                self.model.encode_point(g, dst);
-            }
-        }
-        let view = vec![0.0f32; n * c.view_dim()];
-        let mut cache = MlpCache::default();
-        self.model.mlps()[0].forward(self.params, &x, &view, n, 1, &mut cache);
-        cache.raw_density.iter().map(|&raw| c.density_activation.forward(raw, c.density_bias)).collect()
+        let (encoding, degrees) = ((c.point_encoding, Precision::F32), (c.min_deg_point, c.max_deg_point));
+        let contract = c.unbounded && !contracted;
+        PROBE_WORKSPACE.with(|ws| {
+            let ProbeWorkspace { x, cache } = &mut *ws.borrow_mut();
+            x.resize(n * x_dim, 0.0);
+            // Model::encode_point's encoding, through `wide`'s 512-bit vectors: the same bits.
+            wide(
+                #[inline(always)]
+                || {
+                    for (g, dst) in probes.iter().zip(x.chunks_exact_mut(x_dim)) {
+                        let g = if contract { crate::contract::contract_gaussian(g) } else { *g };
+                        stages::encode_gaussian(&g, encoding, degrees.0, degrees.1, dst);
+                    }
+                },
+            );
+            self.model.mlps()[0].density(self.params, x, n, cache);
+            cache.raw_density.iter().map(|&raw| c.density_activation.forward(raw, c.density_bias)).collect()
+        })
     }
+}
+
+thread_local! {
+    /// Each thread's buffers for the occupancy grid's density probes, kept between updates
+    /// (fresh buffers on every update cost a page fault per 4 KiB page).
+    static PROBE_WORKSPACE: std::cell::RefCell<ProbeWorkspace> = std::cell::RefCell::new(ProbeWorkspace::default());
+}
+
+/// One thread's buffers for [`ModelDensity`]: the probes' encodings and the MLP's activations.
+#[derive(Default)]
+struct ProbeWorkspace {
+    x: Vec<f32>,
+    cache: MlpCache,
 }

@@ -8,12 +8,15 @@
 mod common;
 use common::scene::{BALL_RADIUS, ball_scene};
 use glam::Vec3;
+use mipnerf_core::bf16::Precision;
 use mipnerf_core::checkpoint::{self, Checkpoint};
 use mipnerf_core::compare::{Tolerance, assert_close};
 use mipnerf_core::contract::UNBOUNDED_FAR;
 use mipnerf_core::data::{self, LoadOptions, Split};
+use mipnerf_core::mip::Gaussian;
+use mipnerf_core::mlp::MlpCache;
 use mipnerf_core::model::{GradScratch, LevelOutput, Mode, Model, ModelConfig, Preset};
-use mipnerf_core::occupancy::{CARVED, CONTRACTED_BOUND, OccupancyConfig, OccupancyGrid, auto_bound};
+use mipnerf_core::occupancy::{CARVED, CONTRACTED_BOUND, DensityField, OccupancyConfig, OccupancyGrid, auto_bound};
 use mipnerf_core::rng::{RayRng, Stream};
 use mipnerf_core::sampling::{sample_along_rays, sample_along_segments};
 use mipnerf_core::schedule::LrSchedule;
@@ -532,4 +535,90 @@ fn an_unbounded_scene_trains_with_a_contracted_grid_that_keeps_its_dense_cells()
     }
     eprintln!("{dense} cells dense, {} of the grid's cells occupied", grid.occupied_fraction());
     assert!(dense > 0 && dropped.is_empty(), "{} of {dense} dense cells dropped: {dropped:?}", dropped.len());
+}
+
+/// The reference the grid's density probes are checked against (the way they ran before
+/// issue 38's fern profile): each probe encoded alone ([`Model::encode_point`], or as it is in a
+/// contracted grid), then the batch through the first MLP's full forward pass in a fresh cache,
+/// the raw densities activated.
+fn densities_by_full_forward(model: &Model, params: &[f32], probes: &[Gaussian], contracted: bool) -> Vec<f32> {
+    let c = model.config();
+    let (x_dim, n) = (c.x_dim(), probes.len());
+    let mut x = vec![0.0f32; n * x_dim];
+    for (g, dst) in probes.iter().zip(x.chunks_exact_mut(x_dim)) {
+        if contracted {
+            let encoding = (c.point_encoding, Precision::F32);
+            mipnerf_core::stages::encode_gaussian(g, encoding, c.min_deg_point, c.max_deg_point, dst);
+        } else {
+            model.encode_point(g, dst);
+        }
+    }
+    let mut cache = MlpCache::default();
+    model.mlps()[0].forward(params, &x, &vec![0.0; n * c.view_dim()], n, 1, &mut cache);
+    cache.raw_density.iter().map(|&raw| c.density_activation.forward(raw, c.density_bias)).collect()
+}
+
+#[test]
+fn the_density_probes_give_the_bits_of_the_full_forward_pass() {
+    // The probes run as a batch through the trunk and density head alone, in buffers each thread
+    // keeps between updates, encoded in 512-bit vectors where the CPU has them: none of it may
+    // change a bit. Bounded and unbounded models (the latter probed in world space and in
+    // contracted space), f32 and bf16 where the CPU has a kernel, twice through the kept
+    // buffers with batches of other sizes between.
+    let mut rng = SmallRng::seed_from_u64(17);
+    let mut probes = |n: usize| -> Vec<Gaussian> {
+        (0..n)
+            .map(|_| Gaussian {
+                mean: Vec3::new(rng.random_range(-2.0..2.0), rng.random_range(-2.0..2.0), rng.random_range(-2.0..2.0)),
+                cov_diag: Vec3::splat(rng.random_range(1e-4..1e-2)),
+            })
+            .collect()
+    };
+    let batches = [probes(37), probes(300), probes(5)];
+    let bf16 = !matches!(mipnerf_core::bf16::Bf16Support::detect(), mipnerf_core::bf16::Bf16Support::Unavailable(_));
+    if !bf16 {
+        mipnerf_core::test_support::skipped_for_cpu_feature(
+            "the_density_probes_give_the_bits_of_the_full_forward_pass (its bf16 half)",
+            "avx512_bf16",
+            "no bf16 kernel on this CPU",
+        );
+    }
+    for precision in [Precision::F32, Precision::Bf16] {
+        if precision == Precision::Bf16 && !bf16 {
+            continue;
+        }
+        for (mut m, contracted) in [(model(), false), (unbounded_model(), false), (unbounded_model(), true)] {
+            m.set_precision(precision).unwrap();
+            let params = m.init_params(4);
+            for _ in 0..2 {
+                for probes in &batches {
+                    let got = m.density_field(&params).densities(probes, contracted);
+                    let want = densities_by_full_forward(&m, &params, probes, contracted);
+                    let bits = |v: &[f32]| v.iter().map(|d| d.to_bits()).collect::<Vec<u32>>();
+                    assert_eq!(
+                        bits(&got),
+                        bits(&want),
+                        "{precision:?}, unbounded {}, contracted {contracted}, {} probes",
+                        m.config().unbounded,
+                        probes.len()
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[test]
+#[should_panic(expected = "the last forward pass was density-only")]
+fn no_backward_pass_follows_a_density_only_pass() {
+    let m = model();
+    let params = m.init_params(4);
+    let shape = &m.mlps()[0];
+    let c = m.config();
+    let (n, x) = (4, vec![0.1f32; 4 * c.x_dim()]);
+    let mut cache = MlpCache::default();
+    shape.forward(&params, &x, &vec![0.0; n * c.view_dim()], n, 1, &mut cache);
+    shape.density(&params, &x, n, &mut cache);
+    let mut grads = vec![0.0; params.len()];
+    shape.backward(&params, &x, &vec![0.0; n * c.view_dim()], 1, &mut cache, &[0.0; 12], &[0.0; 4], &mut grads);
 }
