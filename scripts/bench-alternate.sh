@@ -8,16 +8,9 @@
 set -euo pipefail
 before=$(realpath "$1"); after=$(realpath "$2"); out=$3; rounds=${4:-3}
 mkdir -p "$out"
-lscpu | grep -E "^(Model name|CPU\(s\)|Vendor ID)" > "$out/lscpu.txt"
-grep -o -w -E "avx512_bf16|amx_tile|amx_bf16" /proc/cpuinfo | sort -u >> "$out/lscpu.txt" || true
-bench() { "$1" bench --backend cpu --preset small,paper --precision f32,bf16 --steps 10 --render-side 64; }
-for i in $(seq 1 "$rounds"); do
-    for which in before after; do
-        bin=$before; [ "$which" = after ] && bin=$after
-        echo "$(date -u +%H:%M:%S) $which $i" >&2
-        bench "$bin" > "$out/$which-$i.txt" 2>&1
-    done
-done
+bench() { "$1" bench --backend cpu --preset small,paper --precision f32,bf16 --steps 10 --render-side 64 > "$2" 2>&1; }
+source "$(dirname "$0")/alternate.sh"
+alternate "$before" "$after" "$out" "$rounds" bench
 python3 - "$out" "$rounds" <<'PY'
 import re, statistics, sys
 out, rounds = sys.argv[1], int(sys.argv[2])

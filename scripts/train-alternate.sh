@@ -12,23 +12,21 @@ before=$(realpath "$1"); after=$(realpath "$2"); out=$3; rounds=$4; shift 4
 [ "${1:-}" = "--" ] && shift
 mkdir -p "$out"
 out=$(realpath "$out")
-lscpu | grep -E "^(Model name|CPU\(s\)|Vendor ID)" > "$out/lscpu.txt"
-grep -o -w -E "avx512_bf16|amx_tile|amx_bf16" /proc/cpuinfo | sort -u >> "$out/lscpu.txt" || true
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
-echo "train $*" > "$out/command.txt"
-for i in $(seq 1 "$rounds"); do
-    for which in before after; do
-        bin=$before; [ "$which" = after ] && bin=$after
-        echo "$(date -u +%H:%M:%S) $which $i" >&2
-        rm -rf "$work/run"
-        start=$(date +%s.%N)
-        "$bin" train "$@" --out "$work/run" > "$out/$which-$i.txt" 2>&1
-        end=$(date +%s.%N)
-        echo "wall_s $(echo "$end - $start" | bc)" >> "$out/$which-$i.txt"
-        echo "checkpoint_sha256 $(sha256sum < "$work/run/checkpoint.safetensors" | cut -d' ' -f1)" >> "$out/$which-$i.txt"
-    done
-done
+flags=("$@")
+echo "train ${flags[*]}" > "$out/command.txt"
+train() {
+    rm -rf "$work/run"
+    local start end
+    start=$(date +%s.%N)
+    "$1" train "${flags[@]}" --out "$work/run" > "$2" 2>&1
+    end=$(date +%s.%N)
+    echo "wall_s $(echo "$end - $start" | bc)" >> "$2"
+    echo "checkpoint_sha256 $(sha256sum < "$work/run/checkpoint.safetensors" | cut -d' ' -f1)" >> "$2"
+}
+source "$(dirname "$0")/alternate.sh"
+alternate "$before" "$after" "$out" "$rounds" train
 python3 - "$out" "$rounds" <<'PY'
 import re, statistics, sys
 out, rounds = sys.argv[1], int(sys.argv[2])
