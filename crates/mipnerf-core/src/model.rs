@@ -606,6 +606,8 @@ impl Model {
     /// One Gaussian (world space) encoded by the configured point encoding into `dst` (`x_dim`
     /// values): IPE, PE of the mean ("w/o IPE"), or NeRF's PE ([`stages::encode_gaussian`]); in an
     /// unbounded scene, after the scene contraction ([`crate::contract::contract_gaussian`]).
+    /// Inlined, so that in a [`wide`] loop its IPE runs in 512-bit vectors.
+    #[inline(always)]
     pub fn encode_point(&self, g: &Gaussian, dst: &mut [f32]) {
         let c = &self.config;
         let g = if c.unbounded { crate::contract::contract_gaussian(g) } else { *g };
@@ -741,18 +743,20 @@ impl DensityField for ModelDensity<'_> {
     fn densities(&self, probes: &[Gaussian], contracted: bool) -> Vec<f32> {
         let c = self.model.config();
         let (x_dim, n) = (c.x_dim(), probes.len());
-        let (encoding, degrees) = ((c.point_encoding, Precision::F32), (c.min_deg_point, c.max_deg_point));
-        let contract = c.unbounded && !contracted;
         PROBE_WORKSPACE.with(|ws| {
             let ProbeWorkspace { x, cache } = &mut *ws.borrow_mut();
             x.resize(n * x_dim, 0.0);
-            // Model::encode_point's encoding, through `wide`'s 512-bit vectors: the same bits.
+            // Through `wide`'s 512-bit vectors (the encodings are inlined into it): the same bits.
             wide(
                 #[inline(always)]
                 || {
                     for (g, dst) in probes.iter().zip(x.chunks_exact_mut(x_dim)) {
-                        let g = if contract { crate::contract::contract_gaussian(g) } else { *g };
-                        stages::encode_gaussian(&g, encoding, degrees.0, degrees.1, dst);
+                        if contracted {
+                            let encoding = (c.point_encoding, Precision::F32);
+                            stages::encode_gaussian(g, encoding, c.min_deg_point, c.max_deg_point, dst);
+                        } else {
+                            self.model.encode_point(g, dst);
+                        }
                     }
                 },
             );
