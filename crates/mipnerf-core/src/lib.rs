@@ -45,6 +45,7 @@ pub mod data;
 pub mod export;
 pub mod io;
 pub mod linalg;
+mod lines;
 pub mod lpips;
 pub mod memory;
 pub mod metrics;

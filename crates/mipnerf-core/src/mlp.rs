@@ -24,6 +24,7 @@ use rand::{Rng, SeedableRng, rngs::SmallRng};
 
 use crate::bf16::{Bf16Matrix, Operand, Precision, Reads, matmul_bf16_with, uses_bf16};
 use crate::linalg::{Layout, matmul};
+use crate::lines::Lines;
 use crate::wide::wide;
 
 /// The shape of the MLP. Defaults are the official ones (the paper's 612K-parameter network).
@@ -203,20 +204,20 @@ pub struct MlpCache {
     n: usize,
     n_rays: usize,
     /// Post-ReLU outputs of each trunk layer, `n x net_width` each.
-    trunk: Vec<Vec<f32>>,
-    bottleneck: Vec<f32>,
+    trunk: Vec<Lines<f32>>,
+    bottleneck: Lines<f32>,
     /// Per-ray projection of the view encoding through the first condition layer.
-    view_proj: Vec<f32>,
+    view_proj: Lines<f32>,
     /// Post-ReLU outputs of each condition layer.
-    cond: Vec<Vec<f32>>,
+    cond: Vec<Lines<f32>>,
     /// Raw colour, `n x 3`.
     pub raw_rgb: Vec<f32>,
     /// Raw density, `n`.
     pub raw_density: Vec<f32>,
-    grad_a: Vec<f32>,
-    grad_b: Vec<f32>,
-    grad_z: Vec<f32>,
-    grad_ray: Vec<f32>,
+    grad_a: Lines<f32>,
+    grad_b: Lines<f32>,
+    grad_z: Lines<f32>,
+    grad_ray: Lines<f32>,
     /// At [`Precision::Bf16`], the products' operands packed once each ([`Packed`]).
     packed: PackedOperands,
     /// Whether the next forward pass packs its activations for a backward pass too.
@@ -327,7 +328,7 @@ fn gradient_reads(n: usize, fan_in: usize, fan_out: usize, width: usize, input_g
     }
 }
 
-fn resize(v: &mut Vec<f32>, len: usize) {
+fn resize(v: &mut Lines<f32>, len: usize) {
     v.resize(len, 0.0);
 }
 
@@ -462,7 +463,7 @@ impl MlpShape {
         packed.bottleneck.pack_after(pack, bottleneck, n, w, reads, |rows, _| add_bias(rows, bias, false));
         // Condition layers. The first takes [bottleneck, view]; its view part, with the bias, is the
         // same for all samples of a ray, so it is computed once per ray and added to each sample.
-        cond.resize_with(c.net_depth_condition, Vec::new);
+        cond.resize_with(c.net_depth_condition, Lines::default);
         packed.cond.resize_with(c.net_depth_condition, Packed::default);
         let l0 = self.condition(0);
         resize(view_proj, n_rays * wc);
@@ -489,7 +490,7 @@ impl MlpShape {
                 packed.cond[j].pack_after(pack, out, n, wc, reads, |rows, _| add_bias(rows, bias, true));
             }
         }
-        resize(raw_rgb, n * 3);
+        raw_rgb.resize(n * 3, 0.0);
         let l = self.rgb_head();
         let last = c.net_depth_condition - 1;
         dense(p, params, l, &[(packed.cond[last].operand(&cond[last], Layout::Normal), wc)], n, raw_rgb);
@@ -524,7 +525,7 @@ impl MlpShape {
         let training = *training;
         packed.x.pack(pack, x, n, c.x_dim, input_reads(n, c.x_dim, w, training));
         let x_part = (packed.x.operand(x, Layout::Normal), c.x_dim);
-        trunk.resize_with(c.net_depth, Vec::new);
+        trunk.resize_with(c.net_depth, Lines::default);
         packed.trunk.resize_with(c.net_depth, Packed::default);
         for i in 0..c.net_depth {
             let (before, rest) = trunk.split_at_mut(i);
@@ -547,7 +548,7 @@ impl MlpShape {
         // The density head on [top, x?].
         let top = (packed.trunk[c.net_depth - 1].operand(&trunk[c.net_depth - 1], Layout::Normal), w);
         let top_parts: &[_] = if self.concat_after(c.net_depth - 1) { &[top, x_part] } else { &[top] };
-        resize(raw_density, n);
+        raw_density.resize(n, 0.0);
         dense(p, params, self.density_head(), top_parts, n, raw_density);
         add_bias(raw_density, self.density_head().bias(params), false);
     }
@@ -670,5 +671,39 @@ impl MlpShape {
     #[must_use]
     pub fn trunk_output<'a>(&self, cache: &'a MlpCache, i: usize) -> &'a [f32] {
         &cache.trunk[i]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{MlpCache, MlpConfig, MlpShape};
+
+    /// The products' outputs (AMX's `c`, loaded and stored a tile row at a time) start on cache
+    /// lines, whatever the allocator gives ([`crate::lines::Lines`]).
+    #[test]
+    fn the_products_outputs_start_on_cache_lines() {
+        let config =
+            MlpConfig { net_depth: 3, net_width: 32, skip_layer: 2, x_dim: 12, view_dim: 5, ..MlpConfig::default() };
+        let shape = MlpShape::new(config, 0).unwrap();
+        let mut params = vec![0.0; shape.num_params];
+        shape.init_glorot(&mut params, 1);
+        let mut cache = MlpCache::default();
+        cache.set_training(true);
+        // Growing sizes, so that the buffers are reallocated on the way.
+        for (n_rays, samples) in [(1, 3), (7, 5), (64, 33)] {
+            let n = n_rays * samples;
+            let x: Vec<f32> = (0..n * config.x_dim).map(|i| (i % 13) as f32 * 0.1 - 0.6).collect();
+            let view: Vec<f32> = (0..n_rays * config.view_dim).map(|i| (i % 7) as f32 * 0.2 - 0.5).collect();
+            shape.forward(&params, &x, &view, n_rays, samples, &mut cache);
+            let (d_rgb, d_density) = (vec![0.1; n * 3], vec![0.2; n]);
+            let mut grads = vec![0.0; shape.num_params];
+            shape.backward(&params, &x, &view, samples, &mut cache, &d_rgb, &d_density, &mut grads);
+            let MlpCache { trunk, bottleneck, cond, grad_a, grad_b, grad_z, view_proj, grad_ray, .. } = &cache;
+            let buffers = trunk.iter().chain(cond).chain([bottleneck, grad_a, grad_b, grad_z, view_proj, grad_ray]);
+            for (i, buffer) in buffers.enumerate() {
+                assert!(!buffer.is_empty(), "buffer {i}, {n} samples");
+                assert_eq!(buffer.as_ptr() as usize % 64, 0, "buffer {i}, {n} samples");
+            }
+        }
     }
 }

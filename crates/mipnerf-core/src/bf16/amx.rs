@@ -57,6 +57,11 @@ fn request_tile_permission() -> i64 {
     -1
 }
 
+/// A 32 x 32 block of `c` on cache lines (tile rows that straddle two lines load and store
+/// slowly: [`crate::lines::Lines`]).
+#[repr(C, align(64))]
+struct ScratchBlock([f32; BLOCK * BLOCK]);
+
 /// Tile configuration (palette 1): 8 tiles of 16 rows x 64 bytes.
 #[repr(C, align(64))]
 struct TileConfig([u8; 64]);
@@ -92,7 +97,8 @@ pub(super) fn product(
     super::assert_packed(super::Bf16Kernel::Amx, c, a.len(), b, m, n, mp, kp, np);
     let cfg = TileConfig::all_16x64();
     let k_tiles = kp / K_STEP;
-    let mut scratch = [0f32; BLOCK * BLOCK];
+    let mut scratch = ScratchBlock([0f32; BLOCK * BLOCK]);
+    let scratch = &mut scratch.0;
     // SAFETY: the process holds the tile permission (the check above), and the
     // configuration is a valid palette-1 layout; no other code in this program uses tiles.
     unsafe { asm!("ldtilecfg [{}]", in(reg) cfg.0.as_ptr(), options(nostack, readonly)) };

@@ -31,6 +31,7 @@ use std::cell::RefCell;
 use std::sync::OnceLock;
 
 use crate::linalg::{Layout, matmul};
+use crate::lines::Lines;
 
 use packed::PackedLeft;
 pub use packed::{Bf16Matrix, Operand, PACK_BLOCK_ROWS, Reads};
@@ -505,12 +506,12 @@ pub fn matmul_bf16_emulated(
 #[derive(Default)]
 struct Packed {
     /// `a` as bf16, `mp x kp` row-major, zero-padded.
-    a: Vec<u16>,
+    a: Lines<u16>,
     /// `b` as pairs of bf16 along k (AMX's "VNNI" layout): `kp / 2` rows of `np` 32-bit pairs.
-    b: Vec<u32>,
+    b: Lines<u32>,
     /// `a` stored transposed, for the AVX-512 kernel: laid out as `b` is ([`b_index`], `a`'s
     /// rows as the columns), `kp / 2` rows of `mp` pairs.
-    a_pairs: Vec<u32>,
+    a_pairs: Lines<u32>,
 }
 
 thread_local! {
@@ -537,7 +538,7 @@ fn b_index(q: usize, j: usize, kp: usize) -> usize {
 /// Packs `a (m x k)` into `out` as bf16 at [`a_index`], zero-padded to `mp x kp`. The scalar
 /// reference of [`simd::pack_rows`].
 #[cfg_attr(not(test), allow(dead_code))]
-fn pack_rows(out: &mut Vec<u16>, a: &[f32], la: Layout, m: usize, k: usize, mp: usize, kp: usize) {
+fn pack_rows(out: &mut Lines<u16>, a: &[f32], la: Layout, m: usize, k: usize, mp: usize, kp: usize) {
     out.clear();
     out.resize(mp * kp, 0);
     for i in 0..m {
@@ -552,7 +553,7 @@ fn pack_rows(out: &mut Vec<u16>, a: &[f32], la: Layout, m: usize, k: usize, mp: 
 /// at [`b_index`], zero-padded to `kp/2 x np` (`out` only grows: what lies past that is left as
 /// it was). The scalar reference of [`simd::pack_pairs`].
 #[cfg_attr(not(test), allow(dead_code))]
-fn pack_pairs(out: &mut Vec<u32>, b: &[f32], lb: Layout, k: usize, n: usize, kp: usize, np: usize) {
+fn pack_pairs(out: &mut Lines<u32>, b: &[f32], lb: Layout, k: usize, n: usize, kp: usize, np: usize) {
     let len = kp / 2 * np;
     grow(out, len);
     out[..len].fill(0);
@@ -566,7 +567,7 @@ fn pack_pairs(out: &mut Vec<u32>, b: &[f32], lb: Layout, k: usize, n: usize, kp:
 
 /// Lengthens `out` to `len` if it is shorter; never shortens it. The packing buffers hold large
 /// operands and small ones in turn: kept long, they are not zeroed again each time.
-fn grow<T: Copy + Default>(out: &mut Vec<T>, len: usize) {
+fn grow<T: Copy + Default>(out: &mut Lines<T>, len: usize) {
     if out.len() < len {
         out.resize(len, T::default());
     }

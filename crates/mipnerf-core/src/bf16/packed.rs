@@ -10,7 +10,7 @@
 
 use std::ops::Range;
 
-use super::{BLOCK, Bf16Kernel, Bf16Support, K_STEP, Layout};
+use super::{BLOCK, Bf16Kernel, Bf16Support, K_STEP, Layout, Lines};
 
 /// Rows per block of [`Bf16Matrix::pack_after`]: whole pair rows and whole 32-row blocks of the
 /// packings, and few enough that a block (32 KiB of a 256-wide f32 matrix) is still in the
@@ -41,12 +41,12 @@ pub struct Bf16Matrix {
     reads: Reads,
     kernel: Option<Bf16Kernel>,
     /// `x` as the left operand: the kernels' tiles (`rows` padded to 32 x `cols` padded to 32).
-    tiles: Vec<u16>,
+    tiles: Lines<u16>,
     /// `x` in pairs along its rows (`rows / 2` padded x `cols` padded): the right operand, and
     /// the AVX-512 kernel's transposed left operand.
-    pairs: Vec<u32>,
+    pairs: Lines<u32>,
     /// `xᵀ` as the AMX kernel's left operand (tiles of the transpose).
-    tiles_transposed: Vec<u16>,
+    tiles_transposed: Lines<u16>,
 }
 
 impl Bf16Matrix {

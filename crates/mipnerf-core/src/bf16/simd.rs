@@ -5,12 +5,12 @@ use std::arch::x86_64::{
     _mm512_unpackhi_epi32, _mm512_unpackhi_epi64, _mm512_unpacklo_epi32, _mm512_unpacklo_epi64,
 };
 
-use super::{Layout, a_index, b_index, f32_to_bf16_bits, grow};
+use super::{Layout, Lines, a_index, b_index, f32_to_bf16_bits, grow};
 
 const FEATURES_CHECKED: &str = "bf16 packing needs AVX-512 BF16 (checked by Bf16Kernel::check)";
 
 /// [`super::pack_rows`], vectorised.
-pub(super) fn pack_rows(out: &mut Vec<u16>, a: &[f32], la: Layout, m: usize, k: usize, mp: usize, kp: usize) {
+pub(super) fn pack_rows(out: &mut Lines<u16>, a: &[f32], la: Layout, m: usize, k: usize, mp: usize, kp: usize) {
     match la {
         Layout::Normal => pack(Targets { tiles: Some((out, mp, kp)), ..Targets::default() }, a, m, k),
         // `a` is stored `k x m`: the transpose of what is stored.
@@ -19,7 +19,7 @@ pub(super) fn pack_rows(out: &mut Vec<u16>, a: &[f32], la: Layout, m: usize, k: 
 }
 
 /// [`super::pack_pairs`], vectorised.
-pub(super) fn pack_pairs(out: &mut Vec<u32>, b: &[f32], lb: Layout, k: usize, n: usize, kp: usize, np: usize) {
+pub(super) fn pack_pairs(out: &mut Lines<u32>, b: &[f32], lb: Layout, k: usize, n: usize, kp: usize, np: usize) {
     match lb {
         Layout::Normal => pack(Targets { pairs: Some((out, kp, np)), ..Targets::default() }, b, k, n),
         // `b` stored `n x k` (a layer's kernel in the input gradient `dz · Wᵀ`).
@@ -48,13 +48,13 @@ pub(super) fn pack_pairs(out: &mut Vec<u32>, b: &[f32], lb: Layout, k: usize, n:
 pub(super) struct Targets<'a> {
     /// `x` as the left operand (`m = rows`, `k = cols`): [`super::a_index`]'s tiles, `mp x kp`
     /// (as [`pack_rows`] with [`Layout::Normal`]).
-    pub tiles: Option<(&'a mut Vec<u16>, usize, usize)>,
+    pub tiles: Option<(&'a mut Lines<u16>, usize, usize)>,
     /// `x` as the right operand (`k = rows`, `n = cols`): [`super::b_index`]'s pairs,
     /// `kp / 2 x np` (as [`pack_pairs`] with [`Layout::Normal`]).
-    pub pairs: Option<(&'a mut Vec<u32>, usize, usize)>,
+    pub pairs: Option<(&'a mut Lines<u32>, usize, usize)>,
     /// `xᵀ` as the left operand (`m = cols`, `k = rows`): tiles, `mp x kp` (as [`pack_rows`]
     /// with [`Layout::Transposed`]).
-    pub transposed: Option<(&'a mut Vec<u16>, usize, usize)>,
+    pub transposed: Option<(&'a mut Lines<u16>, usize, usize)>,
 }
 
 /// [`prepare`], then [`convert`] of every row.
@@ -67,7 +67,7 @@ pub(super) fn pack(mut targets: Targets<'_>, x: &[f32], rows: usize, cols: usize
 /// The buffers only grow (a shrink and regrowth would zero them whole).
 pub(super) fn prepare(targets: &mut Targets<'_>, rows: usize, cols: usize) {
     let size = crate::linalg::checked_len;
-    let zero_tiles = |out: &mut Vec<u16>, m: usize, k: usize, mp: usize, kp: usize| {
+    let zero_tiles = |out: &mut Lines<u16>, m: usize, k: usize, mp: usize, kp: usize| {
         assert!(mp >= m && kp >= k && kp.is_multiple_of(32) && mp.is_multiple_of(16), "tiles {m}x{k} in {mp}x{kp}");
         grow(out, size(mp, kp));
         for i in 0..mp {
@@ -328,7 +328,7 @@ fn rows_transposed(
 
 #[cfg(test)]
 mod tests {
-    use super::super::{Bf16Kernel, Layout};
+    use super::super::{Bf16Kernel, Layout, Lines};
 
     #[test]
     fn vectorised_packing_gives_the_scalar_bits() {
@@ -356,33 +356,36 @@ mod tests {
             let (mp, kp) = (m.next_multiple_of(32), k.next_multiple_of(32));
             for la in [Layout::Normal, Layout::Transposed] {
                 // A reused buffer holds garbage: the padding must be zeroed.
-                let (mut want, mut got) = (Vec::new(), vec![0x7777u16; mp * kp + 5]);
+                let (mut want, mut got) = (Lines::default(), Lines::filled(mp * kp + 5, 0x7777u16));
                 super::super::pack_rows(&mut want, &a, la, m, k, mp, kp);
                 super::pack_rows(&mut got, &a, la, m, k, mp, kp);
                 // The buffer is not shortened: what lies past the packing is not read.
-                assert_eq!(got[..want.len()], want, "pack_rows {la:?} {m}x{k}");
+                assert_eq!(got[..want.len()], want[..], "pack_rows {la:?} {m}x{k}");
             }
             let (kp, np) = (m.next_multiple_of(32), k.next_multiple_of(32));
             for lb in [Layout::Normal, Layout::Transposed] {
-                let (mut want, mut got) = (Vec::new(), vec![0x7777_7777u32; kp / 2 * np + 7]);
+                let (mut want, mut got) = (Lines::default(), Lines::filled(kp / 2 * np + 7, 0x7777_7777u32));
                 super::super::pack_pairs(&mut want, &a, lb, m, k, kp, np);
                 super::pack_pairs(&mut got, &a, lb, m, k, kp, np);
-                assert_eq!(got[..want.len()], want, "pack_pairs {lb:?} {m}x{k}");
+                assert_eq!(got[..want.len()], want[..], "pack_pairs {lb:?} {m}x{k}");
             }
             // One pass into several packings gives each packing's bits.
             let (tmp, tkp) = (m.next_multiple_of(32), k.next_multiple_of(32));
             let (pkp, pnp) = (m.next_multiple_of(32), k.next_multiple_of(32));
-            let (mut rows_want, mut pairs_want) = (Vec::new(), Vec::new());
+            let (mut rows_want, mut pairs_want) = (Lines::default(), Lines::default());
             super::super::pack_rows(&mut rows_want, &a, Layout::Normal, m, k, tmp, tkp);
             super::super::pack_pairs(&mut pairs_want, &a, Layout::Normal, m, k, pkp, pnp);
             let (t_mp, t_kp) = (k.next_multiple_of(32), m.next_multiple_of(32));
-            let mut t_want = Vec::new();
+            let mut t_want = Lines::default();
             super::super::pack_rows(&mut t_want, &a, Layout::Transposed, k, m, t_mp, t_kp);
             // Every combination of targets, in one pass and in ranges of 32 rows.
             for bits in 1..8 {
                 for in_ranges in [false, true] {
-                    let (mut rows_got, mut pairs_got, mut t_got) =
-                        (vec![0x5555u16; tmp * tkp + 3], vec![0x5555_5555u32; 9], vec![0x3333u16; 4]);
+                    let (mut rows_got, mut pairs_got, mut t_got) = (
+                        Lines::filled(tmp * tkp + 3, 0x5555u16),
+                        Lines::filled(9, 0x5555_5555u32),
+                        Lines::filled(4, 0x3333u16),
+                    );
                     let mut targets = super::Targets {
                         tiles: (bits & 1 != 0).then_some((&mut rows_got, tmp, tkp)),
                         pairs: (bits & 2 != 0).then_some((&mut pairs_got, pkp, pnp)),
@@ -395,13 +398,13 @@ mod tests {
                     }
                     let what = format!("targets {bits:03b}, ranges {in_ranges}, {m}x{k}");
                     if bits & 1 != 0 {
-                        assert_eq!(rows_got[..rows_want.len()], rows_want, "rows: {what}");
+                        assert_eq!(rows_got[..rows_want.len()], rows_want[..], "rows: {what}");
                     }
                     if bits & 2 != 0 {
-                        assert_eq!(pairs_got[..pairs_want.len()], pairs_want, "pairs: {what}");
+                        assert_eq!(pairs_got[..pairs_want.len()], pairs_want[..], "pairs: {what}");
                     }
                     if bits & 4 != 0 {
-                        assert_eq!(t_got[..t_want.len()], t_want, "transposed: {what}");
+                        assert_eq!(t_got[..t_want.len()], t_want[..], "transposed: {what}");
                     }
                 }
             }
