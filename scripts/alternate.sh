@@ -7,7 +7,9 @@ alternate() {
     lscpu | grep -E "^(Model name|CPU\(s\)|Vendor ID)" > "$out/lscpu.txt"
     grep -o -w -E "avx512_bf16|amx_tile|amx_bf16" /proc/cpuinfo | sort -u >> "$out/lscpu.txt" || true
     for i in $(seq 1 "$rounds"); do
-        for which in before after; do
+        local order="before after"
+        [ $((i % 2)) = 0 ] && order="after before"
+        for which in $order; do
             bin=$before; [ "$which" = after ] && bin=$after
             echo "$(date -u +%H:%M:%S) $which $i" >&2
             "$run" "$bin" "$out/$which-$i.txt"

@@ -104,17 +104,35 @@ pub type Product = dyn Fn(&mut [f32], &[f32], Layout, &[f32], Layout, usize, usi
 
 /// GFLOP/s of one thread's product of the given shape and layouts (`a` is `m x k`, `b` `k x n`
 /// as the product sees them), median of `reps` after one untimed run: to compare the f32 and
-/// bf16 kernels on the MLP's three products (forward, input gradient, weight gradient).
+/// bf16 kernels on the MLP's three products (forward, input gradient, weight gradient). The
+/// output `c` starts `c_past_line` bytes (a multiple of 4) past a 64-byte cache line: 0 as the
+/// MLP's buffers do ([`crate::mlp::MlpCache`]), 16 as a large block from `malloc` does.
+///
+/// # Panics
+/// If `c_past_line` is not a multiple of 4 below 64.
 #[must_use]
-pub fn product_gflops(product: &Product, la: Layout, lb: Layout, m: usize, k: usize, n: usize, reps: usize) -> f64 {
+#[allow(clippy::too_many_arguments)]
+pub fn product_gflops(
+    product: &Product,
+    la: Layout,
+    lb: Layout,
+    m: usize,
+    k: usize,
+    n: usize,
+    reps: usize,
+    c_past_line: usize,
+) -> f64 {
+    assert!(c_past_line < 64 && c_past_line.is_multiple_of(4), "c_past_line {c_past_line}");
     let a: Vec<f32> = (0..m * k).map(|i| ((i * 7919 % 1000) as f32 - 500.0) * 1e-3).collect();
     let b: Vec<f32> = (0..k * n).map(|i| ((i * 104_729 % 1000) as f32 - 500.0) * 1e-3).collect();
-    let mut c = vec![0.0f32; m * n];
-    product(&mut c, &a, la, &b, lb, m, k, n, false);
+    let mut raw = vec![0.0f32; m * n + 16];
+    let on_line = (64 - raw.as_ptr() as usize % 64) % 64 / 4;
+    let c = &mut raw[on_line + c_past_line / 4..][..m * n];
+    product(c, &a, la, &b, lb, m, k, n, false);
     let mut times: Vec<f64> = (0..reps.max(1))
         .map(|_| {
             let t = Instant::now();
-            product(&mut c, &a, la, &b, lb, m, k, n, false);
+            product(c, &a, la, &b, lb, m, k, n, false);
             t.elapsed().as_secs_f64()
         })
         .collect();

@@ -8,9 +8,9 @@ const LINE: usize = 64;
 /// A `Vec<T>` whose elements start on a 64-byte boundary: the packed bf16 operands and the MLP's
 /// activations and gradients, which the products read and write. An AMX tile row (64 bytes) or
 /// an AVX-512 vector that straddles two cache lines is a split access; on an Emerald Rapids Xeon
-/// `tileloadd` ran 4x slower at 16 bytes past a line than on one (`docs/results/amx-alignment/`),
-/// and `malloc` gives 16-byte alignment (a large block, from `mmap`, starts 16 bytes past a
-/// line). Safe code only: the buffer over-allocates by a line and starts at the first aligned
+/// the AMX kernel ran 1.2x to 1.5x slower with its output 16 bytes past a line than on one
+/// (`docs/results/amx-alignment/`), and `malloc` gives 16-byte alignment (a large block, from
+/// `mmap`, starts 16 bytes past a line). Safe code only: the buffer over-allocates by a line and starts at the first aligned
 /// element.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct Lines<T> {
