@@ -10,8 +10,7 @@
 //! a large block).
 #![allow(missing_docs)]
 
-use mipnerf_core::bench::{Product, product_gflops};
-use std::time::Instant;
+use mipnerf_core::bench::{Product, product_gflops, product_operands, timed_gflops};
 
 use mipnerf_core::bf16::{Bf16Kernel, Bf16Matrix, Operand, Reads, matmul_bf16_on, matmul_bf16_with_on};
 use mipnerf_core::linalg::{Layout, matmul};
@@ -66,27 +65,13 @@ fn main() {
 }
 
 /// GFLOP/s of `kernel` on the forward product `x (m x w) · W (w x w)` with both operands packed
-/// before the clock starts, `c` starting `c_past_line` bytes past a 64-byte line; median of
-/// `reps` after one untimed run.
+/// before the clock starts, `c` starting `c_past_line` bytes past a 64-byte line ([`timed_gflops`]).
 fn packed_gflops(kernel: Bf16Kernel, m: usize, w: usize, reps: usize, c_past_line: usize) -> f64 {
-    let x: Vec<f32> = (0..m * w).map(|i| ((i * 7919 % 1000) as f32 - 500.0) * 1e-3).collect();
-    let weights: Vec<f32> = (0..w * w).map(|i| ((i * 104_729 % 1000) as f32 - 500.0) * 1e-3).collect();
+    let (x, weights) = product_operands(m, w, w);
     let (mut x_packed, mut w_packed) = (Bf16Matrix::default(), Bf16Matrix::default());
     x_packed.pack_for(kernel, &x, m, w, Reads { left: true, ..Reads::default() });
     w_packed.pack_for(kernel, &weights, w, w, Reads { right: true, ..Reads::default() });
     let a = Operand { values: &x, layout: Layout::Normal, packed: Some(&x_packed) };
     let b = Operand { values: &weights, layout: Layout::Normal, packed: Some(&w_packed) };
-    let mut raw = vec![0.0f32; m * w + 16];
-    let on_line = (64 - raw.as_ptr() as usize % 64) % 64 / 4;
-    let c = &mut raw[on_line + c_past_line / 4..][..m * w];
-    matmul_bf16_with_on(kernel, c, a, b, m, w, w, false);
-    let mut times: Vec<f64> = (0..reps)
-        .map(|_| {
-            let t = Instant::now();
-            matmul_bf16_with_on(kernel, c, a, b, m, w, w, false);
-            t.elapsed().as_secs_f64()
-        })
-        .collect();
-    times.sort_by(f64::total_cmp);
-    2.0 * (m * w * w) as f64 / times[times.len() / 2] / 1e9
+    timed_gflops(m, w, w, reps, c_past_line, |c| matmul_bf16_with_on(kernel, c, a, b, m, w, w, false))
 }

@@ -103,13 +103,11 @@ pub fn sgemm_gflops(m: usize, k: usize, n: usize, reps: usize) -> f64 {
 pub type Product = dyn Fn(&mut [f32], &[f32], Layout, &[f32], Layout, usize, usize, usize, bool) + Sync;
 
 /// GFLOP/s of one thread's product of the given shape and layouts (`a` is `m x k`, `b` `k x n`
-/// as the product sees them), median of `reps` after one untimed run: to compare the f32 and
-/// bf16 kernels on the MLP's three products (forward, input gradient, weight gradient). The
-/// output `c` starts `c_past_line` bytes (a multiple of 4) past a 64-byte cache line: 0 as the
-/// MLP's buffers do ([`crate::mlp::MlpCache`]), 16 as a large block from `malloc` does.
+/// as the product sees them) on [`product_operands`], timed by [`timed_gflops`]: to compare the
+/// f32 and bf16 kernels on the MLP's three products (forward, input gradient, weight gradient).
 ///
 /// # Panics
-/// If `c_past_line` is not a multiple of 4 below 64.
+/// As [`timed_gflops`].
 #[must_use]
 #[allow(clippy::too_many_arguments)]
 pub fn product_gflops(
@@ -122,17 +120,44 @@ pub fn product_gflops(
     reps: usize,
     c_past_line: usize,
 ) -> f64 {
+    let (a, b) = product_operands(m, k, n);
+    timed_gflops(m, k, n, reps, c_past_line, |c| product(c, &a, la, &b, lb, m, k, n, false))
+}
+
+/// The deterministic operands the product benchmarks multiply: `a` (`m x k` values) and `b`
+/// (`k x n`), in [-0.5, 0.5).
+#[must_use]
+pub fn product_operands(m: usize, k: usize, n: usize) -> (Vec<f32>, Vec<f32>) {
+    let a = (0..m * k).map(|i| ((i * 7919 % 1000) as f32 - 500.0) * 1e-3).collect();
+    let b = (0..k * n).map(|i| ((i * 104_729 % 1000) as f32 - 500.0) * 1e-3).collect();
+    (a, b)
+}
+
+/// GFLOP/s of `product`, which writes an `m x k · k x n` product into the `c` it is given:
+/// median of `reps` (at least 1) after one untimed run. `c` starts `c_past_line` bytes (a
+/// multiple of 4) past a 64-byte cache line: 0 as the MLP's buffers do
+/// ([`crate::mlp::MlpCache`]), 16 as a large block from `malloc` does.
+///
+/// # Panics
+/// If `c_past_line` is not a multiple of 4 below 64.
+#[must_use]
+pub fn timed_gflops(
+    m: usize,
+    k: usize,
+    n: usize,
+    reps: usize,
+    c_past_line: usize,
+    mut product: impl FnMut(&mut [f32]),
+) -> f64 {
     assert!(c_past_line < 64 && c_past_line.is_multiple_of(4), "c_past_line {c_past_line}");
-    let a: Vec<f32> = (0..m * k).map(|i| ((i * 7919 % 1000) as f32 - 500.0) * 1e-3).collect();
-    let b: Vec<f32> = (0..k * n).map(|i| ((i * 104_729 % 1000) as f32 - 500.0) * 1e-3).collect();
     let mut raw = vec![0.0f32; m * n + 16];
     let on_line = (64 - raw.as_ptr() as usize % 64) % 64 / 4;
     let c = &mut raw[on_line + c_past_line / 4..][..m * n];
-    product(c, &a, la, &b, lb, m, k, n, false);
+    product(c);
     let mut times: Vec<f64> = (0..reps.max(1))
         .map(|_| {
             let t = Instant::now();
-            product(c, &a, la, &b, lb, m, k, n, false);
+            product(c);
             t.elapsed().as_secs_f64()
         })
         .collect();

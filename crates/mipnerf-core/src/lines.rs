@@ -10,8 +10,8 @@ const LINE: usize = 64;
 /// an AVX-512 vector that straddles two cache lines is a split access; on an Emerald Rapids Xeon
 /// the AMX kernel ran 1.2x to 1.5x slower with its output 16 bytes past a line than on one
 /// (`docs/results/amx-alignment/`), and `malloc` gives 16-byte alignment (a large block, from
-/// `mmap`, starts 16 bytes past a line). Safe code only: the buffer over-allocates by a line and starts at the first aligned
-/// element.
+/// `mmap`, starts 16 bytes past a line). Safe code only: the buffer over-allocates by a line and
+/// starts at the first aligned element.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct Lines<T> {
     raw: Vec<T>,
