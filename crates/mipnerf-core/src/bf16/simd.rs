@@ -1,8 +1,8 @@
 use std::arch::x86_64::{
-    __m256i, __m512i, _mm256_storeu_si256, _mm512_castsi512_si256, _mm512_cvtepu16_epi32, _mm512_cvtne2ps_pbh,
-    _mm512_cvtneps_pbh, _mm512_extracti64x4_epi64, _mm512_loadu_ps, _mm512_or_si512, _mm512_permutexvar_epi16,
-    _mm512_set_epi16, _mm512_setzero_ps, _mm512_shuffle_i32x4, _mm512_slli_epi32, _mm512_storeu_si512,
-    _mm512_unpackhi_epi32, _mm512_unpackhi_epi64, _mm512_unpacklo_epi32, _mm512_unpacklo_epi64,
+    __m512i, _mm256_storeu_si256, _mm512_castsi512_si256, _mm512_cvtne2ps_pbh, _mm512_extracti64x4_epi64,
+    _mm512_loadu_ps, _mm512_permutexvar_epi16, _mm512_set_epi16, _mm512_setzero_ps, _mm512_setzero_si512,
+    _mm512_shuffle_i32x4, _mm512_storeu_si512, _mm512_unpackhi_epi32, _mm512_unpackhi_epi64, _mm512_unpacklo_epi32,
+    _mm512_unpacklo_epi64,
 };
 
 use super::{Layout, Lines, a_index, b_index, f32_to_bf16_bits, grow};
@@ -126,25 +126,32 @@ pub(super) fn convert(targets: &mut Targets<'_>, x: &[f32], rows: usize, cols: u
     }
 }
 
-/// 16 f32 from `src[..16]` rounded to bf16: as 16 contiguous values, and in the low halves of
-/// 32-bit lanes.
-#[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512bf16")]
-fn bf16_lanes(src: &[f32]) -> (__m256i, __m512i) {
-    assert!(src.len() >= 16);
-    // SAFETY: 16 f32 are in bounds (asserted); unaligned load.
-    let v = unsafe { _mm512_loadu_ps(src.as_ptr()) };
-    // SAFETY: __m256bh and __m256i are both 256 plain bits.
-    let h: __m256i = unsafe { std::mem::transmute(_mm512_cvtneps_pbh(v)) };
-    (h, _mm512_cvtepu16_epi32(h))
-}
-
 /// `x` stored `rows x cols`, its rows in `range` (starting at an even row):
 /// `tiles[a_index(i, p)] = x[i][p]` and `pairs[b_index(q, j)] = x[2q][j] | x[2q + 1][j] << 16`,
 /// each with its `kp`.
 #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512bf16")]
 fn rows_and_pairs(
-    mut tiles: Option<(&mut [u16], usize)>,
-    mut pairs: Option<(&mut [u32], usize)>,
+    tiles: Option<(&mut [u16], usize)>,
+    pairs: Option<(&mut [u32], usize)>,
+    x: &[f32],
+    rows: usize,
+    cols: usize,
+    range: std::ops::Range<usize>,
+) {
+    // One loop per combination of targets, so that the inner loop tests neither.
+    match (tiles, pairs) {
+        (Some(t), Some(p)) => rows_and_pairs_into::<true, true>(t, p, x, rows, cols, range),
+        (Some(t), None) => rows_and_pairs_into::<true, false>(t, (&mut [], 0), x, rows, cols, range),
+        (None, Some(p)) => rows_and_pairs_into::<false, true>((&mut [], 0), p, x, rows, cols, range),
+        (None, None) => {}
+    }
+}
+
+/// [`rows_and_pairs`] into the targets `TILES` and `PAIRS` say (the other is empty and unread).
+#[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512bf16")]
+fn rows_and_pairs_into<const TILES: bool, const PAIRS: bool>(
+    (tiles, tkp): (&mut [u16], usize),
+    (pairs, pkp): (&mut [u32], usize),
     x: &[f32],
     rows: usize,
     cols: usize,
@@ -160,47 +167,55 @@ fn rows_and_pairs(
         let first = &x[2 * q * cols..(2 * q + 1) * cols];
         // The last row of an odd count pairs with zeros.
         let second = if 2 * q + 1 < rows { Some(&x[(2 * q + 1) * cols..(2 * q + 2) * cols]) } else { None };
-        for j in (0..full).step_by(16) {
-            // SAFETY: 16 f32 of each row in bounds (j + 16 <= cols); unaligned loads.
-            let (lo, hi) = unsafe {
-                (
-                    _mm512_loadu_ps(first[j..j + 16].as_ptr()),
-                    second.map_or(_mm512_setzero_ps(), |r| _mm512_loadu_ps(r[j..j + 16].as_ptr())),
-                )
-            };
-            // Both rows rounded in one instruction (`lo`'s values in the low 256 bits).
-            // SAFETY: __m512bh and __m512i are both 512 plain bits.
-            let both: __m512i = unsafe { std::mem::transmute(_mm512_cvtne2ps_pbh(hi, lo)) };
-            if let Some((out, kp)) = tiles.as_mut() {
-                // Values j..j + 16 of a row are contiguous in the tiles (j % 32 is 0 or 16).
-                let at = a_index(2 * q, j, *kp);
-                // SAFETY: out[at..at + 16] is in bounds (the slice is checked); unaligned store.
-                unsafe { _mm256_storeu_si256(out[at..at + 16].as_mut_ptr().cast(), _mm512_castsi512_si256(both)) };
-                if second.is_some() {
-                    let at = a_index(2 * q + 1, j, *kp);
-                    let h = _mm512_extracti64x4_epi64::<1>(both);
-                    // SAFETY: as above.
-                    unsafe { _mm256_storeu_si256(out[at..at + 16].as_mut_ptr().cast(), h) };
+        if full > 0 {
+            // Where the row pair's first 16 values go; each next 16 values of a row lie 16 bf16
+            // further in its tile row, or 512 on (the next k tile) after the tile's second half,
+            // and each next 16 columns of pairs `8 kp` on (the next block of 16 columns). The
+            // last 16 of them lie inside the targets (checked here), so every store below does.
+            let (t0, t1) = (a_index(2 * q, 0, tkp), a_index(2 * q + 1, 0, tkp));
+            let p0 = b_index(q, 0, pkp);
+            let last_j = full - 16;
+            assert!(!TILES || a_index(2 * q + 1, last_j, tkp) + 16 <= tiles.len(), "tiles out of bounds");
+            assert!(!PAIRS || b_index(q, last_j, pkp) + 16 <= pairs.len(), "pairs out of bounds");
+            let (tp, pp) = (tiles.as_mut_ptr(), pairs.as_mut_ptr());
+            let zero = _mm512_setzero_ps();
+            for j in (0..full).step_by(16) {
+                // SAFETY: 16 f32 of each row in bounds (j + 16 <= full <= cols); unaligned loads.
+                let both: __m512i = unsafe {
+                    let lo = _mm512_loadu_ps(first.as_ptr().add(j));
+                    let hi = second.map_or(zero, |r| _mm512_loadu_ps(r.as_ptr().add(j)));
+                    // Both rows rounded in one instruction (`lo`'s values in the low 256 bits).
+                    // __m512bh and __m512i are both 512 plain bits.
+                    std::mem::transmute(_mm512_cvtne2ps_pbh(hi, lo))
+                };
+                // a_index(r, j) - a_index(r, 0) and b_index(q, j) - b_index(q, 0), j a multiple of 16.
+                let (dt, dp) = (j / 32 * 512 + j % 32, j / 16 * 8 * pkp);
+                if TILES {
+                    // SAFETY: at most the last j's offsets, checked in bounds above; unaligned stores.
+                    unsafe {
+                        _mm256_storeu_si256(tp.add(t0 + dt).cast(), _mm512_castsi512_si256(both));
+                        if second.is_some() {
+                            _mm256_storeu_si256(tp.add(t1 + dt).cast(), _mm512_extracti64x4_epi64::<1>(both));
+                        }
+                    }
                 }
-            }
-            if let Some((out, kp)) = pairs.as_mut() {
-                let pair = _mm512_permutexvar_epi16(interleave, both);
-                let at = b_index(q, j, *kp);
-                // SAFETY: out[at..at + 16] is in bounds (the slice is checked).
-                unsafe { _mm512_storeu_si512(out[at..at + 16].as_mut_ptr().cast(), pair) };
+                if PAIRS {
+                    // SAFETY: as above.
+                    unsafe { _mm512_storeu_si512(pp.add(p0 + dp).cast(), _mm512_permutexvar_epi16(interleave, both)) };
+                }
             }
         }
         for j in full..cols {
             let lo = f32_to_bf16_bits(first[j]);
             let hi = second.map_or(0, |r| f32_to_bf16_bits(r[j]));
-            if let Some((out, kp)) = tiles.as_mut() {
-                out[a_index(2 * q, j, *kp)] = lo;
+            if TILES {
+                tiles[a_index(2 * q, j, tkp)] = lo;
                 if second.is_some() {
-                    out[a_index(2 * q + 1, j, *kp)] = hi;
+                    tiles[a_index(2 * q + 1, j, tkp)] = hi;
                 }
             }
-            if let Some((out, kp)) = pairs.as_mut() {
-                out[b_index(q, j, *kp)] = u32::from(lo) | u32::from(hi) << 16;
+            if PAIRS {
+                pairs[b_index(q, j, pkp)] = u32::from(lo) | u32::from(hi) << 16;
             }
         }
     }
@@ -274,13 +289,31 @@ fn pairs_transposed(out: &mut [u32], b: &[f32], k: usize, n: usize, kp: usize) {
 }
 
 /// `a` stored `k x m`, its rows `p` in `range`: `out[i][p] = a[p][i]` (and
-/// `tiles[a_index(p, i)] = a[p][i]`, each with its `kp`). Blocks of 32 rows x 16 columns: pairs of rows become 16 32-bit pairs (lane i
-/// holds rows 2q and 2q + 1 of column i); transposed, vector i holds the 32 values of column
-/// i, the 64 bytes of one row of a packed tile.
+/// `tiles[a_index(p, i)] = a[p][i]`, each with its `kp`). Blocks of 32 rows x 16 columns: pairs
+/// of rows rounded in one instruction become 16 32-bit pairs (lane i holds rows 2q and 2q + 1 of
+/// column i); transposed, vector i holds the 32 values of column i, the 64 bytes of one row of a
+/// packed tile, and the block's 16 vectors are one whole tile.
 #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512bf16")]
 fn rows_transposed(
     out: &mut [u16],
-    mut tiles: Option<(&mut [u16], usize)>,
+    tiles: Option<(&mut [u16], usize)>,
+    a: &[f32],
+    m: usize,
+    k: usize,
+    kp: usize,
+    range: std::ops::Range<usize>,
+) {
+    match tiles {
+        Some(t) => rows_transposed_into::<true>(out, t, a, m, k, kp, range),
+        None => rows_transposed_into::<false>(out, (&mut [], 0), a, m, k, kp, range),
+    }
+}
+
+/// [`rows_transposed`], with the tiles of `a` itself when `TILES` (else `tiles` is empty and unread).
+#[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512bf16")]
+fn rows_transposed_into<const TILES: bool>(
+    out: &mut [u16],
+    (tiles, tkp): (&mut [u16], usize),
     a: &[f32],
     m: usize,
     k: usize,
@@ -288,28 +321,53 @@ fn rows_transposed(
     range: std::ops::Range<usize>,
 ) {
     let (m_full, k_full) = (m / 16 * 16, k / 32 * 32);
+    // 16-bit lane 2i takes value i (row 2q's), lane 2i + 1 value 16 + i (row 2q + 1's).
+    let interleave = _mm512_set_epi16(
+        31, 15, 30, 14, 29, 13, 28, 12, 27, 11, 26, 10, 25, 9, 24, 8, 23, 7, 22, 6, 21, 5, 20, 4, 19, 3, 18, 2, 17, 1,
+        16, 0,
+    );
     // Rows outer: `a` is read in storage order (32 whole rows at a time), each block's
     // output is one contiguous 1 KiB tile. Rows of `a` in `range` only (it starts at a
     // multiple of 32).
     for p0 in (range.start..range.end.min(k_full)).step_by(32) {
         for i0 in (0..m_full).step_by(16) {
-            let pairs: [__m512i; 16] = std::array::from_fn(|q| {
-                let (lo_values, lo) = bf16_lanes(&a[(p0 + 2 * q) * m + i0..]);
-                let (hi_values, hi) = bf16_lanes(&a[(p0 + 2 * q + 1) * m + i0..]);
-                if let Some((t, tkp)) = tiles.as_mut() {
-                    // Values i0..i0 + 16 of a row of `a` are contiguous in its tiles.
-                    for (p, values) in [(p0 + 2 * q, lo_values), (p0 + 2 * q + 1, hi_values)] {
-                        let at = a_index(p, i0, *tkp);
-                        // SAFETY: t[at..at + 16] is in bounds (the slice is checked).
-                        unsafe { _mm256_storeu_si256(t[at..at + 16].as_mut_ptr().cast(), values) };
+            // The block reads a[p0..p0 + 32][i0..i0 + 16], writes the tile of out at
+            // (i0, p0) (512 contiguous values) and, for TILES, 16 values of each of the rows
+            // p0..p0 + 32 of the tiles at column i0: checked here, so that the loads and stores
+            // below are in bounds.
+            let (src, dst) = ((p0 + 31) * m + i0 + 16, a_index(i0, p0, kp) + 512);
+            assert!(src <= a.len() && dst <= out.len(), "a block of the transposed packing out of bounds");
+            // a_index(p, i0, tkp) for rows p of the first and second 16-row group of the block.
+            let (g0, g1) = (a_index(p0, i0, tkp), a_index(p0 + 16, i0, tkp));
+            if TILES {
+                assert!(g1 + 15 * 32 + 16 <= tiles.len(), "a block of the tiles out of bounds");
+            }
+            let (a_block, out_tile) = (a[p0 * m + i0..].as_ptr(), out[dst - 512..].as_mut_ptr());
+            let mut pairs = [_mm512_setzero_si512(); 16];
+            for (q, pair) in pairs.iter_mut().enumerate() {
+                // SAFETY: rows p0 + 2q and p0 + 2q + 1, 16 values from column i0, lie inside `a`
+                // (checked above); unaligned loads.
+                let both: __m512i = unsafe {
+                    let lo = _mm512_loadu_ps(a_block.add(2 * q * m));
+                    let hi = _mm512_loadu_ps(a_block.add((2 * q + 1) * m));
+                    // __m512bh and __m512i are both 512 plain bits.
+                    std::mem::transmute(_mm512_cvtne2ps_pbh(hi, lo))
+                };
+                if TILES {
+                    // Rows p0 + 2q and p0 + 2q + 1 sit in the same 16-row group, 32 apart.
+                    let at = if q < 8 { g0 + 2 * q * 32 } else { g1 + (2 * q - 16) * 32 };
+                    // SAFETY: at + 32 + 16 <= tiles.len() (checked above); unaligned stores.
+                    unsafe {
+                        let t = tiles.as_mut_ptr().add(at);
+                        _mm256_storeu_si256(t.cast(), _mm512_castsi512_si256(both));
+                        _mm256_storeu_si256(t.add(32).cast(), _mm512_extracti64x4_epi64::<1>(both));
                     }
                 }
-                _mm512_or_si512(lo, _mm512_slli_epi32::<16>(hi))
-            });
+                *pair = _mm512_permutexvar_epi16(interleave, both);
+            }
             for (i, row) in transpose_16x16(pairs).into_iter().enumerate() {
-                let at = a_index(i0 + i, p0, kp);
-                // SAFETY: out[at..at + 32] is in bounds (the slice is checked).
-                unsafe { _mm512_storeu_si512(out[at..at + 32].as_mut_ptr().cast(), row) };
+                // SAFETY: the tile's 512 values lie inside `out` (checked above).
+                unsafe { _mm512_storeu_si512(out_tile.add(32 * i).cast(), row) };
             }
         }
     }
@@ -319,8 +377,8 @@ fn rows_transposed(
         for i in cols {
             let v = f32_to_bf16_bits(a[p * m + i]);
             out[a_index(i, p, kp)] = v;
-            if let Some((t, tkp)) = tiles.as_mut() {
-                t[a_index(p, i, *tkp)] = v;
+            if TILES {
+                tiles[a_index(p, i, tkp)] = v;
             }
         }
     }
