@@ -130,6 +130,10 @@ pub const MAX_STEPS: u64 = u32::MAX as u64;
 /// The most rays per batch (the library's bound, `mipnerf_core::backend::MAX_BATCH_RAYS`).
 pub const MAX_BATCH_RAYS: usize = mipnerf_core::backend::MAX_BATCH_RAYS;
 
+/// The most sampling levels a run takes: the paper's two (coarse and fine), the levels both
+/// backends are tested with.
+pub const MAX_LEVELS: usize = 2;
+
 /// Every training setting. In a `--config` TOML file the keys are these field names
 /// (e.g. `steps = 5000`, `ipe = false`); every key is optional.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -169,6 +173,9 @@ pub struct TrainSettings {
     pub grad_max_val: Option<f32>,
     /// Samples per ray and level (overrides the preset).
     pub num_samples: Option<usize>,
+    /// Sampling levels per ray: 2 for the paper's coarse and fine levels (the fine level's
+    /// samples drawn from the coarse level's weights), 1 to sample once (overrides the preset).
+    pub num_levels: Option<usize>,
     /// Integrated positional encoding (false: plain PE of the frustum means) [default: true].
     pub ipe: Option<bool>,
     /// Weight rays by their pixel's area [default: true for mipnerf].
@@ -295,6 +302,7 @@ impl TrainSettings {
             grad_max_norm,
             grad_max_val,
             num_samples,
+            num_levels,
             ipe,
             area_loss,
             two_mlps,
@@ -411,6 +419,7 @@ impl TrainSettings {
             grad_max_norm: Some(self.grad_max_norm.unwrap_or(0.0)),
             grad_max_val: Some(self.grad_max_val.unwrap_or(0.0)),
             num_samples: self.num_samples,
+            num_levels: self.num_levels,
             ipe: Some(self.ipe.unwrap_or(mip)),
             area_loss: Some(self.area_loss.unwrap_or(mip)),
             two_mlps: Some(self.two_mlps.unwrap_or(!mip)),
@@ -532,6 +541,9 @@ impl TrainSettings {
         if let Some(n) = self.num_samples {
             m.num_samples = n;
         }
+        if let Some(n) = self.num_levels {
+            m.num_levels = n;
+        }
         m.supersample = self.supersample.unwrap_or(1);
         m.ray_shape = self.ray_shape.unwrap_or(RayShape::Cone);
         m.density_noise = self.density_noise.unwrap_or(0.0);
@@ -550,6 +562,9 @@ impl TrainSettings {
         }
         if m.num_samples == 0 || m.num_samples > 1024 {
             bail!("--num-samples must be between 1 and 1024, got {}", m.num_samples);
+        }
+        if !(1..=MAX_LEVELS).contains(&m.num_levels) {
+            bail!("--num-levels must be between 1 and {MAX_LEVELS}, got {}", m.num_levels);
         }
         Ok(m)
     }

@@ -1380,3 +1380,35 @@ fn an_unbounded_scene_trains_resumes_and_renders_and_refuses_what_it_cannot_take
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && err.contains("Blender") && !err.contains("panicked"), "{err}");
 }
+
+/// `--num-levels 1` samples each ray once: the run records it, trains, and its model (one level,
+/// no coarse level to resample from) evaluates and renders; resumed, it stays one level.
+#[test]
+fn one_sampling_level_trains_evaluates_and_renders() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_demo_scene(dir.path(), 2);
+    let run = dir.path().join("run");
+    let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
+    let flags = ["--steps", "3", "--batch-rays", "64", "--backend", "cpu", "--num-levels", "1"];
+    run_ok(&[&["train", "--data", d, "--out", r][..], &flags].concat());
+    let config = std::fs::read_to_string(run.join("config.toml")).unwrap();
+    assert!(config.contains("num_levels = 1"), "{config}");
+    // metrics.csv's level_losses (third column) holds one loss a level: one here.
+    let csv = std::fs::read_to_string(run.join("metrics.csv")).unwrap();
+    let levels: Vec<usize> = csv.lines().skip(1).map(|l| l.split(',').nth(2).unwrap().split(';').count()).collect();
+    assert!(!levels.is_empty() && levels.iter().all(|&n| n == 1), "{csv}");
+    let text = run_ok(&["train", "--out", r, "--resume", "--steps", "4"]);
+    assert!(text.contains("resuming from step 3"), "{text}");
+    let config = mipnerf_core::model::ModelConfig { num_levels: 1, ..mipnerf_core::model::Preset::Tiny.config() };
+    let model = mipnerf_core::model::Model::new(config).unwrap();
+    let ck = mipnerf_core::checkpoint::load(&run.join("checkpoint.safetensors"), &model).unwrap();
+    assert_eq!(ck.step, 4);
+    let csv = std::fs::read_to_string(run.join("metrics.csv")).unwrap();
+    assert!(csv.lines().skip(1).all(|l| !l.split(',').nth(2).unwrap().contains(';')), "resumed with two levels: {csv}");
+    run_ok(&["eval", "--run", r, "--backend", "cpu", "--no-lpips"]);
+    let metrics = std::fs::read_to_string(run.join("eval/metrics.json")).unwrap();
+    assert!(metrics.contains("psnr"), "{metrics}");
+    let renders = dir.path().join("renders");
+    run_ok(&["render", "--run", r, "--backend", "cpu", "--out", renders.to_str().unwrap(), "--frames", "1"]);
+    assert!(std::fs::read_dir(&renders).unwrap().next().is_some(), "render wrote nothing");
+}

@@ -220,6 +220,8 @@ fn sizes_are_checked_before_anything_is_allocated() {
         (&["--grad-max-norm", "NaN"], "--grad-max-norm"),
         (&["--grad-max-val=-1"], "--grad-max-val"),
         (&["--lr-delay-mult", "0"], "--lr-delay-mult"),
+        (&["--num-levels", "0"], "--num-levels must be between 1 and 2, got 0"),
+        (&["--num-levels", "3"], "--num-levels must be between 1 and 2, got 3"),
     ];
     for (flags, needle) in flag_cases {
         let mut args = vec!["train", "--data", d, "--out", r, "--backend", "cpu"];
@@ -234,6 +236,7 @@ fn sizes_are_checked_before_anything_is_allocated() {
         ("grad_max_norm = nan", "--grad-max-norm"),
         ("steps = 0", "--steps"),
         ("checkpoint_every = 0", "--checkpoint-every"),
+        ("num_levels = 3", "--num-levels"),
     ];
     for (line, needle) in file_cases {
         let cfg = dir.path().join("settings.toml");

@@ -232,6 +232,7 @@ fn resume_refuses_flags_that_change_what_the_run_is() {
         ("--preset", "small", "--preset small"),
         ("--seed", "7", "--seed 7"),
         ("--num-samples", "8", "--num-samples 8"),
+        ("--num-levels", "1", "--num-levels 1"),
         ("--data", other.to_str().unwrap(), "is not this run's dataset"),
     ] {
         let (code, err) = fails(&["train", "--out", r, "--resume", "--steps", "4", flag, value]);

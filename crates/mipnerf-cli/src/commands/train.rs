@@ -144,6 +144,10 @@ pub struct TrainFlags {
     /// Samples per ray and level (overrides the preset).
     #[arg(long)]
     pub num_samples: Option<usize>,
+    /// Sampling levels per ray: 2 for the paper's coarse and fine levels, 1 to sample once
+    /// (overrides the preset).
+    #[arg(long)]
+    pub num_levels: Option<usize>,
     /// Without integrated positional encoding: plain PE of the frustum means ("w/o IPE").
     #[arg(long)]
     pub no_ipe: bool,
@@ -306,6 +310,7 @@ impl TrainFlags {
             grad_max_norm: self.grad_max_norm,
             grad_max_val: self.grad_max_val,
             num_samples: self.num_samples,
+            num_levels: self.num_levels,
             ipe: no(self.no_ipe),
             area_loss: no(self.no_area_loss),
             two_mlps: yes(self.two_mlps),
