@@ -446,3 +446,41 @@ fn the_mlp_packing_once_gives_the_bits_of_packing_in_each_product() {
         }
     }
 }
+
+/// A product whose packed operands outgrow one L2 cache runs k in chunks on AMX (the weight
+/// gradient over the small and paper presets' 8,192-row chunks), each block of `c` stored after a
+/// chunk and loaded again for the next: the same bits as the products over two halves of k, each
+/// small enough to run whole, the second added to the first. Ragged sizes, so the edge blocks
+/// go through the scratch block between chunks too.
+#[test]
+fn amx_products_over_long_k_give_the_bits_of_their_halves_added() {
+    if let Err(why) = Bf16Kernel::Amx.check() {
+        skipped_for_cpu_feature("amx_products_over_long_k_give_the_bits_of_their_halves_added", "amx_bf16", why);
+        return;
+    }
+    // 2 x 9024 x (64 + 64) bytes of packed operands: past the 2 MiB under which k runs whole;
+    // each half (4096, 4904 of k) stays under it.
+    let (m, k, n, half) = (40, 9000, 50, 4096);
+    let (a, b) = (values(m * k, 31), values(k * n, 32));
+    let kernel = Bf16Kernel::Amx;
+    let mut whole = vec![0.0f32; m * n];
+    matmul_bf16_on(kernel, &mut whole, &a, Layout::Normal, &b, Layout::Normal, m, k, n, false);
+    let columns = |from: usize, to: usize| -> Vec<f32> {
+        (0..m).flat_map(|r| a[r * k + from..r * k + to].iter().copied()).collect()
+    };
+    let (a1, a2) = (columns(0, half), columns(half, k));
+    let mut halves = vec![0.0f32; m * n];
+    matmul_bf16_on(kernel, &mut halves, &a1, Layout::Normal, &b[..half * n], Layout::Normal, m, half, n, false);
+    matmul_bf16_on(kernel, &mut halves, &a2, Layout::Normal, &b[half * n..], Layout::Normal, m, k - half, n, true);
+    let differ = whole.iter().zip(&halves).filter(|(x, y)| x.to_bits() != y.to_bits()).count();
+    assert_eq!(differ, 0, "{differ} of {} values differ between k in chunks and k in two halves", m * n);
+    // And the product is the product: within the bf16 bound of the emulation's.
+    let mut emulated = vec![0.0f32; m * n];
+    matmul_bf16_emulated(&mut emulated, &a, Layout::Normal, &b, Layout::Normal, m, k, n, false);
+    let scale = emulated.iter().fold(0.0f32, |s, v| s.max(v.abs()));
+    let worst = whole.iter().zip(&emulated).fold(0.0f32, |s, (x, y)| s.max((x - y).abs()));
+    // f32 sums of 9,000 terms in another order: far inside a thousandth of the largest value.
+    const TOL_LONG_K_REL_TO_LARGEST: f32 = 1e-3;
+    let bound = TOL_LONG_K_REL_TO_LARGEST * scale;
+    assert!(worst <= bound, "k in chunks differs from the emulation by {worst} (largest value {scale})");
+}

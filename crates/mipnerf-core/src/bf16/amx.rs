@@ -78,11 +78,25 @@ impl TileConfig {
     }
 }
 
+/// The packed operands (`a` and `b` together, bf16) above which a product runs k in chunks of
+/// [`K_CHUNK_TILES`]: the size of one core's L2 cache on the Xeons with AMX (2 MiB). Past it, each
+/// 32 x 32 block of `c` streams its strips of `a` and `b` (32 rows or columns by the whole of k)
+/// from farther than L2 again for every block beside it; a weight gradient over the 8,192 rows
+/// of the small and paper presets' chunk ran at 0.66 to 0.71 TFLOP/s so, and at 1.0 to 1.2
+/// TFLOP/s with k in chunks of 8 tiles (`docs/results/amx-k-chunks/`).
+const WHOLE_K_MAX_BYTES: usize = 2 << 20;
+
+/// Tiles of k (32 values each) per chunk when k runs in chunks: 256 values of k, strips of 16
+/// KiB of `a` and of `b` per block of `c`, which stay in L1 across the blocks beside it.
+const K_CHUNK_TILES: usize = 8;
+
 /// `c (m x n, row-major) = [c +] A · B` from the packed operands ([`super::a_index`],
 /// [`super::b_index`]). Tiles: tmm0..3 accumulate a 32 x 32 block of `c`, tmm4/5 hold two
 /// 16-row tiles of `a`, tmm6/7 two 16-column tiles of `b`. A block inside `c` is loaded
 /// (when accumulating) and stored in place; a block on the ragged edge goes through a
-/// scratch block.
+/// scratch block. Where the packed operands outgrow [`WHOLE_K_MAX_BYTES`], k runs in chunks of
+/// [`K_CHUNK_TILES`] tiles, every block of `c` stored after one chunk and loaded again for the
+/// next: the same multiply-adds in the same order on the same f32 accumulators, so the same bits.
 pub(super) fn product(
     c: &mut [f32],
     a: &[u16],
@@ -99,91 +113,104 @@ pub(super) fn product(
     let k_tiles = kp / K_STEP;
     let mut scratch = ScratchBlock([0f32; BLOCK * BLOCK]);
     let scratch = &mut scratch.0;
+    let operand_bytes = 2 * kp * (mp + np);
+    let chunk_tiles = if operand_bytes > WHOLE_K_MAX_BYTES { K_CHUNK_TILES } else { k_tiles.max(1) };
     // SAFETY: the process holds the tile permission (the check above), and the
     // configuration is a valid palette-1 layout; no other code in this program uses tiles.
     unsafe { asm!("ldtilecfg [{}]", in(reg) cfg.0.as_ptr(), options(nostack, readonly)) };
-    for i0 in (0..mp).step_by(BLOCK) {
-        for j0 in (0..np).step_by(BLOCK) {
-            let inside = i0 + BLOCK <= m && j0 + BLOCK <= n;
-            // The block's top-left f32 and row stride in bytes: in `c`, or in the scratch.
-            let (base, stride) = if inside {
-                (c[i0 * n + j0..].as_mut_ptr(), n * 4)
-            } else {
-                if accumulate {
-                    for r in 0..BLOCK.min(m - i0.min(m)) {
-                        let cols = BLOCK.min(n - j0.min(n));
-                        scratch[r * BLOCK..r * BLOCK + cols].copy_from_slice(&c[(i0 + r) * n + j0..][..cols]);
+    for k0 in (0..k_tiles.max(1)).step_by(chunk_tiles) {
+        // After the first chunk, each block continues from what the last chunk stored.
+        let accumulate = accumulate || k0 > 0;
+        let k_range = k0..(k0 + chunk_tiles).min(k_tiles);
+        for i0 in (0..mp).step_by(BLOCK) {
+            for j0 in (0..np).step_by(BLOCK) {
+                let inside = i0 + BLOCK <= m && j0 + BLOCK <= n;
+                // The block's top-left f32 and row stride in bytes: in `c`, or in the scratch.
+                let (base, stride) = if inside {
+                    (c[i0 * n + j0..].as_mut_ptr(), n * 4)
+                } else {
+                    if accumulate {
+                        for r in 0..BLOCK.min(m - i0.min(m)) {
+                            let cols = BLOCK.min(n - j0.min(n));
+                            scratch[r * BLOCK..r * BLOCK + cols].copy_from_slice(&c[(i0 + r) * n + j0..][..cols]);
+                        }
+                    }
+                    (scratch.as_mut_ptr(), BLOCK * 4)
+                };
+                // SAFETY: 32 rows x 32 f32 at `stride` from `base` lie inside `c` (the block is
+                // inside: i0 + 32 <= m, j0 + 32 <= n) or inside the 32 x 32 scratch.
+                unsafe {
+                    if accumulate {
+                        asm!(
+                            "tileloadd tmm0, [{p0} + {s}]",
+                            "tileloadd tmm1, [{p1} + {s}]",
+                            "tileloadd tmm2, [{p2} + {s}]",
+                            "tileloadd tmm3, [{p3} + {s}]",
+                            p0 = in(reg) base,
+                            p1 = in(reg) base.add(16),
+                            p2 = in(reg) base.add(16 * stride / 4),
+                            p3 = in(reg) base.add(16 * stride / 4 + 16),
+                            s = in(reg) stride,
+                            options(nostack, readonly),
+                        );
+                    } else {
+                        asm!(
+                            "tilezero tmm0",
+                            "tilezero tmm1",
+                            "tilezero tmm2",
+                            "tilezero tmm3",
+                            options(nostack, nomem)
+                        );
                     }
                 }
-                (scratch.as_mut_ptr(), BLOCK * 4)
-            };
-            // SAFETY: 32 rows x 32 f32 at `stride` from `base` lie inside `c` (the block is
-            // inside: i0 + 32 <= m, j0 + 32 <= n) or inside the 32 x 32 scratch.
-            unsafe {
-                if accumulate {
+                for kt in k_range.clone() {
+                    let pa = a[super::a_index(i0, kt * K_STEP, kp)..].as_ptr();
+                    let pa1 = a[super::a_index(i0 + 16, kt * K_STEP, kp)..].as_ptr();
+                    let pb = b[super::b_index(kt * K_STEP / 2, j0, kp)..].as_ptr();
+                    let pb1 = b[super::b_index(kt * K_STEP / 2, j0 + 16, kp)..].as_ptr();
+                    // SAFETY: each load reads one packed tile, 16 rows of 64 contiguous bytes
+                    // (1 KiB) from its first element: a tiles (rows i0.. and i0 + 16.., k tile
+                    // kt) and b tiles (pair rows 16 kt.., columns j0.. and j0 + 16..) lie inside
+                    // the packed buffers, whose sizes are asserted above.
+                    unsafe {
+                        asm!(
+                            "tileloadd tmm4, [{pa} + {s}]",
+                            "tileloadd tmm6, [{pb} + {s}]",
+                            "tdpbf16ps tmm0, tmm4, tmm6",
+                            "tileloadd tmm7, [{pb1} + {s}]",
+                            "tdpbf16ps tmm1, tmm4, tmm7",
+                            "tileloadd tmm5, [{pa1} + {s}]",
+                            "tdpbf16ps tmm2, tmm5, tmm6",
+                            "tdpbf16ps tmm3, tmm5, tmm7",
+                            pa = in(reg) pa,
+                            pa1 = in(reg) pa1,
+                            pb = in(reg) pb,
+                            pb1 = in(reg) pb1,
+                            s = in(reg) 64usize,
+                            options(nostack, readonly),
+                        );
+                    }
+                }
+                // SAFETY: as for the loads of the block above.
+                unsafe {
                     asm!(
-                        "tileloadd tmm0, [{p0} + {s}]",
-                        "tileloadd tmm1, [{p1} + {s}]",
-                        "tileloadd tmm2, [{p2} + {s}]",
-                        "tileloadd tmm3, [{p3} + {s}]",
+                        "tilestored [{p0} + {s}], tmm0",
+                        "tilestored [{p1} + {s}], tmm1",
+                        "tilestored [{p2} + {s}], tmm2",
+                        "tilestored [{p3} + {s}], tmm3",
                         p0 = in(reg) base,
                         p1 = in(reg) base.add(16),
                         p2 = in(reg) base.add(16 * stride / 4),
                         p3 = in(reg) base.add(16 * stride / 4 + 16),
                         s = in(reg) stride,
-                        options(nostack, readonly),
-                    );
-                } else {
-                    asm!("tilezero tmm0", "tilezero tmm1", "tilezero tmm2", "tilezero tmm3", options(nostack, nomem));
-                }
-            }
-            for kt in 0..k_tiles {
-                let pa = a[super::a_index(i0, kt * K_STEP, kp)..].as_ptr();
-                let pa1 = a[super::a_index(i0 + 16, kt * K_STEP, kp)..].as_ptr();
-                let pb = b[super::b_index(kt * K_STEP / 2, j0, kp)..].as_ptr();
-                let pb1 = b[super::b_index(kt * K_STEP / 2, j0 + 16, kp)..].as_ptr();
-                // SAFETY: each load reads one packed tile, 16 rows of 64 contiguous bytes
-                // (1 KiB) from its first element: a tiles (rows i0.. and i0 + 16.., k tile
-                // kt) and b tiles (pair rows 16 kt.., columns j0.. and j0 + 16..) lie inside
-                // the packed buffers, whose sizes are asserted above.
-                unsafe {
-                    asm!(
-                        "tileloadd tmm4, [{pa} + {s}]",
-                        "tileloadd tmm6, [{pb} + {s}]",
-                        "tdpbf16ps tmm0, tmm4, tmm6",
-                        "tileloadd tmm7, [{pb1} + {s}]",
-                        "tdpbf16ps tmm1, tmm4, tmm7",
-                        "tileloadd tmm5, [{pa1} + {s}]",
-                        "tdpbf16ps tmm2, tmm5, tmm6",
-                        "tdpbf16ps tmm3, tmm5, tmm7",
-                        pa = in(reg) pa,
-                        pa1 = in(reg) pa1,
-                        pb = in(reg) pb,
-                        pb1 = in(reg) pb1,
-                        s = in(reg) 64usize,
-                        options(nostack, readonly),
+                        options(nostack),
                     );
                 }
-            }
-            // SAFETY: as for the loads of the block above.
-            unsafe {
-                asm!(
-                    "tilestored [{p0} + {s}], tmm0",
-                    "tilestored [{p1} + {s}], tmm1",
-                    "tilestored [{p2} + {s}], tmm2",
-                    "tilestored [{p3} + {s}], tmm3",
-                    p0 = in(reg) base,
-                    p1 = in(reg) base.add(16),
-                    p2 = in(reg) base.add(16 * stride / 4),
-                    p3 = in(reg) base.add(16 * stride / 4 + 16),
-                    s = in(reg) stride,
-                    options(nostack),
-                );
-            }
-            if !inside {
-                let cols = BLOCK.min(n.saturating_sub(j0));
-                for r in 0..BLOCK.min(m.saturating_sub(i0)) {
-                    c[(i0 + r) * n + j0..][..cols].copy_from_slice(&scratch[r * BLOCK..r * BLOCK + cols]);
+                if !inside {
+                    let cols = BLOCK.min(n.saturating_sub(j0));
+                    for r in 0..BLOCK.min(m.saturating_sub(i0)) {
+                        c[(i0 + r) * n + j0..][..cols].copy_from_slice(&scratch[r * BLOCK..r * BLOCK + cols]);
+                    }
                 }
             }
         }
