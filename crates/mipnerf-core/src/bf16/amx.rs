@@ -81,9 +81,8 @@ impl TileConfig {
 /// The packed operands (`a` and `b` together, bf16) above which a product runs k in chunks of
 /// [`K_CHUNK_TILES`]: the size of one core's L2 cache on the Xeons with AMX (2 MiB). Past it, each
 /// 32 x 32 block of `c` streams its strips of `a` and `b` (32 rows or columns by the whole of k)
-/// from farther than L2 again for every block beside it; a weight gradient over the 8,192 rows
-/// of the small and paper presets' chunk ran at 0.66 to 0.71 TFLOP/s so, and at 1.0 to 1.2
-/// TFLOP/s with k in chunks of 8 tiles (`docs/results/amx-k-chunks/`).
+/// from farther than L2 again for every block beside it. This is the weight gradient over the
+/// paper preset's 8,192-row chunks (`docs/results/amx-k-chunks/`).
 const WHOLE_K_MAX_BYTES: usize = 2 << 20;
 
 /// Tiles of k (32 values each) per chunk when k runs in chunks: 256 values of k, strips of 16
