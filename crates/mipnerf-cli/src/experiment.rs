@@ -347,14 +347,11 @@ fn run_row(
         }
         done_steps = run::load_trained(run_dir, &saved, session)?.1.step;
     }
-    let trained = done_steps >= steps || budget.is_some_and(|b| run::train_seconds(run_dir).is_some_and(|t| t >= b));
+    let spent = if done_steps > 0 { run::train_seconds(run_dir)?.unwrap_or(0.0) } else { 0.0 };
+    let trained = done_steps >= steps || budget.is_some_and(|b| spent >= b);
     if !trained {
         match budget {
-            Some(b) => println!(
-                "== row {id} ({}): training, {:.0} of {b:.0} s done",
-                row.label,
-                if done_steps > 0 { run::train_seconds(run_dir).unwrap_or(0.0) } else { 0.0 }
-            ),
+            Some(b) => println!("== row {id} ({}): training, {spent:.0} of {b:.0} s done", row.label),
             None => println!("== row {id} ({}): training, {} of {steps} steps done", row.label, done_steps),
         }
         let outcome = crate::training::train(
@@ -404,7 +401,7 @@ fn run_row(
         lpips_net: m.lpips_net.clone(),
         avg_error: m.avg_error,
         avg_error_terms: m.avg_error_terms.iter().map(|s| (*s).to_string()).collect(),
-        train_seconds: run::train_seconds(run_dir).unwrap_or(f64::NAN),
+        train_seconds: run::train_seconds(run_dir)?.unwrap_or(f64::NAN),
         eval_seconds: t.elapsed().as_secs_f64(),
         params: model.num_params(),
         steps: ck.step,
@@ -465,7 +462,7 @@ fn evaluate_marks(
         let psnr = m.column(|s| s.psnr);
         out.push(MarkResult {
             mark_seconds,
-            train_seconds: run::train_seconds(&snap).unwrap_or(f64::NAN),
+            train_seconds: run::train_seconds(&snap)?.unwrap_or(f64::NAN),
             steps: m.step,
             mean_psnr: psnr.iter().sum::<f64>() / psnr.len().max(1) as f64,
             psnr,

@@ -131,10 +131,27 @@ pub fn load_checkpoint(path: &Path, model: &Model, session: &Session) -> Result<
     Ok(ck)
 }
 
-/// The training time a run directory records ([`TRAIN_SECONDS`]), if any.
-#[must_use]
-pub fn train_seconds(run: &Path) -> Option<f64> {
-    std::fs::read_to_string(RunDir::new(run).train_seconds()).ok().and_then(|s| s.trim().parse().ok())
+/// The training time a run directory records ([`TRAIN_SECONDS`]): `None` where the file is
+/// absent (a run from before it was written).
+///
+/// # Errors
+/// The file cannot be read, or does not hold one finite, non-negative number of seconds (a
+/// resumed run would otherwise start its time budget again and overwrite the record).
+pub fn train_seconds(run: &Path) -> Result<Option<f64>> {
+    let path = RunDir::new(run).train_seconds();
+    let text = match std::fs::read_to_string(&path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        r => r.with_context(|| format!("reading {}", path.display()))?,
+    };
+    match text.trim().parse::<f64>() {
+        Ok(t) if t.is_finite() && t >= 0.0 => Ok(Some(t)),
+        _ => bail!(
+            "{}: damaged: expected the run's training time in seconds (one number), found {:?}; \
+             write the seconds it has trained, or 0, to go on",
+            path.display(),
+            text.chars().take(40).collect::<String>()
+        ),
+    }
 }
 
 /// Whether two paths name the same file or folder (resolved through links, `..` and the working

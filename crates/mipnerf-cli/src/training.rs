@@ -96,7 +96,7 @@ fn train_locked(
         let ck = load_checkpoint(&ckpt_path, &model, session)?;
         let steps = s.steps.unwrap_or(0);
         let budget = s.time_budget_seconds()?;
-        let spent = train_seconds(run_dir).unwrap_or(0.0);
+        let spent = train_seconds(run_dir)?.unwrap_or(0.0);
         let done = match budget {
             Some(b) => (spent >= b).then(|| {
                 format!(
@@ -475,7 +475,7 @@ impl<'a> TrainLoop<'a> {
     ) -> Result<Self> {
         let csv_path = RunDir::new(run_dir).metrics_csv();
         let csv = open_csv(&csv_path, be.step())?;
-        let seconds_before = if resume { train_seconds(run_dir).unwrap_or(0.0) } else { 0.0 };
+        let seconds_before = if resume { train_seconds(run_dir)?.unwrap_or(0.0) } else { 0.0 };
         let budget = match s.time_budget_seconds()? {
             Some(b) => Some((b, s.optim_config()?.lr)),
             None => None,

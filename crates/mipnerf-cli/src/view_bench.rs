@@ -262,8 +262,9 @@ fn stall(a: &ViewerBenchArgs) -> Result<()> {
         c.stdout(Stdio::piped()).stderr(Stdio::inherit());
         c
     };
-    let seconds =
-        |out: &Path| crate::run::train_seconds(out).with_context(|| format!("{}: no train_seconds.txt", out.display()));
+    let seconds = |out: &Path| {
+        crate::run::train_seconds(out)?.with_context(|| format!("{}: no train_seconds.txt", out.display()))
+    };
 
     let alone = dir.path().join("alone");
     let status = train(&alone, false).status().context("starting mipnerf train")?;

@@ -174,6 +174,34 @@ fn a_damaged_checkpoint_is_refused_by_eval_render_and_resume() {
     assert!(!render_out.exists(), "render created its output before failing");
 }
 
+/// A damaged record of the training time would have a resumed `--time-budget` run train its
+/// whole budget again and overwrite the record: refused, naming the file, which is left as it
+/// was. An absent record (a run from before it was written) still resumes from 0 s.
+#[test]
+fn a_damaged_training_time_is_refused_by_resume() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_demo_scene(dir.path(), 2);
+    let run = dir.path().join("run");
+    let r = run.to_str().unwrap();
+    run_ok(&train_args(data.to_str().unwrap(), r, "5", &["--backend", "cpu"]));
+    let seconds = run.join("train_seconds.txt");
+    for damaged in ["abc\n", "-3\n", "NaN\n", ""] {
+        std::fs::write(&seconds, damaged).unwrap();
+        for extra in [&["--steps", "10"][..], &["--time-budget", "1h"][..]] {
+            let mut args = vec!["train", "--out", r, "--resume"];
+            args.extend_from_slice(extra);
+            let (code, err) = fails(&args);
+            assert_eq!(code, Some(1), "{damaged:?} {extra:?}: {err}");
+            assert!(err.contains("train_seconds.txt") && err.contains("damaged"), "{damaged:?}: {err}");
+            assert_eq!(std::fs::read_to_string(&seconds).unwrap(), damaged, "the refused resume wrote the record");
+        }
+    }
+    std::fs::remove_file(&seconds).unwrap();
+    run_ok(&["train", "--out", r, "--resume", "--steps", "7"]);
+    let after: f64 = std::fs::read_to_string(&seconds).unwrap().trim().parse().unwrap();
+    assert!(after > 0.0, "{after}");
+}
+
 #[test]
 fn two_trains_cannot_share_a_run_directory_and_a_killed_runs_lock_is_not_stale() {
     let dir = tempfile::tempdir().unwrap();

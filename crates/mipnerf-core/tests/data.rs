@@ -601,6 +601,13 @@ fn bad_inputs_get_clear_errors_naming_the_file() {
     make_llff(ll.path());
     llff::write_poses_bounds(&ll.path().join("poses_bounds.npy"), &[[1.0; 17]; 3]).unwrap();
     assert_error(load(ll.path()).unwrap_err(), "images_4", "9 images but poses_bounds.npy has 3 poses");
+    // Every photo's focal length is read from row 0; a zero there is named as such, not as the
+    // first training pose's singular camera.
+    make_llff(ll.path());
+    let mut rows = llff::read_poses_bounds(&ll.path().join("poses_bounds.npy")).unwrap();
+    rows[0][14] = 0.0;
+    llff::write_poses_bounds(&ll.path().join("poses_bounds.npy"), &rows).unwrap();
+    assert_error(load(ll.path()).unwrap_err(), "poses_bounds.npy", "row 0's focal length (its column 14");
     let mut rows = [[1.0; 17]; 9];
     rows[4][7] = f64::NAN;
     llff::write_poses_bounds(&ll.path().join("poses_bounds.npy"), &rows).unwrap();

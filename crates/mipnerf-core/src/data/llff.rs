@@ -442,8 +442,18 @@ pub fn from_rows(
     }
     let files: Vec<std::path::PathBuf> = images.iter().map(|im| im.file.clone()).collect();
     let images: Vec<(u32, u32, Vec<u8>)> = images.into_iter().map(|im| (im.width, im.height, im.rgba)).collect();
-    // Rotation columns [down, right, back] -> [right, up, back]: [y, -x, z] of the stored columns.
+    // The official loader reads every photo's focal length from the first row.
+    if !rows[0][14].is_finite() || rows[0][14] <= 0.0 {
+        return Err(DataError::invalid(
+            &npy,
+            format!(
+                "row 0's focal length (its column 14, read for every photo) must be a positive number, found {}",
+                rows[0][14]
+            ),
+        ));
+    }
     let focal = rows[0][14] / f64::from(factor.max(1));
+    // Rotation columns [down, right, back] -> [right, up, back]: [y, -x, z] of the stored columns.
     let mut poses: Vec<Pose> = rows
         .iter()
         .map(|r| {
