@@ -140,18 +140,7 @@ pub(super) fn product(
                 // inside: i0 + 32 <= m, j0 + 32 <= n) or inside the 32 x 32 scratch.
                 unsafe {
                     if accumulate {
-                        asm!(
-                            "tileloadd tmm0, [{p0} + {s}]",
-                            "tileloadd tmm1, [{p1} + {s}]",
-                            "tileloadd tmm2, [{p2} + {s}]",
-                            "tileloadd tmm3, [{p3} + {s}]",
-                            p0 = in(reg) base,
-                            p1 = in(reg) base.add(16),
-                            p2 = in(reg) base.add(16 * stride / 4),
-                            p3 = in(reg) base.add(16 * stride / 4 + 16),
-                            s = in(reg) stride,
-                            options(nostack, readonly),
-                        );
+                        accumulators::<false>(base, stride);
                     } else {
                         asm!(
                             "tilezero tmm0",
@@ -191,20 +180,7 @@ pub(super) fn product(
                     }
                 }
                 // SAFETY: as for the loads of the block above.
-                unsafe {
-                    asm!(
-                        "tilestored [{p0} + {s}], tmm0",
-                        "tilestored [{p1} + {s}], tmm1",
-                        "tilestored [{p2} + {s}], tmm2",
-                        "tilestored [{p3} + {s}], tmm3",
-                        p0 = in(reg) base,
-                        p1 = in(reg) base.add(16),
-                        p2 = in(reg) base.add(16 * stride / 4),
-                        p3 = in(reg) base.add(16 * stride / 4 + 16),
-                        s = in(reg) stride,
-                        options(nostack),
-                    );
-                }
+                unsafe { accumulators::<true>(base, stride) };
                 if !inside {
                     let cols = BLOCK.min(n.saturating_sub(j0));
                     for r in 0..BLOCK.min(m.saturating_sub(i0)) {
@@ -216,4 +192,46 @@ pub(super) fn product(
     }
     // SAFETY: returns the tile state to its initial configuration.
     unsafe { asm!("tilerelease", options(nostack, nomem)) };
+}
+
+/// Moves the four accumulator tiles (tmm0..3, the 32 x 32 block of `c` in quarters of 16 x 16)
+/// between the tiles and the block of f32 at `base`, rows `stride` bytes apart: stores them
+/// with `STORE`, else loads them.
+///
+/// # Safety
+/// The tiles are configured ([`TileConfig::all_16x64`]), and 32 rows of 32 `f32` at `stride`
+/// bytes from `base` lie inside one buffer (written with `STORE`, read without).
+#[inline(always)]
+unsafe fn accumulators<const STORE: bool>(base: *mut f32, stride: usize) {
+    // SAFETY: the caller's: each quarter's 16 rows of 64 bytes lie inside the block.
+    unsafe {
+        let (p0, p1, p2, p3) = (base, base.add(16), base.add(16 * stride / 4), base.add(16 * stride / 4 + 16));
+        if STORE {
+            asm!(
+                "tilestored [{p0} + {s}], tmm0",
+                "tilestored [{p1} + {s}], tmm1",
+                "tilestored [{p2} + {s}], tmm2",
+                "tilestored [{p3} + {s}], tmm3",
+                p0 = in(reg) p0,
+                p1 = in(reg) p1,
+                p2 = in(reg) p2,
+                p3 = in(reg) p3,
+                s = in(reg) stride,
+                options(nostack),
+            );
+        } else {
+            asm!(
+                "tileloadd tmm0, [{p0} + {s}]",
+                "tileloadd tmm1, [{p1} + {s}]",
+                "tileloadd tmm2, [{p2} + {s}]",
+                "tileloadd tmm3, [{p3} + {s}]",
+                p0 = in(reg) p0,
+                p1 = in(reg) p1,
+                p2 = in(reg) p2,
+                p3 = in(reg) p3,
+                s = in(reg) stride,
+                options(nostack, readonly),
+            );
+        }
+    }
 }
