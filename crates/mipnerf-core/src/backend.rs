@@ -396,13 +396,18 @@ impl CpuBackend {
     }
 }
 
+/// "1 thread", "2 threads": a thread count as [`CpuBackend`]'s description says it.
+fn threads_in_words(n: usize) -> String {
+    if n == 1 { "1 thread".to_string() } else { format!("{n} threads") }
+}
+
 impl Backend for CpuBackend {
     fn describe(&self) -> String {
+        let threads = threads_in_words(rayon::current_num_threads());
         match self.trainer.model.precision() {
-            Precision::F32 => format!("CPU ({} threads)", rayon::current_num_threads()),
+            Precision::F32 => format!("CPU ({threads})"),
             Precision::Bf16 => format!(
-                "CPU ({} threads, bf16 on {})",
-                rayon::current_num_threads(),
+                "CPU ({threads}, bf16 on {})",
                 crate::bf16::Bf16Support::detect().kernel().map_or("no bf16 kernel", crate::bf16::Bf16Kernel::name)
             ),
         }
@@ -462,5 +467,15 @@ impl Backend for CpuBackend {
         }
         let (w, h) = (image.camera.width, image.camera.height);
         Ok(RenderedImage::from_outputs(w, h, model.config().num_levels, &out))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_thread_count_is_said_in_words() {
+        assert_eq!(super::threads_in_words(1), "1 thread");
+        assert_eq!(super::threads_in_words(2), "2 threads");
+        assert_eq!(super::threads_in_words(16), "16 threads");
     }
 }
