@@ -11,7 +11,7 @@ use mipnerf_core::backend::{Backend, CpuBackend, ImageSpec, TrainState};
 use mipnerf_core::camera::{Camera, PixelCenters};
 use mipnerf_core::compare::{Outputs, Tolerance, assert_none, check_kernel, mismatches};
 use mipnerf_core::data::{self, Dataset, LoadOptions, Pixels, Split, View, demo};
-use mipnerf_core::model::{LevelOutput, Model, ModelConfig, Preset};
+use mipnerf_core::model::{LevelOutput, LossStats, Model, ModelConfig, Preset};
 use mipnerf_core::train::OptimConfig;
 use mipnerf_gpu::GpuBackend;
 use mipnerf_gpu::kernels::batch::{BatchKernel, DeviceImages, Draw};
@@ -279,6 +279,16 @@ fn compare_loss(bad: &mut Vec<String>, what: &str, gpu: f32, cpu: f32) -> f32 {
     rel
 }
 
+/// [`compare_loss`] on step `step`'s loss and its last (finest) level's mse, the GPU's `gpu`
+/// against the CPU's `cpu`; a level that reports no mse counts as NaN, so a difference. Returns
+/// the larger relative difference.
+fn compare_step(bad: &mut Vec<String>, step: u64, gpu: &LossStats, cpu: &LossStats) -> f32 {
+    let last_mse = |stats: &LossStats| stats.mse.last().copied().unwrap_or(f32::NAN);
+    let loss = compare_loss(bad, &format!("step {step} loss"), gpu.loss, cpu.loss);
+    let mse = compare_loss(bad, &format!("step {step} last level's mse"), last_mse(gpu), last_mse(cpu));
+    loss.max(mse)
+}
+
 /// Both levels of a render, fine then coarse, to compare every output.
 fn both_levels(b: &mut impl Backend, image: &ImageSpec) -> Vec<LevelOutput> {
     let r = b.render(image).unwrap();
@@ -356,11 +366,7 @@ fn train_alike_on(ctx: mipnerf_gpu::GpuContext, ds: Dataset, cfg: ModelConfig, s
         assert_eq!(g.is_some(), report, "step {step}: a GPU report exactly when asked");
         let Some(g) = g else { continue };
         assert_eq!((g.step, g.lr), (c.step, c.lr));
-        for (what, gv, cv) in
-            [("loss", g.stats.loss, c.stats.loss), ("last level's mse", last_mse(&g.stats), last_mse(&c.stats))]
-        {
-            worst = worst.max(compare_loss(&mut bad, &format!("step {step} {what}"), gv, cv));
-        }
+        worst = worst.max(compare_step(&mut bad, step, &g.stats, &c.stats));
     }
     eprintln!("loss curves over {steps} steps: worst relative difference {worst:e}");
     assert_eq!((gpu.step(), cpu.step()), (steps, steps));
@@ -569,22 +575,12 @@ fn occupancy_guided_training_follows_the_cpu_in_one_pass() {
 }
 
 /// Trains `steps` steps on both backends, comparing each step's loss and fine MSE.
-/// The last (finest) level's mse of a step, NaN where it reports none (which [`compare_loss`]
-/// records as a difference).
-fn last_mse(stats: &mipnerf_core::model::LossStats) -> f32 {
-    stats.mse.last().copied().unwrap_or(f32::NAN)
-}
-
 fn losses_agree(cpu: &mut dyn Backend, gpu: &mut dyn Backend, steps: u64) {
     let mut bad = Vec::new();
     for step in 0..steps {
         let c = cpu.train_step(true).unwrap().unwrap();
         let g = gpu.train_step(true).unwrap().unwrap();
-        for (what, gv, cv) in
-            [("loss", g.stats.loss, c.stats.loss), ("last level's mse", last_mse(&g.stats), last_mse(&c.stats))]
-        {
-            compare_loss(&mut bad, &format!("step {step} {what}"), gv, cv);
-        }
+        compare_step(&mut bad, step, &g.stats, &c.stats);
     }
     assert_none(&bad);
 }
@@ -716,11 +712,7 @@ fn guided_training_follows_the_cpu(ctx: mipnerf_gpu::GpuContext, chunk: Option<u
         let before = gpu.work_counters().unwrap().model_rays;
         let c = cpu.train_step(true).unwrap().unwrap();
         let g = gpu.train_step(true).unwrap().unwrap();
-        for (what, gv, cv) in
-            [("loss", g.stats.loss, c.stats.loss), ("last level's mse", last_mse(&g.stats), last_mse(&c.stats))]
-        {
-            compare_loss(&mut bad, &format!("step {step} {what}"), gv, cv);
-        }
+        compare_step(&mut bad, step, &g.stats, &c.stats);
         ran.push(gpu.work_counters().unwrap().model_rays - before);
     }
     assert_none(&bad);
