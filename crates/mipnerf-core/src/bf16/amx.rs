@@ -129,8 +129,8 @@ pub(super) fn product(
                     (c[i0 * n + j0..].as_mut_ptr(), n * 4)
                 } else {
                     if accumulate {
-                        for r in 0..BLOCK.min(m - i0.min(m)) {
-                            let cols = BLOCK.min(n - j0.min(n));
+                        let cols = BLOCK.min(n.saturating_sub(j0));
+                        for r in 0..BLOCK.min(m.saturating_sub(i0)) {
                             scratch[r * BLOCK..r * BLOCK + cols].copy_from_slice(&c[(i0 + r) * n + j0..][..cols]);
                         }
                     }
