@@ -1,4 +1,4 @@
-//! Dense matrix products through the `gemm` crate, behind a safe, bounds-checked interface.
+//! Dense matrix products through the `gemm` crate's f32 kernels (`gemm-f32`), behind a safe, bounds-checked interface.
 //!
 //! All matrices are row-major and contiguous. The products run single-threaded: the training step
 //! parallelises over independent chunks of rays instead, which keeps every result independent of
@@ -62,30 +62,43 @@ pub fn matmul(
         Layout::Normal => (n as isize, 1),
         Layout::Transposed => (1, k as isize),
     };
+    // gemm's f32 kernels prefer a column-major destination, and `c` is row-major: where its rows
+    // are longer than one element the product is computed as its transpose, `cᵀ = bᵀ · aᵀ`, the
+    // operands swapped and each stride pair read the other way round. This is what the `gemm`
+    // crate's dispatcher does before it calls these same kernels (the only ones this product
+    // needs), so the sums run in the same order.
+    let (c_ptr, a_ptr, b_ptr) = (c.as_mut_ptr(), a.as_ptr(), b.as_ptr());
+    #[rustfmt::skip]
+    let (rows, cols, c_cs, c_rs, lhs, lhs_cs, lhs_rs, rhs, rhs_cs, rhs_rs) = if n > 1 {
+        (n, m, n as isize, 1, b_ptr, b_rs, b_cs, a_ptr, a_rs, a_cs)
+    } else {
+        (m, n, 1, n as isize, a_ptr, a_cs, a_rs, b_ptr, b_cs, b_rs)
+    };
     // SAFETY: the asserts above guarantee that every element addressed through these strides lies
     // inside the slices: a reads rows < m and columns < k of an m*k (or k*m) block, b likewise, and
-    // c writes an m*n block. `c` is exclusively borrowed and does not alias `a` or `b`.
+    // c writes an m*n block (transposing swaps which operand is which, not what is addressed).
+    // `c` is exclusively borrowed and does not alias `a` or `b`. Every stride is positive.
     unsafe {
-        gemm::gemm(
-            m,
-            n,
+        gemm_f32::gemm::f32::get_gemm_fn()(
+            rows,
+            cols,
             k,
-            c.as_mut_ptr(),
-            1,
-            n as isize,
+            c_ptr,
+            c_cs,
+            c_rs,
             accumulate,
-            a.as_ptr(),
-            a_cs,
-            a_rs,
-            b.as_ptr(),
-            b_cs,
-            b_rs,
+            lhs,
+            lhs_cs,
+            lhs_rs,
+            rhs,
+            rhs_cs,
+            rhs_rs,
             1.0,
             1.0,
             false,
             false,
             false,
-            gemm::Parallelism::None,
+            gemm_common::Parallelism::None,
         );
     }
 }
@@ -121,20 +134,23 @@ mod tests {
 
     #[test]
     fn matches_a_naive_product_for_every_layout() {
-        let (m, k, n) = (37, 19, 23);
-        let a: Vec<f32> = (0..m * k).map(|i| ((i * 7 % 13) as f32 - 6.0) / 5.0).collect();
-        let b: Vec<f32> = (0..k * n).map(|i| ((i * 5 % 11) as f32 - 5.0) / 3.0).collect();
-        for la in [Layout::Normal, Layout::Transposed] {
-            for lb in [Layout::Normal, Layout::Transposed] {
-                let want = naive(&a, la, &b, lb, m, k, n);
-                let mut c = vec![1.0; m * n];
-                matmul(&mut c, &a, la, &b, lb, m, k, n, false);
-                for (g, w) in c.iter().zip(&want) {
-                    assert!((g - w).abs() < 1e-4, "{la:?} {lb:?}: {g} vs {w}");
-                }
-                matmul(&mut c, &a, la, &b, lb, m, k, n, true);
-                for (g, w) in c.iter().zip(&want) {
-                    assert!((g - 2.0 * w).abs() < 2e-4, "accumulate {la:?} {lb:?}");
+        // One column (`n == 1`: the density head's product, which gemm runs untransposed), one
+        // row, and a general shape (run as its transpose).
+        for (m, k, n) in [(37, 19, 23), (37, 19, 1), (1, 19, 23)] {
+            let a: Vec<f32> = (0..m * k).map(|i| ((i * 7 % 13) as f32 - 6.0) / 5.0).collect();
+            let b: Vec<f32> = (0..k * n).map(|i| ((i * 5 % 11) as f32 - 5.0) / 3.0).collect();
+            for la in [Layout::Normal, Layout::Transposed] {
+                for lb in [Layout::Normal, Layout::Transposed] {
+                    let want = naive(&a, la, &b, lb, m, k, n);
+                    let mut c = vec![1.0; m * n];
+                    matmul(&mut c, &a, la, &b, lb, m, k, n, false);
+                    for (g, w) in c.iter().zip(&want) {
+                        assert!((g - w).abs() < 1e-4, "{m}x{k}x{n} {la:?} {lb:?}: {g} vs {w}");
+                    }
+                    matmul(&mut c, &a, la, &b, lb, m, k, n, true);
+                    for (g, w) in c.iter().zip(&want) {
+                        assert!((g - 2.0 * w).abs() < 2e-4, "accumulate {m}x{k}x{n} {la:?} {lb:?}");
+                    }
                 }
             }
         }
