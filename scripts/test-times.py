@@ -4,7 +4,9 @@
 Usage: python3 scripts/test-times.py LOG (the output of `bash scripts/test.sh`, or of `.ci/run`).
 Standard library only.
 """
-import re, sys
+import re, signal, sys
+# Piped into `head`, stop quietly where the reader stops.
+signal.signal(signal.SIGPIPE, signal.SIG_DFL)
 # Pairs each `Running X (target/...)` line of a cargo test log with the next `test result: ... finished in S` line.
 cur = None; rows = []
 for line in open(sys.argv[1], errors='replace'):

@@ -1134,10 +1134,24 @@ fn precision_flag_runs_bf16_where_a_kernel_is_and_says_clearly_where_it_cannot()
             serde_json::from_str(&std::fs::read_to_string(run.join("eval/metrics.json")).unwrap()).unwrap();
         (m["precision"].as_str().unwrap().to_string(), m["per_scale"][0]["psnr"].as_f64().unwrap())
     };
-    let (p16, psnr16) = metrics(&["eval", "--run", r, "--no-lpips"]);
+    let (p16, psnr16) = metrics(&["eval", "--run", r, "--no-lpips", "--precision", "bf16"]);
     let (p32, psnr32) = metrics(&["eval", "--run", r, "--no-lpips", "--precision", "f32"]);
     assert_eq!((p16.as_str(), p32.as_str()), ("bf16", "f32"));
     assert!((psnr16 - psnr32).abs() < 0.1, "bf16 eval {psnr16} dB vs f32 {psnr32} dB");
+    // Without the flag a bf16 run opens as auto: bf16 on AMX, and on AVX-512 BF16 where its
+    // vdpbf16ps outruns the f32 FMA (f32 where it does not: an Intel Xeon with AMX hidden; near
+    // the threshold either, as above).
+    let (saved, _) = metrics(&["eval", "--run", r, "--no-lpips"]);
+    let auto_takes_bf16 = match kernel {
+        Bf16Kernel::Amx => Some(true),
+        Bf16Kernel::Avx512 => match mipnerf_core::bf16::avx512_dot_flop_rate_against_fma() {
+            Ok(rate) if rate >= 1.2 => Some(true),
+            Ok(rate) if rate < 0.8 => Some(false),
+            _ => None,
+        },
+    };
+    assert!(saved == "bf16" || saved == "f32", "{saved}");
+    assert!(auto_takes_bf16.is_none_or(|b| b == (saved == "bf16")), "eval of a bf16 run on {}: {saved}", kernel.name());
     // Resuming may change the precision.
     let (code, text) =
         with_env(&["train", "--out", r, "--resume", "--steps", "6", "--precision", "f32", "--backend", "cpu"], &[]);
