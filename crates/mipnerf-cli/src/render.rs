@@ -213,6 +213,9 @@ pub fn render(
     }
     names.push(DEPTH_SCALE.to_owned());
     crate::outputs::replace_outputs(out, names)?;
+    // From here a signal stops the render between files, saying how many images it wrote (none
+    // while the colour bar is drawn); every file on disk is whole.
+    let _cooperation = crate::signals::Cooperation::start();
     // The depth PNGs' colours, explained once for the folder.
     if let Some((_, first)) = jobs.first() {
         let title = "depth (transparent: white)";
@@ -227,8 +230,6 @@ pub fn render(
     let mut written = Vec::new();
     let mut preview = Vec::new();
     let mut pb = session.progress("render", 0, jobs.len() as u64);
-    // A signal stops the render between images; every file on disk is whole.
-    let _cooperation = crate::signals::Cooperation::start();
     for (i, (name, image)) in jobs.iter().enumerate() {
         if crate::signals::stop_requested() {
             crate::signals::acted_on();
