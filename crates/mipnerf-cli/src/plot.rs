@@ -39,6 +39,20 @@ fn chart_png(
     crate::images::write_png(path, w, h, &pixels)
 }
 
+/// The legend of every chart with several series: lower right, on a white box with a black border.
+fn legend_lower_right<'a, DB: DrawingBackend + 'a, CT: plotters::coord::CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    path: &Path,
+) -> Result<()> {
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::LowerRight)
+        .background_style(WHITE.mix(0.9))
+        .border_style(BLACK)
+        .draw()
+        .map_err(plot_err(path))
+}
+
 /// Curves against the step, one per named series (a legend when there is more than one).
 fn line_chart(
     path: &Path,
@@ -73,12 +87,7 @@ fn line_chart(
                     }
                 }
                 if series.len() > 1 {
-                    $c.configure_series_labels()
-                        .background_style(WHITE.mix(0.9))
-                        .border_style(BLACK)
-                        .position(SeriesLabelPosition::LowerRight)
-                        .draw()
-                        .map_err(&err)?;
+                    legend_lower_right(&mut $c, path)?;
                 }
             }};
         }
@@ -173,13 +182,7 @@ pub fn psnr_bars(path: &Path, bars: &[(String, u32, f64)]) -> Result<()> {
                 .label(name)
                 .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 12, y + 5)], c.filled()));
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::LowerRight)
-            .background_style(WHITE.mix(0.9))
-            .border_style(BLACK)
-            .draw()
-            .map_err(&err)?;
+        legend_lower_right(&mut chart, path)?;
         Ok(())
     })
 }
@@ -227,12 +230,7 @@ pub fn quality_vs_time(
                 .label(label)
                 .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK));
         }
-        c.configure_series_labels()
-            .position(SeriesLabelPosition::LowerRight)
-            .background_style(WHITE.mix(0.9))
-            .border_style(BLACK)
-            .draw()
-            .map_err(&err)?;
+        legend_lower_right(&mut c, path)?;
         Ok(())
     })
 }

@@ -1,4 +1,5 @@
-//! Dense matrix products through the `gemm` crate's f32 kernels (`gemm-f32`), behind a safe, bounds-checked interface.
+//! Dense matrix products through the `gemm` crate's f32 kernels (`gemm-f32`), behind a safe,
+//! bounds-checked interface.
 //!
 //! All matrices are row-major and contiguous. The products run single-threaded: the training step
 //! parallelises over independent chunks of rays instead, which keeps every result independent of
