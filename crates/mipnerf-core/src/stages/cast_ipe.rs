@@ -21,13 +21,20 @@ pub fn encode_gaussian(
     max_deg: u32,
     dst: &mut [f32],
 ) {
-    let ipe = |g: &Gaussian, dst: &mut [f32]| match precision {
-        Precision::F32 => mip::integrated_pos_enc(g, min_deg, max_deg, dst),
-        Precision::Bf16 => mip::integrated_pos_enc_for_bf16(g, min_deg, max_deg, dst),
-    };
+    // A closure here was not inlined at `opt-level = 2` (the test build), so its body ran outside
+    // `wide`'s AVX-512 context, with `mul_add` and `floor` as library calls.
+    #[inline(always)]
+    fn ipe(g: &Gaussian, precision: Precision, (min_deg, max_deg): (u32, u32), dst: &mut [f32]) {
+        match precision {
+            Precision::F32 => mip::integrated_pos_enc(g, min_deg, max_deg, dst),
+            Precision::Bf16 => mip::integrated_pos_enc_for_bf16(g, min_deg, max_deg, dst),
+        }
+    }
     match encoding {
-        PointEncoding::Integrated => ipe(g, dst),
-        PointEncoding::Mean => ipe(&Gaussian { mean: g.mean, cov_diag: Vec3::ZERO }, dst),
+        PointEncoding::Integrated => ipe(g, precision, (min_deg, max_deg), dst),
+        PointEncoding::Mean => {
+            ipe(&Gaussian { mean: g.mean, cov_diag: Vec3::ZERO }, precision, (min_deg, max_deg), dst)
+        }
         PointEncoding::Nerf => mip::pos_enc(g.mean, min_deg, max_deg, true, dst),
     }
 }
