@@ -614,6 +614,23 @@ fn bad_inputs_get_clear_errors_naming_the_file() {
     assert_error(load(ll.path()).unwrap_err(), "poses_bounds.npy", "row 4 has a non-finite value");
     std::fs::write(ll.path().join("poses_bounds.npy"), b"\x93NUMPY truncated").unwrap();
     assert_error(load(ll.path()).unwrap_err(), "poses_bounds.npy", "not a .npy file");
+    // An image folder the factor does not name: the error lists the folders there are, each with
+    // the factor that reads it.
+    let moved = tempfile::tempdir().unwrap();
+    make_llff(moved.path());
+    std::fs::rename(moved.path().join("images_4"), moved.path().join("images_8")).unwrap();
+    std::fs::create_dir(moved.path().join("images")).unwrap();
+    let err = llff::load(moved.path(), Split::Train, 4, None).unwrap_err();
+    assert_error(
+        err,
+        "images_4",
+        "--llff-factor 4 reads images_4, the scene has images (--llff-factor 0), images_8 (--llff-factor 8)",
+    );
+    let bare = tempfile::tempdir().unwrap();
+    make_llff(bare.path());
+    std::fs::remove_dir_all(bare.path().join("images_4")).unwrap();
+    let err = llff::load(bare.path(), Split::Train, 2, None).unwrap_err();
+    assert_error(err, "images_2", "the scene has no images or images_N folder");
 }
 
 #[test]

@@ -356,6 +356,35 @@ pub fn write_poses_bounds(path: &Path, rows: &[[f64; 17]]) -> Result<(), DataErr
     Ok(crate::io::write_atomic(path, &bytes)?)
 }
 
+/// The error for a scene without the image folder `factor` picks: names the folders it has and
+/// the `--llff-factor` that reads each (`images`: 0, `images_N`: N).
+fn missing_image_folder(dir: &Path, imgdir: &Path, factor: u32) -> DataError {
+    let mut present: Vec<(u32, String)> = std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .filter_map(Result::ok)
+        .filter(|e| e.path().is_dir())
+        .filter_map(|e| {
+            let name = e.file_name().to_str()?.to_owned();
+            let n = if name == "images" { 0 } else { name.strip_prefix("images_")?.parse().ok()? };
+            Some((n, name))
+        })
+        .collect();
+    present.sort();
+    let wanted = if factor > 0 {
+        format!("--llff-factor {factor} reads images_{factor}")
+    } else {
+        "--llff-factor 0 reads images".to_owned()
+    };
+    let found = if present.is_empty() {
+        "and the scene has no images or images_N folder".to_owned()
+    } else {
+        let list: Vec<String> = present.iter().map(|(n, name)| format!("{name} (--llff-factor {n})")).collect();
+        format!("the scene has {}", list.join(", "))
+    };
+    DataError::invalid(imgdir, format!("no such image folder: {wanted}, {found}"))
+}
+
 fn image_files(dir: &Path) -> Result<Vec<std::path::PathBuf>, DataError> {
     let mut files: Vec<_> = std::fs::read_dir(dir)
         .map_err(|e| DataError::io(dir, e))?
@@ -381,6 +410,9 @@ pub fn load(dir: &Path, split: Split, factor: u32, spherify: Option<Spherify>) -
     let npy = dir.join("poses_bounds.npy");
     let rows = read_poses_bounds(&npy)?;
     let imgdir = if factor > 0 { dir.join(format!("images_{factor}")) } else { dir.join("images") };
+    if !imgdir.is_dir() {
+        return Err(missing_image_folder(dir, &imgdir, factor));
+    }
     let files = image_files(&imgdir)?;
     if files.len() != rows.len() {
         return Err(DataError::invalid(
