@@ -9,7 +9,7 @@ use mipnerf_core::Camera;
 use mipnerf_core::backend::{Backend, BackendError, ImageSpec, MAX_BATCH_RAYS, RenderedImage, TrainState};
 use mipnerf_core::checkpoint::{self, CheckpointError};
 use mipnerf_core::data::{self, DataError, Dataset, LoadOptions, Split, View};
-use mipnerf_core::model::{FastRecipe, Model, ModelConfig, ModelError, Preset};
+use mipnerf_core::model::{FastRecipe, Levels, Model, ModelConfig, ModelError, Preset};
 use mipnerf_core::occupancy::{OccupancyConfig, OccupancyGrid};
 use mipnerf_core::train::{OptimConfig, StepReport};
 
@@ -286,15 +286,15 @@ impl Nerf {
         }
     }
 
-    /// Renders `camera` (both levels per pixel; `.fine` is the picture), as the training data's
-    /// rays are made (bounds, pixel centres, NDC), or without data as the loaded checkpoint
-    /// says (`Options::render_bounds` for one that says nothing).
+    /// Renders `camera` (`.fine` is the picture; the coarse level is not kept), as the training
+    /// data's rays are made (bounds, pixel centres, NDC), or without data as the loaded
+    /// checkpoint says (`Options::render_bounds` for one that says nothing).
     ///
     /// # Errors
     /// The backend's error.
     pub fn render(&mut self, camera: &Camera) -> Result<RenderedImage, Error> {
         let spec = self.image_spec(camera);
-        Ok(self.backend.render(&spec)?)
+        Ok(self.backend.render(&spec, Levels::Last)?)
     }
 
     /// How pixels become rays here: as the training data's are, or as loaded.

@@ -10,6 +10,7 @@ use mipnerf_core::backend::{ImageSpec, TrainState, WorkCounters};
 use mipnerf_core::bench::{backend_throughput, synthetic_dataset};
 use mipnerf_core::bf16::{Bf16Kernel, Bf16Support};
 use mipnerf_core::data::demo;
+use mipnerf_core::model::Levels;
 use mipnerf_core::model::Model;
 use mipnerf_core::train::OptimConfig;
 use mipnerf_core::{Camera, PixelCenters};
@@ -170,9 +171,9 @@ fn device_work(
     let side = render_side.clamp(1, 32);
     let camera = Camera::from_camera_angle_x(side, side, 0.69, demo::camera_pose(0.3, 0.5))?;
     let spec = ImageSpec { camera, near: 2.0, far: 6.0, centers: PixelCenters::Centered, ndc: None, supersample: 1 };
-    b.render(&spec)?;
+    b.render(&spec, Levels::Last)?;
     take(b, &format!("first render chunk ({side}x{side} pixels)"));
-    b.render(&spec)?;
+    b.render(&spec, Levels::Last)?;
     take(b, &format!("render chunk ({side}x{side} pixels)"));
     Ok(Some(rows))
 }

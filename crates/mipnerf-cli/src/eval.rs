@@ -8,6 +8,7 @@ use anyhow::{Context, Result};
 use mipnerf_core::backend::ImageSpec;
 use mipnerf_core::data::Split;
 use mipnerf_core::metrics::average_error;
+use mipnerf_core::model::Levels;
 use serde::Serialize;
 
 use crate::config::{Backend, PrecisionArg};
@@ -62,8 +63,13 @@ pub fn eval(
         let view = &ds.views()[v];
         let (w, h) = (view.camera.width as usize, view.camera.height as usize);
         let image = ImageSpec::of_view(&ds, v, k);
-        let rendered: Vec<[f32; 3]> =
-            be.render(&image).with_context(|| view.file.display().to_string())?.fine.iter().map(|o| o.rgb).collect();
+        let rendered: Vec<[f32; 3]> = be
+            .render(&image, Levels::Last)
+            .with_context(|| view.file.display().to_string())?
+            .fine
+            .iter()
+            .map(|o| o.rgb)
+            .collect();
         let target = ds.view_targets(v);
         let (a, b) = (flat_clamped(&rendered), flat_clamped(&target));
         let (mse, psnr, ss) = pixel_scores(&a, &b, w, h);

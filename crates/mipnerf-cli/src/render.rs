@@ -9,6 +9,7 @@ use clap::ValueEnum;
 use mipnerf_core::Camera;
 use mipnerf_core::backend::ImageSpec;
 use mipnerf_core::data::{Dataset, Split};
+use mipnerf_core::model::Levels;
 
 use crate::config::{Backend, PrecisionArg, TrainSettings};
 use crate::images::{depth_to_png, rgb_to_png, write_exr, write_gif, write_png};
@@ -242,7 +243,7 @@ pub fn render(
             .into());
         }
         let (w, h) = (&image.camera.width, &image.camera.height);
-        let outs = be.render(image).with_context(|| format!("rendering {name}"))?.fine;
+        let outs = be.render(image, Levels::Last).with_context(|| format!("rendering {name}"))?.fine;
         let rgb: Vec<[f32; 3]> = outs.iter().map(|o| o.rgb).collect();
         let depth: Vec<f32> = outs.iter().map(|o| o.distance).collect();
         let acc: Vec<f32> = outs.iter().map(|o| o.acc).collect();

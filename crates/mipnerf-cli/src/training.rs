@@ -11,6 +11,7 @@ use anyhow::{Context, Result, bail};
 use mipnerf_core::backend::TrainState;
 use mipnerf_core::checkpoint::{self};
 use mipnerf_core::data::{self, Dataset, Format, Split};
+use mipnerf_core::model::Levels;
 use mipnerf_core::model::Model;
 use mipnerf_core::occupancy::{OccupancyConfig, OccupancyGrid};
 
@@ -412,7 +413,9 @@ impl Validation {
                 let mut sum = 0.0;
                 for (i, &v) in views.iter().enumerate() {
                     let image = mipnerf_core::backend::ImageSpec::of_view(&self.ds, v, k);
-                    let out = be.render(&image).with_context(|| self.ds.views()[v].file.display().to_string())?;
+                    let out = be
+                        .render(&image, Levels::Last)
+                        .with_context(|| self.ds.views()[v].file.display().to_string())?;
                     let rendered: Vec<[f32; 3]> = out.fine.iter().map(|o| o.rgb).collect();
                     let target = self.ds.view_targets(v);
                     sum += crate::scores::render_psnr(&rendered, &target);

@@ -22,6 +22,7 @@ use base64::Engine;
 use mipnerf_core::backend::ImageSpec;
 use mipnerf_core::camera::Camera;
 use mipnerf_core::data::Split;
+use mipnerf_core::model::Levels;
 
 use crate::config::{Backend, TrainSettings};
 use crate::metrics_csv::MetricsRows;
@@ -342,7 +343,7 @@ fn renderer(a: &ViewArgs, s: &TrainSettings, template: &ImageSpec, jobs: &mpsc::
                 }
                 let t = Instant::now();
                 let (band, extra) = band(&image, y0, y1);
-                let out = be.render(&band)?;
+                let out = be.render(&band, Levels::Last)?;
                 let keep = (y1 - y0) as usize * req.width as usize;
                 debug_assert_eq!(out.fine.len(), keep + extra);
                 rgb.extend(out.fine.iter().take(keep).map(|o| o.rgb));

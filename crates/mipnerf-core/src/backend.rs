@@ -12,7 +12,7 @@ use crate::camera::{Camera, PixelCenters};
 use crate::checkpoint::Checkpoint;
 use crate::cone::Ray;
 use crate::data::{Dataset, Ndc, push_camera_rays};
-use crate::model::{LevelOutput, Model};
+use crate::model::{LevelOutput, Levels, Model};
 use crate::occupancy::OccupancyGrid;
 use crate::schedule::LrSchedule;
 use crate::train::{AdamState, OptimConfig, StepReport, Trainer};
@@ -126,8 +126,8 @@ impl ImageSpec {
     }
 }
 
-/// One rendered image: per pixel (raster order) the fine level's and the coarse level's colour,
-/// distance and opacity.
+/// One rendered image: per pixel (raster order) the fine level's colour, distance and opacity,
+/// and the coarse level's where the render asked for every level ([`Levels::All`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct RenderedImage {
     /// Width in pixels.
@@ -136,21 +136,25 @@ pub struct RenderedImage {
     pub height: u32,
     /// The last (fine) level, the model's output.
     pub fine: Vec<LevelOutput>,
-    /// The first (coarse) level.
-    pub coarse: Vec<LevelOutput>,
+    /// The first (coarse) level; `None` when rendered with [`Levels::Last`].
+    pub coarse: Option<Vec<LevelOutput>>,
 }
 
 impl RenderedImage {
-    /// Splits pixel-major outputs of `levels` levels (as [`Model::render`] gives them) into the
-    /// fine and the coarse level.
+    /// Pixel-major outputs of `which` levels of a model of `levels` levels (as
+    /// [`Model::render_levels`] gives them), split into the fine level and, with every level,
+    /// the coarse one.
     #[must_use]
-    pub fn from_outputs(width: u32, height: u32, levels: usize, outputs: &[LevelOutput]) -> Self {
-        let levels = levels.max(1);
+    pub fn from_outputs(width: u32, height: u32, (levels, which): (usize, Levels), outputs: &[LevelOutput]) -> Self {
+        let levels = match which {
+            Levels::All => levels.max(1),
+            Levels::Last => 1,
+        };
         Self {
             width,
             height,
             fine: outputs.chunks(levels).map(|l| l[levels - 1]).collect(),
-            coarse: outputs.chunks(levels).map(|l| l[0]).collect(),
+            coarse: (which == Levels::All).then(|| outputs.chunks(levels).map(|l| l[0]).collect()),
         }
     }
 
@@ -209,13 +213,16 @@ pub trait Backend {
     /// Device failures.
     fn checkpoint(&mut self) -> Result<Checkpoint, BackendError>;
 
-    /// Renders every pixel of `image` with the current parameters (evaluation mode): the fine
-    /// and the coarse level's colour, distance and opacity per pixel (the levels of
-    /// [`Model::render`]); supersampled rays are averaged per pixel.
+    /// Renders every pixel of `image` with the current parameters (evaluation mode): per pixel
+    /// the fine level's colour, distance and opacity and, with [`Levels::All`], the coarse
+    /// level's (the levels of [`Model::render_levels`]); supersampled rays are averaged per
+    /// pixel. [`Levels::Last`] is what images, depth maps and metrics need: its fine level is the
+    /// same as with [`Levels::All`], and a backend may skip work only the coarse level's outputs
+    /// need (the CPU skips the coarse level's colour layers).
     ///
     /// # Errors
     /// [`BackendError::Unsupported`] for what the backend does not render; device failures.
-    fn render(&mut self, image: &ImageSpec) -> Result<RenderedImage, BackendError>;
+    fn render(&mut self, image: &ImageSpec, levels: Levels) -> Result<RenderedImage, BackendError>;
 
     /// What the backend has sent to and read from a device so far, for `mipnerf bench`; `None`
     /// for a backend without a device (the CPU).
@@ -454,7 +461,7 @@ impl Backend for CpuBackend {
         self.trainer.model.training_bytes(batch_rays)
     }
 
-    fn render(&mut self, image: &ImageSpec) -> Result<RenderedImage, BackendError> {
+    fn render(&mut self, image: &ImageSpec, levels: Levels) -> Result<RenderedImage, BackendError> {
         let model = &self.trainer.model;
         image.check_for(model)?;
         let mut out = Vec::with_capacity(image.pixels() * model.config().num_levels);
@@ -463,10 +470,10 @@ impl Backend for CpuBackend {
         for first in (0..image.pixels()).step_by(chunk_pixels) {
             rays.clear();
             image.push_rays(first, chunk_pixels, &mut rays);
-            out.extend(model.render_guided(&self.trainer.params, &rays, self.trainer.occupancy.as_ref()));
+            out.extend(model.render_levels(&self.trainer.params, &rays, self.trainer.occupancy.as_ref(), levels));
         }
         let (w, h) = (image.camera.width, image.camera.height);
-        Ok(RenderedImage::from_outputs(w, h, model.config().num_levels, &out))
+        Ok(RenderedImage::from_outputs(w, h, (model.config().num_levels, levels), &out))
     }
 }
 

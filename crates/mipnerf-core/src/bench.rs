@@ -11,7 +11,7 @@ use crate::camera::{Camera, PixelCenters};
 use crate::cone::Ray;
 use crate::data::{Dataset, Pixels, Split, View, demo};
 use crate::linalg::{Layout, matmul};
-use crate::model::{Model, ModelConfig};
+use crate::model::{Levels, Model, ModelConfig};
 use crate::train::{OptimConfig, Trainer};
 use rayon::prelude::*;
 
@@ -246,10 +246,10 @@ pub fn backend_throughput(
     let supersample = b.model().config().supersample;
     let spec =
         |camera| ImageSpec { camera, near: 2.0, far: 6.0, centers: PixelCenters::Centered, ndc: None, supersample };
-    b.render(&spec(camera(8)?))?;
+    b.render(&spec(camera(8)?), Levels::Last)?;
     let image = spec(camera(render_side)?);
     let t = Instant::now();
-    b.render(&image)?;
+    b.render(&image, Levels::Last)?;
     let render_s = t.elapsed().as_secs_f64();
     Ok(BackendThroughput {
         backend: b.describe(),

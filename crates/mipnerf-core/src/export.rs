@@ -326,13 +326,11 @@ pub fn ray_points(
     min_opacity: f32,
 ) -> (Vec<Vec3>, Vec<[u8; 3]>) {
     assert_eq!(model.rays_per_pixel(), 1, "ray_points: one ray per pixel");
-    let levels = model.config().num_levels;
     let bg = crate::render::background(model.config().white_bkgd);
-    let out = model.render_guided(params, rays, grid);
+    let out = model.render_levels(params, rays, grid, crate::model::Levels::Last);
     let mut points = Vec::new();
     let mut colors = Vec::new();
-    for (ray, o) in rays.iter().zip(out.chunks(levels)) {
-        let fine = o[levels - 1];
+    for (ray, &fine) in rays.iter().zip(&out) {
         if fine.acc < min_opacity || fine.acc <= 0.0 {
             continue;
         }

@@ -501,7 +501,8 @@ impl MlpShape {
     /// [`forward`](Self::forward), the same operations in the same order, so
     /// `cache.raw_density` (`n`) holds the same bits as after a full forward pass over the same
     /// `x`; the colour layers are skipped (17% of the paper's MLP's multiply-adds, 26% of the
-    /// fast preset's). What the occupancy grid probes.
+    /// fast preset's). What the occupancy grid probes, and what a render of the last level alone
+    /// runs at the earlier levels (`Levels::Last`).
     /// No [`backward`](Self::backward) may follow it.
     ///
     /// # Panics

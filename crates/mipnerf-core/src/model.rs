@@ -22,6 +22,9 @@ use crate::stages;
 use crate::wide::wide;
 
 pub use crate::config::{FAST_SAMPLES, FastRecipe, Mode, ModelConfig, PointEncoding, Preset};
+pub use rendering::{LevelOutput, Levels};
+
+mod rendering;
 
 /// Errors in a model configuration.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -40,17 +43,6 @@ pub struct Model {
     config: ModelConfig,
     mlps: Vec<MlpShape>,
     num_params: usize,
-}
-
-/// What one level renders for one pixel.
-#[derive(Clone, Copy, Debug, PartialEq, Default)]
-pub struct LevelOutput {
-    /// Colour.
-    pub rgb: [f32; 3],
-    /// Expected depth.
-    pub distance: f32,
-    /// Accumulated opacity.
-    pub acc: f32,
 }
 
 /// Losses of one batch.
@@ -222,76 +214,6 @@ impl Model {
     #[must_use]
     pub fn rays_per_pixel(&self) -> usize {
         self.config.supersample * self.config.supersample
-    }
-
-    /// Renders every pixel at every level (evaluation mode). `rays` holds
-    /// [`rays_per_pixel`](Self::rays_per_pixel) consecutive rays per pixel; returns
-    /// `pixels x num_levels` outputs, pixel-major.
-    ///
-    /// # Panics
-    /// If `rays.len()` is not a multiple of the rays per pixel, or `params` has the wrong length.
-    #[must_use]
-    pub fn render(&self, params: &[f32], rays: &[Ray]) -> Vec<LevelOutput> {
-        self.render_guided(params, rays, None)
-    }
-
-    /// [`render`](Self::render) with occupancy-guided sampling: with a `grid` that is not full
-    /// (and one ray per pixel), rays that meet no occupied cell render the background (opacity 0,
-    /// distance `near`) without running the MLP, and the others sample only their occupied spans.
-    /// A full grid, or none, renders exactly as [`render`](Self::render).
-    ///
-    /// # Panics
-    /// As [`render`](Self::render).
-    #[must_use]
-    pub fn render_guided(&self, params: &[f32], rays: &[Ray], grid: Option<&OccupancyGrid>) -> Vec<LevelOutput> {
-        let rpp = self.rays_per_pixel();
-        assert_eq!(rays.len() % rpp, 0, "render: rays per pixel");
-        assert_eq!(params.len(), self.num_params, "render: parameter count");
-        let levels = self.config.num_levels;
-        let Some(guide) = self.guide(grid, rays) else {
-            let chunk = CHUNK_RAYS.div_ceil(rpp) * rpp;
-            return rays
-                .par_chunks(chunk)
-                .map(|rays| {
-                    let mut out = vec![LevelOutput::default(); rays.len() / rpp * levels];
-                    WORKSPACE.with(|ws| {
-                        let ws = &mut ws.borrow_mut();
-                        self.run_chunk(params, rays, RayIds::From(0), None, None, Mode::Eval, ws, None, Some(&mut out))
-                    });
-                    out
-                })
-                .collect::<Vec<_>>()
-                .concat();
-        };
-        let active_rays: Vec<Ray> = guide.active.iter().map(|&i| rays[i as usize]).collect();
-        let rendered: Vec<Vec<LevelOutput>> = active_rays
-            .par_chunks(CHUNK_RAYS)
-            .enumerate()
-            .map(|(ci, chunk)| {
-                let mut out = vec![LevelOutput::default(); chunk.len() * levels];
-                let first = ci * CHUNK_RAYS;
-                let ids = RayIds::List(&guide.active[first..first + chunk.len()]);
-                let spans = guide.spans(first, chunk.len());
-                WORKSPACE.with(|ws| {
-                    let ws = &mut ws.borrow_mut();
-                    self.run_chunk(params, chunk, ids, Some(spans), None, Mode::Eval, ws, None, Some(&mut out))
-                });
-                out
-            })
-            .collect();
-        let mut out: Vec<LevelOutput> =
-            rays.iter().flat_map(|r| std::iter::repeat_n(self.background_output(r), levels)).collect();
-        for (&i, o) in guide.active.iter().zip(rendered.concat().chunks(levels)) {
-            out[i as usize * levels..(i as usize + 1) * levels].copy_from_slice(o);
-        }
-        out
-    }
-
-    /// What a ray that meets no occupied cell renders at every level: the background, no
-    /// opacity, and `near` as its distance (what [`render::volumetric_rendering`] reports for a
-    /// ray with no opacity: its first edge).
-    fn background_output(&self, ray: &Ray) -> LevelOutput {
-        LevelOutput { rgb: self.ray_background(Mode::Eval, 0), distance: ray.near, acc: 0.0 }
     }
 
     /// The background colour behind the ray with batch index `ray` in `mode`: in training with
@@ -484,7 +406,8 @@ impl Model {
     /// paper's order (see ARCHITECTURE.md), each the reference of one GPU kernel. With `targets`
     /// (`(colours, norm, distortion scale)`), accumulates the gradient into `grads` and returns
     /// per level `[sum lossmult·sq, sum sq]`, then `[distortion loss × scale, 0]`; with `out`,
-    /// writes the rendered pixels.
+    /// writes the rendered pixels of the levels it names (with [`Levels::Last`] and no
+    /// `targets`, the earlier levels run the MLP's density alone).
     fn run_chunk(
         &self,
         params: &[f32],
@@ -495,7 +418,7 @@ impl Model {
         mode: Mode,
         ws: &mut Workspace,
         mut grads: Option<&mut [f32]>,
-        mut out: Option<&mut [LevelOutput]>,
+        mut out: Option<(&mut [LevelOutput], Levels)>,
     ) -> Vec<[f64; 2]> {
         let c = &self.config;
         let (s, n) = (c.num_samples, rays.len() * c.num_samples);
@@ -530,13 +453,28 @@ impl Model {
             let mlp = self.mlp_for_level(level);
             let encoding = (c.point_encoding, mlp.precision);
             stages::cast_and_encode(rays, &ws.t, (s, c.unbounded), c.ray_shape, encoding, degrees, &mut ws.x);
-            mlp.forward(params, &ws.x, &ws.view, rays.len(), s, &mut ws.cache);
+            let last = level + 1 == c.num_levels;
+            let colour_shown = match out {
+                Some((_, Levels::Last)) => last,
+                _ => true,
+            };
+            if colour_shown || targets.is_some() {
+                mlp.forward(params, &ws.x, &ws.view, rays.len(), s, &mut ws.cache);
+            } else {
+                // Only this level's weights are used (by the next level's resampling), and they
+                // depend on the densities alone: the colours are left at a constant.
+                mlp.density(params, &ws.x, n, &mut ws.cache);
+                ws.cache.raw_rgb.clear();
+                ws.cache.raw_rgb.resize(3 * n, 0.0);
+            }
             stages::add_density_noise(c.density_noise, level, mode, &ws.ids, s, &mut ws.cache.raw_density[..n]);
             let raw = (&ws.cache.raw_rgb[..3 * n], &ws.cache.raw_density[..n]);
             stages::render_rays(c, raw.0, raw.1, &ws.t, rays, &ws.backgrounds, &mut ws.samples, &mut ws.per_ray);
             self.average_pixels(ws);
-            if let Some(out) = out.as_deref_mut() {
-                self.write_level_output(level, ws, out);
+            match out.as_mut() {
+                Some((out, Levels::All)) => self.write_level_output(level, c.num_levels, ws, out),
+                Some((out, Levels::Last)) if last => self.write_level_output(0, 1, ws, out),
+                _ => {}
             }
             let (Some((tg, norm, dist_scale)), Some(grads)) = (targets, grads.as_deref_mut()) else {
                 continue;
@@ -626,13 +564,13 @@ impl Model {
         }
     }
 
-    /// Each pixel's colour, distance and opacity at `level`.
-    fn write_level_output(&self, level: usize, ws: &Workspace, out: &mut [LevelOutput]) {
+    /// Each pixel's colour, distance and opacity of the level just rendered, into `out` as entry
+    /// `slot` of `levels` per pixel.
+    fn write_level_output(&self, slot: usize, levels: usize, ws: &Workspace, out: &mut [LevelOutput]) {
         let rpp = self.rays_per_pixel();
         let inv_rpp = 1.0 / rpp as f32;
-        let levels = self.config.num_levels;
         for (p, group) in ws.per_ray.chunks(rpp).enumerate() {
-            out[p * levels + level] = LevelOutput {
+            out[p * levels + slot] = LevelOutput {
                 rgb: ws.pixel_rgb[p],
                 distance: group.iter().map(|g| g.distance).sum::<f32>() * inv_rpp,
                 acc: group.iter().map(|g| g.acc).sum::<f32>() * inv_rpp,

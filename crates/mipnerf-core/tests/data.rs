@@ -847,7 +847,7 @@ proptest::proptest! {
             .unwrap()
             .with_data(Arc::new(ds), 16);
         let _ = be.train_step(true);
-        let _ = be.render(&image);
+        let _ = be.render(&image, mipnerf_core::model::Levels::Last);
     }
 }
 

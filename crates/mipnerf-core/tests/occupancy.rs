@@ -15,7 +15,7 @@ use mipnerf_core::contract::UNBOUNDED_FAR;
 use mipnerf_core::data::{self, LoadOptions, Split};
 use mipnerf_core::mip::Gaussian;
 use mipnerf_core::mlp::MlpCache;
-use mipnerf_core::model::{GradScratch, LevelOutput, Mode, Model, ModelConfig, Preset};
+use mipnerf_core::model::{GradScratch, LevelOutput, Levels, Mode, Model, ModelConfig, Preset};
 use mipnerf_core::occupancy::{CARVED, CONTRACTED_BOUND, DensityField, OccupancyConfig, OccupancyGrid, auto_bound};
 use mipnerf_core::rng::{RayRng, Stream};
 use mipnerf_core::sampling::{sample_along_rays, sample_along_segments};
@@ -214,6 +214,44 @@ fn too_many_spans_for_the_samples_join_across_the_narrowest_gaps() {
     sample_along_segments(&spans, false, None, &mut two);
     sample_along_rays(1.0, 5.5, false, None, &mut hull);
     assert_eq!(two, hull);
+}
+
+#[test]
+fn the_last_level_alone_is_the_last_level_of_every_levels_render_bit_for_bit() {
+    // Rendering the last level alone runs the earlier levels' densities without their colour
+    // layers; the resampling reads only their weights, so nothing of the last level may change:
+    // one MLP and two, one ray per pixel and 2x2, with and without a partial grid, and bf16
+    // where this CPU has a kernel for it.
+    let (rays, _) = ball_scene(4, 12);
+    let tiny = ModelConfig { num_samples: 16, ..Preset::Tiny.config() };
+    let grid = grid_where(32, |c| c.length() < BALL_RADIUS);
+    let configs = [
+        ("mipnerf", tiny.clone()),
+        ("nerf, two MLPs", tiny.clone().nerf()),
+        ("nerf, 2x2 rays per pixel", ModelConfig { supersample: 2, ..tiny.clone().nerf() }),
+    ];
+    let mut bf16 = Model::new(tiny).unwrap();
+    let with_bf16 = bf16.set_precision(Precision::Bf16).is_ok().then_some(("mipnerf, bf16", bf16));
+    let models = configs.into_iter().map(|(name, c)| (name, Model::new(c).unwrap())).chain(with_bf16);
+    let mut checked = 0;
+    for (name, m) in models {
+        let params = m.init_params(9);
+        let levels = m.config().num_levels;
+        for grid in [None, Some(&grid)] {
+            let all = m.render_levels(&params, &rays, grid, Levels::All);
+            let last = m.render_levels(&params, &rays, grid, Levels::Last);
+            let pixels = rays.len() / m.rays_per_pixel();
+            assert_eq!((all.len(), last.len()), (pixels * levels, pixels), "{name}");
+            let want: Vec<LevelOutput> = all.chunks(levels).map(|l| l[levels - 1]).collect();
+            let (last, want) = (outputs_flat(&last), outputs_flat(&want));
+            let differ = last.iter().zip(&want).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
+            assert_eq!(differ, 0, "{name}, grid {}: {differ} of {} values differ", grid.is_some(), want.len());
+            // The coarse level's colour is not the fine level's: the test would see a mix-up.
+            assert!(all.chunks(levels).any(|l| l[0].rgb != l[levels - 1].rgb), "{name}");
+            checked += 1;
+        }
+    }
+    assert!(checked >= 6, "{checked} cases");
 }
 
 #[test]

@@ -24,7 +24,7 @@
 use mipnerf_core::backend::{Backend, BackendError, ImageSpec, RenderedImage, TrainState, WorkCounters};
 use mipnerf_core::checkpoint::Checkpoint;
 use mipnerf_core::data::Dataset;
-use mipnerf_core::model::{LevelOutput, Mode, Model};
+use mipnerf_core::model::{LevelOutput, Levels, Mode, Model};
 use mipnerf_core::occupancy::OccupancyGrid;
 use mipnerf_core::train::{AdamState, OptimConfig, StepReport};
 
@@ -560,11 +560,17 @@ impl Backend for GpuBackend {
         Ok(self.read_checkpoint()?)
     }
 
-    fn render(&mut self, image: &ImageSpec) -> Result<RenderedImage, BackendError> {
+    fn render(&mut self, image: &ImageSpec, levels: Levels) -> Result<RenderedImage, BackendError> {
         image.check_for(&self.model)?;
+        // Every level runs in full here; with `Levels::Last` the coarse level's outputs are
+        // dropped.
         let out = self.render_all(image)?;
         let (w, h) = (image.camera.width, image.camera.height);
-        Ok(RenderedImage::from_outputs(w, h, self.model.config().num_levels, &out))
+        let all = RenderedImage::from_outputs(w, h, (self.model.config().num_levels, Levels::All), &out);
+        Ok(match levels {
+            Levels::All => all,
+            Levels::Last => RenderedImage { coarse: None, ..all },
+        })
     }
 
     fn work_counters(&self) -> Option<WorkCounters> {

@@ -11,7 +11,7 @@ use mipnerf_core::backend::{Backend, CpuBackend, ImageSpec, TrainState};
 use mipnerf_core::camera::{Camera, PixelCenters};
 use mipnerf_core::compare::{Outputs, Tolerance, assert_none, check_kernel, mismatches};
 use mipnerf_core::data::{self, Dataset, LoadOptions, Pixels, Split, View, demo};
-use mipnerf_core::model::{LevelOutput, LossStats, Model, ModelConfig, Preset};
+use mipnerf_core::model::{LevelOutput, Levels, LossStats, Model, ModelConfig, Preset};
 use mipnerf_core::train::OptimConfig;
 use mipnerf_gpu::GpuBackend;
 use mipnerf_gpu::kernels::batch::{BatchKernel, DeviceImages, Draw};
@@ -291,8 +291,8 @@ fn compare_step(bad: &mut Vec<String>, step: u64, gpu: &LossStats, cpu: &LossSta
 
 /// Both levels of a render, fine then coarse, to compare every output.
 fn both_levels(b: &mut impl Backend, image: &ImageSpec) -> Vec<LevelOutput> {
-    let r = b.render(image).unwrap();
-    [r.fine, r.coarse].concat()
+    let r = b.render(image, Levels::All).unwrap();
+    [r.fine, r.coarse.expect("every level was asked for")].concat()
 }
 
 fn psnr_between(a: &[LevelOutput], b: &[LevelOutput]) -> f64 {

@@ -7,11 +7,11 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use mipnerf_core::Camera;
-use mipnerf_core::backend::{Backend, ImageSpec, TrainState};
+use mipnerf_core::backend::{Backend, ImageSpec, RenderedImage, TrainState};
 use mipnerf_core::camera::PixelCenters;
 use mipnerf_core::compare::{Tolerance, assert_close, assert_none, mismatches};
 use mipnerf_core::data::{self, Dataset, LoadOptions, Split, demo};
-use mipnerf_core::model::{LevelOutput, Model, ModelConfig, Preset};
+use mipnerf_core::model::{LevelOutput, Levels, Model, ModelConfig, Preset};
 use mipnerf_core::schedule::LrSchedule;
 use mipnerf_core::train::OptimConfig;
 use mipnerf_gpu::{BackendChoice, BackendSetup, open_backend};
@@ -217,8 +217,13 @@ fn rendering_in_chunks_gives_the_same_image_whatever_the_chunk(kind: Kind) {
         };
         let render = |kind: Kind, chunk: Option<usize>| {
             let mut b = kind.open(BackendSetup { render_chunk: chunk, ..setup(&model, state.clone(), None) });
-            let r = b.render(&image).unwrap();
-            [flat(&r.fine), flat(&r.coarse)].concat()
+            let r = b.render(&image, Levels::All).unwrap();
+            // The last level alone is the same bits as the last level of every level's render.
+            let last = b.render(&image, Levels::Last).unwrap();
+            assert!(last.coarse.is_none(), "{name}: a render of the last level returns no coarse level");
+            let bits = |r: &RenderedImage| flat(&r.fine).iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&last), bits(&r), "{name}, {kind:?}, chunk {chunk:?}: the last level alone differs");
+            [flat(&r.fine), flat(r.coarse.as_ref().unwrap())].concat()
         };
         let whole = render(kind, None);
         assert_eq!(whole.len(), 35 * 20 * 2 * 5, "the fine and the coarse level of every pixel");
@@ -253,9 +258,10 @@ fn a_backend_without_data_renders_but_refuses_to_train(kind: Kind) {
     use mipnerf_core::backend::BackendError;
     let model = Model::new(ModelConfig { num_samples: 16, ..Preset::Tiny.config() }).unwrap();
     let mut b = kind.open(setup(&model, TrainState::fresh(&model, 3), None));
-    let r = b.render(&novel_view(&model)).unwrap();
-    assert_eq!((r.width, r.height, r.fine.len(), r.coarse.len()), (12, 8, 96, 96));
-    for o in r.fine.iter().chain(&r.coarse) {
+    let r = b.render(&novel_view(&model), Levels::All).unwrap();
+    let coarse = r.coarse.as_deref().unwrap_or_default();
+    assert_eq!((r.width, r.height, r.fine.len(), coarse.len()), (12, 8, 96, 96));
+    for o in r.fine.iter().chain(coarse) {
         assert!(o.rgb.iter().chain([&o.acc]).all(|v| (0.0..=1.0).contains(v)), "{kind:?}: {o:?}");
     }
     assert_eq!(b.step(), 0);
@@ -300,7 +306,7 @@ fn an_image_for_another_supersampling_is_refused(kind: Kind) {
     let model = Model::new(Preset::Tiny.config()).unwrap();
     let mut b = kind.open(setup(&model, TrainState::fresh(&model, 3), None));
     let image = ImageSpec { supersample: 2, ..novel_view(&model) };
-    let err = b.render(&image).unwrap_err().to_string();
+    let err = b.render(&image, Levels::Last).unwrap_err().to_string();
     assert!(err.contains("2x2 rays per pixel") && err.contains("the model renders 1x1"), "{kind:?}: {err}");
 }
 
