@@ -184,14 +184,38 @@ impl HostPolicy {
     }
 }
 
-/// Starts the server and serves until the process ends; prints the URL first.
+/// Reads the run, then starts the server and serves until the process ends; prints the URL
+/// once the run has been read, so a run that cannot be served is an error before any URL.
 ///
 /// # Errors
 /// An unreadable run, or an address that cannot be bound.
 pub fn serve(a: &ViewArgs) -> Result<()> {
+    let run = ViewedRun::open(&a.run)?;
     let (server, url) = bind(a)?;
     println!("view: {url} (serving {}; Ctrl-C stops)", a.run.display());
-    run_server(server, a)
+    run_server(server, a, run)
+}
+
+/// What the server needs of a run, read before it serves: the run's settings, its
+/// `/api/info`, and how its images are made.
+pub struct ViewedRun {
+    settings: TrainSettings,
+    info: String,
+    template: ImageSpec,
+}
+
+impl ViewedRun {
+    /// Reads the run in `run` (its configuration and its training views).
+    ///
+    /// # Errors
+    /// A missing or malformed configuration, or data that cannot be loaded.
+    pub fn open(run: &Path) -> Result<Self> {
+        let settings = read_config(run)?;
+        let train = load_split(&settings, Split::Train)?;
+        let info = info_json(run, &settings, &train)?;
+        let template = ImageSpec::of_view(&train, 0, crate::render::read_supersample(&settings)?);
+        Ok(Self { settings, info, template })
+    }
 }
 
 /// `train --view`: the viewer of the run in `run_dir` on 127.0.0.1:`port`, in a thread beside
@@ -217,7 +241,7 @@ pub fn beside_training(run_dir: &Path, port: u16, session: &Session) -> Result<(
             while !RunDir::new(&args.run).config().is_file() {
                 std::thread::sleep(std::time::Duration::from_millis(200));
             }
-            if let Err(e) = run_server(server, &args) {
+            if let Err(e) = ViewedRun::open(&args.run).and_then(|run| run_server(server, &args, run)) {
                 eprintln!("view: stopped: {e:#}");
             }
         })
@@ -239,16 +263,12 @@ pub fn bind(a: &ViewArgs) -> Result<(std::net::TcpListener, String)> {
     Ok((server, format!("http://{addr}/")))
 }
 
-/// Serves `server` for the run of `a` until the process ends.
+/// Serves `server` for `run` (the run of `a`, read) until the process ends.
 ///
 /// # Errors
-/// An unreadable run.
-pub fn run_server(server: std::net::TcpListener, a: &ViewArgs) -> Result<()> {
-    let s = read_config(&a.run)?;
-    let train = load_split(&s, Split::Train)?;
-    let info = info_json(&a.run, &s, &train)?;
-    let template = ImageSpec::of_view(&train, 0, crate::render::read_supersample(&s)?);
-    drop(train);
+/// A render thread that cannot be started.
+pub fn run_server(server: std::net::TcpListener, a: &ViewArgs, run: ViewedRun) -> Result<()> {
+    let ViewedRun { settings: s, info, template } = run;
     let (tx, rx) = mpsc::channel::<Job>();
     let args = a.clone();
     std::thread::Builder::new()

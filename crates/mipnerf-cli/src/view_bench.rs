@@ -83,9 +83,10 @@ pub fn bench(a: &ViewerBenchArgs, session: &Session) -> Result<()> {
         device: a.device.clone(),
         session: session.clone(),
     };
+    let run = view::ViewedRun::open(&args.run)?;
     let (server, url) = view::bind(&args)?;
     let addr = url.trim_start_matches("http://").trim_end_matches('/').to_string();
-    std::thread::spawn(move || view::run_server(server, &args));
+    std::thread::spawn(move || view::run_server(server, &args, run));
     let info = Info::get(&addr)?;
     let _ = stream(&addr, &info.query(0.0, a.size), ALL)?; // loads the model
     let mut resting = Vec::new();

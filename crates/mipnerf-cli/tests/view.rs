@@ -351,11 +351,22 @@ fn the_viewer_refuses_a_missing_run_and_a_busy_port_and_says_when_it_is_reachabl
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("none"), "names the run: {err}");
+    // A run it cannot serve gets no URL: the run is read before the server says where it is.
+    assert!(!String::from_utf8_lossy(&out.stdout).contains("http://"), "a URL for nothing");
 
     let data = common::small_demo_scene(dir.path(), 2);
     let run = dir.path().join("run");
     let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
     run_ok(&["train", "--data", d, "--out", r, "--steps", "2", "--batch-rays", "16", "--backend", "cpu", "--quiet"]);
+    let broken = dir.path().join("broken");
+    common::copy_dir(&run, &broken);
+    let config = broken.join("config.toml");
+    let text = std::fs::read_to_string(&config).unwrap();
+    std::fs::write(&config, text + "\ngarbage = [\n").unwrap();
+    let out = common::mipnerf(&["view", "--run", broken.to_str().unwrap(), "--port", "0"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("config.toml"), "names the configuration: {err}");
+    assert!(!String::from_utf8_lossy(&out.stdout).contains("http://"), "a URL for a run it cannot serve");
     let held = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
     let port = held.local_addr().unwrap().port().to_string();
     let out = common::mipnerf(&["view", "--run", r, "--port", &port]);
