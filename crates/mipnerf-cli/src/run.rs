@@ -22,6 +22,9 @@ use crate::run_dir::RunDir;
 /// The dataset's errors, with the path.
 pub fn load_split(s: &TrainSettings, split: Split) -> Result<Dataset> {
     let dir = s.data.as_ref().context("no dataset: pass --data DIR")?;
+    if !dir.exists() {
+        return Err(moved_dataset(dir));
+    }
     let opts = LoadOptions {
         white_bkgd: s.white_bkgd,
         masks: s.masks.clone(),
@@ -34,6 +37,17 @@ pub fn load_split(s: &TrainSettings, split: Split) -> Result<Dataset> {
         unbounded: s.unbounded.unwrap_or(false),
     };
     Ok(data::load(dir, split, &opts)?)
+}
+
+/// The error for a run whose dataset folder `dir` is gone: where the run names it, and how to
+/// point it at the dataset's new place.
+#[must_use]
+pub fn moved_dataset(dir: &Path) -> anyhow::Error {
+    anyhow::anyhow!(
+        "{}: no such dataset folder (a trained run reads the one its config.toml names as `data`: if the \
+         dataset has moved, set `data` there to where it is now)",
+        dir.display()
+    )
 }
 
 /// Reads a run's resolved configuration.

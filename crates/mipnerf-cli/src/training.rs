@@ -247,6 +247,9 @@ fn resolve_settings(
         merged.density_noise = Some(0.0);
     }
     let data_dir = merged.data.clone().context("no dataset: pass --data DIR (or data = \"DIR\" in --config)")?;
+    if resume && !data_dir.exists() {
+        return Err(crate::run::moved_dataset(&data_dir));
+    }
     let format = data::detect_format(&data_dir)?;
     // The dataset is stored as an absolute path, so that eval, render and --resume work from any
     // working directory.

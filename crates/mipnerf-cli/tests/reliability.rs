@@ -174,6 +174,38 @@ fn a_damaged_checkpoint_is_refused_by_eval_render_and_resume() {
     assert!(!render_out.exists(), "render created its output before failing");
 }
 
+/// A run whose dataset has moved: eval, render, view and resume each say which folder is
+/// missing and where the run names it, and write nothing.
+#[test]
+fn a_run_whose_dataset_moved_says_where_to_point_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_demo_scene(dir.path(), 2);
+    let run = dir.path().join("run");
+    let r = run.to_str().unwrap();
+    run_ok(&train_args(data.to_str().unwrap(), r, "3", &["--backend", "cpu"]));
+    let moved = dir.path().join("moved");
+    std::fs::rename(&data, &moved).unwrap();
+    let render_out = dir.path().join("renders");
+    for args in [
+        &["eval", "--run", r, "--backend", "cpu", "--no-lpips"][..],
+        &["render", "--run", r, "--out", render_out.to_str().unwrap(), "--backend", "cpu"][..],
+        &["view", "--run", r, "--port", "0"][..],
+        &["train", "--out", r, "--resume", "--steps", "6"][..],
+    ] {
+        let (code, err) = fails(args);
+        assert_eq!(code, Some(1), "{args:?}: {err}");
+        let missing = data.display().to_string();
+        assert!(err.contains(&missing) && err.contains("no such dataset folder"), "{args:?}: {err}");
+        assert!(err.contains("config.toml") && err.contains("`data`"), "{args:?}: says where to point it: {err}");
+    }
+    assert!(!render_out.exists() && !run.join("eval").exists(), "a refused command wrote output");
+    // Pointed at the new place, the run evaluates again.
+    let config = run.join("config.toml");
+    let text = std::fs::read_to_string(&config).unwrap();
+    std::fs::write(&config, text.replace(&data.display().to_string(), &moved.display().to_string())).unwrap();
+    run_ok(&["eval", "--run", r, "--backend", "cpu", "--no-lpips"]);
+}
+
 /// A damaged record of the training time would have a resumed `--time-budget` run train its
 /// whole budget again and overwrite the record: refused, naming the file, which is left as it
 /// was. An absent record (a run from before it was written) still resumes from 0 s.
