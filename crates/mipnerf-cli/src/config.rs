@@ -685,6 +685,33 @@ impl TrainSettings {
         Ok(())
     }
 
+    /// Refuses the occupancy grid's settings (`--occupancy-resolution`, `--occupancy-bound`,
+    /// `--no-occupancy-masks`) for a run without occupancy-guided sampling, where they would do
+    /// nothing. For settings as given (before [`resolved`](Self::resolved) drops them).
+    ///
+    /// # Errors
+    /// The settings given, named as flags, and the way to use them.
+    pub fn check_occupancy_settings(&self) -> Result<()> {
+        let occupancy = self.occupancy.unwrap_or(self.preset == Some(PresetArg::Fast));
+        let given: Vec<&str> = [
+            (self.occupancy_resolution.is_some(), "--occupancy-resolution"),
+            (self.occupancy_bound.is_some(), "--occupancy-bound"),
+            (self.occupancy_masks.is_some(), "--no-occupancy-masks"),
+        ]
+        .into_iter()
+        .filter_map(|(set, flag)| set.then_some(flag))
+        .collect();
+        if !occupancy && !given.is_empty() {
+            bail!(
+                "{} set(s) the occupancy grid, which this run does not use: add --occupancy (the fast preset has it), \
+                 or drop {}",
+                given.join(" and "),
+                if given.len() > 1 { "them" } else { "it" }
+            );
+        }
+        Ok(())
+    }
+
     /// Pixel centres or corners.
     #[must_use]
     pub fn centers(&self) -> PixelCenters {

@@ -257,6 +257,9 @@ fn resolve_settings(
     // A saved spherified run without a radius used the official spherical poses (the unit
     // sphere, the mean offset up), and keeps them.
     let official_spherify = resume && merged.spherify == Some(true) && merged.spherify_radius.is_none();
+    if !resume {
+        merged.check_occupancy_settings()?;
+    }
     let mut s = merged.resolved(format.is_photos());
     if official_spherify {
         s.spherify_radius = None;

@@ -228,6 +228,14 @@ fn flags_that_would_do_nothing_sensible_are_refused_or_said_naming_the_flag() {
         let e = fails(train("bound", &["--occupancy", "--occupancy-bound", bound, "--steps", "2"]));
         assert!(e.contains("--occupancy-bound") && e.contains("far from this scene's size"), "{bound}: {e}");
     }
+    // The grid's settings without the grid (the tiny preset has none) would do nothing.
+    let e = fails(train("no grid", &["--occupancy-resolution", "32", "--steps", "2"]));
+    assert!(e.contains("--occupancy-resolution set(s) the occupancy grid") && e.contains("add --occupancy"), "{e}");
+    let e = fails(train("no grid", &["--occupancy-bound", "2", "--no-occupancy-masks", "--steps", "2"]));
+    assert!(e.contains("--occupancy-bound and --no-occupancy-masks") && e.contains("drop them"), "{e}");
+    let e = fails(train("no grid", &["--preset", "fast", "--no-occupancy", "--occupancy-resolution", "32"]));
+    assert!(e.contains("--occupancy-resolution"), "{e}");
+    assert!(!dir.path().join("no grid").exists(), "a refused run made its folder");
     let e = fails(train("budget", &["--time-budget", "99999999999h"]));
     assert!(e.contains("--time-budget") && e.contains("longer than a year"), "{e}");
     let e = fails(train("late", &["--time-budget", "10m", "--snapshots", "1m,1h"]));
