@@ -393,7 +393,7 @@ impl TrainSettings {
         let fast = preset == PresetArg::Fast;
         // A time budget ends the run, so the step count only caps it when given.
         let steps = self.steps.unwrap_or(if self.time_budget.is_some() { MAX_STEPS } else { 2000 });
-        let occupancy = self.occupancy.unwrap_or(fast);
+        let occupancy = self.uses_occupancy();
         // On photos (LLFF, COLMAP) the tiny preset learns at the fast preset's rate: 21.86 dB
         // against 19.10 dB at the official 5e-4 after 5 minutes on 40 lego photos
         // (docs/results/own-photos/lr); small and paper keep the paper's rate everywhere.
@@ -685,6 +685,12 @@ impl TrainSettings {
         Ok(())
     }
 
+    /// Whether the run samples with the occupancy grid: as set, else with the fast preset.
+    #[must_use]
+    pub fn uses_occupancy(&self) -> bool {
+        self.occupancy.unwrap_or(self.preset == Some(PresetArg::Fast))
+    }
+
     /// Refuses the occupancy grid's settings (`--occupancy-resolution`, `--occupancy-bound`,
     /// `--no-occupancy-masks`) for a run without occupancy-guided sampling, where they would do
     /// nothing. For settings as given (before [`resolved`](Self::resolved) drops them).
@@ -692,7 +698,7 @@ impl TrainSettings {
     /// # Errors
     /// The settings given, named as flags, and the way to use them.
     pub fn check_occupancy_settings(&self) -> Result<()> {
-        let occupancy = self.occupancy.unwrap_or(self.preset == Some(PresetArg::Fast));
+        let occupancy = self.uses_occupancy();
         let given: Vec<&str> = [
             (self.occupancy_resolution.is_some(), "--occupancy-resolution"),
             (self.occupancy_bound.is_some(), "--occupancy-bound"),
