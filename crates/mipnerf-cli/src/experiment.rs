@@ -638,7 +638,7 @@ fn marks_markdown(results: &Path, (rows, chart): (&[String], &str), link_chart: 
         return Ok(s);
     }
     let png = results.join(chart);
-    crate::plot::quality_vs_time(&png, &curves, None)?;
+    crate::plot::quality_vs_time(&png, &curves, scales, None)?;
     if link_chart {
         s += &format!("\n![Mean test PSNR against training time]({chart})\n");
     } else {
