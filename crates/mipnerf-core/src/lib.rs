@@ -42,6 +42,7 @@ pub mod cone;
 pub mod config;
 pub mod contract;
 pub mod data;
+pub mod expf;
 pub mod export;
 pub mod io;
 pub mod linalg;
