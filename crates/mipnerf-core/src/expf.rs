@@ -84,10 +84,8 @@ pub fn expf(x: f32) -> f32 {
     // s = 2^(k/32): the table's 2^((k mod 32)/32) with k/32 added to its exponent.
     let s = f64::from_bits(TABLE[(ki & 31) as usize].wrapping_add(ki << 47));
     let y = C0.mul_add(r, C1).mul_add(r * r, C2.mul_add(r, 1.0));
-    let main = (y * s) as f32;
-    // |x| >= 88 (or NaN): glibc's special cases, where they differ from the main path.
-    let special = (x.to_bits() >> 20) & 0x7ff >= 0x42b;
-    let value = if x.is_nan() {
+    // glibc's special cases (all at |x| >= 88, or NaN), where they differ from the main path.
+    if x.is_nan() {
         x + x
     } else if x > OVERFLOW {
         f32::INFINITY
@@ -96,9 +94,8 @@ pub fn expf(x: f32) -> f32 {
     } else if x < MAY_UNDERFLOW {
         f32::from_bits(1)
     } else {
-        main
-    };
-    if special { value } else { main }
+        (y * s) as f32
+    }
 }
 
 #[cfg(test)]

@@ -218,8 +218,21 @@ pub fn integrated_pos_enc(g: &Gaussian, min_deg: u32, max_deg: u32, out: &mut [f
     assert_eq!(out.len(), n, "integrated_pos_enc: output length");
     assert!(max_deg <= 24, "integrated_pos_enc: degrees up to 24");
     debug_assert!(g.mean.is_finite(), "integrated_pos_enc: non-finite mean {:?}", g.mean);
-    // Arguments and the damping's exponents first, then one vectorisable pass of damping * sin,
-    // the damping by glibc's `expf`, bit for bit, in a form that vectorises (`crate::expf`).
+    // The damping by glibc's `expf`, bit for bit, in a form that vectorises (`crate::expf`).
+    ipe_with(g, (min_deg, max_deg), out, crate::expf::expf, safe_sin);
+}
+
+/// The IPE's evaluation for both precisions: the arguments and the damping's exponents
+/// ([`ipe_arguments`]), then one vectorisable pass ([`in_blocks`]) of `exp(exponent) * sin(argument)`
+/// with the `exp` and `sin` given (inlined, so that they are compiled in the pass's loop).
+#[inline(always)]
+fn ipe_with(
+    g: &Gaussian,
+    (min_deg, max_deg): (u32, u32),
+    out: &mut [f32],
+    exp: impl Fn(f32) -> f32,
+    sin: impl Fn(f32) -> f32,
+) {
     let mut exponent = [0.0f32; 3 * 24];
     let half = ipe_arguments(g, min_deg, max_deg, out, &mut exponent);
     in_blocks(
@@ -227,8 +240,8 @@ pub fn integrated_pos_enc(g: &Gaussian, min_deg: u32, max_deg: u32, out: &mut [f
         &exponent[..half],
         #[inline(always)]
         |e, s, c| {
-            let d = crate::expf::expf(e);
-            (d * safe_sin(s), d * safe_sin(c))
+            let d = exp(e);
+            (d * sin(s), d * sin(c))
         },
     );
 }
@@ -279,39 +292,36 @@ pub fn integrated_pos_enc_for_bf16(g: &Gaussian, min_deg: u32, max_deg: u32, out
     let n = ipe_len(min_deg, max_deg);
     assert_eq!(out.len(), n, "integrated_pos_enc_for_bf16: output length");
     assert!(max_deg <= 24, "integrated_pos_enc_for_bf16: degrees up to 24");
-    let mut exponent = [0.0f32; 3 * 24];
-    let half = ipe_arguments(g, min_deg, max_deg, out, &mut exponent);
-    in_blocks(
+    ipe_with(
+        g,
+        (min_deg, max_deg),
         out,
-        &exponent[..half],
+        exp_f32_poly,
         #[inline(always)]
-        |e, s, c| {
-            let d = exp_f32_poly(e);
-            (d * sin_f32_poly(safe_trig_arg_f32(s)), d * sin_f32_poly(safe_trig_arg_f32(c)))
-        },
+        |x| sin_f32_poly(safe_trig_arg_f32(x)),
     );
 }
 
 /// Features per block of [`in_blocks`]: one 512-bit vector of `f32`.
 const IPE_BLOCK: usize = 16;
 
-/// The IPE's last pass over `out` (`[sin part | cos part]`, each as long as `damping`, which
-/// holds each feature's damping or its exponent, as `feature` takes it): feature
-/// `j` of each part becomes `feature(damping[j], sin_part[j], cos_part[j])`, in zero-padded
+/// The IPE's last pass over `out` (`[sin part | cos part]`, each as long as `exponent`, which
+/// holds each feature's damping exponent): feature
+/// `j` of each part becomes `feature(exponent[j], sin_part[j], cos_part[j])`, in zero-padded
 /// blocks of [`IPE_BLOCK`]. A loop over the whole half (48 features at the paper's degrees, a
 /// count known only when it runs) compiled to a vector body it never entered and a scalar
 /// remainder that did all the work; a block's loop has a trip count the compiler knows and
 /// vectorises whole. Inlined, so that `feature` is compiled in the caller's loop.
 #[inline(always)]
-fn in_blocks(out: &mut [f32], damping: &[f32], feature: impl Fn(f32, f32, f32) -> (f32, f32)) {
-    let half = damping.len();
+fn in_blocks(out: &mut [f32], exponent: &[f32], feature: impl Fn(f32, f32, f32) -> (f32, f32)) {
+    let half = exponent.len();
     let (sin_part, cos_part) = out.split_at_mut(half);
     for start in (0..half).step_by(IPE_BLOCK) {
         let len = (half - start).min(IPE_BLOCK);
         let (mut s, mut c, mut d) = ([0.0f32; IPE_BLOCK], [0.0f32; IPE_BLOCK], [0.0f32; IPE_BLOCK]);
         s[..len].copy_from_slice(&sin_part[start..start + len]);
         c[..len].copy_from_slice(&cos_part[start..start + len]);
-        d[..len].copy_from_slice(&damping[start..start + len]);
+        d[..len].copy_from_slice(&exponent[start..start + len]);
         for j in 0..IPE_BLOCK {
             (s[j], c[j]) = feature(d[j], s[j], c[j]);
         }

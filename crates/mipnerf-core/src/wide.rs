@@ -8,7 +8,7 @@
 //! a call to libm's `fma` on the baseline), so a wider build performs the same operations on more
 //! values at once.
 
-// Calling a function compiled for features the baseline lacks is `unsafe`: the one call here is
+// Calling a function compiled for features the baseline lacks is `unsafe`: each call here is
 // behind the check that the CPU has them.
 #![allow(unsafe_code)]
 
