@@ -2,15 +2,14 @@
 //! level's MLP only to its density), alternated in one process so that the machine's drift falls
 //! on both alike: `cargo bench -p mipnerf-core --bench render_levels [-- --preset fast|small|paper]`.
 //!
-//! 4096 rays from a camera 4 units out through the unit cube (no occupancy grid: every ray runs
-//! the MLP), the preset's model at f32 with initial parameters, on the rayon pool. Prints the
+//! 4096 rays of [`synthetic_rays`] (a 64x64 camera 4 units out, looking at the origin; no
+//! occupancy grid: every ray runs the MLP), the preset's model at f32 with initial parameters, on the rayon pool. Prints the
 //! rays per second of each, the medians of 15 rounds, and their ratio.
 #![allow(missing_docs)]
 
 use std::time::Instant;
 
-use glam::Vec3;
-use mipnerf_core::cone::Ray;
+use mipnerf_core::bench::synthetic_rays;
 use mipnerf_core::model::{Levels, Model, Preset};
 
 fn main() {
@@ -24,21 +23,7 @@ fn main() {
     let (n, rounds) = if quick { (128, 1) } else { (4096, 15) };
     let model = Model::new(preset.config()).expect("a preset's model");
     let params = model.init_params(0);
-    let rays: Vec<Ray> = (0..n)
-        .map(|i| {
-            let (u, v) = ((i % 64) as f32 / 64.0 - 0.5, (i / 64) as f32 / 64.0 - 0.5);
-            let direction = Vec3::new(0.7 * u, 0.7 * v, -1.0);
-            Ray {
-                origin: Vec3::new(0.0, 0.0, 4.0),
-                direction,
-                viewdir: direction.normalize(),
-                radius: 0.7 / 64.0 * 2.0 / 12f32.sqrt(),
-                lossmult: 1.0,
-                near: 2.0,
-                far: 6.0,
-            }
-        })
-        .collect();
+    let rays = synthetic_rays(n);
     let mut rates = [Vec::new(), Vec::new()];
     for _ in 0..rounds {
         for (k, levels) in [Levels::All, Levels::Last].into_iter().enumerate() {
