@@ -8,6 +8,7 @@ use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
 use mipnerf_core::PixelCenters;
 use mipnerf_core::RayShape;
+use mipnerf_core::data::Format;
 use mipnerf_core::model::{FastRecipe, ModelConfig, PointEncoding, Preset};
 use mipnerf_core::schedule::LrSchedule;
 use mipnerf_core::train::OptimConfig;
@@ -689,6 +690,51 @@ impl TrainSettings {
     #[must_use]
     pub fn uses_occupancy(&self) -> bool {
         self.occupancy.unwrap_or(self.preset == Some(PresetArg::Fast))
+    }
+
+    /// Refuses settings that the data's format would ignore: `--llff-factor`, `--spherify` and
+    /// `--spherify-radius` on Blender scenes (which have no `images_N/` and no poses to
+    /// spherify), `--half-res` on anything but a Blender scene (photos downscale with
+    /// `--llff-factor`; multiscale data has its scales already). For settings as given (before
+    /// [`resolved`](Self::resolved) fills them in), on a new run.
+    ///
+    /// # Errors
+    /// The settings given, named as flags, with the one the format uses instead.
+    pub fn check_format_settings(&self, format: Format) -> Result<()> {
+        let photo_flags: Vec<&str> = [
+            (self.llff_factor.is_some(), "--llff-factor"),
+            (self.spherify == Some(true), "--spherify"),
+            (self.spherify_radius.is_some(), "--spherify-radius"),
+        ]
+        .into_iter()
+        .filter_map(|(set, flag)| set.then_some(flag))
+        .collect();
+        if !format.is_photos() && !photo_flags.is_empty() {
+            bail!(
+                "{} {} for photos (LLFF or COLMAP data), and this dataset is {}: drop {}{}",
+                photo_flags.join(" and "),
+                if photo_flags.len() > 1 { "are" } else { "is" },
+                if format == Format::Blender { "a Blender scene" } else { "a multiscale Blender scene" },
+                if photo_flags.len() > 1 { "them" } else { "it" },
+                if format == Format::Blender && self.llff_factor.is_some() {
+                    " (--half-res loads a Blender scene at half resolution; `mipnerf convert --size N` makes smaller \
+                     copies)"
+                } else {
+                    ""
+                }
+            );
+        }
+        if self.half_res == Some(true) && format != Format::Blender {
+            bail!(
+                "--half-res is for Blender scenes (transforms_*.json), and this dataset is {}: drop it{}",
+                match format {
+                    Format::Multiscale => "a multiscale scene, whose four scales are made already",
+                    _ => "photos",
+                },
+                if format.is_photos() { " and pick the image folder with --llff-factor N (images_N/)" } else { "" }
+            );
+        }
+        Ok(())
     }
 
     /// Refuses the occupancy grid's settings (`--occupancy-resolution`, `--occupancy-bound`,

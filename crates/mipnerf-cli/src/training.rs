@@ -259,6 +259,7 @@ fn resolve_settings(
     let official_spherify = resume && merged.spherify == Some(true) && merged.spherify_radius.is_none();
     if !resume {
         merged.check_occupancy_settings()?;
+        merged.check_format_settings(format).with_context(|| data_dir.display().to_string())?;
     }
     let mut s = merged.resolved(format.is_photos());
     if official_spherify {
