@@ -20,7 +20,9 @@ use crate::run_dir::RunDir;
 use crate::scores::{ImageScore, Metrics, ScaleScore};
 use crate::scores::{flat_clamped, pixel_scores};
 
-/// Renders and scores every image of `split`; writes `RUN/eval/`.
+/// Renders and scores every image of `split`; writes `RUN/eval/` for the test split, and
+/// `RUN/eval_train/` or `RUN/eval_val/` for the others (so the test scores are never replaced by
+/// another split's).
 ///
 /// LPIPS is computed when `weights` lead to weights; otherwise it is `null`, the average error is
 /// the two-term variant (named so in `avg_error_terms`), and one line says how to get them.
@@ -50,7 +52,7 @@ pub fn eval(
     let (mut be, step, precision) = open_trained(run, &s, backend, precision, device, session)?;
     // Everything goes to eval.partial/, renamed to eval/ once whole: an interrupted or failed
     // eval leaves the previous results as they were and nothing that looks complete.
-    let out = RunDir::new(run).eval_partial();
+    let out = RunDir::new(run).eval_partial_of(split);
     if out.is_dir() {
         std::fs::remove_dir_all(&out).with_context(|| format!("removing the unfinished {}", out.display()))?;
     }
@@ -159,7 +161,7 @@ pub fn eval(
         crate::images::turbo,
     )?;
     crate::html::write_index(&out, run, &metrics, &entries)?;
-    swap_in(&out, &RunDir::new(run).eval())?;
+    swap_in(&out, &RunDir::new(run).eval_of(split))?;
     Ok(metrics)
 }
 
@@ -245,14 +247,16 @@ pub(crate) fn read_rgb(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
 /// The scores `mipnerf compare` prints.
 #[derive(Serialize, Debug)]
 pub struct Comparison {
-    /// PSNR in dB.
+    /// PSNR in dB; `null` in JSON when the images are identical (`mse` 0, PSNR infinite).
     pub psnr: f64,
+    /// The mean squared error over the pixels' channels, in [0, 1].
+    pub mse: f64,
     /// SSIM, official settings.
     pub ssim: f64,
-    /// LPIPS, or `null` without weights.
+    /// LPIPS, or `null` when not computed (no weights, or images smaller than the backbone takes).
     pub lpips: Option<f64>,
-    /// The LPIPS backbone (`vgg16` or `alexnet`).
-    pub lpips_net: &'static str,
+    /// The LPIPS backbone (`vgg16` or `alexnet`) when LPIPS was computed.
+    pub lpips_net: Option<&'static str>,
 }
 
 /// `mipnerf compare A B`: PSNR, SSIM and LPIPS of two images of one size.
@@ -266,29 +270,39 @@ pub fn compare(a: &Path, b: &Path, json: bool, weights: &LpipsWeights, require_l
     if (wa, ha) != (wb, hb) {
         anyhow::bail!("{} is {wa}x{ha} but {} is {wb}x{hb}: the images must have one size", a.display(), b.display());
     }
-    let (_, psnr, ss) = pixel_scores(&ia, &ib, wa, ha);
+    let (mse, psnr, ss) = pixel_scores(&ia, &ib, wa, ha);
     let net: mipnerf_core::lpips::Net = weights.net.into();
     let (lpips, absent) = match weights.open()? {
+        // As eval leaves out images smaller than the backbone takes.
+        Ok(l) if wa.min(ha) < l.min_side() => (
+            None,
+            Some(format!(
+                "the images ({wa}x{ha}) are smaller than LPIPS-{} takes ({} px a side)",
+                net.name(),
+                l.min_side()
+            )),
+        ),
         Ok(l) => (Some(l.distance(&ia, &ib, wa, ha)?), None),
         Err(why) => (None, Some(why)),
     };
-    let c = Comparison { psnr, ssim: ss, lpips, lpips_net: net.name() };
+    if let Some(why) = &absent
+        && require_lpips
+    {
+        anyhow::bail!("LPIPS not computed (--require-lpips): {why}");
+    }
+    let c = Comparison { psnr, mse, ssim: ss, lpips, lpips_net: lpips.map(|_| net.name()) };
     if json {
         println!("{}", serde_json::to_string(&c)?);
     } else {
-        println!("PSNR  {psnr:.4} dB");
+        println!("PSNR  {psnr:.4} dB{}", if mse == 0.0 { " (the images are identical)" } else { "" });
         println!("SSIM  {ss:.6}");
         match lpips {
             Some(l) => println!("LPIPS {l:.6} ({})", net.name()),
             None => println!("LPIPS n/a"),
         }
     }
-    match absent {
-        Some(why) if require_lpips => anyhow::bail!("LPIPS not computed (--require-lpips): {why}"),
-        Some(why) => {
-            eprintln!("LPIPS skipped: {why}");
-            Ok(())
-        }
-        None => Ok(()),
+    if let Some(why) = absent {
+        eprintln!("LPIPS skipped: {why}");
     }
+    Ok(())
 }

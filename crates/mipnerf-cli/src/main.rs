@@ -107,7 +107,7 @@ enum Command {
     /// 127.0.0.1 (no build step, no external assets) and prints its URL.
     View(commands::view::Args),
     /// Render a split of a trained run and write RUN_DIR/eval/metrics.json, metrics.md and a
-    /// per-image PSNR chart.
+    /// per-image PSNR chart (RUN_DIR/eval_train/ or eval_val/ for --split train or val).
     Eval(commands::eval::Args),
     /// PSNR, SSIM (the official settings) and LPIPS of two images of the same size, composited on
     /// white when they have alpha.

@@ -6,6 +6,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
+use mipnerf_core::data::Split;
 
 /// The resolved configuration of the run.
 pub const CONFIG: &str = "config.toml";
@@ -18,9 +19,11 @@ pub const TRAIN_SECONDS: &str = "train_seconds.txt";
 pub const METRICS_CSV: &str = "metrics.csv";
 /// The lock file, held by the `train` that writes the run.
 pub const LOCK: &str = "train.lock";
-/// The folder `eval` writes.
+/// The folder `eval` writes for the test split (`eval_train` and `eval_val` for the others, so
+/// that evaluating another split never replaces the test scores).
 pub const EVAL: &str = "eval";
-/// Where `eval` writes until it has finished.
+/// Where `eval` writes the test split until it has finished (`eval_train.partial`, ... for the
+/// others).
 pub const EVAL_PARTIAL: &str = "eval.partial";
 /// Where `--val-every` writes its latest renders (`scale{j}.png`: the render on the left, the
 /// test image on the right).
@@ -63,22 +66,42 @@ impl<'a> RunDir<'a> {
         self.0.join(METRICS_CSV)
     }
 
-    /// The finished evaluation's folder.
+    /// The finished evaluation's folder (of the test split).
     #[must_use]
     pub fn eval(self) -> PathBuf {
-        self.0.join(EVAL)
+        self.eval_of(Split::Test)
     }
 
-    /// The evaluation's folder while it is written.
+    /// The finished evaluation's folder of `split`: `eval/` for the test split, `eval_train/`
+    /// and `eval_val/` for the others.
     #[must_use]
-    pub fn eval_partial(self) -> PathBuf {
-        self.0.join(EVAL_PARTIAL)
+    pub fn eval_of(self, split: Split) -> PathBuf {
+        match split {
+            Split::Test => self.0.join(EVAL),
+            other => self.0.join(format!("{EVAL}_{}", other.name())),
+        }
     }
 
-    /// The evaluation's scores.
+    /// The evaluation's folder of `split` while it is written: `eval.partial/` for the test
+    /// split, `eval_train.partial/` and `eval_val.partial/` for the others.
+    #[must_use]
+    pub fn eval_partial_of(self, split: Split) -> PathBuf {
+        match split {
+            Split::Test => self.0.join(EVAL_PARTIAL),
+            other => self.0.join(format!("{EVAL}_{}.partial", other.name())),
+        }
+    }
+
+    /// The evaluation's scores (of the test split).
     #[must_use]
     pub fn eval_metrics(self) -> PathBuf {
-        self.eval().join("metrics.json")
+        self.eval_metrics_of(Split::Test)
+    }
+
+    /// The evaluation's scores of `split`.
+    #[must_use]
+    pub fn eval_metrics_of(self, split: Split) -> PathBuf {
+        self.eval_of(split).join("metrics.json")
     }
 
     /// The latest validation renders.

@@ -17,7 +17,8 @@ pub struct Args {
     /// The run directory.
     #[arg(long, value_name = "RUN_DIR")]
     pub run: PathBuf,
-    /// Which split.
+    /// Which split: the test split writes RUN_DIR/eval/, the others RUN_DIR/eval_train/ and
+    /// RUN_DIR/eval_val/.
     #[arg(long, value_enum, default_value_t = SplitArg::Test)]
     pub split: SplitArg,
     /// Where to render: cpu, gpu (any adapter, software included), or auto (a hardware GPU if
@@ -40,8 +41,9 @@ pub struct Args {
 /// As [`crate::eval::eval`].
 pub fn run(a: Args, session: &Session) -> Result<()> {
     let device = a.device.options();
-    crate::eval::eval(&a.run, a.split.into(), a.backend, &device, a.precision, &a.lpips, session).map(|m| {
-        println!("wrote {}", crate::run_dir::RunDir::new(&a.run).eval_metrics().display());
+    let split = a.split.into();
+    crate::eval::eval(&a.run, split, a.backend, &device, a.precision, &a.lpips, session).map(|m| {
+        println!("wrote {}", crate::run_dir::RunDir::new(&a.run).eval_metrics_of(split).display());
         print_scores(&m);
     })
 }
