@@ -18,8 +18,8 @@ pub struct Args {
     /// The test view (its index at each scale).
     #[arg(long, default_value_t = 0)]
     pub view: usize,
-    /// Cell side in pixels.
-    #[arg(long, default_value_t = 192)]
+    /// Cell side in pixels, 32 to 1024.
+    #[arg(long, default_value_t = 192, value_parser = clap::value_parser!(u32).range(32..=1024))]
     pub cell: u32,
     /// Zoom window X,Y,SIDE as fractions of the image [default: where the first run's error
     /// exceeds the last run's the most at the coarsest scale].
@@ -40,7 +40,7 @@ pub struct Args {
 pub fn run(a: Args) -> Result<()> {
     let Args { runs, labels, view, cell, crop, out, overwrite } = a;
     let crop = crop.map(|c| (c[0], c[1], c[2]));
-    let args = figure::FigureArgs { runs, labels, view, cell: cell.clamp(32, 1024), crop, out, overwrite };
+    let args = figure::FigureArgs { runs, labels, view, cell, crop, out, overwrite };
     figure::figure(&args).map(|s| {
         for (label, psnr) in s.runs {
             let p: Vec<String> = psnr.iter().map(|p| format!("{p:.2}")).collect();
