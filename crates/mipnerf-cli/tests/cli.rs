@@ -34,6 +34,31 @@ fn a_wrong_subcommand_or_flag_fails_cleanly() {
 }
 
 #[test]
+fn flags_for_another_kind_of_data_are_refused_before_the_run_folder_exists() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data");
+    let (blender, llff) = (root.join("lego_tiny"), root.join("llff_fern_tiny"));
+    let run = dir.path().join("run");
+    let r = run.to_str().unwrap();
+    let cases: &[(&std::path::Path, &[&str], &[&str])] = &[
+        (&blender, &["--llff-factor", "2"], &["--llff-factor is for photos", "a Blender scene", "--half-res"]),
+        (&blender, &["--spherify", "--spherify-radius", "3"], &["--spherify and --spherify-radius are", "drop them"]),
+        (&llff, &["--llff-factor", "64", "--half-res"], &["--half-res is for Blender scenes", "--llff-factor N"]),
+    ];
+    for (data, flags, needles) in cases {
+        let args = [&["train", "--data", data.to_str().unwrap(), "--out", r, "--steps", "2"][..], flags].concat();
+        let out = mipnerf(&args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {err}");
+        assert!(err.contains(data.to_str().unwrap()), "the error names the dataset: {err}");
+        for needle in *needles {
+            assert!(err.contains(needle), "{args:?}: {err}");
+        }
+        assert!(!run.exists(), "{args:?}: a refused run leaves no folder");
+    }
+}
+
+#[test]
 fn check_compares_the_gpu_with_the_cpu_or_says_why_not() {
     let out = mipnerf(&["check", "--backend", "gpu"]);
     let text = String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
@@ -426,6 +451,16 @@ fn eval_reports_lpips_and_the_papers_average_error_or_says_how_to_get_them() {
     assert!(code == Some(1) && err.contains("/nonexistent/vgg16.safetensors not found"), "{err}");
     let md = std::fs::read_to_string(run.join("eval/metrics.md")).unwrap();
     assert!(md.contains("two-term variant") && md.contains("LPIPS full"), "{md}");
+    // Another split goes to its own folder: the test scores stay as they were.
+    let test_scores = std::fs::read(run.join("eval/metrics.json")).unwrap();
+    let text = run_ok(&["eval", "--run", r, "--backend", "cpu", "--split", "train"]);
+    assert!(text.contains(&format!("wrote {}", run.join("eval_train/metrics.json").display())), "{text}");
+    let train: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("eval_train/metrics.json")).unwrap()).unwrap();
+    assert_eq!(train["split"], "train");
+    assert_eq!(std::fs::read(run.join("eval/metrics.json")).unwrap(), test_scores);
+    assert_eq!(metrics()["split"], "test");
+    assert!(!run.join("eval_train.partial").exists() && !run.join("eval_train.old").exists());
     let Some(w) = shared_lpips("eval_reports_lpips_and_the_papers_average_error_or_says_how_to_get_them") else {
         return;
     };
@@ -463,6 +498,9 @@ fn compare_prints_psnr_ssim_and_lpips_or_a_clear_error() {
     assert_eq!(out.status.code(), Some(0));
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert!(v["psnr"].as_f64().unwrap() > 20.0 && v["ssim"].as_f64().unwrap() > 0.5 && v["lpips"].is_null(), "{v}");
+    assert!(v["lpips_net"].is_null() && v["mse"].as_f64().unwrap() > 0.0, "{v}");
+    let psnr = v["psnr"].as_f64().unwrap();
+    assert!((psnr - -10.0 * v["mse"].as_f64().unwrap().log10()).abs() < 1e-4, "{v}");
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("LPIPS skipped") && err.contains("`mipnerf fetch-lpips-weights`"), "{err}");
     let out = mipnerf(&["compare", a, b, "--require-lpips"]);
@@ -496,6 +534,25 @@ fn compare_prints_psnr_ssim_and_lpips_or_a_clear_error() {
     image::RgbImage::from_pixel(32, 32, image::Rgb([255, 255, 255])).save(&white).unwrap();
     let text = run_ok(&["compare", clear.to_str().unwrap(), white.to_str().unwrap(), "--lpips-weights", &w]);
     assert!(text.contains("LPIPS 0.000000") && text.contains("SSIM  1.0"), "{text}");
+    // Identical images: PSNR is infinite, which JSON cannot hold (null, beside an MSE of 0).
+    let (c, wh) = (clear.to_str().unwrap(), white.to_str().unwrap());
+    let out = run_ok(&["compare", c, wh, "--json", "--lpips-weights", &w]);
+    let v: serde_json::Value = serde_json::from_str(out.split(STDERR_FOLLOWS).next().unwrap().trim()).unwrap();
+    assert!(v["psnr"].is_null() && v["mse"] == 0.0 && v["lpips_net"] == "vgg16", "{v}");
+    assert!(run_ok(&["compare", c, wh]).contains("PSNR  inf dB (the images are identical)"));
+    // Images smaller than the backbone takes: PSNR and SSIM, LPIPS left out and why, as eval does;
+    // an error with --require-lpips.
+    let small = dir.path().join("small.png");
+    image::RgbImage::from_pixel(24, 24, image::Rgb([9, 9, 9])).save(&small).unwrap();
+    let s = small.to_str().unwrap();
+    let text = run_ok(&["compare", s, s, "--net", "alex", "--lpips-weights", &w]);
+    assert!(
+        text.contains("LPIPS n/a") && text.contains("(24x24) are smaller than LPIPS-alexnet takes (31 px"),
+        "{text}"
+    );
+    let out = mipnerf(&["compare", s, s, "--net", "alex", "--lpips-weights", &w, "--require-lpips"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.code() == Some(1) && err.contains("LPIPS not computed") && out.stdout.is_empty(), "{err}");
 }
 
 /// An experiment folder of two rows over the 16-pixel demo scene.

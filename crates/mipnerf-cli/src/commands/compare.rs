@@ -13,7 +13,8 @@ pub struct Args {
     pub a: PathBuf,
     /// The image compared with it.
     pub b: PathBuf,
-    /// Print one JSON object (psnr, ssim, lpips, lpips_net) instead of lines.
+    /// Print one JSON object (psnr, mse, ssim, lpips, lpips_net) instead of lines; psnr is null for
+    /// identical images (mse 0), lpips and lpips_net when LPIPS was not computed.
     #[arg(long)]
     pub json: bool,
     #[command(flatten)]
