@@ -330,7 +330,8 @@ fn llff_scene_loads_with_ndc_rays_holdout_and_spiral() {
 
 /// Foreground masks (`LoadOptions::masks`) become the photos' alpha, matched by file name:
 /// a mask of the photo's size as it is, a larger one of the same aspect area-resampled, a JPEG's
-/// near-black and near-white levels snapped to 0 and 1; composited on white, the targets keep the
+/// near-black and near-white levels snapped to 0 and 1, a cut-out's alpha taken over its colours;
+/// composited on white, the targets keep the
 /// object and leave out the rest (before issue 39 an LLFF photo's alpha never reached its
 /// targets).
 #[test]
@@ -349,6 +350,16 @@ fn llff_photos_take_their_masks_as_alpha_and_composite_on_white() {
         match i {
             3 => half(2, 0, 255).save(&path).unwrap(),
             5 => half(1, 5, 250).save(masks.join("img_05.jpg")).unwrap(),
+            // Cut-outs, as background-removal tools write them: the mask is the alpha, whatever
+            // the colour (white everywhere here, black and grey with alpha).
+            7 => image::RgbaImage::from_fn(w, h, |x, _| image::Rgba([255, 255, 255, if x < w / 2 { 255 } else { 0 }]))
+                .save(&path)
+                .unwrap(),
+            1 => image::GrayAlphaImage::from_fn(w, h, |x, _| {
+                image::LumaA([if x < w / 2 { 0 } else { 255 }, if x < w / 2 { 255 } else { 0 }])
+            })
+            .save(&path)
+            .unwrap(),
             _ => half(1, 0, 255).save(&path).unwrap(),
         }
     }
@@ -372,6 +383,12 @@ fn llff_photos_take_their_masks_as_alpha_and_composite_on_white() {
             }
         }
     }
+    // The photos' own folder given as their masks is refused, naming it.
+    let photos = train.views()[0].file.parent().unwrap().to_path_buf();
+    let err = data::load(dir.path(), Split::Train, &LoadOptions { masks: Some(photos.clone()), ..opts })
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("the photos' own folder") && err.contains(&photos.display().to_string()), "{err}");
 }
 
 /// `spherify_radius` puts the spherified cameras at that root-mean-square distance from the

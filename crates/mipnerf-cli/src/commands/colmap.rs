@@ -30,7 +30,8 @@ pub struct Args {
     /// 3D points, a high reprojection error).
     #[arg(long, value_name = "NAME", value_delimiter = ',')]
     pub exclude: Vec<String>,
-    /// Foreground masks, one per photo (named as the photo, PNG or JPEG, white = the object):
+    /// Foreground masks, one per photo (named as the photo, PNG or JPEG, white = the object, or a
+    /// cut-out whose alpha is the mask):
     /// undistorted and downscaled as the photos are, to masks_N/ in --output, for
     /// `train --masks` (the object alone, without its surroundings).
     #[arg(long, value_name = "DIR")]

@@ -177,9 +177,9 @@ pub struct TrainFlags {
     #[arg(long, value_name = "STD")]
     pub density_noise: Option<f32>,
     /// Photos (LLFF, COLMAP): foreground masks, one image per photo named as the photo (PNG or
-    /// JPEG, white = the object, the photo's size or larger), taken as the photos' alpha: the
-    /// object trains alone, on random backgrounds unless --background says otherwise, and
-    /// evaluates and renders on white.
+    /// JPEG, white = the object or a cut-out's alpha, the photo's size or larger), taken as the
+    /// photos' alpha: the object trains alone, on random backgrounds unless --background says
+    /// otherwise, and evaluates and renders on white.
     #[arg(long, value_name = "DIR")]
     pub masks: Option<PathBuf>,
     /// Blender: load images at half resolution.

@@ -1,8 +1,8 @@
 //! Foreground masks for photos: one image per photo, white where the object is, that turns a
 //! capture of an object in a room into the object alone.
 //!
-//! [`apply`] reads the mask of every view (matched by file name without extension, PNG or JPEG)
-//! and stores it as the view's alpha, the photo's colours kept straight. The dataset then trains
+//! [`apply`] reads the mask of every view (matched by file name without extension, PNG or JPEG;
+//! white = the object, or a cut-out's alpha) and stores it as the view's alpha, the photo's colours kept straight. The dataset then trains
 //! as Blender's RGBA images do: targets composited on the background (white, or a random colour
 //! per pixel), and the occupancy grid carved to the masks' visual hull.
 
@@ -38,19 +38,25 @@ pub fn mask_file(dir: &Path, photo: &Path) -> Result<PathBuf, DataError> {
 }
 
 /// Reads a mask as alpha in `[0, 1]`, `width x height`: its grey levels (the luminance of a colour
-/// image), values within [`MASK_SNAP_LEVELS`] of black or white snapped to them, area-resampled
-/// when it is larger than the photo with the same aspect ratio (masks made at the photos' full
-/// size, photos read from `images_N`).
+/// image), or its alpha channel where it has one that is not opaque everywhere (a cut-out, as
+/// background-removal tools write: the object's pixels over transparency), values within
+/// [`MASK_SNAP_LEVELS`] of black or white snapped to them, area-resampled when it is larger than
+/// the photo with the same aspect ratio (masks made at the photos' full size, photos read from
+/// `images_N`).
 ///
 /// # Errors
 /// [`DataError::Invalid`] naming the file: undecodable, of another aspect ratio or smaller than
 /// the photo, or all black (no object).
 pub fn read_mask(path: &Path, width: u32, height: u32) -> Result<Vec<f32>, DataError> {
     // The photos' reader: a JPEG cut short is refused, not filled with grey.
-    let (mw, mh, rgba, _) = read_png_rgba(path)?;
-    let rgba = image::RgbaImage::from_raw(mw, mh, rgba)
-        .ok_or_else(|| DataError::invalid(path, "cannot decode the mask: its size does not match its pixels"))?;
-    let grey = image::DynamicImage::ImageRgba8(rgba).to_luma8();
+    let (mw, mh, rgba, channels) = read_png_rgba(path)?;
+    let has_alpha = channels == 2 || channels == 4;
+    let grey = if has_alpha && rgba.chunks_exact(4).any(|p| p[3] < 255) {
+        image::GrayImage::from_raw(mw, mh, rgba.chunks_exact(4).map(|p| p[3]).collect())
+    } else {
+        image::RgbaImage::from_raw(mw, mh, rgba).map(|rgba| image::DynamicImage::ImageRgba8(rgba).to_luma8())
+    }
+    .ok_or_else(|| DataError::invalid(path, "cannot decode the mask: its size does not match its pixels"))?;
     let snap = |v: u8| -> f32 {
         if v <= MASK_SNAP_LEVELS {
             0.0
@@ -83,7 +89,8 @@ pub fn read_mask(path: &Path, width: u32, height: u32) -> Result<Vec<f32>, DataE
     if alpha.iter().all(|&a| a == 0.0) {
         return Err(DataError::invalid(
             path,
-            "the mask is all black: it marks no object in its photo (white = the object, black = what is left out)",
+            "the mask is all black (or all transparent): it marks no object in its photo (white = the object, black \
+             = what is left out)",
         ));
     }
     Ok(alpha)
@@ -97,6 +104,16 @@ pub fn read_mask(path: &Path, width: u32, height: u32) -> Result<Vec<f32>, DataE
 pub fn apply(ds: &mut Dataset, dir: &Path) -> Result<usize, DataError> {
     if !dir.is_dir() {
         return Err(DataError::invalid(dir, "the masks folder does not exist (or is not a folder)"));
+    }
+    // The photos themselves, given as their masks, would each be "found" and train on their
+    // luminance as alpha.
+    let photos = ds.views().first().and_then(|v| v.file.parent()).and_then(|p| p.canonicalize().ok());
+    if photos.is_some() && dir.canonicalize().ok() == photos {
+        return Err(DataError::invalid(
+            dir,
+            "this is the photos' own folder, not their masks': give the folder of the masks (one image per photo, \
+             named as the photo, white = the object)",
+        ));
     }
     let mut n = 0;
     for view in ds.views_mut() {
