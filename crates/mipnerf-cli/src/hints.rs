@@ -3,8 +3,9 @@
 //! the CLI prints its flag in its place ([`in_flags`]).
 
 /// Each library setting named in an error, and what the CLI says instead.
-pub const FLAGS: [(&str, &str); 10] = [
+pub const FLAGS: [(&str, &str); 11] = [
     ("`ProcessOptions::min_views`", "--min-views"),
+    ("`ProcessOptions::exclude`", "--exclude"),
     ("set `ProcessOptions::overwrite`", "pass --overwrite"),
     ("`DeviceOptions::adapter`", "--adapter, see 'mipnerf info'"),
     ("`DeviceOptions::memory_budget`", "--gpu-memory"),

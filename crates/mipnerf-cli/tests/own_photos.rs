@@ -292,8 +292,8 @@ fn photos_all_around_in_their_surroundings_train_unbounded() {
 }
 
 /// `--exclude` leaves registered photos out of the dataset (the photos the step names as
-/// possibly wrong, or any), says so, and refuses a name the model does not register, writing
-/// nothing.
+/// possibly wrong, or any; a name given twice or an empty one counts once or not at all), says
+/// so, and refuses a name the model does not register or leaving out too many, writing nothing.
 #[test]
 fn photos_named_by_exclude_are_left_out() {
     let dir = tempfile::tempdir().unwrap();
@@ -315,7 +315,7 @@ fn photos_named_by_exclude_are_left_out() {
         "--max-size",
         "100",
         "--exclude",
-        "r_17.jpg,r_1.jpg",
+        "r_17.jpg,r_1.jpg,r_17.jpg,",
         "--overwrite",
     ]);
     assert!(text.contains("35 of 40 photos registered, 2 left out (--exclude): r_17.jpg, r_1.jpg; 33 kept"), "{text}");
@@ -324,6 +324,16 @@ fn photos_named_by_exclude_are_left_out() {
     let fresh = dir.path().join("fresh");
     let err = run_err(&["colmap", "--input", s(&ws), "--output", s(&fresh), "--exclude", "nope.jpg"]);
     assert!(err.contains("--exclude nope.jpg: the model registers no photo of that name"), "{err}");
+    assert!(!fresh.exists());
+    // Leaving out too many says so (not "take more photos"), and the photos' own folder is no
+    // folder of masks.
+    let model = mipnerf_core::data::colmap::read_model(&ws.join("sparse/0")).unwrap();
+    let many = model.images.iter().skip(3).map(|im| im.name.as_str()).collect::<Vec<_>>().join(",");
+    let err = run_err(&["colmap", "--input", s(&ws), "--output", s(&fresh), "--exclude", &many]);
+    assert!(err.contains("leaves") && err.contains("(--exclude)") && err.contains("leave out fewer photos"), "{err}");
+    let images = ws.join("images");
+    let err = run_err(&["colmap", "--input", s(&ws), "--output", s(&fresh), "--masks", s(&images)]);
+    assert!(err.contains("the photos' own folder") && err.contains(s(&images)), "{err}");
     assert!(!fresh.exists());
 }
 

@@ -31,9 +31,8 @@ pub struct Args {
     #[arg(long, value_name = "NAME", value_delimiter = ',')]
     pub exclude: Vec<String>,
     /// Foreground masks, one per photo (named as the photo, PNG or JPEG, white = the object, or a
-    /// cut-out whose alpha is the mask):
-    /// undistorted and downscaled as the photos are, to masks_N/ in --output, for
-    /// `train --masks` (the object alone, without its surroundings).
+    /// cut-out whose alpha is the mask): undistorted and downscaled as the photos are, to
+    /// masks_N/ in --output, for `train --masks` (the object alone, without its surroundings).
     #[arg(long, value_name = "DIR")]
     pub masks: Option<PathBuf>,
 }

@@ -96,24 +96,35 @@ pub fn read_mask(path: &Path, width: u32, height: u32) -> Result<Vec<f32>, DataE
     Ok(alpha)
 }
 
-/// Gives every view of `ds` the mask in `dir` of its photo as its alpha (see the module docs);
-/// the photos' colours stay straight. Returns the number of views masked.
+/// Checks that `dir`, a folder of masks for the photos in `photos`, is a folder and not the
+/// photos' own (whose photos would each be "found" as their own mask, their luminance taken as
+/// alpha).
 ///
 /// # Errors
-/// A missing, undecodable, wrongly sized or all-black mask, naming its file.
-pub fn apply(ds: &mut Dataset, dir: &Path) -> Result<usize, DataError> {
+/// [`DataError::Invalid`] naming `dir`.
+pub fn check_folder(dir: &Path, photos: &Path) -> Result<(), DataError> {
     if !dir.is_dir() {
         return Err(DataError::invalid(dir, "the masks folder does not exist (or is not a folder)"));
     }
-    // The photos themselves, given as their masks, would each be "found" and train on their
-    // luminance as alpha.
-    let photos = ds.views().first().and_then(|v| v.file.parent()).and_then(|p| p.canonicalize().ok());
-    if photos.is_some() && dir.canonicalize().ok() == photos {
+    if dir.canonicalize().ok().is_some_and(|d| photos.canonicalize().ok() == Some(d)) {
         return Err(DataError::invalid(
             dir,
             "this is the photos' own folder, not their masks': give the folder of the masks (one image per photo, \
              named as the photo, white = the object)",
         ));
+    }
+    Ok(())
+}
+
+/// Gives every view of `ds` the mask in `dir` of its photo as its alpha (see the module docs);
+/// the photos' colours stay straight. Returns the number of views masked.
+///
+/// # Errors
+/// A missing, undecodable, wrongly sized or all-black mask, naming its file; a folder that is
+/// not one or is the photos' own ([`check_folder`]).
+pub fn apply(ds: &mut Dataset, dir: &Path) -> Result<usize, DataError> {
+    if let Some(photos) = ds.views().first().and_then(|v| v.file.parent()) {
+        check_folder(dir, photos)?;
     }
     let mut n = 0;
     for view in ds.views_mut() {

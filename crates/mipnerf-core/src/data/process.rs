@@ -292,9 +292,13 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
         .count();
     let mut model = colmap::read_model(&best.1)?;
     colmap::check_model(&model, &best.1)?;
-    // The photos left out, each of which must be registered.
-    let mut excluded = Vec::new();
+    // The photos left out, each of which must be registered (a name given twice, or an empty
+    // one from a trailing comma, counts once or not at all).
+    let mut excluded: Vec<String> = Vec::new();
     for name in &opts.exclude {
+        if name.is_empty() || excluded.contains(name) {
+            continue;
+        }
         let before = model.images.len();
         model.images.retain(|im| im.name != *name);
         if model.images.len() == before {
@@ -308,6 +312,18 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
     let suspects = suspect_photos(&model);
     let registered = model.images.len();
     let mut warnings = Vec::new();
+    if registered < opts.min_views && !excluded.is_empty() {
+        return Err(DataError::invalid(
+            &best.1,
+            format!(
+                "the largest COLMAP model registers {} of {photos} photos; leaving out {} (`ProcessOptions::exclude`) \
+                 leaves {registered}, fewer than the minimum of {} (`ProcessOptions::min_views`): leave out fewer photos",
+                registered + excluded.len(),
+                excluded.len(),
+                opts.min_views
+            ),
+        ));
+    }
     if registered < opts.min_views {
         return Err(DataError::invalid(
             &best.1,
@@ -362,10 +378,8 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
     let named: Vec<(String, PathBuf)> =
         model.images.iter().map(|im| (im.name.clone(), images_dir.join(&im.name))).collect();
     let focal = focal::check_focal((lens.fx * lens.fy).sqrt(), &named, lens.width, lens.height);
-    if let Some(masks) = &opts.masks
-        && !masks.is_dir()
-    {
-        return Err(DataError::invalid(masks, "the masks folder does not exist (or is not a folder)"));
+    if let Some(masks) = &opts.masks {
+        super::masks::check_folder(masks, &images_dir)?;
     }
     // Every registered photo's mask is there and usable before anything is written.
     if let Some(masks) = &opts.masks {
