@@ -178,14 +178,29 @@ fn read_toml<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
 /// Reads `experiment.toml` and every row's file, checking that each listed row has one.
 ///
 /// # Errors
-/// A missing or invalid file (unknown keys included), named.
+/// A missing or invalid file (unknown keys included), named; a row listed twice or whose name is
+/// not a plain file name.
 pub fn read(dir: &Path) -> Result<(Experiment, Vec<(String, Row)>)> {
     let exp: Experiment = read_toml(&dir.join(EXPERIMENT_TOML))?;
     if exp.rows.is_empty() {
         bail!("{}: \"rows\" is empty", dir.join(EXPERIMENT_TOML).display());
     }
-    let mut rows = Vec::new();
+    let mut rows: Vec<(String, Row)> = Vec::new();
     for id in &exp.rows {
+        // A row's name names its TOML, its run folder and its JSON: one plain file name each.
+        let plain = !id.is_empty()
+            && !id.starts_with('.')
+            && id.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'));
+        if !plain {
+            bail!(
+                "{}: row {id:?}: a row's name is a plain file name (letters, digits, '-', '_' and '.', not first), \
+                 as it names ROW.toml, the run folder and the results' ROW.json",
+                dir.join(EXPERIMENT_TOML).display()
+            );
+        }
+        if rows.iter().any(|(seen, _)| seen == id) {
+            bail!("{}: row {id:?} is listed twice in \"rows\"", dir.join(EXPERIMENT_TOML).display());
+        }
         let path = dir.join(format!("{id}.toml"));
         if !path.is_file() {
             bail!(

@@ -656,9 +656,16 @@ fn bad_experiment_files_are_clear_errors_naming_the_file() {
     std::fs::write(exp.join("experiment.toml"), text.replace("data_width = 16", "data_width = 256")).unwrap();
     let err = run(&exp);
     assert!(err.contains("16 px wide") && err.contains("expects 256"), "{err}");
-    std::fs::write(exp.join("experiment.toml"), text + "colour = 1\n").unwrap();
+    std::fs::write(exp.join("experiment.toml"), text.clone() + "colour = 1\n").unwrap();
     let err = run(&exp);
     assert!(err.contains("experiment.toml") && err.contains("colour"), "{err}");
+    // A row's name becomes a file and folder name: a path, or a row listed twice, is refused.
+    let rows = "rows = [\"nerf\", \"mipnerf\"]";
+    for (bad, says) in [("[\"nerf\", \"../mipnerf\"]", "plain file name"), ("[\"nerf\", \"nerf\"]", "listed twice")] {
+        std::fs::write(exp.join("experiment.toml"), text.replace(rows, &format!("rows = {bad}"))).unwrap();
+        let err = run(&exp);
+        assert!(err.contains("experiment.toml") && err.contains(says), "{err}");
+    }
     assert!(!dir.path().join("runs").exists(), "nothing is trained before the files are checked");
 }
 
