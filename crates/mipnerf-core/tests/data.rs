@@ -625,6 +625,12 @@ fn bad_inputs_get_clear_errors_naming_the_file() {
     rows[0][14] = 0.0;
     llff::write_poses_bounds(&ll.path().join("poses_bounds.npy"), &rows).unwrap();
     assert_error(load(ll.path()).unwrap_err(), "poses_bounds.npy", "row 0's focal length (its column 14");
+    // One camera absurdly far away is named by its row, not as whichever recentred pose fails.
+    make_llff(ll.path());
+    let mut rows = llff::read_poses_bounds(&ll.path().join("poses_bounds.npy")).unwrap();
+    rows[5][8] = 1e30;
+    llff::write_poses_bounds(&ll.path().join("poses_bounds.npy"), &rows).unwrap();
+    assert_error(load(ll.path()).unwrap_err(), "poses_bounds.npy", "row 5: a coordinate of the camera's position");
     let mut rows = [[1.0; 17]; 9];
     rows[4][7] = f64::NAN;
     llff::write_poses_bounds(&ll.path().join("poses_bounds.npy"), &rows).unwrap();

@@ -503,9 +503,22 @@ pub fn from_rows(
         ));
     }
     let scale = 1.0 / (min_b * 0.75);
-    for p in &mut poses {
+    for (i, p) in poses.iter_mut().enumerate() {
         for row in p.iter_mut() {
             row[3] *= scale;
+        }
+        // Named by its row here: after recentring on the mean camera, one camera far away
+        // moves every camera far away.
+        if let Some(t) = p.iter().map(|row| row[3]).find(|t| t.abs() > crate::camera::MAX_SCENE_COORDINATE) {
+            return Err(DataError::invalid(
+                &npy,
+                format!(
+                    "row {i}: a coordinate of the camera's position is {:.3e} times the nearest depth bound (column 15's smallest \
+                     value) away; at most {:e} is taken (a wrong row, or bounds in other units than the poses)",
+                    t.abs() * 0.75,
+                    crate::camera::MAX_SCENE_COORDINATE * 0.75
+                ),
+            ));
         }
     }
     let (min_b, max_b) = (min_b * scale, max_b * scale);
