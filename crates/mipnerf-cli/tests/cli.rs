@@ -276,6 +276,10 @@ fn bad_values_and_missing_files_fail_cleanly() {
         (&["eval", "--run", "/nonexistent/run"], "config.toml"),
         (&["render", "--run", "/nonexistent/run", "--out", o], "config.toml"),
         (&["convert", "--input", "/nonexistent/in", "--output", o], "/nonexistent/in"),
+        (&["demo", "--out", o, "--size", "40"], "a positive multiple of 16, got 40"),
+        (&["demo", "--out", o, "--views", "0"], "both splits need views"),
+        // 25 TB of demo views: refused before any is rendered (it aborted the process).
+        (&["demo", "--out", o, "--size", "4096", "--views", "100000"], "choose a smaller size or fewer views"),
     ];
     for (args, needle) in cases {
         let r = mipnerf(args);
@@ -287,6 +291,7 @@ fn bad_values_and_missing_files_fail_cleanly() {
         &["train", "--out", o, "--steps", "many"][..],
         &["render", "--run", o, "--out", o, "--width", "10"][..],
         &["train", "--out", o, "--preset", "huge"][..],
+        &["demo", "--out", o, "--size", "100000"][..],
     ] {
         let r = mipnerf(args);
         assert_eq!(r.status.code(), Some(2), "{args:?}");

@@ -36,8 +36,8 @@ pub struct Args {
     /// Seed of the run.
     #[arg(long, default_value_t = 0)]
     pub seed: u32,
-    /// Full-resolution image size of the demo scene (a multiple of 16).
-    #[arg(long, default_value_t = 128)]
+    /// Full-resolution image size of the demo scene (a multiple of 16, at most 4096).
+    #[arg(long, default_value_t = 128, value_parser = clap::value_parser!(u32).range(16..=4096))]
     pub size: u32,
     /// Training views of the demo scene (test views: a fifth of it, at least 2).
     #[arg(long, default_value_t = 40)]

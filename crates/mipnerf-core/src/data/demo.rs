@@ -212,12 +212,26 @@ pub fn render_view(camera: &Camera, ss: u32) -> Vec<f32> {
 /// # Errors
 /// [`DataError`] for an invalid size or unwritable files.
 pub fn write_demo_scene(dir: &Path, cfg: &DemoConfig) -> Result<(), DataError> {
-    if cfg.size == 0 || !cfg.size.is_multiple_of(16) || cfg.train_views == 0 || cfg.test_views == 0 {
+    if cfg.size == 0 || !cfg.size.is_multiple_of(16) {
         return Err(DataError::invalid(
             dir,
-            format!("demo scene: size must be a positive multiple of 16 and both splits non-empty, got {cfg:?}"),
+            format!("demo scene: the image size must be a positive multiple of 16, got {}", cfg.size),
         ));
     }
+    if cfg.train_views == 0 || cfg.test_views == 0 {
+        return Err(DataError::invalid(
+            dir,
+            format!(
+                "demo scene: both splits need views, got {} training and {} test views",
+                cfg.train_views, cfg.test_views
+            ),
+        ));
+    }
+    // One split's images are held at once, in f32 RGBA, before they are written.
+    let views = cfg.train_views.max(cfg.test_views) as u64;
+    let need = views.saturating_mul(u64::from(cfg.size).pow(2)).saturating_mul(16);
+    crate::memory::check(need, &format!("rendering {views} demo views of {0}x{0} pixels", cfg.size))
+        .map_err(|e| DataError::invalid(dir, format!("demo scene: {e}; choose a smaller size or fewer views")))?;
     std::fs::create_dir_all(dir).map_err(|e| DataError::io(dir, e))?;
     let focal = focal_from_camera_angle_x(cfg.size, CAMERA_ANGLE_X);
     let mut all = serde_json::Map::new();
