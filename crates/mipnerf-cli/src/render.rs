@@ -216,7 +216,7 @@ pub fn render(
     crate::outputs::replace_outputs(out, names)?;
     // From here a signal stops the render between files, saying how many images it wrote (none
     // while the colour bar is drawn); every file on disk is whole.
-    let _cooperation = crate::signals::Cooperation::start();
+    let cooperation = crate::signals::Cooperation::start();
     // The depth PNGs' colours, explained once for the folder.
     if let Some((_, first)) = jobs.first() {
         let title = "depth (transparent: white)";
@@ -232,18 +232,21 @@ pub fn render(
     let mut preview = Vec::new();
     let mut pb = session.progress("render", 0, jobs.len() as u64);
     for (i, (name, image)) in jobs.iter().enumerate() {
-        if crate::signals::stop_requested() {
+        let left = format!(
+            "{i} of {} images rendered into {} (each whole); run the same command again to render them all",
+            jobs.len(),
+            out.display()
+        );
+        // An image may take minutes (hours at the largest sizes): a signal while it renders stops
+        // at once, and one while files are written waits for them.
+        let Some(suspension) = cooperation.suspend(left.clone()) else {
             crate::signals::acted_on();
             pb.finish();
-            return Err(crate::signals::Interrupted(format!(
-                "{i} of {} images rendered into {} (each whole); run the same command again to render them all",
-                jobs.len(),
-                out.display()
-            ))
-            .into());
-        }
+            return Err(crate::signals::Interrupted(left).into());
+        };
         let (w, h) = (&image.camera.width, &image.camera.height);
         let outs = be.render(image, Levels::Last).with_context(|| format!("rendering {name}"))?.fine;
+        drop(suspension);
         let rgb: Vec<[f32; 3]> = outs.iter().map(|o| o.rgb).collect();
         let depth: Vec<f32> = outs.iter().map(|o| o.distance).collect();
         let acc: Vec<f32> = outs.iter().map(|o| o.acc).collect();

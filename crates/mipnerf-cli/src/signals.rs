@@ -4,12 +4,15 @@
 //! - During training ([`Cooperation`] held) the first signal lets the step finish and the
 //!   checkpoint be written; the loop sees [`stop_requested`].
 //! - A phase that checks between its items (`render`, between images) also holds a
-//!   [`Cooperation`] and ends with [`Interrupted`].
+//!   [`Cooperation`] and ends with [`Interrupted`]. Inside an item that may take long (an image:
+//!   minutes at the paper preset on a CPU, hours at 16384 px) it [`suspend`](Cooperation::suspend)s
+//!   cooperating, so that a signal there stops the process at once, saying what the phase left.
 //! - Anywhere else the process exits at once. Every output a command leaves is either whole or
 //!   absent: files are written to a temporary name and renamed, `eval` fills `eval.partial/` and
 //!   renames it, and `convert` writes `metadata.json` last.
 //! - A second signal always exits at once.
 
+use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 /// The exit code of an interrupted command (128 + SIGINT, the shell's convention), whatever the
@@ -19,6 +22,8 @@ pub const EXIT_INTERRUPTED: i32 = 130;
 static STOP: AtomicBool = AtomicBool::new(false);
 static ACTED_ON: AtomicBool = AtomicBool::new(false);
 static COOPERATING: AtomicUsize = AtomicUsize::new(0);
+/// What a suspended phase has left, said when a signal stops it ([`Cooperation::suspend`]).
+static LEFT: Mutex<Option<String>> = Mutex::new(None);
 
 /// Installs the handler (once, at the start of `main`).
 pub fn install() {
@@ -28,7 +33,11 @@ pub fn install() {
             std::process::exit(EXIT_INTERRUPTED);
         }
         if COOPERATING.load(Ordering::SeqCst) == 0 {
-            eprintln!("\ninterrupted (Ctrl-C, SIGTERM or SIGHUP): stopping");
+            // The handler runs on its own thread (the `ctrlc` crate's), so it may lock.
+            match LEFT.lock().ok().and_then(|left| left.clone()) {
+                Some(left) => eprintln!("\ninterrupted (Ctrl-C, SIGTERM or SIGHUP): stopping; {left}"),
+                None => eprintln!("\ninterrupted (Ctrl-C, SIGTERM or SIGHUP): stopping"),
+            }
             std::process::exit(EXIT_INTERRUPTED);
         }
         eprintln!(
@@ -59,6 +68,36 @@ impl Cooperation {
     pub fn start() -> Self {
         COOPERATING.fetch_add(1, Ordering::SeqCst);
         Self(())
+    }
+}
+
+impl Cooperation {
+    /// Stops cooperating while the returned guard lives, for one item of the phase that may take
+    /// long: a signal then exits at once, saying `left` (what the phase has left; the item in
+    /// progress is lost, and every file is whole). `None` when a signal came before: the phase
+    /// acts on it as between items.
+    #[must_use = "cooperation is suspended only while the guard lives"]
+    pub fn suspend(&self, left: String) -> Option<Suspension<'_>> {
+        if let Ok(mut slot) = LEFT.lock() {
+            *slot = Some(left);
+        }
+        COOPERATING.fetch_sub(1, Ordering::SeqCst);
+        let suspension = Suspension(std::marker::PhantomData);
+        // A signal before the line above was left for the phase; one after it exits at once.
+        (!stop_requested()).then_some(suspension)
+    }
+}
+
+/// A [`Cooperation`] suspended ([`Cooperation::suspend`]); cooperation resumes when dropped.
+#[must_use = "cooperation is suspended only while this is alive"]
+pub struct Suspension<'a>(std::marker::PhantomData<&'a Cooperation>);
+
+impl Drop for Suspension<'_> {
+    fn drop(&mut self) {
+        COOPERATING.fetch_add(1, Ordering::SeqCst);
+        if let Ok(mut slot) = LEFT.lock() {
+            *slot = None;
+        }
     }
 }
 

@@ -119,6 +119,19 @@ fn eval_and_render_stop_on_a_signal_and_leave_only_whole_outputs() {
     }
     // The same command again renders into its own folder.
     run_ok(&["render", "--run", r, "--out", o, "--backend", "cpu", "--path", "orbit", "--frames", "3"]);
+    // A signal inside an image that takes minutes (16.7 million rays) stops it at once, not when
+    // the image is done; the message says what is left.
+    let big = dir.path().join("big");
+    let b = big.to_str().unwrap();
+    let args = ["render", "--run", r, "--out", b, "--backend", "cpu", "--path", "orbit", "--frames", "1"];
+    let mut child = spawn(&[&args[..], &["--width", "4096", "--height", "4096"]].concat());
+    wait_until(&mut child, "render drew its depth scale", || big.join("depth_scale.png").is_file());
+    std::thread::sleep(std::time::Duration::from_millis(500));
+    signal(&child, "TERM");
+    let (code, err) = finish_within(child, STOP_WITHIN_SECS);
+    assert_eq!(code, Some(130), "{err}");
+    assert!(err.contains("0 of 1 images rendered") && !err.contains("panicked"), "{err}");
+    assert!(!big.join("frame_0000.png").exists() && !big.join("video.mp4").exists());
 }
 
 #[test]
