@@ -241,6 +241,16 @@ fn resolve_settings(
         check_resume_flags(run_dir, &base, flag_settings)?;
     }
     let mut merged = base.overridden_by(flag_settings);
+    // A step-limited run resumed with a time budget (and no --steps) trains until the budget is
+    // spent: its saved step count, usually the default nobody typed, would end it at once.
+    if resume && base.time_budget.is_none() && flag_settings.time_budget.is_some() && flag_settings.steps.is_none() {
+        eprintln!(
+            "--time-budget on a run saved with --steps {}: it now trains until the budget is spent (pass --steps too \
+             to stop at whichever comes first)",
+            base.steps.unwrap_or(0)
+        );
+        merged.steps = Some(crate::config::MAX_STEPS);
+    }
     // A saved configuration without density noise ran without it (it is recorded when not 0;
     // runs before the setting had none), whatever the default for its data is now.
     if resume && merged.density_noise.is_none() {

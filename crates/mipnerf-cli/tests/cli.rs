@@ -783,6 +783,10 @@ fn a_colmap_scene_trains_directly_and_converts_to_llff() {
         mipnerf(&["convert", "--input", scene.to_str().unwrap(), "--output", "x", "--to", "llff", "--size", "64"]);
     assert!(!bad.status.success() && String::from_utf8_lossy(&bad.stderr).contains("--factor"), "{bad:?}");
     let blender = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/lego_tiny");
+    let bad = mipnerf(&["convert", "--input", blender.to_str().unwrap(), "--output", "x", "--factor", "2"]);
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(!bad.status.success() && err.contains("--factor applies to --to llff") && err.contains("--size"), "{err}");
+    let blender = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/lego_tiny");
     let bad = mipnerf(&["convert", "--input", blender.to_str().unwrap(), "--output", "x", "--to", "llff"]);
     let err = String::from_utf8_lossy(&bad.stderr);
     assert!(!bad.status.success() && err.contains("sparse") && !err.contains("panicked"), "{err}");
@@ -912,6 +916,17 @@ fn a_time_budget_trains_until_it_is_spent_with_the_schedule_stretched_to_it() {
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(!o.status.success() && err.contains("--time-budget") && err.contains("duration"), "{bad}: {err}");
     }
+    // A run of a step count resumed with a time budget trains until the budget is spent, not
+    // until its saved step count (reached already), which it no longer keeps.
+    let steps_run = dir.path().join("steps");
+    let sr = steps_run.to_str().unwrap();
+    run_ok(&[&["train", "--steps", "3"][..], &common[..2], &["--out", sr], &common[4..]].concat());
+    let text = run_ok(&["train", "--out", sr, "--resume", "--time-budget", "2s"]);
+    assert!(text.contains("--time-budget on a run saved with --steps 3: it now trains until"), "{text}");
+    let step = logged_lrs(&steps_run).len();
+    assert!(step > 3, "it trained to step {step} only");
+    let config = std::fs::read_to_string(steps_run.join("config.toml")).unwrap();
+    assert!(config.contains("time_budget = \"2s\"") && !config.contains("steps = 3\n"), "{config}");
 }
 
 #[test]

@@ -34,9 +34,9 @@ pub struct Args {
     #[arg(long, value_name = "N")]
     pub size: Option<u32>,
     /// --to llff: write the images box-filtered by N into images_N (0 or 1: full size, into
-    /// images/; train on it with the same --llff-factor).
-    #[arg(long, value_name = "N", default_value_t = 4)]
-    pub factor: u32,
+    /// images/; train on it with the same --llff-factor) [default: 4].
+    #[arg(long, value_name = "N")]
+    pub factor: Option<u32>,
 }
 
 /// `convert --to` values.
@@ -56,6 +56,9 @@ pub fn run(a: Args) -> Result<()> {
     let Args { input, output, overwrite, to, size, factor } = a;
     match to {
         ConvertTo::Multiscale => {
+            if factor.is_some() {
+                bail!("--factor applies to --to llff; for --to multiscale, make smaller images with --size N");
+            }
             let names = ["metadata.json", "images_train", "images_val", "images_test"];
             into_output_folder(&output, &names, overwrite, || {
                 let done = data::multiscale::convert_resized(&input, &output, size)
@@ -67,6 +70,7 @@ pub fn run(a: Args) -> Result<()> {
             })
         }
         ConvertTo::Llff => {
+            let factor = factor.unwrap_or(4);
             let folder = if factor > 1 { format!("images_{factor}") } else { "images".to_string() };
             into_output_folder(&output, &["poses_bounds.npy", &folder], overwrite, || {
                 convert_llff(&input, &output, size, factor)
