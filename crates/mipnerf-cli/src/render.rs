@@ -214,8 +214,8 @@ pub fn render(
     }
     names.push(DEPTH_SCALE.to_owned());
     crate::outputs::replace_outputs(out, names)?;
-    // From here a signal stops the render between files, saying how many images it wrote (none
-    // while the colour bar is drawn); every file on disk is whole.
+    // From here a signal stops the render between files (inside an image, at once), saying how
+    // many images it wrote (none while the colour bar is drawn); every file on disk is whole.
     let cooperation = crate::signals::Cooperation::start();
     // The depth PNGs' colours, explained once for the folder.
     if let Some((_, first)) = jobs.first() {

@@ -69,9 +69,7 @@ impl Cooperation {
         COOPERATING.fetch_add(1, Ordering::SeqCst);
         Self(())
     }
-}
 
-impl Cooperation {
     /// Stops cooperating while the returned guard lives, for one item of the phase that may take
     /// long: a signal then exits at once, saying `left` (what the phase has left; the item in
     /// progress is lost, and every file is whole). `None` when a signal came before: the phase

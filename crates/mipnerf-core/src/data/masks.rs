@@ -2,9 +2,10 @@
 //! capture of an object in a room into the object alone.
 //!
 //! [`apply`] reads the mask of every view (matched by file name without extension, PNG or JPEG;
-//! white = the object, or a cut-out's alpha) and stores it as the view's alpha, the photo's colours kept straight. The dataset then trains
-//! as Blender's RGBA images do: targets composited on the background (white, or a random colour
-//! per pixel), and the occupancy grid carved to the masks' visual hull.
+//! white = the object, or a cut-out's alpha) and stores it as the view's alpha, the photo's
+//! colours kept straight. The dataset then trains as Blender's RGBA images do: targets composited
+//! on the background (white, or a random colour per pixel), and the occupancy grid carved to the
+//! masks' visual hull.
 
 use std::path::{Path, PathBuf};
 
