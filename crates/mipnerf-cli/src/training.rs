@@ -397,11 +397,9 @@ struct Validation {
 }
 
 impl Validation {
-    /// The first `images` test views of every scale of the run's test split.
+    /// The first `images` test views of every scale of the run's test split (`images` checked
+    /// with the other settings, [`TrainSettings::validate`]).
     fn new(s: &TrainSettings, every: u64, images: usize) -> Result<Self> {
-        if images == 0 || images > 1000 {
-            bail!("--val-images must be between 1 and 1000, got {images}");
-        }
         let ds = load_split(s, Split::Test).context("--val-every renders test images")?;
         let views: Vec<Vec<usize>> = ds
             .scales()

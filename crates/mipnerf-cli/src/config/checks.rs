@@ -85,7 +85,19 @@ impl TrainSettings {
             bail!("the distortion loss (--distortion-loss) runs on the CPU backend only: use --backend cpu");
         }
         if self.occupancy == Some(true) && self.supersample.unwrap_or(1) > 1 {
-            bail!("occupancy-guided sampling (--occupancy) does not guide supersampled pixels: drop --supersample");
+            bail!(
+                "occupancy-guided sampling ({}) does not guide supersampled pixels: drop --supersample",
+                if self.preset == Some(super::PresetArg::Fast) {
+                    "the fast preset's; --no-occupancy turns it off"
+                } else {
+                    "--occupancy"
+                }
+            );
+        }
+        if let Some(images) = self.val_images
+            && !(1..=1000).contains(&images)
+        {
+            bail!("{} must be between 1 and 1000, got {images}", name("val_images"));
         }
         for (key, v) in [("grad_max_norm", self.grad_max_norm), ("grad_max_val", self.grad_max_val)] {
             if let Some(v) = v
