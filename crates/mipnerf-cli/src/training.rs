@@ -152,8 +152,10 @@ fn train_locked(
     }
     // The saved configuration records the precision that ran.
     let s = TrainSettings { precision: Some(precision_arg(precision)), ..s };
+    // The loop first (it reads the test split for --val-every): a run refused there writes nothing.
+    let train_loop = TrainLoop::new(run_dir, &s, be, resume, session.quiet)?;
     s.save(&RunDir::new(run_dir).config())?;
-    TrainLoop::new(run_dir, &s, be, resume, session.quiet)?.run()
+    train_loop.run()
 }
 
 /// How far `--occupancy-bound` may stray from the cube the cameras give, either way: a factor of
@@ -491,6 +493,10 @@ impl<'a> TrainLoop<'a> {
         resume: bool,
         quiet: bool,
     ) -> Result<Self> {
+        let val = match s.val_every.unwrap_or(0) {
+            0 => None,
+            every => Some(Validation::new(s, every, s.val_images.unwrap_or(2))?),
+        };
         let csv_path = RunDir::new(run_dir).metrics_csv();
         let csv = open_csv(&csv_path, be.step())?;
         let seconds_before = if resume { train_seconds(run_dir)?.unwrap_or(0.0) } else { 0.0 };
@@ -523,10 +529,7 @@ impl<'a> TrainLoop<'a> {
             snapshots,
             segment_steps: 0,
             estimated: false,
-            val: match s.val_every.unwrap_or(0) {
-                0 => None,
-                every => Some(Validation::new(s, every, s.val_images.unwrap_or(2))?),
-            },
+            val,
             be,
             quiet,
         })

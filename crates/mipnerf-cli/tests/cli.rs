@@ -48,7 +48,22 @@ fn flags_a_run_would_ignore_or_cannot_take_are_refused_before_its_folder_exists(
         (&blender, &["--preset", "fast", "--supersample", "2"], &["the fast preset's; --no-occupancy turns it off"]),
         (&llff, &["--llff-factor", "64", "--half-res"], &["--half-res is for Blender scenes", "--llff-factor N"]),
     ];
-    for (data, flags, needles) in cases {
+    // A dataset without a test split, which --val-every renders.
+    let no_test = dir.path().join("no_test");
+    std::fs::create_dir_all(&no_test).unwrap();
+    for entry in std::fs::read_dir(&blender).unwrap().flatten().filter(|e| e.file_name() != "transforms_test.json") {
+        if entry.path().is_file() {
+            std::fs::copy(entry.path(), no_test.join(entry.file_name())).unwrap();
+        }
+    }
+    let train_images = no_test.join("train");
+    std::fs::create_dir_all(&train_images).unwrap();
+    for entry in std::fs::read_dir(blender.join("train")).unwrap().flatten() {
+        std::fs::copy(entry.path(), train_images.join(entry.file_name())).unwrap();
+    }
+    let cases =
+        [cases, &[(no_test.as_path(), &["--val-every", "1"][..], &["--val-every renders test images"][..])]].concat();
+    for (data, flags, needles) in &cases {
         let args = [&["train", "--data", data.to_str().unwrap(), "--out", r, "--steps", "2"][..], flags].concat();
         let out = mipnerf(&args);
         let err = String::from_utf8_lossy(&out.stderr);
