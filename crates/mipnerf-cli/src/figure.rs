@@ -17,10 +17,11 @@ pub struct FigureArgs {
     pub labels: Vec<String>,
     /// Which test view (index within each scale).
     pub view: usize,
-    /// Side of one cell in pixels.
+    /// Width of one cell in pixels (its height in the images' aspect ratio).
     pub cell: u32,
-    /// Crop `(x, y, side)` as fractions of the image; `None` picks the window where the first run's
-    /// error exceeds the last run's the most at the coarsest scale.
+    /// Crop `(x, y, side)` as fractions of the image's width and height (so the crop has the
+    /// image's aspect ratio); `None` picks the window where the first run's error exceeds the
+    /// last run's the most at the coarsest scale.
     pub crop: Option<(f64, f64, f64)>,
     /// The PNG to write.
     pub out: PathBuf,
@@ -185,18 +186,21 @@ fn draw(args: &FigureArgs, columns: &[Column], scales: &[u64], crop: (f64, f64, 
     let n_cols = columns.len() as u32 * 2;
     let n_rows = columns[0].images.len() as u32;
     let cell = args.cell;
-    let (w, h) = (ROW_LABEL + n_cols * (cell + GAP), HEADER + n_rows * (cell + GAP));
+    // Cells keep the images' aspect ratio (the truth at full scale's): `cell` wide.
+    let first = &columns[0].images[0];
+    let cell_h = ((f64::from(cell) * first.h as f64 / first.w as f64).round() as u32).max(1);
+    let (w, h) = (ROW_LABEL + n_cols * (cell + GAP), HEADER + n_rows * (cell_h + GAP));
     let mut buf = vec![255u8; (w * h * 3) as usize];
     // Pixels: each image blown up with square pixels (nearest), then its crop.
     for (ci, col) in columns.iter().enumerate() {
         for (r, img) in col.images.iter().enumerate() {
-            let y0 = HEADER + r as u32 * (cell + GAP);
+            let y0 = HEADER + r as u32 * (cell_h + GAP);
             for (half, window) in [(0, (0.0, 0.0, 1.0)), (1, crop)] {
                 let x0 = ROW_LABEL + (half * columns.len() as u32 + ci as u32) * (cell + GAP);
-                for y in 0..cell {
+                for y in 0..cell_h {
                     for x in 0..cell {
                         let fx = window.0 + window.2 * (f64::from(x) + 0.5) / f64::from(cell);
-                        let fy = window.1 + window.2 * (f64::from(y) + 0.5) / f64::from(cell);
+                        let fy = window.1 + window.2 * (f64::from(y) + 0.5) / f64::from(cell_h);
                         let p = img.px((fx * img.w as f64) as usize, (fy * img.h as f64) as usize);
                         let i = (((y0 + y) * w + x0 + x) * 3) as usize;
                         for c in 0..3 {
@@ -218,14 +222,14 @@ fn draw(args: &FigureArgs, columns: &[Column], scales: &[u64], crop: (f64, f64, 
                 let t = if half == 0 { col.title.clone() } else { format!("{} (zoom)", col.title) };
                 root.draw(&Text::new(t, (x0 as i32 + 4, 8), font.clone())).map_err(|e| err(&e))?;
                 for (r, psnr) in col.psnr.iter().enumerate() {
-                    let y0 = (HEADER + r as u32 * (cell + GAP)) as i32;
+                    let y0 = (HEADER + r as u32 * (cell_h + GAP)) as i32;
                     if half == 0 {
                         let (cx, cy, cs) = crop;
                         let (a, b) = (
-                            (x0 as i32 + (cx * f64::from(cell)) as i32, y0 + (cy * f64::from(cell)) as i32),
+                            (x0 as i32 + (cx * f64::from(cell)) as i32, y0 + (cy * f64::from(cell_h)) as i32),
                             (
                                 x0 as i32 + ((cx + cs) * f64::from(cell)) as i32,
-                                y0 + ((cy + cs) * f64::from(cell)) as i32,
+                                y0 + ((cy + cs) * f64::from(cell_h)) as i32,
                             ),
                         );
                         root.draw(&Rectangle::new([a, b], RGBColor(230, 160, 0).stroke_width(2)))
@@ -233,7 +237,7 @@ fn draw(args: &FigureArgs, columns: &[Column], scales: &[u64], crop: (f64, f64, 
                     }
                     if let Some(p) = psnr {
                         let label = format!("{p:.2} dB");
-                        let (bx, by) = (x0 as i32 + 3, y0 + cell as i32 - 22);
+                        let (bx, by) = (x0 as i32 + 3, y0 + cell_h as i32 - 22);
                         root.draw(&Rectangle::new([(bx, by), (bx + 72, by + 19)], WHITE.mix(0.8).filled()))
                             .map_err(|e| err(&e))?;
                         root.draw(&Text::new(label, (bx + 4, by + 2), small.clone())).map_err(|e| err(&e))?;
@@ -243,7 +247,7 @@ fn draw(args: &FigureArgs, columns: &[Column], scales: &[u64], crop: (f64, f64, 
         }
         // Each row's scale and the size of the renders shown in it (the first run's column).
         for (r, img) in columns[1].images.iter().enumerate() {
-            let y0 = (HEADER + r as u32 * (cell + GAP) + cell / 2) as i32;
+            let y0 = (HEADER + r as u32 * (cell_h + GAP) + cell_h / 2) as i32;
             let scale = match scales.get(r).copied().unwrap_or(0) {
                 0 => "full".to_string(),
                 s => format!("1/{}", 1u64 << s.min(63)),
@@ -272,6 +276,27 @@ mod tests {
             }
         }
         Img { w: side, h: side, rgb }
+    }
+
+    /// A 4:3 capture (fern's 504 x 378) is drawn in 4:3 cells, not squeezed into squares.
+    #[test]
+    fn cells_keep_the_images_aspect_ratio() {
+        let dir = tempfile::tempdir().unwrap();
+        let img = || Img { w: 40, h: 30, rgb: vec![0.5; 40 * 30 * 3] };
+        let column = |title: &str| Column { title: title.into(), images: vec![img()], psnr: vec![None] };
+        let out = dir.path().join("figure.png");
+        let args = FigureArgs {
+            runs: vec![],
+            labels: vec![],
+            view: 0,
+            cell: 192,
+            crop: None,
+            out: out.clone(),
+            overwrite: false,
+        };
+        draw(&args, &[column("ground truth"), column("run")], &[0], (0.1, 0.1, 0.3)).unwrap();
+        let (w, h) = image::image_dimensions(&out).unwrap();
+        assert_eq!((w, h), (ROW_LABEL + 4 * (192 + GAP), HEADER + 144 + GAP));
     }
 
     #[test]

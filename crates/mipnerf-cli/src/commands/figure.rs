@@ -18,7 +18,7 @@ pub struct Args {
     /// The test view (its index at each scale).
     #[arg(long, default_value_t = 0)]
     pub view: usize,
-    /// Cell side in pixels, 32 to 1024.
+    /// Cell width in pixels, 32 to 1024 (the height in the images' aspect ratio).
     #[arg(long, default_value_t = 192, value_parser = clap::value_parser!(u32).range(32..=1024))]
     pub cell: u32,
     /// Zoom window X,Y,SIDE as fractions of the image [default: where the first run's error
