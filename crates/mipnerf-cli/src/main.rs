@@ -93,7 +93,8 @@ fn init_threads() -> Result<()> {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Print the version, every GPU adapter found, and the backend `--backend auto` would choose.
+    /// Print the version, every GPU adapter found, the backend `--backend auto` would choose, and
+    /// the CPU's threads and bf16 kernel with the precision `--precision auto` would choose.
     Info,
     /// Compare the GPU with the CPU reference on synthetic data: the IPE kernel, a whole model
     /// step (loss and every gradient), and a few training steps of both backends from one seed.

@@ -14,6 +14,10 @@ fn info_prints_version_adapters_and_auto_choice() {
     assert!(text.starts_with(&format!("mipnerf {}", env!("CARGO_PKG_VERSION"))), "{text}");
     assert!(text.contains("GPU adapters"), "{text}");
     assert!(text.contains("--backend auto would use: "), "{text}");
+    // The CPU's side: its threads, its bf16 kernel (or why none), and auto precision's choice.
+    assert!(text.contains("\nCPU: ") && text.contains(" thread") && text.contains("; bf16: "), "{text}");
+    let auto = text.lines().find_map(|l| l.strip_prefix("--precision auto (the fast preset's) would use: "));
+    assert!(auto.is_some_and(|a| a.starts_with("bf16 (") || a.starts_with("f32 (")), "{text}");
     // Every adapter line is numbered (what --adapter INDEX takes) and names its backend, type
     // and driver.
     let lines: Vec<&str> = text.lines().filter(|l| l.starts_with("  [")).collect();

@@ -1,6 +1,9 @@
-//! `mipnerf info`: the version, every GPU adapter found, and what `--backend auto` would choose.
+//! `mipnerf info`: the version, every GPU adapter found, what `--backend auto` would choose, and
+//! the CPU's threads and bf16 kernel with what `--precision auto` would choose.
 
-/// Prints the version, the adapters and the automatic choice.
+use mipnerf_core::bf16::Bf16Support;
+
+/// Prints the version, the adapters and the automatic choices.
 pub fn run() {
     println!("mipnerf {}", env!("CARGO_PKG_VERSION"));
     let adapters = mipnerf_gpu::list_adapters();
@@ -14,6 +17,17 @@ pub fn run() {
         println!("(choose one with --adapter INDEX or --adapter NAME, or the WGPU_ADAPTER_NAME environment variable)");
     }
     println!("--backend auto would use: {}", auto_choice(&adapters));
+    // The CPU backend's threads and bf16 kernel, and what auto (the fast preset's precision)
+    // takes: measured here as `train` measures it.
+    let threads = rayon::current_num_threads();
+    println!("CPU: {threads} thread{}; {}", if threads == 1 { "" } else { "s" }, Bf16Support::detect().describe());
+    println!("--precision auto (the fast preset's) would use: {}", auto_precision());
+}
+
+/// `--precision auto`'s choice on the CPU backend, said as `train` says it without its prefix.
+fn auto_precision() -> String {
+    let line = Bf16Support::auto().describe();
+    line.strip_prefix("precision auto: ").map_or_else(|| line.clone(), str::to_string)
 }
 
 fn auto_choice(adapters: &[mipnerf_gpu::AdapterSummary]) -> String {
