@@ -7,6 +7,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use anyhow::{Context, Result};
+use mipnerf_core::data::Split;
 
 use crate::scores::Metrics;
 
@@ -98,8 +99,13 @@ pub fn write_index(out: &Path, run: &Path, metrics: &Metrics, entries: &[Entry])
         h += "(no training curves in the run directory)";
     }
     h += "</p>\n<p><img src=\"psnr_per_image.png\" alt=\"PSNR per image\" style=\"max-width:96%\"></p>\n";
-    h += "<h2>Test images: ground truth | render | error (|render - truth|, 0 to 0.25, turbo)</h2>\n\
-          <p><img src=\"error_scale.png\" alt=\"error colour scale: 0 to 0.25\"></p>\n\
+    let images = match metrics.split {
+        Split::Train => "Training images",
+        Split::Val => "Validation images",
+        Split::Test => "Test images",
+    };
+    let _ = writeln!(h, "<h2>{images}: ground truth | render | error (|render - truth|, 0 to 0.25, turbo)</h2>");
+    h += "<p><img src=\"error_scale.png\" alt=\"error colour scale: 0 to 0.25\"></p>\n\
           <table><tr><th class=\"n\">image</th><th>scale</th><th>PSNR</th><th>SSIM</th><th>LPIPS</th>\
           <th>ground truth</th><th>render</th><th>error</th></tr>\n";
     for e in entries {

@@ -486,6 +486,8 @@ fn eval_reports_lpips_and_the_papers_average_error_or_says_how_to_get_them() {
     let train: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(run.join("eval_train/metrics.json")).unwrap()).unwrap();
     assert_eq!(train["split"], "train");
+    let page = std::fs::read_to_string(run.join("eval_train/index.html")).unwrap();
+    assert!(page.contains("train split") && page.contains("<h2>Training images:"), "{page}");
     assert_eq!(std::fs::read(run.join("eval/metrics.json")).unwrap(), test_scores);
     assert_eq!(metrics()["split"], "test");
     assert!(!run.join("eval_train.partial").exists() && !run.join("eval_train.old").exists());
