@@ -29,18 +29,30 @@ fn list(names: &[String]) -> String {
     shown.join(", ")
 }
 
-/// Checks that `dir` may receive outputs: it does not exist, or everything in it was written by
-/// mipnerf (its manifest lists it), or `overwrite` is set.
+/// Checks that `dir` (given as `flag`) is a folder or can be made one: neither it nor a folder
+/// above it is a file.
 ///
 /// # Errors
-/// A folder holding files mipnerf did not write (naming some of them and the way out), or an
-/// unreadable folder.
+/// The file in the way, named.
+pub fn check_folder_path(dir: &Path, flag: &str) -> Result<()> {
+    match dir.ancestors().find(|a| a.exists()).filter(|a| !a.is_dir()) {
+        Some(file) if file == dir => bail!("{flag} {} is a file, not a folder", dir.display()),
+        Some(file) => bail!("{flag} {}: {} is a file, not a folder", dir.display(), file.display()),
+        None => Ok(()),
+    }
+}
+
+/// Checks that `dir` may receive outputs: it is a folder or can be made one
+/// ([`check_folder_path`]), and it does not exist, or everything in it was written by mipnerf
+/// (its manifest lists it), or `overwrite` is set.
+///
+/// # Errors
+/// A file in the way, a folder holding files mipnerf did not write (naming some of them and the
+/// way out), or an unreadable folder.
 pub fn check_dir(dir: &Path, flag: &str, overwrite: bool) -> Result<()> {
+    check_folder_path(dir, flag)?;
     if overwrite || !dir.exists() {
         return Ok(());
-    }
-    if !dir.is_dir() {
-        bail!("{flag} {} is a file, not a folder", dir.display());
     }
     let ours = recorded(dir)?;
     let mut foreign = mipnerf_core::io::names_in(dir)?;

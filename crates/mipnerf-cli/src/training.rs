@@ -50,6 +50,7 @@ pub fn train(
     session: &Session,
 ) -> Result<TrainOutcome> {
     let (s, format, model) = resolve_settings(run_dir, file_settings, &flag_settings, resume)?;
+    crate::outputs::check_folder_path(run_dir, "--out")?;
     let created = std::fs::symlink_metadata(run_dir).is_err();
     std::fs::create_dir_all(run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
     let outcome = train_locked(run_dir, s, format, model, &flag_settings, resume, device, session);

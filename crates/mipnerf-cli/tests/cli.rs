@@ -320,6 +320,23 @@ fn bad_values_and_missing_files_fail_cleanly() {
         assert_eq!(r.status.code(), Some(2), "{args:?}");
         assert!(String::from_utf8_lossy(&r.stderr).contains("error:"), "{args:?}");
     }
+    // A file where a folder must go, or above it: named, before anything runs.
+    let file = dir.path().join("a_file");
+    std::fs::write(&file, "mine").unwrap();
+    let (f, under) = (file.to_str().unwrap(), file.join("sub"));
+    let blender = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/lego_tiny");
+    let b = blender.to_str().unwrap();
+    for (args, says) in [
+        (&["train", "--data", b, "--out", f, "--steps", "1"][..], format!("--out {f} is a file, not a folder")),
+        (&["train", "--data", b, "--out", under.to_str().unwrap()][..], format!("{f} is a file, not a folder")),
+        (&["convert", "--input", b, "--output", under.to_str().unwrap()][..], format!("{f} is a file, not a folder")),
+        (&["colmap", "--input", b, "--output", under.to_str().unwrap()][..], format!("{f} is a file, not a folder")),
+    ] {
+        let r = mipnerf(args);
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert!(r.status.code() == Some(1) && err.contains(&says), "{args:?}: {err}");
+    }
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "mine");
     let cfg = dir.path().join("bad.toml");
     std::fs::write(&cfg, "stepz = 10\n").unwrap();
     let r = mipnerf(&["train", "--out", o, "--config", cfg.to_str().unwrap()]);

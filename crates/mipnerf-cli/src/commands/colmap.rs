@@ -66,6 +66,7 @@ fn colmap(
             "--max-size {max_size}: the photos' longer side must be at least {MIN_COLMAP_SIZE} px (or 0 for full size)"
         );
     }
+    crate::outputs::check_folder_path(output, "--output")?;
     let opts = data::process::ProcessOptions {
         max_size,
         min_views,
