@@ -315,6 +315,8 @@ fn bad_values_and_missing_files_fail_cleanly() {
         &["render", "--run", o, "--out", o, "--width", "10"][..],
         &["train", "--out", o, "--preset", "huge"][..],
         &["demo", "--out", o, "--size", "100000"][..],
+        // It was clamped to 32 without a word.
+        &["figure", "--run", o, "--out", o, "--cell", "0"][..],
     ] {
         let r = mipnerf(args);
         assert_eq!(r.status.code(), Some(2), "{args:?}");
