@@ -22,9 +22,6 @@ pub const LOCK: &str = "train.lock";
 /// The folder `eval` writes for the test split (`eval_train` and `eval_val` for the others, so
 /// that evaluating another split never replaces the test scores).
 pub const EVAL: &str = "eval";
-/// Where `eval` writes the test split until it has finished (`eval_train.partial`, ... for the
-/// others).
-pub const EVAL_PARTIAL: &str = "eval.partial";
 /// Where `--val-every` writes its latest renders (`scale{j}.png`: the render on the left, the
 /// test image on the right).
 pub const VAL: &str = "val";
@@ -82,14 +79,11 @@ impl<'a> RunDir<'a> {
         }
     }
 
-    /// The evaluation's folder of `split` while it is written: `eval.partial/` for the test
-    /// split, `eval_train.partial/` and `eval_val.partial/` for the others.
+    /// The evaluation's folder of `split` while it is written: its finished folder's name with
+    /// `.partial` (`eval.partial/`, `eval_train.partial/`, `eval_val.partial/`).
     #[must_use]
     pub fn eval_partial_of(self, split: Split) -> PathBuf {
-        match split {
-            Split::Test => self.0.join(EVAL_PARTIAL),
-            other => self.0.join(format!("{EVAL}_{}.partial", other.name())),
-        }
+        self.eval_of(split).with_extension("partial")
     }
 
     /// The evaluation's scores (of the test split).

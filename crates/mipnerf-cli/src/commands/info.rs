@@ -21,13 +21,7 @@ pub fn run() {
     // takes: measured here as `train` measures it.
     let threads = rayon::current_num_threads();
     println!("CPU: {threads} thread{}; {}", if threads == 1 { "" } else { "s" }, Bf16Support::detect().describe());
-    println!("--precision auto (the fast preset's) would use: {}", auto_precision());
-}
-
-/// `--precision auto`'s choice on the CPU backend, said as `train` says it without its prefix.
-fn auto_precision() -> String {
-    let line = Bf16Support::auto().describe();
-    line.strip_prefix("precision auto: ").map_or_else(|| line.clone(), str::to_string)
+    println!("--precision auto (the fast preset's) would use: {}", Bf16Support::auto().choice());
 }
 
 fn auto_choice(adapters: &[mipnerf_gpu::AdapterSummary]) -> String {

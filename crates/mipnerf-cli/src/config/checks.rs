@@ -118,14 +118,11 @@ impl TrainSettings {
     /// # Errors
     /// The settings given, named as flags, with the one the format uses instead.
     pub fn check_format_settings(&self, format: Format) -> Result<()> {
-        let photo_flags: Vec<&str> = [
+        let photo_flags = given(&[
             (self.llff_factor.is_some(), "--llff-factor"),
             (self.spherify == Some(true), "--spherify"),
             (self.spherify_radius.is_some(), "--spherify-radius"),
-        ]
-        .into_iter()
-        .filter_map(|(set, flag)| set.then_some(flag))
-        .collect();
+        ]);
         if !format.is_photos() && !photo_flags.is_empty() {
             bail!(
                 "{} {} for photos (LLFF or COLMAP data), and this dataset is {}: drop {}{}",
@@ -162,14 +159,11 @@ impl TrainSettings {
     /// The settings given, named as flags, and the way to use them.
     pub fn check_occupancy_settings(&self) -> Result<()> {
         let occupancy = self.uses_occupancy();
-        let given: Vec<&str> = [
+        let given = given(&[
             (self.occupancy_resolution.is_some(), "--occupancy-resolution"),
             (self.occupancy_bound.is_some(), "--occupancy-bound"),
             (self.occupancy_masks.is_some(), "--no-occupancy-masks"),
-        ]
-        .into_iter()
-        .filter_map(|(set, flag)| set.then_some(flag))
-        .collect();
+        ]);
         if !occupancy && !given.is_empty() {
             bail!(
                 "{} set(s) the occupancy grid, which this run does not use: add --occupancy (the fast preset has it), \
@@ -180,4 +174,9 @@ impl TrainSettings {
         }
         Ok(())
     }
+}
+
+/// The flags of `flags` that were given (`true`), in order.
+fn given(flags: &[(bool, &'static str)]) -> Vec<&'static str> {
+    flags.iter().filter_map(|&(set, flag)| set.then_some(flag)).collect()
 }

@@ -273,9 +273,15 @@ impl AutoPrecision {
     /// One line for logs: `precision auto: bf16 (AVX-512 BF16)` or `precision auto: f32 (why)`.
     #[must_use]
     pub fn describe(&self) -> String {
+        format!("precision auto: {}", self.choice())
+    }
+
+    /// The choice and its reason: `bf16 (AVX-512 BF16)` or `f32 (why)`.
+    #[must_use]
+    pub fn choice(&self) -> String {
         match self {
-            Self::Bf16(kernel) => format!("precision auto: bf16 ({})", kernel.name()),
-            Self::F32(why) => format!("precision auto: f32 ({why})"),
+            Self::Bf16(kernel) => format!("bf16 ({})", kernel.name()),
+            Self::F32(why) => format!("f32 ({why})"),
         }
     }
 }
