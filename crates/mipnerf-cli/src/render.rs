@@ -8,6 +8,7 @@ use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
 use mipnerf_core::Camera;
 use mipnerf_core::backend::ImageSpec;
+use mipnerf_core::data::camera_path::{MAX_FRAMES, MAX_SIDE};
 use mipnerf_core::data::{Dataset, Split};
 use mipnerf_core::model::Levels;
 
@@ -25,13 +26,29 @@ pub enum PathKind {
 }
 
 /// What to render.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub enum Target {
     /// Every view of a split at its own resolution.
     Split(Split),
     /// `frames` cameras along a path, and the video's frames per second.
     Path(PathKind, usize, u32),
+    /// The cameras of a camera file ([`mipnerf_core::data::camera_path`]), and the video's
+    /// frames per second.
+    Cameras(std::path::PathBuf, u32),
 }
+
+impl Target {
+    /// The video's frames per second, for a sequence of frames (a path or a camera file).
+    const fn fps(&self) -> Option<u32> {
+        match self {
+            Self::Split(_) => None,
+            Self::Path(_, _, fps) | Self::Cameras(_, fps) => Some(*fps),
+        }
+    }
+}
+
+/// The cameras a render rendered, in the camera-file form `--cameras` reads.
+pub const CAMERAS: &str = "cameras.json";
 
 /// The video of a path render (H.264 in MP4, see [`crate::images::write_mp4`]).
 pub const VIDEO: &str = "video.mp4";
@@ -142,16 +159,21 @@ pub fn render(
 ) -> Result<Vec<std::path::PathBuf>> {
     let s = read_config(run)?;
     if let Some((w, h)) = size
-        && (w == 0 || h == 0 || w > 16384 || h > 16384)
+        && (w == 0 || h == 0 || w > MAX_SIDE || h > MAX_SIDE)
     {
-        bail!("--width and --height must be between 1 and 16384, got {w}x{h}");
+        bail!("--width and --height must be between 1 and {MAX_SIDE}, got {w}x{h}");
     }
     let k = read_supersample(&s)?;
     // (name, image) per image.
+    if let Some(fps) = target.fps()
+        && (fps == 0 || fps > 240)
+    {
+        bail!("--fps must be between 1 and 240, got {fps}");
+    }
     let mut jobs: Vec<(String, ImageSpec)> = Vec::new();
-    match target {
+    match &target {
         Target::Split(split) => {
-            let ds = load_split(&s, split)?;
+            let ds = load_split(&s, *split)?;
             for v in 0..ds.views().len() {
                 let view = &ds.views()[v];
                 let stem = view.file.file_stem().map_or_else(|| format!("{v:04}"), |x| x.to_string_lossy().to_string());
@@ -162,15 +184,14 @@ pub fn render(
                 jobs.push((stem, image));
             }
         }
-        Target::Path(kind, frames, fps) => {
-            if fps == 0 || fps > 240 {
-                bail!("--fps must be between 1 and 240, got {fps}");
-            }
-            if frames == 0 || frames > 10_000 {
-                bail!("--frames must be between 1 and 10000, got {frames}");
+        Target::Path(kind, frames, _) => {
+            let frames = *frames;
+            if frames == 0 || frames > MAX_FRAMES {
+                bail!("--frames must be between 1 and {MAX_FRAMES}, got {frames}");
             }
             let train = load_split(&s, Split::Train)?;
             let test = load_split(&s, Split::Test).ok();
+            let kind = *kind;
             if train.ndc.is_some()
                 && (kind == PathKind::Orbit || test.as_ref().is_none_or(|t| t.render_path.is_empty()))
             {
@@ -191,7 +212,23 @@ pub fn render(
                 jobs.push((format!("frame_{i:04}"), ImageSpec { camera, ..template.clone() }));
             }
         }
+        Target::Cameras(file, _) => {
+            let train = load_split(&s, Split::Train)?;
+            // What the file leaves out is the first full-scale training photo's.
+            let template = ImageSpec::of_view(&train, 0, k);
+            let cameras = mipnerf_core::data::camera_path::read(file, &template.camera, size)?;
+            if train.ndc.is_none()
+                && let Some(note) = outside_the_photos(&train, &cameras)
+            {
+                eprintln!("note: {note}");
+            }
+            for (i, camera) in cameras.into_iter().enumerate() {
+                jobs.push((format!("frame_{i:04}"), ImageSpec { camera, ..template.clone() }));
+            }
+        }
     }
+    let cameras_file: Vec<mipnerf_core::Camera> = jobs.iter().map(|(_, image)| image.camera.clone()).collect();
+    let cameras_file = mipnerf_core::data::camera_path::to_text(&cameras_file);
     // Never into a folder of files mipnerf did not write (a dataset's images, say).
     crate::outputs::check_dir(out, "--out", overwrite)?;
     // Load the data first: a bad split fails before the device is opened.
@@ -209,10 +246,10 @@ pub fn render(
                 .map(move |(s, e)| format!("{n}{s}{e}"))
         })
         .collect();
-    if matches!(target, Target::Path(..)) {
+    if target.fps().is_some() {
         names.extend(["preview.gif".to_owned(), VIDEO.to_owned()]);
     }
-    names.push(DEPTH_SCALE.to_owned());
+    names.extend([DEPTH_SCALE.to_owned(), CAMERAS.to_owned()]);
     crate::outputs::replace_outputs(out, names)?;
     // From here a signal stops the render between files (inside an image, at once), saying how
     // many images it wrote (none while the colour bar is drawn); every file on disk is whole.
@@ -229,6 +266,15 @@ pub fn render(
         )?;
     }
     let mut written = Vec::new();
+    // The cameras, first: a render stopped midway names the frames it was to render.
+    match cameras_file {
+        Some(text) => {
+            let path = out.join(CAMERAS);
+            mipnerf_core::io::write_atomic(&path, text.as_bytes())?;
+            written.push(path);
+        }
+        None => eprintln!("note: no {CAMERAS}: the cameras' intrinsics are not a plain pinhole's (fl_x, fl_y, cx, cy)"),
+    }
     let mut preview = Vec::new();
     let mut pb = session.progress("render", 0, jobs.len() as u64);
     for (i, (name, image)) in jobs.iter().enumerate() {
@@ -270,7 +316,7 @@ pub fn render(
             result?;
             written.push(out.join(file));
         }
-        if matches!(target, Target::Path(..)) {
+        if target.fps().is_some() {
             preview.push(png);
         }
         pb.inc();
@@ -281,7 +327,7 @@ pub fn render(
         let gif = out.join("preview.gif");
         write_gif(&gif, w, h, &preview, 80)?;
         written.push(gif);
-        if let Target::Path(_, _, fps) = target {
+        if let Some(fps) = target.fps() {
             if w.min(h) >= crate::images::MIN_VIDEO_SIDE {
                 let video = out.join(VIDEO);
                 crate::images::write_mp4(&video, w, h, &preview, fps)?;

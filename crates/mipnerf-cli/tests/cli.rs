@@ -194,6 +194,7 @@ fn the_demo_produces_every_promised_file_and_beats_a_constant_image() {
         "render_orbit/frame_0000.png",
         "render_orbit/preview.gif",
         "render_orbit/video.mp4",
+        "render_orbit/cameras.json",
         "nerf/checkpoint.safetensors",
         "nerf/eval/metrics.json",
         "antialiasing.png",

@@ -19,16 +19,23 @@ pub struct Args {
     /// Output directory (created).
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
-    /// Render every view of this split [default: test, unless --path is given].
-    #[arg(long, value_enum, conflicts_with = "path")]
+    /// Render every view of this split [default: test, unless --path or --cameras is given].
+    #[arg(long, value_enum, conflicts_with_all = ["path", "cameras"])]
     pub split: Option<SplitArg>,
     /// Render a camera path instead.
-    #[arg(long, value_enum)]
+    #[arg(long, value_enum, conflicts_with = "cameras")]
     pub path: Option<render::PathKind>,
+    /// Render the cameras of a camera file instead: `transforms.json`-style frames, each a 4x4
+    /// camera-to-world `transform_matrix`, with optional `w`, `h`, `fl_x`, `fl_y`, `cx`, `cy` or
+    /// `camera_angle_x` per frame or for all (what a frame leaves out is the training photos').
+    /// Every render writes the cameras it rendered to `cameras.json` in this form.
+    #[arg(long, value_name = "FILE")]
+    pub cameras: Option<PathBuf>,
     /// Frames of the path.
-    #[arg(long, default_value_t = 60)]
+    #[arg(long, default_value_t = 60, conflicts_with = "cameras")]
     pub frames: usize,
-    /// Frames per second of the path's video (video.mp4, H.264, beside preview.gif).
+    /// Frames per second of the path's (or camera file's) video (video.mp4, H.264, beside
+    /// preview.gif).
     #[arg(long, default_value_t = render::DEFAULT_FPS)]
     pub fps: u32,
     /// Output width in pixels (with --height) [default: the data's].
@@ -58,9 +65,10 @@ pub struct Args {
 /// # Errors
 /// As [`render::render`].
 pub fn run(a: Args, session: &Session) -> Result<()> {
-    let target = match a.path {
-        Some(kind) => render::Target::Path(kind, a.frames, a.fps),
-        None => render::Target::Split(a.split.unwrap_or(SplitArg::Test).into()),
+    let target = match (a.path, a.cameras) {
+        (Some(kind), _) => render::Target::Path(kind, a.frames, a.fps),
+        (None, Some(file)) => render::Target::Cameras(file, a.fps),
+        (None, None) => render::Target::Split(a.split.unwrap_or(SplitArg::Test).into()),
     };
     let size = a.width.zip(a.height);
     let device = a.device.options();

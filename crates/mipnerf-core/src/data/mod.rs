@@ -5,6 +5,7 @@
 //! - [`multiscale`]: the official multiscale Blender format (`metadata.json`, 4 scales per view),
 //!   and its converter;
 //! - [`llff`]: forward-facing captures (`poses_bounds.npy`, `images_{factor}`), NDC rays;
+//! - [`camera_path`]: camera files (`transforms.json`-style poses and intrinsics) to render;
 //! - [`demo`]: a procedural scene rendered by the project's own ray tracer, written in the
 //!   multiscale format; it needs no files.
 //!
@@ -14,6 +15,7 @@
 //! stored for the whole dataset.
 
 pub mod blender;
+pub mod camera_path;
 pub mod colmap;
 pub mod demo;
 pub mod focal;

@@ -1,0 +1,295 @@
+//! Camera files: the cameras of a render in the NeRF `transforms.json` convention, read and
+//! written, so that any camera path (one made in Blender, edited by hand, or written by an
+//! earlier `mipnerf render`) can be rendered.
+//!
+//! The file is a JSON object with a list `frames`, each with a 4x4 (or 3x4) camera-to-world
+//! `transform_matrix` in OpenGL axes (the camera looks down `-z`, `y` up), as Blender's
+//! `transforms_*.json` have. The intrinsics are read from each frame, else from the top level:
+//! - `w`, `h`: the image size in pixels;
+//! - `fl_x` (focal length in pixels), with optional `fl_y`, `cx`, `cy` (Instant-NGP's and
+//!   nerfstudio's keys), or else `camera_angle_x` (the horizontal field of view in radians,
+//!   Blender's); `fl_x` wins when both are given, as those tools write both.
+//!
+//! What a file leaves out comes from a default camera (a training photo's). Other keys (a
+//! frame's `file_path`, say) are ignored, so a Blender scene's `transforms_test.json` is a camera
+//! file too.
+//!
+//! Poses are in the world of the trained model: a Blender scene's own frame; for LLFF and COLMAP
+//! data the recentred (and with `--spherify` the spherified) frame the loader puts the cameras
+//! in. [`to_json`] writes cameras in that frame, so the file an earlier render wrote is the place
+//! to start a path of one's own.
+
+use std::path::Path;
+
+use serde_json::{Map, Value, json};
+
+use super::{DataError, pose_from_json, read_json};
+use crate::camera::{Camera, focal_from_camera_angle_x};
+
+/// The most frames a camera file may hold (as `mipnerf render --frames`).
+pub const MAX_FRAMES: usize = 10_000;
+
+/// The largest image side a camera file may ask for, in pixels (as `mipnerf render --width`).
+pub const MAX_SIDE: u32 = 16_384;
+
+/// Reads the cameras of the camera file at `path`; what a frame leaves out comes from `default`
+/// (its size, and its focal length scaled to the frame's width). With `size`, every camera is
+/// rendered at that size instead, with the same horizontal field of view and square pixels kept
+/// square.
+///
+/// # Errors
+/// [`DataError`] naming the file (and the frame) for a missing or malformed file, no frames or
+/// more than [`MAX_FRAMES`], a size outside 1 to [`MAX_SIDE`], intrinsics that are not positive
+/// finite numbers, or a pose [`Camera::from_pix2cam`] refuses.
+pub fn read(path: &Path, default: &Camera, size: Option<(u32, u32)>) -> Result<Vec<Camera>, DataError> {
+    let file = read_json(path)?;
+    let top = file.as_object().ok_or_else(|| DataError::invalid(path, "expected a JSON object with \"frames\""))?;
+    let frames = top
+        .get("frames")
+        .ok_or_else(|| DataError::invalid(path, "missing key \"frames\" (a list of {\"transform_matrix\": 4x4})"))?
+        .as_array()
+        .ok_or_else(|| DataError::invalid(path, "\"frames\" must be a list"))?;
+    if frames.is_empty() {
+        return Err(DataError::invalid(path, "\"frames\" is empty: no camera to render"));
+    }
+    if frames.len() > MAX_FRAMES {
+        return Err(DataError::invalid(path, format!("{} frames; at most {MAX_FRAMES} are rendered", frames.len())));
+    }
+    frames
+        .iter()
+        .enumerate()
+        .map(|(i, frame)| {
+            let frame =
+                frame.as_object().ok_or_else(|| DataError::invalid(path, format!("frame {i} is not an object")))?;
+            camera(frame, top, default, size)
+                .map_err(|problem| DataError::invalid(path, format!("frame {i}: {problem}")))
+        })
+        .collect()
+}
+
+/// A number under `key`, from the frame or else the top level; `None` when neither has it.
+fn number(key: &str, frame: &Map<String, Value>, top: &Map<String, Value>) -> Result<Option<f64>, String> {
+    match frame.get(key).or_else(|| top.get(key)) {
+        None => Ok(None),
+        Some(v) => {
+            v.as_f64().filter(|x| x.is_finite()).map(Some).ok_or_else(|| format!("\"{key}\" is not a finite number"))
+        }
+    }
+}
+
+/// An image side under `key` (`w` or `h`), from the frame or else the top level.
+fn side(key: &str, frame: &Map<String, Value>, top: &Map<String, Value>) -> Result<Option<u32>, String> {
+    let Some(x) = number(key, frame, top)? else { return Ok(None) };
+    if x.fract() != 0.0 || !(1.0..=f64::from(MAX_SIDE)).contains(&x) {
+        return Err(format!("\"{key}\" is {x}; a side is a whole number of pixels from 1 to {MAX_SIDE}"));
+    }
+    // A whole number from 1 to MAX_SIDE (checked above).
+    #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+    Ok(Some(x as u32))
+}
+
+/// One frame's camera.
+fn camera(
+    frame: &Map<String, Value>,
+    top: &Map<String, Value>,
+    default: &Camera,
+    size: Option<(u32, u32)>,
+) -> Result<Camera, String> {
+    let pose = frame.get("transform_matrix").ok_or("missing key \"transform_matrix\"")?;
+    let cam2world = pose_from_json(pose, Path::new(""), "transform_matrix").map_err(|e| match e {
+        DataError::Invalid { problem, .. } => problem,
+        other => other.to_string(),
+    })?;
+    let (w, h) = match (side("w", frame, top)?, side("h", frame, top)?) {
+        (Some(w), Some(h)) => (w, h),
+        (None, None) => (default.width, default.height),
+        _ => return Err("give both \"w\" and \"h\", or neither (the training photos' size)".into()),
+    };
+    let focal_x = match (number("fl_x", frame, top)?, number("camera_angle_x", frame, top)?) {
+        (Some(f), _) => f,
+        (None, Some(angle)) => {
+            if !(angle > 0.0 && angle < std::f64::consts::PI) {
+                return Err(format!("\"camera_angle_x\" is {angle}; a field of view in radians is in (0, pi)"));
+            }
+            focal_from_camera_angle_x(w, angle)
+        }
+        // The default camera's focal length, in pixels of this width.
+        (None, None) => f64::from(w) / f64::from(default.width) / default.pix2cam[0][0],
+    };
+    let focal_y = number("fl_y", frame, top)?.unwrap_or(focal_x);
+    let cx = number("cx", frame, top)?.unwrap_or(0.5 * f64::from(w));
+    let cy = number("cy", frame, top)?.unwrap_or(0.5 * f64::from(h));
+    for (key, f) in [("fl_x", focal_x), ("fl_y", focal_y)] {
+        if f <= 0.0 {
+            return Err(format!("the focal length \"{key}\" is {f}; it must be positive"));
+        }
+    }
+    // Another size keeps the horizontal field of view and the pixels' shape (as `render
+    // --width` does for a split's views), the principal point where it was in the image.
+    let ((w, h), (focal_x, focal_y, cx, cy)) = match size {
+        None => ((w, h), (focal_x, focal_y, cx, cy)),
+        Some((nw, nh)) => {
+            let (sx, sy) = (f64::from(nw) / f64::from(w), f64::from(nh) / f64::from(h));
+            ((nw, nh), (focal_x * sx, focal_y * sx, cx * sx, cy * sy))
+        }
+    };
+    let pix2cam = [[1.0 / focal_x, 0.0, -cx / focal_x], [0.0, -1.0 / focal_y, cy / focal_y], [0.0, 0.0, -1.0]];
+    Camera::from_pix2cam(w, h, pix2cam, cam2world).map_err(|e| e.to_string())
+}
+
+/// The intrinsics `(fl_x, fl_y, cx, cy)` of a camera whose `pix2cam` is a pinhole's without skew
+/// in OpenGL axes (`[[1/fx, 0, -cx/fx], [0, -1/fy, cy/fy], [0, 0, -1]]`, as every dataset this
+/// tool reads makes); `None` for any other.
+#[must_use]
+pub fn intrinsics(camera: &Camera) -> Option<(f64, f64, f64, f64)> {
+    let p = camera.pix2cam;
+    let pinhole = p[0][1] == 0.0 && p[1][0] == 0.0 && p[2] == [0.0, 0.0, -1.0] && p[0][0] > 0.0 && p[1][1] < 0.0;
+    pinhole.then(|| {
+        let (fx, fy) = (1.0 / p[0][0], -1.0 / p[1][1]);
+        (fx, fy, -p[0][2] * fx, p[1][2] * fy)
+    })
+}
+
+/// The camera file of `cameras`: each frame with its `transform_matrix` (4x4), `w`, `h`, `fl_x`,
+/// `fl_y`, `cx`, `cy` and `camera_angle_x`; `None` when a camera's intrinsics are not a plain
+/// pinhole's ([`intrinsics`]).
+#[must_use]
+pub fn to_json(cameras: &[Camera]) -> Option<Value> {
+    let frames = cameras
+        .iter()
+        .map(|c| {
+            let (fx, fy, cx, cy) = intrinsics(c)?;
+            let m = c.cam2world;
+            let transform: Vec<Vec<f64>> = m.iter().map(|r| r.to_vec()).chain([vec![0.0, 0.0, 0.0, 1.0]]).collect();
+            Some(json!({
+                "transform_matrix": transform,
+                "w": c.width,
+                "h": c.height,
+                "fl_x": fx,
+                "fl_y": fy,
+                "cx": cx,
+                "cy": cy,
+                "camera_angle_x": 2.0 * (0.5 * f64::from(c.width) / fx).atan(),
+            }))
+        })
+        .collect::<Option<Vec<Value>>>()?;
+    Some(json!({ "frames": frames }))
+}
+
+/// [`to_json`] as the text of a camera file: one frame a line, its pose first, so that a path
+/// reads (and diffs) frame by frame. Every number is written in the fewest digits that parse back
+/// to it; `serde_json` (which [`read`] uses) parses some of them to a neighbouring `f64`, a
+/// relative change of about 1e-16.
+#[must_use]
+pub fn to_text(cameras: &[Camera]) -> Option<String> {
+    let file = to_json(cameras)?;
+    let frames = file["frames"].as_array()?;
+    let keys = ["transform_matrix", "w", "h", "fl_x", "fl_y", "cx", "cy", "camera_angle_x"];
+    let lines: Vec<String> = frames
+        .iter()
+        .map(|f| {
+            let fields: Vec<String> = keys.iter().map(|k| format!("\"{k}\": {}", f[*k])).collect();
+            format!("    {{{}}}", fields.join(", "))
+        })
+        .collect();
+    Some(format!("{{\n  \"frames\": [\n{}\n  ]\n}}\n", lines.join(",\n")))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{read, to_json, to_text};
+    use crate::camera::{Camera, pinhole_pix2cam};
+
+    fn pose(x: f64) -> [[f64; 4]; 3] {
+        [[1.0, 0.0, 0.0, x], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 4.0]]
+    }
+
+    fn default_camera() -> Camera {
+        Camera::from_pix2cam(40, 30, pinhole_pix2cam(40, 30, 50.0), pose(0.0)).unwrap()
+    }
+
+    fn read_text(text: &str, size: Option<(u32, u32)>) -> Result<Vec<Camera>, String> {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("cameras.json");
+        std::fs::write(&path, text).unwrap();
+        read(&path, &default_camera(), size).map_err(|e| e.to_string())
+    }
+
+    /// Written cameras read back as the same cameras, to rounding (`1 / (1 / f)`, and `serde_json`'s
+    /// parsing of floats).
+    #[test]
+    fn written_cameras_read_back() {
+        let a = Camera::from_pix2cam(64, 48, pinhole_pix2cam(64, 48, 71.3), pose(0.5)).unwrap();
+        let mut p = pinhole_pix2cam(20, 10, 9.0);
+        p[0][2] = -11.0 / 9.0; // cx = 11, off-centre
+        p[1][1] = -1.0 / 8.0; // fl_y = 8
+        let b = Camera::from_pix2cam(20, 10, p, pose(-2.0)).unwrap();
+        let text = to_text(&[a.clone(), b.clone()]).unwrap();
+        assert_eq!(
+            serde_json::from_str::<serde_json::Value>(&text).unwrap(),
+            to_json(&[a.clone(), b.clone()]).unwrap()
+        );
+        assert_eq!(text.lines().count(), 6, "{text}");
+        let back = read_text(&text, None).unwrap();
+        for (want, got) in [a, b].iter().zip(&back) {
+            assert_eq!((want.width, want.height), (got.width, got.height));
+            let values = |c: &Camera| {
+                c.pix2cam.iter().flatten().chain(c.cam2world.iter().flatten()).copied().collect::<Vec<_>>()
+            };
+            for (w, g) in values(want).iter().zip(&values(got)) {
+                assert!((w - g).abs() <= 1e-15 * w.abs().max(1.0), "{:?} against {:?}", want.pix2cam, got.pix2cam);
+            }
+        }
+    }
+
+    /// Blender's keys: `camera_angle_x` at the top level; the size and anything else from the
+    /// default camera; `--width`/`--height` scale the intrinsics.
+    #[test]
+    fn blender_transforms_are_a_camera_file() {
+        let text = r#"{"camera_angle_x": 1.0, "frames": [
+            {"file_path": "./test/r_0", "transform_matrix": [[1,0,0,1],[0,1,0,2],[0,0,1,3],[0,0,0,1]]},
+            {"transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,5]], "fl_x": 20}]}"#;
+        let cams = read_text(text, None).unwrap();
+        assert_eq!((cams[0].width, cams[0].height), (40, 30));
+        assert_eq!(cams[0].origin(), [1.0, 2.0, 3.0]);
+        let want = pinhole_pix2cam(40, 30, 20.0 / (0.5f64).tan());
+        assert_eq!(cams[0].pix2cam, want);
+        assert_eq!(cams[1].pix2cam, pinhole_pix2cam(40, 30, 20.0));
+        // No intrinsics at all: the default camera's focal length.
+        let plain = read_text(r#"{"frames": [{"transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,5]]}]}"#, None).unwrap();
+        assert_eq!(plain[0].pix2cam, default_camera().pix2cam);
+        // Twice the size: twice the focal length, the principal point still centred.
+        let big = read_text(text, Some((80, 60))).unwrap();
+        assert_eq!(big[1].pix2cam, pinhole_pix2cam(80, 60, 40.0));
+        // Another aspect ratio: the horizontal field of view and square pixels kept.
+        let wide = read_text(text, Some((80, 30))).unwrap();
+        assert_eq!(wide[1].pix2cam, pinhole_pix2cam(80, 30, 40.0));
+    }
+
+    /// Each bad file is refused naming the frame and the problem.
+    #[test]
+    fn bad_camera_files_are_named() {
+        let m = r#""transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,5]]"#;
+        for (text, want) in [
+            ("[1, 2]".to_owned(), "expected a JSON object".to_owned()),
+            ("{}".to_owned(), "missing key \"frames\"".to_owned()),
+            (r#"{"frames": []}"#.to_owned(), "\"frames\" is empty".to_owned()),
+            (r#"{"frames": [3]}"#.to_owned(), "frame 0 is not an object".to_owned()),
+            (format!(r#"{{"frames": [{{{m}}}, {{}}]}}"#), "frame 1: missing key \"transform_matrix\"".to_owned()),
+            (format!(r#"{{"w": 10, "frames": [{{{m}}}]}}"#), "give both \"w\" and \"h\"".to_owned()),
+            (format!(r#"{{"w": 0, "h": 5, "frames": [{{{m}}}]}}"#), "\"w\" is 0".to_owned()),
+            (format!(r#"{{"w": 10.5, "h": 5, "frames": [{{{m}}}]}}"#), "\"w\" is 10.5".to_owned()),
+            (format!(r#"{{"frames": [{{{m}, "fl_x": -3}}]}}"#), "frame 0: the focal length \"fl_x\" is -3".to_owned()),
+            (format!(r#"{{"frames": [{{{m}, "fl_x": "wide"}}]}}"#), "\"fl_x\" is not a finite number".to_owned()),
+            (format!(r#"{{"camera_angle_x": 4, "frames": [{{{m}}}]}}"#), "\"camera_angle_x\" is 4".to_owned()),
+            (
+                r#"{"frames": [{"transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,0,5]]}]}"#.to_owned(),
+                "frame 0: invalid camera: cam2world rotation is singular".to_owned(),
+            ),
+            (r#"{"frames": [{"transform_matrix": [[1,0,0,0]]}]}"#.to_owned(), "expected a 4x4 matrix".to_owned()),
+        ] {
+            let err = read_text(&text, None).unwrap_err();
+            assert!(err.contains("cameras.json") && err.contains(&want), "{text}: {err}");
+        }
+    }
+}
