@@ -158,6 +158,11 @@ fn bad_masks_are_refused_naming_the_file() {
     image::GrayImage::new(16, 16).save(masks.join("view003.png")).unwrap();
     let text = train("black");
     assert!(text.contains("view003.png") && text.contains("all black"), "{text}");
+    // Two masks for one photo: which is meant is not guessed.
+    image::GrayImage::from_pixel(16, 16, image::Luma([255])).save(masks.join("view003.png")).unwrap();
+    std::fs::copy(masks.join("view003.png"), masks.join("view003.jpg")).unwrap();
+    let text = train("two");
+    assert!(text.contains("view003.png has 2 masks (view003.jpg, view003.png): keep one"), "{text}");
     let text = train_missing_folder(&data, dir.path());
     assert!(text.contains("no-such-masks") && text.contains("does not exist"), "{text}");
 }

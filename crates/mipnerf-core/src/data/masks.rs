@@ -16,17 +16,31 @@ use super::{DataError, Dataset, Pixels, box_resize, read_png_rgba};
 /// the object slightly transparent.
 pub const MASK_SNAP_LEVELS: u8 = 8;
 
-/// The file extensions a mask may have, in the order they are looked for.
-const MASK_EXTENSIONS: [&str; 5] = ["png", "PNG", "jpg", "JPG", "jpeg"];
+/// The file extensions a mask may have.
+const MASK_EXTENSIONS: [&str; 6] = ["png", "PNG", "jpg", "JPG", "jpeg", "JPEG"];
 
-/// The mask file of the photo `photo` in `dir`: the first of `dir/<stem>.{png,jpg,...}`.
+/// The mask file of the photo `photo` in `dir`: `dir/<stem>.{png,jpg,...}`, matched by the
+/// names in the folder (so a case-insensitive file system does not see one file under two
+/// names).
 ///
 /// # Errors
-/// [`DataError::Invalid`] naming the file names looked for when none exists.
+/// [`DataError::Invalid`] naming the file names looked for when none exists, or the files when
+/// the photo has more than one mask (say `a.png` and `a.jpg`: which one is meant is not for the
+/// loader to guess); [`DataError::Io`] when the folder cannot be listed.
 pub fn mask_file(dir: &Path, photo: &Path) -> Result<PathBuf, DataError> {
     let stem = photo.file_stem().and_then(|s| s.to_str()).unwrap_or_default();
-    MASK_EXTENSIONS.iter().map(|e| dir.join(format!("{stem}.{e}"))).find(|p| p.is_file()).ok_or_else(|| {
-        DataError::invalid(
+    let wanted: Vec<String> = MASK_EXTENSIONS.iter().map(|e| format!("{stem}.{e}")).collect();
+    let mut found: Vec<PathBuf> = Vec::new();
+    for entry in std::fs::read_dir(dir).map_err(|e| DataError::io(dir, e))? {
+        let entry = entry.map_err(|e| DataError::io(dir, e))?;
+        if wanted.iter().any(|w| entry.file_name() == w.as_str()) && entry.path().is_file() {
+            found.push(entry.path());
+        }
+    }
+    found.sort();
+    match found.as_slice() {
+        [one] => Ok(one.clone()),
+        [] => Err(DataError::invalid(
             &dir.join(format!("{stem}.png")),
             format!(
                 "no mask for photo {}: expected {stem}.png (or .jpg) in {} (one mask per photo, named as the photo, \
@@ -34,8 +48,21 @@ pub fn mask_file(dir: &Path, photo: &Path) -> Result<PathBuf, DataError> {
                 photo.display(),
                 dir.display()
             ),
-        )
-    })
+        )),
+        [first, ..] => Err(DataError::invalid(
+            first,
+            format!(
+                "photo {} has {} masks ({}): keep one",
+                photo.display(),
+                found.len(),
+                found
+                    .iter()
+                    .map(|p| p.file_name().unwrap_or_default().to_string_lossy())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        )),
+    }
 }
 
 /// Reads a mask as alpha in `[0, 1]`, `width x height`: its grey levels (the luminance of a colour
