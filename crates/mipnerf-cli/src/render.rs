@@ -32,9 +32,9 @@ pub enum Target {
     Split(Split),
     /// `frames` cameras along a path, and the video's frames per second.
     Path(PathKind, usize, u32),
-    /// The cameras of a camera file ([`mipnerf_core::data::camera_path`]), and the video's
-    /// frames per second.
-    Cameras(std::path::PathBuf, u32),
+    /// The cameras of a camera file ([`mipnerf_core::data::camera_path`]), or that many frames
+    /// along a smooth path through them as keyframes, and the video's frames per second.
+    Cameras(std::path::PathBuf, Option<usize>, u32),
 }
 
 impl Target {
@@ -42,7 +42,7 @@ impl Target {
     const fn fps(&self) -> Option<u32> {
         match self {
             Self::Split(_) => None,
-            Self::Path(_, _, fps) | Self::Cameras(_, fps) => Some(*fps),
+            Self::Path(_, _, fps) | Self::Cameras(_, _, fps) => Some(*fps),
         }
     }
 }
@@ -52,6 +52,9 @@ pub const CAMERAS: &str = "cameras.json";
 
 /// The video of a path render (H.264 in MP4, see [`crate::images::write_mp4`]).
 pub const VIDEO: &str = "video.mp4";
+
+/// Frames of a camera path by default.
+pub const DEFAULT_FRAMES: usize = 60;
 
 /// Frames per second of a path's video by default.
 pub const DEFAULT_FPS: u32 = 24;
@@ -212,11 +215,18 @@ pub fn render(
                 jobs.push((format!("frame_{i:04}"), ImageSpec { camera, ..template.clone() }));
             }
         }
-        Target::Cameras(file, _) => {
+        Target::Cameras(file, frames, _) => {
             let train = load_split(&s, Split::Train)?;
             // What the file leaves out is the first full-scale training photo's.
             let template = ImageSpec::of_view(&train, 0, k);
-            let cameras = mipnerf_core::data::camera_path::read(file, &template.camera, size)?;
+            let mut cameras = mipnerf_core::data::camera_path::read(file, &template.camera, size)?;
+            if let Some(frames) = *frames {
+                if frames == 0 || frames > MAX_FRAMES {
+                    bail!("--frames must be between 1 and {MAX_FRAMES}, got {frames}");
+                }
+                cameras = mipnerf_core::data::camera_path::interpolate(&cameras, frames)
+                    .map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))?;
+            }
             if train.ndc.is_none()
                 && let Some(note) = outside_the_photos(&train, &cameras)
             {

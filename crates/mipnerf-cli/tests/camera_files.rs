@@ -49,6 +49,33 @@ fn a_renders_cameras_render_the_same_images_again() {
     }
     assert!(again.join("preview.gif").is_file());
 
+    // The three cameras as keyframes of a 5-frame path: frames 0, 2 and 4 are the keys (to
+    // rounding: a pose through a quaternion and back), frames 1 and 3 new views between them.
+    let smooth = dir.path().join("smooth");
+    run_ok(&[
+        "render",
+        "--run",
+        r,
+        "--out",
+        smooth.to_str().unwrap(),
+        "--cameras",
+        c,
+        "--frames",
+        "5",
+        "--backend",
+        "cpu",
+    ]);
+    assert_eq!(frames(&smooth.join("cameras.json")).len(), 5);
+    for (key, frame) in [(0, 0), (1, 2), (2, 4)] {
+        let (want, got) =
+            (png(&orbit.join(format!("frame_{key:04}.png"))), png(&smooth.join(format!("frame_{frame:04}.png"))));
+        let most =
+            want.pixels().zip(got.pixels()).flat_map(|(a, b)| a.0.iter().zip(b.0).map(|(x, y)| x.abs_diff(y))).max();
+        assert!(most <= Some(1), "frame {frame} is not keyframe {key}: {most:?} levels apart");
+    }
+    let between = png(&smooth.join("frame_0001.png"));
+    assert!(between != png(&orbit.join("frame_0000.png")) && between != png(&orbit.join("frame_0001.png")));
+
     // Edited by hand: one frame, at another size and focal length.
     let mut one = written[1].clone();
     one["w"] = 24.into();
@@ -126,8 +153,13 @@ fn bad_camera_files_and_flags_are_refused_before_anything_is_written() {
     let err = run_err(&["render", "--run", r, "--out", o, "--cameras", missing.to_str().unwrap()]);
     assert!(err.contains("missing.json") && err.contains("No such file"), "{err}");
 
-    // The flags of a path or a split go with neither.
-    for flags in [&["--frames", "3"][..], &["--path", "orbit"], &["--split", "test"]] {
+    // Frames out of range; the flags of a path or a split go with neither.
+    std::fs::write(&bad, format!("{{\"frames\": [{{\"transform_matrix\": {pose}}}]}}")).unwrap();
+    let err = run_err(&["render", "--run", r, "--out", o, "--cameras", b, "--frames", "0"]);
+    assert!(err.contains("--frames must be between 1 and 10000"), "{err}");
+    let err = run_err(&["render", "--run", r, "--out", o, "--split", "test", "--frames", "3"]);
+    assert!(err.contains("--frames goes with --path"), "{err}");
+    for flags in [&["--path", "orbit"][..], &["--split", "test"]] {
         let output = mipnerf(&[&["render", "--run", r, "--out", o, "--cameras", b][..], flags].concat());
         let err = String::from_utf8_lossy(&output.stderr);
         assert_eq!(output.status.code(), Some(2), "{flags:?}: {err}");

@@ -1557,6 +1557,6 @@ fn one_sampling_level_trains_evaluates_and_renders() {
     let metrics = std::fs::read_to_string(run.join("eval/metrics.json")).unwrap();
     assert!(metrics.contains("psnr"), "{metrics}");
     let renders = dir.path().join("renders");
-    run_ok(&["render", "--run", r, "--backend", "cpu", "--out", renders.to_str().unwrap(), "--frames", "1"]);
+    run_ok(&["render", "--run", r, "--backend", "cpu", "--out", renders.to_str().unwrap()]);
     assert!(std::fs::read_dir(&renders).unwrap().next().is_some(), "render wrote nothing");
 }

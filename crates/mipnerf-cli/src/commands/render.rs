@@ -31,9 +31,10 @@ pub struct Args {
     /// Every render writes the cameras it rendered to `cameras.json` in this form.
     #[arg(long, value_name = "FILE")]
     pub cameras: Option<PathBuf>,
-    /// Frames of the path.
-    #[arg(long, default_value_t = 60, conflicts_with = "cameras")]
-    pub frames: usize,
+    /// Frames of the path [default: 60]. With --cameras: that many frames along a smooth path
+    /// through the file's cameras as keyframes (without it, the file's cameras as they are).
+    #[arg(long)]
+    pub frames: Option<usize>,
     /// Frames per second of the path's (or camera file's) video (video.mp4, H.264, beside
     /// preview.gif).
     #[arg(long, default_value_t = render::DEFAULT_FPS)]
@@ -65,9 +66,12 @@ pub struct Args {
 /// # Errors
 /// As [`render::render`].
 pub fn run(a: Args, session: &Session) -> Result<()> {
+    if a.frames.is_some() && a.path.is_none() && a.cameras.is_none() {
+        anyhow::bail!("--frames goes with --path (the frames of the path) or --cameras (frames through its cameras)");
+    }
     let target = match (a.path, a.cameras) {
-        (Some(kind), _) => render::Target::Path(kind, a.frames, a.fps),
-        (None, Some(file)) => render::Target::Cameras(file, a.fps),
+        (Some(kind), _) => render::Target::Path(kind, a.frames.unwrap_or(render::DEFAULT_FRAMES), a.fps),
+        (None, Some(file)) => render::Target::Cameras(file, a.frames, a.fps),
         (None, None) => render::Target::Split(a.split.unwrap_or(SplitArg::Test).into()),
     };
     let size = a.width.zip(a.height);

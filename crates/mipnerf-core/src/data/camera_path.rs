@@ -21,6 +21,7 @@
 
 use std::path::Path;
 
+use glam::{DQuat, DVec3};
 use serde_json::{Map, Value, json};
 
 use super::{DataError, pose_from_json, read_json};
@@ -195,9 +196,84 @@ pub fn to_text(cameras: &[Camera]) -> Option<String> {
     Some(format!("{{\n  \"frames\": [\n{}\n  ]\n}}\n", lines.join(",\n")))
 }
 
+/// `frames` cameras along a smooth path through the keyframes `keys`, from the first to the
+/// last: positions on a Catmull-Rom spline through the keys' positions (uniform, the end tangents
+/// from the neighbouring key), orientations slerped between neighbouring keys along the shorter
+/// arc, the intrinsics' `pix2cam` linear between them (so the tangent of the field of view);
+/// key `k` is reached at frame
+/// `k (frames - 1) / (keys - 1)`. One key gives `frames` copies of it.
+///
+/// # Errors
+/// A problem naming the keyframe: keys of different image sizes, or an interpolated camera
+/// [`Camera::from_pix2cam`] refuses; no keys or no frames.
+pub fn interpolate(keys: &[Camera], frames: usize) -> Result<Vec<Camera>, String> {
+    let Some(first) = keys.first() else { return Err("no keyframes".into()) };
+    if frames == 0 {
+        return Err("no frames to make".into());
+    }
+    if let Some((k, c)) = keys.iter().enumerate().find(|(_, c)| (c.width, c.height) != (first.width, first.height)) {
+        return Err(format!(
+            "keyframe {k} is {}x{} and keyframe 0 {}x{}: keyframes to interpolate share one image size",
+            c.width, c.height, first.width, first.height
+        ));
+    }
+    if let Some(k) = keys.iter().position(|c| {
+        let m = c.cam2world;
+        glam::DMat3::from_cols_array_2d(&std::array::from_fn(|col| std::array::from_fn(|row| m[row][col])))
+            .determinant()
+            < 0.0
+    }) {
+        return Err(format!("keyframe {k}'s axes are left-handed (a mirror image), not a camera's rotation"));
+    }
+    let position = |c: &Camera| DVec3::from_array(c.origin());
+    let rotations: Vec<DQuat> = keys.iter().map(rotation).collect();
+    let last = keys.len() - 1;
+    (0..frames)
+        .map(|i| {
+            // The path's parameter: key k at t = k.
+            #[allow(clippy::cast_precision_loss)]
+            let t = if frames == 1 { 0.0 } else { i as f64 * last as f64 / (frames - 1) as f64 };
+            // Truncation of a non-negative t no larger than `last`.
+            #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+            let k = (t.floor() as usize).min(last.saturating_sub(1));
+            let u = t - k as f64;
+            let at = |j: isize| position(&keys[(k as isize + j).clamp(0, last as isize) as usize]);
+            let (p0, p1, p2, p3) = (at(-1), at(0), at(1), at(2));
+            let p = 0.5
+                * (2.0 * p1
+                    + (p2 - p0) * u
+                    + (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3) * u * u
+                    + (3.0 * p1 - p0 - 3.0 * p2 + p3) * u * u * u);
+            let (q1, q2) = (rotations[k], rotations[(k + 1).min(last)]);
+            let q2 = if q1.dot(q2) < 0.0 { -q2 } else { q2 };
+            let r = glam::DMat3::from_quat(q1.slerp(q2, u));
+            let (a, b) = (&keys[k].pix2cam, &keys[(k + 1).min(last)].pix2cam);
+            let pix2cam =
+                std::array::from_fn(|row| std::array::from_fn(|col| a[row][col] + (b[row][col] - a[row][col]) * u));
+            let cam2world = std::array::from_fn(|row| {
+                let axes = r.row(row);
+                [axes.x, axes.y, axes.z, p[row]]
+            });
+            Camera::from_pix2cam(first.width, first.height, pix2cam, cam2world)
+                .map_err(|e| format!("frame {i} (between keyframes {k} and {}): {e}", (k + 1).min(last)))
+        })
+        .collect()
+}
+
+/// The rotation of `camera`'s pose, its axes made orthonormal first (exports may be sloppy by up
+/// to [`crate::camera::AXIS_LENGTH_RANGE`]).
+fn rotation(camera: &Camera) -> DQuat {
+    let m = camera.cam2world;
+    let axis = |c: usize| DVec3::new(m[0][c], m[1][c], m[2][c]);
+    let x = axis(0).normalize();
+    let y = (axis(1) - x * x.dot(axis(1))).normalize();
+    // The third axis from the first two keeps a right-handed frame, as a camera's is.
+    DQuat::from_mat3(&glam::DMat3::from_cols(x, y, x.cross(y)))
+}
+
 #[cfg(test)]
 mod tests {
-    use super::{read, to_json, to_text};
+    use super::{interpolate, read, to_json, to_text};
     use crate::camera::{Camera, pinhole_pix2cam};
 
     fn pose(x: f64) -> [[f64; 4]; 3] {
@@ -264,6 +340,77 @@ mod tests {
         // Another aspect ratio: the horizontal field of view and square pixels kept.
         let wide = read_text(text, Some((80, 30))).unwrap();
         assert_eq!(wide[1].pix2cam, pinhole_pix2cam(80, 30, 40.0));
+    }
+
+    /// A camera at `position` looking at the origin (z up), with focal length `focal`.
+    fn looking_at_origin(position: [f64; 3], focal: f64) -> Camera {
+        let back = glam::DVec3::from_array(position).normalize();
+        let right = glam::DVec3::Z.cross(back).normalize();
+        let up = back.cross(right);
+        let pose = std::array::from_fn(|r| [right[r], up[r], back[r], position[r]]);
+        Camera::from_pix2cam(40, 30, pinhole_pix2cam(40, 30, focal), pose).unwrap()
+    }
+
+    fn max_difference(a: &Camera, b: &Camera) -> f64 {
+        let values =
+            |c: &Camera| c.pix2cam.iter().flatten().chain(c.cam2world.iter().flatten()).copied().collect::<Vec<_>>();
+        values(a).iter().zip(&values(b)).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max)
+    }
+
+    /// The interpolated path passes through every keyframe (pose and intrinsics), its rotations
+    /// stay rotations, halfway between two keys of equal focal length the focal length is theirs,
+    /// and the path has no kink at a key: the steps into and out of it agree to first order.
+    #[test]
+    fn interpolation_passes_through_the_keys_smoothly() {
+        let keys = [
+            looking_at_origin([4.0, 0.0, 1.0], 50.0),
+            looking_at_origin([0.0, 4.0, 1.5], 50.0),
+            looking_at_origin([-4.0, 0.0, 1.0], 80.0),
+            looking_at_origin([0.0, -3.0, 2.0], 80.0),
+        ];
+        let frames = 3 * 40 + 1;
+        let path = interpolate(&keys, frames).unwrap();
+        assert_eq!(path.len(), frames);
+        for (k, key) in keys.iter().enumerate() {
+            let d = max_difference(key, &path[40 * k]);
+            assert!(d < 1e-12, "keyframe {k} is off the path by {d:e}");
+        }
+        for c in &path {
+            let m = c.cam2world;
+            let r = glam::DMat3::from_cols_array_2d(&std::array::from_fn(|col| std::array::from_fn(|row| m[row][col])));
+            let off =
+                (r.transpose() * r - glam::DMat3::IDENTITY).to_cols_array().iter().fold(0.0f64, |a, x| a.max(x.abs()));
+            assert!(off < 1e-12 && (r.determinant() - 1.0).abs() < 1e-12, "not a rotation: {r:?}");
+        }
+        assert!((path[20].pix2cam[0][0] - 1.0 / 50.0).abs() < 1e-15);
+        let halfway = 1.0 / path[60].pix2cam[0][0];
+        assert!((1.0 / halfway - 0.5 * (1.0 / 50.0 + 1.0 / 80.0)).abs() < 1e-15, "{halfway}");
+        for k in [40, 80] {
+            let p = |i: usize| glam::DVec3::from_array(path[i].origin());
+            let (before, after) = (p(k) - p(k - 1), p(k + 1) - p(k));
+            // The change of step over the step: the path's curvature times the step (about 0.1
+            // here); joining the keys by straight lines would turn it by 1.4 (90 degrees).
+            let kink = (after - before).length() / before.length();
+            assert!(kink < 0.25, "the path turns by {kink} at keyframe {}", k / 40);
+        }
+        // One key: copies of it. Two frames of four keys: the first and the last.
+        assert!(interpolate(&keys[..1], 3).unwrap().iter().all(|c| max_difference(c, &keys[0]) < 1e-12));
+        let ends = interpolate(&keys, 2).unwrap();
+        assert!(max_difference(&ends[0], &keys[0]) < 1e-12 && max_difference(&ends[1], &keys[3]) < 1e-12);
+    }
+
+    /// Keys of different sizes, a mirrored pose and nothing to make are refused, naming the key.
+    #[test]
+    fn interpolation_refuses_what_it_cannot_join() {
+        let a = looking_at_origin([4.0, 0.0, 1.0], 50.0);
+        let mut b = Camera::from_pix2cam(20, 30, pinhole_pix2cam(20, 30, 50.0), a.cam2world).unwrap();
+        assert!(interpolate(&[a.clone(), b.clone()], 5).unwrap_err().contains("keyframe 1 is 20x30"));
+        b = a.clone();
+        for row in &mut b.cam2world {
+            row[0] = -row[0];
+        }
+        assert!(interpolate(&[a.clone(), b], 5).unwrap_err().contains("keyframe 1's axes are left-handed"));
+        assert!(interpolate(&[], 5).is_err() && interpolate(&[a], 0).is_err());
     }
 
     /// Each bad file is refused naming the frame and the problem.
