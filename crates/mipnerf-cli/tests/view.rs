@@ -105,6 +105,23 @@ fn query(info: &serde_json::Value, w: u32, h: u32) -> String {
     format!("c2w={}&width={w}&height={h}&fov={}", c2w.join(","), info["fov"])
 }
 
+/// `text` with its `%XX` escapes (as `encodeURIComponent` writes them) decoded.
+fn percent_decoded(text: &str) -> String {
+    let b = text.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%' && i + 2 < b.len() {
+            out.push(u8::from_str_radix(&text[i + 1..i + 3], 16).unwrap());
+            i += 3;
+        } else {
+            out.push(b[i]);
+            i += 1;
+        }
+    }
+    String::from_utf8(out).unwrap()
+}
+
 #[test]
 fn the_viewer_serves_frames_coarse_to_fine_and_a_browser_moves_its_camera() {
     let dir = tempfile::tempdir().unwrap();
@@ -263,6 +280,37 @@ fn the_viewer_serves_frames_coarse_to_fine_and_a_browser_moves_its_camera() {
     assert_eq!(attr("data-level"), 0, "the view refined to full size once the camera rested: {canvas}");
     assert!(dom.contains("data-loaded=\"4\""), "the four scales loaded: {dom}");
     assert!(dom.contains("src=\"/api/val/0?step=299\""), "the latest validation render is shown: {dom}");
+    // The view before and after the drag, added to a path: a camera file render reads, whose
+    // two keys differ, at the canvas's size.
+    let link = dom.lines().find(|l| l.contains("id=\"keys\"")).unwrap_or_else(|| panic!("no path link in {dom}"));
+    assert!(link.contains("data-keys=\"2\"") && link.contains("(2 views)"), "{link}");
+    let href = link.split("href=\"data:application/json,").nth(1).unwrap().split('"').next().unwrap();
+    let cameras = dir.path().join("cameras.json");
+    std::fs::write(&cameras, percent_decoded(&href.replace("&amp;", "&"))).unwrap();
+    let file: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&cameras).unwrap()).unwrap();
+    let keys = file["frames"].as_array().unwrap();
+    assert_eq!(keys.len(), 2, "{file}");
+    assert_ne!(keys[0]["transform_matrix"], keys[1]["transform_matrix"], "the drag moved the camera");
+    assert_eq!((keys[0]["w"].as_u64(), keys[0]["h"].as_u64()), (Some(128), Some(128)), "{file}");
+    let tour = dir.path().join("tour");
+    let c = cameras.to_str().unwrap();
+    run_ok(&[
+        "render",
+        "--run",
+        r,
+        "--out",
+        tour.to_str().unwrap(),
+        "--cameras",
+        c,
+        "--frames",
+        "3",
+        "--backend",
+        "cpu",
+    ]);
+    for i in 0..3 {
+        let frame = image::open(tour.join(format!("frame_{i:04}.png"))).unwrap().to_rgb8();
+        assert_eq!(frame.dimensions(), (128, 128));
+    }
 
     let shot = dir.path().join("viewer.png");
     let out = browse(&[&format!("--screenshot={}", shot.display())]);
