@@ -167,12 +167,12 @@ pub fn render(
         bail!("--width and --height must be between 1 and {MAX_SIDE}, got {w}x{h}");
     }
     let k = read_supersample(&s)?;
-    // (name, image) per image.
     if let Some(fps) = target.fps()
         && (fps == 0 || fps > 240)
     {
         bail!("--fps must be between 1 and 240, got {fps}");
     }
+    // (name, image) per image.
     let mut jobs: Vec<(String, ImageSpec)> = Vec::new();
     match &target {
         Target::Split(split) => {

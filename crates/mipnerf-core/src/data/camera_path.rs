@@ -197,11 +197,12 @@ pub fn to_text(cameras: &[Camera]) -> Option<String> {
 }
 
 /// `frames` cameras along a smooth path through the keyframes `keys`, from the first to the
-/// last: positions on a Catmull-Rom spline through the keys' positions (uniform, the end tangents
-/// from the neighbouring key), orientations slerped between neighbouring keys along the shorter
-/// arc, the intrinsics' `pix2cam` linear between them (so the tangent of the field of view);
-/// key `k` is reached at frame
-/// `k (frames - 1) / (keys - 1)`. One key gives `frames` copies of it.
+/// last: positions on a Catmull-Rom spline through the keys' positions (uniform; at the ends the
+/// missing neighbour is the end key itself, or for a loop, whose last key is its first, the key
+/// across the join, so a looped video has no jolt there), orientations slerped between
+/// neighbouring keys along the shorter arc, the intrinsics' `pix2cam` linear between them (so
+/// the tangent of the field of view). Key `k` is reached at frame `k (frames - 1) / (keys - 1)`.
+/// One key gives `frames` copies of it.
 ///
 /// # Errors
 /// A problem naming the keyframe: keys of different image sizes, or an interpolated camera
@@ -228,6 +229,18 @@ pub fn interpolate(keys: &[Camera], frames: usize) -> Result<Vec<Camera>, String
     let position = |c: &Camera| DVec3::from_array(c.origin());
     let rotations: Vec<DQuat> = keys.iter().map(rotation).collect();
     let last = keys.len() - 1;
+    // A loop: more than two keys, the last one the first again (to rounding).
+    let closed = last >= 2 && position(first).distance(position(&keys[last])) <= 1e-9 * position(first).length().max(1.0);
+    // Key `j` of the spline's neighbours: past an end, the end key, or across a loop's join.
+    let neighbour = |j: isize| -> usize {
+        let last = last as isize;
+        let j = match (closed, j) {
+            (true, j) if j < 0 => j + last,
+            (true, j) if j > last => j - last,
+            (_, j) => j.clamp(0, last),
+        };
+        j as usize
+    };
     (0..frames)
         .map(|i| {
             // The path's parameter: key k at t = k.
@@ -237,7 +250,7 @@ pub fn interpolate(keys: &[Camera], frames: usize) -> Result<Vec<Camera>, String
             #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
             let k = (t.floor() as usize).min(last.saturating_sub(1));
             let u = t - k as f64;
-            let at = |j: isize| position(&keys[(k as isize + j).clamp(0, last as isize) as usize]);
+            let at = |j: isize| position(&keys[neighbour(k as isize + j)]);
             let (p0, p1, p2, p3) = (at(-1), at(0), at(1), at(2));
             let p = 0.5
                 * (2.0 * p1
@@ -397,6 +410,30 @@ mod tests {
         assert!(interpolate(&keys[..1], 3).unwrap().iter().all(|c| max_difference(c, &keys[0]) < 1e-12));
         let ends = interpolate(&keys, 2).unwrap();
         assert!(max_difference(&ends[0], &keys[0]) < 1e-12 && max_difference(&ends[1], &keys[3]) < 1e-12);
+    }
+
+    /// A loop (the last key the first again) joins without a jolt: the step out of the first
+    /// frame is the step into the last, as the step through any other key is.
+    #[test]
+    fn a_looped_path_joins_smoothly() {
+        let ring = |deg: f64| {
+            let a = deg.to_radians();
+            looking_at_origin([4.0 * a.cos(), 4.0 * a.sin(), 1.0 + 0.3 * (2.0 * a).sin()], 50.0)
+        };
+        let keys: Vec<Camera> = [0.0, 90.0, 180.0, 270.0, 360.0].into_iter().map(ring).collect();
+        let path = interpolate(&keys, 4 * 20 + 1).unwrap();
+        let p = |i: usize| glam::DVec3::from_array(path[i].origin());
+        let (into_last, out_of_first) = (p(80) - p(79), p(1) - p(0));
+        let jolt = (out_of_first - into_last).length() / into_last.length();
+        let (into_key, out_of_key) = (p(40) - p(39), p(41) - p(40));
+        let through_key = (out_of_key - into_key).length() / into_key.length();
+        assert!(jolt < 2.0 * through_key, "the join jolts by {jolt}, a key by {through_key}");
+        // Without the loop (the last key moved off the first) the ends are the keys' own.
+        let open: Vec<Camera> = [0.0, 90.0, 180.0, 270.0, 350.0].into_iter().map(ring).collect();
+        let path = interpolate(&open, 81).unwrap();
+        let p = |i: usize| glam::DVec3::from_array(path[i].origin());
+        let jolt = ((p(1) - p(0)) - (p(80) - p(79))).length() / (p(80) - p(79)).length();
+        assert!(jolt > 0.5, "an open path's ends are not joined: {jolt}");
     }
 
     /// Keys of different sizes, a mirrored pose and nothing to make are refused, naming the key.
