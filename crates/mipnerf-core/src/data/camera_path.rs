@@ -198,11 +198,14 @@ pub fn to_text(cameras: &[Camera]) -> Option<String> {
 
 /// `frames` cameras along a smooth path through the keyframes `keys`, from the first to the
 /// last: positions on a Catmull-Rom spline through the keys' positions (uniform; at the ends the
-/// missing neighbour is the end key itself, or for a loop, whose last key is its first, the key
-/// across the join, so a looped video has no jolt there), orientations slerped between
-/// neighbouring keys along the shorter arc, the intrinsics' `pix2cam` linear between them (so
-/// the tangent of the field of view). Key `k` is reached at frame `k (frames - 1) / (keys - 1)`.
-/// One key gives `frames` copies of it.
+/// missing neighbour is the end key itself), orientations slerped between neighbouring keys
+/// along the shorter arc, the intrinsics' `pix2cam` linear between them (so the tangent of the
+/// field of view). Key `k` is frame `k (frames - 1) / (keys - 1)`.
+///
+/// A loop (more than two keys, the last one the first again) is a video that plays round: the
+/// spline's neighbours wrap across the join, so nothing jolts there, and the last key is not a
+/// frame of its own (the first frame follows the last), so key `k` is frame
+/// `k frames / (keys - 1)`. One key gives `frames` copies of it.
 ///
 /// # Errors
 /// A problem naming the keyframe: keys of different image sizes, or an interpolated camera
@@ -245,7 +248,11 @@ pub fn interpolate(keys: &[Camera], frames: usize) -> Result<Vec<Camera>, String
         .map(|i| {
             // The path's parameter: key k at t = k.
             #[allow(clippy::cast_precision_loss)]
-            let t = if frames == 1 { 0.0 } else { i as f64 * last as f64 / (frames - 1) as f64 };
+            let t = match (closed, frames) {
+                (true, _) => i as f64 * last as f64 / frames as f64,
+                (false, 1) => 0.0,
+                (false, _) => i as f64 * last as f64 / (frames - 1) as f64,
+            };
             // Truncation of a non-negative t no larger than `last`.
             #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
             let k = (t.floor() as usize).min(last.saturating_sub(1));
@@ -412,8 +419,9 @@ mod tests {
         assert!(max_difference(&ends[0], &keys[0]) < 1e-12 && max_difference(&ends[1], &keys[3]) < 1e-12);
     }
 
-    /// A loop (the last key the first again) joins without a jolt: the step out of the first
-    /// frame is the step into the last, as the step through any other key is.
+    /// A loop (the last key the first again) plays round without a jolt: the step from the last
+    /// frame to the first changes as little as the step through any other key, and the last key
+    /// is not rendered twice.
     #[test]
     fn a_looped_path_joins_smoothly() {
         let ring = |deg: f64| {
@@ -421,10 +429,14 @@ mod tests {
             looking_at_origin([4.0 * a.cos(), 4.0 * a.sin(), 1.0 + 0.3 * (2.0 * a).sin()], 50.0)
         };
         let keys: Vec<Camera> = [0.0, 90.0, 180.0, 270.0, 360.0].into_iter().map(ring).collect();
-        let path = interpolate(&keys, 4 * 20 + 1).unwrap();
+        let path = interpolate(&keys, 4 * 20).unwrap();
+        for (k, key) in keys[..4].iter().enumerate() {
+            assert!(max_difference(key, &path[20 * k]) < 1e-12, "keyframe {k} is not frame {}", 20 * k);
+        }
         let p = |i: usize| glam::DVec3::from_array(path[i].origin());
-        let (into_last, out_of_first) = (p(80) - p(79), p(1) - p(0));
-        let jolt = (out_of_first - into_last).length() / into_last.length();
+        let (round_the_join, out_of_first) = (p(0) - p(79), p(1) - p(0));
+        assert!(round_the_join.length() > 0.5 * out_of_first.length(), "the first frame is not twice over");
+        let jolt = (out_of_first - round_the_join).length() / round_the_join.length();
         let (into_key, out_of_key) = (p(40) - p(39), p(41) - p(40));
         let through_key = (out_of_key - into_key).length() / into_key.length();
         assert!(jolt < 2.0 * through_key, "the join jolts by {jolt}, a key by {through_key}");
