@@ -233,7 +233,8 @@ pub fn interpolate(keys: &[Camera], frames: usize) -> Result<Vec<Camera>, String
     let rotations: Vec<DQuat> = keys.iter().map(rotation).collect();
     let last = keys.len() - 1;
     // A loop: more than two keys, the last one the first again (to rounding).
-    let closed = last >= 2 && position(first).distance(position(&keys[last])) <= 1e-9 * position(first).length().max(1.0);
+    let closed =
+        last >= 2 && position(first).distance(position(&keys[last])) <= 1e-9 * position(first).length().max(1.0);
     // Key `j` of the spline's neighbours: past an end, the end key, or across a loop's join.
     let neighbour = |j: isize| -> usize {
         let last = last as isize;
