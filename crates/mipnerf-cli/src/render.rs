@@ -93,27 +93,35 @@ fn path_cameras(train: &Dataset, test: Option<&Dataset>, kind: PathKind, frames:
         .collect()
 }
 
-/// How far (degrees, seen from the scene's centre) a path's camera may be from the nearest
-/// training photo's before the render says it starts outside the region the photos saw.
+/// How far (degrees) a path's camera may be from the nearest training photo's before the render
+/// says it starts outside the region the photos saw: around a scene, as seen from the scene's
+/// centre; in a forward-facing (NDC) scene, between the directions they look in.
 pub const OUTSIDE_DEGREES: f64 = 20.0;
 
-/// A sentence naming the frames of a path (in world space, around the origin) whose cameras
-/// are more than [`OUTSIDE_DEGREES`] from every training photo's, as seen from the origin:
-/// there the model shows what it guesses, not what was photographed. `None` when every frame is
-/// within reach.
+/// A sentence naming the frames of a path whose cameras are more than [`OUTSIDE_DEGREES`] from
+/// every training photo's: for a scene photographed from around it (in world space, around the
+/// origin), where the camera stands as seen from the origin; for a forward-facing capture (NDC),
+/// which holds only what lies in front of the photos, the direction the camera looks in. There
+/// the model shows what it guesses, not what was photographed. `None` when every frame is within
+/// reach.
 #[must_use]
 pub fn outside_the_photos(train: &Dataset, path: &[Camera]) -> Option<String> {
-    let dirs: Vec<glam::DVec3> = train
-        .views()
-        .iter()
-        .filter(|v| v.scale == 0)
-        .map(|v| glam::DVec3::from_array(v.camera.origin()).normalize_or_zero())
-        .collect();
+    let forward_facing = train.ndc.is_some();
+    let direction = |c: &Camera| {
+        let d = if forward_facing {
+            // The viewing axis: the camera looks down its -z.
+            -glam::DVec3::new(c.cam2world[0][2], c.cam2world[1][2], c.cam2world[2][2])
+        } else {
+            glam::DVec3::from_array(c.origin())
+        };
+        d.normalize_or_zero()
+    };
+    let dirs: Vec<glam::DVec3> = train.views().iter().filter(|v| v.scale == 0).map(|v| direction(&v.camera)).collect();
     let off: Vec<(usize, f64)> = path
         .iter()
         .enumerate()
         .map(|(i, c)| {
-            let d = glam::DVec3::from_array(c.origin()).normalize_or_zero();
+            let d = direction(c);
             let nearest = dirs.iter().map(|p| p.dot(d).clamp(-1.0, 1.0).acos()).fold(f64::INFINITY, f64::min);
             (i, nearest.to_degrees())
         })
@@ -121,10 +129,18 @@ pub fn outside_the_photos(train: &Dataset, path: &[Camera]) -> Option<String> {
         .collect();
     let worst = off.iter().map(|(_, d)| *d).fold(0.0, f64::max);
     let (first, last) = (off.first()?.0, off.last()?.0);
+    let how = if forward_facing {
+        format!(
+            "look away from the scene the photos saw, up to {worst:.0} degrees from the nearest photo's viewing \
+             direction (a forward-facing capture holds only what lies in front of its photos)"
+        )
+    } else {
+        format!(
+            "start outside the region the photos saw, up to {worst:.0} degrees from the nearest photo as seen from the scene's centre"
+        )
+    };
     Some(format!(
-        "{} of the {} frames (from frame {first} to {last}) start outside the region the photos saw, up to {worst:.0} \
-         degrees from the nearest photo as seen from the scene's centre: there the render shows what the model \
-         guesses",
+        "{} of the {} frames (from frame {first} to {last}) {how}: there the render shows what the model guesses",
         off.len(),
         path.len()
     ))
@@ -227,9 +243,7 @@ pub fn render(
                 cameras = mipnerf_core::data::camera_path::interpolate(&cameras, frames)
                     .map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))?;
             }
-            if train.ndc.is_none()
-                && let Some(note) = outside_the_photos(&train, &cameras)
-            {
+            if let Some(note) = outside_the_photos(&train, &cameras) {
                 eprintln!("note: {note}");
             }
             for (i, camera) in cameras.into_iter().enumerate() {
@@ -375,6 +389,27 @@ mod tests {
         let note = outside_the_photos(&train, &path).unwrap();
         assert!(
             note.starts_with("2 of the 6 frames (from frame 4 to 5) start outside the region the photos saw"),
+            "{note}"
+        );
+    }
+
+    /// In a forward-facing scene what counts is where a camera looks: the photos' own cameras,
+    /// moved sideways, say nothing; one turned round (or aside) is named.
+    #[test]
+    fn forward_facing_frames_that_look_away_are_named() {
+        let mut train = mipnerf_core::data::demo::dataset(16, 8).unwrap();
+        train.ndc = Some(mipnerf_core::data::Ndc { focal: 20.0, width: 16.0, height: 16.0 });
+        let photo = train.views()[0].camera.clone();
+        let mut moved = photo.clone();
+        moved.cam2world[0][3] += 0.5;
+        assert_eq!(outside_the_photos(&train, &[photo.clone(), moved]), None);
+        let mut turned = photo.clone();
+        for row in &mut turned.cam2world {
+            (row[0], row[2]) = (-row[0], -row[2]);
+        }
+        let note = outside_the_photos(&train, &[photo, turned]).unwrap();
+        assert!(
+            note.starts_with("1 of the 2 frames (from frame 1 to 1) look away from the scene the photos saw"),
             "{note}"
         );
     }
