@@ -13,7 +13,7 @@ use mipnerf_core::data::{Dataset, Split};
 use mipnerf_core::model::Levels;
 
 use crate::config::{Backend, PrecisionArg, TrainSettings};
-use crate::images::{depth_to_png, rgb_to_png, write_exr, write_gif, write_png};
+use crate::images::{depth_to_png, rgb_to_png, write_exr, write_png};
 use crate::run::{load_split, open_trained, read_config};
 
 /// Camera paths.
@@ -50,7 +50,7 @@ impl Target {
 /// The cameras a render rendered, in the camera-file form `--cameras` reads.
 pub const CAMERAS: &str = "cameras.json";
 
-/// The video of a path render (H.264 in MP4, see [`crate::images::write_mp4`]).
+/// The video of a path render (H.264 in MP4, see [`crate::images::Video`]).
 pub const VIDEO: &str = "video.mp4";
 
 /// Frames of a camera path by default.
@@ -299,7 +299,31 @@ pub fn render(
         }
         None => eprintln!("note: no {CAMERAS}: the cameras' intrinsics are not a plain pinhole's (fl_x, fl_y, cx, cy)"),
     }
-    let mut preview = Vec::new();
+    // A path's preview and video, made frame by frame as the frames come (so a long path at a
+    // large size holds no more than a frame of video and a small preview); none for frames of
+    // different sizes (a camera file may give each its own).
+    let (mut preview, mut video) = (None, None);
+    if let (Some(fps), Some((_, first))) = (target.fps(), jobs.first()) {
+        let (w, h) = (first.camera.width, first.camera.height);
+        if let Some((_, other)) = jobs.iter().find(|(_, j)| (j.camera.width, j.camera.height) != (w, h)) {
+            eprintln!(
+                "note: no preview.gif or {VIDEO}: the frames are of different sizes ({w}x{h}, {}x{}, ...); pass \
+                 --width and --height for one size",
+                other.camera.width, other.camera.height
+            );
+        } else {
+            preview = Some(crate::images::Preview::new(jobs.len(), w, h));
+            if w.min(h) >= crate::images::MIN_VIDEO_SIDE {
+                video = Some(crate::images::Video::new(&out.join(VIDEO), w, h, fps)?);
+            } else {
+                eprintln!(
+                    "note: no {VIDEO}: {w}x{h} frames are smaller than H.264 takes ({} px a side); pass --width and \
+                     --height",
+                    crate::images::MIN_VIDEO_SIDE
+                );
+            }
+        }
+    }
     let mut pb = session.progress("render", 0, jobs.len() as u64);
     for (i, (name, image)) in jobs.iter().enumerate() {
         let left = format!(
@@ -340,29 +364,23 @@ pub fn render(
             result?;
             written.push(out.join(file));
         }
-        if target.fps().is_some() {
-            preview.push(png);
+        if let Some(preview) = preview.as_mut() {
+            preview.push(i, &png)?;
+        }
+        if let Some(video) = video.as_mut() {
+            video.push(&png)?;
         }
         pb.inc();
     }
     pb.finish();
-    if !preview.is_empty() {
-        let (w, h) = (jobs[0].1.camera.width, jobs[0].1.camera.height);
+    if let Some(preview) = preview {
         let gif = out.join("preview.gif");
-        write_gif(&gif, w, h, &preview, 80)?;
+        preview.write(&gif)?;
         written.push(gif);
-        if let Some(fps) = target.fps() {
-            if w.min(h) >= crate::images::MIN_VIDEO_SIDE {
-                let video = out.join(VIDEO);
-                crate::images::write_mp4(&video, w, h, &preview, fps)?;
-                written.push(video);
-            } else {
-                eprintln!(
-                    "note: no {VIDEO}: {w}x{h} frames are smaller than H.264 takes ({} px a side); pass --width and --height",
-                    crate::images::MIN_VIDEO_SIDE
-                );
-            }
-        }
+    }
+    if let Some(video) = video {
+        video.finish()?;
+        written.push(out.join(VIDEO));
     }
     Ok(written)
 }

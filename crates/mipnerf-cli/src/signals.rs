@@ -25,12 +25,42 @@ static COOPERATING: AtomicUsize = AtomicUsize::new(0);
 /// What a suspended phase has left, said when a signal stops it ([`Cooperation::suspend`]).
 static LEFT: Mutex<Option<String>> = Mutex::new(None);
 
+/// Temporary files filled over a long time (a video, frame by frame, under its temporary name):
+/// a signal that exits at once removes them, as their owners would on the way out.
+static PARTIAL_FILES: Mutex<Vec<std::path::PathBuf>> = Mutex::new(Vec::new());
+
+/// Registers `path`, a temporary file that is filled over a long time, to be removed if a signal
+/// exits the process at once; [`keep_on_exit`] takes it back (it was renamed into place, or
+/// removed).
+pub fn remove_on_exit(path: &std::path::Path) {
+    if let Ok(mut files) = PARTIAL_FILES.lock() {
+        files.push(path.to_path_buf());
+    }
+}
+
+/// Takes back a [`remove_on_exit`].
+pub fn keep_on_exit(path: &std::path::Path) {
+    if let Ok(mut files) = PARTIAL_FILES.lock() {
+        files.retain(|f| f != path);
+    }
+}
+
+/// Exits at once, with [`EXIT_INTERRUPTED`], removing the [`remove_on_exit`] files first.
+fn exit_now() -> ! {
+    if let Ok(files) = PARTIAL_FILES.lock() {
+        for f in files.iter() {
+            let _ = std::fs::remove_file(f);
+        }
+    }
+    std::process::exit(EXIT_INTERRUPTED);
+}
+
 /// Installs the handler (once, at the start of `main`).
 pub fn install() {
     let _ = ctrlc::set_handler(|| {
         if STOP.swap(true, Ordering::SeqCst) {
             eprintln!("\ninterrupted again: stopping now");
-            std::process::exit(EXIT_INTERRUPTED);
+            exit_now();
         }
         if COOPERATING.load(Ordering::SeqCst) == 0 {
             // The handler runs on its own thread (the `ctrlc` crate's), so it may lock.
@@ -38,7 +68,7 @@ pub fn install() {
                 Some(left) => eprintln!("\ninterrupted (Ctrl-C, SIGTERM or SIGHUP): stopping; {left}"),
                 None => eprintln!("\ninterrupted (Ctrl-C, SIGTERM or SIGHUP): stopping"),
             }
-            std::process::exit(EXIT_INTERRUPTED);
+            exit_now();
         }
         eprintln!(
             "\ninterrupted (Ctrl-C, SIGTERM or SIGHUP): finishing this step and saving what it has (again to stop at once)..."
@@ -106,7 +136,7 @@ impl Drop for Cooperation {
         // process now, before any later phase starts.
         if stop_requested() && !ACTED_ON.load(Ordering::SeqCst) && COOPERATING.load(Ordering::SeqCst) == 0 {
             eprintln!("stopped: interrupted");
-            std::process::exit(EXIT_INTERRUPTED);
+            exit_now();
         }
     }
 }

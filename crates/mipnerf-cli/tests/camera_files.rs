@@ -102,6 +102,16 @@ fn a_renders_cameras_render_the_same_images_again() {
     let back = &frames(&e_out.join("cameras.json"))[0];
     assert_eq!(back["fl_x"].as_f64(), Some(30.0), "{back}");
 
+    // Frames of two sizes: each rendered at its own, and no preview or video (it would fail at
+    // the end, after every frame was rendered), saying why.
+    let mixed = dir.path().join("mixed.json");
+    std::fs::write(&mixed, serde_json::json!({ "frames": [written[0].clone(), one] }).to_string()).unwrap();
+    let m_out = dir.path().join("mixed");
+    let text = run_ok(&["render", "--run", r, "--out", m_out.to_str().unwrap(), "--cameras", mixed.to_str().unwrap()]);
+    assert!(text.contains("no preview.gif or video.mp4: the frames are of different sizes (20x12, 24x18"), "{text}");
+    assert_eq!(png(&m_out.join("frame_0001.png")).dimensions(), (24, 18));
+    assert!(!m_out.join("preview.gif").exists() && !m_out.join("video.mp4").exists());
+
     // A split's render writes its views' cameras too, one frame per view.
     let test = dir.path().join("test");
     run_ok(&["render", "--run", r, "--out", test.to_str().unwrap(), "--backend", "cpu"]);

@@ -114,6 +114,10 @@ fn eval_and_render_stop_on_a_signal_and_leave_only_whole_outputs() {
     assert_eq!(code, Some(130), "{err}");
     assert!(err.contains("of 200 images rendered"), "{err}");
     assert!(!out.join("preview.gif").exists());
+    // The video, written frame by frame under a temporary name, is gone with it.
+    let names: Vec<String> =
+        std::fs::read_dir(&out).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().to_string()).collect();
+    assert!(!names.iter().any(|n| n.contains("video") || n.contains("partial")), "{names:?}");
     for p in pngs(&out) {
         image::open(&p).unwrap_or_else(|e| panic!("{} is not whole: {e}", p.display()));
     }

@@ -118,6 +118,15 @@ pub fn write_atomic_with(path: &Path, bytes: &[u8], fs: &mut dyn FileOps) -> Res
 /// that an encoder choosing its format by the name still sees it).
 pub const PARTIAL_PREFIX: &str = ".mipnerf-partial-";
 
+/// The temporary name beside `path` that [`replace_with`] writes under: a writer that fills it
+/// over a long time (a video, frame by frame) then calls [`replace_with`] with a `write` that
+/// does nothing, to publish it.
+#[must_use]
+pub fn partial_file(path: &Path) -> PathBuf {
+    let name = path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
+    path.with_file_name(format!("{PARTIAL_PREFIX}{name}"))
+}
+
 /// Runs `write` on a temporary name beside `path` ([`PARTIAL_PREFIX`]), flushes the result to
 /// the disk, renames it over `path` and flushes the folder: for encoders that write to a path
 /// (PNG, EXR). A failure removes the temporary file and leaves `path` as it was.
@@ -125,8 +134,7 @@ pub const PARTIAL_PREFIX: &str = ".mipnerf-partial-";
 /// # Errors
 /// `write`'s error, or the failing operation's, naming the file.
 pub fn replace_with<E: From<IoError>>(path: &Path, write: impl FnOnce(&Path) -> Result<(), E>) -> Result<(), E> {
-    let name = path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
-    let tmp = path.with_file_name(format!("{PARTIAL_PREFIX}{name}"));
+    let tmp = partial_file(path);
     let finish = || -> Result<(), IoError> {
         std::fs::File::open(&tmp).and_then(|f| f.sync_all()).map_err(|e| IoError::new(&tmp, e))?;
         std::fs::rename(&tmp, path).map_err(|e| IoError::new(path, e))?;
