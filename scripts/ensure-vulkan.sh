@@ -14,7 +14,14 @@ have_icd() {
     done
     [ -n "${VK_ICD_FILENAMES:-}${VK_DRIVER_FILES:-}" ]
 }
-have_loader() { ldconfig -p 2>/dev/null | grep -q 'libvulkan\.so\.1'; }
+# The cache is read whole before it is searched: under pipefail, `ldconfig -p | grep -q` fails
+# whenever grep exits at its match before ldconfig has written everything (SIGPIPE), which made
+# this script reinstall (and once fail) on a machine with the loader in place.
+have_loader() {
+    local cache
+    cache="$(ldconfig -p 2>/dev/null)" || return 1
+    grep -q 'libvulkan\.so\.1' <<<"$cache"
+}
 
 if have_loader && have_icd; then
     exit 0
