@@ -39,6 +39,7 @@ const EXAMPLES: &str = "Examples:
   mipnerf train --out runs/lego --resume --steps 40000          # continue a run
   mipnerf eval --run runs/lego
   mipnerf render --run runs/lego --out renders --path orbit --frames 60 --width 400 --height 400
+  mipnerf render --run runs/lego --out tour --cameras keys.json --frames 120   # a path through your cameras
   mipnerf convert --input nerf_synthetic/lego --output lego_multiscale
   mipnerf convert --input nerf_synthetic/lego --output lego256 --size 256   # box-filtered first
   mipnerf experiment experiments/multiscale-lego --data lego256 --out runs/ms
