@@ -69,8 +69,9 @@ pub const PREVIEW_FRAMES: usize = 120;
 const PREVIEW_DELAY_MS: u32 = 80;
 
 /// A path's animated preview (`preview.gif`), gathered frame by frame: at most
-/// [`PREVIEW_FRAMES`] frames (every k-th of a longer path, each shown k times as long), at most
-/// [`PREVIEW_SIDE`] pixels a side, so a path of any length and size is held in a few tens of MB.
+/// [`PREVIEW_FRAMES`] frames (every k-th of a longer path, each shown k times as long, up to a
+/// second) of at most [`PREVIEW_SIDE`] pixels a side, so a path of any length and size is held in
+/// a few tens of MB.
 pub struct Preview {
     /// The frames' size, and the preview's.
     size: (u32, u32),
