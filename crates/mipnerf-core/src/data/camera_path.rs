@@ -198,9 +198,9 @@ pub fn to_text(cameras: &[Camera]) -> Option<String> {
 
 /// `frames` cameras along a smooth path through the keyframes `keys`, from the first to the
 /// last: positions on a Catmull-Rom spline through the keys' positions (uniform; at the ends the
-/// missing neighbour is the end key itself), orientations slerped between neighbouring keys
-/// along the shorter arc, the intrinsics' `pix2cam` linear between them (so the tangent of the
-/// field of view). Key `k` is frame `k (frames - 1) / (keys - 1)`.
+/// missing neighbour is the end key itself), orientations by Shoemake's squad (slerps bent by
+/// control points so that the camera turns at a rate without jumps at the keys), the intrinsics'
+/// `pix2cam` linear between keys (so the tangent of the field of view). Key `k` is frame `k (frames - 1) / (keys - 1)`.
 ///
 /// A loop (more than two keys, the last one the first again) is a video that plays round: the
 /// spline's neighbours wrap across the join, so nothing jolts there, and the last key is not a
@@ -230,7 +230,6 @@ pub fn interpolate(keys: &[Camera], frames: usize) -> Result<Vec<Camera>, String
         return Err(format!("keyframe {k}'s axes are left-handed (a mirror image), not a camera's rotation"));
     }
     let position = |c: &Camera| DVec3::from_array(c.origin());
-    let rotations: Vec<DQuat> = keys.iter().map(rotation).collect();
     let last = keys.len() - 1;
     // A loop: more than two keys, the last one the first again (to rounding).
     let closed =
@@ -245,6 +244,26 @@ pub fn interpolate(keys: &[Camera], frames: usize) -> Result<Vec<Camera>, String
         };
         j as usize
     };
+    // The keys' orientations, each on the hemisphere of the one before (q and -q are one
+    // rotation), and Shoemake's squad control points, which make the turning rate continuous
+    // through the keys as the spline makes the velocity.
+    let mut rotations: Vec<DQuat> = keys.iter().map(rotation).collect();
+    for k in 1..rotations.len() {
+        if rotations[k - 1].dot(rotations[k]) < 0.0 {
+            rotations[k] = -rotations[k];
+        }
+    }
+    let controls: Vec<DQuat> = (0..=last)
+        .map(|k| {
+            let q = rotations[k];
+            let towards = |j: isize| {
+                let n = rotations[neighbour(k as isize + j)];
+                // The turn from `q` to the neighbour, as an axis times its angle (twice its log).
+                (q.inverse() * if q.dot(n) < 0.0 { -n } else { n }).to_scaled_axis()
+            };
+            q * DQuat::from_scaled_axis(-(towards(-1) + towards(1)) / 4.0)
+        })
+        .collect();
     (0..frames)
         .map(|i| {
             // The path's parameter: key k at t = k.
@@ -265,9 +284,9 @@ pub fn interpolate(keys: &[Camera], frames: usize) -> Result<Vec<Camera>, String
                     + (p2 - p0) * u
                     + (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3) * u * u
                     + (3.0 * p1 - p0 - 3.0 * p2 + p3) * u * u * u);
-            let (q1, q2) = (rotations[k], rotations[(k + 1).min(last)]);
-            let q2 = if q1.dot(q2) < 0.0 { -q2 } else { q2 };
-            let r = glam::DMat3::from_quat(q1.slerp(q2, u));
+            let next = (k + 1).min(last);
+            let on_chord = rotations[k].slerp(rotations[next], u);
+            let r = glam::DMat3::from_quat(on_chord.slerp(controls[k].slerp(controls[next], u), 2.0 * u * (1.0 - u)));
             let (a, b) = (&keys[k].pix2cam, &keys[(k + 1).min(last)].pix2cam);
             let pix2cam =
                 std::array::from_fn(|row| std::array::from_fn(|col| a[row][col] + (b[row][col] - a[row][col]) * u));
@@ -447,6 +466,32 @@ mod tests {
         let p = |i: usize| glam::DVec3::from_array(path[i].origin());
         let jolt = ((p(1) - p(0)) - (p(80) - p(79))).length() / (p(80) - p(79)).length();
         assert!(jolt > 0.5, "an open path's ends are not joined: {jolt}");
+    }
+
+    /// The camera turns smoothly through a key: the turn from one frame to the next changes
+    /// there by little more than between any two frames (joining the keys' orientations by
+    /// separate slerps changes it by a step).
+    #[test]
+    fn orientations_turn_smoothly_through_the_keys() {
+        let keys = [
+            looking_at_origin([4.0, 0.0, 0.0], 50.0),
+            looking_at_origin([3.0, 3.0, 2.5], 50.0),
+            looking_at_origin([0.0, 4.0, -1.0], 50.0),
+            looking_at_origin([-3.0, 2.0, 2.0], 50.0),
+        ];
+        let path = interpolate(&keys, 3 * 40 + 1).unwrap();
+        let q = |i: usize| super::rotation(&path[i]);
+        // The turn from frame i to i + 1, in the camera's own axes.
+        let turn = |i: usize| (q(i).inverse() * q(i + 1)).to_scaled_axis();
+        let change = |i: usize| (turn(i) - turn(i - 1)).length() / turn(i - 1).length();
+        let between = (30..35).map(change).fold(0.0, f64::max);
+        for k in [40, 80] {
+            assert!(
+                change(k) < 3.0 * between.max(0.01),
+                "the turn changes by {} at frame {k}, {between} between keys",
+                change(k)
+            );
+        }
     }
 
     /// Keys of different sizes, a mirrored pose and nothing to make are refused, naming the key.
