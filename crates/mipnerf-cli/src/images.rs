@@ -216,7 +216,7 @@ impl Video {
     pub fn push(&mut self, rgb: &[u8]) -> Result<()> {
         use openh264::formats::{RgbSliceU8, YUVBuffer};
         let ((w, h), (we, he)) = (self.size, self.even);
-        let path = self.path.clone();
+        let path = &self.path;
         let i = self.frames;
         if rgb.len() != (w * h * 3) as usize {
             anyhow::bail!("{}: frame {i} has {} bytes, not {w}x{h} RGB", path.display(), rgb.len());
@@ -250,7 +250,7 @@ impl Video {
             let (Some(sps), Some(pps)) = (sps, pps) else {
                 anyhow::bail!("{}: the H.264 encoder gave no parameter sets", path.display());
             };
-            let tmp = mipnerf_core::io::partial_file(&path);
+            let tmp = mipnerf_core::io::partial_file(path);
             crate::signals::remove_on_exit(&tmp);
             let file = std::fs::File::create(&tmp).with_context(|| format!("writing {}", path.display()))?;
             let brand = |s: &str| s.parse::<mp4::FourCC>().map_err(|e| anyhow!("{e}"));

@@ -190,6 +190,9 @@ pub fn render(
     }
     // (name, image) per image.
     let mut jobs: Vec<(String, ImageSpec)> = Vec::new();
+    // A sequence of frames: the training split, its cameras, and whether to check them against
+    // the photos' region.
+    let mut sequence: Option<(Dataset, Vec<Camera>, bool)> = None;
     match &target {
         Target::Split(split) => {
             let ds = load_split(&s, *split)?;
@@ -216,26 +219,21 @@ pub fn render(
             {
                 bail!("forward-facing (NDC) scenes only have the spiral path: pass --path spiral");
             }
-            let template = ImageSpec::of_view(&train, 0, k);
-            let cameras = path_cameras(&train, test.as_ref(), kind, frames)?;
-            if train.ndc.is_none()
-                && let Some(note) = outside_the_photos(&train, &cameras)
-            {
-                eprintln!("note: {note}");
-            }
-            for (i, cam) in cameras.into_iter().enumerate() {
-                let camera = match size {
-                    None => cam,
-                    Some((w, h)) => resized(&cam, w, h)?,
-                };
-                jobs.push((format!("frame_{i:04}"), ImageSpec { camera, ..template.clone() }));
-            }
+            let cameras = path_cameras(&train, test.as_ref(), kind, frames)?
+                .into_iter()
+                .map(|cam| match size {
+                    None => Ok(cam),
+                    Some((w, h)) => resized(&cam, w, h),
+                })
+                .collect::<Result<Vec<_>>>()?;
+            // LLFF's spiral stays in front of the photos by construction: only orbits are checked.
+            let check = train.ndc.is_none();
+            sequence = Some((train, cameras, check));
         }
         Target::Cameras(file, frames, _) => {
             let train = load_split(&s, Split::Train)?;
             // What the file leaves out is the first full-scale training photo's.
-            let template = ImageSpec::of_view(&train, 0, k);
-            let mut cameras = mipnerf_core::data::camera_path::read(file, &template.camera, size)?;
+            let mut cameras = mipnerf_core::data::camera_path::read(file, &train.views()[0].camera, size)?;
             if let Some(frames) = *frames {
                 if frames == 0 || frames > MAX_FRAMES {
                     bail!("--frames must be between 1 and {MAX_FRAMES}, got {frames}");
@@ -243,12 +241,18 @@ pub fn render(
                 cameras = mipnerf_core::data::camera_path::interpolate(&cameras, frames)
                     .map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))?;
             }
-            if let Some(note) = outside_the_photos(&train, &cameras) {
-                eprintln!("note: {note}");
-            }
-            for (i, camera) in cameras.into_iter().enumerate() {
-                jobs.push((format!("frame_{i:04}"), ImageSpec { camera, ..template.clone() }));
-            }
+            sequence = Some((train, cameras, true));
+        }
+    }
+    // A path's or a camera file's frames: each the first training photo's image but for its
+    // camera, named in order.
+    if let Some((train, cameras, check)) = sequence {
+        if check && let Some(note) = outside_the_photos(&train, &cameras) {
+            eprintln!("note: {note}");
+        }
+        let template = ImageSpec::of_view(&train, 0, k);
+        for (i, camera) in cameras.into_iter().enumerate() {
+            jobs.push((format!("frame_{i:04}"), ImageSpec { camera, ..template.clone() }));
         }
     }
     let cameras_file: Vec<mipnerf_core::Camera> = jobs.iter().map(|(_, image)| image.camera.clone()).collect();

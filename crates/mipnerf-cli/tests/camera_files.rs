@@ -14,13 +14,20 @@ fn frames(cameras: &std::path::Path) -> Vec<serde_json::Value> {
     file["frames"].as_array().unwrap().clone()
 }
 
+/// A run in `dir/run` of the 16-pixel demo scene, trained `steps` steps of `rays` rays.
+fn trained(dir: &std::path::Path, steps: &str, rays: &str) -> std::path::PathBuf {
+    let data = common::small_demo_scene(dir, 4);
+    let run = dir.join("run");
+    let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
+    run_ok(&["train", "--data", d, "--out", r, "--steps", steps, "--batch-rays", rays, "--backend", "cpu"]);
+    run
+}
+
 #[test]
 fn a_renders_cameras_render_the_same_images_again() {
     let dir = tempfile::tempdir().unwrap();
-    let data = common::small_demo_scene(dir.path(), 4);
-    let run = dir.path().join("run");
-    let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
-    run_ok(&["train", "--data", d, "--out", r, "--steps", "20", "--batch-rays", "128", "--backend", "cpu"]);
+    let run = trained(dir.path(), "20", "128");
+    let r = run.to_str().unwrap();
 
     // An orbit, written with its cameras; rendered again from them, the same pixels.
     let orbit = dir.path().join("orbit");
@@ -129,10 +136,8 @@ fn a_renders_cameras_render_the_same_images_again() {
 #[test]
 fn bad_camera_files_and_flags_are_refused_before_anything_is_written() {
     let dir = tempfile::tempdir().unwrap();
-    let data = common::small_demo_scene(dir.path(), 4);
-    let run = dir.path().join("run");
-    let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
-    run_ok(&["train", "--data", d, "--out", r, "--steps", "2", "--batch-rays", "64", "--backend", "cpu"]);
+    let run = trained(dir.path(), "2", "64");
+    let r = run.to_str().unwrap();
     let out = dir.path().join("out");
     let o = out.to_str().unwrap();
 

@@ -25,7 +25,7 @@ use glam::{DQuat, DVec3};
 use serde_json::{Map, Value, json};
 
 use super::{DataError, pose_from_json, read_json};
-use crate::camera::{Camera, focal_from_camera_angle_x};
+use crate::camera::{Camera, det3, focal_from_camera_angle_x};
 
 /// The most frames a camera file may hold (as `mipnerf render --frames`).
 pub const MAX_FRAMES: usize = 10_000;
@@ -200,7 +200,8 @@ pub fn to_text(cameras: &[Camera]) -> Option<String> {
 /// last: positions on a Catmull-Rom spline through the keys' positions (uniform; at the ends the
 /// missing neighbour is the end key itself), orientations by Shoemake's squad (slerps bent by
 /// control points so that the camera turns at a rate without jumps at the keys), the intrinsics'
-/// `pix2cam` linear between keys (so the tangent of the field of view). Key `k` is frame `k (frames - 1) / (keys - 1)`.
+/// `pix2cam` linear between keys (so the tangent of the field of view). Key `k` is frame
+/// `k (frames - 1) / (keys - 1)`.
 ///
 /// A loop (more than two keys, the last one the first again) is a video that plays round: the
 /// spline's neighbours wrap across the join, so nothing jolts there, and the last key is not a
@@ -221,12 +222,7 @@ pub fn interpolate(keys: &[Camera], frames: usize) -> Result<Vec<Camera>, String
             c.width, c.height, first.width, first.height
         ));
     }
-    if let Some(k) = keys.iter().position(|c| {
-        let m = c.cam2world;
-        glam::DMat3::from_cols_array_2d(&std::array::from_fn(|col| std::array::from_fn(|row| m[row][col])))
-            .determinant()
-            < 0.0
-    }) {
+    if let Some(k) = keys.iter().position(|c| det3(|r, col| c.cam2world[r][col]) < 0.0) {
         return Err(format!("keyframe {k}'s axes are left-handed (a mirror image), not a camera's rotation"));
     }
     let position = |c: &Camera| DVec3::from_array(c.origin());
@@ -287,7 +283,7 @@ pub fn interpolate(keys: &[Camera], frames: usize) -> Result<Vec<Camera>, String
             let next = (k + 1).min(last);
             let on_chord = rotations[k].slerp(rotations[next], u);
             let r = glam::DMat3::from_quat(on_chord.slerp(controls[k].slerp(controls[next], u), 2.0 * u * (1.0 - u)));
-            let (a, b) = (&keys[k].pix2cam, &keys[(k + 1).min(last)].pix2cam);
+            let (a, b) = (&keys[k].pix2cam, &keys[next].pix2cam);
             let pix2cam =
                 std::array::from_fn(|row| std::array::from_fn(|col| a[row][col] + (b[row][col] - a[row][col]) * u));
             let cam2world = std::array::from_fn(|row| {
@@ -295,7 +291,7 @@ pub fn interpolate(keys: &[Camera], frames: usize) -> Result<Vec<Camera>, String
                 [axes.x, axes.y, axes.z, p[row]]
             });
             Camera::from_pix2cam(first.width, first.height, pix2cam, cam2world)
-                .map_err(|e| format!("frame {i} (between keyframes {k} and {}): {e}", (k + 1).min(last)))
+                .map_err(|e| format!("frame {i} (between keyframes {k} and {next}): {e}"))
         })
         .collect()
 }
