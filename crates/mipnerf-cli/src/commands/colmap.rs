@@ -1,5 +1,6 @@
-//! `mipnerf colmap`: a COLMAP workspace of the user's photos to a dataset the trainer reads, with
-//! what COLMAP may have got wrong named, and the command to train.
+//! `mipnerf colmap`: a COLMAP workspace of the user's photos (or a capture in nerfstudio's or
+//! Instant-NGP's `transforms.json` form) to a dataset the trainer reads, with what COLMAP may have
+//! got wrong named, and the command to train.
 
 use std::path::{Path, PathBuf};
 
@@ -9,7 +10,9 @@ use mipnerf_core::data;
 /// The flags of `mipnerf colmap`.
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// The COLMAP workspace: images/ (the photos) and sparse/ (the mapper's output).
+    /// The COLMAP workspace: images/ (the photos) and sparse/ (the mapper's output); or a
+    /// folder with nerfstudio's or Instant-NGP's transforms.json (and its point cloud,
+    /// ply_file_path, for the depth bounds).
     #[arg(long, value_name = "DIR")]
     pub input: PathBuf,
     /// The dataset to write (a new or empty folder).
@@ -78,6 +81,10 @@ fn colmap(
     let t = std::time::Instant::now();
     let r = data::process::process(input, output, &opts)?;
     let taken = r.model_dir.strip_prefix(input).unwrap_or(&r.model_dir).display().to_string();
+    let capture = r.source == data::process::SourceKind::Transforms;
+    if capture {
+        println!("{taken}: a capture in nerfstudio's or Instant-NGP's form (its poses, lens and point cloud)");
+    }
     if r.models.len() > 1 {
         let list: Vec<String> = r.models.iter().map(|(k, c)| format!("sparse/{k} registers {c}")).collect();
         println!("{} COLMAP models ({}): took {taken}, the largest", r.models.len(), list.join(", "));
@@ -93,7 +100,11 @@ fn colmap(
         }
     );
     if !r.suspects.is_empty() {
-        println!("COLMAP may have got {} photos wrong (trained on, they blur or ghost the scene):", r.suspects.len());
+        println!(
+            "{} may have got {} photos wrong (trained on, they blur or ghost the scene):",
+            if capture { "the reconstruction behind the capture" } else { "COLMAP" },
+            r.suspects.len()
+        );
         for s in &r.suspects {
             println!("  {}: {}", s.name, s.why);
         }
@@ -104,6 +115,8 @@ fn colmap(
     for w in &r.warnings {
         eprintln!("warning: {w}");
     }
+    // A capture's poses are COLMAP's too (or another tool's): what the step says of them.
+    let who = if capture { "the capture's" } else { "COLMAP's" };
     let l = &r.lens;
     println!(
         "camera: {} {}x{} (fx {:.2}, fy {:.2}, principal point {:.2}, {:.2}, distortion {:?})",
@@ -119,10 +132,16 @@ fn colmap(
         r.factor,
         t.elapsed().as_secs_f64()
     );
-    print_focal_check(&r);
+    print_focal_check(&r, who);
     println!(
-        "scene bounds: near {:.4}, far {:.4} (COLMAP units; depths of the 3D points each photo sees, 0.1 and 99.9 percentiles)",
-        r.bounds.0, r.bounds.1
+        "scene bounds: near {:.4}, far {:.4} ({}, 0.1 and 99.9 percentiles)",
+        r.bounds.0,
+        r.bounds.1,
+        if capture {
+            "the capture's units; depths of the points in front of each photo that project into it"
+        } else {
+            "COLMAP units; depths of the 3D points each photo sees"
+        }
     );
     println!(
         "held out for testing ({} of {}, every 8th by name): {}",
@@ -186,16 +205,17 @@ fn colmap(
     Ok(())
 }
 
-/// Prints COLMAP's focal length against the photos' EXIF, and what to do when they disagree.
-fn print_focal_check(r: &data::process::ProcessReport) {
+/// Prints the reconstruction's focal length (`who`'s: COLMAP's, or the capture's) against the
+/// photos' EXIF, and what to do when they disagree.
+fn print_focal_check(r: &data::process::ProcessReport, who: &str) {
     let Some(c) = &r.focal else {
-        println!("focal length: no photo has an EXIF focal length, so COLMAP's {:.0} px is not checked", r.lens.fx);
+        println!("focal length: no photo has an EXIF focal length, so {who} {:.0} px is not checked", r.lens.fx);
         return;
     };
     let from = format!("{} of {} photos have one; the median, {}", c.photos_with_exif, r.registered, c.photo);
     if !c.disagrees() {
         println!(
-            "focal length: COLMAP's {:.0} px agrees with the photos' EXIF, {} ({from}), within {:.0}%",
+            "focal length: {who} {:.0} px agrees with the photos' EXIF, {} ({from}), within {:.0}%",
             c.colmap_px,
             c.exif,
             100.0 * (data::focal::FOCAL_MISMATCH_FACTOR - 1.0)
@@ -204,7 +224,7 @@ fn print_focal_check(r: &data::process::ProcessReport) {
     }
     let l = &r.lens;
     eprintln!(
-        "warning: COLMAP's focal length, {:.0} px, is {:.2}x {} than the one the photos' EXIF implies, {} ({from}). \
+        "warning: {who} focal length, {:.0} px, is {:.2}x {} than the one the photos' EXIF implies, {} ({from}). \
          With the focal length wrong, every pose is wrong with it and the model blurs or ghosts: run COLMAP again \
          with the focal length given and kept (a mapper that refines it can trade it for lens distortion again), \
          from feature extraction on:\n  \

@@ -69,7 +69,7 @@ pub fn read(path: &Path, default: &Camera, size: Option<(u32, u32)>) -> Result<V
 }
 
 /// A number under `key`, from the frame or else the top level; `None` when neither has it.
-fn number(key: &str, frame: &Map<String, Value>, top: &Map<String, Value>) -> Result<Option<f64>, String> {
+pub(super) fn number(key: &str, frame: &Map<String, Value>, top: &Map<String, Value>) -> Result<Option<f64>, String> {
     match frame.get(key).or_else(|| top.get(key)) {
         None => Ok(None),
         Some(v) => {

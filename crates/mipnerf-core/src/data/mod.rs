@@ -5,6 +5,8 @@
 //! - [`multiscale`]: the official multiscale Blender format (`metadata.json`, 4 scales per view),
 //!   and its converter;
 //! - [`llff`]: forward-facing captures (`poses_bounds.npy`, `images_{factor}`), NDC rays;
+//! - [`nerfstudio`]: nerfstudio's and Instant-NGP's `transforms.json` captures, for the process
+//!   step ([`process`]), with [`ply`] for their point clouds;
 //! - [`camera_path`]: camera files (`transforms.json`-style poses and intrinsics) to render;
 //! - [`demo`]: a procedural scene rendered by the project's own ray tracer, written in the
 //!   multiscale format; it needs no files.
@@ -22,6 +24,8 @@ pub mod focal;
 pub mod llff;
 pub mod masks;
 pub mod multiscale;
+pub mod nerfstudio;
+pub mod ply;
 pub mod process;
 mod resample;
 pub mod undistort;
@@ -553,6 +557,15 @@ pub fn detect_format(dir: &Path) -> Result<Format, DataError> {
         Ok(Format::Llff)
     } else if dir.join("sparse").is_dir() && dir.join("images").is_dir() {
         Ok(Format::Colmap)
+    } else if nerfstudio::is_capture(dir) {
+        Err(DataError::invalid(
+            &dir.join(nerfstudio::TRANSFORMS),
+            format!(
+                "a capture in nerfstudio's or Instant-NGP's form: process it first with `mipnerf colmap --input {} \
+                 --output DATASET` (it undistorts the photos and measures their depth bounds), then train on DATASET",
+                dir.display()
+            ),
+        ))
     } else {
         Err(DataError::UnknownFormat { path: dir.to_path_buf() })
     }

@@ -1,5 +1,7 @@
 //! The process step (`mipnerf colmap`): from a COLMAP workspace (the photos in `images/`, the
-//! mapper's models in `sparse/N/`) to a dataset the trainer reads.
+//! mapper's models in `sparse/N/`), or a capture in nerfstudio's or Instant-NGP's
+//! `transforms.json` form read as one model ([`super::nerfstudio`]), to a dataset the trainer
+//! reads.
 //!
 //! 1. Every model in `sparse/` is counted and the one with the most registered photos is taken
 //!    (COLMAP numbers its models as it finds them, not by size).
@@ -88,15 +90,17 @@ impl Default for ProcessOptions {
 /// What the process step did, for the user.
 #[derive(Clone, Debug)]
 pub struct ProcessReport {
+    /// A COLMAP workspace or a `transforms.json` capture.
+    pub source: SourceKind,
     /// Every model found: `(N, registered photos)`.
     pub models: Vec<(u32, usize)>,
-    /// The model taken.
+    /// The model taken (a capture: its `transforms.json`).
     pub model_dir: PathBuf,
     /// Its registered photos.
     pub registered: usize,
-    /// The photos in the workspace's `images/`.
+    /// The photos in the workspace's `images/` (a capture: in its frames' folders).
     pub photos: usize,
-    /// The camera's COLMAP model name.
+    /// The camera's COLMAP model name (a capture: PINHOLE, or OPENCV with distortion).
     pub camera_model: &'static str,
     /// The camera as COLMAP estimated it.
     pub lens: LensCamera,
@@ -276,22 +280,94 @@ fn is_image(p: &Path) -> bool {
 /// photo, a non-empty output folder (without `overwrite`), unwritable files; and every error of
 /// [`colmap::read_model`] and [`colmap::poses_bounds`].
 pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<ProcessReport, DataError> {
-    let images_dir = input.join("images");
-    if !images_dir.is_dir() {
-        return Err(DataError::invalid(
-            input,
-            "no images/ folder: a COLMAP workspace holds the photos in images/ and the models in sparse/",
-        ));
+    let source = Source::read(input)?;
+    let (file, kind) = (source.file.clone(), source.kind);
+    // Errors of the COLMAP model's checks name the model's files (`sparse/N/images`); a
+    // capture's are in its one file.
+    let named = |e: DataError| match (e, kind) {
+        (DataError::Invalid { path, problem }, SourceKind::Transforms) if path.parent() == Some(file.as_path()) => {
+            DataError::Invalid { path: file.clone(), problem }
+        }
+        (e, _) => e,
+    };
+    process_source(source, output, opts).map_err(named)
+}
+
+/// Where the process step's model and photos come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SourceKind {
+    /// A COLMAP workspace: `images/` and the models in `sparse/`.
+    Colmap,
+    /// A capture in nerfstudio's or Instant-NGP's `transforms.json` form ([`super::nerfstudio`]).
+    Transforms,
+}
+
+/// The model and photos the process step starts from.
+struct Source {
+    kind: SourceKind,
+    /// Every model found: `(N, registered photos, its folder)` (a capture: one, numbered 0).
+    models: Vec<(u32, PathBuf, usize)>,
+    /// The model's folder, or the capture's `transforms.json`.
+    file: PathBuf,
+    model: colmap::ColmapModel,
+    /// The folder the images' names are relative to.
+    root: PathBuf,
+    /// The folders of the photos (for the photo count and the masks' check).
+    folders: Vec<PathBuf>,
+    notes: Vec<String>,
+}
+
+impl Source {
+    /// A COLMAP workspace when `input` has `sparse/`, else a capture when it has
+    /// `transforms.json`.
+    fn read(input: &Path) -> Result<Self, DataError> {
+        if !input.join("sparse").is_dir() && super::nerfstudio::is_capture(input) {
+            let capture = super::nerfstudio::read(input)?;
+            let file = input.join(super::nerfstudio::TRANSFORMS);
+            return Ok(Self {
+                kind: SourceKind::Transforms,
+                models: vec![(0, file.clone(), capture.model.images.len())],
+                file,
+                model: capture.model,
+                root: input.to_path_buf(),
+                folders: capture.photo_folders,
+                notes: capture.notes,
+            });
+        }
+        let images_dir = input.join("images");
+        if !images_dir.is_dir() {
+            return Err(DataError::invalid(
+                input,
+                "no images/ folder: a COLMAP workspace holds the photos in images/ and the models in sparse/ (or give \
+                 a folder with nerfstudio's or Instant-NGP's transforms.json)",
+            ));
+        }
+        let models = colmap::list_models(input)?;
+        let best = colmap::largest(&models).clone();
+        let model = colmap::read_model(&best.1)?;
+        Ok(Self {
+            kind: SourceKind::Colmap,
+            models,
+            file: best.1,
+            model,
+            root: images_dir.clone(),
+            folders: vec![images_dir],
+            notes: Vec::new(),
+        })
     }
-    let models = colmap::list_models(input)?;
-    let best = colmap::largest(&models).clone();
-    let photos = std::fs::read_dir(&images_dir)
-        .map_err(|e| DataError::io(&images_dir, e))?
-        .filter_map(Result::ok)
-        .filter(|e| is_image(&e.path()))
-        .count();
-    let mut model = colmap::read_model(&best.1)?;
-    colmap::check_model(&model, &best.1)?;
+}
+
+fn process_source(source: Source, output: &Path, opts: &ProcessOptions) -> Result<ProcessReport, DataError> {
+    let Source { kind, models, file: model_dir, mut model, root: images_dir, folders, notes } = source;
+    let mut photos = 0;
+    for folder in &folders {
+        photos += std::fs::read_dir(folder)
+            .map_err(|e| DataError::io(folder, e))?
+            .filter_map(Result::ok)
+            .filter(|e| is_image(&e.path()))
+            .count();
+    }
+    colmap::check_model(&model, &model_dir)?;
     // The photos left out, each of which must be registered (a name given twice, or an empty
     // one from a trailing comma, counts once or not at all).
     let mut excluded: Vec<String> = Vec::new();
@@ -303,18 +379,27 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
         model.images.retain(|im| im.name != *name);
         if model.images.len() == before {
             return Err(DataError::invalid(
-                &best.1,
-                format!("--exclude {name}: the model registers no photo of that name (names are as in images/)"),
+                &model_dir,
+                match kind {
+                    SourceKind::Colmap => {
+                        format!("--exclude {name}: the model registers no photo of that name (names are as in images/)")
+                    }
+                    SourceKind::Transforms => format!(
+                        "--exclude {name}: no frame has that photo (names are the frames' file_path without ./, such \
+                         as {})",
+                        model.images.first().map_or("images/a.jpg", |im| im.name.as_str())
+                    ),
+                },
             ));
         }
         excluded.push(name.clone());
     }
     let suspects = suspect_photos(&model);
     let registered = model.images.len();
-    let mut warnings = Vec::new();
+    let mut warnings = notes;
     if registered < opts.min_views && !excluded.is_empty() {
         return Err(DataError::invalid(
-            &best.1,
+            &model_dir,
             format!(
                 "the largest COLMAP model registers {} of {photos} photos; leaving out {} (`ProcessOptions::exclude`) \
                  leaves {registered}, fewer than the minimum of {} (`ProcessOptions::min_views`): leave out fewer photos",
@@ -326,7 +411,7 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
     }
     if registered < opts.min_views {
         return Err(DataError::invalid(
-            &best.1,
+            &model_dir,
             format!(
                 "the largest COLMAP model registers {registered} of {photos} photos, fewer than the minimum of {} \
                  (`ProcessOptions::min_views`): take more photos with more overlap between neighbours, or try COLMAP's mapper \
@@ -341,7 +426,7 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
             opts.recommended_views
         ));
     }
-    let cams = best.1.join("cameras");
+    let cams = model_dir.join("cameras");
     let first = model.cameras.first().cloned().ok_or_else(|| DataError::invalid(&cams, "no cameras"))?;
     // The camera's size against a photo's, before anything is computed from the camera (a
     // camera 2^32 pixels wide would otherwise be undistorted pixel by pixel).
@@ -379,7 +464,7 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
         model.images.iter().map(|im| (im.name.clone(), images_dir.join(&im.name))).collect();
     let focal = focal::check_focal((lens.fx * lens.fy).sqrt(), &named, lens.width, lens.height);
     if let Some(masks) = &opts.masks {
-        super::masks::check_folder(masks, &images_dir)?;
+        super::masks::check_folder(masks, &folders[0])?;
     }
     // Every registered photo's mask is there and usable before anything is written.
     if let Some(masks) = &opts.masks {
@@ -404,7 +489,7 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
     for im in &mut model.images {
         im.camera_id = id;
     }
-    let (rows, names) = colmap::poses_bounds(&model, &best.1)?;
+    let (rows, names) = colmap::poses_bounds(&model, &model_dir)?;
 
     // The output folder: new, empty, or (with overwrite) one whose dataset this step wrote. The
     // new dataset is built beside the old one and swapped in only when whole, so an interrupted
@@ -481,8 +566,9 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
     let resultant = mean.iter().map(|m| m * m).sum::<f64>().sqrt();
     let held_out = names.iter().enumerate().filter(|(i, _)| i % LLFF_HOLD == 0).map(|(_, n)| n.clone()).collect();
     Ok(ProcessReport {
+        source: kind,
         models: models.iter().map(|(k, _, c)| (*k, *c)).collect(),
-        model_dir: best.1,
+        model_dir,
         registered,
         photos,
         camera_model: colmap::model_name(first.model_id),

@@ -1,0 +1,188 @@
+//! `mipnerf colmap` on a capture in nerfstudio's `transforms.json` form: nerfstudio's own output
+//! (tests/data/nerfstudio_capture, written by its `colmap_to_json` from the OPENCV workspace of
+//! tests/data/colmap_workspaces) gives the dataset the workspace itself gives, and what such a
+//! capture gets wrong is refused by name.
+#![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use common::{copy_dir, run_err, run_ok};
+
+/// How far the two routes' poses may differ (entries of the rotation and the centre): the
+/// capture's are COLMAP's turned by `applied_transform` and printed with 17 digits.
+const POSE_TOLERANCE: f64 = 1e-9;
+
+fn fixtures() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data")
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// The capture as `ns-process-data` leaves it: transforms.json and sparse_pc.ply beside images/.
+fn capture(dir: &Path) -> PathBuf {
+    let capture = dir.join("capture");
+    copy_dir(&fixtures().join("nerfstudio_capture"), &capture);
+    copy_dir(&fixtures().join("colmap_workspaces/opencv/images"), &capture.join("images"));
+    capture
+}
+
+fn transforms(capture: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(capture.join("transforms.json")).unwrap()).unwrap()
+}
+
+fn write_transforms(capture: &Path, json: &serde_json::Value) {
+    std::fs::write(capture.join("transforms.json"), serde_json::to_string_pretty(json).unwrap()).unwrap();
+}
+
+fn files(dir: &Path) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().path()).collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn a_nerfstudio_capture_gives_the_dataset_of_its_colmap_workspace() {
+    let dir = tempfile::tempdir().unwrap();
+    let capture = capture(dir.path());
+    let (ours, theirs) = (dir.path().join("from-capture"), dir.path().join("from-workspace"));
+    let text = run_ok(&["colmap", "--input", s(&capture), "--output", s(&ours), "--max-size", "0"]);
+    let workspace = fixtures().join("colmap_workspaces/opencv");
+    let reference = run_ok(&["colmap", "--input", s(&workspace), "--output", s(&theirs), "--max-size", "0"]);
+    assert!(text.contains("transforms.json: a capture in nerfstudio's or Instant-NGP's form"), "{text}");
+    assert!(text.contains("transforms.json: 30 of 40 photos registered"), "{text}");
+    assert!(text.contains("camera: OPENCV 320x320 (fx 415.72, fy 418.56"), "{text}");
+    assert!(
+        text.contains("held out for testing (4 of 30, every 8th by name): images/r_1.jpg, images/r_3.jpg"),
+        "{text}"
+    );
+    assert!(text.contains("the capture's units; depths of the points in front of each photo"), "{text}");
+    // The same lens undistorted the same way: the same pixels, byte for byte.
+    let (a, b) = (files(&ours.join("images_1")), files(&theirs.join("images_1")));
+    assert_eq!(a.len(), 30);
+    assert_eq!(
+        a.iter().map(|p| p.file_name()).collect::<Vec<_>>(),
+        b.iter().map(|p| p.file_name()).collect::<Vec<_>>()
+    );
+    for (x, y) in a.iter().zip(&b) {
+        assert!(std::fs::read(x).unwrap() == std::fs::read(y).unwrap(), "{}", x.display());
+    }
+    // The same poses, in nerfstudio's world frame: turned by its applied_transform.
+    let turn = transforms(&capture)["applied_transform"].clone();
+    let turn: Vec<Vec<f64>> = serde_json::from_value(turn).unwrap();
+    let read = |d: &Path| mipnerf_core::data::llff::read_poses_bounds(&d.join("poses_bounds.npy")).unwrap();
+    let (rows, reference_rows) = (read(&ours), read(&theirs));
+    for (r, q) in rows.iter().zip(&reference_rows) {
+        for i in 0..3 {
+            for col in 0..4 {
+                let turned: f64 = (0..3).map(|k| turn[i][k] * q[k * 5 + col]).sum();
+                assert!((r[i * 5 + col] - turned).abs() < POSE_TOLERANCE, "row {i} col {col}: {r:?} {q:?}");
+            }
+            assert_eq!(r[i * 5 + 4], q[i * 5 + 4], "height, width, focal");
+        }
+    }
+    // Bounds from the points each photo could see (no tracks): the scene's nearest the same,
+    // its farthest farther (points behind the object count), by 21% here.
+    let near = |rows: &[[f64; 17]]| rows.iter().map(|r| r[15]).fold(f64::INFINITY, f64::min);
+    let far = |rows: &[[f64; 17]]| rows.iter().map(|r| r[16]).fold(0.0, f64::max);
+    let (near_ratio, far_ratio) = (near(&rows) / near(&reference_rows), far(&rows) / far(&reference_rows));
+    assert!((near_ratio - 1.0).abs() < 0.01, "near: {near_ratio}");
+    assert!((1.0..1.3).contains(&far_ratio), "far: {far_ratio}");
+    // The train command is the workspace's, and it trains (shortened to a few steps).
+    let command = |t: &str| t.lines().find(|l| l.trim_start().starts_with("mipnerf train")).unwrap().to_owned();
+    let (line, reference_line) = (command(&text), command(&reference));
+    assert_eq!(
+        line.replace(s(&ours), "DATA"),
+        reference_line.replace(s(&theirs), "DATA").replace("from-workspace", "from-capture")
+    );
+    let run = dir.path().join("run");
+    let trained = run_ok(&[
+        "train",
+        "--data",
+        s(&ours),
+        "--llff-factor",
+        "1",
+        "--spherify",
+        "--background",
+        "white",
+        "--preset",
+        "fast",
+        "--steps",
+        "3",
+        "--out",
+        s(&run),
+        "--quiet",
+    ]);
+    assert!(trained.contains("(Llff, 26 views"), "{trained}");
+    // Leaving a photo out by its frame's name.
+    let again = run_ok(&[
+        "colmap",
+        "--input",
+        s(&capture),
+        "--output",
+        s(&ours),
+        "--max-size",
+        "0",
+        "--overwrite",
+        "--exclude",
+        "images/r_69.jpg",
+    ]);
+    assert!(again.contains("1 left out (--exclude): images/r_69.jpg; 29 kept"), "{again}");
+}
+
+#[test]
+fn what_a_capture_gets_wrong_is_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let capture = capture(dir.path());
+    let good = transforms(&capture);
+    let out = dir.path().join("out");
+    let fails = |json: &serde_json::Value| {
+        write_transforms(&capture, json);
+        let err = run_err(&["colmap", "--input", s(&capture), "--output", s(&out)]);
+        assert!(!out.exists(), "nothing is written: {err}");
+        err
+    };
+    let with = |edit: &dyn Fn(&mut serde_json::Value)| {
+        let mut j = good.clone();
+        edit(&mut j);
+        j
+    };
+    let cases: Vec<(serde_json::Value, &str)> = vec![
+        (with(&|j| drop(j.as_object_mut().unwrap().remove("ply_file_path"))), "no point cloud (\"ply_file_path\")"),
+        (with(&|j| j["frames"][3]["file_path"] = "images/gone.jpg".into()), "frame 3: its photo"),
+        (with(&|j| j["frames"][0]["file_path"] = "../x.jpg".into()), "frame 0: \"../x.jpg\" leads out of the capture"),
+        (
+            with(&|j| j["camera_model"] = "OPENCV_FISHEYE".into()),
+            "camera_model OPENCV_FISHEYE: mipnerf cannot undistort",
+        ),
+        (with(&|j| j["k3"] = 0.1.into()), "\"k3\" is 0.1"),
+        (with(&|j| j["fl_x"] = (-5.0).into()), "frame 0: its lens: focal lengths -5"),
+        (
+            with(&|j| j["frames"][2]["transform_matrix"][0][0] = 3.0.into()),
+            "frame 2: transform_matrix's 3x3 part is not a rotation",
+        ),
+        (
+            with(&|j| j["frames"][1]["transform_matrix"] = "identity".into()),
+            "frame 1: transform_matrix: expected a 4x4 matrix",
+        ),
+        (with(&|j| j["frames"] = serde_json::json!([])), "no \"frames\" list"),
+    ];
+    for (json, want) in &cases {
+        let err = fails(json);
+        assert!(err.contains(want) && err.contains("transforms.json"), "{want}:\n{err}");
+    }
+    // A point cloud that is not one names its own file.
+    write_transforms(&capture, &good);
+    std::fs::write(capture.join("sparse_pc.ply"), "ply\nformat ascii 1.0\nend_header\n").unwrap();
+    let err = run_err(&["colmap", "--input", s(&capture), "--output", s(&out)]);
+    assert!(err.contains("sparse_pc.ply: no \"vertex\" element"), "{err}");
+    // The trainer points a capture at the process step rather than failing to find a format.
+    let err = run_err(&["train", "--data", s(&capture), "--out", s(&dir.path().join("run")), "--steps", "1"]);
+    assert!(
+        err.contains("a capture in nerfstudio's or Instant-NGP's form: process it first with `mipnerf colmap"),
+        "{err}"
+    );
+}

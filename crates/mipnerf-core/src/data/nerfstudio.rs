@@ -1,0 +1,318 @@
+//! A capture in nerfstudio's (and Instant-NGP's) `transforms.json` form, read as the process step
+//! reads a COLMAP model ([`super::process`]).
+//!
+//! nerfstudio's `ns-process-data` writes one `transforms.json` beside the photos, from its COLMAP
+//! run; Instant-NGP's `colmap2nerf.py` and apps that export for either write the same form:
+//! - the intrinsics `w`, `h`, `fl_x`, `fl_y`, `cx`, `cy` (pixels, COLMAP's convention: pixel
+//!   centres at `i + 0.5`) and the lens's `k1`, `k2`, `p1`, `p2` (OpenCV's model), at the top
+//!   level or per frame (a frame's own win); `camera_angle_x` when `fl_x` is absent; the size of
+//!   the photo when `w` and `h` are;
+//! - `camera_model`: `OPENCV` (or `PINHOLE`, `SIMPLE_PINHOLE`); fisheye and equirectangular
+//!   lenses are refused, as is OpenCV's `k3`/`k4`;
+//! - each frame's `file_path` (relative to the file's folder; Blender's files without extension
+//!   are PNGs) and `transform_matrix`, camera to world with OpenGL's axes (x right, y up, looking
+//!   down -z), in the capture's own world frame (nerfstudio's turned and Instant-NGP's also
+//!   scaled from COLMAP's: the dataset written does not depend on it, as LLFF's recentring and
+//!   rescaling take it out);
+//! - `ply_file_path`: the capture's 3D points (nerfstudio's `sparse_pc.ply`), which give each
+//!   photo's depth bounds. The file holds no tracks, so a point counts as seen by a photo when it
+//!   lies in front of it and projects into it. Points hidden behind a surface count too, so the
+//!   far bound comes out farther than COLMAP's tracks give: on the test capture (nerfstudio's
+//!   own output from a COLMAP model, `tests/data/nerfstudio_capture`) the scene's nearest bound
+//!   is COLMAP's within 0.1% and its farthest 21% farther (`crates/mipnerf-cli/tests/nerfstudio.rs`).
+//!
+//! A capture without points has no depth bounds: the step refuses it and says what to do.
+//! nerfstudio's own extras (`train_filenames`, per-frame `mask_path`, depth maps) are not read,
+//! and [`Capture::notes`] says so.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use glam::{DMat3, DQuat, DVec3};
+use serde_json::{Map, Value};
+
+use super::camera_path::number;
+use super::colmap::{ColmapCamera, ColmapImage, ColmapModel, ColmapPoint};
+use super::undistort::LensCamera;
+use super::{DataError, pose_from_json, read_json};
+use crate::camera::focal_from_camera_angle_x;
+
+/// The file a capture folder holds.
+pub const TRANSFORMS: &str = "transforms.json";
+
+/// How far a `transform_matrix`'s rotation may be from orthonormal (largest entry of `RᵀR − I`).
+pub const ROTATION_TOLERANCE: f64 = 1e-3;
+
+/// Whether `dir` holds a capture in this form.
+#[must_use]
+pub fn is_capture(dir: &Path) -> bool {
+    dir.join(TRANSFORMS).is_file()
+}
+
+/// A capture read as a COLMAP model.
+#[derive(Clone, Debug)]
+pub struct Capture {
+    /// Its cameras (one per distinct set of intrinsics, numbered from 1 in frame order), images
+    /// (named by their `file_path` relative to the capture's folder, numbered from 1 in frame
+    /// order) and points (each seen by the photos it projects into; reprojection error 0, as the
+    /// file has none).
+    pub model: ColmapModel,
+    /// The image folders the frames' files are in.
+    pub photo_folders: Vec<PathBuf>,
+    /// What of the file was not used, for the user.
+    pub notes: Vec<String>,
+}
+
+/// Reads the capture in `dir` (its [`TRANSFORMS`] and point cloud).
+///
+/// # Errors
+/// [`DataError`] naming the file (and the frame): malformed JSON, no frames, a frame without a
+/// `file_path` or `transform_matrix`, a photo that is not there, a path that leaves the folder,
+/// intrinsics that are not positive finite numbers, a lens this tool cannot undistort, a
+/// rotation that is not one, no point cloud, and [`super::ply::read_points`]'s errors.
+pub fn read(dir: &Path) -> Result<Capture, DataError> {
+    let path = dir.join(TRANSFORMS);
+    let json = read_json(&path)?;
+    let top = json.as_object().ok_or_else(|| DataError::invalid(&path, "expected a JSON object with \"frames\""))?;
+    let frames = top.get("frames").and_then(Value::as_array).filter(|f| !f.is_empty()).ok_or_else(|| {
+        DataError::invalid(&path, "no \"frames\" list (each with a file_path and a transform_matrix)")
+    })?;
+    let mut model = ColmapModel::default();
+    let mut cameras: HashMap<String, u32> = HashMap::new();
+    let mut folders: Vec<PathBuf> = Vec::new();
+    for (i, frame) in frames.iter().enumerate() {
+        let at = |problem: String| DataError::invalid(&path, format!("frame {i}: {problem}"));
+        let frame = frame.as_object().ok_or_else(|| at("is not an object".into()))?;
+        let name = photo_name(dir, frame).map_err(at)?;
+        let file = dir.join(&name);
+        if let Some(parent) = file.parent().map(Path::to_path_buf)
+            && !folders.contains(&parent)
+        {
+            folders.push(parent);
+        }
+        let camera = camera(frame, top, &file).map_err(at)?;
+        let key = format!("{} {} {} {:?}", camera.model_id, camera.width, camera.height, camera.params);
+        let next = u32::try_from(cameras.len() + 1).unwrap_or(u32::MAX);
+        let camera_id = *cameras.entry(key).or_insert_with(|| {
+            model.cameras.push(ColmapCamera { id: next, ..camera });
+            next
+        });
+        let pose = frame.get("transform_matrix").ok_or_else(|| at("missing key \"transform_matrix\"".into()))?;
+        let c2w = pose_from_json(pose, &path, &format!("frame {i}: transform_matrix"))?;
+        let (qvec, tvec) = world_to_camera(&c2w).map_err(at)?;
+        let id = u32::try_from(i + 1).unwrap_or(u32::MAX);
+        model.images.push(ColmapImage { id, qvec, tvec, camera_id, name });
+    }
+    let mut notes = Vec::new();
+    for (key, what) in [
+        ("train_filenames", "its train/test lists are not used: every 8th photo by name is held out for testing"),
+        ("mask_path", "its frames' mask_path files are not read: give masks with --masks"),
+        ("depth_file_path", "its depth maps are not used"),
+    ] {
+        if top.contains_key(key) || frames.iter().any(|f| f.get(key).is_some()) {
+            notes.push(format!("{}: {what}", path.display()));
+        }
+    }
+    let ply = top.get("ply_file_path").and_then(Value::as_str).ok_or_else(|| {
+        DataError::invalid(
+            &path,
+            "no point cloud (\"ply_file_path\"), so the photos' depth bounds cannot be measured: nerfstudio's \
+             ns-process-data writes one (sparse_pc.ply); or run this step on the COLMAP workspace the poses came from \
+             (its images/ and sparse/)",
+        )
+    })?;
+    let ply = dir.join(relative(ply).map_err(|e| DataError::invalid(&path, format!("\"ply_file_path\": {e}")))?);
+    let points = super::ply::read_points(&ply)?;
+    model.points = seen_points(&model, &points).map_err(|e| DataError::invalid(&path, e))?;
+    Ok(Capture { model, photo_folders: folders, notes })
+}
+
+/// `p` as a path inside the capture's folder (`./` dropped); absolute paths and `..` refused.
+fn relative(p: &str) -> Result<PathBuf, String> {
+    let path = Path::new(p);
+    let mut out = PathBuf::new();
+    for c in path.components() {
+        match c {
+            std::path::Component::Normal(s) => out.push(s),
+            std::path::Component::CurDir => {}
+            _ => return Err(format!("{p:?} leads out of the capture's folder; give paths inside it")),
+        }
+    }
+    if out.as_os_str().is_empty() {
+        return Err(format!("{p:?} names no file"));
+    }
+    Ok(out)
+}
+
+/// A frame's photo, relative to the capture's folder, as a `/`-separated name; Blender's
+/// `file_path`s without extension are PNGs.
+fn photo_name(dir: &Path, frame: &Map<String, Value>) -> Result<String, String> {
+    let p = frame.get("file_path").and_then(Value::as_str).ok_or("missing key \"file_path\" (a string)")?;
+    let mut rel = relative(p)?;
+    if !dir.join(&rel).is_file() && rel.extension().is_none() && dir.join(rel.with_extension("png")).is_file() {
+        rel.set_extension("png");
+    }
+    if !dir.join(&rel).is_file() {
+        return Err(format!("its photo {} is not there", dir.join(&rel).display()));
+    }
+    Ok(rel.components().map(|c| c.as_os_str().to_string_lossy()).collect::<Vec<_>>().join("/"))
+}
+
+/// The COLMAP camera of a frame: PINHOLE without distortion, else OPENCV (its id set by the
+/// caller). `file` gives the size when the frame and the file leave it out.
+fn camera(frame: &Map<String, Value>, top: &Map<String, Value>, file: &Path) -> Result<ColmapCamera, String> {
+    let lens =
+        frame.get("camera_model").or_else(|| top.get("camera_model")).and_then(Value::as_str).unwrap_or("OPENCV");
+    match lens {
+        "OPENCV" | "PINHOLE" | "SIMPLE_PINHOLE" => {}
+        "OPENCV_FISHEYE" | "EQUIRECTANGULAR" => {
+            return Err(format!(
+                "camera_model {lens}: mipnerf cannot undistort this lens; undistort the photos to pinholes first \
+                 (COLMAP's image_undistorter), or run this step on the COLMAP workspace"
+            ));
+        }
+        other => return Err(format!("camera_model {other:?}: expected OPENCV, PINHOLE or SIMPLE_PINHOLE")),
+    }
+    let (w, h) = match (number("w", frame, top)?, number("h", frame, top)?) {
+        (Some(w), Some(h)) => (w, h),
+        (None, None) => {
+            let (w, h) =
+                image::image_dimensions(file).map_err(|e| format!("cannot read {}'s size: {e}", file.display()))?;
+            (f64::from(w), f64::from(h))
+        }
+        _ => return Err("give both \"w\" and \"h\", or neither (the photo's size)".into()),
+    };
+    if !(w >= 1.0 && h >= 1.0 && w.fract() == 0.0 && h.fract() == 0.0 && w.max(h) <= f64::from(u32::MAX)) {
+        return Err(format!("the size {w}x{h} is not a whole number of pixels"));
+    }
+    let fx = match (number("fl_x", frame, top)?, number("camera_angle_x", frame, top)?) {
+        (Some(f), _) => f,
+        (None, Some(a)) if a > 0.0 && a < std::f64::consts::PI => {
+            // `w` is a whole number of pixels from 1 to u32::MAX (checked above).
+            #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+            focal_from_camera_angle_x(w as u32, a)
+        }
+        (None, Some(a)) => return Err(format!("\"camera_angle_x\" is {a}; a field of view in radians is in (0, pi)")),
+        (None, None) => return Err("no focal length: give \"fl_x\" (pixels) or \"camera_angle_x\" (radians)".into()),
+    };
+    let fy = number("fl_y", frame, top)?.unwrap_or(fx);
+    let cx = number("cx", frame, top)?.unwrap_or(0.5 * w);
+    let cy = number("cy", frame, top)?.unwrap_or(0.5 * h);
+    let mut k = [0.0; 4];
+    for (slot, key) in k.iter_mut().zip(["k1", "k2", "p1", "p2"]) {
+        *slot = number(key, frame, top)?.unwrap_or(0.0);
+    }
+    for key in ["k3", "k4"] {
+        if let Some(x) = number(key, frame, top)?.filter(|&x| x != 0.0) {
+            return Err(format!(
+                "\"{key}\" is {x}: mipnerf undistorts OpenCV's k1, k2, p1, p2 only; undistort the photos first \
+                 (COLMAP's image_undistorter)"
+            ));
+        }
+    }
+    let (model_id, params) =
+        if k == [0.0; 4] { (1, vec![fx, fy, cx, cy]) } else { (4, vec![fx, fy, cx, cy, k[0], k[1], k[2], k[3]]) };
+    // Whole numbers from 1 to u32::MAX (checked above).
+    #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+    let camera = ColmapCamera { id: 0, model_id, width: w as u64, height: h as u64, params };
+    LensCamera::from_colmap(&camera).map_err(|e| e.replacen("camera 0", "its lens", 1))?;
+    Ok(camera)
+}
+
+/// COLMAP's world-to-camera rotation (`[w, x, y, z]`) and translation of an OpenGL
+/// camera-to-world pose: its y and z axes turned round (OpenCV's camera looks down +z with y
+/// down), then inverted.
+fn world_to_camera(c2w: &[[f64; 4]; 3]) -> Result<([f64; 4], [f64; 3]), String> {
+    let col = |j: usize| DVec3::new(c2w[0][j], c2w[1][j], c2w[2][j]);
+    let r = DMat3::from_cols(col(0), -col(1), -col(2));
+    let off = (r.transpose() * r - DMat3::IDENTITY).to_cols_array().iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    if off > ROTATION_TOLERANCE || r.determinant() <= 0.0 {
+        return Err(format!(
+            "transform_matrix's 3x3 part is not a rotation (its columns are {:.4}, {:.4}, {:.4} long, its determinant \
+             {:.4}): a camera-to-world pose has orthonormal axes",
+            col(0).length(),
+            col(1).length(),
+            col(2).length(),
+            r.determinant()
+        ));
+    }
+    let rt = r.transpose();
+    let q = DQuat::from_mat3(&rt).normalize();
+    let t = -(rt * col(3));
+    Ok(([q.w, q.x, q.y, q.z], t.to_array()))
+}
+
+/// Each point with the images it lies in front of and projects into (through each camera's lens).
+fn seen_points(model: &ColmapModel, points: &[[f64; 3]]) -> Result<Vec<ColmapPoint>, String> {
+    let lenses: HashMap<u32, LensCamera> =
+        model.cameras.iter().map(|c| LensCamera::from_colmap(c).map(|l| (c.id, l))).collect::<Result<_, _>>()?;
+    let views: Vec<(u32, DMat3, DVec3, &LensCamera)> = model
+        .images
+        .iter()
+        .map(|im| {
+            let [w, x, y, z] = im.qvec;
+            (im.id, DMat3::from_quat(DQuat::from_xyzw(x, y, z, w)), DVec3::from_array(im.tvec), &lenses[&im.camera_id])
+        })
+        .collect();
+    Ok(points
+        .iter()
+        .map(|&xyz| {
+            let p = DVec3::from_array(xyz);
+            let image_ids = views
+                .iter()
+                .filter(|(_, r, t, lens)| {
+                    let c = *r * p + *t;
+                    if c.z <= 0.0 {
+                        return false;
+                    }
+                    let (x, y) = lens.img_from_cam(c.x / c.z, c.y / c.z);
+                    (0.0..f64::from(lens.width)).contains(&x) && (0.0..f64::from(lens.height)).contains(&y)
+                })
+                .map(|v| v.0)
+                .collect();
+            ColmapPoint { xyz, image_ids, error: 0.0 }
+        })
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A camera turned and moved arbitrarily: the COLMAP pose maps its centre to the origin and
+    /// a point on its OpenGL viewing axis (-z) to +z in COLMAP's camera frame, y up to -y.
+    #[test]
+    fn opengl_poses_become_colmaps_world_to_camera() {
+        let rot = DMat3::from_quat(DQuat::from_euler(glam::EulerRot::YXZ, 0.7, -0.3, 1.1));
+        let centre = DVec3::new(1.0, -2.0, 0.5);
+        let mut c2w = [[0.0; 4]; 3];
+        for i in 0..3 {
+            c2w[i] = [rot.x_axis[i], rot.y_axis[i], rot.z_axis[i], centre[i]];
+        }
+        let (q, t) = world_to_camera(&c2w).unwrap();
+        let r = DMat3::from_quat(DQuat::from_xyzw(q[1], q[2], q[3], q[0]));
+        let t = DVec3::from_array(t);
+        assert!((r * centre + t).length() < 1e-12);
+        let ahead = r * (centre - 2.0 * rot.z_axis) + t;
+        assert!((ahead - DVec3::new(0.0, 0.0, 2.0)).length() < 1e-12, "{ahead}");
+        let up = r * (centre + rot.y_axis) + t;
+        assert!((up - DVec3::new(0.0, -1.0, 0.0)).length() < 1e-12, "{up}");
+        // A scaled rotation and a mirror are refused.
+        let mut scaled = c2w;
+        scaled[0][0] *= 2.0;
+        assert!(world_to_camera(&scaled).unwrap_err().contains("not a rotation"));
+        let mut mirrored = c2w;
+        for row in &mut mirrored {
+            row[0] = -row[0];
+        }
+        assert!(world_to_camera(&mirrored).unwrap_err().contains("determinant"));
+    }
+
+    #[test]
+    fn paths_stay_inside_the_capture() {
+        assert_eq!(relative("./images/a.png").unwrap(), PathBuf::from("images/a.png"));
+        assert!(relative("../a.png").unwrap_err().contains("leads out"));
+        assert!(relative("/etc/a.png").unwrap_err().contains("leads out"));
+        assert!(relative("./").unwrap_err().contains("names no file"));
+    }
+}
