@@ -140,7 +140,8 @@ enum Command {
     /// sparse/N), pick the model with the most registered photos, undistort the photos
     /// (SIMPLE_RADIAL, RADIAL, OPENCV; pinholes pass through), downscale them, write the dataset
     /// the trainer reads (LLFF's poses_bounds.npy and images_N/, every 8th photo held out for
-    /// testing), and print the scene's bounds and the command to train.
+    /// testing), and print the scene's bounds and the command to train. Also takes a folder with
+    /// nerfstudio's or Instant-NGP's transforms.json and its point cloud (ns-process-data's).
     Colmap(commands::colmap::Args),
     /// Convert a Blender scene into the multiscale format (4 scales, metadata.json), exactly as
     /// the official convert_blender_data.py (byte for byte, without --size).
