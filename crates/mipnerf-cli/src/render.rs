@@ -33,8 +33,21 @@ pub enum Target {
     /// `frames` cameras along a path, and the video's frames per second.
     Path(PathKind, usize, u32),
     /// The cameras of a camera file ([`mipnerf_core::data::camera_path`]), or that many frames
-    /// along a smooth path through them as keyframes, and the video's frames per second.
-    Cameras(std::path::PathBuf, Option<usize>, u32),
+    /// along a smooth path through them as keyframes, the video's frames per second, and the
+    /// frame the file's poses are in.
+    Cameras(std::path::PathBuf, Option<usize>, u32, CameraFrame),
+}
+
+/// The world frame of a camera file's poses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum CameraFrame {
+    /// The trained scene's own: what every render's cameras.json holds.
+    #[default]
+    Scene,
+    /// The dataset's own world, before the loader recentred, rescaled or spherified it: COLMAP's
+    /// (or a nerfstudio capture's transforms.json's) for data from `mipnerf colmap`, LLFF's
+    /// poses_bounds.npy's; for Blender data the same as the scene's.
+    Data,
 }
 
 impl Target {
@@ -42,7 +55,7 @@ impl Target {
     const fn fps(&self) -> Option<u32> {
         match self {
             Self::Split(_) => None,
-            Self::Path(_, _, fps) | Self::Cameras(_, _, fps) => Some(*fps),
+            Self::Path(_, _, fps) | Self::Cameras(_, _, fps, _) => Some(*fps),
         }
     }
 }
@@ -230,10 +243,21 @@ pub fn render(
             let check = train.ndc.is_none();
             sequence = Some((train, cameras, check));
         }
-        Target::Cameras(file, frames, _) => {
+        Target::Cameras(file, frames, _, frame) => {
             let train = load_split(&s, Split::Train)?;
             // What the file leaves out is the first full-scale training photo's.
             let mut cameras = mipnerf_core::data::camera_path::read(file, &train.views()[0].camera, size)?;
+            if *frame == CameraFrame::Data {
+                let to_scene = train.data_to_scene;
+                cameras = cameras
+                    .into_iter()
+                    .enumerate()
+                    .map(|(i, c)| {
+                        Camera::from_pix2cam(c.width, c.height, c.pix2cam, to_scene.pose(&c.cam2world))
+                            .map_err(|e| anyhow::anyhow!("{}: frame {i}, moved into the scene: {e}", file.display()))
+                    })
+                    .collect::<Result<_>>()?;
+            }
             if let Some(frames) = *frames {
                 if frames == 0 || frames > MAX_FRAMES {
                     bail!("--frames must be between 1 and {MAX_FRAMES}, got {frames}");

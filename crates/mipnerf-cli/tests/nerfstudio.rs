@@ -117,6 +117,49 @@ fn a_nerfstudio_capture_gives_the_dataset_of_its_colmap_workspace() {
         "--quiet",
     ]);
     assert!(trained.contains("(Llff, 26 views"), "{trained}");
+    // The held-out photos' poses in the data's own frame (rows: [down, right, back, centre,
+    // hwf] per row, turned to OpenGL's [right, up, back]) (the capture's, as poses_bounds.npy
+    // holds them) render as the test split does, with --cameras-in data; read as the scene's own
+    // frame, the same file shows something else.
+    let split = dir.path().join("split");
+    let size = ["--width", "64", "--height", "63"];
+    run_ok(&[&["render", "--run", s(&run), "--out", s(&split)][..], &size].concat());
+    let frames: Vec<serde_json::Value> = rows
+        .iter()
+        .step_by(8)
+        .map(|r| {
+            let m: Vec<Vec<f64>> = (0..3).map(|i| vec![r[i * 5 + 1], -r[i * 5], r[i * 5 + 2], r[i * 5 + 3]]).collect();
+            serde_json::json!({"transform_matrix": [m[0], m[1], m[2], [0.0, 0.0, 0.0, 1.0]], "w": r[9], "h": r[4], "fl_x": r[14]})
+        })
+        .collect();
+    let file = dir.path().join("held-out.json");
+    std::fs::write(&file, serde_json::json!({ "frames": frames }).to_string()).unwrap();
+    let png = |p: &Path| image::open(p).unwrap().to_rgba8().into_raw();
+    let expected: Vec<Vec<u8>> = files(&split)
+        .iter()
+        .filter(|p| p.extension().is_some_and(|e| e == "png") && !s(p).contains("depth"))
+        .map(|p| png(p))
+        .collect();
+    assert_eq!(expected.len(), 4);
+    for (frame, max_level) in [("data", 1), ("scene", u8::MAX)] {
+        let out = dir.path().join(frame);
+        run_ok(
+            &[&["render", "--run", s(&run), "--out", s(&out), "--cameras", s(&file), "--cameras-in", frame][..], &size]
+                .concat(),
+        );
+        let worst = (0..4)
+            .map(|i| {
+                let got = png(&out.join(format!("frame_{i:04}.png")));
+                got.iter().zip(&expected[i]).map(|(a, b)| a.abs_diff(*b)).max().unwrap()
+            })
+            .max()
+            .unwrap();
+        if frame == "data" {
+            assert!(worst <= max_level, "{frame}: off by {worst} levels");
+        } else {
+            assert!(worst > 16, "the scene's frame is not the data's: off by only {worst} levels");
+        }
+    }
     // Leaving a photo out by its frame's name.
     let again = run_ok(&[
         "colmap",

@@ -324,6 +324,62 @@ fn invert3(m: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
     Some(std::array::from_fn(|r| std::array::from_fn(|k| c(k, r) / det)))
 }
 
+/// A similarity transform of world space, `x ↦ scale · rotation · x + translation`: what a loader
+/// does to a dataset's own world frame (COLMAP's, a capture's `transforms.json`'s, LLFF's
+/// `poses_bounds.npy`'s) to make the scene's (recentred, rescaled, spherified), so that cameras
+/// given in the data's frame can be rendered (`Dataset::data_to_scene`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Similarity {
+    /// The rotation (row-major, orthonormal, determinant 1).
+    pub rotation: [[f64; 3]; 3],
+    /// The scale, positive.
+    pub scale: f64,
+    /// The translation, applied last.
+    pub translation: [f64; 3],
+}
+
+impl Similarity {
+    /// The identity: the data's frame is the scene's.
+    pub const IDENTITY: Self =
+        Self { rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], scale: 1.0, translation: [0.0; 3] };
+
+    /// The similarity of `scale` that takes the pose `from` to the pose `to` (camera to world,
+    /// both with orthonormal axes): the rotation `to`'s axes times `from`'s transposed, the
+    /// translation what then takes `from`'s centre to `to`'s.
+    #[must_use]
+    pub fn between(from: &[[f64; 4]; 3], to: &[[f64; 4]; 3], scale: f64) -> Self {
+        let rotation =
+            std::array::from_fn(|i| std::array::from_fn(|j| (0..3).map(|k| to[i][k] * from[j][k]).sum::<f64>()));
+        let mut s = Self { rotation, scale, translation: [0.0; 3] };
+        let moved = s.point([from[0][3], from[1][3], from[2][3]]);
+        s.translation = std::array::from_fn(|i| to[i][3] - moved[i]);
+        s
+    }
+
+    /// The point `x` transformed.
+    #[must_use]
+    pub fn point(&self, x: [f64; 3]) -> [f64; 3] {
+        std::array::from_fn(|i| {
+            self.scale * (0..3).map(|k| self.rotation[i][k] * x[k]).sum::<f64>() + self.translation[i]
+        })
+    }
+
+    /// The camera-to-world pose `cam2world` transformed: its axes turned (their lengths kept, so
+    /// the camera's intrinsics still hold), its centre moved.
+    #[must_use]
+    pub fn pose(&self, cam2world: &[[f64; 4]; 3]) -> [[f64; 4]; 3] {
+        let centre = self.point([cam2world[0][3], cam2world[1][3], cam2world[2][3]]);
+        std::array::from_fn(|i| {
+            let mut row = [0.0; 4];
+            for (j, r) in row.iter_mut().take(3).enumerate() {
+                *r = (0..3).map(|k| self.rotation[i][k] * cam2world[k][j]).sum();
+            }
+            row[3] = centre[i];
+            row
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

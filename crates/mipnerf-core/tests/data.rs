@@ -954,3 +954,46 @@ fn unbounded_scenes_need_spherified_photos() {
         .to_string();
     assert!(err.contains("Blender") && err.contains("lego_tiny"), "{err}");
 }
+
+/// `Dataset::data_to_scene` takes every photo's pose in the data's own frame
+/// (`poses_bounds.npy`'s, its columns turned to OpenGL's) to its camera in the scene, whichever
+/// way the loader recentres, rescales and spherifies (the fern capture's own poses).
+#[test]
+fn the_data_to_scene_similarity_takes_each_photo_to_its_camera() {
+    let fern = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/llff_fern_tiny");
+    let rows = llff::read_poses_bounds(&fern.join("poses_bounds.npy")).unwrap();
+    // [down, right, back] columns -> [right, up, back], as the loader turns them.
+    let data_pose = |r: &[f64; 17]| -> [[f64; 4]; 3] {
+        std::array::from_fn(|i| [r[i * 5 + 1], -r[i * 5], r[i * 5 + 2], r[i * 5 + 3]])
+    };
+    let base = LoadOptions { llff_factor: 64, ..LoadOptions::default() };
+    let modes = [
+        ("ndc", base.clone()),
+        ("spherify", LoadOptions { llff_spherify: true, ..base.clone() }),
+        ("ring", LoadOptions { llff_spherify: true, spherify_radius: Some(4.0), ..base.clone() }),
+        ("unbounded", LoadOptions { llff_spherify: true, unbounded: true, ..base.clone() }),
+    ];
+    for (mode, opts) in modes {
+        let ds = data::load(&fern, Split::Train, &opts).unwrap();
+        let s = ds.data_to_scene;
+        assert!(s.scale > 0.0 && s.scale.is_finite(), "{mode}");
+        // The train split: every photo but every 8th.
+        let train_rows = rows.iter().enumerate().filter(|(i, _)| i % llff::LLFF_HOLD != 0).map(|(_, r)| r);
+        for (v, r) in ds.views().iter().zip(train_rows) {
+            let want = v.camera.cam2world;
+            let got = s.pose(&data_pose(r));
+            for i in 0..3 {
+                for j in 0..4 {
+                    assert!(
+                        (got[i][j] - want[i][j]).abs() < 1e-9,
+                        "{mode}: {} [{i}][{j}] {got:?} {want:?}",
+                        v.file.display()
+                    );
+                }
+            }
+        }
+    }
+    // Blender's frame is the scene's.
+    let lego = data::load(&lego_tiny(), Split::Train, &LoadOptions::default()).unwrap();
+    assert_eq!(lego.data_to_scene, mipnerf_core::camera::Similarity::IDENTITY);
+}

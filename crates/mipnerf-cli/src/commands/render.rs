@@ -31,6 +31,12 @@ pub struct Args {
     /// Every render writes the cameras it rendered to `cameras.json` in this form.
     #[arg(long, value_name = "FILE")]
     pub cameras: Option<PathBuf>,
+    /// The world frame of the --cameras file's poses: scene, the trained scene's own (what every
+    /// render's cameras.json holds), or data, the dataset's own (COLMAP's, a nerfstudio capture's
+    /// transforms.json's, LLFF's poses_bounds.npy's), before the loader recentred, rescaled or
+    /// spherified it.
+    #[arg(long, value_enum, default_value_t = render::CameraFrame::Scene, requires = "cameras")]
+    pub cameras_in: render::CameraFrame,
     /// Frames of the path [default: 60]. With --cameras: that many frames along a smooth path
     /// through the file's cameras as keyframes (without it, the file's cameras as they are).
     #[arg(long)]
@@ -71,7 +77,7 @@ pub fn run(a: Args, session: &Session) -> Result<()> {
     }
     let target = match (a.path, a.cameras) {
         (Some(kind), _) => render::Target::Path(kind, a.frames.unwrap_or(render::DEFAULT_FRAMES), a.fps),
-        (None, Some(file)) => render::Target::Cameras(file, a.frames, a.fps),
+        (None, Some(file)) => render::Target::Cameras(file, a.frames, a.fps, a.cameras_in),
         (None, None) => render::Target::Split(a.split.unwrap_or(SplitArg::Test).into()),
     };
     let size = a.width.zip(a.height);

@@ -14,7 +14,7 @@ use std::path::Path;
 use glam::{DMat3, DVec3};
 
 use super::{DataError, Dataset, Ndc, Pixels, Split, View, check_pixel_memory, image_pixels, read_png_rgba};
-use crate::camera::{Camera, PixelCenters, pinhole_pix2cam};
+use crate::camera::{Camera, PixelCenters, Similarity, pinhole_pix2cam};
 use crate::cone::{Ray, radius_from_spacing};
 
 /// Every `LLFF_HOLD`-th image is a test image.
@@ -502,6 +502,8 @@ pub fn from_rows(
             format!("depth bounds must be positive with far > near, found {min_b}..{max_b}"),
         ));
     }
+    // The poses in the data's own frame, for the similarity the loader applies to it.
+    let data_poses = poses.clone();
     let scale = 1.0 / (min_b * 0.75);
     for (i, p) in poses.iter_mut().enumerate() {
         for row in p.iter_mut() {
@@ -524,7 +526,7 @@ pub fn from_rows(
     let (min_b, max_b) = (min_b * scale, max_b * scale);
     let avg = poses_avg(&poses);
     let mut poses: Vec<Pose> = poses.iter().map(|p| relative(&avg, p)).collect();
-    let (near, far, path, ndc) = if let Some(how) = spherify {
+    let (near, far, path, ndc, sphere_scale) = if let Some(how) = spherify {
         let (reset, sc, path) = self::spherify(&poses, how).ok_or_else(|| {
             DataError::invalid(
                 &npy,
@@ -533,11 +535,13 @@ pub fn from_rows(
             )
         })?;
         poses = reset;
-        ((min_b * sc * 0.9) as f32, (max_b * sc) as f32, path, None)
+        ((min_b * sc * 0.9) as f32, (max_b * sc) as f32, path, None, sc)
     } else {
         let ndc = Ndc { focal: focal as f32, width: w as f32, height: h as f32 };
-        (0.0, 1.0, spiral_path(&poses, min_b, max_b), Some(ndc))
+        (0.0, 1.0, spiral_path(&poses, min_b, max_b), Some(ndc), 1.0)
     };
+    // Scaled, recentred on the mean pose and spherified: one similarity, read off the first pose.
+    let data_to_scene = Similarity::between(&data_poses[0], &poses[0], scale * sphere_scale);
     let pix2cam = pinhole_pix2cam(w, h, focal);
     let mut views = Vec::new();
     for (i, ((pose, (iw, ih, rgba)), file)) in poses.iter().zip(images).zip(&files).enumerate() {
@@ -559,6 +563,7 @@ pub fn from_rows(
     }
     let mut ds = Dataset::new(dir, split, views, false)?;
     ds.ndc = ndc;
+    ds.data_to_scene = data_to_scene;
     if split != Split::Train {
         ds.render_path = path
             .into_iter()

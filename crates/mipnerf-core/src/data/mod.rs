@@ -214,6 +214,10 @@ pub struct Dataset {
     /// Choices the loader made that a user should hear about (which COLMAP model was taken,
     /// images downsampled in memory), one sentence each.
     pub notes: Vec<String>,
+    /// The similarity the loader applied to the data's own world frame to make the scene's:
+    /// LLFF's and COLMAP's recentring, rescaling and spherifying; the identity for Blender,
+    /// multiscale and demo data, whose frame is the scene's.
+    pub data_to_scene: crate::camera::Similarity,
     /// Cumulative pixel counts: view `v` holds global pixels `offsets[v]..offsets[v + 1]`.
     offsets: Vec<u64>,
 }
@@ -252,6 +256,7 @@ impl Dataset {
             ndc: None,
             render_path: Vec::new(),
             notes: Vec::new(),
+            data_to_scene: crate::camera::Similarity::IDENTITY,
             offsets,
         })
     }
@@ -439,6 +444,7 @@ impl Dataset {
             ndc: self.ndc,
             render_path: self.render_path.clone(),
             notes: self.notes.clone(),
+            data_to_scene: self.data_to_scene,
             offsets: self.offsets.clone(),
         }
     }
