@@ -208,18 +208,20 @@ mod tests {
         assert_eq!(points, vec![[-2.290099, 3.370441, -1.932370], [6.5, -1.0, 800.0]]);
     }
 
-    /// The project's own binary writer (`export::write_points_ply`: little-endian, float
-    /// positions and uchar colours) reads back, and a big-endian double file with the
-    /// coordinates in another order and an element before the vertices.
+    /// A little-endian file of float positions and uchar colours (the form `mipnerf export`
+    /// writes), and a big-endian double file with the coordinates in another order and an
+    /// element before the vertices.
     #[test]
     fn binary_points_are_read_in_either_byte_order() {
-        let dir = std::env::temp_dir().join(format!("mipnerf-ply-bin-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("p.ply");
-        let pts = [glam::Vec3::new(1.5, -2.0, 3.25), glam::Vec3::new(0.0, 7.0, -0.5)];
-        crate::export::write_points_ply(&path, &pts, &[[1, 2, 3], [4, 5, 6]]).unwrap();
-        let read = read_points(&path).unwrap();
-        assert_eq!(read, vec![[1.5, -2.0, 3.25], [0.0, 7.0, -0.5]]);
+        let mut little = b"ply\nformat binary_little_endian 1.0\ncomment made by mipnerf export\nelement vertex 2\n\
+                           property float x\nproperty float y\nproperty float z\nproperty uchar red\n\
+                           property uchar green\nproperty uchar blue\nend_header\n"
+            .to_vec();
+        for (p, c) in [([1.5f32, -2.0, 3.25], [1u8, 2, 3]), ([0.0, 7.0, -0.5], [4, 5, 6])] {
+            p.iter().for_each(|x| little.extend_from_slice(&x.to_le_bytes()));
+            little.extend_from_slice(&c);
+        }
+        assert_eq!(read_points(&write("l.ply", &little)).unwrap(), vec![[1.5, -2.0, 3.25], [0.0, 7.0, -0.5]]);
 
         let mut big = b"ply\nformat binary_big_endian 1.0\nelement camera 1\nproperty short id\n\
                         element vertex 1\nproperty double z\nproperty uchar k\nproperty double x\nproperty double y\nend_header\n"
