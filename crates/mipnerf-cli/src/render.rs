@@ -34,8 +34,9 @@ pub enum Target {
     Path(PathKind, usize, u32),
     /// The cameras of a camera file ([`mipnerf_core::data::camera_path`]), or that many frames
     /// along a smooth path through them as keyframes, the video's frames per second, and the
-    /// frame the file's poses are in.
-    Cameras(std::path::PathBuf, Option<usize>, u32, CameraFrame),
+    /// frame the file's poses are in (or nerfstudio's `dataparser_transforms.json`, whose model's
+    /// frame they are in).
+    Cameras(std::path::PathBuf, Option<usize>, u32, CameraFrame, Option<std::path::PathBuf>),
 }
 
 /// The world frame of a camera file's poses.
@@ -55,7 +56,7 @@ impl Target {
     const fn fps(&self) -> Option<u32> {
         match self {
             Self::Split(_) => None,
-            Self::Path(_, _, fps) | Self::Cameras(_, _, fps, _) => Some(*fps),
+            Self::Path(_, _, fps) | Self::Cameras(_, _, fps, _, _) => Some(*fps),
         }
     }
 }
@@ -243,18 +244,30 @@ pub fn render(
             let check = train.ndc.is_none();
             sequence = Some((train, cameras, check));
         }
-        Target::Cameras(file, frames, _, frame) => {
+        Target::Cameras(file, frames, _, frame, dataparser) => {
+            use mipnerf_core::data::{camera_path, nerfstudio};
+            if dataparser.is_none() && camera_path::is_nerfstudio_path(file) {
+                bail!(
+                    "{}: a camera path of nerfstudio's viewer, whose poses are in the frame of the model nerfstudio \
+                     trained: give --dataparser-transforms with that model's dataparser_transforms.json (beside its \
+                     config.yml); the mipnerf run must be trained on data from the same capture or COLMAP model",
+                    file.display()
+                );
+            }
             let train = load_split(&s, Split::Train)?;
             // What the file leaves out is the first full-scale training photo's.
-            let mut cameras = mipnerf_core::data::camera_path::read(file, &train.views()[0].camera, size)?;
-            if *frame == CameraFrame::Data {
-                let to_scene = train.data_to_scene;
+            let mut cameras = camera_path::read(file, &train.views()[0].camera, size)?;
+            // Into the data's frame (from nerfstudio's model's), then into the scene's.
+            let to_data = dataparser.as_deref().map(nerfstudio::dataparser_to_data).transpose()?;
+            let to_scene = (to_data.is_some() || *frame == CameraFrame::Data).then_some(train.data_to_scene);
+            if let Some(to_scene) = to_scene {
+                let to_data = to_data.unwrap_or(mipnerf_core::camera::Similarity::IDENTITY);
                 cameras = cameras
                     .into_iter()
                     .enumerate()
                     .map(|(i, c)| {
-                        Camera::from_pix2cam(c.width, c.height, c.pix2cam, to_scene.pose(&c.cam2world))
-                            .map_err(|e| anyhow::anyhow!("{}: frame {i}, moved into the scene: {e}", file.display()))
+                        Camera::from_pix2cam(c.width, c.height, c.pix2cam, to_scene.pose(&to_data.pose(&c.cam2world)))
+                            .map_err(|e| anyhow::anyhow!("{}: camera {i}, moved into the scene: {e}", file.display()))
                     })
                     .collect::<Result<_>>()?;
             }

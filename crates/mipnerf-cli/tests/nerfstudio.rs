@@ -11,7 +11,8 @@ use std::path::{Path, PathBuf};
 use common::{copy_dir, run_err, run_ok};
 
 /// How far the two routes' poses may differ (entries of the rotation and the centre): the
-/// capture's are COLMAP's turned by `applied_transform` and printed with 17 digits.
+/// capture's are COLMAP's turned by `applied_transform` and printed with 17 digits, then turned
+/// back.
 const POSE_TOLERANCE: f64 = 1e-9;
 
 fn fixtures() -> PathBuf {
@@ -70,18 +71,13 @@ fn a_nerfstudio_capture_gives_the_dataset_of_its_colmap_workspace() {
     for (x, y) in a.iter().zip(&b) {
         assert!(std::fs::read(x).unwrap() == std::fs::read(y).unwrap(), "{}", x.display());
     }
-    // The same poses, in nerfstudio's world frame: turned by its applied_transform.
-    let turn = transforms(&capture)["applied_transform"].clone();
-    let turn: Vec<Vec<f64>> = serde_json::from_value(turn).unwrap();
+    // The same poses: nerfstudio's applied_transform undone, the capture's frame is COLMAP's.
     let read = |d: &Path| mipnerf_core::data::llff::read_poses_bounds(&d.join("poses_bounds.npy")).unwrap();
     let (rows, reference_rows) = (read(&ours), read(&theirs));
+    assert_eq!(rows.len(), reference_rows.len());
     for (r, q) in rows.iter().zip(&reference_rows) {
-        for i in 0..3 {
-            for col in 0..4 {
-                let turned: f64 = (0..3).map(|k| turn[i][k] * q[k * 5 + col]).sum();
-                assert!((r[i * 5 + col] - turned).abs() < POSE_TOLERANCE, "row {i} col {col}: {r:?} {q:?}");
-            }
-            assert_eq!(r[i * 5 + 4], q[i * 5 + 4], "height, width, focal");
+        for k in 0..15 {
+            assert!((r[k] - q[k]).abs() < POSE_TOLERANCE, "entry {k}: {r:?} {q:?}");
         }
     }
     // Bounds from the points each photo could see (no tracks): the scene's nearest the same,
@@ -117,49 +113,6 @@ fn a_nerfstudio_capture_gives_the_dataset_of_its_colmap_workspace() {
         "--quiet",
     ]);
     assert!(trained.contains("(Llff, 26 views"), "{trained}");
-    // The held-out photos' poses in the data's own frame (rows: [down, right, back, centre,
-    // hwf] per row, turned to OpenGL's [right, up, back]) (the capture's, as poses_bounds.npy
-    // holds them) render as the test split does, with --cameras-in data; read as the scene's own
-    // frame, the same file shows something else.
-    let split = dir.path().join("split");
-    let size = ["--width", "64", "--height", "63"];
-    run_ok(&[&["render", "--run", s(&run), "--out", s(&split)][..], &size].concat());
-    let frames: Vec<serde_json::Value> = rows
-        .iter()
-        .step_by(8)
-        .map(|r| {
-            let m: Vec<Vec<f64>> = (0..3).map(|i| vec![r[i * 5 + 1], -r[i * 5], r[i * 5 + 2], r[i * 5 + 3]]).collect();
-            serde_json::json!({"transform_matrix": [m[0], m[1], m[2], [0.0, 0.0, 0.0, 1.0]], "w": r[9], "h": r[4], "fl_x": r[14]})
-        })
-        .collect();
-    let file = dir.path().join("held-out.json");
-    std::fs::write(&file, serde_json::json!({ "frames": frames }).to_string()).unwrap();
-    let png = |p: &Path| image::open(p).unwrap().to_rgba8().into_raw();
-    let expected: Vec<Vec<u8>> = files(&split)
-        .iter()
-        .filter(|p| p.extension().is_some_and(|e| e == "png") && !s(p).contains("depth"))
-        .map(|p| png(p))
-        .collect();
-    assert_eq!(expected.len(), 4);
-    for (frame, max_level) in [("data", 1), ("scene", u8::MAX)] {
-        let out = dir.path().join(frame);
-        run_ok(
-            &[&["render", "--run", s(&run), "--out", s(&out), "--cameras", s(&file), "--cameras-in", frame][..], &size]
-                .concat(),
-        );
-        let worst = (0..4)
-            .map(|i| {
-                let got = png(&out.join(format!("frame_{i:04}.png")));
-                got.iter().zip(&expected[i]).map(|(a, b)| a.abs_diff(*b)).max().unwrap()
-            })
-            .max()
-            .unwrap();
-        if frame == "data" {
-            assert!(worst <= max_level, "{frame}: off by {worst} levels");
-        } else {
-            assert!(worst > 16, "the scene's frame is not the data's: off by only {worst} levels");
-        }
-    }
     // Leaving a photo out by its frame's name.
     let again = run_ok(&[
         "colmap",
@@ -226,6 +179,150 @@ fn what_a_capture_gets_wrong_is_refused_by_name() {
     let err = run_err(&["train", "--data", s(&capture), "--out", s(&dir.path().join("run")), "--steps", "1"]);
     assert!(
         err.contains("a capture in nerfstudio's or Instant-NGP's form: process it first with `mipnerf colmap"),
+        "{err}"
+    );
+}
+
+/// The held-out photos' cameras, given in the data's own frame three ways, render as the test
+/// split does: as poses_bounds.npy holds them (`--cameras-in data`), as the capture's own
+/// transforms.json holds them (turned by its applied_transform), and as a camera path of
+/// nerfstudio's viewer in the frame of a model nerfstudio trained (`--dataparser-transforms`,
+/// its transform and scale made up here as nerfstudio makes them: `scale · (T p)`).
+#[test]
+fn cameras_in_the_datas_frame_and_nerfstudios_render_as_the_split() {
+    let dir = tempfile::tempdir().unwrap();
+    let capture = capture(dir.path());
+    let data = dir.path().join("data");
+    run_ok(&["colmap", "--input", s(&capture), "--output", s(&data), "--max-size", "0"]);
+    let run = dir.path().join("run");
+    run_ok(&[
+        "train",
+        "--data",
+        s(&data),
+        "--llff-factor",
+        "1",
+        "--spherify",
+        "--background",
+        "white",
+        "--preset",
+        "fast",
+        "--steps",
+        "3",
+        "--out",
+        s(&run),
+        "--quiet",
+    ]);
+    let split = dir.path().join("split");
+    let size = ["--width", "64", "--height", "63"];
+    run_ok(&[&["render", "--run", s(&run), "--out", s(&split)][..], &size].concat());
+    let png = |p: &Path| image::open(p).unwrap().to_rgba8().into_raw();
+    let expected: Vec<Vec<u8>> = files(&split)
+        .iter()
+        .filter(|p| p.extension().is_some_and(|e| e == "png") && !s(p).contains("depth"))
+        .map(|p| png(p))
+        .collect();
+    assert_eq!(expected.len(), 4);
+    let render = |name: &str, args: &[&str]| -> u8 {
+        let out = dir.path().join(name);
+        run_ok(&[&["render", "--run", s(&run), "--out", s(&out)][..], args, &size].concat());
+        (0..4)
+            .map(|i| {
+                let got = png(&out.join(format!("frame_{i:04}.png")));
+                got.iter().zip(&expected[i]).map(|(a, b)| a.abs_diff(*b)).max().unwrap()
+            })
+            .max()
+            .unwrap()
+    };
+    // The held-out rows (every 8th), as OpenGL camera-to-world poses: [down, right, back,
+    // centre, hwf] per row turned to [right, up, back, centre].
+    let rows = mipnerf_core::data::llff::read_poses_bounds(&data.join("poses_bounds.npy")).unwrap();
+    let held_out: Vec<&[f64; 17]> = rows.iter().step_by(8).collect();
+    let pose = |r: &[f64; 17]| -> [[f64; 4]; 3] {
+        std::array::from_fn(|i| [r[i * 5 + 1], -r[i * 5], r[i * 5 + 2], r[i * 5 + 3]])
+    };
+    let (w, h, focal) = (held_out[0][9], held_out[0][4], held_out[0][14]);
+    let frames: Vec<serde_json::Value> = held_out
+        .iter()
+        .map(|r| {
+            let m = pose(r);
+            serde_json::json!({"transform_matrix": [m[0], m[1], m[2], [0.0, 0.0, 0.0, 1.0]], "w": w, "h": h, "fl_x": focal})
+        })
+        .collect();
+    let file = dir.path().join("held-out.json");
+    std::fs::write(&file, serde_json::json!({ "frames": frames }).to_string()).unwrap();
+    let off = render("in-data", &["--cameras", s(&file), "--cameras-in", "data"]);
+    assert!(off <= 1, "--cameras-in data: off by {off} levels");
+    let off = render("in-scene", &["--cameras", s(&file)]);
+    assert!(off > 16, "read in the scene's frame, the data's poses show something else: off by only {off} levels");
+
+    // The capture's own transforms.json: its held-out frames' poses (turned by applied_transform)
+    // come out as the split's cameras.
+    let out = dir.path().join("capture-frames");
+    run_ok(
+        &[
+            &["render", "--run", s(&run), "--out", s(&out), "--cameras"][..],
+            &[s(&capture.join("transforms.json")), "--cameras-in", "data"],
+            &size,
+        ]
+        .concat(),
+    );
+    let cameras = |d: &Path| -> Vec<serde_json::Value> {
+        let j: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(d.join("cameras.json")).unwrap()).unwrap();
+        j["frames"].as_array().unwrap().clone()
+    };
+    let ours = cameras(&out);
+    let names: Vec<String> = transforms(&capture)["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["file_path"].as_str().unwrap().to_owned())
+        .collect();
+    for (k, want) in cameras(&split).iter().enumerate() {
+        let name = ["images/r_1.jpg", "images/r_3.jpg", "images/r_58.jpg", "images/r_78.jpg"][k];
+        let got = &ours[names.iter().position(|n| n == name).unwrap()]["transform_matrix"];
+        for i in 0..3 {
+            for j in 0..4 {
+                let (a, b) = (got[i][j].as_f64().unwrap(), want["transform_matrix"][i][j].as_f64().unwrap());
+                assert!((a - b).abs() < POSE_TOLERANCE, "{name} [{i}][{j}]: {a} against {b}");
+            }
+        }
+    }
+
+    // A camera path of nerfstudio's viewer: its model's frame is the data's turned, moved and
+    // scaled by dataparser_transforms.json.
+    let turn = glam::DMat3::from_quat(glam::DQuat::from_euler(glam::EulerRot::ZYX, 0.4, -1.1, 2.0));
+    let (shift, scale) = (glam::DVec3::new(0.3, -2.0, 1.5), 0.37);
+    let t: Vec<Vec<f64>> = (0..3).map(|i| vec![turn.row(i).x, turn.row(i).y, turn.row(i).z, shift[i]]).collect();
+    std::fs::write(
+        dir.path().join("dataparser_transforms.json"),
+        serde_json::json!({"transform": t, "scale": scale}).to_string(),
+    )
+    .unwrap();
+    let path: Vec<serde_json::Value> = held_out
+        .iter()
+        .map(|r| {
+            let m = pose(r);
+            let rot = turn * glam::DMat3::from_cols_array_2d(&[0, 1, 2].map(|j| [m[0][j], m[1][j], m[2][j]]));
+            let centre = scale * (turn * glam::DVec3::new(m[0][3], m[1][3], m[2][3]) + shift);
+            let c2w: Vec<f64> = (0..3)
+                .flat_map(|i| [rot.col(0)[i], rot.col(1)[i], rot.col(2)[i], centre[i]])
+                .chain([0.0, 0.0, 0.0, 1.0])
+                .collect();
+            serde_json::json!({"camera_to_world": c2w, "fov": 2.0 * (0.5 * h / focal).atan().to_degrees(), "aspect": w / h})
+        })
+        .collect();
+    let camera_path = dir.path().join("camera_path.json");
+    let json = serde_json::json!({"camera_type": "perspective", "render_width": w, "render_height": h, "camera_path": path, "fps": 24});
+    std::fs::write(&camera_path, json.to_string()).unwrap();
+    let dataparser = dir.path().join("dataparser_transforms.json");
+    let off = render("nerfstudio", &["--cameras", s(&camera_path), "--dataparser-transforms", s(&dataparser)]);
+    assert!(off <= 1, "nerfstudio's camera path: off by {off} levels");
+    // Without its dataparser transform a nerfstudio path is refused, naming what to give.
+    let err = run_err(&["render", "--run", s(&run), "--out", s(&dir.path().join("x")), "--cameras", s(&camera_path)]);
+    assert!(
+        err.contains("camera_path.json: a camera path of nerfstudio's viewer")
+            && err.contains("--dataparser-transforms"),
         "{err}"
     );
 }

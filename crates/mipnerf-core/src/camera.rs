@@ -356,6 +356,34 @@ impl Similarity {
         s
     }
 
+    /// The similarity that undoes this one.
+    #[must_use]
+    pub fn inverse(&self) -> Self {
+        let rotation = std::array::from_fn(|i| std::array::from_fn(|j| self.rotation[j][i]));
+        let back = Self { rotation, scale: 1.0 / self.scale, translation: [0.0; 3] };
+        let t = back.point(self.translation);
+        Self { translation: t.map(|x| -x), ..back }
+    }
+
+    /// The rigid transform `[R | t]` of a 3x4 matrix whose 3x3 part `R` is a rotation (within
+    /// `tolerance` of orthonormal, determinant positive); `None` otherwise.
+    #[must_use]
+    pub fn rigid(m: &[[f64; 4]; 3], tolerance: f64) -> Option<Self> {
+        let rotation: [[f64; 3]; 3] = std::array::from_fn(|i| [m[i][0], m[i][1], m[i][2]]);
+        let off = (0..3)
+            .flat_map(|i| (0..3).map(move |j| (i, j)))
+            .map(|(i, j)| {
+                let dot: f64 = (0..3).map(|k| rotation[k][i] * rotation[k][j]).sum();
+                (dot - if i == j { 1.0 } else { 0.0 }).abs()
+            })
+            .fold(0.0, f64::max);
+        (off <= tolerance && det3(|r, c| rotation[r][c]) > 0.0).then(|| Self {
+            rotation,
+            scale: 1.0,
+            translation: [m[0][3], m[1][3], m[2][3]],
+        })
+    }
+
     /// The point `x` transformed.
     #[must_use]
     pub fn point(&self, x: [f64; 3]) -> [f64; 3] {

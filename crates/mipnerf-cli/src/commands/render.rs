@@ -27,7 +27,8 @@ pub struct Args {
     pub path: Option<render::PathKind>,
     /// Render the cameras of a camera file instead: `transforms.json`-style frames, each a 4x4
     /// camera-to-world `transform_matrix`, with optional `w`, `h`, `fl_x`, `fl_y`, `cx`, `cy` or
-    /// `camera_angle_x` per frame or for all (what a frame leaves out is the training photos').
+    /// `camera_angle_x` per frame or for all (what a frame leaves out is the training photos');
+    /// or a camera path of nerfstudio's viewer (camera_path.json, with --dataparser-transforms).
     /// Every render writes the cameras it rendered to `cameras.json` in this form.
     #[arg(long, value_name = "FILE")]
     pub cameras: Option<PathBuf>,
@@ -37,6 +38,12 @@ pub struct Args {
     /// spherified it.
     #[arg(long, value_enum, default_value_t = render::CameraFrame::Scene, requires = "cameras")]
     pub cameras_in: render::CameraFrame,
+    /// The --cameras file's poses are in the frame of a model nerfstudio trained (its viewer's
+    /// camera_path.json): that model's dataparser_transforms.json (beside its config.yml) takes
+    /// them to the data's frame, then into this run's scene (for a run trained on data from the
+    /// same capture or COLMAP model).
+    #[arg(long, value_name = "FILE", requires = "cameras")]
+    pub dataparser_transforms: Option<PathBuf>,
     /// Frames of the path [default: 60]. With --cameras: that many frames along a smooth path
     /// through the file's cameras as keyframes (without it, the file's cameras as they are).
     #[arg(long)]
@@ -77,7 +84,7 @@ pub fn run(a: Args, session: &Session) -> Result<()> {
     }
     let target = match (a.path, a.cameras) {
         (Some(kind), _) => render::Target::Path(kind, a.frames.unwrap_or(render::DEFAULT_FRAMES), a.fps),
-        (None, Some(file)) => render::Target::Cameras(file, a.frames, a.fps, a.cameras_in),
+        (None, Some(file)) => render::Target::Cameras(file, a.frames, a.fps, a.cameras_in, a.dataparser_transforms),
         (None, None) => render::Target::Split(a.split.unwrap_or(SplitArg::Test).into()),
     };
     let size = a.width.zip(a.height);

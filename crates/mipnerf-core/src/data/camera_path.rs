@@ -45,6 +45,10 @@ pub const MAX_SIDE: u32 = 16_384;
 pub fn read(path: &Path, default: &Camera, size: Option<(u32, u32)>) -> Result<Vec<Camera>, DataError> {
     let file = read_json(path)?;
     let top = file.as_object().ok_or_else(|| DataError::invalid(path, "expected a JSON object with \"frames\""))?;
+    if top.contains_key("camera_path") {
+        return nerfstudio_path(path, top, size);
+    }
+    let to_data = super::nerfstudio::saved_to_data(top, path)?;
     let frames = top
         .get("frames")
         .ok_or_else(|| DataError::invalid(path, "missing key \"frames\" (a list of {\"transform_matrix\": 4x4})"))?
@@ -63,7 +67,62 @@ pub fn read(path: &Path, default: &Camera, size: Option<(u32, u32)>) -> Result<V
             let frame =
                 frame.as_object().ok_or_else(|| DataError::invalid(path, format!("frame {i} is not an object")))?;
             camera(frame, top, default, size)
+                .and_then(|c| {
+                    Camera::from_pix2cam(c.width, c.height, c.pix2cam, to_data.pose(&c.cam2world))
+                        .map_err(|e| e.to_string())
+                })
                 .map_err(|problem| DataError::invalid(path, format!("frame {i}: {problem}")))
+        })
+        .collect()
+}
+
+/// Whether the camera file at `path` is a camera path of nerfstudio's viewer (`camera_path`
+/// rather than `frames`), whose poses are in the frame of the model nerfstudio trained; `false`
+/// for a file that cannot be read (which [`read`] then names).
+#[must_use]
+pub fn is_nerfstudio_path(path: &Path) -> bool {
+    read_json(path).is_ok_and(|j| j.get("camera_path").is_some())
+}
+
+/// The cameras of a camera path of nerfstudio's viewer (its `camera_path.json`): `render_width`
+/// and `render_height`, and for each camera a row-major 4x4 `camera_to_world` (OpenGL's axes, in
+/// the frame of the model nerfstudio trained: [`super::nerfstudio::dataparser_to_data`]) and its
+/// vertical field of view `fov` in degrees (three.js's), the principal point at the centre.
+fn nerfstudio_path(path: &Path, top: &Map<String, Value>, size: Option<(u32, u32)>) -> Result<Vec<Camera>, DataError> {
+    let bad = |problem: String| DataError::invalid(path, problem);
+    match top.get("camera_type").and_then(Value::as_str) {
+        None | Some("perspective") => {}
+        Some(other) => return Err(bad(format!("camera_type {other:?}: only perspective cameras render here"))),
+    }
+    let empty = Map::new();
+    let (w, h) = match (side("render_width", &empty, top), side("render_height", &empty, top)) {
+        (Ok(Some(w)), Ok(Some(h))) => (w, h),
+        (Err(e), _) | (_, Err(e)) => return Err(bad(e)),
+        _ => return Err(bad("a nerfstudio camera path needs \"render_width\" and \"render_height\"".into())),
+    };
+    let list =
+        top.get("camera_path").and_then(Value::as_array).ok_or_else(|| bad("\"camera_path\" must be a list".into()))?;
+    if list.is_empty() || list.len() > MAX_FRAMES {
+        return Err(bad(format!("{} cameras in \"camera_path\"; 1 to {MAX_FRAMES} are rendered", list.len())));
+    }
+    list.iter()
+        .enumerate()
+        .map(|(i, cam)| {
+            let at = |problem: String| bad(format!("camera_path[{i}]: {problem}"));
+            let m: Vec<f64> = cam
+                .get("camera_to_world")
+                .and_then(Value::as_array)
+                .filter(|m| m.len() == 16)
+                .and_then(|m| m.iter().map(Value::as_f64).collect())
+                .ok_or_else(|| at("\"camera_to_world\" must be 16 numbers (a row-major 4x4)".into()))?;
+            let cam2world: [[f64; 4]; 3] = std::array::from_fn(|r| std::array::from_fn(|c| m[r * 4 + c]));
+            let fov = cam.get("fov").and_then(Value::as_f64).filter(|f| *f > 0.0 && *f < 180.0);
+            let fov =
+                fov.ok_or_else(|| at("\"fov\" must be a vertical field of view in degrees, in (0, 180)".into()))?;
+            let (w, h) = size.unwrap_or((w, h));
+            let focal = 0.5 * f64::from(h) / (0.5 * fov.to_radians()).tan();
+            let pix2cam = crate::camera::pinhole_pix2cam(w, h, focal);
+            Camera::from_pix2cam(w, h, pix2cam, cam2world).map_err(|e| at(e.to_string()))
         })
         .collect()
 }

@@ -11,9 +11,10 @@
 //!   lenses are refused, as is OpenCV's `k3`/`k4`;
 //! - each frame's `file_path` (relative to the file's folder; Blender's files without extension
 //!   are PNGs) and `transform_matrix`, camera to world with OpenGL's axes (x right, y up, looking
-//!   down -z), in the capture's own world frame (nerfstudio's turned and Instant-NGP's also
-//!   scaled from COLMAP's: the dataset written does not depend on it, as LLFF's recentring and
-//!   rescaling take it out);
+//!   down -z), in the capture's own world frame: nerfstudio's is COLMAP's turned by the file's
+//!   `applied_transform`, which is undone ([`saved_to_data`]), so the dataset written is in
+//!   COLMAP's frame whichever route it took (Instant-NGP's is also recentred and scaled, which the
+//!   trainer's own recentring and rescaling take out);
 //! - `ply_file_path`: the capture's 3D points (nerfstudio's `sparse_pc.ply`), which give each
 //!   photo's depth bounds. The file holds no tracks, so a point counts as seen by a photo when it
 //!   lies in front of it and projects into it. Points hidden behind a surface count too, so the
@@ -35,7 +36,7 @@ use super::camera_path::number;
 use super::colmap::{ColmapCamera, ColmapImage, ColmapModel, ColmapPoint};
 use super::undistort::LensCamera;
 use super::{DataError, pose_from_json, read_json};
-use crate::camera::focal_from_camera_angle_x;
+use crate::camera::{Similarity, focal_from_camera_angle_x};
 
 /// The file a capture folder holds.
 pub const TRANSFORMS: &str = "transforms.json";
@@ -77,6 +78,7 @@ pub fn read(dir: &Path) -> Result<Capture, DataError> {
     let frames = top.get("frames").and_then(Value::as_array).filter(|f| !f.is_empty()).ok_or_else(|| {
         DataError::invalid(&path, "no \"frames\" list (each with a file_path and a transform_matrix)")
     })?;
+    let to_data = saved_to_data(top, &path)?;
     let mut model = ColmapModel::default();
     let mut cameras: HashMap<String, u32> = HashMap::new();
     let mut folders: Vec<PathBuf> = Vec::new();
@@ -99,7 +101,7 @@ pub fn read(dir: &Path) -> Result<Capture, DataError> {
         });
         let pose = frame.get("transform_matrix").ok_or_else(|| at("missing key \"transform_matrix\"".into()))?;
         let c2w = pose_from_json(pose, &path, &format!("frame {i}: transform_matrix"))?;
-        let (qvec, tvec) = world_to_camera(&c2w).map_err(at)?;
+        let (qvec, tvec) = world_to_camera(&to_data.pose(&c2w)).map_err(at)?;
         let id = u32::try_from(i + 1).unwrap_or(u32::MAX);
         model.images.push(ColmapImage { id, qvec, tvec, camera_id, name });
     }
@@ -122,9 +124,48 @@ pub fn read(dir: &Path) -> Result<Capture, DataError> {
         )
     })?;
     let ply = dir.join(relative(ply).map_err(|e| DataError::invalid(&path, format!("\"ply_file_path\": {e}")))?);
-    let points = super::ply::read_points(&ply)?;
+    let points: Vec<[f64; 3]> = super::ply::read_points(&ply)?.into_iter().map(|p| to_data.point(p)).collect();
     model.points = seen_points(&model, &points).map_err(|e| DataError::invalid(&path, e))?;
     Ok(Capture { model, photo_folders: folders, notes })
+}
+
+/// The similarity from a `transforms.json`'s frame back to the data's own: nerfstudio turns
+/// COLMAP's world by `applied_transform` (rigid, 3x4) before it writes the poses and points,
+/// so they are turned back; the identity without one (Instant-NGP's files, and nerfstudio's from
+/// `--keep-original-world-coordinate`).
+///
+/// # Errors
+/// An `applied_transform` that is not a 3x4 (or 4x4) rigid transform, naming `path`.
+pub(crate) fn saved_to_data(top: &Map<String, Value>, path: &Path) -> Result<Similarity, DataError> {
+    let Some(applied) = top.get("applied_transform") else { return Ok(Similarity::IDENTITY) };
+    let m = pose_from_json(applied, path, "applied_transform")?;
+    let rigid = Similarity::rigid(&m, ROTATION_TOLERANCE)
+        .ok_or_else(|| DataError::invalid(path, "applied_transform's 3x3 part is not a rotation"))?;
+    Ok(rigid.inverse())
+}
+
+/// The similarity from the frame of a model nerfstudio trained (its viewer's, its camera paths')
+/// back to the data's own, read from the `dataparser_transforms.json` that `ns-train` writes
+/// beside its `config.yml`: nerfstudio takes the data's points `p` to `scale · (T p)`, with `T`
+/// its `transform` (3x4, rigid, `applied_transform` included) and `scale` its `scale`.
+///
+/// # Errors
+/// [`DataError`] naming the file: malformed JSON, no `transform` or `scale`, a transform that is
+/// not rigid, a scale that is not a positive finite number.
+pub fn dataparser_to_data(path: &Path) -> Result<Similarity, DataError> {
+    let json = read_json(path)?;
+    let transform = json.get("transform").ok_or_else(|| {
+        DataError::invalid(path, "no \"transform\" (nerfstudio's dataparser_transforms.json has transform and scale)")
+    })?;
+    let m = pose_from_json(transform, path, "transform")?;
+    let rigid = Similarity::rigid(&m, ROTATION_TOLERANCE)
+        .ok_or_else(|| DataError::invalid(path, "transform's 3x3 part is not a rotation"))?;
+    let scale = json
+        .get("scale")
+        .and_then(Value::as_f64)
+        .filter(|s| s.is_finite() && *s > 0.0)
+        .ok_or_else(|| DataError::invalid(path, "\"scale\" must be a positive number"))?;
+    Ok(Similarity { scale, translation: rigid.translation.map(|t| scale * t), ..rigid }.inverse())
 }
 
 /// `p` as a path inside the capture's folder (`./` dropped); absolute paths and `..` refused.
