@@ -39,6 +39,13 @@ fn write_transforms(capture: &Path, json: &serde_json::Value) {
     std::fs::write(capture.join("transforms.json"), serde_json::to_string_pretty(json).unwrap()).unwrap();
 }
 
+/// The command `mipnerf colmap` prints for the test capture, shortened to three steps.
+fn train_briefly(data: &Path, run: &Path) -> String {
+    let flags = "--llff-factor 1 --spherify --background white --preset fast --steps 3 --quiet";
+    let args: Vec<&str> = ["train", "--data", s(data), "--out", s(run)].into_iter().chain(flags.split(' ')).collect();
+    run_ok(&args)
+}
+
 fn files(dir: &Path) -> Vec<PathBuf> {
     let mut v: Vec<PathBuf> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().path()).collect();
     v.sort();
@@ -95,23 +102,7 @@ fn a_nerfstudio_capture_gives_the_dataset_of_its_colmap_workspace() {
         reference_line.replace(s(&theirs), "DATA").replace("from-workspace", "from-capture")
     );
     let run = dir.path().join("run");
-    let trained = run_ok(&[
-        "train",
-        "--data",
-        s(&ours),
-        "--llff-factor",
-        "1",
-        "--spherify",
-        "--background",
-        "white",
-        "--preset",
-        "fast",
-        "--steps",
-        "3",
-        "--out",
-        s(&run),
-        "--quiet",
-    ]);
+    let trained = train_briefly(&ours, &run);
     assert!(trained.contains("(Llff, 26 views"), "{trained}");
     // Leaving a photo out by its frame's name.
     let again = run_ok(&[
@@ -195,23 +186,7 @@ fn cameras_in_the_datas_frame_and_nerfstudios_render_as_the_split() {
     let data = dir.path().join("data");
     run_ok(&["colmap", "--input", s(&capture), "--output", s(&data), "--max-size", "0"]);
     let run = dir.path().join("run");
-    run_ok(&[
-        "train",
-        "--data",
-        s(&data),
-        "--llff-factor",
-        "1",
-        "--spherify",
-        "--background",
-        "white",
-        "--preset",
-        "fast",
-        "--steps",
-        "3",
-        "--out",
-        s(&run),
-        "--quiet",
-    ]);
+    train_briefly(&data, &run);
     let split = dir.path().join("split");
     let size = ["--width", "64", "--height", "63"];
     run_ok(&[&["render", "--run", s(&run), "--out", s(&split)][..], &size].concat());
