@@ -259,7 +259,7 @@ fn draw(args: &FigureArgs, columns: &[Column], scales: &[u64], crop: (f64, f64, 
     }
     let parent = args.out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     let name = args.out.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
-    crate::outputs::record(parent, [name])?;
+    crate::outputs::record(parent, "figure", [name])?;
     crate::images::write_png(&args.out, w, h, &buf)
 }
 

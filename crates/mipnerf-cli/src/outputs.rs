@@ -42,25 +42,52 @@ pub fn check_folder_path(dir: &Path, flag: &str) -> Result<()> {
     }
 }
 
-/// Checks that `dir` may receive outputs: it is a folder or can be made one
-/// ([`check_folder_path`]), and it does not exist, or everything in it was written by mipnerf
-/// (its manifest lists it), or `overwrite` is set.
+/// Whether `name`, which the manifest says `by` wrote, is an output of the command `writer`:
+/// recorded by it, or (from a version whose manifest did not say) the kind of file it writes:
+/// for `render`, images, depth and opacity maps, the preview, the video and `cameras.json`, never
+/// a dataset's index.
+fn written_by(writer: &str, name: &str, by: Option<&str>) -> bool {
+    match by {
+        Some(by) => by == writer,
+        None if writer == "render" => {
+            [".png", ".exr", ".gif", ".mp4"].iter().any(|e| name.ends_with(e)) || name == "cameras.json"
+        }
+        None => true,
+    }
+}
+
+/// Checks that `dir` may receive the outputs of the command `writer`: it is a folder or can be
+/// made one ([`check_folder_path`]), and it does not exist, or everything in it is that
+/// command's earlier output (its manifest lists it as such), or `overwrite` is set.
 ///
 /// # Errors
-/// A file in the way, a folder holding files mipnerf did not write (naming some of them and the
-/// way out), or an unreadable folder.
-pub fn check_dir(dir: &Path, flag: &str, overwrite: bool) -> Result<()> {
+/// A file in the way, a folder holding files mipnerf did not write or another of its commands
+/// did (a dataset `mipnerf colmap` wrote, say; naming some of them and the way out), or an
+/// unreadable folder.
+pub fn check_dir(dir: &Path, flag: &str, overwrite: bool, writer: &str) -> Result<()> {
     check_folder_path(dir, flag)?;
     if overwrite || !dir.exists() {
         return Ok(());
     }
-    let ours = recorded(dir)?;
+    let ours = mipnerf_core::io::writers(dir).context("reading the outputs manifest")?;
     let mut foreign = mipnerf_core::io::names_in(dir)?;
-    foreign.retain(|name| !ours.contains(name));
+    foreign.retain(|name| !ours.get(name).is_some_and(|by| written_by(writer, name, by.as_deref())));
     if !foreign.is_empty() {
+        let others: Vec<String> = foreign
+            .iter()
+            .filter_map(|n| {
+                ours.get(n).map(|by| format!("{n} (mipnerf {})", by.as_deref().unwrap_or("an older version")))
+            })
+            .collect();
+        let theirs = if others.is_empty() {
+            String::new()
+        } else {
+            format!(", or that another mipnerf command wrote: {}", list(&others))
+        };
         bail!(
-            "{flag} {} holds {} file(s) that mipnerf did not write ({}); writing there could replace them. \
-             Choose a new or empty folder, or pass --overwrite to write there anyway (files of the same name are replaced)",
+            "{flag} {} holds {} file(s) that mipnerf did not write here ({}){theirs}; writing there could replace them. \
+             Choose a new or empty folder, or pass --overwrite to write there anyway (files of the same name are \
+             replaced; other files are left alone)",
             dir.display(),
             foreign.len(),
             list(&foreign)
@@ -89,15 +116,21 @@ pub fn check_file(path: &Path, flag: &str, overwrite: bool) -> Result<()> {
     Ok(())
 }
 
-/// Removes every file a previous run wrote into `dir` (its manifest lists them), so that a folder
-/// never mixes two runs' outputs (fewer frames, another size, an interrupted run), and records
+/// Removes every file a previous render wrote into `dir` (its manifest lists them as `render`'s),
+/// so that a folder never mixes two renders' outputs (fewer frames, another size, an interrupted
+/// render), and records
 /// `names`, the files this run will write, before any is written. Files mipnerf did not write
 /// are left alone.
 ///
 /// # Errors
 /// A file that cannot be removed, or an unwritable folder.
 pub fn replace_outputs(dir: &Path, names: Vec<String>) -> Result<()> {
-    let old = recorded(dir)?;
+    let old: BTreeSet<String> = mipnerf_core::io::writers(dir)
+        .context("reading the outputs manifest")?
+        .into_iter()
+        .filter(|(name, by)| written_by(RENDER, name, by.as_deref()))
+        .map(|(name, _)| name)
+        .collect();
     for name in &old {
         let path = dir.join(name);
         // Only plain files: a name the manifest lists is never a way out of the folder.
@@ -108,16 +141,20 @@ pub fn replace_outputs(dir: &Path, names: Vec<String>) -> Result<()> {
     }
     let new: BTreeSet<String> = names.into_iter().collect();
     mipnerf_core::io::forget(dir, &old.difference(&new).cloned().collect())?;
-    record(dir, new)
+    record(dir, RENDER, new)
 }
 
-/// Adds `names` to the manifest of `dir` (created if needed), written atomically
-/// (`mipnerf_core::io::record`) so that a crash never leaves a half-written manifest.
+/// The manifest's name for `render`'s outputs.
+pub const RENDER: &str = "render";
+
+/// Adds `names` to the manifest of `dir` (created if needed) as the outputs of the command
+/// `writer`, written atomically (`mipnerf_core::io::record`) so that a crash never leaves a
+/// half-written manifest.
 ///
 /// # Errors
 /// An unwritable folder.
-pub fn record(dir: &Path, names: impl IntoIterator<Item = String>) -> Result<()> {
-    Ok(mipnerf_core::io::record(dir, names)?)
+pub fn record(dir: &Path, writer: &str, names: impl IntoIterator<Item = String>) -> Result<()> {
+    Ok(mipnerf_core::io::record(dir, writer, names)?)
 }
 
 /// Writes a result file atomically (a temporary file renamed over it): on a full disk or any
@@ -141,20 +178,20 @@ mod tests {
     fn a_folder_is_ours_only_when_its_manifest_lists_everything_in_it() {
         let t = tempfile::tempdir().unwrap();
         let dir = t.path().join("out");
-        check_dir(&dir, "--out", false).unwrap();
-        record(&dir, ["a.png".to_owned(), "b.exr".to_owned()]).unwrap();
+        check_dir(&dir, "--out", false, RENDER).unwrap();
+        record(&dir, RENDER, ["a.png".to_owned(), "b.exr".to_owned()]).unwrap();
         std::fs::write(dir.join("a.png"), b"x").unwrap();
-        check_dir(&dir, "--out", false).unwrap();
+        check_dir(&dir, "--out", false, RENDER).unwrap();
         check_file(&dir.join("a.png"), "--out", false).unwrap();
         std::fs::write(dir.join("photo.jpg"), b"mine").unwrap();
-        let e = check_dir(&dir, "--out", false).unwrap_err().to_string();
+        let e = check_dir(&dir, "--out", false, RENDER).unwrap_err().to_string();
         assert!(e.contains("photo.jpg") && e.contains("--overwrite"), "{e}");
-        check_dir(&dir, "--out", true).unwrap();
+        check_dir(&dir, "--out", true, RENDER).unwrap();
         let e = check_file(&dir.join("photo.jpg"), "--out", false).unwrap_err().to_string();
         assert!(e.contains("photo.jpg") && e.contains("did not write"), "{e}");
         check_file(&dir.join("photo.jpg"), "--out", true).unwrap();
         // Recording is a union, and the manifest holds no temporary file afterwards.
-        record(&dir, ["c.png".to_owned()]).unwrap();
+        record(&dir, RENDER, ["c.png".to_owned()]).unwrap();
         assert_eq!(recorded(&dir).unwrap().len(), 3);
         assert!(!dir.join(format!("{MANIFEST}.tmp")).exists());
     }

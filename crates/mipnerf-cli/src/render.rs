@@ -295,7 +295,7 @@ pub fn render(
     let cameras_file: Vec<mipnerf_core::Camera> = jobs.iter().map(|(_, image)| image.camera.clone()).collect();
     let cameras_file = mipnerf_core::data::camera_path::to_text(&cameras_file);
     // Never into a folder of files mipnerf did not write (a dataset's images, say).
-    crate::outputs::check_dir(out, "--out", overwrite)?;
+    crate::outputs::check_dir(out, "--out", overwrite, crate::outputs::RENDER)?;
     // Load the data first: a bad split fails before the device is opened.
     let (mut be, _, _) = open_trained(run, &s, backend, precision, device, session)?;
     // Only now, with every argument checked and the model open, is anything created. The

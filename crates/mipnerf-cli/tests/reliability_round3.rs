@@ -213,6 +213,53 @@ fn a_render_folder_never_mixes_two_renders() {
     assert_eq!(std::fs::read_to_string(out.join("mine.txt")).unwrap(), "keep");
 }
 
+/// A render into a dataset `mipnerf colmap` wrote (whose manifest lists its index) once removed
+/// that index as an earlier render's output; now only a render's own outputs are replaced, and
+/// the folder is refused without --overwrite, for a manifest that names its writers and for one
+/// an older version wrote (names alone).
+#[test]
+fn a_render_never_removes_what_another_command_wrote() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = trained_run(dir.path());
+    let scene = dir.path().join("scene");
+    let ws = fixtures().join("colmap_workspaces/simple_radial");
+    run_ok(&["colmap", "--input", s(&ws), "--output", s(&scene), "--max-size", "64"]);
+    let npy = std::fs::read(scene.join("poses_bounds.npy")).unwrap();
+    let folder = names(&scene).into_iter().find(|n| n.starts_with("images_")).unwrap();
+    let factor = folder.trim_start_matches("images_").to_owned();
+    let manifest = scene.join(".mipnerf-outputs");
+    let tagged = std::fs::read_to_string(&manifest).unwrap();
+    assert!(tagged.contains("poses_bounds.npy\tcolmap"), "{tagged}");
+    let untagged: String = tagged.lines().map(|l| format!("{}\n", l.split('\t').next().unwrap())).collect();
+    for text in [tagged, untagged] {
+        std::fs::write(&manifest, &text).unwrap();
+        let args = ["render", "--run", s(&run), "--out", s(&scene), "--split", "test", "--backend", "cpu", "--quiet"];
+        let e = run_err(&args);
+        assert!(e.contains("poses_bounds.npy") && e.contains("--overwrite"), "{e}");
+        run_ok(&[&args[..], &["--overwrite"]].concat());
+        assert_eq!(std::fs::read(scene.join("poses_bounds.npy")).unwrap(), npy, "the dataset's index is kept");
+        assert_eq!(names(&scene.join(&folder)).len(), 37, "its images are kept");
+        // A second render replaces the first one's outputs, and only those.
+        run_ok(&[&args[..], &["--overwrite", "--width", "8", "--height", "8"]].concat());
+        assert!(scene.join("poses_bounds.npy").exists() && scene.join("cameras.json").exists());
+        // And the dataset still trains.
+        let again = dir.path().join(format!("again-{}", text.len()));
+        run_ok(&[
+            "train",
+            "--data",
+            s(&scene),
+            "--llff-factor",
+            &factor,
+            "--spherify",
+            "--steps",
+            "1",
+            "--out",
+            s(&again),
+            "--quiet",
+        ]);
+    }
+}
+
 #[test]
 fn flags_that_would_do_nothing_sensible_are_refused_or_said_naming_the_flag() {
     let dir = tempfile::tempdir().unwrap();

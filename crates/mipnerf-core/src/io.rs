@@ -8,7 +8,7 @@
 //! previous content or all of the new, never a mix, across a crash, a kill or a power loss. A
 //! failure removes the temporary file and leaves the file as it was.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 /// An I/O failure and the file or folder it concerns.
@@ -183,7 +183,9 @@ pub fn swap_in_dir(dest: &Path) -> Result<(), IoError> {
 }
 
 /// The manifest's file name, in a folder mipnerf writes outputs into: the names (one a line) of
-/// the files and folders it wrote there, recorded before they are written.
+/// the files and folders it wrote there, recorded before they are written, each with the command
+/// that wrote it after a tab (`poses_bounds.npy\tcolmap`); a name alone is from a version that
+/// did not say.
 pub const MANIFEST: &str = ".mipnerf-outputs";
 
 /// The names the manifest of `dir` lists (none when it has no manifest).
@@ -191,10 +193,26 @@ pub const MANIFEST: &str = ".mipnerf-outputs";
 /// # Errors
 /// A manifest that exists but cannot be read.
 pub fn recorded(dir: &Path) -> Result<BTreeSet<String>, IoError> {
+    Ok(writers(dir)?.into_keys().collect())
+}
+
+/// The names the manifest of `dir` lists, each with the command that wrote it (`None`: written
+/// by a version that did not say).
+///
+/// # Errors
+/// A manifest that exists but cannot be read.
+pub fn writers(dir: &Path) -> Result<BTreeMap<String, Option<String>>, IoError> {
     let path = dir.join(MANIFEST);
     match std::fs::read_to_string(&path) {
-        Ok(text) => Ok(text.lines().filter(|l| !l.is_empty()).map(str::to_owned).collect()),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(BTreeSet::new()),
+        Ok(text) => Ok(text
+            .lines()
+            .filter(|l| !l.is_empty())
+            .map(|l| match l.split_once('\t') {
+                Some((name, writer)) => (name.to_owned(), Some(writer.to_owned())),
+                None => (l.to_owned(), None),
+            })
+            .collect()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(BTreeMap::new()),
         Err(e) => Err(IoError::new(&path, e)),
     }
 }
@@ -217,20 +235,31 @@ pub fn names_in(dir: &Path) -> Result<Vec<String>, IoError> {
     Ok(names)
 }
 
-/// Adds `names` to the manifest of `dir` (the folder created if needed), written atomically.
+fn write_manifest(dir: &Path, entries: &BTreeMap<String, Option<String>>) -> Result<(), IoError> {
+    let text: String = entries
+        .iter()
+        .map(|(name, writer)| match writer {
+            Some(w) => format!("{name}\t{w}\n"),
+            None => format!("{name}\n"),
+        })
+        .collect();
+    write_atomic(&dir.join(MANIFEST), text.as_bytes())
+}
+
+/// Adds `names` to the manifest of `dir` (the folder created if needed) as written by the
+/// command `writer` (`render`, `colmap`, ...), written atomically.
 ///
 /// # Errors
 /// An unwritable folder.
-pub fn record(dir: &Path, names: impl IntoIterator<Item = String>) -> Result<(), IoError> {
+pub fn record(dir: &Path, writer: &str, names: impl IntoIterator<Item = String>) -> Result<(), IoError> {
     std::fs::create_dir_all(dir).map_err(|e| IoError::new(dir, e))?;
-    let mut all = recorded(dir)?;
-    let before = all.len();
-    all.extend(names);
-    if all.len() == before && dir.join(MANIFEST).exists() {
+    let mut all = writers(dir)?;
+    let before = all.clone();
+    all.extend(names.into_iter().map(|n| (n, Some(writer.to_owned()))));
+    if all == before && dir.join(MANIFEST).exists() {
         return Ok(());
     }
-    let text: String = all.iter().map(|n| format!("{n}\n")).collect();
-    write_atomic(&dir.join(MANIFEST), text.as_bytes())
+    write_manifest(dir, &all)
 }
 
 /// Removes `names` from the manifest of `dir` (after the files themselves are gone).
@@ -238,12 +267,13 @@ pub fn record(dir: &Path, names: impl IntoIterator<Item = String>) -> Result<(),
 /// # Errors
 /// An unreadable or unwritable manifest.
 pub fn forget(dir: &Path, names: &BTreeSet<String>) -> Result<(), IoError> {
-    let all = recorded(dir)?;
-    if all.is_disjoint(names) {
+    let mut all = writers(dir)?;
+    let before = all.len();
+    all.retain(|name, _| !names.contains(name));
+    if all.len() == before {
         return Ok(());
     }
-    let text: String = all.difference(names).map(|n| format!("{n}\n")).collect();
-    write_atomic(&dir.join(MANIFEST), text.as_bytes())
+    write_manifest(dir, &all)
 }
 
 #[cfg(test)]
@@ -275,10 +305,17 @@ mod tests {
         let t = tempfile::tempdir().unwrap();
         let dir = t.path().join("out");
         assert!(recorded(&dir).unwrap().is_empty());
-        record(&dir, ["b".to_string(), "a".to_string()]).unwrap();
-        record(&dir, ["a".to_string()]).unwrap();
-        assert_eq!(std::fs::read_to_string(dir.join(MANIFEST)).unwrap(), "a\nb\n");
+        record(&dir, "render", ["b".to_string(), "a".to_string()]).unwrap();
+        record(&dir, "render", ["a".to_string()]).unwrap();
+        assert_eq!(std::fs::read_to_string(dir.join(MANIFEST)).unwrap(), "a\trender\nb\trender\n");
         forget(&dir, &BTreeSet::from(["a".to_string()])).unwrap();
         assert_eq!(recorded(&dir).unwrap(), BTreeSet::from(["b".to_string()]));
+        // An older manifest's names have no writer; recording keeps them so.
+        std::fs::write(dir.join(MANIFEST), "old.png\nb\trender\n").unwrap();
+        record(&dir, "colmap", ["poses_bounds.npy".to_string()]).unwrap();
+        let w = writers(&dir).unwrap();
+        assert_eq!(w["old.png"], None);
+        assert_eq!(w["poses_bounds.npy"].as_deref(), Some("colmap"));
+        assert_eq!(w["b"].as_deref(), Some("render"));
     }
 }

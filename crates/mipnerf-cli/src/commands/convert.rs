@@ -90,7 +90,7 @@ fn into_output_folder(
     overwrite: bool,
     write: impl FnOnce() -> Result<()>,
 ) -> Result<()> {
-    outputs::check_dir(output, "--output", overwrite)?;
+    outputs::check_dir(output, "--output", overwrite, "convert")?;
     let ours = mipnerf_core::io::recorded(output).context("reading the outputs manifest")?;
     for name in names {
         let path = output.join(name);
@@ -103,7 +103,7 @@ fn into_output_folder(
         }
     }
     let existed = output.exists();
-    outputs::record(output, names.iter().map(|n| (*n).to_string()))?;
+    outputs::record(output, "convert", names.iter().map(|n| (*n).to_string()))?;
     let done = write();
     if done.is_err() && !existed {
         let written = std::fs::read_dir(output).map(|d| d.filter_map(Result::ok).map(|e| e.file_name()).collect());

@@ -504,7 +504,7 @@ fn process_source(source: Source, output: &Path, opts: &ProcessOptions) -> Resul
     }
     check_output(output, &ours, opts.overwrite)?;
     std::fs::create_dir_all(output).map_err(|e| DataError::io(output, e))?;
-    crate::io::record(output, ours.iter().cloned())?;
+    crate::io::record(output, "colmap", ours.iter().cloned())?;
     let partial = crate::io::start_partial_dir(&folder)?;
     let partial_masks = masks_folder.as_deref().map(crate::io::start_partial_dir).transpose()?;
     let target = LensCamera::from(pinhole);
