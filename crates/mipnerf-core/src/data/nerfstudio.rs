@@ -12,7 +12,7 @@
 //! - each frame's `file_path` (relative to the file's folder; Blender's files without extension
 //!   are PNGs) and `transform_matrix`, camera to world with OpenGL's axes (x right, y up, looking
 //!   down -z), in the capture's own world frame: nerfstudio's is COLMAP's turned by the file's
-//!   `applied_transform`, which is undone ([`saved_to_data`]), so the dataset written is in
+//!   `applied_transform`, which is undone (`saved_to_data`), so the dataset written is in
 //!   COLMAP's frame whichever route it took (Instant-NGP's is also recentred and scaled, which the
 //!   trainer's own recentring and rescaling take out);
 //! - `ply_file_path`: the capture's 3D points (nerfstudio's `sparse_pc.ply`), which give each
