@@ -301,3 +301,72 @@ fn cameras_in_the_datas_frame_and_nerfstudios_render_as_the_split() {
         "{err}"
     );
 }
+
+/// Without a point cloud, the COLMAP model beside the capture (Instant-NGP's `colmap_sparse/N`
+/// here) gives the points, moved by the similarity that takes its cameras to the capture's: the
+/// capture's frame made up here as Instant-NGP's is (COLMAP's turned, moved and scaled without
+/// saying so), the dataset comes out as the point cloud's, scaled.
+#[test]
+fn a_capture_without_points_takes_those_of_the_colmap_model_beside_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let capture = capture(dir.path());
+    let with_ply = dir.path().join("with-ply");
+    run_ok(&["colmap", "--input", s(&capture), "--output", s(&with_ply), "--max-size", "0"]);
+    // Instant-NGP's kind of frame: every pose turned, moved and scaled; no applied_transform.
+    let turn = glam::DMat3::from_quat(glam::DQuat::from_euler(glam::EulerRot::XYZ, 1.3, 0.2, -0.7));
+    let (shift, scale) = (glam::DVec3::new(-1.0, 4.0, 0.25), 2.5);
+    let mut json = transforms(&capture);
+    let applied: Vec<Vec<f64>> = serde_json::from_value(json["applied_transform"].clone()).unwrap();
+    let a = glam::DMat3::from_cols_array_2d(&[0, 1, 2].map(|j| [applied[0][j], applied[1][j], applied[2][j]]));
+    let top = json.as_object_mut().unwrap();
+    top.remove("ply_file_path");
+    top.remove("applied_transform");
+    for frame in top["frames"].as_array_mut().unwrap() {
+        let m: Vec<Vec<f64>> = serde_json::from_value(frame["transform_matrix"].clone()).unwrap();
+        let r = glam::DMat3::from_cols_array_2d(&[0, 1, 2].map(|j| [m[0][j], m[1][j], m[2][j]]));
+        // Back to COLMAP's frame (undo nerfstudio's turn), then Instant-NGP's kind of frame.
+        let (r, c) = (
+            turn * a.transpose() * r,
+            scale * (turn * a.transpose() * glam::DVec3::new(m[0][3], m[1][3], m[2][3])) + shift,
+        );
+        frame["transform_matrix"] = serde_json::json!(
+            (0..3)
+                .map(|i| vec![r.col(0)[i], r.col(1)[i], r.col(2)[i], c[i]])
+                .chain([vec![0.0, 0.0, 0.0, 1.0]])
+                .collect::<Vec<_>>()
+        );
+    }
+    write_transforms(&capture, &json);
+    std::fs::remove_file(capture.join("sparse_pc.ply")).unwrap();
+    // Without the model beside it, the capture is refused, naming where the model would be.
+    let out = dir.path().join("from-model");
+    let err = run_err(&["colmap", "--input", s(&capture), "--output", s(&out), "--max-size", "0"]);
+    assert!(
+        err.contains("no point cloud (\"ply_file_path\") and no COLMAP model beside it (colmap/sparse, colmap_sparse"),
+        "{err}"
+    );
+    copy_dir(&fixtures().join("colmap_workspaces/opencv/sparse/2"), &capture.join("colmap_sparse/0"));
+    let text = run_ok(&["colmap", "--input", s(&capture), "--output", s(&out), "--max-size", "0"]);
+    assert!(
+        text.contains("the 3D points of the COLMAP model in") && text.contains("30 photos matched by name"),
+        "{text}"
+    );
+    // The same photos, and the same bounds but for the scale (both seen by projection).
+    let (a, b) = (files(&out.join("images_1")), files(&with_ply.join("images_1")));
+    assert_eq!(a.len(), 30);
+    for (x, y) in a.iter().zip(&b) {
+        assert!(std::fs::read(x).unwrap() == std::fs::read(y).unwrap(), "{}", x.display());
+    }
+    let read = |d: &Path| mipnerf_core::data::llff::read_poses_bounds(&d.join("poses_bounds.npy")).unwrap();
+    // sparse_pc.ply holds the points with 6 decimals, the model in full.
+    for (r, q) in read(&out).iter().zip(&read(&with_ply)) {
+        for k in [15, 16] {
+            assert!((r[k] / q[k] - scale).abs() < 1e-4 * scale, "bound {k}: {} against {} x {scale}", r[k], q[k]);
+        }
+    }
+    // A model of other photos is refused, naming it.
+    std::fs::remove_dir_all(capture.join("colmap_sparse/0")).unwrap();
+    copy_dir(&fixtures().join("colmap_workspaces/simple_radial/sparse/1"), &capture.join("colmap_sparse/0"));
+    let err = run_err(&["colmap", "--input", s(&capture), "--output", s(&out), "--max-size", "0", "--overwrite"]);
+    assert!(err.contains("colmap_sparse/0 is not this capture's"), "{err}");
+}

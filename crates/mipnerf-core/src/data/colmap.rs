@@ -163,12 +163,17 @@ pub fn find_model(dir: &Path) -> Result<(PathBuf, Option<String>), DataError> {
 }
 
 /// Every model under `dir/sparse` as `(N, folder, registered images)`, by `N` (a model directly in
-/// `dir/sparse` is `N = 0`).
+/// `dir/sparse` is `N = 0`); [`models_in`] for another folder.
 ///
 /// # Errors
 /// No `sparse` folder with a model in it.
 pub fn list_models(dir: &Path) -> Result<Vec<(u32, PathBuf, usize)>, DataError> {
-    let sparse = dir.join("sparse");
+    models_in(&dir.join("sparse"))
+}
+
+/// Every model in the folder `sparse` (itself, or its numbered subfolders), as [`list_models`].
+pub(crate) fn models_in(sparse: &Path) -> Result<Vec<(u32, PathBuf, usize)>, DataError> {
+    let sparse = sparse.to_path_buf();
     if has_model(&sparse) {
         let c = registered_images(&sparse).unwrap_or(0);
         return Ok(vec![(0, sparse, c)]);

@@ -22,7 +22,12 @@
 //!   own output from a COLMAP model, `tests/data/nerfstudio_capture`) the scene's nearest bound
 //!   is COLMAP's within 0.1% and its farthest 21% farther (`crates/mipnerf-cli/tests/nerfstudio.rs`).
 //!
-//! A capture without points has no depth bounds: the step refuses it and says what to do.
+//! A capture without a point cloud (Instant-NGP's `colmap2nerf.py`, older nerfstudio versions) takes
+//! the points of the COLMAP model it was made from, where those tools leave it beside the file
+//! ([`COLMAP_BESIDE`]), moved into the capture's frame by the similarity that takes the model's
+//! cameras to the capture's (fitted to the photos matched by name; Instant-NGP's frame is
+//! COLMAP's turned, recentred and scaled without saying so). With neither, the step refuses it
+//! and says what to do.
 //! nerfstudio's own extras (`train_filenames`, per-frame `mask_path`, depth maps) are not read,
 //! and [`Capture::notes`] says so.
 
@@ -115,18 +120,110 @@ pub fn read(dir: &Path) -> Result<Capture, DataError> {
             notes.push(format!("{}: {what}", path.display()));
         }
     }
-    let ply = top.get("ply_file_path").and_then(Value::as_str).ok_or_else(|| {
-        DataError::invalid(
+    let points: Vec<[f64; 3]> = if let Some(ply) = top.get("ply_file_path").and_then(Value::as_str) {
+        let ply = dir.join(relative(ply).map_err(|e| DataError::invalid(&path, format!("\"ply_file_path\": {e}")))?);
+        super::ply::read_points(&ply)?.into_iter().map(|p| to_data.point(p)).collect()
+    } else if let Some(folder) = model_beside(dir)? {
+        let colmap = super::colmap::read_model(&folder)?;
+        let (fit, matched, residual) = colmap_to_capture(&colmap, &model).map_err(|e| {
+            DataError::invalid(&path, format!("the COLMAP model in {} is not this capture's: {e}", folder.display()))
+        })?;
+        notes.push(format!(
+            "{}: no point cloud (\"ply_file_path\"); the 3D points of the COLMAP model in {} give the depth bounds, moved \
+             into the capture's frame by the similarity that takes its cameras to the capture's ({matched} photos \
+             matched by name, the farthest {residual:.1e} of their spread off)",
+            path.display(),
+            folder.display()
+        ));
+        colmap.points.iter().map(|p| fit.point(p.xyz)).collect()
+    } else {
+        return Err(DataError::invalid(
             &path,
-            "no point cloud (\"ply_file_path\"), so the photos' depth bounds cannot be measured: nerfstudio's \
-             ns-process-data writes one (sparse_pc.ply); or run this step on the COLMAP workspace the poses came from \
-             (its images/ and sparse/)",
-        )
-    })?;
-    let ply = dir.join(relative(ply).map_err(|e| DataError::invalid(&path, format!("\"ply_file_path\": {e}")))?);
-    let points: Vec<[f64; 3]> = super::ply::read_points(&ply)?.into_iter().map(|p| to_data.point(p)).collect();
+            format!(
+                "no point cloud (\"ply_file_path\") and no COLMAP model beside it ({}), so the photos' depth bounds \
+                 cannot be measured: nerfstudio's ns-process-data writes one (sparse_pc.ply); or run this step on the \
+                 COLMAP workspace the poses came from (its images/ and sparse/)",
+                COLMAP_BESIDE.join(", ")
+            ),
+        ));
+    };
     model.points = seen_points(&model, &points).map_err(|e| DataError::invalid(&path, e))?;
     Ok(Capture { model, photo_folders: folders, notes })
+}
+
+/// Where nerfstudio (`colmap/sparse/N`) and Instant-NGP's `colmap2nerf.py` (`colmap_sparse/N`,
+/// `colmap_text`) leave the COLMAP model a capture was made from, relative to its folder.
+pub const COLMAP_BESIDE: [&str; 3] = ["colmap/sparse", "colmap_sparse", "colmap_text"];
+
+/// How far a camera of the COLMAP model beside a capture may lie from the capture's own once
+/// moved by the fitted similarity, as a share of the capture's cameras' spread (their RMS
+/// distance from their mean); the two are the same reconstruction, so only rounding separates
+/// them.
+pub const FIT_TOLERANCE: f64 = 1e-4;
+
+/// The COLMAP model beside the capture in `dir` ([`COLMAP_BESIDE`], the first found; of several
+/// numbered ones, the largest).
+fn model_beside(dir: &Path) -> Result<Option<PathBuf>, DataError> {
+    for rel in COLMAP_BESIDE {
+        let folder = dir.join(rel);
+        if folder.is_dir()
+            && let Ok(models) = super::colmap::models_in(&folder)
+        {
+            return Ok(Some(super::colmap::largest(&models).1.clone()));
+        }
+    }
+    Ok(None)
+}
+
+/// The similarity that takes the cameras of the COLMAP model `colmap` to those of the same
+/// photos (matched by file name) in `capture`, the capture's read as a COLMAP model; with the
+/// number matched and the farthest camera's residual as a share of their spread.
+///
+/// # Errors
+/// Fewer than 3 photos matched, cameras all in one place, a residual over [`FIT_TOLERANCE`].
+fn colmap_to_capture(colmap: &ColmapModel, capture: &ColmapModel) -> Result<(Similarity, usize, f64), String> {
+    let file_name = |n: &str| n.rsplit('/').next().unwrap_or(n).to_owned();
+    let by_name: HashMap<String, &ColmapImage> = colmap.images.iter().map(|im| (file_name(&im.name), im)).collect();
+    // Camera-to-world rotation and centre of a COLMAP image.
+    let pose = |im: &ColmapImage| {
+        let [w, x, y, z] = im.qvec;
+        let rt = DMat3::from_quat(DQuat::from_xyzw(x, y, z, w).normalize()).transpose();
+        (rt, -(rt * DVec3::from_array(im.tvec)))
+    };
+    let pairs: Vec<((DMat3, DVec3), (DMat3, DVec3))> =
+        capture.images.iter().filter_map(|im| by_name.get(&file_name(&im.name)).map(|c| (pose(c), pose(im)))).collect();
+    if pairs.len() < 3 {
+        return Err(format!("{} of its photos match the capture's by name; at least 3 are needed", pairs.len()));
+    }
+    // The rotation: the mean of each pair's, as unit quaternions on one side of the sphere.
+    let first = DQuat::from_mat3(&(pairs[0].1.0 * pairs[0].0.0.transpose()));
+    let sum = pairs.iter().fold(glam::DVec4::ZERO, |acc, ((from, _), (to, _))| {
+        let q = DQuat::from_mat3(&(*to * from.transpose()));
+        let q = if q.dot(first) < 0.0 { -q } else { q };
+        acc + glam::DVec4::from(q)
+    });
+    let turn = DMat3::from_quat(DQuat::from_vec4(sum).normalize());
+    let n = pairs.len() as f64;
+    let mean_from = pairs.iter().map(|p| turn * p.0.1).sum::<DVec3>() / n;
+    let mean_to = pairs.iter().map(|p| p.1.1).sum::<DVec3>() / n;
+    let spread_from = (pairs.iter().map(|p| (turn * p.0.1 - mean_from).length_squared()).sum::<f64>() / n).sqrt();
+    let spread_to = (pairs.iter().map(|p| (p.1.1 - mean_to).length_squared()).sum::<f64>() / n).sqrt();
+    if !(spread_from > 0.0 && spread_to > 0.0) {
+        return Err("the matched cameras stand in one place, so no scale can be fitted".into());
+    }
+    let scale = spread_to / spread_from;
+    let shift = mean_to - scale * mean_from;
+    let fit = Similarity { rotation: turn.transpose().to_cols_array_2d(), scale, translation: shift.to_array() };
+    let residual = pairs
+        .iter()
+        .map(|((_, c), (_, d))| (DVec3::from_array(fit.point(c.to_array())) - *d).length() / spread_to)
+        .fold(0.0, f64::max);
+    if residual > FIT_TOLERANCE {
+        return Err(format!(
+            "moved onto the capture's cameras, one stands {residual:.1e} of their spread off (at most {FIT_TOLERANCE:e})"
+        ));
+    }
+    Ok((fit, pairs.len(), residual))
 }
 
 /// The similarity from a `transforms.json`'s frame back to the data's own: nerfstudio turns
