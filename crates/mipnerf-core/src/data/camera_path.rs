@@ -87,7 +87,8 @@ pub fn is_nerfstudio_path(path: &Path) -> bool {
 /// The cameras of a camera path of nerfstudio's viewer (its `camera_path.json`): `render_width`
 /// and `render_height`, and for each camera a row-major 4x4 `camera_to_world` (OpenGL's axes, in
 /// the frame of the model nerfstudio trained: [`super::nerfstudio::dataparser_to_data`]) and its
-/// vertical field of view `fov` in degrees (three.js's), the principal point at the centre.
+/// vertical field of view `fov` in degrees (three.js's), the principal point at the centre;
+/// at another `size`, the same vertical field of view.
 fn nerfstudio_path(path: &Path, top: &Map<String, Value>, size: Option<(u32, u32)>) -> Result<Vec<Camera>, DataError> {
     let bad = |problem: String| DataError::invalid(path, problem);
     match top.get("camera_type").and_then(Value::as_str) {

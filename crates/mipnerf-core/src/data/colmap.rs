@@ -163,7 +163,7 @@ pub fn find_model(dir: &Path) -> Result<(PathBuf, Option<String>), DataError> {
 }
 
 /// Every model under `dir/sparse` as `(N, folder, registered images)`, by `N` (a model directly in
-/// `dir/sparse` is `N = 0`); [`models_in`] for another folder.
+/// `dir/sparse` is `N = 0`).
 ///
 /// # Errors
 /// No `sparse` folder with a model in it.
