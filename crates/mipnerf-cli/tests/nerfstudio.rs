@@ -302,20 +302,23 @@ fn cameras_in_the_datas_frame_and_nerfstudios_render_as_the_split() {
     );
 }
 
-/// Without a point cloud, the COLMAP model beside the capture (Instant-NGP's `colmap_sparse/N`
-/// here) gives the points, moved by the similarity that takes its cameras to the capture's: the
-/// capture's frame made up here as Instant-NGP's is (COLMAP's turned, moved and scaled without
-/// saying so), the dataset comes out as the point cloud's, scaled.
+/// The COLMAP model beside a capture (Instant-NGP's `colmap_sparse/N` here) gives its points and
+/// tracks, moved by the similarity that takes its cameras to the capture's: with the capture's
+/// frame made up as Instant-NGP's is (COLMAP's turned, moved and scaled without saying so) and no
+/// point cloud, the dataset comes out as the workspace's own, its bounds scaled. A model of other
+/// photos is refused, or passed over for the point cloud when there is one.
 #[test]
-fn a_capture_without_points_takes_those_of_the_colmap_model_beside_it() {
+fn a_colmap_model_beside_a_capture_gives_its_points_and_tracks() {
     let dir = tempfile::tempdir().unwrap();
     let capture = capture(dir.path());
-    let with_ply = dir.path().join("with-ply");
-    run_ok(&["colmap", "--input", s(&capture), "--output", s(&with_ply), "--max-size", "0"]);
+    let reference = dir.path().join("workspace");
+    let workspace = fixtures().join("colmap_workspaces/opencv");
+    run_ok(&["colmap", "--input", s(&workspace), "--output", s(&reference), "--max-size", "0"]);
     // Instant-NGP's kind of frame: every pose turned, moved and scaled; no applied_transform.
     let turn = glam::DMat3::from_quat(glam::DQuat::from_euler(glam::EulerRot::XYZ, 1.3, 0.2, -0.7));
     let (shift, scale) = (glam::DVec3::new(-1.0, 4.0, 0.25), 2.5);
     let mut json = transforms(&capture);
+    let transforms_with_ply = json.clone();
     let applied: Vec<Vec<f64>> = serde_json::from_value(json["applied_transform"].clone()).unwrap();
     let a = glam::DMat3::from_cols_array_2d(&[0, 1, 2].map(|j| [applied[0][j], applied[1][j], applied[2][j]]));
     let top = json.as_object_mut().unwrap();
@@ -351,17 +354,16 @@ fn a_capture_without_points_takes_those_of_the_colmap_model_beside_it() {
         text.contains("the 3D points of the COLMAP model in") && text.contains("30 photos matched by name"),
         "{text}"
     );
-    // The same photos, and the same bounds but for the scale (both seen by projection).
-    let (a, b) = (files(&out.join("images_1")), files(&with_ply.join("images_1")));
+    // The same photos, and the workspace's bounds but for the scale.
+    let (a, b) = (files(&out.join("images_1")), files(&reference.join("images_1")));
     assert_eq!(a.len(), 30);
     for (x, y) in a.iter().zip(&b) {
         assert!(std::fs::read(x).unwrap() == std::fs::read(y).unwrap(), "{}", x.display());
     }
     let read = |d: &Path| mipnerf_core::data::llff::read_poses_bounds(&d.join("poses_bounds.npy")).unwrap();
-    // sparse_pc.ply holds the points with 6 decimals, the model in full.
-    for (r, q) in read(&out).iter().zip(&read(&with_ply)) {
+    for (r, q) in read(&out).iter().zip(&read(&reference)) {
         for k in [15, 16] {
-            assert!((r[k] / q[k] - scale).abs() < 1e-4 * scale, "bound {k}: {} against {} x {scale}", r[k], q[k]);
+            assert!((r[k] / q[k] - scale).abs() < 1e-9 * scale, "bound {k}: {} against {} x {scale}", r[k], q[k]);
         }
     }
     // A model of other photos is refused, naming it.
@@ -369,4 +371,9 @@ fn a_capture_without_points_takes_those_of_the_colmap_model_beside_it() {
     copy_dir(&fixtures().join("colmap_workspaces/simple_radial/sparse/1"), &capture.join("colmap_sparse/0"));
     let err = run_err(&["colmap", "--input", s(&capture), "--output", s(&out), "--max-size", "0", "--overwrite"]);
     assert!(err.contains("colmap_sparse/0 is not this capture's"), "{err}");
+    // With its point cloud back, the capture takes its bounds from that, and says why.
+    write_transforms(&capture, &transforms_with_ply);
+    std::fs::copy(fixtures().join("nerfstudio_capture/sparse_pc.ply"), capture.join("sparse_pc.ply")).unwrap();
+    let text = run_ok(&["colmap", "--input", s(&capture), "--output", s(&out), "--max-size", "0", "--overwrite"]);
+    assert!(text.contains("is not this capture's") && text.contains("its point cloud gives the bounds"), "{text}");
 }

@@ -16,18 +16,19 @@
 //!   COLMAP's frame whichever route it took (Instant-NGP's is also recentred and scaled, which the
 //!   trainer's own recentring and rescaling take out);
 //! - `ply_file_path`: the capture's 3D points (nerfstudio's `sparse_pc.ply`), which give each
-//!   photo's depth bounds. The file holds no tracks, so a point counts as seen by a photo when it
+//!   photo's depth bounds when no COLMAP model lies beside the file (below). The file holds no tracks, so a point counts as seen by a photo when it
 //!   lies in front of it and projects into it. Points hidden behind a surface count too, so the
 //!   far bound comes out farther than COLMAP's tracks give: on the test capture (nerfstudio's
 //!   own output from a COLMAP model, `tests/data/nerfstudio_capture`) the scene's nearest bound
 //!   is COLMAP's within 0.1% and its farthest 21% farther (`crates/mipnerf-cli/tests/nerfstudio.rs`).
 //!
-//! A capture without a point cloud (Instant-NGP's `colmap2nerf.py`, older nerfstudio versions) takes
-//! the points of the COLMAP model it was made from, where those tools leave it beside the file
-//! ([`COLMAP_BESIDE`]), moved into the capture's frame by the similarity that takes the model's
-//! cameras to the capture's (fitted to the photos matched by name; Instant-NGP's frame is
-//! COLMAP's turned, recentred and scaled without saying so). With neither, the step refuses it
-//! and says what to do.
+//! Where the COLMAP model the capture was made from lies beside the file ([`COLMAP_BESIDE`]:
+//! nerfstudio's `colmap/sparse/N`, Instant-NGP's `colmap_sparse/N`), its points and tracks give
+//! the bounds instead, as for the workspace itself: moved into the capture's frame by the
+//! similarity that takes the model's cameras to the capture's (fitted to the photos matched by
+//! name; Instant-NGP's frame is COLMAP's turned, recentred and scaled without saying so). A model
+//! that does not fit is passed over for the point cloud, with a note. With neither, the step
+//! refuses the capture and says what to do.
 //! nerfstudio's own extras (`train_filenames`, per-frame `mask_path`, depth maps) are not read,
 //! and [`Capture::notes`] says so.
 
@@ -120,22 +121,54 @@ pub fn read(dir: &Path) -> Result<Capture, DataError> {
             notes.push(format!("{}: {what}", path.display()));
         }
     }
-    let points: Vec<[f64; 3]> = if let Some(ply) = top.get("ply_file_path").and_then(Value::as_str) {
-        let ply = dir.join(relative(ply).map_err(|e| DataError::invalid(&path, format!("\"ply_file_path\": {e}")))?);
-        super::ply::read_points(&ply)?.into_iter().map(|p| to_data.point(p)).collect()
-    } else if let Some(folder) = model_beside(dir)? {
-        let colmap = super::colmap::read_model(&folder)?;
-        let (fit, matched, residual) = colmap_to_capture(&colmap, &model).map_err(|e| {
-            DataError::invalid(&path, format!("the COLMAP model in {} is not this capture's: {e}", folder.display()))
-        })?;
+    let ply = top.get("ply_file_path").and_then(Value::as_str);
+    // The COLMAP model beside the file, when there is one that fits: its points with their tracks.
+    let beside = match model_beside(dir)? {
+        None => None,
+        Some(folder) => {
+            let colmap = super::colmap::read_model(&folder)?;
+            match colmap_to_capture(&colmap, &model) {
+                Ok(fit) => Some((folder, colmap, fit)),
+                Err(e) if ply.is_some() => {
+                    notes.push(format!(
+                        "{}: the COLMAP model in {} is not this capture's ({e}); its point cloud gives the bounds",
+                        path.display(),
+                        folder.display()
+                    ));
+                    None
+                }
+                Err(e) => {
+                    return Err(DataError::invalid(
+                        &path,
+                        format!("the COLMAP model in {} is not this capture's: {e}", folder.display()),
+                    ));
+                }
+            }
+        }
+    };
+    if let Some((folder, colmap, (fit, ids, residual))) = beside {
         notes.push(format!(
-            "{}: no point cloud (\"ply_file_path\"); the 3D points of the COLMAP model in {} give the depth bounds, moved \
-             into the capture's frame by the similarity that takes its cameras to the capture's ({matched} photos \
-             matched by name, the farthest {residual:.1e} of their spread off)",
+            "{}: the 3D points of the COLMAP model in {}, with the photos that see them, give the depth bounds, moved \
+             into the capture's frame by the similarity that takes its cameras to the capture's ({} photos matched by \
+             name, the farthest {residual:.1e} of their spread off)",
             path.display(),
-            folder.display()
+            folder.display(),
+            ids.len()
         ));
-        colmap.points.iter().map(|p| fit.point(p.xyz)).collect()
+        model.points = colmap
+            .points
+            .iter()
+            .map(|p| ColmapPoint {
+                xyz: fit.point(p.xyz),
+                image_ids: p.image_ids.iter().filter_map(|id| ids.get(id).copied()).collect(),
+                error: p.error,
+            })
+            .filter(|p| !p.image_ids.is_empty())
+            .collect();
+    } else if let Some(ply) = ply {
+        let ply = dir.join(relative(ply).map_err(|e| DataError::invalid(&path, format!("\"ply_file_path\": {e}")))?);
+        let points: Vec<[f64; 3]> = super::ply::read_points(&ply)?.into_iter().map(|p| to_data.point(p)).collect();
+        model.points = seen_points(&model, &points).map_err(|e| DataError::invalid(&path, e))?;
     } else {
         return Err(DataError::invalid(
             &path,
@@ -146,8 +179,7 @@ pub fn read(dir: &Path) -> Result<Capture, DataError> {
                 COLMAP_BESIDE.join(", ")
             ),
         ));
-    };
-    model.points = seen_points(&model, &points).map_err(|e| DataError::invalid(&path, e))?;
+    }
     Ok(Capture { model, photo_folders: folders, notes })
 }
 
@@ -177,11 +209,15 @@ fn model_beside(dir: &Path) -> Result<Option<PathBuf>, DataError> {
 
 /// The similarity that takes the cameras of the COLMAP model `colmap` to those of the same
 /// photos (matched by file name) in `capture`, the capture's read as a COLMAP model; with the
-/// number matched and the farthest camera's residual as a share of their spread.
+/// matched photos' ids (COLMAP's to the capture's) and the farthest camera's residual as a share
+/// of their spread.
 ///
 /// # Errors
 /// Fewer than 3 photos matched, cameras all in one place, a residual over [`FIT_TOLERANCE`].
-fn colmap_to_capture(colmap: &ColmapModel, capture: &ColmapModel) -> Result<(Similarity, usize, f64), String> {
+fn colmap_to_capture(
+    colmap: &ColmapModel,
+    capture: &ColmapModel,
+) -> Result<(Similarity, HashMap<u32, u32>, f64), String> {
     let file_name = |n: &str| n.rsplit('/').next().unwrap_or(n).to_owned();
     let by_name: HashMap<String, &ColmapImage> = colmap.images.iter().map(|im| (file_name(&im.name), im)).collect();
     // Camera-to-world rotation and centre of a COLMAP image.
@@ -190,8 +226,9 @@ fn colmap_to_capture(colmap: &ColmapModel, capture: &ColmapModel) -> Result<(Sim
         let rt = DMat3::from_quat(DQuat::from_xyzw(x, y, z, w).normalize()).transpose();
         (rt, -(rt * DVec3::from_array(im.tvec)))
     };
-    let pairs: Vec<((DMat3, DVec3), (DMat3, DVec3))> =
-        capture.images.iter().filter_map(|im| by_name.get(&file_name(&im.name)).map(|c| (pose(c), pose(im)))).collect();
+    let matched: Vec<(&ColmapImage, &ColmapImage)> =
+        capture.images.iter().filter_map(|im| by_name.get(&file_name(&im.name)).map(|c| (*c, im))).collect();
+    let pairs: Vec<((DMat3, DVec3), (DMat3, DVec3))> = matched.iter().map(|(c, im)| (pose(c), pose(im))).collect();
     if pairs.len() < 3 {
         return Err(format!("{} of its photos match the capture's by name; at least 3 are needed", pairs.len()));
     }
@@ -223,7 +260,7 @@ fn colmap_to_capture(colmap: &ColmapModel, capture: &ColmapModel) -> Result<(Sim
             "moved onto the capture's cameras, one stands {residual:.1e} of their spread off (at most {FIT_TOLERANCE:e})"
         ));
     }
-    Ok((fit, pairs.len(), residual))
+    Ok((fit, matched.iter().map(|(c, im)| (c.id, im.id)).collect(), residual))
 }
 
 /// The similarity from a `transforms.json`'s frame back to the data's own: nerfstudio turns
