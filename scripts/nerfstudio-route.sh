@@ -1,8 +1,8 @@
 #!/bin/bash
 # A COLMAP workspace through both of `mipnerf colmap`'s routes: directly, and as the capture that
-# nerfstudio's own colmap_to_json makes of it (PyPI's nerfstudio 1.1.5, as
-# scripts/make-nerfstudio-capture.sh runs it); prints both reports, how many written images differ,
-# and the ratio of the scenes' bounds. Needs network access to PyPI.
+# nerfstudio's own colmap_to_json makes of it (scripts/make-nerfstudio-capture.sh); prints both
+# reports, how many written images differ, and the ratio of the scenes' bounds. Needs network
+# access to PyPI.
 # Usage: scripts/nerfstudio-route.sh WORKSPACE [BINARY]   (e.g. after scripts/colmap-photos.sh)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -10,11 +10,7 @@ ws=$(realpath "$1")
 bin=$(realpath "${2:-target/release/mipnerf}")
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
-python3 -m venv "$work/venv"
-"$work/venv/bin/pip" install -q numpy rich appdirs opencv-python-headless imageio requests packaging
-"$work/venv/bin/pip" download -q --no-deps "nerfstudio==1.1.5" -d "$work"
-python3 -m zipfile -e "$work"/nerfstudio-1.1.5-py3-none-any.whl "$work/pkg"
-"$work/venv/bin/python" scripts/make-nerfstudio-capture.py "$work/pkg" "$ws" "$work/capture"
+bash scripts/make-nerfstudio-capture.sh "$ws" "$work/capture"
 ln -s "$ws/images" "$work/capture/images"
 echo "commit $(git rev-parse --short HEAD); $("$bin" --version)"
 echo "## the capture (transforms.json and sparse_pc.ply by nerfstudio, the workspace's images/)"

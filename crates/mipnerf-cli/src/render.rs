@@ -246,6 +246,7 @@ pub fn render(
         }
         Target::Cameras(file, frames, _, frame, dataparser) => {
             use mipnerf_core::data::{camera_path, nerfstudio};
+            // Asked of the file before the training split loads, so that such a path fails at once.
             if dataparser.is_none() && camera_path::is_nerfstudio_path(file) {
                 bail!(
                     "{}: a camera path of nerfstudio's viewer, whose poses are in the frame of the model nerfstudio \

@@ -400,8 +400,8 @@ fn camera(frame: &Map<String, Value>, top: &Map<String, Value>, file: &Path) -> 
 fn world_to_camera(c2w: &[[f64; 4]; 3]) -> Result<([f64; 4], [f64; 3]), String> {
     let col = |j: usize| DVec3::new(c2w[0][j], c2w[1][j], c2w[2][j]);
     let r = DMat3::from_cols(col(0), -col(1), -col(2));
-    let off = (r.transpose() * r - DMat3::IDENTITY).to_cols_array().iter().fold(0.0f64, |m, x| m.max(x.abs()));
-    if off > ROTATION_TOLERANCE || r.determinant() <= 0.0 {
+    let opencv: [[f64; 4]; 3] = std::array::from_fn(|i| [c2w[i][0], -c2w[i][1], -c2w[i][2], c2w[i][3]]);
+    if Similarity::rigid(&opencv, ROTATION_TOLERANCE).is_none() {
         return Err(format!(
             "transform_matrix's 3x3 part is not a rotation (its columns are {:.4}, {:.4}, {:.4} long, its determinant \
              {:.4}): a camera-to-world pose has orthonormal axes",
