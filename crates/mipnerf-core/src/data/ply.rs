@@ -117,7 +117,8 @@ pub fn read_points(path: &Path) -> Result<Vec<[f64; 3]>, DataError> {
     let mut points = Vec::with_capacity(count);
     if format == Format::Ascii {
         let text = std::str::from_utf8(&bytes[body..]).map_err(|_| bad("the ASCII body is not text".into()))?;
-        let skip: usize = elements[..v].iter().map(|e| e.count).sum();
+        // Saturating: counts are the header's word, and a lie must not overflow.
+        let skip = elements[..v].iter().fold(0usize, |n, e| n.saturating_add(e.count));
         let mut rows = text.lines().filter(|l| !l.trim().is_empty()).skip(skip);
         for i in 0..count {
             let row = rows.next().ok_or_else(|| bad(format!("ends after {i} of its {count} points")))?;
@@ -261,6 +262,11 @@ mod tests {
                 "shorter than",
             ),
             ("ply\nformat ascii 1.0\nelement vertex 1\nproperty half x\nend_header\n", "unknown property type"),
+            (
+                // Elements before the vertices whose counts sum past usize::MAX.
+                "ply\nformat ascii 1.0\nelement a 18446744073709551615\nproperty float q\nelement b 18446744073709551615\nproperty float q\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n",
+                "ends after 0 of its 1 points",
+            ),
         ];
         for (k, (text, want)) in cases.iter().enumerate() {
             let path = write(&format!("bad{k}.ply"), text.as_bytes());
