@@ -124,10 +124,17 @@ pub(super) fn product(
         PackedLeft::Pairs(a) => a.len().saturating_mul(2),
     };
     super::assert_packed(super::Bf16Kernel::Avx512, c, a_values, b, m, n, mp, kp, np);
+    let a_bytes: (*const u8, usize) = match a {
+        PackedLeft::Tiles(a) => (a.as_ptr().cast(), size_of_val(a)),
+        PackedLeft::Pairs(a) => (a.as_ptr().cast(), size_of_val(a)),
+    };
+    let column_blocks = n.div_ceil(COLS);
     for k0 in (0..kp).step_by(KC) {
         let k1 = (k0 + KC).min(kp);
         for i0 in (0..m).step_by(ROWS) {
-            for j0 in (0..n).step_by(COLS) {
+            for (jb, j0) in (0..n).step_by(COLS).enumerate() {
+                prefetch_next_rows(a_bytes, i0, jb, column_blocks, kp, k0..k1);
+                prefetch_next_output(c, i0 + ROWS, j0, n);
                 let accumulate = accumulate || k0 > 0;
                 // SAFETY: the CPU has AVX-512 F and BF16 (asserted above); the block's rows
                 // lie below mp and its columns below np (m <= mp, n <= np, both multiples of
@@ -140,6 +147,52 @@ pub(super) fn product(
                         PackedLeft::Pairs(a) => block::<true>(c, a.as_ptr(), b, m, n, kp, i0, j0, k0, k1, accumulate),
                     }
                 }
+            }
+        }
+    }
+}
+
+/// Prefetches into L1 the share of the next 16-row group of the packed `a`, over the pass's
+/// values of k, that block `jb` of the `column_blocks` blocks of row block `i0` is due: those
+/// lines are spread over the two row blocks of the present group, so that the next group is in
+/// L1 before the first block reads it. Both layouts keep a group contiguous (16 rows of `kp`
+/// bf16 values) and k within it in 32-byte steps per value pair of the 16 rows: k tile by k
+/// tile in [`PackedLeft::Tiles`], pair row by pair row in [`PackedLeft::Pairs`]. `a` is the
+/// packed operand's first byte and its length in bytes.
+#[inline(always)]
+fn prefetch_next_rows(
+    a: (*const u8, usize),
+    i0: usize,
+    jb: usize,
+    column_blocks: usize,
+    kp: usize,
+    k: std::ops::Range<usize>,
+) {
+    use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+    let start = (i0 / 16 + 1) * 32 * kp + 32 * k.start;
+    let lines = 32 * k.len() / 64;
+    let share = lines.div_ceil(2 * column_blocks);
+    let first = ((i0 / ROWS) % 2 * column_blocks + jb) * share;
+    for line in first..(first + share).min(lines) {
+        let at = start + 64 * line;
+        if at < a.1 {
+            // SAFETY: a prefetch changes nothing the program sees; the address is inside `a`.
+            unsafe { _mm_prefetch::<_MM_HINT_T0>(a.0.wrapping_add(at).cast()) };
+        }
+    }
+}
+
+/// Prefetches, for writing, the block of `c` at `(i0, j0)`: 8 rows of 32 values.
+#[inline(always)]
+fn prefetch_next_output(c: &[f32], i0: usize, j0: usize, n: usize) {
+    use std::arch::x86_64::{_MM_HINT_ET0, _mm_prefetch};
+    for r in i0..i0 + ROWS {
+        for v in [j0, j0 + 16] {
+            if v < n
+                && let Some(p) = c.get(r * n + v)
+            {
+                // SAFETY: a prefetch changes nothing the program sees; the address is inside `c`.
+                unsafe { _mm_prefetch::<_MM_HINT_ET0>(std::ptr::from_ref(p).cast()) };
             }
         }
     }
