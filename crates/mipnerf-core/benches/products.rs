@@ -5,9 +5,9 @@
 //! a 128-wide (small preset) and a 256-wide (paper) layer: the forward product `x · W`
 //! (8192 x w · w x w), the input gradient `dz · Wᵀ` and the weight gradient `xᵀ · dz`
 //! (w x 8192 · 8192 x w); each bf16 product rounds and packs its operands. The output starts on a
-//! cache line, as the MLP's buffers do. A second table times the bf16 kernels alone, on operands
-//! packed beforehand, with the output on a cache line and 16 bytes past one (where `malloc` puts
-//! a large block).
+//! cache line, as the MLP's buffers do. A second table times the bf16 kernels alone on the forward
+//! product and the weight gradient, on operands packed beforehand, with the output on a cache line
+//! and 16 bytes past one (where `malloc` puts a large block).
 #![allow(missing_docs)]
 
 use mipnerf_core::bench::{Product, product_gflops, product_operands, timed_gflops};
@@ -48,30 +48,61 @@ fn main() {
         }
     }
     println!(
-        "\nThe bf16 kernels alone (operands packed beforehand, as training packs each activation once), forward x·W, GFLOP/s on one thread, median of {reps}, the output on a cache line / 16 bytes past one:"
+        "\nThe bf16 kernels alone (operands packed beforehand, as training packs each activation once), GFLOP/s on one thread, median of {reps}, the output on a cache line / 16 bytes past one:"
     );
-    println!("| m x k x n | {} |", kernels[1..].iter().map(|(name, _)| *name).collect::<Vec<_>>().join(" | "));
-    println!("|---|{}", "---|".repeat(kernels.len() - 1));
-    for (m, w) in [(rows / 8, 128), (rows, 128), (rows / 8, 256), (rows, 256)] {
+    println!(
+        "| product | m x k x n | {} |",
+        kernels[1..].iter().map(|(name, _)| *name).collect::<Vec<_>>().join(" | ")
+    );
+    println!("|---|---|{}", "---|".repeat(kernels.len() - 1));
+    for (weight_gradient, samples, w) in [
+        (false, rows / 8, 128),
+        (false, rows, 128),
+        (false, rows / 8, 256),
+        (false, rows, 256),
+        (true, rows, 128),
+        (true, rows, 256),
+    ] {
         let rates: Vec<String> = Bf16Kernel::ALL
             .into_iter()
             .filter(|kernel| kernel.check().is_ok())
             .map(|kernel| {
-                format!("{:.1} / {:.1}", packed_gflops(kernel, m, w, reps, 0), packed_gflops(kernel, m, w, reps, 16))
+                let rate = |past| packed_gflops(kernel, weight_gradient, samples, w, reps, past);
+                format!("{:.1} / {:.1}", rate(0), rate(16))
             })
             .collect();
-        println!("| {m} x {w} x {w} | {} |", rates.join(" | "));
+        let (name, (m, k)) =
+            if weight_gradient { ("weight gradient xᵀ·dz", (w, samples)) } else { ("forward x·W", (samples, w)) };
+        println!("| {name} | {m} x {k} x {w} | {} |", rates.join(" | "));
     }
 }
 
-/// GFLOP/s of `kernel` on the forward product `x (m x w) · W (w x w)` with both operands packed
-/// before the clock starts, `c` starting `c_past_line` bytes past a 64-byte line ([`timed_gflops`]).
-fn packed_gflops(kernel: Bf16Kernel, m: usize, w: usize, reps: usize, c_past_line: usize) -> f64 {
-    let (x, weights) = product_operands(m, w, w);
-    let (mut x_packed, mut w_packed) = (Bf16Matrix::default(), Bf16Matrix::default());
-    x_packed.pack_for(kernel, &x, m, w, Reads { left: true, ..Reads::default() });
-    w_packed.pack_for(kernel, &weights, w, w, Reads { right: true, ..Reads::default() });
-    let a = Operand { values: &x, layout: Layout::Normal, packed: Some(&x_packed) };
-    let b = Operand { values: &weights, layout: Layout::Normal, packed: Some(&w_packed) };
-    timed_gflops(m, w, w, reps, c_past_line, |c| matmul_bf16_with_on(kernel, c, a, b, m, w, w, false))
+/// GFLOP/s of `kernel` with both operands packed before the clock starts, `c` starting
+/// `c_past_line` bytes past a 64-byte line ([`timed_gflops`]): the forward product
+/// `x (samples x w) · W (w x w)`, or with `weight_gradient` the weight gradient
+/// `xᵀ · dz` of `x` and `dz` (`samples x w` each).
+fn packed_gflops(
+    kernel: Bf16Kernel,
+    weight_gradient: bool,
+    samples: usize,
+    w: usize,
+    reps: usize,
+    c_past_line: usize,
+) -> f64 {
+    // `right` is `dz` (samples x w) or `W` (w x w).
+    let (x, right) = product_operands(samples, w, if weight_gradient { samples } else { w });
+    let (mut x_packed, mut right_packed) = (Bf16Matrix::default(), Bf16Matrix::default());
+    let x_reads = if weight_gradient {
+        Reads { left_transposed: true, ..Reads::default() }
+    } else {
+        Reads { left: true, ..Reads::default() }
+    };
+    let right_rows = if weight_gradient { samples } else { w };
+    x_packed.pack_for(kernel, &x, samples, w, x_reads);
+    right_packed.pack_for(kernel, &right, right_rows, w, Reads { right: true, ..Reads::default() });
+    let layout = if weight_gradient { Layout::Transposed } else { Layout::Normal };
+    let a = Operand { values: &x, layout, packed: Some(&x_packed) };
+    let b = Operand { values: &right, layout: Layout::Normal, packed: Some(&right_packed) };
+    let (m, k) = if weight_gradient { (w, samples) } else { (samples, w) };
+    timed_gflops(m, k, w, reps, c_past_line, |c| matmul_bf16_with_on(kernel, c, a, b, m, k, w, false))
 }
