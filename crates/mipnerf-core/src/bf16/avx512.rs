@@ -128,6 +128,27 @@ pub(super) fn product(
         PackedLeft::Tiles(a) => (a.as_ptr().cast(), size_of_val(a)),
         PackedLeft::Pairs(a) => (a.as_ptr().cast(), size_of_val(a)),
     };
+    // SAFETY: the CPU has AVX-512 F and BF16 and the sizes are asserted (above).
+    unsafe { sweep(c, a, a_bytes, b, m, n, kp, accumulate) };
+}
+
+/// [`product`]'s passes and blocks, compiled with the kernel's features so that [`block`] is
+/// inlined into its loop.
+///
+/// # Safety
+/// As [`product`]'s asserts: the CPU has AVX-512 F and BF16, and the buffers are as large as
+/// the padded sizes need.
+#[target_feature(enable = "avx512f,avx512bf16")]
+unsafe fn sweep(
+    c: &mut [f32],
+    a: PackedLeft<'_>,
+    a_bytes: (*const u8, usize),
+    b: &[u32],
+    m: usize,
+    n: usize,
+    kp: usize,
+    accumulate: bool,
+) {
     let column_blocks = n.div_ceil(COLS);
     for k0 in (0..kp).step_by(KC) {
         let k1 = (k0 + KC).min(kp);
@@ -206,6 +227,7 @@ fn prefetch_next_output(c: &[f32], i0: usize, j0: usize, n: usize) {
 /// The CPU has AVX-512 F and BF16; `i0 + 8 <= mp`, `j0 + 32 <= np`, `k1 <= kp` with `k0` and
 /// `k1` multiples of [`K_STEP`]; `a` points to `mp x kp` packed values (read unaligned), `b`
 /// holds `kp / 2 x np` pairs, and `c` at least `m x n`.
+#[inline]
 #[target_feature(enable = "avx512f,avx512bf16")]
 unsafe fn block<const A_PAIRS: bool>(
     c: &mut [f32],
