@@ -157,7 +157,7 @@ unsafe fn sweep(
                 prefetch_next_rows(a_bytes, i0, jb, column_blocks, kp, k0..k1);
                 prefetch_next_output(c, i0 + ROWS, j0, n);
                 let accumulate = accumulate || k0 > 0;
-                // SAFETY: the CPU has AVX-512 F and BF16 (asserted above); the block's rows
+                // SAFETY: the CPU has AVX-512 F and BF16 (asserted in `product`); the block's rows
                 // lie below mp and its columns below np (m <= mp, n <= np, both multiples of
                 // the block), k0..k1 below kp, and the sizes of the buffers are asserted.
                 unsafe {
