@@ -124,12 +124,8 @@ pub(super) fn product(
         PackedLeft::Pairs(a) => a.len().saturating_mul(2),
     };
     super::assert_packed(super::Bf16Kernel::Avx512, c, a_values, b, m, n, mp, kp, np);
-    let a_bytes: (*const u8, usize) = match a {
-        PackedLeft::Tiles(a) => (a.as_ptr().cast(), size_of_val(a)),
-        PackedLeft::Pairs(a) => (a.as_ptr().cast(), size_of_val(a)),
-    };
     // SAFETY: the CPU has AVX-512 F and BF16 and the sizes are asserted (above).
-    unsafe { sweep(c, a, a_bytes, b, m, n, kp, accumulate) };
+    unsafe { sweep(c, a, b, m, n, kp, accumulate) };
 }
 
 /// [`product`]'s passes and blocks, compiled with the kernel's features so that [`block`] is
@@ -139,16 +135,11 @@ pub(super) fn product(
 /// As [`product`]'s asserts: the CPU has AVX-512 F and BF16, and the buffers are as large as
 /// the padded sizes need.
 #[target_feature(enable = "avx512f,avx512bf16")]
-unsafe fn sweep(
-    c: &mut [f32],
-    a: PackedLeft<'_>,
-    a_bytes: (*const u8, usize),
-    b: &[u32],
-    m: usize,
-    n: usize,
-    kp: usize,
-    accumulate: bool,
-) {
+unsafe fn sweep(c: &mut [f32], a: PackedLeft<'_>, b: &[u32], m: usize, n: usize, kp: usize, accumulate: bool) {
+    let a_bytes: (*const u8, usize) = match a {
+        PackedLeft::Tiles(a) => (a.as_ptr().cast(), size_of_val(a)),
+        PackedLeft::Pairs(a) => (a.as_ptr().cast(), size_of_val(a)),
+    };
     let column_blocks = n.div_ceil(COLS);
     for k0 in (0..kp).step_by(KC) {
         let k1 = (k0 + KC).min(kp);
