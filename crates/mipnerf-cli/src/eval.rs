@@ -225,8 +225,9 @@ pub fn markdown(m: &Metrics) -> String {
 
 /// Reads an image as RGB in `[0, 1]`, composited on white when it has alpha.
 pub(crate) fn read_rgb(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
-    let img = image::ImageReader::open(path)
-        .with_context(|| format!("{}: cannot open the image", path.display()))?
+    let file =
+        mipnerf_core::io::open_regular(path).with_context(|| format!("{}: cannot open the image", path.display()))?;
+    let img = image::ImageReader::new(std::io::BufReader::new(file))
         .with_guessed_format()
         .with_context(|| format!("{}: cannot read the image", path.display()))?
         .decode()

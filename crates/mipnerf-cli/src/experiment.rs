@@ -171,7 +171,8 @@ pub struct ExperimentArgs {
 }
 
 fn read_toml<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let text = mipnerf_core::io::read_regular_text(path, mipnerf_core::io::cap::SETTINGS)
+        .with_context(|| format!("reading {}", path.display()))?;
     toml::from_str(&text).with_context(|| format!("{}: invalid", path.display()))
 }
 

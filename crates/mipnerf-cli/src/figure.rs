@@ -63,7 +63,7 @@ pub struct FigureSummary {
 
 fn read_metrics(run: &Path) -> Result<serde_json::Value> {
     let path = RunDir::new(run).eval_metrics();
-    let text = std::fs::read_to_string(&path)
+    let text = mipnerf_core::io::read_regular_text(&path, mipnerf_core::io::cap::JSON)
         .with_context(|| format!("{}: run `mipnerf eval` on it first", path.display()))?;
     serde_json::from_str(&text).with_context(|| format!("{}: malformed JSON", path.display()))
 }

@@ -17,9 +17,15 @@ pub fn rgb_to_png(img: &[[f32; 3]]) -> Vec<u8> {
 /// # Errors
 /// Unwritable file.
 pub fn write_png(path: &Path, w: u32, h: u32, rgb: &[u8]) -> Result<()> {
-    replace_with(path, |tmp| {
-        image::save_buffer(tmp, rgb, w, h, image::ExtendedColorType::Rgb8)
-            .with_context(|| format!("writing {}", path.display()))
+    mipnerf_core::io::write_encoded(path, |bytes| {
+        image::ImageEncoder::write_image(
+            image::codecs::png::PngEncoder::new(bytes),
+            rgb,
+            w,
+            h,
+            image::ExtendedColorType::Rgb8,
+        )
+        .with_context(|| format!("writing {}", path.display()))
     })
 }
 
@@ -34,8 +40,8 @@ pub fn write_exr(path: &Path, w: usize, h: usize, channel: &str, values: &[f32])
     let channels =
         AnyChannels::sort(SmallVec::from_vec(vec![AnyChannel::new(channel, FlatSamples::F32(values.to_vec()))]));
     let image = Image::from_channels((w, h), channels);
-    replace_with(path, |tmp| {
-        image.write().non_parallel().to_file(tmp).map_err(|e| anyhow!("writing {}: {e}", path.display()))
+    mipnerf_core::io::write_encoded(path, |bytes| {
+        image.write().non_parallel().to_buffered(bytes).map_err(|e| anyhow!("writing {}: {e}", path.display()))
     })
 }
 
@@ -125,9 +131,10 @@ impl Preview {
         use image::codecs::gif::{GifEncoder, Repeat};
         let (w, h) = self.scaled;
         let delay_ms = PREVIEW_DELAY_MS * u32::try_from(self.stride).unwrap_or(u32::MAX / PREVIEW_DELAY_MS).min(12);
-        replace_with(path, |tmp| {
-            let file = std::fs::File::create(tmp).with_context(|| format!("writing {}", path.display()))?;
-            let mut enc = GifEncoder::new_with_speed(std::io::BufWriter::new(file), 10);
+        // Encoded in memory (its trailer is written when the encoder is dropped, at the end of
+        // the closure), then written and checked whole.
+        mipnerf_core::io::write_encoded(path, |bytes| {
+            let mut enc = GifEncoder::new_with_speed(bytes, 10);
             enc.set_repeat(Repeat::Infinite).map_err(|e| anyhow!("{}: {e}", path.display()))?;
             for rgb in &self.frames {
                 let rgba: Vec<u8> = rgb.chunks(3).flat_map(|p| [p[0], p[1], p[2], 255]).collect();

@@ -1,7 +1,7 @@
 //! Output folders that never replace a user's files: `render --out DIR` and `figure --out FILE`
 //! write only where mipnerf wrote before, or where nothing is.
 //!
-//! Every folder mipnerf writes outputs into gets a manifest ([`MANIFEST`]): the names of the files
+//! Every folder mipnerf writes outputs into gets a manifest ([`mipnerf_core::io::MANIFEST`]): the names of the files
 //! it wrote there, recorded before they are written (so an interrupted render can be redone).
 //! A folder that holds any file not in its manifest, such as a dataset's ground-truth images, is
 //! refused unless `--overwrite` is given.
@@ -10,8 +10,6 @@ use std::collections::BTreeSet;
 use std::path::Path;
 
 use anyhow::{Context, Result, bail};
-
-pub use mipnerf_core::io::MANIFEST;
 
 /// How many foreign names an error lists.
 const NAMES_SHOWN: usize = 5;
@@ -27,6 +25,65 @@ fn list(names: &[String]) -> String {
         shown.push("...");
     }
     shown.join(", ")
+}
+
+/// Takes the exclusive lock of the folder `dir` that the command `command` (`train`, `colmap`,
+/// `convert`) is to write, for the life of the returned file, so that two mipnerf processes
+/// never write one folder: a run directory, or a dataset being made. The lock is the operating
+/// system's (`flock` on Unix) on [`mipnerf_core::io::LOCK`] in the folder (created here), released
+/// when the process ends however it ends, so a killed process leaves no stale lock; the file
+/// names its holder.
+///
+/// # Errors
+/// Another process holds the lock (the error names its command and process, and `flag`, the
+/// folder's flag, as the way out), or the file cannot be made.
+pub fn lock_folder(dir: &Path, command: &str, flag: &str) -> Result<std::fs::File> {
+    use std::io::Write;
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let path = dir.join(mipnerf_core::io::LOCK);
+    let mut f = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&path)
+        .with_context(|| format!("opening {}", path.display()))?;
+    match f.try_lock() {
+        Ok(()) => {}
+        Err(std::fs::TryLockError::WouldBlock) => {
+            let holder = std::fs::read_to_string(&path).unwrap_or_default();
+            let (process, by) = holder.trim().split_once('\t').unwrap_or((holder.trim(), "train"));
+            bail!(
+                "{} is in use by another `mipnerf {by}` ({process}); wait for it to finish, or choose another {flag}",
+                dir.display(),
+            );
+        }
+        Err(std::fs::TryLockError::Error(e)) => {
+            return Err(e).with_context(|| format!("locking {}", path.display()));
+        }
+    }
+    f.set_len(0)?;
+    writeln!(f, "process {}\t{command}", std::process::id())?;
+    f.flush()?;
+    Ok(f)
+}
+
+/// Runs `write`, which fills the folder `dir` as the command `command`, holding the folder's lock
+/// ([`lock_folder`]): a second `colmap` or `convert` into the same folder is refused while the
+/// first runs, so a finished folder is one run's whole output. A folder made here and left with
+/// no output by a failed `write` is removed again.
+///
+/// # Errors
+/// The lock's, or `write`'s.
+pub fn locked<T>(dir: &Path, command: &str, flag: &str, write: impl FnOnce() -> Result<T>) -> Result<T> {
+    let existed = std::fs::symlink_metadata(dir).is_ok();
+    let lock = lock_folder(dir, command, flag)?;
+    let done = write();
+    if done.is_err() && !existed && mipnerf_core::io::names_in(dir).is_ok_and(|names| names.is_empty()) {
+        let _ = std::fs::remove_dir_all(dir);
+    }
+    drop(lock);
+    done
 }
 
 /// Checks that `dir` (given as `flag`) is a folder or can be made one: neither it nor a folder
@@ -173,6 +230,7 @@ pub fn save_keeping_the_old(path: &Path, bytes: &[u8]) -> Result<()> {
 mod tests {
     #![allow(clippy::unwrap_used)]
     use super::*;
+    use mipnerf_core::io::MANIFEST;
 
     #[test]
     fn a_folder_is_ours_only_when_its_manifest_lists_everything_in_it() {

@@ -126,7 +126,8 @@ fn line_chart(
 /// # Errors
 /// An unreadable CSV or unwritable PNGs.
 pub fn training_curves(csv: &Path, out: &Path) -> Result<()> {
-    let text = std::fs::read_to_string(csv).with_context(|| format!("reading {}", csv.display()))?;
+    let text = mipnerf_core::io::read_regular_text(csv, mipnerf_core::io::cap::JSON)
+        .with_context(|| format!("reading {}", csv.display()))?;
     let m = crate::metrics_csv::MetricsRows::parse(&text);
     let col = |f: fn(&crate::metrics_csv::TrainRow) -> f64| -> Vec<(f64, f64)> {
         m.train.iter().map(|r| (r.step as f64, f(r))).collect()

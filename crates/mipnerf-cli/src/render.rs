@@ -303,15 +303,7 @@ pub fn render(
     // outputs of an earlier render into this folder go first (a folder never mixes two renders),
     // and the manifest names every file before any is written, so an interrupted render can be
     // redone.
-    let mut names: Vec<String> = jobs
-        .iter()
-        .flat_map(|(n, _)| {
-            ["", "_depth", "_acc", "_depth"]
-                .into_iter()
-                .zip([".png", ".exr", ".exr", ".png"])
-                .map(move |(s, e)| format!("{n}{s}{e}"))
-        })
-        .collect();
+    let mut names: Vec<String> = jobs.iter().flat_map(|(n, _)| frame_files(n)).collect();
     if target.fps().is_some() {
         names.extend(["preview.gif".to_owned(), VIDEO.to_owned()]);
     }
@@ -381,7 +373,8 @@ pub fn render(
             return Err(crate::signals::Interrupted(left).into());
         };
         let (w, h) = (&image.camera.width, &image.camera.height);
-        let outs = be.render(image, Levels::Last).with_context(|| format!("rendering {name}"))?.fine;
+        let fail = |e: anyhow::Error| incomplete_render(out, &jobs, i, e);
+        let outs = be.render(image, Levels::Last).with_context(|| format!("rendering {name}")).map_err(fail)?.fine;
         drop(suspension);
         let rgb: Vec<[f32; 3]> = outs.iter().map(|o| o.rgb).collect();
         let depth: Vec<f32> = outs.iter().map(|o| o.distance).collect();
@@ -403,28 +396,79 @@ pub fn render(
                 write_png(&out.join(format!("{name}_depth.png")), *w, *h, &depth_to_png(&depth, &acc, near, far)),
             ),
         ] {
-            result?;
+            result.map_err(fail)?;
             written.push(out.join(file));
         }
         if let Some(preview) = preview.as_mut() {
-            preview.push(i, &png)?;
+            preview.push(i, &png).map_err(fail)?;
         }
         if let Some(video) = video.as_mut() {
-            video.push(&png)?;
+            video.push(&png).map_err(fail)?;
         }
         pb.inc();
     }
     pb.finish();
+    let all = jobs.len();
     if let Some(preview) = preview {
         let gif = out.join("preview.gif");
-        preview.write(&gif)?;
+        preview.write(&gif).map_err(|e| incomplete_render(out, &jobs, all, e))?;
         written.push(gif);
     }
     if let Some(video) = video {
-        video.finish()?;
+        video.finish().map_err(|e| incomplete_render(out, &jobs, all, e))?;
         written.push(out.join(VIDEO));
     }
     Ok(written)
+}
+
+/// The four files of the frame `name`: its image, depth and opacity EXRs, and depth picture.
+fn frame_files(name: &str) -> [String; 4] {
+    [".png", "_depth.exr", "_acc.exr", "_depth.png"].map(|suffix| format!("{name}{suffix}"))
+}
+
+/// The error of a render that failed (a full disk, a device lost) after its first `complete`
+/// frames of `jobs` were written whole: what it wrote for the later frames, its preview and its
+/// video are removed and dropped from the folder's manifest, so that the manifest lists only
+/// whole files; its `cameras.json` is rewritten to hold the complete frames alone (removed when
+/// there are none or it cannot be), and the error says which frames are complete.
+fn incomplete_render(out: &Path, jobs: &[(String, ImageSpec)], complete: usize, error: anyhow::Error) -> anyhow::Error {
+    let mut dropped: std::collections::BTreeSet<String> = jobs[complete..]
+        .iter()
+        .flat_map(|(n, _)| frame_files(n))
+        .chain(["preview.gif".to_owned(), VIDEO.to_owned()])
+        .collect();
+    let cameras: Vec<mipnerf_core::Camera> = jobs[..complete].iter().map(|(_, image)| image.camera.clone()).collect();
+    let kept_cameras = complete > 0
+        && out.join(CAMERAS).is_file()
+        && mipnerf_core::data::camera_path::to_text(&cameras)
+            .is_some_and(|text| mipnerf_core::io::write_atomic(&out.join(CAMERAS), text.as_bytes()).is_ok());
+    if !kept_cameras {
+        dropped.insert(CAMERAS.to_owned());
+    }
+    for name in &dropped {
+        let path = out.join(name);
+        if std::fs::symlink_metadata(&path).is_ok_and(|m| m.is_file()) {
+            let _ = std::fs::remove_file(&path);
+        }
+    }
+    let listed = mipnerf_core::io::forget(out, &dropped).is_ok();
+    let whole = match complete {
+        0 => "no frame is complete".to_owned(),
+        1 => format!("1 of {} frames is complete ({}, its files whole)", jobs.len(), jobs[0].0),
+        n => {
+            format!("{n} of {} frames are complete ({} to {}, their files whole)", jobs.len(), jobs[0].0, jobs[n - 1].0)
+        }
+    };
+    error.context(format!(
+        "the render into {} stopped: {whole}; {}{}",
+        out.display(),
+        if complete == jobs.len() {
+            "the preview and the video were not written"
+        } else {
+            "the later frames, the preview and the video were not written"
+        },
+        if listed { "" } else { " (and its outputs manifest could not be updated)" }
+    ))
 }
 
 #[cfg(test)]

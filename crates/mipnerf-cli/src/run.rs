@@ -154,7 +154,7 @@ pub fn load_checkpoint(path: &Path, model: &Model, session: &Session) -> Result<
 /// resumed run would otherwise start its time budget again and overwrite the record).
 pub fn train_seconds(run: &Path) -> Result<Option<f64>> {
     let path = RunDir::new(run).train_seconds();
-    let text = match std::fs::read_to_string(&path) {
+    let text = match mipnerf_core::io::read_regular_text(&path, mipnerf_core::io::cap::SETTINGS) {
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
         r => r.with_context(|| format!("reading {}", path.display()))?,
     };

@@ -2,10 +2,9 @@
 //! reads or writes a run (train, eval, render, view, experiment, figure) asks [`RunDir`] for the
 //! path, so a change of layout is a change here.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, bail};
+use anyhow::Result;
 use mipnerf_core::data::Split;
 
 /// The resolved configuration of the run.
@@ -17,8 +16,8 @@ pub const CHECKPOINT: &str = "checkpoint.safetensors";
 pub const TRAIN_SECONDS: &str = "train_seconds.txt";
 /// Training metrics, one row every `log_every` steps ([`crate::metrics_csv`]).
 pub const METRICS_CSV: &str = "metrics.csv";
-/// The lock file, held by the `train` that writes the run.
-pub const LOCK: &str = "train.lock";
+/// The lock file, held by the `train` that writes the run ([`crate::outputs::lock_folder`]).
+pub use mipnerf_core::io::LOCK;
 /// The folder `eval` writes for the test split (`eval_train` and `eval_val` for the others, so
 /// that evaluating another split never replaces the test scores).
 pub const EVAL: &str = "eval";
@@ -117,38 +116,12 @@ impl<'a> RunDir<'a> {
     }
 
     /// Takes the exclusive lock of the run for the life of the returned file, so that two `train`
-    /// processes never write one run directory. The lock is the operating system's (`flock` on
-    /// Unix), released when the process ends however it ends, so a killed run leaves no stale
-    /// lock. Readers (`eval`, `render`) take no lock: every file they read is replaced atomically.
+    /// processes never write one run directory ([`crate::outputs::lock_folder`]). Readers (`eval`,
+    /// `render`) take no lock: every file they read is replaced atomically.
     ///
     /// # Errors
     /// Another process holds the lock (the error names it), or the file cannot be made.
     pub fn lock(self) -> Result<std::fs::File> {
-        let path = self.0.join(LOCK);
-        let mut f = std::fs::OpenOptions::new()
-            .read(true)
-            .write(true)
-            .create(true)
-            .truncate(false)
-            .open(&path)
-            .with_context(|| format!("opening {}", path.display()))?;
-        match f.try_lock() {
-            Ok(()) => {}
-            Err(std::fs::TryLockError::WouldBlock) => {
-                let holder = std::fs::read_to_string(&path).unwrap_or_default();
-                bail!(
-                    "{} is in use by another `mipnerf train` ({}); wait for it to finish, or choose another --out",
-                    self.0.display(),
-                    holder.trim()
-                );
-            }
-            Err(std::fs::TryLockError::Error(e)) => {
-                return Err(e).with_context(|| format!("locking {}", path.display()));
-            }
-        }
-        f.set_len(0)?;
-        writeln!(f, "process {}", std::process::id())?;
-        f.flush()?;
-        Ok(f)
+        crate::outputs::lock_folder(self.0, "train", "--out")
     }
 }

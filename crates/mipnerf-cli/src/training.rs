@@ -343,10 +343,15 @@ fn load_training_data(s: &TrainSettings, format: Format, model: &Model) -> Resul
              but none of the {} training images in {} has any{}; use --background white or black",
             ds.views().len(),
             data_dir.display(),
-            if format.is_photos() {
-                " (photos from COLMAP or LLFF have no alpha: give their masks with --masks DIR)"
-            } else {
-                ""
+            match (&s.masks, format.is_photos()) {
+                (Some(masks), _) => format!(
+                    " (the masks in {} are white everywhere: a mask is white on the object and black on what is to \
+                     be left out, and these leave nothing out)",
+                    masks.display()
+                ),
+                (None, true) =>
+                    " (photos from COLMAP or LLFF have no alpha: give their masks with --masks DIR)".to_owned(),
+                (None, false) => String::new(),
             }
         );
     }

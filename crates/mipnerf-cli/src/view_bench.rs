@@ -238,7 +238,8 @@ fn stream(addr: &str, query: &str, levels: usize) -> Result<Timed> {
 /// every 50 steps (what the viewer reloads), as a config file in `dir`.
 fn stall_config(run: &Path, dir: &Path, steps: u64) -> Result<PathBuf> {
     let path = crate::run_dir::RunDir::new(run).config();
-    let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let text = mipnerf_core::io::read_regular_text(&path, mipnerf_core::io::cap::SETTINGS)
+        .with_context(|| format!("reading {}", path.display()))?;
     let mut t: toml::Table = toml::from_str(&text).with_context(|| format!("{}: not TOML", path.display()))?;
     t.remove("time_budget");
     t.insert("steps".into(), toml::Value::Integer(i64::try_from(steps)?));

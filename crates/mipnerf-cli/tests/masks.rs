@@ -165,6 +165,34 @@ fn bad_masks_are_refused_naming_the_file() {
     assert!(text.contains("view003.png has 2 masks (view003.jpg, view003.png): keep one"), "{text}");
     let text = train_missing_folder(&data, dir.path());
     assert!(text.contains("no-such-masks") && text.contains("does not exist"), "{text}");
+    // A mask that is there but is a FIFO or a device is named as what it is, never waited on
+    // nor called missing.
+    std::fs::remove_file(masks.join("view003.jpg")).unwrap();
+    std::fs::remove_file(masks.join("view003.png")).unwrap();
+    assert!(std::process::Command::new("mkfifo").arg(masks.join("view003.png")).status().unwrap().success());
+    let text = train("fifo");
+    assert!(text.contains("view003.png") && text.contains("is a FIFO (a named pipe), not a regular file"), "{text}");
+    assert!(!text.contains("no mask for photo"), "{text}");
+    std::fs::remove_file(masks.join("view003.png")).unwrap();
+    std::os::unix::fs::symlink("/dev/zero", masks.join("view003.png")).unwrap();
+    let text = train("device");
+    assert!(text.contains("view003.png") && text.contains("is a device (such as /dev/zero)"), "{text}");
+}
+
+/// Masks given with `--masks` that are white everywhere leave nothing out: `--background random`
+/// says that of the masks, not that masks should be given.
+#[test]
+fn white_masks_with_a_random_background_are_named_as_leaving_nothing_out() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = masked_capture(dir.path(), 16, 9);
+    let masks = data.join("masks");
+    for i in 0..9 {
+        image::GrayImage::from_pixel(16, 16, image::Luma([255])).save(masks.join(format!("view{i:03}.png"))).unwrap();
+    }
+    let run = dir.path().join("run");
+    let text = run_err(&strs(&train_args(&data, &masks, "1", &run, &["--background", "random"])));
+    assert!(text.contains("white everywhere") && text.contains(s(&masks)), "{text}");
+    assert!(!text.contains("give their masks with --masks"), "{text}");
 }
 
 fn train_missing_folder(data: &Path, dir: &Path) -> String {

@@ -8,7 +8,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use common::{copy_dir, run_err, run_ok, small_demo_scene};
+use common::{copy_dir, run_err, run_ok, small_demo_scene, trained_demo_run};
 
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()
@@ -26,18 +26,10 @@ fn names(dir: &Path) -> Vec<String> {
     v
 }
 
-/// A demo run of a few steps (one ray per pixel, so that --points applies).
-fn trained_run(dir: &Path) -> PathBuf {
-    let data = small_demo_scene(dir, 4);
-    let run = dir.join("run");
-    run_ok(&["train", "--data", s(&data), "--out", s(&run), "--steps", "10", "--backend", "cpu", "--quiet"]);
-    run
-}
-
 #[test]
 fn export_replaces_only_a_ply_file_it_wrote_and_never_both_outputs_on_one_path() {
     let dir = tempfile::tempdir().unwrap();
-    let run = trained_run(dir.path());
+    let run = trained_demo_run(dir.path());
     let out = dir.path().join("out");
     std::fs::create_dir_all(&out).unwrap();
     let export = |flag: &str, path: &Path, extra: &[&str]| {
@@ -115,7 +107,9 @@ fn convert_refuses_a_users_files_and_never_mixes_its_images_into_theirs() {
     let e = run_err(&["convert", "--input", s(&dir.path().join("nothing")), "--output", s(&out), "--overwrite"]);
     assert!(e.contains("transforms_"), "{e}");
     assert_eq!(std::fs::read_to_string(out.join("metadata.json")).unwrap(), "mine");
-    assert_eq!(names(&out), [".mipnerf-outputs", "metadata.json"]);
+    // Beside the user's file: the manifest, and the lock the conversion held (hidden, kept: a
+    // lock file removed on exit would let two later runs each lock a different file).
+    assert_eq!(names(&out), [".mipnerf-lock", ".mipnerf-outputs", "metadata.json"]);
     // With --overwrite the user's other files stay; the conversion is whole.
     std::fs::write(out.join("notes.txt"), "keep").unwrap();
     run_ok(&["convert", "--input", s(&blender), "--output", s(&out), "--size", "16", "--overwrite"]);
@@ -192,7 +186,7 @@ fn colmap_overwrite_replaces_only_its_own_dataset_and_a_failed_run_keeps_the_old
 #[test]
 fn a_render_folder_never_mixes_two_renders() {
     let dir = tempfile::tempdir().unwrap();
-    let run = trained_run(dir.path());
+    let run = trained_demo_run(dir.path());
     let out = dir.path().join("renders");
     let render = |extra: &[&str]| {
         let mut args = vec!["render", "--run", s(&run), "--out", s(&out), "--backend", "cpu", "--quiet"];
@@ -220,7 +214,7 @@ fn a_render_folder_never_mixes_two_renders() {
 #[test]
 fn a_render_never_removes_what_another_command_wrote() {
     let dir = tempfile::tempdir().unwrap();
-    let run = trained_run(dir.path());
+    let run = trained_demo_run(dir.path());
     let scene = dir.path().join("scene");
     let ws = fixtures().join("colmap_workspaces/simple_radial");
     run_ok(&["colmap", "--input", s(&ws), "--output", s(&scene), "--max-size", "64"]);

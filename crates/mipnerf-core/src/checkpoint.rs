@@ -229,7 +229,8 @@ pub fn save_for_rendering(
 /// # Errors
 /// An unreadable, damaged or foreign file, or settings that cannot be read.
 pub fn render_settings(path: &Path) -> Result<Option<RenderSettings>, CheckpointError> {
-    let bytes = std::fs::read(path).map_err(|e| CheckpointError::Io { path: path.to_path_buf(), error: e })?;
+    let bytes = crate::io::read_regular(path, crate::io::cap::WEIGHTS)
+        .map_err(|e| CheckpointError::Io { path: path.to_path_buf(), error: e })?;
     let (_, header) =
         SafeTensors::read_metadata(&bytes).map_err(|e| invalid(path, format!("not a safetensors file: {e}")))?;
     let meta = header.metadata().clone().unwrap_or_default();
@@ -301,7 +302,8 @@ fn save_inner(
 /// An unreadable file.
 pub fn file_sha256(path: &Path) -> Result<String, CheckpointError> {
     use sha2::Digest;
-    let bytes = std::fs::read(path).map_err(|e| CheckpointError::Io { path: path.to_path_buf(), error: e })?;
+    let bytes = crate::io::read_regular(path, crate::io::cap::WEIGHTS)
+        .map_err(|e| CheckpointError::Io { path: path.to_path_buf(), error: e })?;
     Ok(sha2::Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect())
 }
 
@@ -329,7 +331,8 @@ pub fn load(path: &Path, model: &Model) -> Result<Checkpoint, CheckpointError> {
 /// # Errors
 /// As [`load`], and a checksum that does not match the content (a damaged file).
 pub fn load_checked(path: &Path, model: &Model) -> Result<(Checkpoint, Integrity), CheckpointError> {
-    let bytes = std::fs::read(path).map_err(|e| CheckpointError::Io { path: path.to_path_buf(), error: e })?;
+    let bytes = crate::io::read_regular(path, crate::io::cap::WEIGHTS)
+        .map_err(|e| CheckpointError::Io { path: path.to_path_buf(), error: e })?;
     let st = SafeTensors::deserialize(&bytes).map_err(|e| invalid(path, format!("not a safetensors file: {e}")))?;
     let (_, header) = SafeTensors::read_metadata(&bytes).map_err(|e| invalid(path, e.to_string()))?;
     let meta = header.metadata().clone().unwrap_or_default();

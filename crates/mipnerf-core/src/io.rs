@@ -6,9 +6,17 @@
 //! An atomic write puts the bytes under a temporary name beside the file, flushes them to the
 //! disk (`fsync`), renames them over the file and flushes the folder: the file holds either its
 //! previous content or all of the new, never a mix, across a crash, a kill or a power loss. A
-//! failure removes the temporary file and leaves the file as it was.
+//! failure removes the temporary file and leaves the file as it was. An encoder's bytes are made
+//! in memory first ([`write_encoded`]): an encoder writing to a file through a buffer loses the
+//! error of its last flush (a full disk left truncated PNGs under their final names that way).
+//!
+//! Every file a user names is read through [`read_regular`] (or opened through [`open_regular`]):
+//! a FIFO, a device (a link to `/dev/zero`), a socket or a folder is refused at once, naming what
+//! it is, and a file larger than the cap its kind is given (`cap`, a size a real file of its kind
+//! never reaches) is refused before a byte of it is held.
 
 use std::collections::{BTreeMap, BTreeSet};
+use std::io::Read;
 use std::path::{Path, PathBuf};
 
 /// An I/O failure and the file or folder it concerns.
@@ -28,6 +36,175 @@ impl IoError {
     pub fn new(path: &Path, error: std::io::Error) -> Self {
         Self { path: path.to_path_buf(), error }
     }
+}
+
+/// What `meta` is when it is not a regular file, in a user's words (`None` for a regular file).
+#[must_use]
+pub fn not_regular(meta: &std::fs::Metadata) -> Option<&'static str> {
+    let t = meta.file_type();
+    if t.is_file() {
+        return None;
+    }
+    if t.is_dir() {
+        return Some("is a folder, not a file");
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        if t.is_fifo() {
+            return Some("is a FIFO (a named pipe), not a regular file");
+        }
+        if t.is_char_device() || t.is_block_device() {
+            return Some("is a device (such as /dev/zero), not a regular file");
+        }
+        if t.is_socket() {
+            return Some("is a socket, not a regular file");
+        }
+    }
+    Some("is not a regular file")
+}
+
+/// Whether `path` (links followed) is a regular file: `Ok(())`; missing, or something else, as
+/// the error a user reads (`NotFound` for a missing file, `InvalidInput` naming what it is).
+///
+/// # Errors
+/// As above.
+pub fn check_regular(path: &Path) -> std::io::Result<()> {
+    match not_regular(&std::fs::metadata(path)?) {
+        None => Ok(()),
+        Some(what) => Err(std::io::Error::new(std::io::ErrorKind::InvalidInput, what)),
+    }
+}
+
+/// Opens `path` for reading if it is a regular file ([`check_regular`]), without ever blocking on
+/// a FIFO (it is asked what it is before it is opened, and opened non-blocking in case it changed
+/// in between), and checks again what was opened.
+///
+/// # Errors
+/// [`check_regular`]'s, or the system's.
+pub fn open_regular(path: &Path) -> std::io::Result<std::fs::File> {
+    check_regular(path)?;
+    let mut options = std::fs::OpenOptions::new();
+    options.read(true);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        options.custom_flags(libc::O_NONBLOCK);
+    }
+    let file = options.open(path)?;
+    if let Some(what) = not_regular(&file.metadata()?) {
+        return Err(std::io::Error::new(std::io::ErrorKind::InvalidInput, what));
+    }
+    Ok(file)
+}
+
+/// The whole of the regular file `path` ([`open_regular`]), refused when it holds more than
+/// `cap` bytes (before anything is read, and again while reading, for a file that grows).
+///
+/// # Errors
+/// [`open_regular`]'s; a file over the cap (`InvalidData`, naming its size and the cap).
+pub fn read_regular(path: &Path, cap: u64) -> std::io::Result<Vec<u8>> {
+    let file = open_regular(path)?;
+    let over = |len: u64| {
+        std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!(
+                "is {}, more than the {} a file of its kind may be here (is it the right file?)",
+                bytes_in_words(len),
+                bytes_in_words(cap)
+            ),
+        )
+    };
+    let len = file.metadata()?.len();
+    if len > cap {
+        return Err(over(len));
+    }
+    let mut bytes = Vec::with_capacity(usize::try_from(len).unwrap_or(0));
+    file.take(cap.saturating_add(1)).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > cap {
+        return Err(over(bytes.len() as u64));
+    }
+    Ok(bytes)
+}
+
+/// [`read_regular`] as UTF-8 text.
+///
+/// # Errors
+/// [`read_regular`]'s; bytes that are not UTF-8 text (`InvalidData`, saying it looks like a
+/// binary file).
+pub fn read_regular_text(path: &Path, cap: u64) -> std::io::Result<String> {
+    String::from_utf8(read_regular(path, cap)?).map_err(|_| {
+        std::io::Error::new(std::io::ErrorKind::InvalidData, "is not UTF-8 text (a binary file given for a text one?)")
+    })
+}
+
+/// `bytes` as a user reads a size: `"512 bytes"`, `"64 MiB"`, `"1.5 GiB"`.
+#[must_use]
+pub fn bytes_in_words(bytes: u64) -> String {
+    const UNITS: [&str; 4] = ["KiB", "MiB", "GiB", "TiB"];
+    if bytes < 1024 {
+        return format!("{bytes} bytes");
+    }
+    let mut value = bytes as f64 / 1024.0;
+    let mut unit = 0;
+    while value >= 1024.0 && unit + 1 < UNITS.len() {
+        value /= 1024.0;
+        unit += 1;
+    }
+    if (value - value.round()).abs() < 0.05 {
+        format!("{} {}", value.round(), UNITS[unit])
+    } else {
+        format!("{value:.1} {}", UNITS[unit])
+    }
+}
+
+/// Caps of [`read_regular`] for the kinds of file a user names: sizes a real file of the kind
+/// never reaches, so that a wrong file is refused before it fills the memory.
+pub mod cap {
+    /// A JSON file of cameras or a capture (`transforms.json`, a camera path, multiscale
+    /// Blender's `metadata.json`): 64 MiB is some 100,000 frames.
+    pub const JSON: u64 = 64 << 20;
+    /// A small settings file (a run's `config.toml`, nerfstudio's `dataparser_transforms.json`,
+    /// an experiment's plan).
+    pub const SETTINGS: u64 = 1 << 20;
+    /// A point cloud (`sparse_pc.ply`): 512 MiB is some 20 million binary points.
+    pub const POINT_CLOUD: u64 = 512 << 20;
+    /// A COLMAP model's file (`points3D.bin` of a large reconstruction is some 100s of MiB).
+    pub const COLMAP_MODEL: u64 = 2 << 30;
+    /// LLFF's `poses_bounds.npy` (136 bytes a photo): 16 MiB is 100,000 photos.
+    pub const POSES: u64 = 16 << 20;
+    /// A checkpoint or a set of network weights (safetensors).
+    pub const WEIGHTS: u64 = 8 << 30;
+}
+
+/// Writes the bytes an encoder makes (`encode` writes them into a `Vec`) to `path` atomically
+/// ([`write_atomic`]): the encoder's every write, its last included, is checked.
+///
+/// # Errors
+/// `encode`'s error, or the write's, naming the file.
+pub fn write_encoded<E: From<IoError>>(
+    path: &Path,
+    encode: impl FnOnce(&mut std::io::Cursor<Vec<u8>>) -> Result<(), E>,
+) -> Result<(), E> {
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    encode(&mut bytes)?;
+    write_atomic_with_prefix(path, bytes.get_ref())?;
+    Ok(())
+}
+
+/// [`write_atomic`] under the temporary name [`partial_file`] (which folders' listings pass
+/// over), for outputs in folders that a manifest describes.
+fn write_atomic_with_prefix(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
+    let tmp = partial_file(path);
+    if let Err(e) = RealFs.write_synced(&tmp, bytes) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(IoError::new(&tmp, e));
+    }
+    if let Err(e) = std::fs::rename(&tmp, path) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(IoError::new(path, e));
+    }
+    RealFs.sync_dir(parent_dir(path)).map_err(|e| IoError::new(parent_dir(path), e))
 }
 
 /// The file operations of an atomic write, a seam so that tests can make any of them fail.
@@ -188,6 +365,11 @@ pub fn swap_in_dir(dest: &Path) -> Result<(), IoError> {
 /// did not say.
 pub const MANIFEST: &str = ".mipnerf-outputs";
 
+/// The lock file of a folder a mipnerf command writes (a run directory, a dataset being made):
+/// the command that writes the folder holds an operating-system lock on it, and the file names
+/// that process and command. Not an output: [`names_in`] passes over it.
+pub const LOCK: &str = ".mipnerf-lock";
+
 /// The names the manifest of `dir` lists (none when it has no manifest).
 ///
 /// # Errors
@@ -217,7 +399,8 @@ pub fn writers(dir: &Path) -> Result<BTreeMap<String, Option<String>>, IoError> 
     }
 }
 
-/// The names in the folder `dir` that are outputs, sorted: everything but its manifest and the
+/// The names in the folder `dir` that are outputs, sorted: everything but its manifest, its
+/// [`LOCK`] and the
 /// temporary files and folders mipnerf fills before renaming them ([`PARTIAL_PREFIX`]: what a
 /// kill mid-write leaves is mipnerf's own too).
 ///
@@ -227,7 +410,7 @@ pub fn names_in(dir: &Path) -> Result<Vec<String>, IoError> {
     let mut names = Vec::new();
     for entry in std::fs::read_dir(dir).map_err(|e| IoError::new(dir, e))? {
         let name = entry.map_err(|e| IoError::new(dir, e))?.file_name().to_string_lossy().to_string();
-        if name != MANIFEST && !name.starts_with(PARTIAL_PREFIX) {
+        if name != MANIFEST && name != LOCK && !name.starts_with(PARTIAL_PREFIX) {
             names.push(name);
         }
     }

@@ -208,7 +208,8 @@ impl Lpips {
     /// [`LpipsError`] naming the file, and the tensor for a missing tensor, a wrong shape, a dtype
     /// other than F32 or a non-finite value.
     pub fn load(path: &Path, net: Net) -> Result<Self, LpipsError> {
-        let bytes = std::fs::read(path).map_err(|error| LpipsError::Io { path: path.to_path_buf(), error })?;
+        let bytes = crate::io::read_regular(path, crate::io::cap::WEIGHTS)
+            .map_err(|error| LpipsError::Io { path: path.to_path_buf(), error })?;
         Self::from_bytes(&bytes, path, net)
     }
 

@@ -79,7 +79,7 @@ fn colmap(
         masks,
     };
     let t = std::time::Instant::now();
-    let r = data::process::process(input, output, &opts)?;
+    let r = crate::outputs::locked(output, "colmap", "--output", || Ok(data::process::process(input, output, &opts)?))?;
     let taken = r.model_dir.strip_prefix(input).unwrap_or(&r.model_dir).display().to_string();
     let capture = r.source == data::process::SourceKind::Transforms;
     if capture {

@@ -102,16 +102,10 @@ fn into_output_folder(
             );
         }
     }
-    let existed = output.exists();
-    outputs::record(output, "convert", names.iter().map(|n| (*n).to_string()))?;
-    let done = write();
-    if done.is_err() && !existed {
-        let written = std::fs::read_dir(output).map(|d| d.filter_map(Result::ok).map(|e| e.file_name()).collect());
-        if written.is_ok_and(|w: Vec<_>| w.iter().all(|n| n == outputs::MANIFEST)) {
-            let _ = std::fs::remove_dir_all(output);
-        }
-    }
-    done
+    outputs::locked(output, "convert", "--output", || {
+        outputs::record(output, "convert", names.iter().map(|n| (*n).to_string()))?;
+        write()
+    })
 }
 
 fn convert_llff(input: &Path, output: &Path, size: Option<u32>, factor: u32) -> Result<()> {

@@ -340,7 +340,8 @@ impl TrainSettings {
     /// # Errors
     /// An unreadable file, malformed TOML or an unknown key, naming the file.
     pub fn from_file(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let text = mipnerf_core::io::read_regular_text(path, mipnerf_core::io::cap::SETTINGS)
+            .with_context(|| format!("reading {}", path.display()))?;
         toml::from_str(&text).with_context(|| format!("{}: invalid configuration", path.display()))
     }
 

@@ -30,6 +30,15 @@ pub fn demo_scene(dir: &std::path::Path, size: u32, train_views: usize) -> std::
     data
 }
 
+/// A demo run of a few steps on the CPU (one ray per pixel) in `dir/run`, its scene in `dir/data`.
+pub fn trained_demo_run(dir: &std::path::Path) -> std::path::PathBuf {
+    let data = small_demo_scene(dir, 4);
+    let run = dir.join("run");
+    let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
+    run_ok(&["train", "--data", d, "--out", r, "--steps", "10", "--backend", "cpu", "--quiet"]);
+    run
+}
+
 /// Separates standard output from standard error in what [`run_ok`] returns.
 pub const STDERR_FOLLOWS: &str = "\n--- stderr ---\n";
 

@@ -213,12 +213,12 @@ fn has_model(dir: &Path) -> bool {
 fn registered_images(dir: &Path) -> Option<usize> {
     let bin = dir.join("images.bin");
     if bin.is_file() {
-        let mut f = std::fs::File::open(bin).ok()?;
+        let mut f = crate::io::open_regular(&bin).ok()?;
         let mut b = [0u8; 8];
         std::io::Read::read_exact(&mut f, &mut b).ok()?;
         return usize::try_from(u64::from_le_bytes(b)).ok();
     }
-    let text = std::fs::read_to_string(dir.join("images.txt")).ok()?;
+    let text = crate::io::read_regular_text(&dir.join("images.txt"), crate::io::cap::COLMAP_MODEL).ok()?;
     Some(text.lines().filter(|l| !l.starts_with('#')).count() / 2)
 }
 
@@ -306,7 +306,7 @@ impl<'a> Reader<'a> {
 }
 
 fn read_bytes(path: &Path) -> Result<Vec<u8>, DataError> {
-    std::fs::read(path).map_err(|e| DataError::io(path, e))
+    crate::io::read_regular(path, crate::io::cap::COLMAP_MODEL).map_err(|e| DataError::io(path, e))
 }
 
 fn param_count(path: &Path, model_id: i32, camera: u32) -> Result<usize, DataError> {
@@ -375,7 +375,7 @@ fn read_points_bin(path: &Path) -> Result<Vec<ColmapPoint>, DataError> {
 
 /// Non-comment lines of a text model, with their 1-based line numbers.
 fn text_lines(path: &Path) -> Result<Vec<(usize, String)>, DataError> {
-    let text = std::fs::read_to_string(path).map_err(|e| DataError::io(path, e))?;
+    let text = crate::io::read_regular_text(path, crate::io::cap::COLMAP_MODEL).map_err(|e| DataError::io(path, e))?;
     Ok(text.lines().enumerate().filter(|(_, l)| !l.starts_with('#')).map(|(i, l)| (i + 1, l.to_string())).collect())
 }
 
@@ -708,12 +708,10 @@ pub fn read_images(
     let mut out = Vec::with_capacity(names.len());
     for n in names {
         let file = if from_small { small.join(n) } else { dir.join("images").join(n) };
-        if !file.is_file() {
-            return Err(DataError::invalid(
-                &file,
-                "listed in the COLMAP model's images but missing on disk (the model and images/ disagree)",
-            ));
-        }
+        super::check_present(
+            &file,
+            "listed in the COLMAP model's images but missing on disk (the model and images/ disagree)",
+        )?;
         let (w, h, rgba, _) = read_png_rgba(&file)?;
         let mut im = LlffImage { file, width: w, height: h, rgba };
         if !from_small {

@@ -311,7 +311,7 @@ fn fit_circle(points: &[(f64, f64)]) -> ((f64, f64), f64) {
 /// [`DataError`] naming the file for an unreadable file, another dtype or shape, or non-finite
 /// values.
 pub fn read_poses_bounds(path: &Path) -> Result<Vec<[f64; 17]>, DataError> {
-    let bytes = std::fs::read(path).map_err(|e| DataError::io(path, e))?;
+    let bytes = crate::io::read_regular(path, crate::io::cap::POSES).map_err(|e| DataError::io(path, e))?;
     let npy = npyz::NpyFile::new(&bytes[..]).map_err(|e| DataError::invalid(path, format!("not a .npy file: {e}")))?;
     let shape = npy.shape().to_vec();
     if shape.len() != 2 || shape[1] != 17 || shape[0] == 0 {

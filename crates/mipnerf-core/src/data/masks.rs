@@ -33,7 +33,9 @@ pub fn mask_file(dir: &Path, photo: &Path) -> Result<PathBuf, DataError> {
     let mut found: Vec<PathBuf> = Vec::new();
     for entry in std::fs::read_dir(dir).map_err(|e| DataError::io(dir, e))? {
         let entry = entry.map_err(|e| DataError::io(dir, e))?;
-        if wanted.iter().any(|w| entry.file_name() == w.as_str()) && entry.path().is_file() {
+        // Whatever kind of file it is: one that is not a regular file (a FIFO, a device) is then
+        // refused by name when it is read, not reported missing.
+        if wanted.iter().any(|w| entry.file_name() == w.as_str()) && !entry.path().is_dir() {
             found.push(entry.path());
         }
     }

@@ -21,6 +21,7 @@ pub mod camera_path;
 pub mod colmap;
 pub mod demo;
 pub mod focal;
+mod image_files;
 pub mod llff;
 pub mod masks;
 pub mod multiscale;
@@ -29,6 +30,8 @@ pub mod ply;
 pub mod process;
 mod resample;
 pub mod undistort;
+
+pub(crate) use image_files::{check_present, image_pixels, image_size, read_png_rgba, write_png_rgba};
 
 use std::path::{Path, PathBuf};
 
@@ -86,10 +89,17 @@ impl DataError {
 const JSON_BYTES_PER_TEXT_BYTE: u64 = 17;
 
 pub(crate) fn read_json(path: &Path) -> Result<serde_json::Value, DataError> {
+    crate::io::check_regular(path).map_err(|e| DataError::io(path, e))?;
     let len = std::fs::metadata(path).map_err(|e| DataError::io(path, e))?.len();
     crate::memory::check(len.saturating_mul(JSON_BYTES_PER_TEXT_BYTE), &format!("parsing this {len}-byte file"))
         .map_err(|e| DataError::invalid(path, e))?;
-    let text = std::fs::read_to_string(path).map_err(|e| DataError::io(path, e))?;
+    let bytes = crate::io::read_regular(path, crate::io::cap::JSON).map_err(|e| DataError::io(path, e))?;
+    if bytes.starts_with(b"\x93NUMPY") {
+        return Err(DataError::invalid(path, "is a NumPy array file (such as poses_bounds.npy), not JSON"));
+    }
+    let text = String::from_utf8(bytes).map_err(|_| {
+        DataError::invalid(path, "is not UTF-8 text, so not JSON (a binary file given for a JSON one?)")
+    })?;
     serde_json::from_str(&text).map_err(|e| DataError::invalid(path, format!("malformed JSON: {e}")))
 }
 
@@ -672,42 +682,35 @@ pub fn load(dir: &Path, split: Split, opts: &LoadOptions) -> Result<Dataset, Dat
         ds.notes.push(
             "unbounded: the farthest camera on the unit sphere; rays reach to infinity, contracted beyond it".into(),
         );
+        // Forward-facing photos with --spherify --unbounded are a meaningful choice (mip-NeRF 360's
+        // contraction holds what lies beyond the photos' depth range, as nerfstudio trains such
+        // captures), but not the LLFF protocol's NDC: say so.
+        let resultant = viewing_resultant(&ds);
+        if resultant >= process::ALL_AROUND_BELOW {
+            ds.notes.push(format!(
+                "unbounded: these photos all look one way (mean viewing direction of length {resultant:.2}): the \
+                 contracted space holds them, but the LLFF protocol and its published numbers train forward-facing \
+                 photos in NDC (drop --spherify and --unbounded)"
+            ));
+        }
     }
     Ok(ds)
 }
 
-/// Reads a PNG as straight RGBA8, with errors naming the file.
-pub(crate) fn read_png_rgba(path: &Path) -> Result<(u32, u32, Vec<u8>, u8), DataError> {
-    let reader = image::ImageReader::open(path).map_err(|e| DataError::io(path, e))?;
-    let reader = reader.with_guessed_format().map_err(|e| DataError::io(path, e))?;
-    if reader.format() == Some(image::ImageFormat::Jpeg) {
-        check_jpeg_end(path)?;
+/// The length of the mean of the views' viewing directions: 1 when all look the same way, near
+/// 0 all around ([`process::ALL_AROUND_BELOW`]).
+fn viewing_resultant(ds: &Dataset) -> f64 {
+    let views = ds.views();
+    let mut mean = [0.0f64; 3];
+    for v in views {
+        let c2w = v.camera.cam2world;
+        let back = [c2w[0][2], c2w[1][2], c2w[2][2]];
+        let len = back.iter().map(|b| b * b).sum::<f64>().sqrt().max(f64::MIN_POSITIVE);
+        for k in 0..3 {
+            mean[k] -= back[k] / len / views.len().max(1) as f64;
+        }
     }
-    let img = reader.decode().map_err(|e| DataError::invalid(path, format!("cannot decode the image: {e}")))?;
-    let channels = img.color().channel_count();
-    let rgba = img.to_rgba8();
-    Ok((rgba.width(), rgba.height(), rgba.into_raw(), channels))
-}
-
-/// Refuses a JPEG cut short: the decoder fills what is missing with grey and says nothing, so a
-/// file must end with its end-of-image marker (`FF D9`; trailing zero bytes allowed), as every
-/// camera and encoder writes it.
-fn check_jpeg_end(path: &Path) -> Result<(), DataError> {
-    use std::io::{Read, Seek, SeekFrom};
-    let mut f = std::fs::File::open(path).map_err(|e| DataError::io(path, e))?;
-    let len = f.metadata().map_err(|e| DataError::io(path, e))?.len();
-    let mut tail = vec![0u8; len.min(4096) as usize];
-    f.seek(SeekFrom::Start(len - tail.len() as u64))
-        .and_then(|_| f.read_exact(&mut tail))
-        .map_err(|e| DataError::io(path, e))?;
-    let end = tail.iter().rposition(|&b| b != 0).map_or(0, |i| i + 1);
-    if end < 2 || tail[end - 2..end] != [0xFF, 0xD9] {
-        return Err(DataError::invalid(
-            path,
-            "the JPEG is cut short (no end-of-image marker): the file was not copied whole; copy it again",
-        ));
-    }
-    Ok(())
+    mean.iter().map(|m| m * m).sum::<f64>().sqrt()
 }
 
 /// Checks that `pixels` images' worth of straight RGBA8 (4 bytes a pixel, as loaded) fits in
@@ -720,21 +723,6 @@ pub(crate) fn check_pixel_memory(path: &Path, pixels: u64, images: usize) -> Res
                 format!("{e}; train on fewer or smaller images (`multiscale::convert_resized` makes smaller ones)"),
             )
         })
-}
-
-/// The pixel count of an image from its header, without decoding it.
-pub(crate) fn image_pixels(path: &Path) -> Result<u64, DataError> {
-    let (w, h) = image::image_dimensions(path)
-        .map_err(|e| DataError::invalid(path, format!("cannot decode the image (reading its size): {e}")))?;
-    Ok(u64::from(w) * u64::from(h))
-}
-
-/// Writes straight RGBA8 as a PNG, whole or not at all ([`crate::io::replace_with`]).
-pub(crate) fn write_png_rgba(path: &Path, width: u32, height: u32, rgba: &[u8]) -> Result<(), DataError> {
-    crate::io::replace_with(path, |tmp| {
-        image::save_buffer(tmp, rgba, width, height, image::ExtendedColorType::Rgba8)
-            .map_err(|e| DataError::invalid(path, format!("cannot write the PNG: {e}")))
-    })
 }
 
 impl From<crate::io::IoError> for DataError {

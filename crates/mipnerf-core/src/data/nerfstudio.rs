@@ -53,7 +53,9 @@ pub const ROTATION_TOLERANCE: f64 = 1e-3;
 /// Whether `dir` holds a capture in this form.
 #[must_use]
 pub fn is_capture(dir: &Path) -> bool {
-    dir.join(TRANSFORMS).is_file()
+    // Whatever it is: one that is not a regular file is then refused by name, not taken for a
+    // COLMAP workspace without its sparse/.
+    std::fs::symlink_metadata(dir.join(TRANSFORMS)).is_ok()
 }
 
 /// A capture read as a COLMAP model.
@@ -168,7 +170,18 @@ pub fn read(dir: &Path) -> Result<Capture, DataError> {
     } else if let Some(ply) = ply {
         let ply = dir.join(relative(ply).map_err(|e| DataError::invalid(&path, format!("\"ply_file_path\": {e}")))?);
         let points: Vec<[f64; 3]> = super::ply::read_points(&ply)?.into_iter().map(|p| to_data.point(p)).collect();
+        if points.len() < MIN_CLOUD_POINTS {
+            return Err(DataError::invalid(
+                &ply,
+                format!(
+                    "holds {} point(s); the depth bounds need at least {MIN_CLOUD_POINTS} (a structure-from-motion cloud \
+                     has thousands): is it this capture's point cloud?",
+                    points.len()
+                ),
+            ));
+        }
         model.points = seen_points(&model, &points).map_err(|e| DataError::invalid(&path, e))?;
+        check_some_photo_sees_points(&model, &ply, points.len())?;
     } else {
         return Err(DataError::invalid(
             &path,
@@ -181,6 +194,27 @@ pub fn read(dir: &Path) -> Result<Capture, DataError> {
         ));
     }
     Ok(Capture { model, photo_folders: folders, notes })
+}
+
+/// The fewest points a capture's point cloud may hold: each photo's bounds are the 0.1 and 99.9
+/// percentiles of the depths of the points it sees, which a handful of points do not measure.
+pub const MIN_CLOUD_POINTS: usize = 100;
+
+/// Refuses a point cloud (`ply`, of `count` points) of which no photo sees a point, naming the
+/// cloud rather than a photo: a cloud whose points are all far away (at 1e300), or of another
+/// capture, is the cloud's fault. (A photo alone that sees none is named later, after
+/// `--exclude` could leave it out.)
+fn check_some_photo_sees_points(model: &ColmapModel, ply: &Path, count: usize) -> Result<(), DataError> {
+    if model.points.iter().any(|p| !p.image_ids.is_empty()) {
+        return Ok(());
+    }
+    Err(DataError::invalid(
+        ply,
+        format!(
+            "none of its {count} points lies in front of a photo and inside its frame, so the photos have no depth \
+             bounds: is it this capture's point cloud, in the frame of its transforms.json?"
+        ),
+    ))
 }
 
 /// Where nerfstudio (`colmap/sparse/N`) and Instant-NGP's `colmap2nerf.py` (`colmap_sparse/N`,
@@ -324,11 +358,16 @@ fn relative(p: &str) -> Result<PathBuf, String> {
 fn photo_name(dir: &Path, frame: &Map<String, Value>) -> Result<String, String> {
     let p = frame.get("file_path").and_then(Value::as_str).ok_or("missing key \"file_path\" (a string)")?;
     let mut rel = relative(p)?;
-    if !dir.join(&rel).is_file() && rel.extension().is_none() && dir.join(rel.with_extension("png")).is_file() {
+    let there = |rel: &Path| std::fs::symlink_metadata(dir.join(rel)).is_ok();
+    if !there(&rel) && rel.extension().is_none() && there(&rel.with_extension("png")) {
         rel.set_extension("png");
     }
-    if !dir.join(&rel).is_file() {
-        return Err(format!("its photo {} is not there", dir.join(&rel).display()));
+    match crate::io::check_regular(&dir.join(&rel)) {
+        Ok(()) => {}
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            return Err(format!("its photo {} is not there", dir.join(&rel).display()));
+        }
+        Err(e) => return Err(format!("its photo {} {e}", dir.join(&rel).display())),
     }
     Ok(rel.components().map(|c| c.as_os_str().to_string_lossy()).collect::<Vec<_>>().join("/"))
 }
@@ -351,8 +390,7 @@ fn camera(frame: &Map<String, Value>, top: &Map<String, Value>, file: &Path) -> 
     let (w, h) = match (number("w", frame, top)?, number("h", frame, top)?) {
         (Some(w), Some(h)) => (w, h),
         (None, None) => {
-            let (w, h) =
-                image::image_dimensions(file).map_err(|e| format!("cannot read {}'s size: {e}", file.display()))?;
+            let (w, h) = super::image_size(file).map_err(|e| e.to_string())?;
             (f64::from(w), f64::from(h))
         }
         _ => return Err("give both \"w\" and \"h\", or neither (the photo's size)".into()),

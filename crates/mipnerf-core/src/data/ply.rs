@@ -41,7 +41,7 @@ struct Element {
 /// it, a list property in a binary file's element before or in the vertices, a body shorter than
 /// its header declares, a value that is not a number, or a point that is not finite.
 pub fn read_points(path: &Path) -> Result<Vec<[f64; 3]>, DataError> {
-    let bytes = std::fs::read(path).map_err(|e| DataError::io(path, e))?;
+    let bytes = crate::io::read_regular(path, crate::io::cap::POINT_CLOUD).map_err(|e| DataError::io(path, e))?;
     let bad = |problem: String| DataError::invalid(path, problem);
     let end = b"end_header";
     let header_end = bytes

@@ -17,6 +17,7 @@
 //! A step that stops part-way leaves no `poses_bounds.npy`, so a half-written dataset never loads:
 //! the images go to a temporary folder renamed into place, and the index file is written last.
 
+use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
@@ -432,8 +433,7 @@ fn process_source(source: Source, output: &Path, opts: &ProcessOptions) -> Resul
     // camera 2^32 pixels wide would otherwise be undistorted pixel by pixel).
     if let Some(im) = model.images.iter().find(|im| im.camera_id == first.id) {
         let file = images_dir.join(&im.name);
-        let (w, h) = image::image_dimensions(&file)
-            .map_err(|e| DataError::invalid(&file, format!("cannot read the photo's size: {e}")))?;
+        let (w, h) = super::image_size(&file)?;
         if (u64::from(w), u64::from(h)) != (first.width, first.height) {
             return Err(DataError::invalid(
                 &cams,
@@ -510,9 +510,7 @@ fn process_source(source: Source, output: &Path, opts: &ProcessOptions) -> Resul
     let target = LensCamera::from(pinhole);
     let counts = names.par_iter().enumerate().map(|(i, name)| -> Result<[u64; 3], DataError> {
         let file = images_dir.join(name);
-        if !file.is_file() {
-            return Err(DataError::invalid(&file, "registered in the COLMAP model but missing from images/"));
-        }
+        super::check_present(&file, "registered in the COLMAP model but missing from images/")?;
         let (w, h, rgba, _) = super::read_png_rgba(&file)?;
         if (w, h) != (lens.width, lens.height) {
             return Err(DataError::invalid(
@@ -552,6 +550,7 @@ fn process_source(source: Source, output: &Path, opts: &ProcessOptions) -> Resul
     if let Some(masks_folder) = &masks_folder {
         crate::io::swap_in_dir(masks_folder)?;
     }
+    remove_earlier_outputs(output, &ours)?;
     super::llff::write_poses_bounds(&npy, &rows)?;
 
     let near = rows.iter().map(|r| r[15]).fold(f64::INFINITY, f64::min);
@@ -605,6 +604,32 @@ fn mask_through(path: &Path, lens: &LensCamera, target: &LensCamera, size: (u32,
     } else {
         rgba
     })
+}
+
+/// Removes what an earlier run of this step wrote into `output` and this run does not (the
+/// `images_4/` of a run at another `--max-size`, the `masks_2/` of a run with `--masks`), and
+/// forgets it in the manifest: an overwrite replaces every output of the earlier run, so that no
+/// old photos lie beside the new poses. Only this step's outputs are touched: what its manifest
+/// lists as `colmap`'s, or, from a version whose manifest did not say, its image and mask folders.
+fn remove_earlier_outputs(output: &Path, ours: &[String]) -> Result<(), DataError> {
+    let stale: BTreeSet<String> = crate::io::writers(output)?
+        .into_iter()
+        .filter(|(name, by)| match by.as_deref() {
+            Some(by) => by == "colmap",
+            None => name.starts_with("images_") || name.starts_with("masks_"),
+        })
+        .map(|(name, _)| name)
+        .filter(|name| !ours.contains(name) && !name.contains(['/', '\\']) && name != ".." && name != ".")
+        .collect();
+    for name in &stale {
+        let path = output.join(name);
+        match std::fs::symlink_metadata(&path) {
+            Ok(m) if m.is_dir() => std::fs::remove_dir_all(&path).map_err(|e| DataError::io(&path, e))?,
+            Ok(_) => std::fs::remove_file(&path).map_err(|e| DataError::io(&path, e))?,
+            Err(_) => {}
+        }
+    }
+    Ok(crate::io::forget(output, &stale)?)
 }
 
 /// Refuses an output folder that holds anything (but this step's manifest and temporary folders)
