@@ -64,6 +64,7 @@ pub mod subnormals;
 #[cfg(any(test, feature = "test-support"))]
 pub mod test_support;
 pub mod train;
+pub mod tri_mip;
 pub mod wide;
 
 pub use camera::{Camera, PixelCenters};

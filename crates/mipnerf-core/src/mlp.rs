@@ -668,6 +668,39 @@ impl MlpShape {
         }
     }
 
+    /// The gradient of the encoded input `x` (`n x x_dim`, written to `d_x`) of the last
+    /// [`backward`](Self::backward) pass: for a field whose encoding is itself trained (the
+    /// Tri-Mip planes, [`crate::tri_mip`]). Reads the first trunk layer's gradient, which the
+    /// backward pass leaves in `cache`, through that layer's kernel; computed in f32 whatever the
+    /// products' precision.
+    ///
+    /// # Panics
+    /// If the MLP concatenates its input again after a trunk layer (`skip_layer`): only the first
+    /// layer reads it here; or if `d_x` is not `n x x_dim`.
+    pub fn input_gradient(&self, params: &[f32], cache: &MlpCache, d_x: &mut [f32]) {
+        let c = &self.config;
+        assert!(
+            (0..c.net_depth).all(|i| !self.concat_after(i)),
+            "mlp input gradient: the input is concatenated after a trunk layer (skip_layer {})",
+            c.skip_layer
+        );
+        let n = cache.n;
+        assert_eq!(d_x.len(), n * c.x_dim, "mlp input gradient: d_x");
+        let first = self.trunk(0);
+        let kernel = first.kernel_rows(params, 0, c.x_dim);
+        matmul(
+            d_x,
+            &cache.grad_z[..n * c.net_width],
+            Layout::Normal,
+            kernel,
+            Layout::Transposed,
+            n,
+            c.net_width,
+            c.x_dim,
+            false,
+        );
+    }
+
     /// The post-ReLU output of trunk layer `i` from the last forward pass (`n x net_width`).
     #[must_use]
     pub fn trunk_output<'a>(&self, cache: &'a MlpCache, i: usize) -> &'a [f32] {
