@@ -924,6 +924,8 @@ fn unbounded_photos_put_the_farthest_camera_on_the_unit_sphere() {
     assert!(nearest < 0.9, "cameras at {all:?}");
     for ds in [&train, &test] {
         assert!(ds.notes.iter().any(|n| n.contains("unbounded")), "{:?}", ds.notes);
+        // Cameras on a ring look all around: no forward-facing note.
+        assert!(!ds.notes.iter().any(|n| n.contains("all look one way")), "{:?}", ds.notes);
         for v in ds.views() {
             assert_eq!(v.far, UNBOUNDED_FAR, "{}", v.file.display());
             assert!(v.near > 0.0 && v.near < 1.0, "{}: near {}", v.file.display(), v.near);
@@ -935,6 +937,17 @@ fn unbounded_photos_put_the_farthest_camera_on_the_unit_sphere() {
     for (a, b) in origins(&train).iter().zip(&ring) {
         assert!((*a * k - *b).length() < 1e-9, "{a:?} x {k} vs {b:?}");
     }
+}
+
+/// Forward-facing photos spherified and unbounded train in the contracted space (meaningful:
+/// it holds what lies beyond their depth range), with a note that the LLFF protocol trains them
+/// in NDC.
+#[test]
+fn forward_facing_photos_unbounded_are_said_to_differ_from_the_llff_protocol() {
+    let fern = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/llff_fern_tiny");
+    let opts = LoadOptions { llff_factor: 64, llff_spherify: true, unbounded: true, ..LoadOptions::default() };
+    let ds = data::load(&fern, Split::Train, &opts).unwrap();
+    assert!(ds.notes.iter().any(|n| n.contains("all look one way") && n.contains("NDC")), "{:?}", ds.notes);
 }
 
 /// `unbounded` is for world-space photos: forward-facing photos in NDC space and Blender scenes
