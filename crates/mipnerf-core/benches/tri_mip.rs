@@ -19,7 +19,10 @@ use std::time::Instant;
 use glam::Vec3;
 use mipnerf_core::mip::conical_frustum_moments;
 use mipnerf_core::mlp::{MlpCache, MlpConfig, MlpShape};
-use mipnerf_core::tri_mip::{Pyramid, TriMipConfig, encode, encode_backward, footprint_radius, level_of, taps};
+use mipnerf_core::tri_mip::{
+    Pyramid, TriMipConfig, encode, encode_backward, encode_backward_batch, encode_batch, footprint_radius, level_of,
+    taps,
+};
 
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
@@ -155,4 +158,46 @@ fn main() {
             planes.num_params()
         );
     });
+    batched(planes, if quick { 256 } else { 65_536 }, reps);
+}
+
+/// The batched encoding and backward scatter (`encode_batch`, `encode_backward_batch`) on every
+/// thread, over a step's worth of samples along rays, against the same samples one by one.
+fn batched(planes: TriMipConfig, n: usize, reps: usize) {
+    let threads = rayon::current_num_threads();
+    let per_ray = 128;
+    let base_radius = 0.7 / 256.0 * 2.0 / 12f32.sqrt();
+    let (mut points, mut levels) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for k in 0..n {
+        let (r, j) = (k / per_ray, k % per_ray);
+        let a = (r % 256) as f32 / 256.0 - 0.5;
+        let b = (r / 256) as f32 / 256.0 - 0.5;
+        let direction = Vec3::new(0.7 * a, 0.7 * b, -1.0);
+        let (t0, t1) = (2.0 + 4.0 * j as f32 / per_ray as f32, 2.0 + 4.0 * (j + 1) as f32 / per_ray as f32);
+        let m = conical_frustum_moments(t0, t1, base_radius);
+        points.push((Vec3::new(0.1, -0.2, 4.0) + direction * m.t_mean + 1.5) / 3.0);
+        levels.push(level_of(footprint_radius(&m) * direction.length() / 3.0, &planes));
+    }
+    let mut level0 = vec![0.0; planes.num_params()];
+    planes.init(&mut level0, 3);
+    let mut pyramid = Pyramid::zeros(planes);
+    pyramid.build(&level0);
+    let dim = planes.encoding_dim();
+    let mut x = vec![0.0; n * dim];
+    let mut t = vec![taps(&planes, Vec3::ZERO, 0.0); n];
+    let forward = per_sample(reps, n, || encode_batch(&planes, &level0, &pyramid, &points, &levels, &mut t, &mut x));
+    let d_x: Vec<f32> = (0..n * dim).map(|i| ((i % 17) as f32 - 8.0) * 1e-3).collect();
+    let (mut grad0, mut grad_pyramid) = (vec![0.0; planes.num_params()], Pyramid::zeros(planes));
+    let backward = per_sample(reps, n, || encode_backward_batch(&planes, &t, &d_x, &mut grad0, &mut grad_pyramid));
+    let sequential = per_sample(reps, n, || {
+        for (k, tk) in t.iter().enumerate() {
+            encode_backward(&planes, tk, &d_x[k * dim..(k + 1) * dim], &mut grad0, &mut grad_pyramid);
+        }
+    });
+    std::hint::black_box((&x, &grad0));
+    println!(
+        "batched on {threads} threads, {n} samples ({} rays of {per_ray}): encoding {forward:.0} ns a sample, \
+         backward scatter (encode_backward_batch) {backward:.0} ns a sample (the per-sample calls: {sequential:.0})",
+        n / per_ray
+    );
 }

@@ -339,3 +339,58 @@ pub fn encode_backward(
         texel.iter_mut().zip(src).for_each(|(t, g)| *t += w * g);
     }
 }
+
+/// [`taps`] and [`encode`] over a batch of samples in parallel: sample `k` at `points[k]` and
+/// `levels[k]` writes its taps to `taps_out[k]` (kept for the backward pass) and its encoding to
+/// `out[k · encoding_dim ..]`.
+///
+/// # Panics
+/// If the slices' lengths do not match.
+pub fn encode_batch(
+    config: &TriMipConfig,
+    level0: &[f32],
+    pyramid: &Pyramid,
+    points: &[Vec3],
+    levels: &[f32],
+    taps_out: &mut [Taps],
+    out: &mut [f32],
+) {
+    use rayon::prelude::*;
+    let dim = config.encoding_dim();
+    assert!(points.len() == levels.len() && taps_out.len() == points.len(), "tri-mip encode batch: samples");
+    assert_eq!(out.len(), points.len() * dim, "tri-mip encode batch: output");
+    const SAMPLES_A_TASK: usize = 1024;
+    out.par_chunks_mut(SAMPLES_A_TASK * dim).zip(taps_out.par_chunks_mut(SAMPLES_A_TASK)).enumerate().for_each(
+        |(task, (out, taps_out))| {
+            let first = task * SAMPLES_A_TASK;
+            for (j, t) in taps_out.iter_mut().enumerate() {
+                *t = taps(config, points[first + j], levels[first + j]);
+                encode(config, level0, pyramid, t, &mut out[j * dim..(j + 1) * dim]);
+            }
+        },
+    );
+}
+
+/// [`encode_backward`] over a batch: every sample's taps in sample order, on the calling thread,
+/// so every texel sums its contributions in one order whatever the thread count.
+///
+/// Measured on 2 cores (`benches/tri_mip.rs`, `docs/results/tri-mip/per-sample-cost.md`), the
+/// scatter is bound by memory: 75 ns a sample on one thread against 139 for bands of texels that
+/// each scan every tap, and 156 for bands fed by a parallel sort of the taps (both on 2 threads,
+/// both bit-for-bit this loop's result). A parallel version waits for a machine where it wins.
+///
+/// # Panics
+/// If `d_x` is not `taps.len() x encoding_dim`.
+pub fn encode_backward_batch(
+    config: &TriMipConfig,
+    taps: &[Taps],
+    d_x: &[f32],
+    grad_level0: &mut [f32],
+    grad_pyramid: &mut Pyramid,
+) {
+    let dim = config.encoding_dim();
+    assert_eq!(d_x.len(), taps.len() * dim, "tri-mip encode backward batch: d_x");
+    for (k, t) in taps.iter().enumerate() {
+        encode_backward(config, t, &d_x[k * dim..(k + 1) * dim], grad_level0, grad_pyramid);
+    }
+}

@@ -350,3 +350,42 @@ fn finite_differences_of_the_whole_fields_loss_match_its_backward_pass() {
 /// The whole field's central differences (f32 passes, ReLU): relative to the gradient (or to
 /// 0.05 where it is smaller).
 const WHOLE_FIELD_TOLERANCE: f64 = 2e-2;
+
+/// The batched passes are the per-sample ones, bit for bit, on one thread or several: the
+/// encodings (made in parallel) and the backward scatter (in sample order).
+#[test]
+fn the_batched_passes_equal_the_per_sample_ones_bit_for_bit_at_any_thread_count() {
+    use mipnerf_core::tri_mip::{Taps, encode_backward_batch, encode_batch};
+    let c = TriMipConfig { resolution: 32, features: 4, levels: 4 };
+    let level0 = random_planes(&c, 8);
+    let mut pyramid = Pyramid::zeros(c);
+    pyramid.build(&level0);
+    let mut rng = SmallRng::seed_from_u64(9);
+    let n = 3000;
+    let points: Vec<Vec3> = (0..n).map(|_| random_point(&mut rng)).collect();
+    let levels: Vec<f32> = (0..n).map(|_| rng.random_range(-0.5..4.0)).collect();
+    let dim = c.encoding_dim();
+    let d_x: Vec<f32> = (0..n * dim).map(|_| rng.random_range(-1.0..1.0)).collect();
+    // The sequential reference.
+    let mut want_x = vec![0.0; n * dim];
+    let (mut want0, mut want_pyramid) = (vec![0.0; c.num_params()], Pyramid::zeros(c));
+    for k in 0..n {
+        let t = taps(&c, points[k], levels[k]);
+        encode(&c, &level0, &pyramid, &t, &mut want_x[k * dim..(k + 1) * dim]);
+        encode_backward(&c, &t, &d_x[k * dim..(k + 1) * dim], &mut want0, &mut want_pyramid);
+    }
+    for threads in [1, 2, 5] {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| {
+            let mut x = vec![0.0; n * dim];
+            let mut t = vec![taps(&c, Vec3::ZERO, 0.0); n];
+            encode_batch(&c, &level0, &pyramid, &points, &levels, &mut t, &mut x);
+            assert_eq!(x, want_x, "{threads} threads: encodings");
+            let (mut got0, mut got_pyramid) = (vec![0.0; c.num_params()], Pyramid::zeros(c));
+            encode_backward_batch(&c, &t, &d_x, &mut got0, &mut got_pyramid);
+            assert!(got0.iter().zip(&want0).all(|(a, b)| a.to_bits() == b.to_bits()), "{threads} threads: level 0");
+            assert_eq!(got_pyramid, want_pyramid, "{threads} threads: the levels above");
+            let _: &[Taps] = &t;
+        });
+    }
+}
