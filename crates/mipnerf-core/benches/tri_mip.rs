@@ -194,7 +194,10 @@ fn batched(planes: TriMipConfig, n: usize, reps: usize) {
             encode_backward(&planes, tk, &d_x[k * dim..(k + 1) * dim], &mut grad0, &mut grad_pyramid);
         }
     });
+    let build = per_sample(reps.min(5), 1, || pyramid.build(&level0)) / 1e6;
+    let push = per_sample(reps.min(5), 1, || grad_pyramid.push_down(&mut grad0)) / 1e6;
     std::hint::black_box((&x, &grad0));
+    println!("on {threads} threads: the pyramid's build {build:.1} ms, its push-down {push:.1} ms");
     println!(
         "batched on {threads} threads, {n} samples ({} rays of {per_ray}): encoding {forward:.0} ns a sample, \
          backward scatter (encode_backward_batch) {backward:.0} ns a sample (the per-sample calls: {sequential:.0})",

@@ -25,8 +25,8 @@ use std::path::{Path, PathBuf};
 pub struct IoError {
     /// The file or folder.
     pub path: PathBuf,
-    /// What the system said.
-    #[source]
+    /// What the system said (in the message itself, not as its source, so that an error chain
+    /// printed whole says it once).
     pub error: std::io::Error,
 }
 

@@ -37,6 +37,7 @@ use glam::Vec3;
 use rand::{Rng, SeedableRng, rngs::SmallRng};
 
 use crate::mip::FrustumMoments;
+use crate::wide::wide;
 
 /// The planes, each named by the two coordinates of the box it is indexed by (`u`, `v`).
 pub const PLANES: [(usize, usize); 3] = [(0, 1), (0, 2), (1, 2)];
@@ -196,38 +197,48 @@ impl Pyramid {
     }
 }
 
-/// `dst` (of side `fine / 2`) = the 2x2 box filter of `src` (side `fine`), three planes.
+/// `dst` (of side `fine / 2`) = the 2x2 box filter of `src` (side `fine`), three planes, row by
+/// row over every thread. The planes lie one after the other, so row `r` of `dst` (of any
+/// plane) averages rows `2r` and `2r + 1` of `src`.
 fn box_filter(src: &[f32], dst: &mut [f32], fine: usize, features: usize) {
-    let coarse = fine / 2;
-    for p in 0..3 {
-        let (s, d) = (&src[p * fine * fine * features..], &mut dst[p * coarse * coarse * features..]);
-        for v in 0..coarse {
-            for u in 0..coarse {
-                let at = |uu: usize, vv: usize| ((2 * v + vv) * fine + 2 * u + uu) * features;
-                let (a, b, c, e) = (at(0, 0), at(1, 0), at(0, 1), at(1, 1));
-                let out = &mut d[(v * coarse + u) * features..(v * coarse + u + 1) * features];
-                for (f, o) in out.iter_mut().enumerate() {
-                    *o = 0.25 * (s[a + f] + s[b + f] + s[c + f] + s[e + f]);
+    use rayon::prelude::*;
+    let (coarse, src_row) = (fine / 2, fine * features);
+    dst.par_chunks_mut(coarse * features).enumerate().for_each(|(r, out)| {
+        let (a, b) = (&src[2 * r * src_row..(2 * r + 1) * src_row], &src[(2 * r + 1) * src_row..(2 * r + 2) * src_row]);
+        wide(
+            #[inline(always)]
+            || {
+                for (u, texel) in out.chunks_exact_mut(features).enumerate() {
+                    let (a, b) =
+                        (&a[2 * u * features..(2 * u + 2) * features], &b[2 * u * features..(2 * u + 2) * features]);
+                    let (a0, a1) = a.split_at(features);
+                    let (b0, b1) = b.split_at(features);
+                    for (f, o) in texel.iter_mut().enumerate() {
+                        *o = 0.25 * (a0[f] + a1[f] + b0[f] + b1[f]);
+                    }
                 }
-            }
-        }
-    }
+            },
+        );
+    });
 }
 
-/// Adds the adjoint of [`box_filter`] of `grad_coarse` to `grad_fine` (side `fine`).
+/// Adds the adjoint of [`box_filter`] of `grad_coarse` to `grad_fine` (side `fine`), row by row
+/// over every thread: row `r` of `grad_fine` takes a quarter of row `r / 2` of `grad_coarse`.
 fn box_filter_adjoint(grad_coarse: &[f32], grad_fine: &mut [f32], fine: usize, features: usize) {
-    let coarse = fine / 2;
-    for p in 0..3 {
-        let g = &grad_coarse[p * coarse * coarse * features..(p + 1) * coarse * coarse * features];
-        let d = &mut grad_fine[p * fine * fine * features..(p + 1) * fine * fine * features];
-        for v in 0..fine {
-            for u in 0..fine {
-                let from = ((v / 2) * coarse + u / 2) * features;
-                let to = &mut d[(v * fine + u) * features..(v * fine + u + 1) * features];
-                to.iter_mut().zip(&g[from..from + features]).for_each(|(t, f)| *t += 0.25 * f);
-            }
-        }
-    }
+    use rayon::prelude::*;
+    let coarse_row = fine / 2 * features;
+    grad_fine.par_chunks_mut(fine * features).enumerate().for_each(|(r, to)| {
+        let from = &grad_coarse[(r / 2) * coarse_row..(r / 2 + 1) * coarse_row];
+        wide(
+            #[inline(always)]
+            || {
+                for (u, texel) in to.chunks_exact_mut(features).enumerate() {
+                    let f = &from[(u / 2) * features..(u / 2 + 1) * features];
+                    texel.iter_mut().zip(f).for_each(|(t, g)| *t += 0.25 * g);
+                }
+            },
+        );
+    });
 }
 
 /// The radius of a conical frustum's cross-section at its mean distance, from its moments (in
@@ -260,6 +271,14 @@ pub struct Taps {
 /// `[0, levels - 1]`).
 #[must_use]
 pub fn taps(config: &TriMipConfig, x: Vec3, level: f32) -> Taps {
+    wide(
+        #[inline(always)]
+        || taps_inline(config, x, level),
+    )
+}
+
+#[inline(always)]
+fn taps_inline(config: &TriMipConfig, x: Vec3, level: f32) -> Taps {
     let top = config.levels - 1;
     let level = if level.is_nan() { 0.0 } else { level.clamp(0.0, top as f32) };
     let l0 = (level.floor() as usize).min(top);
@@ -303,6 +322,14 @@ pub fn taps(config: &TriMipConfig, x: Vec3, level: f32) -> Taps {
 /// # Panics
 /// If `out` is not [`TriMipConfig::encoding_dim`] long.
 pub fn encode(config: &TriMipConfig, level0: &[f32], pyramid: &Pyramid, taps: &Taps, out: &mut [f32]) {
+    wide(
+        #[inline(always)]
+        || encode_inline(config, level0, pyramid, taps, out),
+    );
+}
+
+#[inline(always)]
+fn encode_inline(config: &TriMipConfig, level0: &[f32], pyramid: &Pyramid, taps: &Taps, out: &mut [f32]) {
     let c = config.features;
     assert_eq!(out.len(), 3 * c, "tri-mip encode: output");
     out.fill(0.0);
@@ -321,6 +348,20 @@ pub fn encode(config: &TriMipConfig, level0: &[f32], pyramid: &Pyramid, taps: &T
 /// # Panics
 /// If `d_out` is not [`TriMipConfig::encoding_dim`] long.
 pub fn encode_backward(
+    config: &TriMipConfig,
+    taps: &Taps,
+    d_out: &[f32],
+    grad_level0: &mut [f32],
+    grad_pyramid: &mut Pyramid,
+) {
+    wide(
+        #[inline(always)]
+        || encode_backward_inline(config, taps, d_out, grad_level0, grad_pyramid),
+    );
+}
+
+#[inline(always)]
+fn encode_backward_inline(
     config: &TriMipConfig,
     taps: &Taps,
     d_out: &[f32],
@@ -363,10 +404,15 @@ pub fn encode_batch(
     out.par_chunks_mut(SAMPLES_A_TASK * dim).zip(taps_out.par_chunks_mut(SAMPLES_A_TASK)).enumerate().for_each(
         |(task, (out, taps_out))| {
             let first = task * SAMPLES_A_TASK;
-            for (j, t) in taps_out.iter_mut().enumerate() {
-                *t = taps(config, points[first + j], levels[first + j]);
-                encode(config, level0, pyramid, t, &mut out[j * dim..(j + 1) * dim]);
-            }
+            wide(
+                #[inline(always)]
+                || {
+                    for (j, t) in taps_out.iter_mut().enumerate() {
+                        *t = taps_inline(config, points[first + j], levels[first + j]);
+                        encode_inline(config, level0, pyramid, t, &mut out[j * dim..(j + 1) * dim]);
+                    }
+                },
+            );
         },
     );
 }
@@ -390,7 +436,44 @@ pub fn encode_backward_batch(
 ) {
     let dim = config.encoding_dim();
     assert_eq!(d_x.len(), taps.len() * dim, "tri-mip encode backward batch: d_x");
-    for (k, t) in taps.iter().enumerate() {
-        encode_backward(config, t, &d_x[k * dim..(k + 1) * dim], grad_level0, grad_pyramid);
-    }
+    wide(
+        #[inline(always)]
+        || {
+            for (k, t) in taps.iter().enumerate() {
+                encode_backward_inline(config, t, &d_x[k * dim..(k + 1) * dim], grad_level0, grad_pyramid);
+            }
+        },
+    );
+}
+
+/// Values of [`spherical_harmonics`]: the real spherical harmonics of degrees 0 to 3 (Tri-MipRF's
+/// and Instant-NGP's "degree 4" view encoding).
+pub const SH_VALUES: usize = 16;
+
+/// The view direction `d` (normalised here) as the 16 real spherical harmonics of degrees 0 to 3,
+/// orthonormal over the sphere (`tests/tri_mip.rs` integrates them), in the order and signs of
+/// tiny-cuda-nn's encoding that Tri-MipRF's colour network reads.
+#[must_use]
+pub fn spherical_harmonics(d: Vec3) -> [f32; SH_VALUES] {
+    let d = d.normalize_or_zero();
+    let (x, y, z) = (d.x, d.y, d.z);
+    let (xx, yy, zz) = (x * x, y * y, z * z);
+    [
+        0.282_094_8,
+        -0.488_602_5 * y,
+        0.488_602_5 * z,
+        -0.488_602_5 * x,
+        1.092_548_4 * x * y,
+        -1.092_548_4 * y * z,
+        0.946_174_7 * zz - 0.315_391_57,
+        -1.092_548_4 * x * z,
+        0.546_274_2 * (xx - yy),
+        0.590_043_6 * y * (3.0 * xx - yy),
+        2.890_611_4 * x * y * z,
+        0.457_045_8 * y * (5.0 * zz - 1.0),
+        0.373_176_33 * z * (5.0 * zz - 3.0),
+        0.457_045_8 * x * (5.0 * zz - 1.0),
+        1.445_305_7 * z * (xx - yy),
+        0.590_043_6 * x * (xx - 3.0 * yy),
+    ]
 }

@@ -389,3 +389,44 @@ fn the_batched_passes_equal_the_per_sample_ones_bit_for_bit_at_any_thread_count(
         });
     }
 }
+
+/// The view encoding's 16 spherical harmonics are orthonormal over the sphere (integrated over a
+/// Fibonacci lattice of 40,000 directions) and take their closed-form values on the axes.
+#[test]
+fn the_view_encodings_spherical_harmonics_are_orthonormal() {
+    use mipnerf_core::tri_mip::{SH_VALUES, spherical_harmonics};
+    let n = 40_000;
+    let mut gram = [[0.0f64; SH_VALUES]; SH_VALUES];
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    for k in 0..n {
+        let z = 1.0 - (2.0 * k as f64 + 1.0) / n as f64;
+        let r = (1.0 - z * z).sqrt();
+        let phi = golden * k as f64;
+        let y = spherical_harmonics(Vec3::new((r * phi.cos()) as f32, (r * phi.sin()) as f32, z as f32));
+        for i in 0..SH_VALUES {
+            for j in 0..SH_VALUES {
+                gram[i][j] += f64::from(y[i]) * f64::from(y[j]) * 4.0 * std::f64::consts::PI / n as f64;
+            }
+        }
+    }
+    for i in 0..SH_VALUES {
+        for j in 0..SH_VALUES {
+            let want = if i == j { 1.0 } else { 0.0 };
+            assert!((gram[i][j] - want).abs() < 2e-3, "<Y{i}, Y{j}> = {}", gram[i][j]);
+        }
+    }
+    // On +z: Y00 = 1/(2 sqrt(pi)), Y10 = sqrt(3/(4 pi)), Y20 = sqrt(5/(4 pi)), Y30 = sqrt(7/(4 pi)),
+    // the others 0; a direction's length does not matter.
+    let y = spherical_harmonics(Vec3::new(0.0, 0.0, 2.5));
+    let pi = std::f32::consts::PI;
+    let expect = [
+        (0, 0.5 / pi.sqrt()),
+        (2, (3.0 / (4.0 * pi)).sqrt()),
+        (6, (5.0 / (4.0 * pi)).sqrt()),
+        (12, (7.0 / (4.0 * pi)).sqrt()),
+    ];
+    for (i, v) in y.iter().enumerate() {
+        let want = expect.iter().find(|e| e.0 == i).map_or(0.0, |e| e.1);
+        assert!((v - want).abs() < 1e-5, "Y{i} on +z: {v} vs {want}");
+    }
+}
