@@ -10,13 +10,14 @@
 //!   taps and reads, and the backward scatter;
 //! - two MLPs after the encoding (48 features, a 16-value view encoding, no skip): Tri-MipRF's
 //!   shape (2 x 128, colour 4 x 128) and a small one (2 x 64, colour 1 x 64), forward + backward
-//!   with the input gradient;
+//!   with the input gradient, in f32 and (where the CPU has a bf16 kernel) in bf16 products;
 //! - once a step, whatever its batch: the pyramid's build and its push-down, in milliseconds.
 #![allow(missing_docs, clippy::unwrap_used)]
 
 use std::time::Instant;
 
 use glam::Vec3;
+use mipnerf_core::bf16::{Bf16Support, Precision};
 use mipnerf_core::mip::conical_frustum_moments;
 use mipnerf_core::mlp::{MlpCache, MlpConfig, MlpShape};
 use mipnerf_core::tri_mip::{
@@ -43,8 +44,16 @@ fn per_sample(reps: usize, n: usize, mut run: impl FnMut()) -> f64 {
 }
 
 /// An MLP's forward and forward + backward (with the input gradient where `input_gradient`).
-fn mlp_costs(config: MlpConfig, rays: usize, per_ray: usize, reps: usize, input_gradient: bool) -> (f64, f64) {
-    let shape = MlpShape::new(config, 0).unwrap();
+fn mlp_costs(
+    config: MlpConfig,
+    precision: Precision,
+    rays: usize,
+    per_ray: usize,
+    reps: usize,
+    input_gradient: bool,
+) -> (f64, f64) {
+    let mut shape = MlpShape::new(config, 0).unwrap();
+    shape.precision = precision;
     let mut params = vec![0.0; shape.num_params];
     shape.init_glorot(&mut params, 1);
     let n = rays * per_ray;
@@ -86,7 +95,7 @@ fn main() {
             view_dim: 27,
             ..MlpConfig::default()
         };
-        let (f, b) = mlp_costs(fast, rays, per_ray, reps, false);
+        let (f, b) = mlp_costs(fast, Precision::F32, rays, per_ray, reps, false);
         println!("| Mip-NeRF MLP, fast preset (4 x 128, skip; colour 1 x 64; 96 IPE features) | {f:.0} | {b:.0} |");
 
         // The samples: along rays from (0.1, -0.2, 4) towards the unit cube, t in [2, 6], in the
@@ -150,8 +159,12 @@ fn main() {
                 x_dim: dim,
                 view_dim: 16,
             };
-            let (f, b) = mlp_costs(config, rays, per_ray, reps, true);
+            let (f, b) = mlp_costs(config, Precision::F32, rays, per_ray, reps, true);
             println!("| field MLP, {name}, 48 features, 16 view values | {f:.0} | {b:.0} |");
+            if Bf16Support::detect().kernel().is_some() {
+                let (f, b) = mlp_costs(config, Precision::Bf16, rays, per_ray, reps, true);
+                println!("| field MLP, {name}, bf16 products | {f:.0} | {b:.0} |");
+            }
         }
         println!(
             "once a step: the pyramid's build {build:.1} ms, its push-down {push:.1} ms ({} parameters in level 0)",
