@@ -267,6 +267,11 @@ fn two_colmap_runs_never_write_one_folder_and_an_overwrite_replaces_every_earlie
     std::fs::write(&lock_path, "process 4242\tcolmap\n").unwrap();
     let text = run_err(&["colmap", "--input", s(&workspace), "--output", s(&out), "--max-size", "160"]);
     assert!(text.contains("is in use by another `mipnerf colmap` (process 4242)"), "{text}");
+    // convert takes the same lock on its --output.
+    let blender = fixtures().join("lego_tiny");
+    let text = run_err(&["convert", "--input", s(&blender), "--output", s(&out)]);
+    assert!(text.contains("is in use by another `mipnerf colmap` (process 4242)"), "{text}");
+    assert_eq!(std::fs::read_dir(&out).unwrap().count(), 1, "nothing written beside the lock");
     drop(lock);
 
     // Two at once into one new folder (the second leaving a photo out): each either wrote the
