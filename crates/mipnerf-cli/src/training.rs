@@ -93,6 +93,7 @@ fn train_locked(
         );
     }
     let ds = Arc::new(load_training_data(&s, format, &model)?);
+    let (s, model) = tri_mip_cube_from_data(s, model, &ds)?;
     let seed = s.seed.unwrap_or(0);
     let mut state = if resume {
         let ck = load_checkpoint(&ckpt_path, &model, session)?;
@@ -157,6 +158,42 @@ fn train_locked(
     let train_loop = TrainLoop::new(run_dir, &s, be, resume, session.quiet)?;
     s.save(&RunDir::new(run_dir).config())?;
     train_loop.run()
+}
+
+/// A run of the Tri-Mip field: its planes' cube from the cameras (as the occupancy grid's,
+/// `occupancy::auto_bound`) where the settings do not give it, recorded in the settings (so that
+/// `eval` and `render` rebuild the same model), and the model rebuilt over it; forward-facing
+/// data in NDC space, which the planes do not cover yet, refused.
+fn tri_mip_cube_from_data(mut s: TrainSettings, model: Model, ds: &Dataset) -> Result<(TrainSettings, Model)> {
+    if model.config().field.is_mip_nerf() {
+        return Ok((s, model));
+    }
+    let flag = s.field.map_or("tri-mip", crate::config::FieldArg::name);
+    if ds.ndc.is_some() {
+        bail!(
+            "--field {flag}: these forward-facing photos train in NDC space, which the planes do not cover yet; train \
+             them with the default --field mip-nerf (or pass --spherify to train them in world space)"
+        );
+    }
+    if s.tri_mip_bound.is_none() {
+        let bound = mipnerf_core::occupancy::auto_bound(ds).ok_or_else(|| {
+            anyhow::anyhow!("--field {flag}: the cameras give no cube for the planes (set tri_mip_bound in a --config)")
+        })?;
+        s.tri_mip_bound = Some(bound);
+    }
+    let model = Model::new(s.model_config()?)?;
+    let p = crate::config::TRI_MIP_PLANES;
+    eprintln!(
+        "field: {flag}, planes 3 x {r}^2 x {c} features in {l} levels over the cube [-{b:.3}, {b:.3}]^3 ({} of the \
+         model's {} parameters)",
+        model.field_params(),
+        model.num_params(),
+        r = p.resolution,
+        c = p.features,
+        l = p.levels,
+        b = s.tri_mip_bound.unwrap_or_default(),
+    );
+    Ok((s, model))
 }
 
 /// How far `--occupancy-bound` may stray from the cube the cameras give, either way: a factor of

@@ -73,6 +73,10 @@ fn invalid(path: &Path, problem: impl Into<String>) -> CheckpointError {
 /// `(name, offset, shape)` of every tensor of `model`'s parameters.
 fn tensors(model: &Model) -> Vec<(String, usize, Vec<usize>)> {
     let mut out = Vec::new();
+    if let crate::model::Field::TriMip { planes, .. } = model.config().field {
+        let r = planes.resolution;
+        out.push(("tri_mip/planes".to_owned(), 0, vec![3, r, r, planes.features]));
+    }
     for (i, mlp) in model.mlps().iter().enumerate() {
         for l in &mlp.layers {
             out.push((format!("MLP_{i}/{}/kernel", l.name), l.kernel, vec![l.fan_in, l.fan_out]));

@@ -6,6 +6,7 @@ use crate::mip;
 use crate::mlp::MlpConfig;
 use crate::render::DensityActivation;
 use crate::sampling::{self, Spacing};
+use crate::tri_mip::TriMipConfig;
 
 /// How a sample's Gaussian is encoded for the MLP.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
@@ -101,6 +102,41 @@ pub struct ModelConfig {
     /// level's weights, averaged over the batch's rays (0: off, Mip-NeRF; the successor's 0.01).
     /// CPU backend.
     pub distortion_loss_mult: f32,
+    /// The field the samples are read from (the Mip-NeRF MLP on the IPE, the default; or the
+    /// Tri-Mip planes before a small MLP). Not written when it is the default, so that the
+    /// Mip-NeRF model's checkpoints are the bytes they were.
+    #[serde(skip_serializing_if = "Field::is_mip_nerf")]
+    pub field: Field,
+}
+
+/// The field a sample's conical frustum is read from: what the MLP's input is.
+#[derive(Clone, Copy, Debug, PartialEq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case", tag = "kind", deny_unknown_fields)]
+pub enum Field {
+    /// The integrated positional encoding of the frustum's Gaussian (the paper's), before the
+    /// MLP of the model's shape.
+    #[default]
+    MipNerf,
+    /// The Tri-Mip planes ([`crate::tri_mip`]) over the cube `[-half_side, half_side]^3`,
+    /// read at the frustum's footprint (`pre_filtered`, Tri-MipRF) or at level 0 whatever the
+    /// cone (point sampling: the aliasing baseline), before an MLP of the model's shape without
+    /// skip connection.
+    TriMip {
+        /// The planes' shape.
+        planes: TriMipConfig,
+        /// Half the side of the cube the planes cover, in scene units.
+        half_side: f32,
+        /// Read at the level of the frustum's footprint (true) or at level 0 (false).
+        pre_filtered: bool,
+    },
+}
+
+impl Field {
+    /// Whether this is the default, the Mip-NeRF field.
+    #[must_use]
+    pub fn is_mip_nerf(&self) -> bool {
+        *self == Self::MipNerf
+    }
 }
 
 impl Default for ModelConfig {
@@ -132,6 +168,7 @@ impl Default for ModelConfig {
             area_loss: true,
             supersample: 1,
             distortion_loss_mult: 0.0,
+            field: Field::MipNerf,
         }
     }
 }
@@ -280,7 +317,10 @@ impl ModelConfig {
     /// Width of the sample encoding.
     #[must_use]
     pub fn x_dim(&self) -> usize {
-        self.point_encoding.width(self.min_deg_point, self.max_deg_point)
+        match self.field {
+            Field::MipNerf => self.point_encoding.width(self.min_deg_point, self.max_deg_point),
+            Field::TriMip { planes, .. } => planes.encoding_dim(),
+        }
     }
 
     /// Width of the view-direction encoding.
@@ -295,7 +335,8 @@ impl ModelConfig {
         MlpConfig {
             net_depth: self.net_depth,
             net_width: self.net_width,
-            skip_layer: self.skip_layer,
+            // The planes' features are read once: no skip connection after them.
+            skip_layer: if self.field.is_mip_nerf() { self.skip_layer } else { self.net_depth + 1 },
             net_depth_condition: self.net_depth_condition,
             net_width_condition: self.net_width_condition,
             x_dim: self.x_dim(),

@@ -19,11 +19,14 @@ use crate::mlp::{MlpCache, MlpConfigError, MlpShape};
 use crate::occupancy::{DensityField, OccupancyGrid};
 use crate::render;
 use crate::stages;
+use crate::tri_mip::{Pyramid, Taps};
 use crate::wide::wide;
 
-pub use crate::config::{FAST_SAMPLES, FastRecipe, Mode, ModelConfig, PointEncoding, Preset};
+pub use crate::config::{FAST_SAMPLES, FastRecipe, Field, Mode, ModelConfig, PointEncoding, Preset};
+pub use field::FieldState;
 pub use rendering::{LevelOutput, Levels};
 
+mod field;
 mod rendering;
 
 /// Errors in a model configuration.
@@ -43,6 +46,8 @@ pub struct Model {
     config: ModelConfig,
     mlps: Vec<MlpShape>,
     num_params: usize,
+    /// The parameters before the MLPs': the Tri-Mip planes' level 0 (none for the Mip-NeRF field).
+    field_params: usize,
 }
 
 /// Losses of one batch.
@@ -98,6 +103,11 @@ struct Workspace {
     d_raw_rgb: Vec<f32>,
     d_raw_density: Vec<f32>,
     pixel_rgb: Vec<[f32; 3]>,
+    /// The Tri-Mip field's taps of the level's samples, the gradient of its encodings, and its
+    /// pyramid's gradient (pushed into level 0 at the end of the chunk).
+    taps: Vec<Taps>,
+    d_x: Vec<f32>,
+    grad_pyramid: Option<Pyramid>,
 }
 
 impl Model {
@@ -131,15 +141,34 @@ impl Model {
                 config.distortion_loss_mult
             )));
         }
+        let field_params = match config.field {
+            Field::MipNerf => 0,
+            Field::TriMip { planes, half_side, .. } => {
+                planes.validate().map_err(|e| ModelError::Config(e.to_string()))?;
+                if !(half_side.is_finite() && half_side > 0.0) {
+                    return Err(ModelError::Config(format!(
+                        "the Tri-Mip planes' cube needs a positive half side, got {half_side}"
+                    )));
+                }
+                if config.unbounded {
+                    return Err(ModelError::Config(
+                        "the Tri-Mip field covers a bounded cube; an unbounded scene trains with the Mip-NeRF field \
+                         for now"
+                            .into(),
+                    ));
+                }
+                planes.num_params()
+            }
+        };
         let n_mlps = if config.separate_mlps { config.num_levels } else { 1 };
         let mut mlps = Vec::with_capacity(n_mlps);
-        let mut off = 0;
+        let mut off = field_params;
         for _ in 0..n_mlps {
             let s = MlpShape::new(config.mlp_config(), off)?;
             off += s.num_params;
             mlps.push(s);
         }
-        Ok(Self { config, mlps, num_params: off })
+        Ok(Self { config, mlps, num_params: off, field_params })
     }
 
     /// The configuration (fixed when the model is made: the parameter layout depends on it).
@@ -200,6 +229,9 @@ impl Model {
     #[must_use]
     pub fn init_params(&self, seed: u64) -> Vec<f32> {
         let mut p = vec![0.0; self.num_params];
+        if let Field::TriMip { planes, .. } = self.config.field {
+            planes.init(&mut p[..self.field_params], seed.wrapping_add(0x7431_4D49));
+        }
         for (i, m) in self.mlps.iter().enumerate() {
             m.init_glorot(&mut p, seed.wrapping_add(i as u64 * 0x9E37_79B9));
         }
@@ -309,6 +341,7 @@ impl Model {
         let norm = (3.0 * lm_sum) as f32;
         let n_pix = targets.len() as f32;
         let guide = self.guide(grid, rays);
+        let field = self.field_state(params);
         // With a guide, only the rays that meet occupied cells run, compacted; the others add
         // their background's error to the sums below.
         let compacted = guide.as_ref().map(|g| {
@@ -339,7 +372,8 @@ impl Model {
                 };
                 WORKSPACE.with(|ws| {
                     let ws = &mut ws.borrow_mut();
-                    self.run_chunk(params, rays, ids, spans, Some((tg, norm, dist_scale)), mode, ws, Some(g), None)
+                    let targets = Some((tg, norm, dist_scale));
+                    self.run_chunk(params, &field, rays, ids, spans, targets, mode, ws, Some(g), None)
                 })
             })
             .collect();
@@ -411,6 +445,7 @@ impl Model {
     fn run_chunk(
         &self,
         params: &[f32],
+        field: &FieldState,
         rays: &[Ray],
         ids: RayIds<'_>,
         spans: Option<ChunkSpans<'_>>,
@@ -449,10 +484,8 @@ impl Model {
                     std::mem::swap(&mut ws.t, &mut ws.t_next);
                 }
             }
-            let degrees = (c.min_deg_point, c.max_deg_point);
             let mlp = self.mlp_for_level(level);
-            let encoding = (c.point_encoding, mlp.precision);
-            stages::cast_and_encode(rays, &ws.t, (s, c.unbounded), c.ray_shape, encoding, degrees, &mut ws.x);
+            self.encode_samples(params, field, rays, mlp.precision, ws);
             let last = level + 1 == c.num_levels;
             let colour_shown = match out {
                 Some((_, Levels::Last)) => last,
@@ -488,6 +521,10 @@ impl Model {
             }
             let (x, view, cache) = (&ws.x, &ws.view, &mut ws.cache);
             mlp.backward(params, x, view, s, cache, &ws.d_raw_rgb, &ws.d_raw_density, grads);
+            self.field_backward(params, mlp, n, ws, grads);
+        }
+        if let Some(grads) = grads {
+            self.field_backward_finish(ws, grads);
         }
         sums
     }
@@ -538,7 +575,7 @@ impl Model {
     /// ([`OccupancyGrid::update`]).
     #[must_use]
     pub fn density_field<'a>(&'a self, params: &'a [f32]) -> ModelDensity<'a> {
-        ModelDensity { model: self, params }
+        ModelDensity { model: self, params, field: self.field_state(params) }
     }
 
     /// One Gaussian (world space) encoded by the configured point encoding into `dst` (`x_dim`
@@ -671,10 +708,11 @@ pub fn pixel_loss_gradient(
 /// A model's density with its parameters, as the occupancy grid probes it ([`DensityField`]):
 /// the first MLP's density after its activation, the probes encoded as the model encodes a sample
 /// ([`Model::encode_point`]; in a contracted grid, as they are).
-#[derive(Clone, Copy)]
+#[derive(Clone)]
 pub struct ModelDensity<'a> {
     model: &'a Model,
     params: &'a [f32],
+    field: FieldState,
 }
 
 impl DensityField for ModelDensity<'_> {
@@ -693,7 +731,7 @@ impl DensityField for ModelDensity<'_> {
                             let encoding = (c.point_encoding, Precision::F32);
                             stages::encode_gaussian(g, encoding, c.min_deg_point, c.max_deg_point, dst);
                         } else {
-                            self.model.encode_point(g, dst);
+                            self.model.encode_probe(self.params, &self.field, g, dst);
                         }
                     }
                 },

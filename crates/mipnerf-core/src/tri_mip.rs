@@ -148,6 +148,12 @@ impl Pyramid {
         Self { config, coarse: (1..config.levels).map(|l| vec![0.0; config.level_len(l)]).collect() }
     }
 
+    /// The planes' shape.
+    #[must_use]
+    pub fn config(&self) -> TriMipConfig {
+        self.config
+    }
+
     /// Level `level >= 1`.
     #[must_use]
     pub fn level(&self, level: usize) -> &[f32] {

@@ -548,14 +548,7 @@ fn an_unbounded_scene_trains_with_a_contracted_grid_that_keeps_its_dense_cells()
     let r = 16;
     let config = OccupancyConfig { warmup_steps: 100, update_every: 10, threshold: 0.1, ..contracted_config(r) };
     trainer.occupancy = Some(OccupancyGrid::new(config).unwrap());
-    let mut rng = SmallRng::seed_from_u64(5);
-    let mut losses = Vec::new();
-    for _ in 0..steps {
-        let idx: Vec<usize> = (0..256).map(|_| rng.random_range(0..rays.len())).collect();
-        let r: Vec<_> = idx.iter().map(|&i| rays[i]).collect();
-        let c: Vec<_> = idx.iter().map(|&i| colours[i]).collect();
-        losses.push(trainer.train_step(&r, &c).stats.loss);
-    }
+    let losses = common::train_on_random_batches(&mut trainer, &rays, &colours, steps as usize, 5);
     let (first, last) = (losses[..10].iter().sum::<f32>(), losses[steps as usize - 10..].iter().sum::<f32>());
     assert!(last < first / 4.0, "the loss went from {first} to {last} (sums of 10 steps)");
     let grid = trainer.occupancy.as_ref().unwrap();

@@ -21,17 +21,7 @@ fn a_few_hundred_steps_cut_the_loss_tenfold_on_a_tiny_scene() {
     let (rays, colours) = ball_scene(8, 16);
     let steps = 200;
     let mut trainer = Trainer::new(Model::new(Preset::Tiny.config()).unwrap(), tiny_optim(steps), 1);
-    let batch = 256;
-    let mut rng = SmallRng::seed_from_u64(5);
-    let mut losses = Vec::new();
-    for _ in 0..steps {
-        let idx: Vec<usize> = (0..batch).map(|_| rng.random_range(0..rays.len())).collect();
-        let r: Vec<_> = idx.iter().map(|&i| rays[i]).collect();
-        let c: Vec<_> = idx.iter().map(|&i| colours[i]).collect();
-        let rep = trainer.train_step(&r, &c);
-        assert!(rep.stats.loss.is_finite(), "step {}: loss {}", rep.step, rep.stats.loss);
-        losses.push(rep.stats.loss);
-    }
+    let losses = common::train_on_random_batches(&mut trainer, &rays, &colours, steps as usize, 5);
     let first: f32 = losses[..10].iter().sum::<f32>() / 10.0;
     let last: f32 = losses[steps as usize - 10..].iter().sum::<f32>() / 10.0;
     eprintln!("tiny scene: loss {first:.5} -> {last:.5} ({:.1}x)", first / last);
@@ -121,15 +111,7 @@ fn whole_loss_gradient_matches_finite_differences(random_bkgd: bool, distortion:
         let mut g = vec![0.0; model.num_params()];
         f64::from(model.loss_and_grad(p, &rays[..40], &colours[..40], mode, &mut g).loss)
     };
-    let fd = |p: &mut Vec<f32>, i: usize, h: f32| {
-        let x0 = p[i];
-        p[i] = x0 + h;
-        let up = loss(p);
-        p[i] = x0 - h;
-        let down = loss(p);
-        p[i] = x0;
-        (up - down) / (f64::from(x0 + h) - f64::from(x0 - h))
-    };
+    let fd = |p: &mut Vec<f32>, i: usize, h: f32| common::central_difference(loss, p, i, h);
     let (mut bad, mut checked, mut skipped) = (Vec::new(), 0, 0);
     for l in &model.mlps()[0].layers {
         let mut picks: Vec<usize> = (0..6).map(|_| l.kernel + rng.random_range(0..l.fan_in * l.fan_out)).collect();

@@ -143,6 +143,9 @@ pub enum GpuError {
     /// The caller's inputs are inconsistent.
     #[error("invalid input to a GPU kernel: {0}")]
     InvalidInput(String),
+    /// A setting this backend does not run (the CPU backend does).
+    #[error(transparent)]
+    Unsupported(#[from] mipnerf_core::backend::Unsupported),
 }
 
 /// Support for tests that need a GPU, shared by this crate's and the workspace's tests (the

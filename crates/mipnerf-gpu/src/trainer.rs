@@ -50,6 +50,7 @@ impl From<GpuError> for BackendError {
     fn from(e: GpuError) -> Self {
         match e {
             GpuError::InvalidInput(m) => Self::Invalid(m),
+            GpuError::Unsupported(u) => Self::Unsupported(u),
             e @ (GpuError::OutOfMemory(_) | GpuError::BatchTooLarge { .. }) => Self::OutOfMemory(Box::new(e)),
             e @ GpuError::DeviceLost { .. } => Self::DeviceLost(Box::new(e)),
             other => Self::Device(Box::new(other)),
@@ -125,6 +126,9 @@ impl GpuBackend {
         state: TrainState,
     ) -> Result<Self, GpuError> {
         state.check(&model).map_err(|e| GpuError::InvalidInput(e.to_string()))?;
+        if !model.config().field.is_mip_nerf() {
+            return Err(mipnerf_core::backend::Unsupported::Field.into());
+        }
         let occupancy = match state.occupancy {
             Some(grid) => {
                 let on_device = DeviceGrid::new(&ctx, &grid)?;

@@ -204,6 +204,12 @@ pub struct TrainFlags {
     /// contracted space.
     #[arg(long)]
     pub unbounded: bool,
+    /// The field the samples are read from: mip-nerf, the paper's MLP on the frustum's integrated
+    /// positional encoding; tri-mip, Tri-MipRF's feature planes read at the frustum's footprint
+    /// into a small MLP (CPU backend, bounded scenes); tri-plane, the same planes read at their
+    /// finest level (the aliasing baseline) [default: mip-nerf].
+    #[arg(long, value_enum)]
+    pub field: Option<crate::config::FieldArg>,
     /// Weight of mip-NeRF 360's distortion loss, which gathers each ray's weight into one short
     /// stretch against floaters (the successor's: 0.01; CPU backend) [default: 0, off].
     #[arg(long, value_name = "W")]
@@ -331,6 +337,9 @@ impl TrainFlags {
             spherify_radius: self.spherify_radius,
             unbounded: yes(self.unbounded),
             distortion_loss: self.distortion_loss,
+            field: self.field,
+            // From the data, when training starts.
+            tri_mip_bound: None,
             occupancy: yes(self.occupancy).or(no(self.no_occupancy)),
             occupancy_resolution: self.occupancy_resolution,
             occupancy_bound: self.occupancy_bound,

@@ -8,7 +8,7 @@ use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
 use mipnerf_core::PixelCenters;
 use mipnerf_core::RayShape;
-use mipnerf_core::model::{FastRecipe, ModelConfig, PointEncoding, Preset};
+use mipnerf_core::model::{FastRecipe, Field, ModelConfig, PointEncoding, Preset};
 use mipnerf_core::schedule::LrSchedule;
 use mipnerf_core::train::OptimConfig;
 use serde::{Deserialize, Serialize};
@@ -51,6 +51,29 @@ pub enum ModelKind {
     /// The NeRF baseline: PE, two MLPs, coarse weight 1, no area loss, corner pixels, ReLU density.
     Nerf,
 }
+
+/// The field the samples are read from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum FieldArg {
+    /// The paper's: the conical frustum's integrated positional encoding into the MLP.
+    MipNerf,
+    /// Tri-MipRF's: three feature planes with mipmaps, read at the frustum's footprint, into a
+    /// small MLP (CPU backend; bounded scenes, not forward-facing NDC data yet).
+    TriMip,
+    /// The same planes read at their finest level whatever the cone (point sampling: the
+    /// aliasing baseline for tri-mip).
+    TriPlane,
+}
+
+/// The Tri-Mip planes of the CLI's runs: 3 x 128² texels of 16 features (786,432 parameters) in
+/// 6 levels. 128 rather than Tri-MipRF's 512: each chunk of a training step keeps a dense
+/// gradient of every parameter, which 512² planes (12.6M parameters) make too large.
+pub const TRI_MIP_PLANES: mipnerf_core::tri_mip::TriMipConfig =
+    mipnerf_core::tri_mip::TriMipConfig { resolution: 128, features: 16, levels: 6 };
+
+/// The half side of the planes' cube before the data gives it (replaced when training starts).
+const TRI_MIP_BOUND_UNTIL_DATA: f32 = 1.5;
 
 /// The model size.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
@@ -147,6 +170,11 @@ pub struct TrainSettings {
     pub preset: Option<PresetArg>,
     /// Mip-NeRF or the NeRF baseline [default: mipnerf].
     pub model: Option<ModelKind>,
+    /// The field the samples are read from [default: mip-nerf; recorded only when another].
+    pub field: Option<FieldArg>,
+    /// Half the side of the Tri-Mip planes' cube, centred on the origin [default: from the
+    /// cameras, as the occupancy grid's; recorded when training starts].
+    pub tri_mip_bound: Option<f32>,
     /// Training steps in total [default: 2000].
     pub steps: Option<u64>,
     /// Rays (pixels) per batch [default: 1024].
@@ -281,6 +309,18 @@ macro_rules! merge_fields {
     ($base:expr, $over:expr, $($f:ident),*) => { TrainSettings { $($f: $over.$f.clone().or($base.$f.clone()),)* } };
 }
 
+impl FieldArg {
+    /// The flag's value, as `--field` takes it.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::MipNerf => "mip-nerf",
+            Self::TriMip => "tri-mip",
+            Self::TriPlane => "tri-plane",
+        }
+    }
+}
+
 impl TrainSettings {
     /// `self` with every field that `over` sets replaced.
     #[must_use]
@@ -291,6 +331,8 @@ impl TrainSettings {
             data,
             preset,
             model,
+            field,
+            tri_mip_bound,
             steps,
             batch_rays,
             seed,
@@ -453,6 +495,8 @@ impl TrainSettings {
             },
             unbounded: self.unbounded.filter(|&u| u),
             distortion_loss: self.distortion_loss.filter(|&d| d != 0.0),
+            field: self.field.filter(|&f| f != FieldArg::MipNerf),
+            tri_mip_bound: self.tri_mip_bound,
             occupancy: Some(occupancy),
             occupancy_resolution: occupancy
                 .then(|| self.occupancy_resolution.unwrap_or(FastRecipe::RECIPE.occupancy_resolution)),
@@ -560,6 +604,16 @@ impl TrainSettings {
         }
         m.white_bkgd = self.white_bkgd.unwrap_or(true);
         m.random_bkgd = self.random_bkgd.unwrap_or(false);
+        if let Some(field @ (FieldArg::TriMip | FieldArg::TriPlane)) = self.field {
+            if self.model == Some(ModelKind::Nerf) {
+                bail!("--field {} reads the planes into Mip-NeRF's model; leave out --model nerf", field.name());
+            }
+            let half_side = self.tri_mip_bound.unwrap_or(TRI_MIP_BOUND_UNTIL_DATA);
+            if !(half_side.is_finite() && half_side > 0.0) {
+                bail!("tri_mip_bound must be a positive number, got {half_side}");
+            }
+            m.field = Field::TriMip { planes: TRI_MIP_PLANES, half_side, pre_filtered: field == FieldArg::TriMip };
+        }
         if m.supersample == 0 || m.supersample > 16 {
             bail!("--supersample must be between 1 and 16, got {}", m.supersample);
         }

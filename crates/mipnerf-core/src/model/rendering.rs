@@ -77,6 +77,7 @@ impl Model {
             Levels::All => self.config.num_levels,
             Levels::Last => 1,
         };
+        let field = self.field_state(params);
         let Some(guide) = self.guide(grid, rays) else {
             let chunk = CHUNK_RAYS.div_ceil(rpp) * rpp;
             return rays
@@ -86,7 +87,7 @@ impl Model {
                     WORKSPACE.with(|ws| {
                         let ws = &mut ws.borrow_mut();
                         let out = Some((&mut out[..], which));
-                        self.run_chunk(params, rays, RayIds::From(0), None, None, Mode::Eval, ws, None, out)
+                        self.run_chunk(params, &field, rays, RayIds::From(0), None, None, Mode::Eval, ws, None, out)
                     });
                     out
                 })
@@ -105,7 +106,7 @@ impl Model {
                 WORKSPACE.with(|ws| {
                     let ws = &mut ws.borrow_mut();
                     let out = Some((&mut out[..], which));
-                    self.run_chunk(params, chunk, ids, Some(spans), None, Mode::Eval, ws, None, out)
+                    self.run_chunk(params, &field, chunk, ids, Some(spans), None, Mode::Eval, ws, None, out)
                 });
                 out
             })

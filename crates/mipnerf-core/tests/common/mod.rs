@@ -17,6 +17,41 @@ pub const TOL_RAYS: Tol = Tol { rel: 1e-6, abs: 1e-7 };
 /// The workspace's one tolerance type (`|got - want| <= abs + rel |want|`).
 pub use mipnerf_core::compare::Tolerance as Tol;
 
+/// The central difference of `loss` in parameter `i` of `p` with step `h`, divided by the step
+/// as `f32` actually took it (`p` is left as it was).
+pub fn central_difference(loss: impl Fn(&[f32]) -> f64, p: &mut [f32], i: usize, h: f32) -> f64 {
+    let x0 = p[i];
+    p[i] = x0 + h;
+    let up = loss(p);
+    p[i] = x0 - h;
+    let down = loss(p);
+    p[i] = x0;
+    (up - down) / (f64::from(x0 + h) - f64::from(x0 - h))
+}
+
+/// `steps` training steps of `trainer`, each on 256 rays drawn at random (from `seed`) from
+/// `rays` and their `colours`; the losses, every one checked finite.
+pub fn train_on_random_batches(
+    trainer: &mut mipnerf_core::train::Trainer,
+    rays: &[mipnerf_core::cone::Ray],
+    colours: &[[f32; 3]],
+    steps: usize,
+    seed: u64,
+) -> Vec<f32> {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand::rngs::SmallRng::seed_from_u64(seed);
+    (0..steps)
+        .map(|_| {
+            let idx: Vec<usize> = (0..256).map(|_| rng.random_range(0..rays.len())).collect();
+            let r: Vec<_> = idx.iter().map(|&i| rays[i]).collect();
+            let c: Vec<_> = idx.iter().map(|&i| colours[i]).collect();
+            let rep = trainer.train_step(&r, &c);
+            assert!(rep.stats.loss.is_finite(), "step {}: loss {}", rep.step, rep.stats.loss);
+            rep.stats.loss
+        })
+        .collect()
+}
+
 pub fn golden(name: &str) -> Value {
     let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/golden").join(name);
     let s = std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));

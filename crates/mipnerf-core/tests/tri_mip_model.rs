@@ -1,0 +1,141 @@
+//! The Tri-Mip field inside the model (`ModelConfig::field`): the whole loss's gradient through
+//! the MLP and the planes against finite differences, a short training run that cuts the loss,
+//! the same bits whatever the thread count, and a checkpoint that holds the planes.
+#![allow(clippy::unwrap_used, missing_docs)]
+
+mod common;
+use common::scene::ball_scene;
+use mipnerf_core::checkpoint::{self, Checkpoint};
+use mipnerf_core::model::{Field, Mode, Model, ModelConfig, Preset};
+use mipnerf_core::schedule::LrSchedule;
+use mipnerf_core::train::{AdamState, OptimConfig, Trainer};
+use mipnerf_core::tri_mip::TriMipConfig;
+use rand::{Rng, SeedableRng, rngs::SmallRng};
+
+/// Central differences of the whole loss (f32 passes): the step, and the agreement asked of the
+/// analytic gradient (absolute plus relative), as the Mip-NeRF model's own check uses.
+const FD_STEP: f32 = 1e-2;
+const FD_ABS: f64 = 3e-5;
+const FD_REL: f64 = 3e-2;
+
+/// A small model of the Tri-Mip field: 16² planes of 4 features, 3 levels, a 2 x 32 MLP.
+fn small(pre_filtered: bool) -> ModelConfig {
+    let mut cfg = Preset::Tiny.config();
+    cfg.net_depth = 2;
+    cfg.net_width = 32;
+    cfg.net_width_condition = 16;
+    cfg.num_samples = 16;
+    cfg.field =
+        Field::TriMip { planes: TriMipConfig { resolution: 16, features: 4, levels: 3 }, half_side: 1.5, pre_filtered };
+    cfg
+}
+
+#[test]
+fn the_whole_losss_gradient_through_the_planes_and_the_mlp_matches_finite_differences() {
+    let (rays, colours) = ball_scene(2, 6);
+    let mut cfg = small(true);
+    // One level: the fine level's intervals carry no gradient by design (see training.rs).
+    cfg.num_levels = 1;
+    let model = Model::new(cfg).unwrap();
+    assert!(model.field_params() > 0 && model.field_params() < model.num_params());
+    let mut params = model.init_params(3);
+    // Planes of a visible size, so that the loss moves with them.
+    let mut rng = SmallRng::seed_from_u64(4);
+    for p in &mut params[..model.field_params()] {
+        *p = rng.random_range(-0.5..0.5);
+    }
+    let mode = Mode::Train { seed: 1, step: 0 };
+    let mut grads = vec![0.0; model.num_params()];
+    model.loss_and_grad(&params, &rays[..40], &colours[..40], mode, &mut grads);
+    let loss = |p: &[f32]| {
+        let mut g = vec![0.0; model.num_params()];
+        f64::from(model.loss_and_grad(p, &rays[..40], &colours[..40], mode, &mut g).loss)
+    };
+    let fd = |p: &mut Vec<f32>, i: usize, h: f32| common::central_difference(loss, p, i, h);
+    // Plane parameters the batch reaches (a non-zero gradient), and some of every MLP layer.
+    let reached: Vec<usize> = (0..model.field_params()).filter(|&i| grads[i] != 0.0).collect();
+    assert!(reached.len() > 100, "the batch reaches {} plane parameters", reached.len());
+    let mut picks: Vec<(String, usize)> =
+        (0..24).map(|_| ("planes".to_owned(), reached[rng.random_range(0..reached.len())])).collect();
+    for l in &model.mlps()[0].layers {
+        picks.extend((0..4).map(|_| (l.name.clone(), l.kernel + rng.random_range(0..l.fan_in * l.fan_out))));
+    }
+    let (mut bad, mut checked, mut skipped) = (Vec::new(), 0, 0);
+    for (what, i) in picks {
+        let (a, b) = (fd(&mut params, i, FD_STEP), fd(&mut params, i, FD_STEP / 2.0));
+        if (a - b).abs() > FD_ABS + FD_REL * a.abs() {
+            skipped += 1;
+            continue;
+        }
+        checked += 1;
+        let g = f64::from(grads[i]);
+        if (g - b).abs() > FD_ABS + FD_REL * b.abs() {
+            bad.push(format!("{what} param {i}: analytic {g:e}, finite difference {b:e}"));
+        }
+    }
+    assert!(skipped * 4 <= checked + skipped, "{skipped} of {} parameters sat on kinks", checked + skipped);
+    assert!(bad.is_empty(), "{} of {checked} gradients disagree:\n{}", bad.len(), bad.join("\n"));
+}
+
+fn optim(steps: u64) -> OptimConfig {
+    OptimConfig {
+        lr: LrSchedule { lr_init: 1e-2, lr_final: 1e-3, max_steps: steps, lr_delay_steps: 0, lr_delay_mult: 1.0 },
+        ..OptimConfig::default()
+    }
+}
+
+#[test]
+fn a_few_hundred_steps_cut_the_loss_on_a_tiny_scene_with_either_reading_of_the_planes() {
+    for pre_filtered in [true, false] {
+        let (rays, colours) = ball_scene(8, 16);
+        let steps = 200;
+        let mut trainer = Trainer::new(Model::new(small(pre_filtered)).unwrap(), optim(steps), 1);
+        let losses = common::train_on_random_batches(&mut trainer, &rays, &colours, steps as usize, 5);
+        let first: f32 = losses[..10].iter().sum::<f32>() / 10.0;
+        let last: f32 = losses[steps as usize - 10..].iter().sum::<f32>() / 10.0;
+        eprintln!("tiny scene, pre-filtered {pre_filtered}: loss {first:.5} -> {last:.5} ({:.1}x)", first / last);
+        assert!(last * 5.0 <= first, "pre-filtered {pre_filtered}: the loss fell only from {first} to {last}");
+    }
+}
+
+#[test]
+fn training_the_planes_is_bit_for_bit_reproducible_whatever_the_thread_count() {
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| {
+            let (rays, colours) = ball_scene(2, 12);
+            let mut trainer = Trainer::new(Model::new(small(true)).unwrap(), optim(100), 9);
+            let losses: Vec<f32> =
+                (0..3).map(|_| trainer.train_step(&rays[..200], &colours[..200]).stats.loss).collect();
+            (losses, trainer.params)
+        })
+    };
+    let (one, two, three) = (run(1), run(2), run(3));
+    assert!(one == two && one == three, "losses or parameters differ between thread counts");
+}
+
+#[test]
+fn a_checkpoint_holds_the_planes_and_loads_back_exactly() {
+    let model = Model::new(small(true)).unwrap();
+    let n = model.num_params();
+    let f = |k: f32| (0..n).map(|i| (i as f32 * 0.37 + k).sin()).collect::<Vec<f32>>();
+    let ck = Checkpoint {
+        step: 5,
+        params: f(0.0),
+        adam: AdamState { m: f(1.0), v: f(2.0).into_iter().map(f32::abs).collect(), t: 5 },
+        occupancy: None,
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("ck.safetensors");
+    checkpoint::save(&path, &model, &ck).unwrap();
+    let back = checkpoint::load(&path, &model).unwrap();
+    assert!(back.params == ck.params && back.adam.m == ck.adam.m && back.adam.v == ck.adam.v);
+    // The planes are a tensor of their own, [3, R, R, C].
+    let bytes = std::fs::read(&path).unwrap();
+    let tensors = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+    assert_eq!(tensors.tensor("tri_mip/planes").unwrap().shape(), [3, 16, 16, 4]);
+    // A Mip-NeRF model of the same MLP does not take it.
+    let mut other = small(true);
+    other.field = Field::MipNerf;
+    assert!(checkpoint::load(&path, &Model::new(other).unwrap()).is_err());
+}
