@@ -139,3 +139,45 @@ fn a_checkpoint_holds_the_planes_and_loads_back_exactly() {
     other.field = Field::MipNerf;
     assert!(checkpoint::load(&path, &Model::new(other).unwrap()).is_err());
 }
+
+/// The occupancy grid's density probes read the Tri-Mip planes (at the probe's footprint), not
+/// the IPE: each probe's density is the MLP's on the planes' encoding of its Gaussian.
+#[test]
+fn the_occupancy_probes_of_a_tri_mip_model_read_the_planes() {
+    use mipnerf_core::mip::Gaussian;
+    use mipnerf_core::mlp::MlpCache;
+    use mipnerf_core::occupancy::DensityField;
+    let model = Model::new(small(true)).unwrap();
+    let mut params = model.init_params(6);
+    let mut rng = SmallRng::seed_from_u64(7);
+    for p in &mut params[..model.field_params()] {
+        *p = rng.random_range(-0.5..0.5);
+    }
+    let probes: Vec<Gaussian> = (0..50)
+        .map(|_| Gaussian {
+            mean: glam::Vec3::new(
+                rng.random_range(-1.4..1.4),
+                rng.random_range(-1.4..1.4),
+                rng.random_range(-1.4..1.4),
+            ),
+            cov_diag: glam::Vec3::splat(rng.random_range(0.0..0.01)),
+        })
+        .collect();
+    let got = model.density_field(&params).densities(&probes, false);
+    let state = model.field_state(&params);
+    let dim = model.config().x_dim();
+    let mut x = vec![0.0; probes.len() * dim];
+    for (g, dst) in probes.iter().zip(x.chunks_exact_mut(dim)) {
+        model.encode_probe(&params, &state, g, dst);
+    }
+    let mut cache = MlpCache::default();
+    model.mlps()[0].density(&params, &x, probes.len(), &mut cache);
+    let c = model.config();
+    let want: Vec<f32> = cache.raw_density.iter().map(|&r| c.density_activation.forward(r, c.density_bias)).collect();
+    assert_eq!(got, want);
+    // And the planes matter: other planes, other densities.
+    for p in &mut params[..model.field_params()] {
+        *p = -*p;
+    }
+    assert_ne!(model.density_field(&params).densities(&probes, false), got);
+}
