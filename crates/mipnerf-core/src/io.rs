@@ -177,8 +177,9 @@ pub mod cap {
     pub const WEIGHTS: u64 = 8 << 30;
 }
 
-/// Writes the bytes an encoder makes (`encode` writes them into a `Vec`) to `path` atomically
-/// ([`write_atomic`]): the encoder's every write, its last included, is checked.
+/// Writes the bytes an encoder makes (`encode` writes them into a `Vec`) to `path` whole or not
+/// at all ([`replace_with`]): made in memory, they reach the file in one checked write, so the
+/// encoder's last write cannot fail unseen.
 ///
 /// # Errors
 /// `encode`'s error, or the write's, naming the file.
@@ -188,23 +189,7 @@ pub fn write_encoded<E: From<IoError>>(
 ) -> Result<(), E> {
     let mut bytes = std::io::Cursor::new(Vec::new());
     encode(&mut bytes)?;
-    write_atomic_with_prefix(path, bytes.get_ref())?;
-    Ok(())
-}
-
-/// [`write_atomic`] under the temporary name [`partial_file`] (which folders' listings pass
-/// over), for outputs in folders that a manifest describes.
-fn write_atomic_with_prefix(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
-    let tmp = partial_file(path);
-    if let Err(e) = RealFs.write_synced(&tmp, bytes) {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(IoError::new(&tmp, e));
-    }
-    if let Err(e) = std::fs::rename(&tmp, path) {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(IoError::new(path, e));
-    }
-    RealFs.sync_dir(parent_dir(path)).map_err(|e| IoError::new(parent_dir(path), e))
+    replace_with(path, |tmp| std::fs::write(tmp, bytes.get_ref()).map_err(|e| E::from(IoError::new(tmp, e))))
 }
 
 /// The file operations of an atomic write, a seam so that tests can make any of them fail.
