@@ -222,3 +222,26 @@ fn the_fast_preset_of_the_library_is_the_clis() {
     assert!(!Options::preset(Preset::Small).flush_subnormals && !Options::preset(Preset::Paper).flush_subnormals);
     assert!(!Options::default().flush_subnormals);
 }
+
+/// The Tri-Mip field through the facade: chosen in `Options::model`, it trains, saves and loads
+/// back as the same model, rendering the same picture bit for bit.
+#[test]
+fn a_tri_mip_nerf_saves_and_loads_as_it_was() {
+    use mipnerf::mipnerf_core::model::Field;
+    use mipnerf::mipnerf_core::tri_mip::TriMipConfig;
+    let mut options = cpu_tiny();
+    options.model.field = Field::TriMip {
+        planes: TriMipConfig { resolution: 16, features: 4, levels: 3 },
+        half_side: 1.5,
+        pre_filtered: true,
+    };
+    let mut nerf = Nerf::new(demo::dataset(3, 12).unwrap(), options).unwrap();
+    nerf.train(3).unwrap();
+    let before = nerf.render(&novel_camera()).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("tri-mip.safetensors");
+    nerf.save(&path).unwrap();
+    // Loaded with the default options: the checkpoint says which field it is.
+    let mut loaded = Nerf::load(&path, cpu_tiny(), None).unwrap();
+    assert_eq!(loaded.render(&novel_camera()).unwrap(), before);
+}

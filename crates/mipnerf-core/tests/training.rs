@@ -5,15 +5,11 @@
 mod common;
 use common::scene::ball_scene;
 use mipnerf_core::model::{Mode, Model, ModelConfig, Preset};
-use mipnerf_core::schedule::LrSchedule;
 use mipnerf_core::train::{OptimConfig, Trainer, clip_gradients};
 use rand::{Rng, SeedableRng, rngs::SmallRng};
 
 fn tiny_optim(steps: u64) -> OptimConfig {
-    OptimConfig {
-        lr: LrSchedule { lr_init: 5e-3, lr_final: 5e-4, max_steps: steps, lr_delay_steps: 0, lr_delay_mult: 1.0 },
-        ..OptimConfig::default()
-    }
+    common::optim_decaying(5e-3, 5e-4, steps)
 }
 
 #[test]

@@ -7,7 +7,6 @@ mod common;
 use common::scene::ball_scene;
 use mipnerf_core::checkpoint::{self, Checkpoint};
 use mipnerf_core::model::{Field, Mode, Model, ModelConfig, Preset};
-use mipnerf_core::schedule::LrSchedule;
 use mipnerf_core::train::{AdamState, OptimConfig, Trainer};
 use mipnerf_core::tri_mip::TriMipConfig;
 use rand::{Rng, SeedableRng, rngs::SmallRng};
@@ -78,10 +77,7 @@ fn the_whole_losss_gradient_through_the_planes_and_the_mlp_matches_finite_differ
 }
 
 fn optim(steps: u64) -> OptimConfig {
-    OptimConfig {
-        lr: LrSchedule { lr_init: 1e-2, lr_final: 1e-3, max_steps: steps, lr_delay_steps: 0, lr_delay_mult: 1.0 },
-        ..OptimConfig::default()
-    }
+    common::optim_decaying(1e-2, 1e-3, steps)
 }
 
 #[test]

@@ -29,6 +29,21 @@ pub fn central_difference(loss: impl Fn(&[f32]) -> f64, p: &mut [f32], i: usize,
     (up - down) / (f64::from(x0 + h) - f64::from(x0 - h))
 }
 
+/// The default optimiser with a learning rate decaying from `lr_init` to `lr_final` over
+/// `steps` steps, without warm-up.
+pub fn optim_decaying(lr_init: f32, lr_final: f32, steps: u64) -> mipnerf_core::train::OptimConfig {
+    mipnerf_core::train::OptimConfig {
+        lr: mipnerf_core::schedule::LrSchedule {
+            lr_init,
+            lr_final,
+            max_steps: steps,
+            lr_delay_steps: 0,
+            lr_delay_mult: 1.0,
+        },
+        ..mipnerf_core::train::OptimConfig::default()
+    }
+}
+
 /// `steps` training steps of `trainer`, each on 256 rays drawn at random (from `seed`) from
 /// `rays` and their `colours`; the losses, every one checked finite.
 pub fn train_on_random_batches(
