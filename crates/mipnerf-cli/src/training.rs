@@ -12,7 +12,7 @@ use mipnerf_core::backend::TrainState;
 use mipnerf_core::checkpoint::{self};
 use mipnerf_core::data::{self, Dataset, Format, Split};
 use mipnerf_core::model::Levels;
-use mipnerf_core::model::Model;
+use mipnerf_core::model::{Field, Model};
 use mipnerf_core::occupancy::{OccupancyConfig, OccupancyGrid};
 
 use crate::backend;
@@ -160,20 +160,27 @@ fn train_locked(
     train_loop.run()
 }
 
+/// The half side of the cube NDC space fills: the photos' frustum, from the near plane to
+/// infinity, is `[-1, 1]^3`.
+const NDC_HALF_SIDE: f32 = 1.0;
+
 /// A run of the Tri-Mip field: its planes' cube from the cameras (as the occupancy grid's,
 /// `occupancy::auto_bound`) where the settings do not give it, recorded in the settings (so that
 /// `eval` and `render` rebuild the same model), and the model rebuilt over it; forward-facing
-/// data in NDC space, which the planes do not cover yet, refused.
+/// data in NDC space takes NDC's cube, and an unbounded scene the contracted space's.
 fn tri_mip_cube_from_data(mut s: TrainSettings, model: Model, ds: &Dataset) -> Result<(TrainSettings, Model)> {
     if model.config().field.is_mip_nerf() {
         return Ok((s, model));
     }
     let flag = s.field.map_or("tri-mip", crate::config::FieldArg::name);
     if ds.ndc.is_some() {
-        bail!(
-            "--field {flag}: these forward-facing photos train in NDC space, which the planes do not cover yet; train \
-             them with the default --field mip-nerf (or pass --spherify to train them in world space)"
-        );
+        // NDC space: the photos' frustum is the cube [-1, 1]^3, where the rays' cylinders
+        // already are.
+        s.tri_mip_bound = Some(s.tri_mip_bound.unwrap_or(NDC_HALF_SIDE));
+    }
+    if s.unbounded == Some(true) {
+        // All of an unbounded scene's space, contracted into the ball of radius 2.
+        s.tri_mip_bound = Some(s.tri_mip_bound.unwrap_or(mipnerf_core::occupancy::CONTRACTED_BOUND));
     }
     if s.tri_mip_bound.is_none() {
         let bound = mipnerf_core::occupancy::auto_bound(ds).ok_or_else(|| {
@@ -182,7 +189,7 @@ fn tri_mip_cube_from_data(mut s: TrainSettings, model: Model, ds: &Dataset) -> R
         s.tri_mip_bound = Some(bound);
     }
     let model = Model::new(s.model_config()?)?;
-    let p = crate::config::TRI_MIP_PLANES;
+    let Field::TriMip { planes: p, .. } = model.config().field else { unreachable!("the field is tri-mip") };
     eprintln!(
         "field: {flag}, planes 3 x {r}^2 x {c} features in {l} levels over the cube [-{b:.3}, {b:.3}]^3 ({} of the \
          model's {} parameters)",

@@ -1,6 +1,7 @@
-//! `train --field`: the Tri-Mip field trains, is recorded with its planes' cube, evaluates,
-//! renders and exports on the CPU; what it does not run yet (the GPU backend, the NeRF model,
-//! forward-facing data in NDC) is refused by name; a Mip-NeRF run records no field.
+//! `train --field`: the Tri-Mip field trains, is recorded with its planes' cube and recipe,
+//! evaluates, renders and exports on the CPU, over NDC's cube on forward-facing photos and the
+//! contracted space in an unbounded scene; what it does not run yet (the GPU backend, the NeRF
+//! model) and settings out of range are refused by name; a Mip-NeRF run records no field.
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
 
 mod common;
@@ -31,13 +32,18 @@ fn a_tri_mip_run_trains_evaluates_renders_and_exports_on_the_cpu() {
         "--field",
         "tri-mip",
     ]);
-    assert!(text.contains("field: tri-mip, planes 3 x 128^2 x 16 features in 6 levels over the cube"), "{text}");
+    // The field's recipe: 256² planes in levels down to 4 texels, the small MLP, the planes'
+    // learning rate, all recorded.
+    assert!(text.contains("field: tri-mip, planes 3 x 256^2 x 16 features in 7 levels over the cube"), "{text}");
     let config = std::fs::read_to_string(run.join("config.toml")).unwrap();
-    assert!(config.contains("field = \"tri-mip\"") && config.contains("tri_mip_bound = "), "{config}");
+    for key in ["field = \"tri-mip\"", "tri_mip_bound = ", "tri_mip_resolution = 256", "tri_mip_lr_mult = 10"] {
+        assert!(config.contains(key), "{key} in {config}");
+    }
+    assert!(config.contains("tri_mip_mlp = [2, 64, 1, 64]"), "{config}");
     // The planes are a tensor of the checkpoint.
     let bytes = std::fs::read(run.join("checkpoint.safetensors")).unwrap();
     let tensors = safetensors::SafeTensors::deserialize(&bytes).unwrap();
-    assert_eq!(tensors.tensor("tri_mip/planes").unwrap().shape(), [3, 128, 128, 16]);
+    assert_eq!(tensors.tensor("tri_mip/planes").unwrap().shape(), [3, 256, 256, 16]);
     // The saved run comes back as the same model: eval, render, export and --resume.
     let text = run_ok(&["eval", "--run", s(&run), "--backend", "cpu"]);
     assert!(text.contains("PSNR"), "{text}");
@@ -87,26 +93,75 @@ fn what_the_tri_mip_field_does_not_run_yet_is_refused_by_name() {
         text.contains("--field tri-plane reads the planes into Mip-NeRF's model; leave out --model nerf"),
         "{text}"
     );
-    let fern = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/llff_fern_tiny");
-    let text = run_err(&[
-        "train",
-        "--data",
-        s(&fern),
-        "--llff-factor",
-        "64",
-        "--out",
-        s(&out("fern")),
-        "--steps",
-        "2",
-        "--backend",
-        "cpu",
-        "--field",
-        "tri-mip",
-    ]);
-    assert!(text.contains("--field tri-mip: these forward-facing photos train in NDC space"), "{text}");
+    // The field's own settings: only with the field, and within range.
+    let config = |name: &str, text: &str| {
+        let path = out(&format!("{name}.toml"));
+        std::fs::write(&path, text).unwrap();
+        path
+    };
+    let train_with = |cfg: &Path, field: &[&str]| {
+        let run = out("refused");
+        let mut args = vec!["train", "--data", s(&data), "--out", s(&run), "--steps", "2", "--config", s(cfg)];
+        args.extend_from_slice(field);
+        run_err(&args)
+    };
+    let text = train_with(&config("without", "tri_mip_resolution = 64\n"), &[]);
+    assert!(text.contains("`tri_mip_resolution` (a config-file key) sets the Tri-Mip field's planes"), "{text}");
+    let text = train_with(&config("odd", "tri_mip_resolution = 100\n"), &["--field", "tri-mip"]);
+    assert!(text.contains("`tri_mip_resolution` must be a power of two from 16 to 2048"), "{text}");
+    let text = train_with(&config("mlp", "tri_mip_mlp = [2, 0, 1, 64]\n"), &["--field", "tri-mip"]);
+    assert!(text.contains("`tri_mip_mlp` is [trunk depth, trunk width, colour depth, colour width]"), "{text}");
+    let text = train_with(&config("lr", "tri_mip_lr_mult = -1.0\n"), &["--field", "tri-mip"]);
+    assert!(text.contains("`tri_mip_lr_mult` must be a positive number"), "{text}");
+    assert!(!out("refused").exists(), "a refused run leaves no folder");
     // A Mip-NeRF run records no field: its configuration is what it was.
     let run = out("mip");
     run_ok(&["train", "--data", s(&data), "--out", s(&run), "--steps", "2", "--backend", "cpu"]);
     let config = std::fs::read_to_string(run.join("config.toml")).unwrap();
     assert!(!config.contains("field") && !config.contains("tri_mip"), "{config}");
+}
+
+#[test]
+fn forward_facing_photos_train_the_planes_over_ndc_and_an_unbounded_scene_over_its_contraction() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = |name: &str| dir.path().join(name);
+    let fern = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/llff_fern_tiny");
+    let cfg = out("small.toml");
+    std::fs::write(&cfg, "tri_mip_resolution = 32\n").unwrap();
+    let train = |run: &Path, more: &[&str]| {
+        let mut args = vec!["train", "--data", s(&fern), "--llff-factor", "64", "--out", s(run), "--steps", "3"];
+        args.extend_from_slice(&["--backend", "cpu", "--field", "tri-mip", "--config", s(&cfg)]);
+        args.extend_from_slice(more);
+        run_ok(&args)
+    };
+    let text = train(&out("fern"), &[]);
+    assert!(text.contains("planes 3 x 32^2 x 16 features in 4 levels over the cube [-1.000, 1.000]^3"), "{text}");
+    let text = run_ok(&["eval", "--run", s(&out("fern")), "--backend", "cpu"]);
+    assert!(text.contains("PSNR"), "{text}");
+    let text = train(&out("unbounded"), &["--unbounded"]);
+    assert!(text.contains("over the cube [-2.000, 2.000]^3"), "{text}");
+    let text = run_ok(&["eval", "--run", s(&out("unbounded")), "--backend", "cpu"]);
+    assert!(text.contains("PSNR"), "{text}");
+}
+
+#[test]
+fn bench_measures_the_tri_mip_field_beside_the_mlp_on_the_cpu() {
+    let args = ["bench", "--backend", "both", "--batch-rays", "16", "--steps", "1", "--render-side", "8"];
+    let text = run_ok(&[&args[..], &["--field", "mip-nerf,tri-mip"]].concat());
+    let rows: Vec<&str> = text.lines().filter(|l| l.starts_with("| tiny, ")).collect();
+    let cpu = |field: &str| rows.iter().find(|r| r.starts_with(&format!("| tiny, {field} (")) && r.contains("CPU"));
+    for field in ["mip-nerf", "tri-mip"] {
+        let row = cpu(field).unwrap_or_else(|| panic!("no CPU row of {field}: {text}"));
+        let cells: Vec<&str> = row.split('|').map(str::trim).filter(|c| !c.is_empty()).collect();
+        let numbers: Vec<f64> = cells[2..].iter().map(|c| c.parse().unwrap()).collect();
+        assert!(numbers.len() == 3 && numbers.iter().all(|&x| x > 0.0), "{row}");
+    }
+    // The recipe's planes: 3 x 256² x 16 parameters besides the MLP.
+    let params = |row: &str| -> usize { row.split(" (").nth(1).unwrap().split(' ').next().unwrap().parse().unwrap() };
+    assert!(params(cpu("tri-mip").unwrap()) > 3 * 256 * 256 * 16, "{text}");
+    // No GPU row of the Tri-Mip field: said, not silently left out.
+    assert!(!rows.iter().any(|r| r.starts_with("| tiny, tri-mip") && !r.contains("CPU")), "{text}");
+    if rows.iter().any(|r| r.starts_with("| tiny, mip-nerf") && !r.contains("CPU")) {
+        assert!(text.contains("the GPU backend runs the Mip-NeRF field only so far"), "{text}");
+    }
 }

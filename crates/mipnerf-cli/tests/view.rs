@@ -583,3 +583,29 @@ fn a_forward_facing_capture_keeps_its_aspect_and_its_camera_stays_where_the_phot
     assert!(attr("data-clamped").unwrap_or(0) >= 1, "the drag past the capture was held back: {canvas}");
     assert!(attr("data-frames").unwrap_or(0) > attr("data-moved-at").unwrap_or(0), "a frame after the move: {canvas}");
 }
+
+/// The viewer serves a run of the Tri-Mip field as any other: a still and the coarse-to-fine
+/// stream of a trained model that is not blank.
+#[test]
+fn the_viewer_serves_a_run_of_the_tri_mip_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = common::demo_scene(dir.path(), 32, 8);
+    let run = dir.path().join("run");
+    let cfg = dir.path().join("planes.toml");
+    std::fs::write(&cfg, "tri_mip_resolution = 64\n").unwrap();
+    let (d, r, c) = (data.to_str().unwrap(), run.to_str().unwrap(), cfg.to_str().unwrap());
+    let train = ["train", "--data", d, "--out", r, "--preset", "fast", "--field", "tri-mip", "--config", c];
+    run_ok(&[&train[..], &["--steps", "150", "--backend", "cpu", "--quiet"]].concat());
+    let server = start(&["view", "--run", r, "--port", "0"]);
+    let addr = server.addr.as_str();
+    let (status, _, info) = get(addr, "/api/info");
+    assert_eq!(status, 200);
+    let info: serde_json::Value = serde_json::from_slice(&info).unwrap();
+    let (status, ty, png) = get(addr, &format!("/api/render?{}", query(&info, 24, 20)));
+    assert_eq!((status, ty.as_str()), (200, "image/png"));
+    let frame = image::load_from_memory(&png).unwrap().to_rgb8();
+    assert!(distinct_colours(&frame) >= MIN_FRAME_COLOURS, "a blank frame: {} colours", distinct_colours(&frame));
+    let (status, _, sse) = get(addr, &format!("/api/stream?{}", query(&info, 32, 32)));
+    assert_eq!(status, 200);
+    assert!(String::from_utf8_lossy(&dechunk(&sse)).contains("done"), "the stream ends with done");
+}

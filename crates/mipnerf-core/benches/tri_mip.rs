@@ -201,7 +201,7 @@ fn batched(planes: TriMipConfig, n: usize, reps: usize) {
     let forward = per_sample(reps, n, || encode_batch(&planes, &level0, &pyramid, &points, &levels, &mut t, &mut x));
     let d_x: Vec<f32> = (0..n * dim).map(|i| ((i % 17) as f32 - 8.0) * 1e-3).collect();
     let (mut grad0, mut grad_pyramid) = (vec![0.0; planes.num_params()], Pyramid::zeros(planes));
-    let backward = per_sample(reps, n, || encode_backward_batch(&planes, &t, &d_x, &mut grad0, &mut grad_pyramid));
+    let backward = per_sample(reps, n, || encode_backward_batch(&planes, &[(&t, &d_x)], &mut grad0, &mut grad_pyramid));
     let sequential = per_sample(reps, n, || {
         for (k, tk) in t.iter().enumerate() {
             encode_backward(&planes, tk, &d_x[k * dim..(k + 1) * dim], &mut grad0, &mut grad_pyramid);

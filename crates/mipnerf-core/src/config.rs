@@ -117,7 +117,9 @@ pub enum Field {
     /// MLP of the model's shape.
     #[default]
     MipNerf,
-    /// The Tri-Mip planes ([`crate::tri_mip`]) over the cube `[-half_side, half_side]^3`,
+    /// The Tri-Mip planes ([`crate::tri_mip`]) over the cube `[-half_side, half_side]^3` (of
+    /// the scene's world space; of NDC space for forward-facing data; of the contracted space
+    /// in an unbounded scene),
     /// read at the frustum's footprint (`pre_filtered`, Tri-MipRF) or at level 0 whatever the
     /// cone (point sampling: the aliasing baseline), before an MLP of the model's shape without
     /// skip connection.
@@ -220,6 +222,44 @@ impl FastRecipe {
             lr_delay_steps: self.lr_delay_steps,
             lr_delay_mult: 0.01,
         }
+    }
+}
+
+/// How the Tri-Mip field trains ([`Field::TriMip`]) where a run does not say otherwise: its
+/// planes, the small MLP after them and the planes' own Adam settings. The CLI's `--field
+/// tri-mip` and `tri-plane` take it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TriMipRecipe {
+    /// Texels along a side of the planes' level 0 (16 features a texel).
+    pub resolution: usize,
+    /// The MLP after the planes: trunk depth and width, colour branch depth and width.
+    pub mlp: [usize; 4],
+    /// The planes' learning rate over the MLP's, and their Adam epsilon.
+    pub adam: crate::optim::FieldAdam,
+}
+
+impl TriMipRecipe {
+    /// The recipe.
+    pub const RECIPE: Self =
+        Self { resolution: 256, mlp: [2, 64, 1, 64], adam: crate::optim::FieldAdam { lr_mult: 10.0, eps: 1e-15 } };
+
+    /// Features a texel (Tri-MipRF's 16: one 64-byte cache line).
+    pub const FEATURES: usize = 16;
+
+    /// The planes of `resolution` texels a side: 16 features, and levels down to 4 texels a
+    /// side (Tri-MipRF's 8 levels for 512).
+    #[must_use]
+    pub fn planes(resolution: usize) -> TriMipConfig {
+        let levels = (resolution.max(8).ilog2() as usize).saturating_sub(1);
+        TriMipConfig { resolution, features: Self::FEATURES, levels }
+    }
+
+    /// `config` with the MLP after the planes `mlp` (trunk depth and width, colour branch depth
+    /// and width) and no skip connection (the planes' features are read once).
+    #[must_use]
+    pub fn with_mlp(config: ModelConfig, mlp: [usize; 4]) -> ModelConfig {
+        let [net_depth, net_width, net_depth_condition, net_width_condition] = mlp;
+        ModelConfig { net_depth, net_width, net_depth_condition, net_width_condition, skip_layer: 0, ..config }
     }
 }
 

@@ -69,6 +69,20 @@ pub fn contract_jacobian(x: Vec3) -> Mat3 {
     Mat3::from_cols(Vec3::new(diag.x, xy, xz), Vec3::new(xy, diag.y, yz), Vec3::new(xz, yz, diag.z))
 }
 
+/// How much the contraction scales lengths across the direction of `x` (at `x`): 1 inside the
+/// unit ball, `(2 - 1/r)/r` outside it (`r = |x|`). A cone from a camera inside the ball crosses
+/// the contracted shells nearly radially, so its cross-section shrinks by this factor.
+#[must_use]
+#[inline]
+pub fn contraction_across(x: Vec3) -> f32 {
+    let r2 = x.length_squared();
+    if r2 <= 1.0 {
+        return 1.0;
+    }
+    let r = r2.sqrt();
+    (2.0 - 1.0 / r) / r
+}
+
 /// A Gaussian with a diagonal covariance (an isotropic probe, [`crate::occupancy`]'s cells, or
 /// any point query) carried through the contraction: unchanged inside the unit ball, else mean
 /// `contract(μ)` and the diagonal of `J diag(Σ) Jᵀ`, `Σₖ Jᵢₖ² Σₖₖ`.

@@ -22,7 +22,8 @@ use crate::stages;
 use crate::tri_mip::{Pyramid, Taps};
 use crate::wide::wide;
 
-pub use crate::config::{FAST_SAMPLES, FastRecipe, Field, Mode, ModelConfig, PointEncoding, Preset};
+pub use crate::config::{FAST_SAMPLES, FastRecipe, Field, Mode, ModelConfig, PointEncoding, Preset, TriMipRecipe};
+use field::FieldGrads;
 pub use field::FieldState;
 pub use rendering::{LevelOutput, Levels};
 
@@ -80,6 +81,10 @@ pub const CHUNK_RAYS: usize = 64;
 #[derive(Default, Debug, Clone)]
 pub struct GradScratch {
     chunk_grads: Vec<Vec<f32>>,
+    /// Each chunk's share of the field's gradient (the Tri-Mip planes'), scattered into the
+    /// planes after every chunk has run, in chunk order ([`Model::field_backward_chunks`]).
+    chunk_field: Vec<FieldGrads>,
+    grad_pyramid: Option<Pyramid>,
 }
 
 thread_local! {
@@ -103,11 +108,9 @@ struct Workspace {
     d_raw_rgb: Vec<f32>,
     d_raw_density: Vec<f32>,
     pixel_rgb: Vec<[f32; 3]>,
-    /// The Tri-Mip field's taps of the level's samples, the gradient of its encodings, and its
-    /// pyramid's gradient (pushed into level 0 at the end of the chunk).
+    /// The Tri-Mip field's taps of the level's samples (copied to the chunk's [`FieldGrads`]
+    /// in training).
     taps: Vec<Taps>,
-    d_x: Vec<f32>,
-    grad_pyramid: Option<Pyramid>,
 }
 
 impl Model {
@@ -149,13 +152,6 @@ impl Model {
                     return Err(ModelError::Config(format!(
                         "the Tri-Mip planes' cube needs a positive half side, got {half_side}"
                     )));
-                }
-                if config.unbounded {
-                    return Err(ModelError::Config(
-                        "the Tri-Mip field covers a bounded cube; an unbounded scene trains with the Mip-NeRF field \
-                         for now"
-                            .into(),
-                    ));
                 }
                 planes.num_params()
             }
@@ -356,13 +352,23 @@ impl Model {
         let chunk_pix = CHUNK_RAYS.div_ceil(rpp);
         let n_chunks = run_targets.len().div_ceil(chunk_pix);
         scratch.chunk_grads.resize_with(n_chunks, Vec::new);
+        scratch.chunk_field.resize_with(n_chunks, FieldGrads::default);
+        // The field's parameters (the planes) come first and take their gradient after the
+        // chunks (below), so a chunk's buffer is cleared and summed from `field_params` on only
+        // (its first part is allocated zero and never touched).
+        let fp = self.field_params;
         let mut sums: Vec<Vec<[f64; 2]>> = scratch.chunk_grads[..n_chunks]
             .par_iter_mut()
+            .zip(&mut scratch.chunk_field[..n_chunks])
             .zip(run_rays.par_chunks(chunk_pix * rpp).zip(run_targets.par_chunks(chunk_pix)))
             .enumerate()
-            .map(|(ci, (g, (rays, tg)))| {
-                g.clear();
-                g.resize(self.num_params, 0.0);
+            .map(|(ci, ((g, fg), (rays, tg)))| {
+                if g.len() == self.num_params {
+                    g[fp..].fill(0.0);
+                } else {
+                    *g = vec![0.0; self.num_params];
+                }
+                fg.clear();
                 let first = ci * chunk_pix * rpp;
                 let (ids, spans) = match &guide {
                     Some(guide) => {
@@ -373,7 +379,7 @@ impl Model {
                 WORKSPACE.with(|ws| {
                     let ws = &mut ws.borrow_mut();
                     let targets = Some((tg, norm, dist_scale));
-                    self.run_chunk(params, &field, rays, ids, spans, targets, mode, ws, Some(g), None)
+                    self.run_chunk(params, &field, rays, ids, spans, targets, mode, ws, Some((g, fg)), None)
                 })
             })
             .collect();
@@ -399,14 +405,16 @@ impl Model {
         // the number of threads.
         let chunk_grads = &scratch.chunk_grads[..n_chunks];
         const BLOCK: usize = 8192;
-        grads.par_chunks_mut(BLOCK).enumerate().for_each(|(bi, out)| {
-            let (lo, len) = (bi * BLOCK, out.len());
+        let (field_grads, mlp_grads) = grads.split_at_mut(fp);
+        mlp_grads.par_chunks_mut(BLOCK).enumerate().for_each(|(bi, out)| {
+            let (lo, len) = (fp + bi * BLOCK, out.len());
             for g in chunk_grads {
                 for (o, &x) in out.iter_mut().zip(&g[lo..lo + len]) {
                     *o += x;
                 }
             }
         });
+        self.field_backward_chunks(&scratch.chunk_field[..n_chunks], &mut scratch.grad_pyramid, field_grads);
         let levels = self.config.num_levels;
         let mut total = vec![[0.0f64; 2]; levels];
         for s in &sums {
@@ -452,7 +460,7 @@ impl Model {
         targets: Option<(&[[f32; 3]], f32, f32)>,
         mode: Mode,
         ws: &mut Workspace,
-        mut grads: Option<&mut [f32]>,
+        mut grads: Option<(&mut [f32], &mut FieldGrads)>,
         mut out: Option<(&mut [LevelOutput], Levels)>,
     ) -> Vec<[f64; 2]> {
         let c = &self.config;
@@ -509,7 +517,7 @@ impl Model {
                 Some((out, Levels::Last)) if last => self.write_level_output(0, 1, ws, out),
                 _ => {}
             }
-            let (Some((tg, norm, dist_scale)), Some(grads)) = (targets, grads.as_deref_mut()) else {
+            let (Some((tg, norm, dist_scale)), Some((grads, field_grads))) = (targets, grads.as_mut()) else {
                 continue;
             };
             self.loss_gradient(level, rays, tg, norm, &mut sums[level], ws);
@@ -521,10 +529,7 @@ impl Model {
             }
             let (x, view, cache) = (&ws.x, &ws.view, &mut ws.cache);
             mlp.backward(params, x, view, s, cache, &ws.d_raw_rgb, &ws.d_raw_density, grads);
-            self.field_backward(params, mlp, n, ws, grads);
-        }
-        if let Some(grads) = grads {
-            self.field_backward_finish(ws, grads);
+            self.field_backward(params, mlp, n, ws, field_grads);
         }
         sums
     }

@@ -46,25 +46,63 @@ impl AdamState {
     /// # Panics
     /// If the lengths differ.
     pub fn update(&mut self, cfg: &AdamConfig, lr: f32, params: &mut [f32], grads: &[f32]) {
+        self.update_split(cfg, lr, None, params, grads);
+    }
+
+    /// [`update`](Self::update) with the first `split.0` parameters (a field's own, the Tri-Mip
+    /// planes) taking the learning rate `lr · split.1.lr_mult` and epsilon `split.1.eps`; one
+    /// step count for both.
+    ///
+    /// # Panics
+    /// If the lengths differ, or the split is longer than the parameters.
+    pub fn update_split(
+        &mut self,
+        cfg: &AdamConfig,
+        lr: f32,
+        split: Option<(usize, FieldAdam)>,
+        params: &mut [f32],
+        grads: &[f32],
+    ) {
         assert!(params.len() == grads.len() && params.len() == self.m.len(), "adam: lengths");
+        let (first, field) = split.unwrap_or((0, FieldAdam { lr_mult: 1.0, eps: cfg.eps }));
+        assert!(first <= params.len(), "adam: split");
         self.t += 1;
         let t = self.t as i32;
         let c1 = 1.0 - cfg.beta1.powi(t);
         let c2 = 1.0 - cfg.beta2.powi(t);
         const BLOCK: usize = 16 * 1024;
-        params
-            .par_chunks_mut(BLOCK)
-            .zip(self.m.par_chunks_mut(BLOCK))
-            .zip(self.v.par_chunks_mut(BLOCK))
-            .zip(grads.par_chunks(BLOCK))
-            .for_each(|(((p, m), v), g)| {
-                for i in 0..p.len() {
-                    m[i] = cfg.beta1 * m[i] + (1.0 - cfg.beta1) * g[i];
-                    v[i] = cfg.beta2 * v[i] + (1.0 - cfg.beta2) * g[i] * g[i];
-                    p[i] -= lr * (m[i] / c1) / ((v[i] / c2).sqrt() + cfg.eps);
-                }
-            });
+        let part = |lr: f32, eps: f32, p: &mut [f32], m: &mut [f32], v: &mut [f32], g: &[f32]| {
+            p.par_chunks_mut(BLOCK)
+                .zip(m.par_chunks_mut(BLOCK))
+                .zip(v.par_chunks_mut(BLOCK))
+                .zip(g.par_chunks(BLOCK))
+                .for_each(|(((p, m), v), g)| {
+                    for i in 0..p.len() {
+                        m[i] = cfg.beta1 * m[i] + (1.0 - cfg.beta1) * g[i];
+                        v[i] = cfg.beta2 * v[i] + (1.0 - cfg.beta2) * g[i] * g[i];
+                        p[i] -= lr * (m[i] / c1) / ((v[i] / c2).sqrt() + eps);
+                    }
+                });
+        };
+        let (p0, p1) = params.split_at_mut(first);
+        let (m0, m1) = self.m.split_at_mut(first);
+        let (v0, v1) = self.v.split_at_mut(first);
+        let (g0, g1) = grads.split_at(first);
+        part(lr * field.lr_mult, field.eps, p0, m0, v0, g0);
+        part(lr, cfg.eps, p1, m1, v1, g1);
     }
+}
+
+/// Adam's learning rate and epsilon for a field's own parameters (the Tri-Mip planes) where they
+/// differ from the MLP's: grid methods train their grids with a larger rate and a tiny epsilon
+/// (Tri-MipRF: 10 times the networks' rate, epsilon 1e-15), so that texels few rays reach
+/// still move at the full rate.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct FieldAdam {
+    /// The field's learning rate over the MLP's.
+    pub lr_mult: f32,
+    /// Added to the square root of the field's second moments.
+    pub eps: f32,
 }
 
 /// Optimisation settings. Defaults are the official ones.
@@ -79,12 +117,40 @@ pub struct OptimConfig {
     pub grad_max_val: f32,
     /// Scale the gradient down to this L2 norm if it is larger (0 = off).
     pub grad_max_norm: f32,
+    /// Adam's settings for the field's own parameters, where they differ (none: the MLP's).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub field: Option<FieldAdam>,
 }
 
 impl Default for OptimConfig {
     fn default() -> Self {
-        Self { lr: LrSchedule::default(), adam: AdamConfig::default(), grad_max_val: 0.0, grad_max_norm: 0.0 }
+        Self {
+            lr: LrSchedule::default(),
+            adam: AdamConfig::default(),
+            grad_max_val: 0.0,
+            grad_max_norm: 0.0,
+            field: None,
+        }
     }
+}
+
+/// The sum of the squares of `values` in f64, in 8 lanes (vectorised), then the lanes and the
+/// remainder in order.
+fn sum_of_squares(values: &[f32]) -> f64 {
+    crate::wide::wide(
+        #[inline(always)]
+        || {
+            let mut lanes = [0.0f64; 8];
+            let chunks = values.chunks_exact(8);
+            let rest = chunks.remainder();
+            for c in chunks {
+                for (lane, &v) in lanes.iter_mut().zip(c) {
+                    *lane += f64::from(v) * f64::from(v);
+                }
+            }
+            lanes.iter().sum::<f64>() + rest.iter().map(|&v| f64::from(v) * f64::from(v)).sum::<f64>()
+        },
+    )
 }
 
 /// Clips `grads` by value then by norm, as the official `train_step` does, and returns the norm
@@ -93,7 +159,10 @@ pub fn clip_gradients(grads: &mut [f32], max_val: f32, max_norm: f32) -> f32 {
     if max_val > 0.0 {
         grads.iter_mut().for_each(|g| *g = g.clamp(-max_val, max_val));
     }
-    let norm = grads.iter().map(|g| f64::from(*g) * f64::from(*g)).sum::<f64>().sqrt() as f32;
+    // Blocks summed in parallel, then in block order: the same sum whatever the thread count.
+    const BLOCK: usize = 64 * 1024;
+    let blocks: Vec<f64> = grads.par_chunks(BLOCK).map(sum_of_squares).collect();
+    let norm = blocks.iter().sum::<f64>().sqrt() as f32;
     if max_norm > 0.0 {
         let mult = (max_norm / (1e-7 + norm)).min(1.0);
         if mult < 1.0 {

@@ -1,11 +1,13 @@
 //! The training step on the CPU: the model's loss and gradient, the optimiser ([`crate::optim`],
 //! re-exported here) and the occupancy grid's updates.
 
+use rayon::prelude::*;
+
 use crate::cone::Ray;
 use crate::model::{GradScratch, LossStats, Mode, Model};
 use crate::occupancy::OccupancyGrid;
 
-pub use crate::optim::{AdamConfig, AdamState, OptimConfig, clip_gradients};
+pub use crate::optim::{AdamConfig, AdamState, FieldAdam, OptimConfig, clip_gradients};
 
 /// What one training step reports.
 #[derive(Clone, Debug, PartialEq)]
@@ -73,15 +75,16 @@ impl Trainer {
         {
             grid.update(&self.model.density_field(&self.params), self.seed, self.step);
         }
-        self.grads.fill(0.0);
+        self.grads.par_chunks_mut(64 * 1024).for_each(|g| g.fill(0.0));
         let mode = Mode::Train { seed: self.seed, step: self.step as u32 };
         let (params, grads, scratch) = (&self.params, &mut self.grads, &mut self.scratch);
         let grid = self.occupancy.as_ref();
         let stats = self.model.loss_and_grad_guided(params, rays, targets, mode, grads, scratch, grid);
         let lr = self.optim.lr.lr(self.step);
         let clip = (self.optim.grad_max_val, self.optim.grad_max_norm);
-        let grad_norm =
-            crate::stages::adam_step(&self.optim.adam, lr, clip, &mut self.adam, &mut self.params, &mut self.grads);
+        let split = self.optim.field.map(|f| (self.model.field_params(), f));
+        let (params, grads) = (&mut self.params, &mut self.grads);
+        let grad_norm = crate::stages::adam_step(&self.optim.adam, lr, clip, split, &mut self.adam, params, grads);
         let report = StepReport { step: self.step, lr, stats, grad_norm: Some(grad_norm) };
         self.step += 1;
         report

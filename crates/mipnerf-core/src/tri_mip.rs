@@ -423,33 +423,60 @@ pub fn encode_batch(
     );
 }
 
-/// [`encode_backward`] over a batch: every sample's taps in sample order, on the calling thread,
-/// so every texel sums its contributions in one order whatever the thread count.
+/// [`encode_backward`] over batches of samples (each its taps and the gradient of its
+/// encodings, `taps.len() x encoding_dim`), the three planes in parallel: each plane's texels take
+/// their contributions in batch order and sample order, so every texel sums them in one order
+/// whatever the thread count (the sequential loop's result, bit for bit).
 ///
 /// Measured on 2 cores (`benches/tri_mip.rs`, `docs/results/tri-mip/per-sample-cost.md`), the
-/// scatter is bound by memory: 75 ns a sample on one thread against 139 for bands of texels that
-/// each scan every tap, and 156 for bands fed by a parallel sort of the taps (both on 2 threads,
-/// both bit-for-bit this loop's result). A parallel version waits for a machine where it wins.
+/// scatter is bound by memory: one thread made 75 ns a sample, where bands of texels that each
+/// scanned every tap made 139 and bands fed by a parallel sort 156. A plane's task reads only its
+/// own 8 of a sample's 24 taps, so the split by plane costs no extra scanning.
 ///
 /// # Panics
-/// If `d_x` is not `taps.len() x encoding_dim`.
+/// If a batch's `d_x` is not `taps.len() x encoding_dim`.
 pub fn encode_backward_batch(
     config: &TriMipConfig,
-    taps: &[Taps],
-    d_x: &[f32],
+    batches: &[(&[Taps], &[f32])],
     grad_level0: &mut [f32],
     grad_pyramid: &mut Pyramid,
 ) {
-    let dim = config.encoding_dim();
-    assert_eq!(d_x.len(), taps.len() * dim, "tri-mip encode backward batch: d_x");
-    wide(
-        #[inline(always)]
-        || {
-            for (k, t) in taps.iter().enumerate() {
-                encode_backward_inline(config, t, &d_x[k * dim..(k + 1) * dim], grad_level0, grad_pyramid);
-            }
-        },
-    );
+    use rayon::prelude::*;
+    let (c, dim) = (config.features, config.encoding_dim());
+    for (taps, d_x) in batches {
+        assert_eq!(d_x.len(), taps.len() * dim, "tri-mip encode backward batch: d_x");
+    }
+    let plane_len = |level: usize| config.size(level) * config.size(level) * c;
+    assert_eq!(grad_level0.len(), 3 * plane_len(0), "tri-mip encode backward batch: level 0");
+    // Each plane's slice of level 0 and of every level above.
+    let mut planes: Vec<(usize, Vec<&mut [f32]>)> =
+        grad_level0.chunks_mut(plane_len(0)).map(|p| vec![p]).enumerate().collect();
+    for (l, level) in grad_pyramid.coarse.iter_mut().enumerate() {
+        for (p, slice) in level.chunks_mut(plane_len(l + 1)).enumerate() {
+            planes[p].1.push(slice);
+        }
+    }
+    planes.par_iter_mut().for_each(|(p, levels)| {
+        let p = *p;
+        wide(
+            #[inline(always)]
+            || {
+                for (taps, d_x) in batches {
+                    for (k, t) in taps.iter().enumerate() {
+                        let src = &d_x[k * dim + p * c..k * dim + (p + 1) * c];
+                        for &(l, offset, w) in &t.texels[8 * p..8 * (p + 1)] {
+                            if w == 0.0 {
+                                continue;
+                            }
+                            let at = offset as usize - p * plane_len(usize::from(l));
+                            let texel = &mut levels[usize::from(l)][at..at + c];
+                            texel.iter_mut().zip(src).for_each(|(t, g)| *t += w * g);
+                        }
+                    }
+                }
+            },
+        );
+    });
 }
 
 /// Values of [`spherical_harmonics`]: the real spherical harmonics of degrees 0 to 3 (Tri-MipRF's

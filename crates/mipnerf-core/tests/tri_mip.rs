@@ -352,7 +352,8 @@ fn finite_differences_of_the_whole_fields_loss_match_its_backward_pass() {
 const WHOLE_FIELD_TOLERANCE: f64 = 2e-2;
 
 /// The batched passes are the per-sample ones, bit for bit, on one thread or several: the
-/// encodings (made in parallel) and the backward scatter (in sample order).
+/// encodings (made in parallel) and the backward scatter (the planes in parallel, each in batch
+/// and sample order).
 #[test]
 fn the_batched_passes_equal_the_per_sample_ones_bit_for_bit_at_any_thread_count() {
     use mipnerf_core::tri_mip::{Taps, encode_backward_batch, encode_batch};
@@ -382,7 +383,10 @@ fn the_batched_passes_equal_the_per_sample_ones_bit_for_bit_at_any_thread_count(
             encode_batch(&c, &level0, &pyramid, &points, &levels, &mut t, &mut x);
             assert_eq!(x, want_x, "{threads} threads: encodings");
             let (mut got0, mut got_pyramid) = (vec![0.0; c.num_params()], Pyramid::zeros(c));
-            encode_backward_batch(&c, &t, &d_x, &mut got0, &mut got_pyramid);
+            // In two batches, as a training step's chunks come.
+            let (t1, t2) = t.split_at(1000);
+            let (d1, d2) = d_x.split_at(1000 * dim);
+            encode_backward_batch(&c, &[(t1, d1), (t2, d2)], &mut got0, &mut got_pyramid);
             assert!(got0.iter().zip(&want0).all(|(a, b)| a.to_bits() == b.to_bits()), "{threads} threads: level 0");
             assert_eq!(got_pyramid, want_pyramid, "{threads} threads: the levels above");
             let _: &[Taps] = &t;

@@ -1,13 +1,14 @@
 //! The Tri-Mip field inside the model (`ModelConfig::field`): the whole loss's gradient through
-//! the MLP and the planes against finite differences, a short training run that cuts the loss,
-//! the same bits whatever the thread count, and a checkpoint that holds the planes.
+//! the MLP and the planes against finite differences (over world space, and over the contracted
+//! space of an unbounded scene), the planes' own Adam settings, a short training run that cuts
+//! the loss, the same bits whatever the thread count, and a checkpoint that holds the planes.
 #![allow(clippy::unwrap_used, missing_docs)]
 
 mod common;
 use common::scene::ball_scene;
 use mipnerf_core::checkpoint::{self, Checkpoint};
 use mipnerf_core::model::{Field, Mode, Model, ModelConfig, Preset};
-use mipnerf_core::train::{AdamState, OptimConfig, Trainer};
+use mipnerf_core::train::{AdamConfig, AdamState, FieldAdam, OptimConfig, Trainer};
 use mipnerf_core::tri_mip::TriMipConfig;
 use rand::{Rng, SeedableRng, rngs::SmallRng};
 
@@ -31,10 +32,26 @@ fn small(pre_filtered: bool) -> ModelConfig {
 
 #[test]
 fn the_whole_losss_gradient_through_the_planes_and_the_mlp_matches_finite_differences() {
+    the_whole_loss_matches_finite_differences(false);
+}
+
+#[test]
+fn in_an_unbounded_scene_the_planes_read_the_contracted_space_and_match_finite_differences() {
+    the_whole_loss_matches_finite_differences(true);
+}
+
+/// The whole loss's gradient against central differences, the planes over world space or (in an
+/// unbounded scene) over the contracted space, cube of half side 2.
+fn the_whole_loss_matches_finite_differences(unbounded: bool) {
     let (rays, colours) = ball_scene(2, 6);
     let mut cfg = small(true);
     // One level: the fine level's intervals carry no gradient by design (see training.rs).
     cfg.num_levels = 1;
+    if unbounded {
+        cfg.unbounded = true;
+        let Field::TriMip { planes, pre_filtered, .. } = cfg.field else { unreachable!() };
+        cfg.field = Field::TriMip { planes, half_side: 2.0, pre_filtered };
+    }
     let model = Model::new(cfg).unwrap();
     assert!(model.field_params() > 0 && model.field_params() < model.num_params());
     let mut params = model.init_params(3);
@@ -74,6 +91,34 @@ fn the_whole_losss_gradient_through_the_planes_and_the_mlp_matches_finite_differ
     }
     assert!(skipped * 4 <= checked + skipped, "{skipped} of {} parameters sat on kinks", checked + skipped);
     assert!(bad.is_empty(), "{} of {checked} gradients disagree:\n{}", bad.len(), bad.join("\n"));
+}
+
+#[test]
+fn the_planes_take_their_own_learning_rate_and_epsilon_in_one_adam_step() {
+    let cfg = AdamConfig::default();
+    let field = FieldAdam { lr_mult: 10.0, eps: 1e-15 };
+    let params: Vec<f32> = (0..10).map(|i| i as f32 * 0.1).collect();
+    // Gradients far below the MLP's epsilon (1e-8), as a texel few rays reach gets.
+    let grads: Vec<f32> = (0..10).map(|i| (i as f32 - 4.5) * 1e-10).collect();
+    let mut state = AdamState::new(10);
+    let mut both = params.clone();
+    state.update_split(&cfg, 1e-3, Some((4, field)), &mut both, &grads);
+    let apart = |range: std::ops::Range<usize>, adam: AdamConfig, lr: f32| {
+        let mut p = params[range.clone()].to_vec();
+        AdamState::new(p.len()).update(&adam, lr, &mut p, &grads[range]);
+        p
+    };
+    assert_eq!(both[..4], apart(0..4, AdamConfig { eps: 1e-15, ..cfg }, 1e-2)[..]);
+    assert_eq!(both[4..], apart(4..10, cfg, 1e-3)[..]);
+    assert_eq!(state.t, 1);
+    // The planes move by the full rate, 1e-2, however small their gradient; the MLP's
+    // parameters, under its epsilon, by a small part of its own.
+    for i in 0..4 {
+        assert!(((both[i] - params[i]).abs() - 1e-2).abs() < 1e-4, "plane {i}: {} -> {}", params[i], both[i]);
+    }
+    for i in 4..10 {
+        assert!((both[i] - params[i]).abs() < 1e-4, "MLP {i}: {} -> {}", params[i], both[i]);
+    }
 }
 
 fn optim(steps: u64) -> OptimConfig {

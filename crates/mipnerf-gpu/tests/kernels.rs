@@ -417,7 +417,7 @@ fn adam_and_gradient_clipping_match_cpu_reference() {
             let (mut params, mut state, mut norms) = (params.clone(), AdamState::new(n), Vec::new());
             for grads in steps {
                 let norm =
-                    stages::adam_step(&cfg, lr, (max_val, max_norm), &mut state, &mut params, &mut grads.clone());
+                    stages::adam_step(&cfg, lr, (max_val, max_norm), None, &mut state, &mut params, &mut grads.clone());
                 norms.push(norm);
             }
             let norms = if max_norm > 0.0 { norms } else { Vec::new() };

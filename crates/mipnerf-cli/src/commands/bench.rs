@@ -6,7 +6,7 @@ use anyhow::Result;
 
 use crate::backend::DeviceArgs;
 use crate::bench::{self, BenchBackends};
-use crate::config::{Backend, PrecisionArg, PresetArg};
+use crate::config::{Backend, FieldArg, PrecisionArg, PresetArg};
 use crate::session::Session;
 use crate::view_bench;
 
@@ -21,6 +21,10 @@ pub struct Args {
     /// Model sizes, one table section each (`small,paper`).
     #[arg(long, value_enum, value_delimiter = ',', default_value = "tiny")]
     pub preset: Vec<PresetArg>,
+    /// Fields, one row each (`mip-nerf,tri-mip`): the Tri-Mip ones with their recipe's planes and
+    /// MLP (the CPU backend only, so far).
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "mip-nerf")]
+    pub field: Vec<FieldArg>,
     /// Rays (pixels) per training batch.
     #[arg(long, default_value_t = 1024)]
     pub batch_rays: usize,
@@ -76,6 +80,7 @@ pub fn run(a: Args, session: &Session) -> Result<()> {
         device: a.device.options(),
         backends: a.backend,
         presets: a.preset,
+        fields: a.field,
         batch: a.batch_rays,
         steps: a.steps,
         render_side: a.render_side,

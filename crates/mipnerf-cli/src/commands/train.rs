@@ -340,6 +340,9 @@ impl TrainFlags {
             field: self.field,
             // From the data, when training starts.
             tri_mip_bound: None,
+            tri_mip_resolution: None,
+            tri_mip_mlp: None,
+            tri_mip_lr_mult: None,
             occupancy: yes(self.occupancy).or(no(self.no_occupancy)),
             occupancy_resolution: self.occupancy_resolution,
             occupancy_bound: self.occupancy_bound,

@@ -7,6 +7,46 @@ use mipnerf_core::data::Format;
 use super::{Backend, MAX_BATCH_RAYS, MAX_STEPS, RayShape, TrainSettings};
 
 impl TrainSettings {
+    /// The Tri-Mip settings: only with a Tri-Mip field, each within what the planes and the MLP
+    /// can be built with. They are config-file keys, without flags.
+    pub(super) fn check_tri_mip(&self) -> Result<()> {
+        let set = [
+            ("tri_mip_resolution", self.tri_mip_resolution.is_some()),
+            ("tri_mip_mlp", self.tri_mip_mlp.is_some()),
+            ("tri_mip_lr_mult", self.tri_mip_lr_mult.is_some()),
+        ];
+        if !self.uses_tri_mip() {
+            if let Some((key, _)) = set.iter().find(|(_, on)| *on) {
+                bail!(
+                    "`{key}` (a config-file key) sets the Tri-Mip field's planes or MLP: add --field tri-mip, or drop it"
+                );
+            }
+            return Ok(());
+        }
+        if let Some(r) = self.tri_mip_resolution
+            && !(r.is_power_of_two() && (16..=2048).contains(&r))
+        {
+            bail!("`tri_mip_resolution` must be a power of two from 16 to 2048 (texels a side), got {r}");
+        }
+        if let Some(mlp @ [depth, width, depth_condition, width_condition]) = self.tri_mip_mlp
+            && !((1..=16).contains(&depth)
+                && (1..=16).contains(&depth_condition)
+                && (1..=1024).contains(&width)
+                && (1..=1024).contains(&width_condition))
+        {
+            bail!(
+                "`tri_mip_mlp` is [trunk depth, trunk width, colour depth, colour width], depths 1 to 16 and widths 1 \
+                 to 1024, got {mlp:?}"
+            );
+        }
+        if let Some(m) = self.tri_mip_lr_mult
+            && !(m.is_finite() && m > 0.0 && m <= 1000.0)
+        {
+            bail!("`tri_mip_lr_mult` must be a positive number up to 1000, got {m}");
+        }
+        Ok(())
+    }
+
     /// Checks every number of resolved settings before anything is allocated: counts positive
     /// and within what the run can address (`u32` step and ray counters), rates and thresholds
     /// finite. `bytes_per_ray` is the memory one ray of a batch needs, for the error message.
@@ -49,6 +89,7 @@ impl TrainSettings {
         {
             bail!("{} must be a positive number, got {b}", name("occupancy_bound"));
         }
+        self.check_tri_mip()?;
         if let Some(r) = self.spherify_radius
             && !(r.is_finite() && r > 0.0)
         {

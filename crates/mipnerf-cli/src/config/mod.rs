@@ -8,9 +8,9 @@ use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
 use mipnerf_core::PixelCenters;
 use mipnerf_core::RayShape;
-use mipnerf_core::model::{FastRecipe, Field, ModelConfig, PointEncoding, Preset};
+use mipnerf_core::model::{FastRecipe, Field, ModelConfig, PointEncoding, Preset, TriMipRecipe};
 use mipnerf_core::schedule::LrSchedule;
-use mipnerf_core::train::OptimConfig;
+use mipnerf_core::train::{FieldAdam, OptimConfig};
 use serde::{Deserialize, Serialize};
 
 mod checks;
@@ -59,18 +59,12 @@ pub enum FieldArg {
     /// The paper's: the conical frustum's integrated positional encoding into the MLP.
     MipNerf,
     /// Tri-MipRF's: three feature planes with mipmaps, read at the frustum's footprint, into a
-    /// small MLP (CPU backend; bounded scenes, not forward-facing NDC data yet).
+    /// small MLP (CPU backend).
     TriMip,
     /// The same planes read at their finest level whatever the cone (point sampling: the
     /// aliasing baseline for tri-mip).
     TriPlane,
 }
-
-/// The Tri-Mip planes of the CLI's runs: 3 x 128² texels of 16 features (786,432 parameters) in
-/// 6 levels. 128 rather than Tri-MipRF's 512: each chunk of a training step keeps a dense
-/// gradient of every parameter, which 512² planes (12.6M parameters) make too large.
-pub const TRI_MIP_PLANES: mipnerf_core::tri_mip::TriMipConfig =
-    mipnerf_core::tri_mip::TriMipConfig { resolution: 128, features: 16, levels: 6 };
 
 /// The half side of the planes' cube before the data gives it (replaced when training starts).
 const TRI_MIP_BOUND_UNTIL_DATA: f32 = 1.5;
@@ -172,9 +166,20 @@ pub struct TrainSettings {
     pub model: Option<ModelKind>,
     /// The field the samples are read from [default: mip-nerf; recorded only when another].
     pub field: Option<FieldArg>,
-    /// Half the side of the Tri-Mip planes' cube, centred on the origin [default: from the
-    /// cameras, as the occupancy grid's; recorded when training starts].
+    /// Half the side of the Tri-Mip planes' cube, centred on the origin [default: the cameras'
+    /// cube, as the occupancy grid's; NDC's 1 for forward-facing photos; the contracted space's
+    /// 2 in an unbounded scene; recorded when training starts].
     pub tri_mip_bound: Option<f32>,
+    /// Texels along a side of the Tri-Mip planes (a power of two, 16 to 2048), each of 16
+    /// features, in levels down to 4 texels a side [default: the field's recipe,
+    /// `TriMipRecipe::RECIPE`; recorded with the field].
+    pub tri_mip_resolution: Option<usize>,
+    /// The MLP after the Tri-Mip planes: `[trunk depth, trunk width, colour depth, colour
+    /// width]` [default: the field's recipe; recorded with the field].
+    pub tri_mip_mlp: Option<[usize; 4]>,
+    /// The Tri-Mip planes' learning rate over the MLP's (Tri-MipRF's 10) [default: the field's
+    /// recipe; recorded with the field].
+    pub tri_mip_lr_mult: Option<f32>,
     /// Training steps in total [default: 2000].
     pub steps: Option<u64>,
     /// Rays (pixels) per batch [default: 1024].
@@ -333,6 +338,9 @@ impl TrainSettings {
             model,
             field,
             tri_mip_bound,
+            tri_mip_resolution,
+            tri_mip_mlp,
+            tri_mip_lr_mult,
             steps,
             batch_rays,
             seed,
@@ -436,6 +444,7 @@ impl TrainSettings {
         let forward_facing = llff && !spherify;
         let preset = self.preset.unwrap_or(PresetArg::Tiny);
         let fast = preset == PresetArg::Fast;
+        let tri_mip = self.uses_tri_mip();
         // A time budget ends the run, so the step count only caps it when given.
         let steps = self.steps.unwrap_or(if self.time_budget.is_some() { MAX_STEPS } else { 2000 });
         let occupancy = self.uses_occupancy();
@@ -497,6 +506,11 @@ impl TrainSettings {
             distortion_loss: self.distortion_loss.filter(|&d| d != 0.0),
             field: self.field.filter(|&f| f != FieldArg::MipNerf),
             tri_mip_bound: self.tri_mip_bound,
+            // The field's recipe where the field is Tri-Mip; kept as given otherwise, for `validate`
+            // to refuse.
+            tri_mip_resolution: self.tri_mip_resolution.or(tri_mip.then_some(TriMipRecipe::RECIPE.resolution)),
+            tri_mip_mlp: self.tri_mip_mlp.or(tri_mip.then_some(TriMipRecipe::RECIPE.mlp)),
+            tri_mip_lr_mult: self.tri_mip_lr_mult.or(tri_mip.then_some(TriMipRecipe::RECIPE.adam.lr_mult)),
             occupancy: Some(occupancy),
             occupancy_resolution: occupancy
                 .then(|| self.occupancy_resolution.unwrap_or(FastRecipe::RECIPE.occupancy_resolution)),
@@ -604,6 +618,7 @@ impl TrainSettings {
         }
         m.white_bkgd = self.white_bkgd.unwrap_or(true);
         m.random_bkgd = self.random_bkgd.unwrap_or(false);
+        self.check_tri_mip()?;
         if let Some(field @ (FieldArg::TriMip | FieldArg::TriPlane)) = self.field {
             if self.model == Some(ModelKind::Nerf) {
                 bail!("--field {} reads the planes into Mip-NeRF's model; leave out --model nerf", field.name());
@@ -612,7 +627,10 @@ impl TrainSettings {
             if !(half_side.is_finite() && half_side > 0.0) {
                 bail!("tri_mip_bound must be a positive number, got {half_side}");
             }
-            m.field = Field::TriMip { planes: TRI_MIP_PLANES, half_side, pre_filtered: field == FieldArg::TriMip };
+            let recipe = TriMipRecipe::RECIPE;
+            let planes = TriMipRecipe::planes(self.tri_mip_resolution.unwrap_or(recipe.resolution));
+            m = TriMipRecipe::with_mlp(m, self.tri_mip_mlp.unwrap_or(recipe.mlp));
+            m.field = Field::TriMip { planes, half_side, pre_filtered: field == FieldArg::TriMip };
         }
         if m.supersample == 0 || m.supersample > 16 {
             bail!("--supersample must be between 1 and 16, got {}", m.supersample);
@@ -648,8 +666,19 @@ impl TrainSettings {
             lr,
             grad_max_norm: self.grad_max_norm.unwrap_or(0.0),
             grad_max_val: self.grad_max_val.unwrap_or(0.0),
+            field: self.uses_tri_mip().then(|| FieldAdam {
+                lr_mult: self.tri_mip_lr_mult.unwrap_or(TriMipRecipe::RECIPE.adam.lr_mult),
+                ..TriMipRecipe::RECIPE.adam
+            }),
             ..OptimConfig::default()
         })
+    }
+
+    /// Whether the run reads its samples from the Tri-Mip planes (`--field tri-mip` or
+    /// `tri-plane`).
+    #[must_use]
+    pub fn uses_tri_mip(&self) -> bool {
+        matches!(self.field, Some(FieldArg::TriMip | FieldArg::TriPlane))
     }
 
     /// Whether the run samples with the occupancy grid: as set, else with the fast preset.

@@ -1,7 +1,9 @@
 //! The field a model reads its samples from ([`Field`]): the seam between the Mip-NeRF MLP on
 //! the IPE and the Tri-Mip planes before a small MLP. `Model::run_chunk` calls
 //! [`Model::encode_samples`] where the paper encodes its Gaussians, and `field_backward` after
-//! the MLP's backward pass; the occupancy probes and export call [`Model::encode_probe`].
+//! the MLP's backward pass (keeping the chunk's encoding gradients), and the training step
+//! `field_backward_chunks` after every chunk; the occupancy probes and export call
+//! [`Model::encode_probe`].
 
 use super::{Field, Model, Workspace};
 use crate::bf16::Precision;
@@ -10,6 +12,22 @@ use crate::mip::Gaussian;
 use crate::mlp::MlpShape;
 use crate::stages;
 use crate::tri_mip::{self, Pyramid};
+
+/// A chunk's share of the field's gradient in a training step, kept until every chunk has run:
+/// each sample's Tri-Mip taps and the gradient of its encoding, level after level. The planes
+/// stay out of the chunks' dense gradients, which then hold the MLP's parameters alone.
+#[derive(Clone, Debug, Default)]
+pub(super) struct FieldGrads {
+    taps: Vec<tri_mip::Taps>,
+    d_x: Vec<f32>,
+}
+
+impl FieldGrads {
+    pub(super) fn clear(&mut self) {
+        self.taps.clear();
+        self.d_x.clear();
+    }
+}
 
 /// What a pass reads of the field's parameters besides the MLP: for the Tri-Mip field, the
 /// planes' mip pyramid, built from the parameters once a pass ([`Model::field_state`]).
@@ -66,8 +84,15 @@ impl Model {
                     RayShape::Cone => crate::mip::conical_frustum_moments(t[j], t[j + 1], ray.radius),
                     RayShape::Cylinder => crate::mip::cylinder_moments(t[j], t[j + 1], ray.radius),
                 };
-                let at = (ray.origin + ray.direction * m.t_mean + half_side) / side;
-                let radius = tri_mip::footprint_radius(&m) * ray.direction.length() / side;
+                // An unbounded scene's planes cover its contracted space, where the cone's
+                // cross-section shrinks with the contraction across the ray.
+                let mut x = ray.origin + ray.direction * m.t_mean;
+                let mut radius = tri_mip::footprint_radius(&m) * ray.direction.length() / side;
+                if c.unbounded {
+                    radius *= crate::contract::contraction_across(x);
+                    x = crate::contract::contract(x);
+                }
+                let at = (x + half_side) / side;
                 let level = if pre_filtered { tri_mip::level_of(radius, &planes) } else { 0.0 };
                 let k = r * s + j;
                 ws.taps[k] = tri_mip::taps(&planes, at, level);
@@ -82,41 +107,51 @@ impl Model {
         }
     }
 
-    /// After the MLP's backward pass of a level: the gradient of its input into the Tri-Mip
-    /// planes (level 0 in `grads`, the levels above in `ws.grad_pyramid`); nothing for Mip-NeRF,
-    /// whose encoding has no parameters.
+    /// After the MLP's backward pass of a level: the gradient of its input (the Tri-Mip
+    /// encoding of each sample) kept with the samples' taps in the chunk's `field_grads`, for
+    /// [`field_backward_chunks`](Self::field_backward_chunks); nothing for Mip-NeRF, whose
+    /// encoding has no parameters.
     pub(super) fn field_backward(
         &self,
         params: &[f32],
         mlp: &MlpShape,
         n: usize,
-        ws: &mut Workspace,
-        grads: &mut [f32],
+        ws: &Workspace,
+        field_grads: &mut FieldGrads,
     ) {
         let Field::TriMip { planes, .. } = self.config.field else { return };
-        let dim = planes.encoding_dim();
-        ws.d_x.resize(n * dim, 0.0);
-        mlp.input_gradient(params, &ws.cache, &mut ws.d_x);
-        let grad_pyramid = ws.grad_pyramid.get_or_insert_with(|| Pyramid::zeros(planes));
-        if grad_pyramid.config() != planes {
-            *grad_pyramid = Pyramid::zeros(planes);
-        }
-        tri_mip::encode_backward_batch(&planes, &ws.taps[..n], &ws.d_x, &mut grads[..self.field_params], grad_pyramid);
+        let (dim, start) = (planes.encoding_dim(), field_grads.d_x.len());
+        field_grads.d_x.resize(start + n * dim, 0.0);
+        mlp.input_gradient(params, &ws.cache, &mut field_grads.d_x[start..]);
+        field_grads.taps.extend_from_slice(&ws.taps[..n]);
     }
 
-    /// At the end of a chunk's backward pass: the Tri-Mip pyramid's gradient pushed into the
-    /// planes' level 0 (in `grads`), and cleared for the next chunk.
-    pub(super) fn field_backward_finish(&self, ws: &mut Workspace, grads: &mut [f32]) {
-        if let (Field::TriMip { .. }, Some(grad_pyramid)) = (self.config.field, ws.grad_pyramid.as_mut()) {
-            grad_pyramid.push_down(&mut grads[..self.field_params]);
-            grad_pyramid.clear();
+    /// After every chunk of a step: the chunks' encoding gradients scattered through their taps
+    /// into the planes, in chunk order (the same sums whatever the number of threads), level 0
+    /// into `grad_level0` and the levels above into `grad_pyramid`, which is then pushed down
+    /// into level 0 once. Nothing for Mip-NeRF.
+    pub(super) fn field_backward_chunks(
+        &self,
+        chunks: &[FieldGrads],
+        grad_pyramid: &mut Option<Pyramid>,
+        grad_level0: &mut [f32],
+    ) {
+        let Field::TriMip { planes, .. } = self.config.field else { return };
+        let pyramid = grad_pyramid.get_or_insert_with(|| Pyramid::zeros(planes));
+        if pyramid.config() != planes {
+            *pyramid = Pyramid::zeros(planes);
         }
+        let batches: Vec<(&[tri_mip::Taps], &[f32])> = chunks.iter().map(|c| (&c.taps[..], &c.d_x[..])).collect();
+        tri_mip::encode_backward_batch(&planes, &batches, grad_level0, pyramid);
+        pyramid.push_down(grad_level0);
+        pyramid.clear();
     }
 
     /// One Gaussian (world space) encoded by the model's field into `dst` (`x_dim` values): the
     /// Mip-NeRF field's [`encode_point`](Self::encode_point), or the Tri-Mip planes (of `params`,
     /// their pyramid in `field`) read at its mean and at the level of its footprint, `2σ` for
-    /// its mean per-axis variance `σ²` (an occupancy cell's or a point's). Inlined, as
+    /// its mean per-axis variance `σ²` (an occupancy cell's or a point's; contracted first in
+    /// an unbounded scene, whose planes cover the contracted space). Inlined, as
     /// [`encode_point`](Self::encode_point) is.
     #[inline(always)]
     pub fn encode_probe(&self, params: &[f32], field: &FieldState, g: &Gaussian, dst: &mut [f32]) {
@@ -126,6 +161,7 @@ impl Model {
         };
         let pyramid = field.pyramid.as_ref().expect("the Tri-Mip field's pass has its pyramid");
         let side = 2.0 * half_side;
+        let g = if self.config.unbounded { crate::contract::contract_gaussian(g) } else { *g };
         let radius = 2.0 * (g.cov_diag.element_sum() / 3.0).max(0.0).sqrt() / side;
         let level = if pre_filtered { tri_mip::level_of(radius, &planes) } else { 0.0 };
         let taps = tri_mip::taps(&planes, (g.mean + half_side) / side, level);
