@@ -9,7 +9,7 @@ use mipnerf_core::Camera;
 use mipnerf_core::backend::{Backend, BackendError, ImageSpec, MAX_BATCH_RAYS, RenderedImage, TrainState};
 use mipnerf_core::checkpoint::{self, CheckpointError};
 use mipnerf_core::data::{self, DataError, Dataset, LoadOptions, Split, View};
-use mipnerf_core::model::{FastRecipe, Levels, Model, ModelConfig, ModelError, Preset};
+use mipnerf_core::model::{FastRecipe, Field, Levels, Model, ModelConfig, ModelError, Preset, TriMipRecipe};
 use mipnerf_core::occupancy::{OccupancyConfig, OccupancyGrid};
 use mipnerf_core::train::{OptimConfig, StepReport};
 
@@ -106,6 +106,23 @@ impl Options {
             options.bf16 = recipe.bf16_where_available;
         }
         options
+    }
+
+    /// These options with the Tri-Mip field ([`Field::TriMip`]: cones read from pre-filtered
+    /// feature planes, then a small MLP) in place of the Mip-NeRF MLP, with the field's recipe
+    /// ([`TriMipRecipe`]: its planes, its MLP, the planes' own Adam settings) as the CLI's
+    /// `--field tri-mip` takes it. `half_side`: half the side of the cube around the origin the
+    /// planes cover (the scene's, in world units). The field's small MLP computes in f32.
+    #[must_use]
+    pub fn tri_mip(mut self, half_side: f32) -> Self {
+        let recipe = TriMipRecipe::RECIPE;
+        self.model = TriMipRecipe::with_mlp(self.model, recipe.mlp);
+        self.model.field =
+            Field::TriMip { planes: TriMipRecipe::planes(recipe.resolution), half_side, pre_filtered: true };
+        self.model.planes_tv_mult = recipe.planes_tv;
+        self.optim.field = Some(recipe.adam);
+        self.bf16 = false;
+        self
     }
 }
 

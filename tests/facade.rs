@@ -245,3 +245,31 @@ fn a_tri_mip_nerf_saves_and_loads_as_it_was() {
     let mut loaded = Nerf::load(&path, cpu_tiny(), None).unwrap();
     assert_eq!(loaded.render(&novel_camera()).unwrap(), before);
 }
+
+/// `Options::tri_mip` brings the field's recipe (its planes, its MLP, the planes' own Adam
+/// settings, f32), and a few steps of it cut the loss on the demo scene.
+#[test]
+fn options_tri_mip_brings_the_fields_recipe_and_trains() {
+    use mipnerf::mipnerf_core::model::{Field, TriMipRecipe};
+    let options = cpu_tiny().tri_mip(1.5);
+    let recipe = TriMipRecipe::RECIPE;
+    let Field::TriMip { planes, half_side, pre_filtered } = options.model.field else {
+        panic!("not the Tri-Mip field")
+    };
+    assert_eq!((planes, half_side, pre_filtered), (TriMipRecipe::planes(recipe.resolution), 1.5, true));
+    assert_eq!(
+        [
+            options.model.net_depth,
+            options.model.net_width,
+            options.model.net_depth_condition,
+            options.model.net_width_condition
+        ],
+        recipe.mlp
+    );
+    assert_eq!(options.optim.field, Some(recipe.adam));
+    assert!(!options.bf16);
+    let mut nerf = Nerf::new(demo::dataset(3, 12).unwrap(), options).unwrap();
+    let losses: Vec<f32> = (0..60).map(|_| nerf.train(1).unwrap().stats.loss).collect();
+    let (first, last) = (losses[..5].iter().sum::<f32>(), losses[55..].iter().sum::<f32>());
+    assert!(last < 0.7 * first, "the loss fell only from {first} to {last}: {losses:?}");
+}

@@ -160,24 +160,17 @@ fn train_locked(
     train_loop.run()
 }
 
-/// The half side of the cube NDC space fills: the photos' frustum, from the near plane to
-/// infinity, is `[-1, 1]^3`.
-const NDC_HALF_SIDE: f32 = 1.0;
-
 /// A run of the Tri-Mip field: its planes' cube from the cameras (as the occupancy grid's,
 /// `occupancy::auto_bound`) where the settings do not give it, recorded in the settings (so that
 /// `eval` and `render` rebuild the same model), and the model rebuilt over it; forward-facing
-/// data in NDC space takes NDC's cube, and an unbounded scene the contracted space's.
+/// data in NDC space takes the occupancy grid's NDC cube (every training ray's samples, which
+/// reach past `[-1, 1]` for the photos away from the reference pose), and an unbounded scene the
+/// contracted space's.
 fn tri_mip_cube_from_data(mut s: TrainSettings, model: Model, ds: &Dataset) -> Result<(TrainSettings, Model)> {
     if model.config().field.is_mip_nerf() {
         return Ok((s, model));
     }
     let flag = s.field.map_or("tri-mip", crate::config::FieldArg::name);
-    if ds.ndc.is_some() {
-        // NDC space: the photos' frustum is the cube [-1, 1]^3, where the rays' cylinders
-        // already are.
-        s.tri_mip_bound = Some(s.tri_mip_bound.unwrap_or(NDC_HALF_SIDE));
-    }
     if s.unbounded == Some(true) {
         // All of an unbounded scene's space, contracted into the ball of radius 2.
         s.tri_mip_bound = Some(s.tri_mip_bound.unwrap_or(mipnerf_core::occupancy::CONTRACTED_BOUND));

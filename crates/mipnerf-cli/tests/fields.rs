@@ -39,6 +39,8 @@ fn a_tri_mip_run_trains_evaluates_renders_and_exports_on_the_cpu() {
     for key in ["field = \"tri-mip\"", "tri_mip_bound = ", "tri_mip_resolution = 256", "tri_mip_lr_mult = 10"] {
         assert!(config.contains(key), "{key} in {config}");
     }
+    // A scene seen from all round: no total variation (recorded only when on).
+    assert!(!config.contains("tri_mip_tv"), "{config}");
     assert!(config.contains("tri_mip_mlp = [2, 64, 1, 64]"), "{config}");
     // The planes are a tensor of the checkpoint.
     let bytes = std::fs::read(run.join("checkpoint.safetensors")).unwrap();
@@ -130,12 +132,21 @@ fn forward_facing_photos_train_the_planes_over_ndc_and_an_unbounded_scene_over_i
     std::fs::write(&cfg, "tri_mip_resolution = 32\n").unwrap();
     let train = |run: &Path, more: &[&str]| {
         let mut args = vec!["train", "--data", s(&fern), "--llff-factor", "64", "--out", s(run), "--steps", "3"];
-        args.extend_from_slice(&["--backend", "cpu", "--field", "tri-mip", "--config", s(&cfg)]);
+        args.extend_from_slice(&["--preset", "fast", "--backend", "cpu", "--field", "tri-mip", "--config", s(&cfg)]);
         args.extend_from_slice(more);
         run_ok(&args)
     };
     let text = train(&out("fern"), &[]);
-    assert!(text.contains("planes 3 x 32^2 x 16 features in 4 levels over the cube [-1.000, 1.000]^3"), "{text}");
+    // NDC space: the occupancy grid's cube, which holds every training ray's samples.
+    let planes = text.lines().find(|l| l.starts_with("field: ")).unwrap();
+    let grid = text.lines().find(|l| l.starts_with("occupancy: ")).unwrap();
+    let cube = |line: &str| line[line.find('[').unwrap()..=line.find(']').unwrap()].to_owned();
+    assert!(planes.contains("planes 3 x 32^2 x 16 features in 4 levels"), "{text}");
+    assert_eq!(cube(planes), cube(grid), "{text}");
+    assert!(grid.contains("in NDC space"), "{text}");
+    // Forward-facing photos take the recipe's total variation of the planes, recorded.
+    let config = std::fs::read_to_string(out("fern").join("config.toml")).unwrap();
+    assert!(config.contains("tri_mip_tv = 0.1"), "{config}");
     let text = run_ok(&["eval", "--run", s(&out("fern")), "--backend", "cpu"]);
     assert!(text.contains("PSNR"), "{text}");
     let text = train(&out("unbounded"), &["--unbounded"]);

@@ -102,6 +102,12 @@ pub struct ModelConfig {
     /// level's weights, averaged over the batch's rays (0: off, Mip-NeRF; the successor's 0.01).
     /// CPU backend.
     pub distortion_loss_mult: f32,
+    /// Weight of the total variation of the Tri-Mip planes' level 0 in the loss
+    /// ([`crate::tri_mip::total_variation`]: the mean squared difference of neighbouring texels,
+    /// as TensoRF regularises its planes), which spreads what the training rays teach the planes
+    /// to the texels between them (0: off; the Tri-Mip field only). Not written when 0.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub planes_tv_mult: f32,
     /// The field the samples are read from (the Mip-NeRF MLP on the IPE, the default; or the
     /// Tri-Mip planes before a small MLP). Not written when it is the default, so that the
     /// Mip-NeRF model's checkpoints are the bytes they were.
@@ -131,6 +137,12 @@ pub enum Field {
         /// Read at the level of the frustum's footprint (true) or at level 0 (false).
         pre_filtered: bool,
     },
+}
+
+/// Whether `v` is 0 (a weight that is off, not written).
+#[allow(clippy::trivially_copy_pass_by_ref)]
+fn is_zero(v: &f32) -> bool {
+    *v == 0.0
 }
 
 impl Field {
@@ -170,6 +182,7 @@ impl Default for ModelConfig {
             area_loss: true,
             supersample: 1,
             distortion_loss_mult: 0.0,
+            planes_tv_mult: 0.0,
             field: Field::MipNerf,
         }
     }
@@ -236,12 +249,25 @@ pub struct TriMipRecipe {
     pub mlp: [usize; 4],
     /// The planes' learning rate over the MLP's, and their Adam epsilon.
     pub adam: crate::optim::FieldAdam,
+    /// Weight of the planes' total variation in the loss ([`ModelConfig::planes_tv_mult`]) on
+    /// a scene seen from all round (lego: not measured with it yet, so off).
+    pub planes_tv: f32,
+    /// The same on forward-facing photos in NDC space: on fern's held-out training photos, 0.1
+    /// took 4 minutes of training from 21.40 dB (off) to 23.25, and 1.0 to 22.94
+    /// (`docs/results/tri-mip/fern-tune/`): a few photos all from one side leave the planes'
+    /// texels between their rays free to overfit, and the total variation ties them together.
+    pub planes_tv_forward_facing: f32,
 }
 
 impl TriMipRecipe {
     /// The recipe.
-    pub const RECIPE: Self =
-        Self { resolution: 256, mlp: [2, 64, 1, 64], adam: crate::optim::FieldAdam { lr_mult: 10.0, eps: 1e-15 } };
+    pub const RECIPE: Self = Self {
+        resolution: 256,
+        mlp: [2, 64, 1, 64],
+        adam: crate::optim::FieldAdam { lr_mult: 10.0, eps: 1e-15 },
+        planes_tv: 0.0,
+        planes_tv_forward_facing: 0.1,
+    };
 
     /// Features a texel (Tri-MipRF's 16: one 64-byte cache line).
     pub const FEATURES: usize = 16;

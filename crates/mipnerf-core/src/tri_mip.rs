@@ -479,6 +479,65 @@ pub fn encode_backward_batch(
     });
 }
 
+/// `weight` times the total variation of the planes' level 0, the mean over every pair of
+/// neighbouring texels (along `u` and along `v`, in each plane) and every feature of their
+/// squared difference, as TensoRF regularises its planes; adds its gradient to `grad`. Row by
+/// row over every thread (each row's loss summed in row order: the same result whatever the
+/// thread count).
+///
+/// # Panics
+/// If `level0` or `grad` is not [`TriMipConfig::num_params`] long.
+pub fn total_variation(config: &TriMipConfig, level0: &[f32], weight: f32, grad: &mut [f32]) -> f64 {
+    use rayon::prelude::*;
+    assert!(level0.len() == config.num_params() && grad.len() == level0.len(), "tri-mip total variation: lengths");
+    let (size, c) = (config.resolution, config.features);
+    if size < 2 {
+        return 0.0;
+    }
+    let pairs = 3 * 2 * size * (size - 1) * c;
+    let scale = weight / pairs as f32;
+    let row = size * c;
+    let rows: Vec<f64> = grad
+        .par_chunks_mut(row)
+        .enumerate()
+        .map(|(r, g)| {
+            let (v, plane) = (r % size, r / size);
+            let at = |v: usize| &level0[(plane * size + v) * row..(plane * size + v + 1) * row];
+            let here = at(v);
+            let mut loss = 0.0f64;
+            wide(
+                #[inline(always)]
+                || {
+                    let mut acc = 0.0f32;
+                    for i in 0..row {
+                        let mut d = 0.0f32;
+                        if i >= c {
+                            d += here[i] - here[i - c];
+                        }
+                        if i + c < row {
+                            let e = here[i] - here[i + c];
+                            d += e;
+                            acc += e * e;
+                        }
+                        if v > 0 {
+                            d += here[i] - at(v - 1)[i];
+                        }
+                        if v + 1 < size {
+                            let e = here[i] - at(v + 1)[i];
+                            d += e;
+                            acc += e * e;
+                        }
+                        g[i] += 2.0 * scale * d;
+                    }
+                    loss = f64::from(acc);
+                },
+            );
+            loss
+        })
+        .collect();
+    rows.iter().sum::<f64>() * f64::from(scale)
+}
+
 /// Values of [`spherical_harmonics`]: the real spherical harmonics of degrees 0 to 3 (Tri-MipRF's
 /// and Instant-NGP's "degree 4" view encoding).
 pub const SH_VALUES: usize = 16;

@@ -434,3 +434,62 @@ fn the_view_encodings_spherical_harmonics_are_orthonormal() {
         assert!((v - want).abs() < 1e-5, "Y{i} on +z: {v} vs {want}");
     }
 }
+
+/// The planes' total variation: its value by a direct sum over the neighbouring pairs, its
+/// gradient against central differences (f64 of the f32 function), and the same bits on any
+/// number of threads.
+#[test]
+fn the_planes_total_variation_and_its_gradient_match_a_direct_sum_and_finite_differences() {
+    use mipnerf_core::tri_mip::total_variation;
+    let c = TriMipConfig { resolution: 8, features: 3, levels: 2 };
+    let level0 = random_planes(&c, 21);
+    let weight = 0.7f32;
+    let (size, f) = (c.resolution, c.features);
+    let at =
+        |p: &[f32], plane: usize, v: usize, u: usize, k: usize| f64::from(p[((plane * size + v) * size + u) * f + k]);
+    let direct = |p: &[f32]| {
+        let mut sum = 0.0;
+        for plane in 0..3 {
+            for v in 0..size {
+                for u in 0..size {
+                    for k in 0..f {
+                        if u + 1 < size {
+                            sum += (at(p, plane, v, u, k) - at(p, plane, v, u + 1, k)).powi(2);
+                        }
+                        if v + 1 < size {
+                            sum += (at(p, plane, v, u, k) - at(p, plane, v + 1, u, k)).powi(2);
+                        }
+                    }
+                }
+            }
+        }
+        f64::from(weight) * sum / (3 * 2 * size * (size - 1) * f) as f64
+    };
+    let mut grad = vec![0.0; c.num_params()];
+    let value = total_variation(&c, &level0, weight, &mut grad);
+    assert!((value - direct(&level0)).abs() <= TV_TOLERANCE * direct(&level0), "{value} against {}", direct(&level0));
+    let h = 1e-3f32;
+    for i in (0..c.num_params()).step_by(7) {
+        let (mut up, mut down) = (level0.clone(), level0.clone());
+        up[i] += h;
+        down[i] -= h;
+        let fd = (direct(&up) - direct(&down)) / f64::from(2.0 * h);
+        let g = f64::from(grad[i]);
+        assert!(
+            (g - fd).abs() <= TV_TOLERANCE * fd.abs().max(1e-4),
+            "texel value {i}: analytic {g:e}, finite difference {fd:e}"
+        );
+    }
+    for threads in [1, 3] {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        let (v, g) = pool.install(|| {
+            let mut g = vec![0.0; c.num_params()];
+            (total_variation(&c, &level0, weight, &mut g), g)
+        });
+        assert!(v.to_bits() == value.to_bits() && g == grad, "{threads} threads");
+    }
+}
+
+/// The total variation's relative agreement with its direct f64 sum and its finite differences
+/// (its f32 sums of a few hundred terms).
+const TV_TOLERANCE: f64 = 1e-3;

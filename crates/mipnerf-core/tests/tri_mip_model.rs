@@ -47,6 +47,8 @@ fn the_whole_loss_matches_finite_differences(unbounded: bool) {
     let mut cfg = small(true);
     // One level: the fine level's intervals carry no gradient by design (see training.rs).
     cfg.num_levels = 1;
+    // The planes' total variation in the loss too (its own check: tests/tri_mip.rs).
+    cfg.planes_tv_mult = 0.5;
     if unbounded {
         cfg.unbounded = true;
         let Field::TriMip { planes, pre_filtered, .. } = cfg.field else { unreachable!() };

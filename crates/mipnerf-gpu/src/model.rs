@@ -463,7 +463,7 @@ impl GpuModel {
             mse.push((se / (3.0 * pixels as f64)) as f32);
         }
         let loss = model.level_weights().iter().zip(&losses).map(|(w, l)| w * l).sum();
-        Ok(LossStats { losses, loss, mse, distortion: 0.0 })
+        Ok(LossStats { losses, loss, mse, distortion: 0.0, planes_tv: 0.0 })
     }
 
     /// The outputs of every level for the first `n` rays of the last recorded batch, read back

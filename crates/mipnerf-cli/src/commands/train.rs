@@ -252,8 +252,8 @@ pub struct TrainFlags {
     /// Copy the run to snapshots/NNNNNs/ as the training time passes each mark (`2m,5m,10m`).
     #[arg(long, value_name = "DURATION,...", value_delimiter = ',')]
     pub snapshots: Option<Vec<String>>,
-    /// Precision of the MLP's matrix products [default: f32; auto for the fast preset; a resumed
-    /// run keeps its own]:
+    /// Precision of the MLP's matrix products [default: f32; auto for the fast preset with the
+    /// Mip-NeRF field; a resumed run keeps its own]:
     /// bf16 (operands rounded to bf16, f32 sums; AMX or AVX-512 BF16, CPU backend) or auto (bf16 where
     /// it outruns f32 on this CPU). May change on --resume.
     #[arg(long, value_enum)]
@@ -343,6 +343,7 @@ impl TrainFlags {
             tri_mip_resolution: None,
             tri_mip_mlp: None,
             tri_mip_lr_mult: None,
+            tri_mip_tv: None,
             occupancy: yes(self.occupancy).or(no(self.no_occupancy)),
             occupancy_resolution: self.occupancy_resolution,
             occupancy_bound: self.occupancy_bound,

@@ -14,6 +14,7 @@ impl TrainSettings {
             ("tri_mip_resolution", self.tri_mip_resolution.is_some()),
             ("tri_mip_mlp", self.tri_mip_mlp.is_some()),
             ("tri_mip_lr_mult", self.tri_mip_lr_mult.is_some()),
+            ("tri_mip_tv", self.tri_mip_tv.is_some()),
         ];
         if !self.uses_tri_mip() {
             if let Some((key, _)) = set.iter().find(|(_, on)| *on) {
@@ -43,6 +44,11 @@ impl TrainSettings {
             && !(m.is_finite() && m > 0.0 && m <= 1000.0)
         {
             bail!("`tri_mip_lr_mult` must be a positive number up to 1000, got {m}");
+        }
+        if let Some(w) = self.tri_mip_tv
+            && !(w.is_finite() && (0.0..=1000.0).contains(&w))
+        {
+            bail!("`tri_mip_tv` must be a number from 0 (off) to 1000, got {w}");
         }
         Ok(())
     }

@@ -167,7 +167,7 @@ pub struct TrainSettings {
     /// The field the samples are read from [default: mip-nerf; recorded only when another].
     pub field: Option<FieldArg>,
     /// Half the side of the Tri-Mip planes' cube, centred on the origin [default: the cameras'
-    /// cube, as the occupancy grid's; NDC's 1 for forward-facing photos; the contracted space's
+    /// cube, as the occupancy grid's (in NDC space for forward-facing photos); the contracted space's
     /// 2 in an unbounded scene; recorded when training starts].
     pub tri_mip_bound: Option<f32>,
     /// Texels along a side of the Tri-Mip planes (a power of two, 16 to 2048), each of 16
@@ -180,6 +180,10 @@ pub struct TrainSettings {
     /// The Tri-Mip planes' learning rate over the MLP's (Tri-MipRF's 10) [default: the field's
     /// recipe; recorded with the field].
     pub tri_mip_lr_mult: Option<f32>,
+    /// Weight of the Tri-Mip planes' total variation in the loss (TensoRF's regulariser, the
+    /// mean squared difference of neighbouring texels) [default: the field's recipe: 0.1 for
+    /// forward-facing photos, else 0; recorded when not 0].
+    pub tri_mip_tv: Option<f32>,
     /// Training steps in total [default: 2000].
     pub steps: Option<u64>,
     /// Rays (pixels) per batch [default: 1024].
@@ -274,7 +278,7 @@ pub struct TrainSettings {
     /// time passes each of these marks (`2m`, `5m`, ...), for evaluation at fixed times.
     pub snapshots: Option<Vec<String>>,
     /// Precision of the MLP's matrix products: f32, bf16 or auto [default: f32; auto for the
-    /// fast preset]. A saved run records the precision that ran (f32 or bf16).
+    /// fast preset with the Mip-NeRF field]. A saved run records the precision that ran (f32 or bf16).
     pub precision: Option<PrecisionArg>,
     /// Flush subnormal floats to zero in the CPU backend's training steps (x86's FTZ and DAZ,
     /// `mipnerf_core::subnormals`) [default: the preset's, `Preset::flushes_subnormals`: on for
@@ -341,6 +345,7 @@ impl TrainSettings {
             tri_mip_resolution,
             tri_mip_mlp,
             tri_mip_lr_mult,
+            tri_mip_tv,
             steps,
             batch_rays,
             seed,
@@ -511,6 +516,14 @@ impl TrainSettings {
             tri_mip_resolution: self.tri_mip_resolution.or(tri_mip.then_some(TriMipRecipe::RECIPE.resolution)),
             tri_mip_mlp: self.tri_mip_mlp.or(tri_mip.then_some(TriMipRecipe::RECIPE.mlp)),
             tri_mip_lr_mult: self.tri_mip_lr_mult.or(tri_mip.then_some(TriMipRecipe::RECIPE.adam.lr_mult)),
+            tri_mip_tv: self
+                .tri_mip_tv
+                .or(tri_mip.then_some(if forward_facing {
+                    TriMipRecipe::RECIPE.planes_tv_forward_facing
+                } else {
+                    TriMipRecipe::RECIPE.planes_tv
+                }))
+                .filter(|&w| w != 0.0),
             occupancy: Some(occupancy),
             occupancy_resolution: occupancy
                 .then(|| self.occupancy_resolution.unwrap_or(FastRecipe::RECIPE.occupancy_resolution)),
@@ -523,7 +536,8 @@ impl TrainSettings {
             // The fast preset computes in bf16 where the CPU has AMX (2.3 times the training
             // rate, +1.8 dB at 2 minutes) or an AVX-512 BF16 that outruns f32, as on AMD Zen 4
             // (docs/results/precision/); every other preset in f32, the paper's precision.
-            precision: Some(self.precision.unwrap_or(if fast && FastRecipe::RECIPE.bf16_where_available {
+            // The Tri-Mip field's small MLP is measured in f32 only (docs/results/tri-mip/).
+            precision: Some(self.precision.unwrap_or(if fast && FastRecipe::RECIPE.bf16_where_available && !tri_mip {
                 PrecisionArg::Auto
             } else {
                 PrecisionArg::F32
@@ -631,6 +645,8 @@ impl TrainSettings {
             let planes = TriMipRecipe::planes(self.tri_mip_resolution.unwrap_or(recipe.resolution));
             m = TriMipRecipe::with_mlp(m, self.tri_mip_mlp.unwrap_or(recipe.mlp));
             m.field = Field::TriMip { planes, half_side, pre_filtered: field == FieldArg::TriMip };
+            // Resolved settings carry the recipe's weight for the data (none when it is 0).
+            m.planes_tv_mult = self.tri_mip_tv.unwrap_or(0.0);
         }
         if m.supersample == 0 || m.supersample > 16 {
             bail!("--supersample must be between 1 and 16, got {}", m.supersample);

@@ -147,6 +147,17 @@ impl Model {
         pyramid.clear();
     }
 
+    /// The Tri-Mip planes' total variation, weighted by `planes_tv_mult`, with its gradient added
+    /// to `grad_level0`; 0 when off or for Mip-NeRF.
+    pub(super) fn field_regulariser(&self, params: &[f32], grad_level0: &mut [f32]) -> f32 {
+        let Field::TriMip { planes, .. } = self.config.field else { return 0.0 };
+        let weight = self.config.planes_tv_mult;
+        if weight == 0.0 {
+            return 0.0;
+        }
+        tri_mip::total_variation(&planes, &params[..self.field_params], weight, grad_level0) as f32
+    }
+
     /// One Gaussian (world space) encoded by the model's field into `dst` (`x_dim` values): the
     /// Mip-NeRF field's [`encode_point`](Self::encode_point), or the Tri-Mip planes (of `params`,
     /// their pyramid in `field`) read at its mean and at the level of its footprint, `2σ` for
