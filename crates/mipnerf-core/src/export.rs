@@ -122,7 +122,7 @@ fn query(model: &Model, params: &[f32], points: &[Gaussian], views: &[Vec3]) -> 
             let mut x = vec![0.0f32; pts.len() * x_dim];
             let mut view = vec![0.0f32; pts.len() * v_dim];
             for (k, (g, d)) in pts.iter().zip(dirs).enumerate() {
-                model.encode_probe(params, &state, g, &mut x[k * x_dim..(k + 1) * x_dim]);
+                model.encode_probe(params, &state, g, false, &mut x[k * x_dim..(k + 1) * x_dim]);
                 mip::pos_enc(*d, 0, c.deg_view, true, &mut view[k * v_dim..(k + 1) * v_dim]);
             }
             let mut cache = MlpCache::default();

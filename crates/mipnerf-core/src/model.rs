@@ -744,12 +744,7 @@ impl DensityField for ModelDensity<'_> {
                 #[inline(always)]
                 || {
                     for (g, dst) in probes.iter().zip(x.chunks_exact_mut(x_dim)) {
-                        if contracted {
-                            let encoding = (c.point_encoding, Precision::F32);
-                            stages::encode_gaussian(g, encoding, c.min_deg_point, c.max_deg_point, dst);
-                        } else {
-                            self.model.encode_probe(self.params, &self.field, g, dst);
-                        }
+                        self.model.encode_probe(self.params, &self.field, g, contracted, dst);
                     }
                 },
             );

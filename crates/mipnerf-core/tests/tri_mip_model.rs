@@ -211,7 +211,7 @@ fn the_occupancy_probes_of_a_tri_mip_model_read_the_planes() {
     let dim = model.config().x_dim();
     let mut x = vec![0.0; probes.len() * dim];
     for (g, dst) in probes.iter().zip(x.chunks_exact_mut(dim)) {
-        model.encode_probe(&params, &state, g, dst);
+        model.encode_probe(&params, &state, g, false, dst);
     }
     let mut cache = MlpCache::default();
     model.mlps()[0].density(&params, &x, probes.len(), &mut cache);

@@ -162,17 +162,23 @@ impl Model {
     /// Mip-NeRF field's [`encode_point`](Self::encode_point), or the Tri-Mip planes (of `params`,
     /// their pyramid in `field`) read at its mean and at the level of its footprint, `2σ` for
     /// its mean per-axis variance `σ²` (an occupancy cell's or a point's; contracted first in
-    /// an unbounded scene, whose planes cover the contracted space). Inlined, as
-    /// [`encode_point`](Self::encode_point) is.
+    /// an unbounded scene, whose planes cover the contracted space). With `contracted`, `g` is
+    /// already in the contracted space (a cell of a contracted occupancy grid) and is read as it
+    /// is. Inlined, as [`encode_point`](Self::encode_point) is.
     #[inline(always)]
-    pub fn encode_probe(&self, params: &[f32], field: &FieldState, g: &Gaussian, dst: &mut [f32]) {
+    pub fn encode_probe(&self, params: &[f32], field: &FieldState, g: &Gaussian, contracted: bool, dst: &mut [f32]) {
         let Field::TriMip { planes, half_side, pre_filtered } = self.config.field else {
-            self.encode_point(g, dst);
+            if contracted {
+                let c = &self.config;
+                stages::encode_gaussian(g, (c.point_encoding, Precision::F32), c.min_deg_point, c.max_deg_point, dst);
+            } else {
+                self.encode_point(g, dst);
+            }
             return;
         };
         let pyramid = field.pyramid.as_ref().expect("the Tri-Mip field's pass has its pyramid");
         let side = 2.0 * half_side;
-        let g = if self.config.unbounded { crate::contract::contract_gaussian(g) } else { *g };
+        let g = if self.config.unbounded && !contracted { crate::contract::contract_gaussian(g) } else { *g };
         let radius = 2.0 * (g.cov_diag.element_sum() / 3.0).max(0.0).sqrt() / side;
         let level = if pre_filtered { tri_mip::level_of(radius, &planes) } else { 0.0 };
         let taps = tri_mip::taps(&planes, (g.mean + half_side) / side, level);
