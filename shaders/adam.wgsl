@@ -2,7 +2,9 @@
 // `clip_gradients` and `AdamState::update`):
 //   g = clamp(g, -max_val, max_val)                     (max_val > 0)
 //   g = g * min(max_norm / (1e-7 + |g|), 1)            (max_norm > 0; |g| after value clipping)
-//   m = b1 m + (1 - b1) g; v = b2 v + (1 - b2) g^2; p -= lr (m / c1) / (sqrt(v / c2) + eps).
+//   m = b1 m + (1 - b1) g; v = b2 v + (1 - b2) g^2; p -= lr (m / c1) / (sqrt(v / c2) + eps),
+// the first `split` parameters (a field's own, the Tri-Mip planes) with `field_lr` and
+// `field_eps` (`AdamState::update_split`).
 //
 // Entry points: `grad_sq_partial` (one sum of squares per workgroup of REDUCE_WORKGROUP (256) gradients),
 // `grad_norm_finish` (one workgroup: the norm and the clipping factor into `stats`), `main` (the
@@ -24,7 +26,12 @@ struct Params {
     max_norm: f32,
     // Workgroups of `grad_sq_partial` (entries of `partials`).
     n_partials: u32,
-    _pad: u32,
+    // Parameters before this index take field_lr and field_eps (0: none).
+    split: u32,
+    field_lr: f32,
+    field_eps: f32,
+    _pad0: u32,
+    _pad1: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -102,5 +109,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let vi = p.beta2 * v[i] + (1.0 - p.beta2) * g * g;
     m[i] = mi;
     v[i] = vi;
-    params[i] = params[i] - p.lr * (mi / p.c1) / (sqrt(vi / p.c2) + p.eps);
+    var lr = p.lr;
+    var eps = p.eps;
+    if (i < p.split) {
+        lr = p.field_lr;
+        eps = p.field_eps;
+    }
+    params[i] = params[i] - lr * (mi / p.c1) / (sqrt(vi / p.c2) + eps);
 }

@@ -1,7 +1,7 @@
 // Rays to conical-frustum (or cylinder) Gaussians to integrated positional encoding (IPE).
 //
 // One invocation per (ray, sample). The maths mirrors mipnerf-core's `mip.rs` operation by
-// operation: `conical_frustum_moments` (stable form), `lift_gaussian` (diagonal), then
+// operation: `conical_frustum_moments` (stable form, `frustum.wgsl`), `lift_gaussian` (diagonal), then
 // `integrated_pos_enc` with the official 100*pi argument guard. Sine arguments are further
 // reduced to [-pi, pi] with a three-part 2*pi (Cody-Waite), because WGSL only bounds `sin`'s error
 // there (2^-11 absolute). Neither reduction relies on a fused multiply-add: the leading parts of
@@ -113,25 +113,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let t0 = t_vals[base_t];
     let t1 = t_vals[base_t + 1u];
 
-    var t_mean: f32;
-    var t_var: f32;
-    var r_var: f32;
-    if (params.ray_shape == RAY_SHAPE_CONE) {
-        let mu = (t0 + t1) / 2.0;
-        let hw = (t1 - t0) / 2.0;
-        let mu2 = mu * mu;
-        let hw2 = hw * hw;
-        let hw4 = hw2 * hw2;
-        let denom = 3.0 * mu2 + hw2;
-        t_mean = mu + (2.0 * mu * hw2) / denom;
-        t_var = hw2 / 3.0 - (4.0 / 15.0) * ((hw4 * (12.0 * mu2 - hw2)) / (denom * denom));
-        r_var = radius * radius * (mu2 / 4.0 + (5.0 / 12.0) * hw2 - 4.0 / 15.0 * hw4 / denom);
-    } else {
-        let dt = t1 - t0;
-        t_mean = (t0 + t1) / 2.0;
-        t_var = dt * dt / 12.0;
-        r_var = radius * radius / 4.0;
-    }
+    let moments = frustum_moments(t0, t1, radius, params.ray_shape);
+    let t_mean = moments.x;
+    let t_var = moments.y;
+    let r_var = moments.z;
     let d2 = d * d;
     let d_mag_sq = max(d2.x + d2.y + d2.z, 1e-10);
     var mean = o_r.xyz + d * t_mean;

@@ -91,10 +91,6 @@ pub fn bench(a: &BenchArgs, session: &Session) -> Result<()> {
             if choice == Backend::Gpu && precision != PrecisionArg::F32 {
                 continue;
             }
-            if choice == Backend::Gpu && field != FieldArg::MipNerf {
-                println!("({shape}: the GPU backend runs the Mip-NeRF field only so far; not measured there)");
-                continue;
-            }
             let setup = BackendSetup {
                 model: model.clone(),
                 optim: optim.clone(),

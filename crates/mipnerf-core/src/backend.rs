@@ -56,11 +56,6 @@ pub enum Unsupported {
     /// bf16 matrix products, which only the CPU backend runs.
     #[error("bf16 precision runs on the CPU backend only; this backend computes in f32")]
     Bf16,
-    /// A field other than Mip-NeRF's (the Tri-Mip planes), which only the CPU backend runs so far.
-    #[error(
-        "the Tri-Mip field runs on the CPU backend only so far (--backend cpu); its WGSL kernels are not written yet"
-    )]
-    Field,
 }
 
 /// A full image to render: its camera and how its pixels become rays.

@@ -47,6 +47,10 @@ pub struct MlpBuffers {
     col_scratch: wgpu::Buffer,
     /// Partial products of the split weight-gradient products, and its length in floats.
     split_scratch: (wgpu::Buffer, usize),
+    /// The gradient of the sample encodings, `n x x_dim`, written by the backward pass where
+    /// the encodings have parameters of their own (the Tri-Mip planes; see
+    /// [`with_input_gradient`](Self::with_input_gradient)).
+    pub d_x: Option<wgpu::Buffer>,
 }
 
 fn storage(ctx: &GpuContext, label: &str, len: usize) -> wgpu::Buffer {
@@ -89,7 +93,16 @@ impl MlpBuffers {
                 let len = Self::split_scratch_len(shape, n);
                 (storage(ctx, "mlp weight gradient partial products", len), len)
             },
+            d_x: None,
         }
+    }
+
+    /// These buffers with room for the gradient of the sample encodings (`n x x_dim`), which
+    /// [`GpuMlp::backward`] then writes: for a field whose encodings have parameters.
+    #[must_use]
+    pub fn with_input_gradient(mut self, ctx: &GpuContext, x_dim: usize) -> Self {
+        self.d_x = Some(storage(ctx, "mlp input gradient", self.n * x_dim));
+        self
     }
 
     /// The raw densities: the buffer and the elements between consecutive samples' values (they
@@ -140,7 +153,7 @@ impl MlpBuffers {
         let mut b: u64 = all.iter().map(|x| x.size()).sum();
         b += self.trunk.iter().chain(&self.cond).chain(&self.grad).map(wgpu::Buffer::size).sum::<u64>();
         b += self.col_scratch.size() + self.split_scratch.0.size();
-        b
+        b + self.d_x.as_ref().map_or(0, wgpu::Buffer::size)
     }
 
     fn samples_per_ray(&self) -> usize {
@@ -317,7 +330,9 @@ impl GpuMlp {
 
     /// Records the backward pass of the last forward pass: **adds** every parameter's gradient for
     /// the output gradients `d_raw_rgb` (`n x 3`) and the raw densities' gradient, which the
-    /// caller (rendering) has written to [`MlpBuffers::d_raw_density`], to `grads`.
+    /// caller (rendering) has written to [`MlpBuffers::d_raw_density`], to `grads`; writes the
+    /// gradient of the encodings to [`MlpBuffers::d_x`] where there is one (the encodings
+    /// entering the first layer only: no skip connection).
     pub fn backward(
         &self,
         rec: &mut Recorder<'_>,
@@ -400,7 +415,8 @@ impl GpuMlp {
         let (mut cur, mut other) = (z, 1);
         for i in (0..d).rev() {
             if i == 0 {
-                self.dense_backward(rec, params, grads, &ls[0], &[(&bufs.x, c.x_dim)], n, &g[cur], None, bufs);
+                let d_x = bufs.d_x.as_ref().map(|out| InputGrad { out, accumulate: false, relu: false });
+                self.dense_backward(rec, params, grads, &ls[0], &[(&bufs.x, c.x_dim)], n, &g[cur], d_x, bufs);
             } else {
                 let parts: Vec<Part<'_>> = if shape.concat_after(i - 1) {
                     vec![(&bufs.trunk[i - 1], w), (&bufs.x, c.x_dim)]

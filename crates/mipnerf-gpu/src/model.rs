@@ -21,6 +21,7 @@ use crate::kernels::compact::{Compaction, ExpandKernel, ExpandParams, GatherKern
 use crate::kernels::occupancy::{DeviceGrid, OccupancyKernel, OccupancyParams};
 use crate::kernels::render::{RenderBuffers, RenderKernel, RenderParams, background_code};
 use crate::kernels::sample::{SampleKernels, SampleParams};
+use crate::kernels::tri_mip::{FieldBuffers, PlaneField, Samples, TriMipKernel, total_variation_loss};
 use crate::kernels::view_enc::ViewEncKernel;
 use crate::mlp::{GpuMlp, MlpBuffers};
 use crate::{GpuContext, GpuError};
@@ -38,6 +39,8 @@ pub struct ModelBuffers {
     pub ray_out: Vec<wgpu::Buffer>,
     weights: wgpu::Buffer,
     d_rgb: wgpu::Buffer,
+    /// The Tri-Mip planes' pyramid and its gradient (none for the Mip-NeRF field).
+    field: Option<FieldBuffers>,
 }
 
 impl ModelBuffers {
@@ -67,14 +70,36 @@ impl ModelBuffers {
             )));
         }
         let nan = |label: &str, len: usize| ctx.storage_buffer(label, &vec![f32::NAN; len.max(1)], true);
+        let shape = &model.mlps()[0];
+        let mut mlp = MlpBuffers::new(ctx, shape, n_rays, s);
+        let field = PlaneField::of(model);
+        if let Some(f) = &field {
+            // The planes' gradient needs the encodings' own, which the MLP's backward pass gives
+            // where they enter the first layer only.
+            if (0..shape.config.net_depth).any(|i| shape.concat_after(i)) {
+                return Err(GpuError::InvalidInput(
+                    "the Tri-Mip field's MLP on the GPU takes no skip connection (skip_layer)".into(),
+                ));
+            }
+            let limit = ctx.max_binding_bytes();
+            if 4 * f.planes.num_params() as u64 > limit {
+                return Err(GpuError::InvalidInput(format!(
+                    "the Tri-Mip planes take {:.0} MiB; this adapter binds at most {:.0} MiB (lower tri_mip_resolution)",
+                    (4 * f.planes.num_params()) as f64 / 1048576.0,
+                    limit as f64 / 1048576.0
+                )));
+            }
+            mlp = mlp.with_input_gradient(ctx, shape.config.x_dim);
+        }
         Ok(Self {
             n_rays,
             capacity: n_rays,
-            mlp: MlpBuffers::new(ctx, &model.mlps()[0], n_rays, s),
+            mlp,
             t_vals: (0..levels).map(|l| nan(&format!("edges level {l}"), n_rays * (s + 1))).collect(),
             ray_out: (0..levels).map(|l| nan(&format!("ray outputs level {l}"), n_rays * 8)).collect(),
             weights: nan("weights", n),
             d_rgb: nan("d raw rgb", n * 3),
+            field: field.map(|f| FieldBuffers::new(ctx, &f)),
         })
     }
 
@@ -98,9 +123,11 @@ impl ModelBuffers {
         let cfg = &model.config();
         let s = cfg.num_samples;
         let widest = c.net_width.max(c.net_width_condition).max(3);
-        // Encodings, trunk, the heads and their gradient, colour layers, raw colours, gradient
-        // scratch, weights, colour gradients.
+        // Encodings (and their gradient, for a field with parameters), trunk, the heads and
+        // their gradient, colour layers, raw colours, gradient scratch, weights, colour gradients.
+        let d_x = if cfg.field.is_mip_nerf() { 0 } else { c.x_dim };
         let per_sample = c.x_dim
+            + d_x
             + c.net_depth * c.net_width
             + 2 * (c.net_width + 1)
             + c.net_depth_condition * c.net_width_condition
@@ -131,7 +158,9 @@ impl ModelBuffers {
         let n = n_rays * model.config().num_samples;
         let shape = &model.mlps()[0];
         let packed_heads = 2 * (shape.layers[shape.config.net_depth].fan_in + 1) * (shape.config.net_width + 1);
-        Self::bytes_per_ray(model) * n_rays as u64 + 4 * (MlpBuffers::split_scratch_len(shape, n) + packed_heads) as u64
+        let field = PlaneField::of(model).map_or(0, |f| 2 * f.pyramid_len() + 3 * f.planes.resolution);
+        Self::bytes_per_ray(model) * n_rays as u64
+            + 4 * (MlpBuffers::split_scratch_len(shape, n) + packed_heads + field) as u64
     }
 
     /// Rays the next pass uses (set by [`set_active`](Self::set_active)).
@@ -160,7 +189,7 @@ impl ModelBuffers {
         for buf in self.t_vals.iter().chain(&self.ray_out).chain([&self.weights, &self.d_rgb]) {
             b += buf.size();
         }
-        b
+        b + self.field.as_ref().map_or(0, FieldBuffers::bytes)
     }
 }
 
@@ -170,6 +199,7 @@ pub struct GpuModel {
     sample: SampleKernels,
     occupancy: OccupancyKernel,
     cast: CastIpeKernel,
+    tri_mip: TriMipKernel,
     view: ViewEncKernel,
     mlp: GpuMlp,
     render: RenderKernel,
@@ -204,6 +234,7 @@ impl GpuModel {
             sample: SampleKernels::with_variant(ctx, s)?,
             occupancy: OccupancyKernel::new(ctx)?,
             cast: CastIpeKernel::new(ctx)?,
+            tri_mip: TriMipKernel::new(ctx)?,
             view: ViewEncKernel::new(ctx)?,
             mlp: GpuMlp::with_variant(ctx, m)?,
             render: RenderKernel::with_variant(ctx, r)?,
@@ -310,17 +341,8 @@ impl GpuModel {
             } else {
                 self.sample.resample(rec, sp, &t[level - 1], &work.weights, &batch.ids, &t[level])?;
             }
-            let cp = CastIpeParams {
-                n_rays: nr as u32,
-                n_samples: s as u32,
-                min_deg: c.min_deg_point,
-                max_deg: c.max_deg_point,
-                ray_shape: c.ray_shape as u32,
-                groups_x: 0,
-                encoding: c.point_encoding as u32,
-                unbounded: u32::from(c.unbounded),
-            };
-            self.cast.encode(rec, cp, &batch.rays, &t[level], &bufs.x)?;
+            let samples = Samples { rays: &batch.rays, t_vals: &t[level], n_rays: nr, n_samples: s };
+            self.encode_samples(rec, model, params, samples, work)?;
             // One MLP for all levels, or one per level (the same shape at its own offset).
             let shape = &model.mlps()[if c.separate_mlps { level } else { 0 }];
             self.mlp.forward(rec, shape, params, bufs);
@@ -348,9 +370,122 @@ impl GpuModel {
             self.render.encode(rec, rp, &rb)?;
             if let Some(g) = grads {
                 self.mlp.backward(rec, shape, params, bufs, &work.d_rgb, g);
+                self.field_backward(rec, model, samples, work, g)?;
             }
         }
         Ok(())
+    }
+
+    /// The batch's samples encoded into the MLP's input (`work`'s): the IPE of their Gaussians
+    /// (`cast_ipe.wgsl`, the Mip-NeRF field), or the Tri-Mip planes read at each frustum's
+    /// footprint (`tri_mip.wgsl`, from the pyramid [`prepare_field`](Self::prepare_field)
+    /// built). The device's side of the CPU's `Model::encode_samples`.
+    fn encode_samples(
+        &self,
+        rec: &mut Recorder<'_>,
+        model: &Model,
+        params: &wgpu::Buffer,
+        samples: Samples<'_>,
+        work: &ModelBuffers,
+    ) -> Result<(), GpuError> {
+        let c = model.config();
+        let x = &work.mlp.x;
+        match (PlaneField::of(model), &work.field) {
+            (None, _) => {
+                let cp = CastIpeParams {
+                    n_rays: samples.n_rays as u32,
+                    n_samples: samples.n_samples as u32,
+                    min_deg: c.min_deg_point,
+                    max_deg: c.max_deg_point,
+                    ray_shape: c.ray_shape as u32,
+                    groups_x: 0,
+                    encoding: c.point_encoding as u32,
+                    unbounded: u32::from(c.unbounded),
+                };
+                self.cast.encode(rec, cp, samples.rays, samples.t_vals, x)
+            }
+            (Some(f), Some(bufs)) => self.tri_mip.encode(rec, &f, samples, params, bufs, x),
+            (Some(_), None) => Err(GpuError::InvalidInput("buffers made for another model's field".into())),
+        }
+    }
+
+    /// After the MLP's backward pass of a level: the gradient of the samples' Tri-Mip encodings
+    /// scattered into the planes' gradient (level 0 in `grads`, the levels above in the
+    /// field's buffers, pushed down by [`finish_field`](Self::finish_field)). Nothing for the
+    /// Mip-NeRF field, whose encoding has no parameters.
+    fn field_backward(
+        &self,
+        rec: &mut Recorder<'_>,
+        model: &Model,
+        samples: Samples<'_>,
+        work: &ModelBuffers,
+        grads: &wgpu::Buffer,
+    ) -> Result<(), GpuError> {
+        let (Some(f), Some(bufs), Some(d_x)) = (PlaneField::of(model), &work.field, &work.mlp.d_x) else {
+            return Ok(());
+        };
+        self.tri_mip.scatter(rec, &f, samples, d_x, grads, bufs)
+    }
+
+    /// Before a pass over `params` (a training step's chunks, or an image's): the Tri-Mip
+    /// planes' pyramid built from them, and in training (`training`) the pyramid's gradient
+    /// cleared. Nothing for the Mip-NeRF field.
+    ///
+    /// # Errors
+    /// Planes too large for one dispatch.
+    pub fn prepare_field(
+        &self,
+        rec: &mut Recorder<'_>,
+        model: &Model,
+        params: &wgpu::Buffer,
+        work: &ModelBuffers,
+        training: bool,
+    ) -> Result<(), GpuError> {
+        let (Some(f), Some(bufs)) = (PlaneField::of(model), &work.field) else { return Ok(()) };
+        if training {
+            rec.encoder().clear_buffer(&bufs.grad_pyramid, 0, None);
+        }
+        self.tri_mip.build_pyramid(rec, &f, params, bufs)
+    }
+
+    /// After every chunk of a training step: the pyramid's gradient pushed down into the
+    /// planes' (level 0's, in `grads`), and the planes' total variation, weighted by
+    /// `planes_tv_mult`, added to it (the CPU's `field_backward_chunks` and
+    /// `field_regulariser`). Nothing for the Mip-NeRF field.
+    ///
+    /// # Errors
+    /// Planes too large for one dispatch.
+    pub fn finish_field(
+        &self,
+        rec: &mut Recorder<'_>,
+        model: &Model,
+        params: &wgpu::Buffer,
+        work: &ModelBuffers,
+        grads: &wgpu::Buffer,
+    ) -> Result<(), GpuError> {
+        let (Some(f), Some(bufs)) = (PlaneField::of(model), &work.field) else { return Ok(()) };
+        self.tri_mip.push_down(rec, &f, grads, bufs)?;
+        let weight = model.config().planes_tv_mult;
+        if weight > 0.0 {
+            self.tri_mip.total_variation(rec, &f, weight, params, grads, bufs)?;
+        }
+        Ok(())
+    }
+
+    /// The planes' total variation of the last step [`finish_field`](Self::finish_field)
+    /// recorded, weighted (read back; waits for the device). 0 when off or for the Mip-NeRF
+    /// field.
+    ///
+    /// # Errors
+    /// Any error wgpu reports.
+    pub fn read_planes_tv(&self, ctx: &GpuContext, model: &Model, work: &ModelBuffers) -> Result<f32, GpuError> {
+        let weight = model.config().planes_tv_mult;
+        let (Some(f), Some(bufs)) = (PlaneField::of(model), &work.field) else { return Ok(0.0) };
+        if weight <= 0.0 {
+            return Ok(0.0);
+        }
+        let rows = ctx.read_f32(&bufs.tv_rows, 3 * f.planes.resolution)?;
+        Ok(total_variation_loss(&f.planes, weight, &rows) as f32)
     }
 
     /// [`encode_guided`](Self::encode_guided) on only the rays of `batch` that `compaction`'s
@@ -538,8 +673,9 @@ impl GpuModel {
         let kept = grid.filter(|_| model.rays_per_pixel() == 1).and_then(|g| kept_rays(g, rays));
         let grid = grid.map(|g| DeviceGrid::new(ctx, g)).transpose()?;
         let mut rec = Recorder::new(ctx, "model step");
+        self.prepare_field(&mut rec, model, &params_buf, &work, true)?;
         let g = Some(&grads);
-        let losses = if let Some(kept) = kept {
+        let mut losses = if let Some(kept) = kept {
             // Only the rays that meet an occupied cell run, as on the CPU.
             let mut compaction = Compaction::new(ctx, rays.len(), model.config().num_levels);
             compaction.upload(ctx, &kept, rays.len())?;
@@ -554,13 +690,17 @@ impl GpuModel {
                 g,
                 grid.as_ref(),
             )?;
+            self.finish_field(&mut rec, model, &params_buf, &work, &grads)?;
             let _ = rec.submit();
             self.read_losses(ctx, model, &batch, &compaction.outs)?
         } else {
             self.encode_guided(&mut rec, model, &params_buf, &batch, &work, mode, g, grid.as_ref())?;
+            self.finish_field(&mut rec, model, &params_buf, &work, &grads)?;
             let _ = rec.submit();
             self.read_losses(ctx, model, &batch, &work.ray_out)?
         };
+        losses.planes_tv = self.read_planes_tv(ctx, model, &work)?;
+        losses.loss += losses.planes_tv;
         Ok((losses, ctx.read_f32(&grads, model.num_params())?))
     }
 }

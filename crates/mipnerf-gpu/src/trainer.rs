@@ -126,9 +126,6 @@ impl GpuBackend {
         state: TrainState,
     ) -> Result<Self, GpuError> {
         state.check(&model).map_err(|e| GpuError::InvalidInput(e.to_string()))?;
-        if !model.config().field.is_mip_nerf() {
-            return Err(mipnerf_core::backend::Unsupported::Field.into());
-        }
         let occupancy = match state.occupancy {
             Some(grid) => {
                 let on_device = DeviceGrid::new(&ctx, &grid)?;
@@ -298,6 +295,7 @@ impl GpuBackend {
         }
         let mut rec = Recorder::with_cache(ctx, "train step", std::mem::take(&mut self.train_cache));
         rec.encoder().clear_buffer(&self.state.grads, 0, None);
+        self.kernels.prepare_field(&mut rec, &self.model, &self.state.params, work, true)?;
         let draw = Draw::Random { seed: self.seed, step: step as u32, random_bkgd: self.model.config().random_bkgd };
         let (area_loss, k) = (self.model.config().area_loss, self.model.config().supersample);
         self.batch_kernel.encode(&mut rec, images, draw, area_loss, k, batch)?;
@@ -387,7 +385,9 @@ impl GpuBackend {
             lr,
             max_val: self.optim.grad_max_val,
             max_norm: self.optim.grad_max_norm,
+            split: self.optim.field.map(|f| (self.model.field_params(), f)),
         };
+        self.kernels.finish_field(&mut rec, &self.model, &self.state.params, work, &self.state.grads)?;
         self.adam_kernel.encode(&mut rec, &adam, &self.state)?;
         self.train_cache = rec.submit();
         self.adam_t += 1;
@@ -402,7 +402,9 @@ impl GpuBackend {
             return Ok(None);
         }
         self.in_flight = 0;
-        let stats = self.kernels.read_losses(ctx, &self.model, batch, ray_out)?;
+        let mut stats = self.kernels.read_losses(ctx, &self.model, batch, ray_out)?;
+        stats.planes_tv = self.kernels.read_planes_tv(ctx, &self.model, work)?;
+        stats.loss += stats.planes_tv;
         let grad_norm =
             if self.optim.grad_max_norm > 0.0 { Some(ctx.read_f32(&self.state.stats, 1)?[0]) } else { None };
         Ok(Some(StepReport { step, lr, stats, grad_norm }))
@@ -438,6 +440,10 @@ impl GpuBackend {
             self.render_compaction = Some(Compaction::new(&self.ctx, chunk_pixels, levels));
         }
         let Some((batch, work, staging)) = &mut self.render else { unreachable!("render buffers were just made") };
+        // The planes' pyramid, once an image.
+        let mut rec = Recorder::new(&self.ctx, "render field");
+        self.kernels.prepare_field(&mut rec, &self.model, &self.state.params, work, false)?;
+        let _ = rec.submit();
         let mut out = Vec::with_capacity(total * levels);
         let ctx = &self.ctx;
         let k = self.model.config().supersample;

@@ -11,7 +11,7 @@ use mipnerf_core::backend::{Backend, CpuBackend, ImageSpec, TrainState};
 use mipnerf_core::camera::{Camera, PixelCenters};
 use mipnerf_core::compare::{Outputs, Tolerance, assert_none, check_kernel, mismatches};
 use mipnerf_core::data::{self, Dataset, LoadOptions, Pixels, Split, View, demo};
-use mipnerf_core::model::{LevelOutput, Levels, LossStats, Model, ModelConfig, Preset};
+use mipnerf_core::model::{Field, LevelOutput, Levels, LossStats, Model, ModelConfig, Preset, TriMipRecipe};
 use mipnerf_core::train::OptimConfig;
 use mipnerf_gpu::GpuBackend;
 use mipnerf_gpu::kernels::batch::{BatchKernel, DeviceImages, Draw};
@@ -263,7 +263,18 @@ fn cpu_and_gpu(
     seed: u32,
     batch: usize,
 ) -> (CpuBackend, GpuBackend) {
-    let (optim, state) = (OptimConfig::default(), TrainState::fresh(model, seed));
+    cpu_and_gpu_with(ctx, ds, model, (seed, batch), OptimConfig::default())
+}
+
+/// [`cpu_and_gpu`] training with `optim`.
+fn cpu_and_gpu_with(
+    ctx: mipnerf_gpu::GpuContext,
+    ds: &Arc<Dataset>,
+    model: &Model,
+    (seed, batch): (u32, usize),
+    optim: OptimConfig,
+) -> (CpuBackend, GpuBackend) {
+    let state = TrainState::fresh(model, seed);
     let cpu =
         CpuBackend::new(model.clone(), optim.clone(), seed, state.clone()).unwrap().with_data(Arc::clone(ds), batch);
     (cpu, GpuBackend::new(ctx, model.clone(), optim, seed, state).unwrap())
@@ -343,6 +354,34 @@ fn gpu_and_cpu_backends_train_alike_on_an_unbounded_scene() {
     train_alike_on(ctx, lego_tiny_unbounded(), ModelConfig { unbounded: true, ..Preset::Tiny.config() }, 30);
 }
 
+/// The Tri-Mip field's recipe on 32² planes (4 levels) with a 2 x 32 MLP: its own Adam for the
+/// planes and their total variation on.
+fn tri_mip_config(half_side: f32) -> (ModelConfig, OptimConfig) {
+    let planes = TriMipRecipe::planes(32);
+    let field = Field::TriMip { planes, half_side, pre_filtered: true };
+    let cfg = ModelConfig { field, planes_tv_mult: 0.1, ..Preset::Tiny.config() };
+    let optim = OptimConfig { field: Some(TriMipRecipe::RECIPE.adam), ..OptimConfig::default() };
+    (TriMipRecipe::with_mlp(cfg, [2, 32, 1, 32]), optim)
+}
+
+#[test]
+fn gpu_and_cpu_backends_train_the_tri_mip_field_alike() {
+    // tri_mip.wgsl's encoding, scatter, push-down and total variation, and Adam's split for the
+    // planes, through whole steps; the scatter's sums in the device's order.
+    let Some(ctx) = context_or_skip("gpu_and_cpu_backends_train_the_tri_mip_field_alike") else { return };
+    let (cfg, optim) = tri_mip_config(1.5);
+    train_alike_with(ctx, lego_tiny(), cfg, optim, 50);
+}
+
+#[test]
+fn gpu_and_cpu_backends_train_the_tri_mip_field_alike_on_an_unbounded_scene() {
+    let Some(ctx) = context_or_skip("gpu_and_cpu_backends_train_the_tri_mip_field_alike_on_an_unbounded_scene") else {
+        return;
+    };
+    let (cfg, optim) = tri_mip_config(2.0);
+    train_alike_with(ctx, lego_tiny_unbounded(), ModelConfig { unbounded: true, ..cfg }, optim, 20);
+}
+
 /// Trains `cfg` on lego_tiny for `steps` on both backends from one seed: the loss curves and the
 /// final renders agree.
 fn train_alike(ctx: mipnerf_gpu::GpuContext, cfg: ModelConfig, steps: u64) {
@@ -351,10 +390,15 @@ fn train_alike(ctx: mipnerf_gpu::GpuContext, cfg: ModelConfig, steps: u64) {
 
 /// [`train_alike`] on `ds`.
 fn train_alike_on(ctx: mipnerf_gpu::GpuContext, ds: Dataset, cfg: ModelConfig, steps: u64) {
+    train_alike_with(ctx, ds, cfg, OptimConfig::default(), steps);
+}
+
+/// [`train_alike_on`] training with `optim`.
+fn train_alike_with(ctx: mipnerf_gpu::GpuContext, ds: Dataset, cfg: ModelConfig, optim: OptimConfig, steps: u64) {
     let ds = Arc::new(ds);
     let model = Model::new(cfg).unwrap();
     let (seed, batch) = (3u32, 32usize);
-    let (mut cpu, gpu) = cpu_and_gpu(ctx, &ds, &model, seed, batch);
+    let (mut cpu, gpu) = cpu_and_gpu_with(ctx, &ds, &model, (seed, batch), optim);
     let mut gpu = gpu.with_data(&ds, batch).unwrap();
     let mut bad = Vec::new();
     let mut worst = 0.0f32;

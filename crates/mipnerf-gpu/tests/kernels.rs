@@ -397,7 +397,7 @@ fn render_forward_loss_and_backward_match_cpu_reference() {
 
 #[test]
 fn adam_and_gradient_clipping_match_cpu_reference() {
-    use mipnerf_core::train::{AdamConfig, AdamState};
+    use mipnerf_core::train::{AdamConfig, AdamState, FieldAdam};
     use mipnerf_gpu::kernels::adam::{AdamBuffers, AdamKernel, AdamStep};
     use rand::{Rng, SeedableRng, rngs::SmallRng};
     let Some(ctx) = context_or_skip("adam_and_gradient_clipping_match_cpu_reference") else { return };
@@ -407,8 +407,19 @@ fn adam_and_gradient_clipping_match_cpu_reference() {
     let (cfg, lr) = (AdamConfig::default(), 1e-3);
     let mut bad = Vec::new();
     // (max_val, max_norm): off; by value (some entries clipped); by norm (the norm of 1000 entries
-    // of about 0.06 is about 1.8, so it is scaled); both.
-    for (max_val, max_norm) in [(0.0, 0.0), (0.05, 0.0), (0.0, 0.5), (0.08, 1.0)] {
+    // of about 0.06 is about 1.8, so it is scaled); both. Then a field's own first 300
+    // parameters at 10 times the rate with a tiny epsilon (the Tri-Mip planes' split), with and
+    // without clipping by norm.
+    let planes = Some((300, FieldAdam { lr_mult: 10.0, eps: 1e-15 }));
+    let cases = [
+        (0.0, 0.0, None),
+        (0.05, 0.0, None),
+        (0.0, 0.5, None),
+        (0.08, 1.0, None),
+        (0.0, 0.0, planes),
+        (0.0, 0.5, planes),
+    ];
+    for (max_val, max_norm, split) in cases {
         // The starting parameters and three steps' gradients.
         let mut rng = SmallRng::seed_from_u64(3);
         let params: Vec<f32> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
@@ -416,8 +427,15 @@ fn adam_and_gradient_clipping_match_cpu_reference() {
         let cpu = |(params, steps): &(Vec<f32>, Vec<Vec<f32>>)| -> Outputs {
             let (mut params, mut state, mut norms) = (params.clone(), AdamState::new(n), Vec::new());
             for grads in steps {
-                let norm =
-                    stages::adam_step(&cfg, lr, (max_val, max_norm), None, &mut state, &mut params, &mut grads.clone());
+                let norm = stages::adam_step(
+                    &cfg,
+                    lr,
+                    (max_val, max_norm),
+                    split,
+                    &mut state,
+                    &mut params,
+                    &mut grads.clone(),
+                );
                 norms.push(norm);
             }
             let norms = if max_norm > 0.0 { norms } else { Vec::new() };
@@ -429,7 +447,7 @@ fn adam_and_gradient_clipping_match_cpu_reference() {
             for (t, grads) in (1..).zip(steps) {
                 ctx.queue().write_buffer(&b.grads, 0, bytemuck::cast_slice(grads));
                 let mut rec = Recorder::new(&ctx, "adam test");
-                kernel.encode(&mut rec, &AdamStep { cfg, t, lr, max_val, max_norm }, &b)?;
+                kernel.encode(&mut rec, &AdamStep { cfg, t, lr, max_val, max_norm, split }, &b)?;
                 let _ = rec.submit();
                 if max_norm > 0.0 {
                     norms.push(ctx.read_f32(&b.stats, 1)?[0]);
@@ -448,7 +466,7 @@ fn adam_and_gradient_clipping_match_cpu_reference() {
             "v" => Tolerance::new(1e-12, 1e-5),
             _ => Tolerance::new(0.0, 1e-5),
         };
-        let label = format!("max_val {max_val} max_norm {max_norm}");
+        let label = format!("max_val {max_val} max_norm {max_norm} split {split:?}");
         bad.extend(check_kernel(&label, cpu, on_gpu, &(params, steps), tol).into_mismatches());
     }
     assert_none(&bad);

@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 
 use mipnerf_gpu::kernels::{
-    ALL_SOURCES, RNG_SOURCE, WgslStruct,
+    ALL_SOURCES, FRUSTUM_SOURCE, RNG_SOURCE, WgslStruct,
     adam::AdamParams,
     batch::{BatchParams, GpuView},
     cast_ipe::CastIpeParams,
@@ -17,6 +17,7 @@ use mipnerf_gpu::kernels::{
     prelude,
     render::RenderParams,
     sample::SampleParams,
+    tri_mip::TriMipParams,
     view_enc::ViewEncParams,
 };
 
@@ -45,10 +46,11 @@ fn every_shader_file_parses_and_validates_as_composed() {
     for path in &files {
         let src = std::fs::read_to_string(path).unwrap();
         let name = path.file_name().unwrap().to_string_lossy().to_string();
-        if name == "rng.wgsl" {
-            // The shared file, composed in front of every kernel; also valid on its own after the
-            // generated constants.
-            assert_eq!(src, RNG_SOURCE, "rng.wgsl differs from kernels::RNG_SOURCE");
+        if name == "rng.wgsl" || name == "frustum.wgsl" {
+            // The shared files, composed in front of every kernel; each also valid on its own
+            // after the generated constants.
+            let shared = if name == "rng.wgsl" { RNG_SOURCE } else { FRUSTUM_SOURCE };
+            assert_eq!(src, shared, "{name} differs from the kernels' shared source");
             if let Err(e) = parse_and_validate(&name, &format!("{}\n{src}", prelude())) {
                 failures.push(e);
             }
@@ -156,6 +158,7 @@ fn uniform_structs_match_wgsl_member_by_member() {
     check::<BatchParams>("batch.wgsl", &mut mismatches);
     check::<GatherParams>("gather.wgsl", &mut mismatches);
     check::<ExpandParams>("expand.wgsl", &mut mismatches);
+    check::<TriMipParams>("tri_mip.wgsl", &mut mismatches);
     // The per-view camera record of batch.wgsl, read from a storage array.
     check::<GpuView>("batch.wgsl", &mut mismatches);
     assert!(mismatches.is_empty(), "{} mismatch(es):\n{}", mismatches.len(), mismatches.join("\n"));
@@ -207,7 +210,7 @@ fn no_kernel_tests_for_nan_by_self_comparison_or_relies_on_fma() {
         found
     }
     let mut bad = Vec::new();
-    for (name, src) in ALL_SOURCES.iter().chain([&("rng.wgsl", RNG_SOURCE)]) {
+    for (name, src) in ALL_SOURCES.iter().chain([&("rng.wgsl", RNG_SOURCE), &("frustum.wgsl", FRUSTUM_SOURCE)]) {
         bad.extend(offences(src).into_iter().map(|o| format!("{name} {o}")));
     }
     assert!(bad.is_empty(), "{}", bad.join("\n"));

@@ -107,6 +107,46 @@ impl Model {
         }
     }
 
+    /// The encodings of `rays`' intervals (`t_vals`: `num_samples + 1` edges a ray) as the
+    /// field hands them to the MLP, `rays.len() · num_samples · x_dim` values, sample after
+    /// sample: the reference the GPU's encoding kernels are checked against.
+    ///
+    /// # Panics
+    /// If `params` is not the model's or `t_vals` is not `num_samples + 1` edges a ray.
+    #[must_use]
+    pub fn encode_intervals(&self, params: &[f32], rays: &[Ray], t_vals: &[f32]) -> Vec<f32> {
+        self.encoded_intervals(params, rays, t_vals).x
+    }
+
+    /// The adjoint of [`encode_intervals`](Self::encode_intervals): the gradient of the field's
+    /// own parameters ([`field_params`](Self::field_params) values, the Tri-Mip planes' level
+    /// 0; none for Mip-NeRF) for `d_x`, the gradient of those encodings, through the pyramid
+    /// as a training step carries it.
+    ///
+    /// # Panics
+    /// As [`encode_intervals`](Self::encode_intervals), and `d_x` of another length.
+    #[must_use]
+    pub fn encode_intervals_backward(&self, params: &[f32], rays: &[Ray], t_vals: &[f32], d_x: &[f32]) -> Vec<f32> {
+        let ws = self.encoded_intervals(params, rays, t_vals);
+        assert_eq!(d_x.len(), ws.x.len(), "encode_intervals_backward: d_x");
+        let mut grad = vec![0.0; self.field_params];
+        let n = d_x.len() / self.mlps()[0].config.x_dim.max(1);
+        let chunk = FieldGrads { taps: ws.taps[..n.min(ws.taps.len())].to_vec(), d_x: d_x.to_vec() };
+        self.field_backward_chunks(std::slice::from_ref(&chunk), &mut None, &mut grad);
+        grad
+    }
+
+    fn encoded_intervals(&self, params: &[f32], rays: &[Ray], t_vals: &[f32]) -> Workspace {
+        assert_eq!(params.len(), self.num_params(), "encode_intervals: parameters");
+        let s = self.config.num_samples;
+        assert_eq!(t_vals.len(), rays.len() * (s + 1), "encode_intervals: edges");
+        let mut ws = Workspace::default();
+        ws.t.extend_from_slice(t_vals);
+        ws.x.resize(rays.len() * s * self.mlps()[0].config.x_dim, 0.0);
+        self.encode_samples(params, &self.field_state(params), rays, Precision::F32, &mut ws);
+        ws
+    }
+
     /// After the MLP's backward pass of a level: the gradient of its input (the Tri-Mip
     /// encoding of each sample) kept with the samples' taps in the chunk's `field_grads`, for
     /// [`field_backward_chunks`](Self::field_backward_chunks); nothing for Mip-NeRF, whose

@@ -2,6 +2,7 @@
 //!
 //! CPU reference: [`mipnerf_core::stages::adam_step`].
 
+use mipnerf_core::optim::FieldAdam;
 use mipnerf_core::train::AdamConfig;
 
 use crate::kernels::Recorder;
@@ -13,7 +14,7 @@ pub const SOURCE: &str = super::shader_source!("adam.wgsl");
 /// Gradients per workgroup of the norm's first pass.
 const NORM_GROUP: u64 = kernels::REDUCE_WORKGROUP as u64;
 
-/// The uniform block of `adam.wgsl` (`struct Params`), 48 bytes.
+/// The uniform block of `adam.wgsl` (`struct Params`), 64 bytes.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct AdamParams {
@@ -39,8 +40,17 @@ pub struct AdamParams {
     pub max_norm: f32,
     /// Workgroups of the norm's first pass.
     pub n_partials: u32,
+    /// The parameters before this index are the field's own (the Tri-Mip planes), updated with
+    /// `field_lr` and `field_eps` (0: none).
+    pub split: u32,
+    /// The field's learning rate.
+    pub field_lr: f32,
+    /// The field's epsilon.
+    pub field_eps: f32,
     /// Padding.
-    pub _pad: u32,
+    pub _pad0: u32,
+    /// Padding.
+    pub _pad1: u32,
 }
 
 /// One update: Adam's settings, the update number, the learning rate and the clipping.
@@ -56,6 +66,9 @@ pub struct AdamStep {
     pub max_val: f32,
     /// Clip the norm to `max_norm` (0: off).
     pub max_norm: f32,
+    /// The field's own parameters (the first ones) and their learning-rate multiplier and
+    /// epsilon, as the CPU's `AdamState::update_split` takes them.
+    pub split: Option<(usize, FieldAdam)>,
 }
 
 /// The buffers of an update of `count` parameters.
@@ -127,6 +140,10 @@ impl AdamKernel {
     pub fn encode(&self, rec: &mut Recorder<'_>, step: &AdamStep, b: &AdamBuffers) -> Result<(), GpuError> {
         let t = step.t as i32;
         let cfg = &step.cfg;
+        let (split, field) = step.split.unwrap_or((0, FieldAdam { lr_mult: 1.0, eps: cfg.eps }));
+        if split > b.count {
+            return Err(GpuError::InvalidInput(format!("adam: {split} field parameters of {}", b.count)));
+        }
         let mut p = AdamParams {
             count: b.count as u32,
             groups_x: 0,
@@ -139,7 +156,11 @@ impl AdamKernel {
             max_val: step.max_val,
             max_norm: step.max_norm,
             n_partials: b.count.div_ceil(NORM_GROUP as usize) as u32,
-            _pad: 0,
+            split: split as u32,
+            field_lr: step.lr * field.lr_mult,
+            field_eps: field.eps,
+            _pad0: 0,
+            _pad1: 0,
         };
         let bufs = [&b.grads, &b.params, &b.m, &b.v, &b.partials, &b.stats];
         if step.max_norm > 0.0 {
@@ -158,5 +179,5 @@ impl AdamKernel {
 super::wgsl_struct!(
     AdamParams,
     "Params",
-    [count, groups_x, lr, beta1, beta2, eps, c1, c2, max_val, max_norm, n_partials]
+    [count, groups_x, lr, beta1, beta2, eps, c1, c2, max_val, max_norm, n_partials, split, field_lr, field_eps]
 );

@@ -20,6 +20,10 @@ pub(crate) use shader_source;
 /// `shaders/rng.wgsl`: the random numbers every kernel that draws them shares.
 pub const RNG_SOURCE: &str = shader_source!("rng.wgsl");
 
+/// `shaders/frustum.wgsl`: a sample's conical-frustum moments, shared by the kernels that cast
+/// samples (the IPE's and the Tri-Mip planes').
+pub const FRUSTUM_SOURCE: &str = shader_source!("frustum.wgsl");
+
 /// The WGSL constants that must agree with Rust, generated from the Rust definitions (the one
 /// source of truth): workgroup sizes, the codes of the configuration enums, the random stream
 /// ids and stride, and the pixel formats.
@@ -60,11 +64,12 @@ pub fn prelude() -> String {
     out
 }
 
-/// A kernel's complete WGSL: the generated [`prelude`], [`RNG_SOURCE`], then the kernel's own
-/// file. What the device compiles and the naga test validates.
+/// A kernel's complete WGSL: the generated [`prelude`], the shared [`RNG_SOURCE`] and
+/// [`FRUSTUM_SOURCE`], then the kernel's own file. What the device compiles and the naga test
+/// validates.
 #[must_use]
 pub fn compose(own: &str) -> String {
-    format!("{}\n{RNG_SOURCE}\n{own}", prelude())
+    format!("{}\n{RNG_SOURCE}\n{FRUSTUM_SOURCE}\n{own}", prelude())
 }
 
 /// A member of a uniform or storage struct as the WGSL must declare it: name, byte offset and
@@ -142,6 +147,7 @@ pub mod mlp_aux;
 pub mod occupancy;
 pub mod render;
 pub mod sample;
+pub mod tri_mip;
 pub mod view_enc;
 
 /// Every kernel's own WGSL file of the crate, by file name, for validation and `mipnerf info`
@@ -158,6 +164,7 @@ pub const ALL_SOURCES: &[(&str, &str)] = &[
     ("batch.wgsl", batch::SOURCE),
     ("gather.wgsl", compact::GATHER_SOURCE),
     ("expand.wgsl", compact::EXPAND_SOURCE),
+    ("tri_mip.wgsl", tri_mip::SOURCE),
 ];
 
 /// Most workgroups a dispatch may have along one dimension: WebGPU's default

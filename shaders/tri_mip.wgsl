@@ -1,0 +1,361 @@
+// The Tri-Mip field's planes on the device (mipnerf-core's `tri_mip.rs` and
+// `Model::encode_samples`, operation by operation): three planes (xy, xz, yz) of
+// `resolution^2` texels of `features` values, level 0 the model's first parameters, the levels
+// above it 2x2 box filters of the one below, kept in `pyramid` one after the other.
+//
+// Entry points:
+// - `build_level`: level `params.level` of the pyramid from the level below (one invocation a
+//   value; one dispatch a level, coarser after finer).
+// - `encode_planes`: a sample's encoding, one invocation per (sample, plane): the frustum's
+//   moments (`frustum.wgsl`), its mean and footprint radius in the planes' box (through the
+//   scene contraction for an unbounded scene), the level `log2(2 radius resolution)`, and the
+//   24 taps (bilinear at the two levels around it) summed in the CPU's order.
+// - `scatter_planes`: the encoding's adjoint, one invocation per (sample, plane): the same taps
+//   recomputed, each texel's gradient added with a compare-exchange loop on the f32's bits
+//   (WGSL's core has no float atomics; every adapter has `atomic<u32>`). The sums' order is the
+//   device's, not the CPU's: equal to rounding.
+// - `push_down`: the pyramid's gradients carried to level 0 through the box filters' adjoint,
+//   one invocation per level-0 value, nested from the coarsest level down as the CPU's
+//   `Pyramid::push_down` cascades them (the same operations in the same order).
+// - `total_variation`: TensoRF's regulariser of level 0, one invocation per row of a plane, as
+//   `tri_mip::total_variation` loops (its row's loss into `tv_rows`, summed on the host in f64).
+
+struct Params {
+    n_rays: u32,
+    n_samples: u32,
+    // RAY_SHAPE_CONE or RAY_SHAPE_CYLINDER.
+    ray_shape: u32,
+    // Workgroups along x of the 2-D dispatch grid.
+    groups_x: u32,
+    resolution: u32,
+    features: u32,
+    levels: u32,
+    // 1: an unbounded scene (the planes cover the contracted space).
+    unbounded: u32,
+    // The planes' box is the cube [-half_side, half_side]^3.
+    half_side: f32,
+    // 1: read each sample at its footprint's level (tri-mip); 0: at level 0 (tri-plane).
+    pre_filtered: u32,
+    // The level `build_level` makes.
+    level: u32,
+    // `total_variation`: its weight over the number of neighbouring pairs.
+    tv_scale: f32,
+}
+
+@group(0) @binding(0) var<uniform> params: Params;
+// Two vec4 per ray: (origin.xyz, radius), (direction.xyz, unused).
+@group(0) @binding(1) var<storage, read> rays: array<vec4<f32>>;
+// n_samples + 1 interval edges per ray.
+@group(0) @binding(2) var<storage, read> t_vals: array<f32>;
+// The model's parameters: level 0 of the planes first, laid out [plane][v][u][feature].
+@group(0) @binding(3) var<storage, read> model_params: array<f32>;
+// Levels 1.. of the planes, one after the other, each laid out as level 0.
+@group(0) @binding(4) var<storage, read_write> pyramid: array<f32>;
+// The samples' encodings (`encode_planes` writes them; `scatter_planes` reads their gradient).
+@group(0) @binding(5) var<storage, read_write> encoded: array<f32>;
+// The parameters' gradient (level 0 first) as f32 bits.
+@group(0) @binding(6) var<storage, read_write> grads: array<atomic<u32>>;
+// The gradient of levels 1.., laid out as `pyramid`, as f32 bits.
+@group(0) @binding(7) var<storage, read_write> grad_pyramid: array<atomic<u32>>;
+// Per row of level 0 (3 resolution rows): the row's sum of squared neighbour differences.
+@group(0) @binding(8) var<storage, read_write> tv_rows: array<f32>;
+
+// Taps a plane reads: 2 levels x 4 bilinear corners.
+const TAPS_PER_PLANE: u32 = 8u;
+
+fn side_at(level: u32) -> u32 {
+    return params.resolution >> level;
+}
+
+// Where level `level` >= 1 starts in `pyramid`.
+fn level_base(level: u32) -> u32 {
+    var base = 0u;
+    for (var k = 1u; k < level; k = k + 1u) {
+        let s = side_at(k);
+        base = base + 3u * s * s * params.features;
+    }
+    return base;
+}
+
+// The point (in the planes' box, [0, 1]^3) and the level a sample reads: Model::encode_samples.
+fn sample_point(sample: u32) -> vec4<f32> {
+    let ray = sample / params.n_samples;
+    let j = sample % params.n_samples;
+    let o_r = rays[2u * ray];
+    let d = rays[2u * ray + 1u].xyz;
+    let base_t = ray * (params.n_samples + 1u) + j;
+    let m = frustum_moments(t_vals[base_t], t_vals[base_t + 1u], o_r.w, params.ray_shape);
+    let side = 2.0 * params.half_side;
+    var x = o_r.xyz + d * m.x;
+    // footprint_radius(m) * |d| / side, |d| as glam's length: sqrt((x x + y y) + z z).
+    let d_len = sqrt(d.x * d.x + d.y * d.y + d.z * d.z);
+    var radius = 2.0 * sqrt(max(m.z, 0.0)) * d_len / side;
+    if (params.unbounded != 0u) {
+        // contract::contraction_across and contract::contract.
+        let r2 = x.x * x.x + x.y * x.y + x.z * x.z;
+        if (r2 > 1.0) {
+            let r = sqrt(r2);
+            let across = (2.0 - 1.0 / r) / r;
+            radius = radius * across;
+            x = x * across;
+        }
+    }
+    let at = (x + vec3<f32>(params.half_side)) / side;
+    var level = 0.0;
+    if (params.pre_filtered != 0u) {
+        // tri_mip::level_of (a point's log2(0) = -inf reads level 0; WGSL promises nothing of a
+        // NaN radius, which only NaN rays give).
+        level = clamp(log2(2.0 * radius * f32(params.resolution)), 0.0, f32(params.levels - 1u));
+    }
+    return vec4<f32>(at, level);
+}
+
+// One tap: the texel's level, the offset of its first feature in that level, its weight.
+struct Tap {
+    level: u32,
+    offset: u32,
+    weight: f32,
+}
+
+// The two texels around `t` along a side of `size` texels (clamped to the edge) and the
+// weight of the second: tri_mip::taps' `corner`.
+fn corner(t: f32, size: u32) -> vec3<f32> {
+    let f = clamp(t, 0.0, 1.0) * f32(size) - 0.5;
+    let i = floor(f);
+    let i0 = min(u32(max(i, 0.0)), size - 1u);
+    let i1 = min(u32(max(i + 1.0, 0.0)), size - 1u);
+    return vec3<f32>(f32(i0), f32(i1), f - i);
+}
+
+// Tap `k` (0..8) of plane `plane` for a point `at` read at `level`: tri_mip::taps, in its order
+// (the lower level's 4 corners, then the upper level's; corners (u0, v0), (u1, v0), (u0, v1),
+// (u1, v1)).
+fn plane_tap(plane: u32, at: vec3<f32>, level_in: f32, k: u32) -> Tap {
+    let top = params.levels - 1u;
+    let level = clamp(level_in, 0.0, f32(top));
+    let l0 = min(u32(floor(level)), top);
+    let l1 = min(l0 + 1u, top);
+    let blend = level - f32(l0);
+    var l = l0;
+    var level_weight = 1.0 - blend;
+    if (k >= 4u) {
+        l = l1;
+        level_weight = blend;
+    }
+    // PLANES: (0, 1), (0, 2), (1, 2).
+    var a = at.x;
+    var b = at.y;
+    if (plane == 1u) {
+        b = at.z;
+    } else if (plane == 2u) {
+        a = at.y;
+        b = at.z;
+    }
+    let size = side_at(l);
+    let cu = corner(a, size);
+    let cv = corner(b, size);
+    let wu = cu.z;
+    let wv = cv.z;
+    let c = k % 4u;
+    var u = u32(cu.x);
+    var v = u32(cv.x);
+    var w = (1.0 - wu) * (1.0 - wv);
+    if (c == 1u) {
+        u = u32(cu.y);
+        w = wu * (1.0 - wv);
+    } else if (c == 2u) {
+        v = u32(cv.y);
+        w = (1.0 - wu) * wv;
+    } else if (c == 3u) {
+        u = u32(cu.y);
+        v = u32(cv.y);
+        w = wu * wv;
+    }
+    let offset = (plane * size * size + v * size + u) * params.features;
+    return Tap(l, offset, level_weight * w);
+}
+
+fn flat_index(gid: vec3<u32>) -> u32 {
+    return gid.y * (params.groups_x * WORKGROUP) + gid.x;
+}
+
+@compute @workgroup_size(WORKGROUP)
+fn build_level(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = flat_index(gid);
+    let l = params.level;
+    let s = side_at(l);
+    let c = params.features;
+    if (i >= 3u * s * s * c) {
+        return;
+    }
+    let f = i % c;
+    let texel = i / c;
+    let u = texel % s;
+    let row = texel / s;
+    // Rows run over the three planes one after the other: row r averages rows 2r and 2r + 1.
+    let fine_row = 2u * s * c;
+    let a = (2u * row) * fine_row + 2u * u * c + f;
+    let b = a + fine_row;
+    var sum: f32;
+    if (l == 1u) {
+        sum = model_params[a] + model_params[a + c] + model_params[b] + model_params[b + c];
+    } else {
+        let src = level_base(l - 1u);
+        sum = pyramid[src + a] + pyramid[src + a + c] + pyramid[src + b] + pyramid[src + b + c];
+    }
+    pyramid[level_base(l) + i] = 0.25 * sum;
+}
+
+@compute @workgroup_size(WORKGROUP)
+fn encode_planes(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let idx = flat_index(gid);
+    if (idx >= 3u * params.n_rays * params.n_samples) {
+        return;
+    }
+    let sample = idx / 3u;
+    let plane = idx % 3u;
+    let p = sample_point(sample);
+    var taps: array<Tap, TAPS_PER_PLANE>;
+    var bases: array<u32, TAPS_PER_PLANE>;
+    for (var k = 0u; k < TAPS_PER_PLANE; k = k + 1u) {
+        taps[k] = plane_tap(plane, p.xyz, p.w, k);
+        bases[k] = level_base(taps[k].level);
+    }
+    let c = params.features;
+    let out = (3u * sample + plane) * c;
+    for (var f = 0u; f < c; f = f + 1u) {
+        var acc = 0.0;
+        for (var k = 0u; k < TAPS_PER_PLANE; k = k + 1u) {
+            let t = taps[k];
+            var texel: f32;
+            if (t.level == 0u) {
+                texel = model_params[t.offset + f];
+            } else {
+                texel = pyramid[bases[k] + t.offset + f];
+            }
+            acc = acc + t.weight * texel;
+        }
+        encoded[out + f] = acc;
+    }
+}
+
+// `value` added to an f32 held as bits, by compare-exchange. One function a buffer: WGSL's core
+// passes no pointer into a storage buffer to a function.
+fn add_to_grads(i: u32, value: f32) {
+    var old = atomicLoad(&grads[i]);
+    loop {
+        let sum = bitcast<u32>(bitcast<f32>(old) + value);
+        let r = atomicCompareExchangeWeak(&grads[i], old, sum);
+        if (r.exchanged) {
+            break;
+        }
+        old = r.old_value;
+    }
+}
+
+fn add_to_grad_pyramid(i: u32, value: f32) {
+    var old = atomicLoad(&grad_pyramid[i]);
+    loop {
+        let sum = bitcast<u32>(bitcast<f32>(old) + value);
+        let r = atomicCompareExchangeWeak(&grad_pyramid[i], old, sum);
+        if (r.exchanged) {
+            break;
+        }
+        old = r.old_value;
+    }
+}
+
+@compute @workgroup_size(WORKGROUP)
+fn scatter_planes(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let idx = flat_index(gid);
+    if (idx >= 3u * params.n_rays * params.n_samples) {
+        return;
+    }
+    let sample = idx / 3u;
+    let plane = idx % 3u;
+    let p = sample_point(sample);
+    let c = params.features;
+    let src = (3u * sample + plane) * c;
+    for (var k = 0u; k < TAPS_PER_PLANE; k = k + 1u) {
+        let t = plane_tap(plane, p.xyz, p.w, k);
+        if (t.weight == 0.0) {
+            continue;
+        }
+        if (t.level == 0u) {
+            for (var f = 0u; f < c; f = f + 1u) {
+                add_to_grads(t.offset + f, t.weight * encoded[src + f]);
+            }
+        } else {
+            let base = level_base(t.level) + t.offset;
+            for (var f = 0u; f < c; f = f + 1u) {
+                add_to_grad_pyramid(base + f, t.weight * encoded[src + f]);
+            }
+        }
+    }
+}
+
+@compute @workgroup_size(WORKGROUP)
+fn push_down(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = flat_index(gid);
+    let r = params.resolution;
+    let c = params.features;
+    if (i >= 3u * r * r * c || params.levels < 2u) {
+        return;
+    }
+    let f = i % c;
+    let texel = i / c;
+    let u = texel % r;
+    let v = (texel / r) % r;
+    let plane = texel / (r * r);
+    let top = params.levels - 1u;
+    var acc = 0.0;
+    for (var l = top; l >= 1u; l = l - 1u) {
+        let s = side_at(l);
+        let at = level_base(l) + ((plane * s + (v >> l)) * s + (u >> l)) * c + f;
+        let own = bitcast<f32>(atomicLoad(&grad_pyramid[at]));
+        if (l == top) {
+            acc = own;
+        } else {
+            acc = own + 0.25 * acc;
+        }
+    }
+    let g = bitcast<f32>(atomicLoad(&grads[i])) + 0.25 * acc;
+    atomicStore(&grads[i], bitcast<u32>(g));
+}
+
+@compute @workgroup_size(WORKGROUP)
+fn total_variation(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let r = flat_index(gid);
+    let size = params.resolution;
+    if (r >= 3u * size || size < 2u) {
+        return;
+    }
+    let c = params.features;
+    let row = size * c;
+    let v = r % size;
+    let here = r * row;
+    var acc = 0.0;
+    for (var i = 0u; i < row; i = i + 1u) {
+        let x = model_params[here + i];
+        var d = 0.0;
+        if (i >= c) {
+            d = d + (x - model_params[here + i - c]);
+        }
+        if (i + c < row) {
+            let e = x - model_params[here + i + c];
+            d = d + e;
+            acc = acc + e * e;
+        }
+        if (v > 0u) {
+            d = d + (x - model_params[here - row + i]);
+        }
+        if (v + 1u < size) {
+            let e = x - model_params[here + row + i];
+            d = d + e;
+            acc = acc + e * e;
+        }
+        let g = bitcast<f32>(atomicLoad(&grads[here + i])) + 2.0 * params.tv_scale * d;
+        atomicStore(&grads[here + i], bitcast<u32>(g));
+    }
+    tv_rows[r] = acc;
+}
