@@ -82,6 +82,10 @@ fn a_tri_mip_run_trains_on_the_gpu_and_evaluates_on_both_backends() {
     };
     let (gpu, cpu) = (psnr("gpu"), psnr("cpu"));
     assert!((gpu - cpu).abs() < 0.01, "eval on the GPU {gpu} dB, on the CPU {cpu} dB");
+    // And renders a camera path on the device.
+    let frames = dir.path().join("frames");
+    run_ok(&["render", "--run", s(&run), "--out", s(&frames), "--path", "orbit", "--frames", "2", "--backend", "gpu"]);
+    image::open(frames.join("frame_0001.png")).unwrap();
 }
 
 #[test]
