@@ -97,6 +97,8 @@ pub struct GpuBackend {
     /// Bind groups and uniforms of the training step's dispatches, and of a render chunk's.
     train_cache: DispatchCache,
     render_cache: DispatchCache,
+    /// The bind groups of an image's field preparation (the Tri-Mip pyramid), reused.
+    field_cache: DispatchCache,
     /// The camera of the image being rendered, rewritten in place for each image.
     render_cams: Option<DeviceImages>,
     /// The occupancy grid guiding sampling (kept and updated on the host, as the CPU backend
@@ -152,6 +154,7 @@ impl GpuBackend {
             in_flight: 0,
             train_cache: DispatchCache::default(),
             render_cache: DispatchCache::default(),
+            field_cache: DispatchCache::default(),
             render_cams: None,
             occupancy,
         })
@@ -428,6 +431,7 @@ impl GpuBackend {
             self.render = None;
             self.render_compaction = None;
             self.render_cache = DispatchCache::default();
+            self.field_cache = DispatchCache::default();
             let ctx = &self.ctx;
             let made = ctx.allocating(need, || {
                 let staging_bytes = (levels * rays * 32) as u64;
@@ -441,9 +445,9 @@ impl GpuBackend {
         }
         let Some((batch, work, staging)) = &mut self.render else { unreachable!("render buffers were just made") };
         // The planes' pyramid, once an image.
-        let mut rec = Recorder::new(&self.ctx, "render field");
+        let mut rec = Recorder::with_cache(&self.ctx, "render field", std::mem::take(&mut self.field_cache));
         self.kernels.prepare_field(&mut rec, &self.model, &self.state.params, work, false)?;
-        let _ = rec.submit();
+        self.field_cache = rec.submit();
         let mut out = Vec::with_capacity(total * levels);
         let ctx = &self.ctx;
         let k = self.model.config().supersample;
