@@ -166,6 +166,9 @@ fn forward_facing_photos_train_the_planes_over_ndc_and_an_unbounded_scene_over_i
     assert!(text.contains("PSNR"), "{text}");
     let text = train(&out("unbounded"), &["--unbounded"]);
     assert!(text.contains("over the cube [-2.000, 2.000]^3"), "{text}");
+    // The recipe's total variation for an unbounded scene, recorded.
+    let config = std::fs::read_to_string(out("unbounded").join("config.toml")).unwrap();
+    assert!(config.contains("tri_mip_tv = 0.1"), "{config}");
     let text = run_ok(&["eval", "--run", s(&out("unbounded")), "--backend", "cpu"]);
     assert!(text.contains("PSNR"), "{text}");
 }

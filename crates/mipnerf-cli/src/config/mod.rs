@@ -182,7 +182,7 @@ pub struct TrainSettings {
     pub tri_mip_lr_mult: Option<f32>,
     /// Weight of the Tri-Mip planes' total variation in the loss (TensoRF's regulariser, the
     /// mean squared difference of neighbouring texels) [default: the field's recipe: 0.1 for
-    /// forward-facing photos, else 0; recorded when not 0].
+    /// forward-facing photos and unbounded scenes, else 0; recorded when not 0].
     pub tri_mip_tv: Option<f32>,
     /// Training steps in total [default: 2000].
     pub steps: Option<u64>,
@@ -520,6 +520,8 @@ impl TrainSettings {
                 .tri_mip_tv
                 .or(tri_mip.then_some(if forward_facing {
                     TriMipRecipe::RECIPE.planes_tv_forward_facing
+                } else if unbounded {
+                    TriMipRecipe::RECIPE.planes_tv_unbounded
                 } else {
                     TriMipRecipe::RECIPE.planes_tv
                 }))
