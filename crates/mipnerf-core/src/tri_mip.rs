@@ -494,8 +494,7 @@ pub fn total_variation(config: &TriMipConfig, level0: &[f32], weight: f32, grad:
     if size < 2 {
         return 0.0;
     }
-    let pairs = 3 * 2 * size * (size - 1) * c;
-    let scale = weight / pairs as f32;
+    let scale = total_variation_scale(config, weight);
     let row = size * c;
     let rows: Vec<f64> = grad
         .par_chunks_mut(row)
@@ -536,6 +535,18 @@ pub fn total_variation(config: &TriMipConfig, level0: &[f32], weight: f32, grad:
         })
         .collect();
     rows.iter().sum::<f64>() * f64::from(scale)
+}
+
+/// The factor [`total_variation`] scales each squared difference by: `weight` over the number of
+/// neighbouring pairs (along `u` and `v` in each plane, times the features); 0 for planes of
+/// one texel, which have none.
+#[must_use]
+pub fn total_variation_scale(config: &TriMipConfig, weight: f32) -> f32 {
+    let (size, c) = (config.resolution, config.features);
+    if size < 2 {
+        return 0.0;
+    }
+    weight / (3 * 2 * size * (size - 1) * c) as f32
 }
 
 /// Values of [`spherical_harmonics`]: the real spherical harmonics of degrees 0 to 3 (Tri-MipRF's

@@ -469,10 +469,7 @@ impl RayBatch {
                 targets.len()
             )));
         }
-        let packed: Vec<[f32; 4]> = rays
-            .iter()
-            .flat_map(|r| [r.origin.extend(r.radius).to_array(), r.direction.extend(r.lossmult).to_array()])
-            .collect();
+        let packed = super::packed_rays(rays);
         let bounds: Vec<f32> = rays.iter().flat_map(|r| [r.near, r.far]).collect();
         let viewdirs: Vec<f32> = rays.iter().flat_map(|r| r.viewdir.to_array()).collect();
         let tg: Vec<[f32; 4]> =

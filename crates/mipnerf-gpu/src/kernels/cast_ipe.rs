@@ -112,10 +112,7 @@ impl CastIpeKernel {
             encoding: 0,
             unbounded: u32::from(unbounded),
         };
-        let packed: Vec<[f32; 4]> = rays
-            .iter()
-            .flat_map(|r| [r.origin.extend(r.radius).to_array(), r.direction.extend(0.0).to_array()])
-            .collect();
+        let packed = super::packed_rays(rays);
         let out_len = n_items as usize * ipe_len(min_deg, max_deg);
         let ray_buf = ctx.storage_buffer("cast_ipe rays", &packed, false);
         let t_buf = ctx.storage_buffer("cast_ipe t_vals", t_vals, false);

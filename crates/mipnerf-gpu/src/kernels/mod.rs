@@ -167,6 +167,14 @@ pub const ALL_SOURCES: &[(&str, &str)] = &[
     ("tri_mip.wgsl", tri_mip::SOURCE),
 ];
 
+/// Rays as every kernel reads them, two vec4 a ray: (origin, radius), (direction, lossmult).
+#[must_use]
+pub fn packed_rays(rays: &[mipnerf_core::Ray]) -> Vec<[f32; 4]> {
+    rays.iter()
+        .flat_map(|r| [r.origin.extend(r.radius).to_array(), r.direction.extend(r.lossmult).to_array()])
+        .collect()
+}
+
 /// Most workgroups a dispatch may have along one dimension: WebGPU's default
 /// `max_compute_workgroups_per_dimension`, which every device allows.
 pub const MAX_GROUPS_PER_DIM: u32 = 65_535;

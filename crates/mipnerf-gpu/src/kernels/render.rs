@@ -293,11 +293,7 @@ impl RenderKernel {
         if lengths != [3 * n, n, nr * (s + 1), nr, nr] || input.targets.len() != nr {
             return Err(GpuError::InvalidInput(format!("render: lengths {lengths:?} for {nr} rays of {s} samples")));
         }
-        let packed: Vec<[f32; 4]> = input
-            .rays
-            .iter()
-            .flat_map(|r| [r.origin.extend(r.radius).to_array(), r.direction.extend(r.lossmult).to_array()])
-            .collect();
+        let packed = super::packed_rays(input.rays);
         let targets: Vec<[f32; 4]> = input.targets.iter().map(|t| [t[0], t[1], t[2], 0.0]).collect();
         let buf = |name: &str, v: &[f32], out: bool| ctx.storage_buffer(name, v, out);
         let poisoned = |name: &str, len: usize| ctx.storage_buffer(name, &vec![f32::NAN; len], true);

@@ -20,7 +20,7 @@
 //! same interface; it is not used yet.
 
 use mipnerf_core::model::{Field, Model};
-use mipnerf_core::tri_mip::TriMipConfig;
+use mipnerf_core::tri_mip::{TriMipConfig, total_variation_scale};
 use mipnerf_core::{Ray, RayShape};
 
 use crate::kernels::{Recorder, WORKGROUP, dispatch_grid};
@@ -323,7 +323,7 @@ impl TriMipKernel {
         grads: &wgpu::Buffer,
         bufs: &FieldBuffers,
     ) -> Result<(), GpuError> {
-        let p = TriMipParams { tv_scale: tv_scale(&field.planes, weight), ..field.params(0, 0) };
+        let p = TriMipParams { tv_scale: total_variation_scale(&field.planes, weight), ..field.params(0, 0) };
         let (r, s) = (&bufs.unused_read, &bufs.unused_samples);
         let n = 3 * field.planes.resolution as u64;
         let buffers = [r, r, params, &bufs.pyramid, s, grads, &bufs.grad_pyramid, &bufs.tv_rows];
@@ -331,22 +331,11 @@ impl TriMipKernel {
     }
 }
 
-/// The total variation's weight over its number of neighbouring pairs, as
-/// [`mipnerf_core::tri_mip::total_variation`] forms it.
-fn tv_scale(planes: &TriMipConfig, weight: f32) -> f32 {
-    let (size, c) = (planes.resolution, planes.features);
-    let pairs = 3 * 2 * size * size.saturating_sub(1) * c;
-    weight / pairs.max(1) as f32
-}
-
 /// The total variation's loss from its rows (read back from `FieldBuffers::tv_rows`), summed
 /// in f64 and scaled as the CPU does.
 #[must_use]
 pub fn total_variation_loss(planes: &TriMipConfig, weight: f32, rows: &[f32]) -> f64 {
-    if planes.resolution < 2 {
-        return 0.0;
-    }
-    rows.iter().map(|&r| f64::from(r)).sum::<f64>() * f64::from(tv_scale(planes, weight))
+    rows.iter().map(|&r| f64::from(r)).sum::<f64>() * f64::from(total_variation_scale(planes, weight))
 }
 
 /// Host-side runs of the kernels, for tests: each uploads its inputs, records, submits and reads
@@ -366,7 +355,14 @@ impl TriMipKernel {
         t_vals: &[f32],
         params: &[f32],
     ) -> Result<Vec<f32>, GpuError> {
-        let n_samples = samples_per_ray(field, rays, t_vals, params)?;
+        let n_samples = samples_per_ray(rays, t_vals)?;
+        if params.len() < field.planes.num_params() {
+            return Err(GpuError::InvalidInput(format!(
+                "tri_mip: {} parameters for planes of {}",
+                params.len(),
+                field.planes.num_params()
+            )));
+        }
         let bufs = FieldBuffers::new(ctx, field);
         let (ray_buf, t_buf) = (upload_rays(ctx, rays), ctx.storage_buffer("tri_mip t_vals", t_vals, false));
         let params_buf = ctx.storage_buffer("tri_mip params", params, false);
@@ -408,7 +404,7 @@ impl TriMipKernel {
         d_x: &[f32],
     ) -> Result<Vec<f32>, GpuError> {
         let n_params = field.planes.num_params();
-        let n_samples = samples_per_ray(field, rays, t_vals, &vec![0.0; n_params])?;
+        let n_samples = samples_per_ray(rays, t_vals)?;
         if d_x.len() != rays.len() * n_samples * field.planes.encoding_dim() {
             return Err(GpuError::InvalidInput(format!("tri_mip: {} encoding gradients", d_x.len())));
         }
@@ -447,25 +443,16 @@ impl TriMipKernel {
     }
 }
 
-/// The rays as the kernels read them: (origin, radius), (direction, 0).
+/// The rays as the kernels read them ([`super::packed_rays`]; at least one, checked by
+/// [`samples_per_ray`]).
 fn upload_rays(ctx: &GpuContext, rays: &[Ray]) -> wgpu::Buffer {
-    let packed: Vec<[f32; 4]> =
-        rays.iter().flat_map(|r| [r.origin.extend(r.radius).to_array(), r.direction.extend(0.0).to_array()]).collect();
-    let packed = if packed.is_empty() { vec![[0.0f32; 4]] } else { packed };
-    ctx.storage_buffer("tri_mip rays", &packed, false)
+    ctx.storage_buffer("tri_mip rays", &super::packed_rays(rays), false)
 }
 
-/// Intervals a ray of `t_vals` for `rays`, checked against the planes' parameters.
-fn samples_per_ray(field: &PlaneField, rays: &[Ray], t_vals: &[f32], params: &[f32]) -> Result<usize, GpuError> {
+/// Intervals a ray of `t_vals` for `rays` (at least one ray of at least one interval).
+fn samples_per_ray(rays: &[Ray], t_vals: &[f32]) -> Result<usize, GpuError> {
     if rays.is_empty() || !t_vals.len().is_multiple_of(rays.len()) || t_vals.len() / rays.len() < 2 {
         return Err(GpuError::InvalidInput(format!("tri_mip: {} edges for {} rays", t_vals.len(), rays.len())));
-    }
-    if params.len() < field.planes.num_params() {
-        return Err(GpuError::InvalidInput(format!(
-            "tri_mip: {} parameters for planes of {}",
-            params.len(),
-            field.planes.num_params()
-        )));
     }
     Ok(t_vals.len() / rays.len() - 1)
 }
