@@ -10,6 +10,7 @@
 use mipnerf_core::mlp::{DenseLayer, MlpShape};
 
 use crate::kernels::Recorder;
+use crate::kernels::fused_mlp::{self, FusedBatch, FusedBuffers, FusedMlpKernel};
 use crate::kernels::matmul::{Epilogue, MAX_SPLITS, MIN_K_PER_SPLIT, MatmulKernel, MatmulVariant, Operand};
 use crate::kernels::mlp_aux::MlpAuxKernels;
 use crate::{GpuContext, GpuError};
@@ -25,6 +26,27 @@ pub struct MlpBuffers {
     pub x: wgpu::Buffer,
     /// View encodings, `n_rays x view_dim`.
     pub view: wgpu::Buffer,
+    /// Raw colours, `n x 3`.
+    pub raw_rgb: wgpu::Buffer,
+    /// The gradient of the sample encodings, `n x x_dim`, written by the backward pass where
+    /// the encodings have parameters of their own (the Tri-Mip planes; see
+    /// [`with_input_gradient`](Self::with_input_gradient)).
+    pub d_x: Option<wgpu::Buffer>,
+    /// How the passes run, and what they keep.
+    passes: Passes,
+}
+
+/// How a shape's passes run: as matrix products (any shape), or fused, one dispatch a pass
+/// (`fused_mlp.wgsl`, for the small shapes [`fused_mlp::fits`]).
+#[derive(Debug)]
+enum Passes {
+    Products(ProductBuffers),
+    Fused(FusedBuffers),
+}
+
+/// What the product kernels keep and use.
+#[derive(Debug)]
+struct ProductBuffers {
     /// The view encodings times the first colour layer's view rows, `n_rays x net_width_condition`
     /// (forward), then the per-ray sums of that layer's output gradient (backward).
     view_rows: wgpu::Buffer,
@@ -41,16 +63,10 @@ pub struct MlpBuffers {
     /// `1 + net_width`.
     heads_width: usize,
     cond: Vec<wgpu::Buffer>,
-    /// Raw colours, `n x 3`.
-    pub raw_rgb: wgpu::Buffer,
     grad: [wgpu::Buffer; 3],
     col_scratch: wgpu::Buffer,
     /// Partial products of the split weight-gradient products, and its length in floats.
     split_scratch: (wgpu::Buffer, usize),
-    /// The gradient of the sample encodings, `n x x_dim`, written by the backward pass where
-    /// the encodings have parameters of their own (the Tri-Mip planes; see
-    /// [`with_input_gradient`](Self::with_input_gradient)).
-    pub d_x: Option<wgpu::Buffer>,
 }
 
 fn storage(ctx: &GpuContext, label: &str, len: usize) -> wgpu::Buffer {
@@ -58,20 +74,14 @@ fn storage(ctx: &GpuContext, label: &str, len: usize) -> wgpu::Buffer {
     ctx.storage_buffer(label, &vec![f32::NAN; len.max(1)], true)
 }
 
-impl MlpBuffers {
-    /// Buffers for `n_rays * samples_per_ray` samples of `shape`.
-    #[must_use]
-    pub fn new(ctx: &GpuContext, shape: &MlpShape, n_rays: usize, samples_per_ray: usize) -> Self {
+impl ProductBuffers {
+    fn new(ctx: &GpuContext, shape: &MlpShape, n_rays: usize, samples_per_ray: usize) -> Self {
         let c = &shape.config;
         let n = n_rays * samples_per_ray;
         let widest = c.net_width.max(c.net_width_condition).max(3);
         let hw = c.net_width + 1;
         let top = shape.layers[c.net_depth].fan_in;
         Self {
-            n,
-            n_rays,
-            x: storage(ctx, "mlp x", n * c.x_dim),
-            view: storage(ctx, "mlp view", n_rays * c.view_dim),
             view_rows: storage(ctx, "mlp view rows per ray", n_rays * c.net_width_condition),
             trunk: (0..c.net_depth).map(|i| storage(ctx, &format!("mlp trunk {i}"), n * c.net_width)).collect(),
             heads: storage(ctx, "mlp heads (density, bottleneck)", n * hw),
@@ -82,7 +92,6 @@ impl MlpBuffers {
             cond: (0..c.net_depth_condition)
                 .map(|j| storage(ctx, &format!("mlp condition {j}"), n * c.net_width_condition))
                 .collect(),
-            raw_rgb: storage(ctx, "mlp raw rgb", n * 3),
             grad: std::array::from_fn(|i| storage(ctx, &format!("mlp gradient scratch {i}"), n * widest)),
             col_scratch: storage(
                 ctx,
@@ -90,11 +99,101 @@ impl MlpBuffers {
                 MlpAuxKernels::col_sums_scratch_len(n, widest + 1),
             ),
             split_scratch: {
-                let len = Self::split_scratch_len(shape, n);
+                let len = MlpBuffers::split_scratch_len(shape, n);
                 (storage(ctx, "mlp weight gradient partial products", len), len)
             },
-            d_x: None,
         }
+    }
+
+    fn bytes(&self) -> u64 {
+        let all = [&self.view_rows, &self.heads, &self.d_heads, &self.heads_w, &self.heads_g];
+        let mut b: u64 = all.iter().map(|x| x.size()).sum();
+        b += self.trunk.iter().chain(&self.cond).chain(&self.grad).map(wgpu::Buffer::size).sum::<u64>();
+        b + self.col_scratch.size() + self.split_scratch.0.size()
+    }
+}
+
+impl MlpBuffers {
+    /// Buffers for `n_rays * samples_per_ray` samples of `shape`.
+    #[must_use]
+    pub fn new(ctx: &GpuContext, shape: &MlpShape, n_rays: usize, samples_per_ray: usize) -> Self {
+        let c = &shape.config;
+        let n = n_rays * samples_per_ray;
+        let passes = if fused_mlp::fits(shape) {
+            Passes::Fused(FusedBuffers::new(ctx, shape, n))
+        } else {
+            Passes::Products(ProductBuffers::new(ctx, shape, n_rays, samples_per_ray))
+        };
+        Self {
+            n,
+            n_rays,
+            x: storage(ctx, "mlp x", n * c.x_dim),
+            view: storage(ctx, "mlp view", n_rays * c.view_dim),
+            raw_rgb: storage(ctx, "mlp raw rgb", n * 3),
+            d_x: None,
+            passes,
+        }
+    }
+
+    /// Whether `shape`'s passes run fused (`fused_mlp.wgsl`, one dispatch a pass) rather than
+    /// as matrix products.
+    #[must_use]
+    pub fn runs_fused(shape: &MlpShape) -> bool {
+        fused_mlp::fits(shape)
+    }
+
+    /// Floats per sample of these buffers for `shape` (the encodings' gradient aside): the
+    /// encodings, what the passes keep, the raw colours, and the product kernels' gradient
+    /// scratch.
+    #[must_use]
+    pub fn floats_per_sample(shape: &MlpShape) -> usize {
+        let c = &shape.config;
+        let kept = if Self::runs_fused(shape) {
+            2 * fused_mlp::row_len(shape)
+        } else {
+            let widest = c.net_width.max(c.net_width_condition).max(3);
+            c.net_depth * c.net_width
+                + 2 * (c.net_width + 1)
+                + c.net_depth_condition * c.net_width_condition
+                + 3 * widest
+        };
+        c.x_dim + kept + 3
+    }
+
+    /// Floats per ray of `samples_per_ray` samples besides the samples' own: the view
+    /// encoding, and for the product kernels its product rows and the bias gradients' partial
+    /// sums (one row of `widest + 1` per 256 samples).
+    #[must_use]
+    pub fn floats_per_ray(shape: &MlpShape, samples_per_ray: usize) -> usize {
+        let c = &shape.config;
+        if Self::runs_fused(shape) {
+            return c.view_dim;
+        }
+        let widest = c.net_width.max(c.net_width_condition).max(3);
+        c.view_dim + c.net_width_condition + (samples_per_ray * (widest + 1)).div_ceil(MlpAuxKernels::BLOCK_ROWS)
+    }
+
+    /// Floats per sample of the widest per-sample buffer (what the binding size limits).
+    #[must_use]
+    pub fn widest_row(shape: &MlpShape) -> usize {
+        let c = &shape.config;
+        let kept = if Self::runs_fused(shape) {
+            fused_mlp::row_len(shape)
+        } else {
+            (c.net_width + 1).max(c.net_width_condition).max(3)
+        };
+        c.x_dim.max(kept)
+    }
+
+    /// Floats these buffers take whatever the batch: the product kernels' packed heads and
+    /// split partial products for `n` samples.
+    #[must_use]
+    pub fn fixed_floats(shape: &MlpShape, n: usize) -> usize {
+        if Self::runs_fused(shape) {
+            return 0;
+        }
+        let packed_heads = 2 * (shape.layers[shape.config.net_depth].fan_in + 1) * (shape.config.net_width + 1);
+        Self::split_scratch_len(shape, n) + packed_heads
     }
 
     /// These buffers with room for the gradient of the sample encodings (`n x x_dim`), which
@@ -109,14 +208,20 @@ impl MlpBuffers {
     /// are column 0 of the fused heads).
     #[must_use]
     pub fn raw_density(&self) -> (&wgpu::Buffer, usize) {
-        (&self.heads, self.heads_width)
+        match &self.passes {
+            Passes::Products(p) => (&p.heads, p.heads_width),
+            Passes::Fused(f) => (&f.acts, f.row),
+        }
     }
 
     /// Where [`GpuMlp::backward`] reads the gradient of the raw densities: the buffer and the
     /// elements between consecutive samples' values.
     #[must_use]
     pub fn d_raw_density(&self) -> (&wgpu::Buffer, usize) {
-        (&self.d_heads, self.heads_width)
+        match &self.passes {
+            Passes::Products(p) => (&p.d_heads, p.heads_width),
+            Passes::Fused(f) => (&f.d_acts, f.row),
+        }
     }
 
     /// Floats of partial products the split weight gradients of `n` samples use: room for
@@ -140,20 +245,23 @@ impl MlpBuffers {
     /// Device bytes these buffers take.
     #[must_use]
     pub fn bytes(&self) -> u64 {
-        let all = [
-            &self.x,
-            &self.view,
-            &self.view_rows,
-            &self.heads,
-            &self.d_heads,
-            &self.heads_w,
-            &self.heads_g,
-            &self.raw_rgb,
-        ];
-        let mut b: u64 = all.iter().map(|x| x.size()).sum();
-        b += self.trunk.iter().chain(&self.cond).chain(&self.grad).map(wgpu::Buffer::size).sum::<u64>();
-        b += self.col_scratch.size() + self.split_scratch.0.size();
-        b + self.d_x.as_ref().map_or(0, wgpu::Buffer::size)
+        let own: u64 = [&self.x, &self.view, &self.raw_rgb].iter().map(|b| b.size()).sum();
+        let passes = match &self.passes {
+            Passes::Products(p) => p.bytes(),
+            Passes::Fused(f) => f.bytes(),
+        };
+        own + passes + self.d_x.as_ref().map_or(0, wgpu::Buffer::size)
+    }
+
+    fn fused_batch(&self) -> FusedBatch<'_> {
+        FusedBatch {
+            n: self.n,
+            samples_per_ray: self.samples_per_ray(),
+            x: &self.x,
+            view: &self.view,
+            raw_rgb: &self.raw_rgb,
+            d_x: self.d_x.as_ref(),
+        }
     }
 
     fn samples_per_ray(&self) -> usize {
@@ -166,6 +274,7 @@ impl MlpBuffers {
 pub struct GpuMlp {
     matmul: MatmulKernel,
     aux: MlpAuxKernels,
+    fused: FusedMlpKernel,
 }
 
 /// One input part of a dense layer: a buffer and its width (kernel rows, in order).
@@ -188,7 +297,7 @@ impl GpuMlp {
     /// # Errors
     /// If the device rejects them.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        Ok(Self { matmul: MatmulKernel::new(ctx)?, aux: MlpAuxKernels::new(ctx)? })
+        Ok(Self { matmul: MatmulKernel::new(ctx)?, aux: MlpAuxKernels::new(ctx)?, fused: FusedMlpKernel::new(ctx)? })
     }
 
     /// Compiles the kernels with the matrix products of `variant`.
@@ -196,7 +305,11 @@ impl GpuMlp {
     /// # Errors
     /// If the device rejects them.
     pub fn with_variant(ctx: &GpuContext, variant: MatmulVariant) -> Result<Self, GpuError> {
-        Ok(Self { matmul: MatmulKernel::with_variant(ctx, variant)?, aux: MlpAuxKernels::new(ctx)? })
+        Ok(Self {
+            matmul: MatmulKernel::with_variant(ctx, variant)?,
+            aux: MlpAuxKernels::new(ctx)?,
+            fused: FusedMlpKernel::new(ctx)?,
+        })
     }
 
     /// `out = act(sum_p part_p · kernel_rows_p + bias)`.
@@ -235,13 +348,13 @@ impl GpuMlp {
         n: usize,
         dz: &wgpu::Buffer,
         d_first: Option<InputGrad<'_>>,
-        bufs: &MlpBuffers,
+        pb: &ProductBuffers,
     ) {
         let mut r0 = 0;
         for &(input, width) in parts {
             let c = Operand::new(grads, l.kernel + r0 * l.fan_out);
             let epi = Epilogue { accumulate: true, ..Epilogue::default() };
-            let (scratch, len) = &bufs.split_scratch;
+            let (scratch, len) = &pb.split_scratch;
             self.matmul.encode_split(
                 rec,
                 (width, n, l.fan_out),
@@ -253,7 +366,7 @@ impl GpuMlp {
             );
             r0 += width;
         }
-        self.aux.col_sums(rec, (dz, 0), (grads, l.bias), n, l.fan_out, true, &bufs.col_scratch);
+        self.aux.col_sums(rec, (dz, 0), (grads, l.bias), n, l.fan_out, true, &pb.col_scratch);
         if let Some(d) = d_first {
             let (first, width) = parts[0];
             let epi = Epilogue { accumulate: d.accumulate, mask: d.relu.then_some((first, 0)), ..Epilogue::default() };
@@ -271,6 +384,20 @@ impl GpuMlp {
     /// Records the forward pass: fills `bufs.raw_rgb` and the raw densities
     /// ([`MlpBuffers::raw_density`]) from `bufs.x` and `bufs.view`.
     pub fn forward(&self, rec: &mut Recorder<'_>, shape: &MlpShape, params: &wgpu::Buffer, bufs: &MlpBuffers) {
+        match &bufs.passes {
+            Passes::Products(pb) => self.forward_products(rec, shape, params, bufs, pb),
+            Passes::Fused(f) => self.fused.forward(rec, shape, params, &bufs.fused_batch(), f),
+        }
+    }
+
+    fn forward_products(
+        &self,
+        rec: &mut Recorder<'_>,
+        shape: &MlpShape,
+        params: &wgpu::Buffer,
+        bufs: &MlpBuffers,
+        pb: &ProductBuffers,
+    ) {
         let c = &shape.config;
         let (n, d) = (bufs.n, c.net_depth);
         let ls = &shape.layers;
@@ -278,53 +405,53 @@ impl GpuMlp {
             let parts: Vec<Part<'_>> = if i == 0 {
                 vec![(&bufs.x, c.x_dim)]
             } else if shape.concat_after(i - 1) {
-                vec![(&bufs.trunk[i - 1], c.net_width), (&bufs.x, c.x_dim)]
+                vec![(&pb.trunk[i - 1], c.net_width), (&bufs.x, c.x_dim)]
             } else {
-                vec![(&bufs.trunk[i - 1], c.net_width)]
+                vec![(&pb.trunk[i - 1], c.net_width)]
             };
-            self.dense(rec, params, &ls[i], &parts, n, &bufs.trunk[i], true);
+            self.dense(rec, params, &ls[i], &parts, n, &pb.trunk[i], true);
         }
         // Both heads as one product: [density | bottleneck] = top · [K_d | K_b] + [b_d | b_b],
         // with the two layers' kernels and biases packed side by side first.
-        let top = self.top_parts(shape, bufs);
-        let (hw, t) = (bufs.heads_width, ls[d].fan_in);
-        self.aux.pack_heads(rec, params, (ls[d].kernel, ls[d + 1].kernel), &bufs.heads_w, t + 1, c.net_width);
+        let top = self.top_parts(shape, bufs, pb);
+        let (hw, t) = (pb.heads_width, ls[d].fan_in);
+        self.aux.pack_heads(rec, params, (ls[d].kernel, ls[d + 1].kernel), &pb.heads_w, t + 1, c.net_width);
         let mut r0 = 0;
         for (k, &(input, width)) in top.iter().enumerate() {
             let last = k + 1 == top.len();
             let epi = Epilogue { accumulate: k > 0, bias: last.then_some(t * hw), ..Epilogue::default() };
-            let b = Operand::new(&bufs.heads_w, r0 * hw);
-            self.matmul.encode(rec, (n, width, hw), Operand::new(input, 0), b, Operand::new(&bufs.heads, 0), epi);
+            let b = Operand::new(&pb.heads_w, r0 * hw);
+            self.matmul.encode(rec, (n, width, hw), Operand::new(input, 0), b, Operand::new(&pb.heads, 0), epi);
             r0 += width;
         }
         // The first colour layer: relu(bottleneck · W_b + (view · W_v)[ray] + b), the view part
         // once per ray.
         let (l, wc) = (&ls[d + 2], c.net_width_condition);
         let w_view = Operand::new(params, l.kernel + c.net_width * wc);
-        let rows = Operand::new(&bufs.view_rows, 0);
+        let rows = Operand::new(&pb.view_rows, 0);
         let view = Operand::new(&bufs.view, 0);
         self.matmul.encode(rec, (bufs.n_rays, c.view_dim, wc), view, w_view, rows, Epilogue::default());
         let epi = Epilogue {
             bias: Some(l.bias),
             relu: true,
-            per_group: Some((&bufs.view_rows, 0, bufs.samples_per_ray())),
+            per_group: Some((&pb.view_rows, 0, bufs.samples_per_ray())),
             ..Epilogue::default()
         };
         let w_b = Operand::new(params, l.kernel);
-        let cond0 = Operand::new(&bufs.cond[0], 0);
-        let bottleneck = Operand::strided(&bufs.heads, 1, hw);
+        let cond0 = Operand::new(&pb.cond[0], 0);
+        let bottleneck = Operand::strided(&pb.heads, 1, hw);
         self.matmul.encode(rec, (n, c.net_width, wc), bottleneck, w_b, cond0, epi);
         for j in 1..c.net_depth_condition {
-            let parts = [(&bufs.cond[j - 1], wc)];
-            self.dense(rec, params, &ls[d + 2 + j], &parts, n, &bufs.cond[j], true);
+            let parts = [(&pb.cond[j - 1], wc)];
+            self.dense(rec, params, &ls[d + 2 + j], &parts, n, &pb.cond[j], true);
         }
-        let last = &bufs.cond[c.net_depth_condition - 1];
+        let last = &pb.cond[c.net_depth_condition - 1];
         self.dense(rec, params, &ls[ls.len() - 1], &[(last, c.net_width_condition)], n, &bufs.raw_rgb, false);
     }
 
-    fn top_parts<'a>(&self, shape: &MlpShape, bufs: &'a MlpBuffers) -> Vec<Part<'a>> {
+    fn top_parts<'a>(&self, shape: &MlpShape, bufs: &'a MlpBuffers, pb: &'a ProductBuffers) -> Vec<Part<'a>> {
         let c = &shape.config;
-        let top = (&bufs.trunk[c.net_depth - 1], c.net_width);
+        let top = (&pb.trunk[c.net_depth - 1], c.net_width);
         if shape.concat_after(c.net_depth - 1) { vec![top, (&bufs.x, c.x_dim)] } else { vec![top] }
     }
 
@@ -342,23 +469,39 @@ impl GpuMlp {
         d_raw_rgb: &wgpu::Buffer,
         grads: &wgpu::Buffer,
     ) {
+        match &bufs.passes {
+            Passes::Products(pb) => self.backward_products(rec, shape, params, bufs, pb, d_raw_rgb, grads),
+            Passes::Fused(f) => self.fused.backward(rec, shape, params, &bufs.fused_batch(), f, d_raw_rgb, grads),
+        }
+    }
+
+    fn backward_products(
+        &self,
+        rec: &mut Recorder<'_>,
+        shape: &MlpShape,
+        params: &wgpu::Buffer,
+        bufs: &MlpBuffers,
+        pb: &ProductBuffers,
+        d_raw_rgb: &wgpu::Buffer,
+        grads: &wgpu::Buffer,
+    ) {
         let c = &shape.config;
         let (n, d, dc) = (bufs.n, c.net_depth, c.net_depth_condition);
-        let (w, wc, hw) = (c.net_width, c.net_width_condition, bufs.heads_width);
+        let (w, wc, hw) = (c.net_width, c.net_width_condition, pb.heads_width);
         let ls = &shape.layers;
-        let g = &bufs.grad;
-        let (scratch, len) = (&bufs.split_scratch.0, bufs.split_scratch.1);
+        let g = &pb.grad;
+        let (scratch, len) = (&pb.split_scratch.0, pb.split_scratch.1);
         let add = Epilogue { accumulate: true, ..Epilogue::default() };
         // Indices into g: `a` holds the gradient of the current layer's output.
         let (mut a, mut b) = (0usize, 1usize);
         let to = |out, relu| Some(InputGrad { out, accumulate: false, relu });
-        let last = &bufs.cond[dc - 1];
-        self.dense_backward(rec, params, grads, &ls[ls.len() - 1], &[(last, wc)], n, d_raw_rgb, to(&g[a], true), bufs);
+        let last = &pb.cond[dc - 1];
+        self.dense_backward(rec, params, grads, &ls[ls.len() - 1], &[(last, wc)], n, d_raw_rgb, to(&g[a], true), pb);
         // g[a] holds the gradient of colour layer j's pre-activation (its ReLU backward done).
         for j in (0..dc).rev() {
             if j > 0 {
-                let parts = [(&bufs.cond[j - 1], wc)];
-                self.dense_backward(rec, params, grads, &ls[d + 2 + j], &parts, n, &g[a], to(&g[b], true), bufs);
+                let parts = [(&pb.cond[j - 1], wc)];
+                self.dense_backward(rec, params, grads, &ls[d + 2 + j], &parts, n, &g[a], to(&g[b], true), pb);
                 std::mem::swap(&mut a, &mut b);
             } else {
                 // The first colour layer. Its bottleneck rows see every sample (the bottleneck is
@@ -366,20 +509,20 @@ impl GpuMlp {
                 // ray's samples' gradients. The bottleneck has no activation: its gradient goes
                 // to columns 1.. of the heads' gradient as it is.
                 let l = &ls[d + 2];
-                let bottleneck_t = Operand::strided_t(&bufs.heads, 1, hw);
+                let bottleneck_t = Operand::strided_t(&pb.heads, 1, hw);
                 let dz = Operand::new(&g[a], 0);
                 let wb = Operand::new(grads, l.kernel);
                 self.matmul.encode_split(rec, (w, n, wc), bottleneck_t, dz, wb, add, (scratch, len));
-                self.aux.col_sums(rec, (&g[a], 0), (grads, l.bias), n, wc, true, &bufs.col_scratch);
-                let d_bottleneck = Operand::strided(&bufs.d_heads, 1, hw);
+                self.aux.col_sums(rec, (&g[a], 0), (grads, l.bias), n, wc, true, &pb.col_scratch);
+                let d_bottleneck = Operand::strided(&pb.d_heads, 1, hw);
                 let kt = Operand::t(params, l.kernel);
                 self.matmul.encode(rec, (n, wc, w), dz, kt, d_bottleneck, Epilogue::default());
-                self.aux.group_sums(rec, &g[a], &bufs.view_rows, bufs.n_rays, wc, bufs.samples_per_ray());
+                self.aux.group_sums(rec, &g[a], &pb.view_rows, bufs.n_rays, wc, bufs.samples_per_ray());
                 self.matmul.encode_split(
                     rec,
                     (c.view_dim, bufs.n_rays, wc),
                     Operand::t(&bufs.view, 0),
-                    Operand::new(&bufs.view_rows, 0),
+                    Operand::new(&pb.view_rows, 0),
                     Operand::new(grads, l.kernel + w * wc),
                     add,
                     (scratch, len),
@@ -389,12 +532,12 @@ impl GpuMlp {
         // Both heads, one product: the gradient [d density | d bottleneck] (the density part
         // written by rendering) against the packed kernels; the packed gradient is added back to
         // the two layers'. The input gradient goes to g[z] with the ReLU backward of the trunk.
-        let top = self.top_parts(shape, bufs);
+        let top = self.top_parts(shape, bufs, pb);
         let t = ls[d].fan_in;
-        let dz = Operand::new(&bufs.d_heads, 0);
+        let dz = Operand::new(&pb.d_heads, 0);
         let mut r0 = 0;
         for &(input, width) in &top {
-            let out = Operand::new(&bufs.heads_g, r0 * hw);
+            let out = Operand::new(&pb.heads_g, r0 * hw);
             self.matmul.encode_split(
                 rec,
                 (width, n, hw),
@@ -406,24 +549,24 @@ impl GpuMlp {
             );
             r0 += width;
         }
-        self.aux.col_sums(rec, (&bufs.d_heads, 0), (&bufs.heads_g, t * hw), n, hw, false, &bufs.col_scratch);
-        self.aux.unpack_heads_add(rec, &bufs.heads_g, grads, (ls[d].kernel, ls[d + 1].kernel), (t + 1, w));
+        self.aux.col_sums(rec, (&pb.d_heads, 0), (&pb.heads_g, t * hw), n, hw, false, &pb.col_scratch);
+        self.aux.unpack_heads_add(rec, &pb.heads_g, grads, (ls[d].kernel, ls[d + 1].kernel), (t + 1, w));
         let z = 0;
         let relu = Epilogue { mask: Some((top[0].0, 0)), ..Epilogue::default() };
-        let kt = Operand::t(&bufs.heads_w, 0);
+        let kt = Operand::t(&pb.heads_w, 0);
         self.matmul.encode(rec, (n, hw, w), dz, kt, Operand::new(&g[z], 0), relu);
         let (mut cur, mut other) = (z, 1);
         for i in (0..d).rev() {
             if i == 0 {
                 let d_x = bufs.d_x.as_ref().map(|out| InputGrad { out, accumulate: false, relu: false });
-                self.dense_backward(rec, params, grads, &ls[0], &[(&bufs.x, c.x_dim)], n, &g[cur], d_x, bufs);
+                self.dense_backward(rec, params, grads, &ls[0], &[(&bufs.x, c.x_dim)], n, &g[cur], d_x, pb);
             } else {
                 let parts: Vec<Part<'_>> = if shape.concat_after(i - 1) {
-                    vec![(&bufs.trunk[i - 1], w), (&bufs.x, c.x_dim)]
+                    vec![(&pb.trunk[i - 1], w), (&bufs.x, c.x_dim)]
                 } else {
-                    vec![(&bufs.trunk[i - 1], w)]
+                    vec![(&pb.trunk[i - 1], w)]
                 };
-                self.dense_backward(rec, params, grads, &ls[i], &parts, n, &g[cur], to(&g[other], true), bufs);
+                self.dense_backward(rec, params, grads, &ls[i], &parts, n, &g[cur], to(&g[other], true), pb);
                 std::mem::swap(&mut cur, &mut other);
             }
         }

@@ -109,38 +109,24 @@ impl ModelBuffers {
         Self::widest_row(model) as u64 * 4 * model.config().num_samples as u64
     }
 
-    /// Floats per sample of the widest per-sample buffer: the encodings, a layer's outputs, or
-    /// the fused heads `[density | bottleneck]` (one wider than the trunk).
+    /// Floats per sample of the widest per-sample buffer: the encodings, or what the MLP's
+    /// passes keep ([`MlpBuffers::widest_row`]).
     fn widest_row(model: &Model) -> usize {
-        let c = &model.mlps()[0].config;
-        c.x_dim.max(c.net_width + 1).max(c.net_width_condition).max(3)
+        MlpBuffers::widest_row(&model.mlps()[0])
     }
 
     /// Device bytes per ray of these buffers, for sizing chunks.
     #[must_use]
     pub fn bytes_per_ray(model: &Model) -> u64 {
-        let c = &model.mlps()[0].config;
+        let shape = &model.mlps()[0];
+        let c = &shape.config;
         let cfg = &model.config();
         let s = cfg.num_samples;
-        let widest = c.net_width.max(c.net_width_condition).max(3);
-        // Encodings (and their gradient, for a field with parameters), trunk, the heads and
-        // their gradient, colour layers, raw colours, gradient scratch, weights, colour gradients.
+        // The MLP's buffers, the encodings' gradient (for a field with parameters), weights
+        // and colour gradients per sample; edges and outputs per level.
         let d_x = if cfg.field.is_mip_nerf() { 0 } else { c.x_dim };
-        let per_sample = c.x_dim
-            + d_x
-            + c.net_depth * c.net_width
-            + 2 * (c.net_width + 1)
-            + c.net_depth_condition * c.net_width_condition
-            + 3
-            + 3 * widest
-            + 1
-            + 3;
-        // The bias gradients' partial sums: one row of `widest + 1` per 256 samples.
-        let per_ray = s * per_sample
-            + c.view_dim
-            + c.net_width_condition
-            + cfg.num_levels * (s + 1 + 8)
-            + (s * (widest + 1)).div_ceil(256);
+        let per_sample = MlpBuffers::floats_per_sample(shape) + d_x + 1 + 3;
+        let per_ray = s * per_sample + MlpBuffers::floats_per_ray(shape, s) + cfg.num_levels * (s + 1 + 8);
         per_ray as u64 * 4
     }
 
@@ -156,11 +142,8 @@ impl ModelBuffers {
     #[must_use]
     pub fn bytes_for(model: &Model, n_rays: usize) -> u64 {
         let n = n_rays * model.config().num_samples;
-        let shape = &model.mlps()[0];
-        let packed_heads = 2 * (shape.layers[shape.config.net_depth].fan_in + 1) * (shape.config.net_width + 1);
         let field = PlaneField::of(model).map_or(0, |f| 2 * f.pyramid_len() + 3 * f.planes.resolution);
-        Self::bytes_per_ray(model) * n_rays as u64
-            + 4 * (MlpBuffers::split_scratch_len(shape, n) + packed_heads + field) as u64
+        Self::bytes_per_ray(model) * n_rays as u64 + 4 * (MlpBuffers::fixed_floats(&model.mlps()[0], n) + field) as u64
     }
 
     /// Rays the next pass uses (set by [`set_active`](Self::set_active)).

@@ -132,12 +132,148 @@ struct MlpCase {
     samples_per_ray: usize,
 }
 
+impl MlpCase {
+    /// Random inputs and output gradients for `params` of a shape with `cfg`.
+    fn random(
+        params: Vec<f32>,
+        cfg: &mipnerf_core::mlp::MlpConfig,
+        n_rays: usize,
+        spr: usize,
+        rng: &mut rand::rngs::SmallRng,
+    ) -> Self {
+        use rand::Rng;
+        let n = n_rays * spr;
+        Self {
+            params,
+            x: (0..n * cfg.x_dim).map(|_| rng.random_range(-1.0..1.0)).collect(),
+            view: (0..n_rays * cfg.view_dim).map(|_| rng.random_range(-1.0..1.0)).collect(),
+            d_rgb: (0..n * 3).map(|_| rng.random_range(-1.0..1.0)).collect(),
+            d_density: (0..n).map(|_| rng.random_range(-1.0..1.0)).collect(),
+            n_rays,
+            samples_per_ray: spr,
+        }
+    }
+}
+
+/// The CPU MLP's raw outputs and parameter gradients for `c` (and the encodings' gradient with
+/// `input_gradient`).
+fn mlp_on_cpu(shape: &mipnerf_core::mlp::MlpShape, c: &MlpCase, input_gradient: bool) -> Outputs {
+    let mut cache = mipnerf_core::mlp::MlpCache::default();
+    shape.forward(&c.params, &c.x, &c.view, c.n_rays, c.samples_per_ray, &mut cache);
+    let (rgb, density) = (cache.raw_rgb.clone(), cache.raw_density.clone());
+    let mut grads = vec![0.0; c.params.len()];
+    shape.backward(&c.params, &c.x, &c.view, c.samples_per_ray, &mut cache, &c.d_rgb, &c.d_density, &mut grads);
+    let mut out = vec![("raw rgb", rgb), ("raw density", density), ("grads", grads)];
+    if input_gradient {
+        let mut d_x = vec![0.0; c.x.len()];
+        shape.input_gradient(&c.params, &cache, &mut d_x);
+        out.push(("d_x", d_x));
+    }
+    out
+}
+
+/// The same on the device, through [`GpuMlp`](mipnerf_gpu::mlp::GpuMlp) (the product kernels or
+/// the fused ones, as the shape decides).
+fn mlp_on_gpu(
+    ctx: &mipnerf_gpu::GpuContext,
+    gpu: &mipnerf_gpu::mlp::GpuMlp,
+    shape: &mipnerf_core::mlp::MlpShape,
+    c: &MlpCase,
+    input_gradient: bool,
+) -> Result<Outputs, GpuError> {
+    use mipnerf_gpu::mlp::MlpBuffers;
+    let n = c.n_rays * c.samples_per_ray;
+    let mut bufs = MlpBuffers::new(ctx, shape, c.n_rays, c.samples_per_ray);
+    if input_gradient {
+        bufs = bufs.with_input_gradient(ctx, shape.config.x_dim);
+    }
+    ctx.queue().write_buffer(&bufs.x, 0, bytemuck::cast_slice(&c.x));
+    ctx.queue().write_buffer(&bufs.view, 0, bytemuck::cast_slice(&c.view));
+    let p = ctx.storage_buffer("params", &c.params, true);
+    let g = ctx.storage_buffer("grads", &vec![0.0f32; c.params.len()], true);
+    let dr = ctx.storage_buffer("d rgb", &c.d_rgb, false);
+    // The density gradient goes where rendering writes it: column 0 of the heads' gradient
+    // (the other columns stay NaN: the backward pass must write them first).
+    let (dd, stride) = bufs.d_raw_density();
+    let mut strided = vec![f32::NAN; n * stride];
+    for (k, v) in c.d_density.iter().enumerate() {
+        strided[k * stride] = *v;
+    }
+    ctx.queue().write_buffer(dd, 0, bytemuck::cast_slice(&strided));
+    let mut rec = Recorder::new(ctx, "mlp test");
+    gpu.forward(&mut rec, shape, &p, &bufs);
+    gpu.backward(&mut rec, shape, &p, &bufs, &dr, &g);
+    let _ = rec.submit();
+    let (heads, stride) = bufs.raw_density();
+    let density = ctx.read_f32(heads, n * stride)?.iter().step_by(stride).copied().collect();
+    let mut out = vec![
+        ("raw rgb", ctx.read_f32(&bufs.raw_rgb, n * 3)?),
+        ("raw density", density),
+        ("grads", ctx.read_f32(&g, c.params.len())?),
+    ];
+    if let Some(d_x) = &bufs.d_x {
+        out.push(("d_x", ctx.read_f32(d_x, n * shape.config.x_dim)?));
+    }
+    Ok(out)
+}
+
+/// The fused small MLP (`fused_mlp.wgsl`: shapes with no skip connection, at most 64 wide)
+/// against the CPU MLP, the encodings' gradient included: the Tri-Mip recipe's shape, and a
+/// deeper, narrower one whose samples fill no whole tile (481 = 37 x 13) and whose colour
+/// branch has two layers.
+#[test]
+fn fused_mlp_forward_and_backward_match_cpu_reference() {
+    use mipnerf_core::mlp::{MlpConfig, MlpShape};
+    use mipnerf_gpu::mlp::{GpuMlp, MlpBuffers};
+    use rand::{Rng, SeedableRng, rngs::SmallRng};
+    let Some(ctx) = context_or_skip("fused_mlp_forward_and_backward_match_cpu_reference") else { return };
+    let gpu = GpuMlp::new(&ctx).unwrap();
+    let recipe = MlpConfig {
+        net_depth: 2,
+        net_width: 64,
+        skip_layer: 0,
+        net_depth_condition: 1,
+        net_width_condition: 64,
+        x_dim: 48,
+        view_dim: 27,
+    };
+    let deeper = MlpConfig {
+        net_depth: 3,
+        net_width: 20,
+        skip_layer: 0,
+        net_depth_condition: 2,
+        net_width_condition: 12,
+        x_dim: 30,
+        view_dim: 9,
+    };
+    let mut bad = Vec::new();
+    for (ci, (cfg, n_rays, spr, base)) in [(recipe, 16, 16, 0), (deeper, 37, 13, 1000)].into_iter().enumerate() {
+        // A shape at an offset in the parameters, as a field's MLP after the planes.
+        let shape = MlpShape::new(cfg, base).unwrap();
+        assert!(MlpBuffers::runs_fused(&shape), "shape {ci} runs fused");
+        let mut rng = SmallRng::seed_from_u64(ci as u64);
+        let mut params = vec![0.0; base + shape.num_params];
+        shape.init_glorot(&mut params, 7);
+        for l in &shape.layers {
+            for b in &mut params[l.bias..l.bias + l.fan_out] {
+                *b = rng.random_range(-0.2..0.2);
+            }
+        }
+        let case = MlpCase::random(params, &cfg, n_rays, spr, &mut rng);
+        let cpu = |c: &MlpCase| mlp_on_cpu(&shape, c, true);
+        let on_gpu = |c: &MlpCase| mlp_on_gpu(&ctx, &gpu, &shape, c, true);
+        let tol = |_: &str| Tolerance::new(TOL_GPU_MLP_ABS, TOL_GPU_MLP_REL);
+        bad.extend(check_kernel(&format!("fused shape {ci}"), cpu, on_gpu, &case, tol).into_mismatches());
+    }
+    assert_none(&bad);
+}
+
 /// Fails with every mismatch `compare` reported (the first 40 listed).
 #[test]
 fn mlp_forward_and_backward_match_cpu_reference() {
-    use mipnerf_core::mlp::{MlpCache, MlpConfig, MlpShape};
+    use mipnerf_core::mlp::{MlpConfig, MlpShape};
     use mipnerf_gpu::kernels::matmul::{MatmulKernel, MatmulVariant};
-    use mipnerf_gpu::mlp::{GpuMlp, MlpBuffers};
+    use mipnerf_gpu::mlp::GpuMlp;
     use rand::{Rng, SeedableRng, rngs::SmallRng};
     let Some(ctx) = context_or_skip("mlp_forward_and_backward_match_cpu_reference") else { return };
     let mut bad = Vec::new();
@@ -183,59 +319,9 @@ fn mlp_forward_and_backward_match_cpu_reference() {
                     .split_plan((cfg.net_width, n, cfg.net_width), usize::MAX);
                 assert!(plan.splits > 1 && n % plan.k_chunk != 0, "{variant:?}: {plan:?} does not exercise the split");
             }
-            let case = MlpCase {
-                params,
-                x: (0..n * cfg.x_dim).map(|_| rng.random_range(-1.0..1.0)).collect(),
-                view: (0..n_rays * cfg.view_dim).map(|_| rng.random_range(-1.0..1.0)).collect(),
-                d_rgb: (0..n * 3).map(|_| rng.random_range(-1.0..1.0)).collect(),
-                d_density: (0..n).map(|_| rng.random_range(-1.0..1.0)).collect(),
-                n_rays,
-                samples_per_ray: spr,
-            };
-            let cpu = |c: &MlpCase| -> Outputs {
-                let mut cache = MlpCache::default();
-                shape.forward(&c.params, &c.x, &c.view, c.n_rays, c.samples_per_ray, &mut cache);
-                let (rgb, density) = (cache.raw_rgb.clone(), cache.raw_density.clone());
-                let mut grads = vec![0.0; shape.num_params];
-                shape.backward(
-                    &c.params,
-                    &c.x,
-                    &c.view,
-                    c.samples_per_ray,
-                    &mut cache,
-                    &c.d_rgb,
-                    &c.d_density,
-                    &mut grads,
-                );
-                vec![("raw rgb", rgb), ("raw density", density), ("grads", grads)]
-            };
-            let on_gpu = |c: &MlpCase| -> Result<Outputs, GpuError> {
-                let bufs = MlpBuffers::new(&ctx, &shape, c.n_rays, c.samples_per_ray);
-                ctx.queue().write_buffer(&bufs.x, 0, bytemuck::cast_slice(&c.x));
-                ctx.queue().write_buffer(&bufs.view, 0, bytemuck::cast_slice(&c.view));
-                let p = ctx.storage_buffer("params", &c.params, true);
-                let g = ctx.storage_buffer("grads", &vec![0.0f32; shape.num_params], true);
-                let dr = ctx.storage_buffer("d rgb", &c.d_rgb, false);
-                // The density gradient goes where rendering writes it: column 0 of the heads'
-                // gradient (the other columns stay NaN: the backward pass must write them first).
-                let (dd, stride) = bufs.d_raw_density();
-                let mut strided = vec![f32::NAN; n * stride];
-                for (k, v) in c.d_density.iter().enumerate() {
-                    strided[k * stride] = *v;
-                }
-                ctx.queue().write_buffer(dd, 0, bytemuck::cast_slice(&strided));
-                let mut rec = Recorder::new(&ctx, "mlp test");
-                gpu.forward(&mut rec, &shape, &p, &bufs);
-                gpu.backward(&mut rec, &shape, &p, &bufs, &dr, &g);
-                let _ = rec.submit();
-                let (heads, stride) = bufs.raw_density();
-                let density = ctx.read_f32(heads, n * stride)?.iter().step_by(stride).copied().collect();
-                Ok(vec![
-                    ("raw rgb", ctx.read_f32(&bufs.raw_rgb, n * 3)?),
-                    ("raw density", density),
-                    ("grads", ctx.read_f32(&g, shape.num_params)?),
-                ])
-            };
+            let case = MlpCase::random(params, &cfg, n_rays, spr, &mut rng);
+            let cpu = |c: &MlpCase| mlp_on_cpu(&shape, c, false);
+            let on_gpu = |c: &MlpCase| mlp_on_gpu(&ctx, &gpu, &shape, c, false);
             let tol = |_: &str| Tolerance::new(TOL_GPU_MLP_ABS, TOL_GPU_MLP_REL);
             bad.extend(check_kernel(&format!("{variant:?} shape {ci}"), cpu, on_gpu, &case, tol).into_mismatches());
         }

@@ -11,6 +11,7 @@ use mipnerf_gpu::kernels::{
     cast_ipe::CastIpeParams,
     compact::{ExpandParams, GatherParams},
     compose,
+    fused_mlp::FusedMlpParams,
     matmul::MatmulParams,
     mlp_aux::AuxParams,
     occupancy::OccupancyParams,
@@ -159,6 +160,7 @@ fn uniform_structs_match_wgsl_member_by_member() {
     check::<GatherParams>("gather.wgsl", &mut mismatches);
     check::<ExpandParams>("expand.wgsl", &mut mismatches);
     check::<TriMipParams>("tri_mip.wgsl", &mut mismatches);
+    check::<FusedMlpParams>("fused_mlp.wgsl", &mut mismatches);
     // The per-view camera record of batch.wgsl, read from a storage array.
     check::<GpuView>("batch.wgsl", &mut mismatches);
     assert!(mismatches.is_empty(), "{} mismatch(es):\n{}", mismatches.len(), mismatches.join("\n"));
