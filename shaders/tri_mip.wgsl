@@ -4,8 +4,10 @@
 // above it 2x2 box filters of the one below, kept in `pyramid` one after the other.
 //
 // Entry points:
-// - `build_level`: level `params.level` of the pyramid from the level below (one invocation a
-//   value; one dispatch a level, coarser after finer).
+// - `build_levels`: `params.group_levels` levels of the pyramid from `params.level` up, from the
+//   level below them: one invocation per value of the group's coarsest level, which reads its
+//   block of the finer level and box-filters it level by level (the CPU's operations in its
+//   order), writing every level it passes; a pyramid of 7 levels takes two dispatches.
 // - `encode_planes`: a sample's encoding, one invocation per (sample, plane): the frustum's
 //   moments (`frustum.wgsl`), its mean and footprint radius in the planes' box (through the
 //   scene contraction for an unbounded scene), the level `log2(2 radius resolution)`, and the
@@ -36,10 +38,15 @@ struct Params {
     half_side: f32,
     // 1: read each sample at its footprint's level (tri-mip); 0: at level 0 (tri-plane).
     pre_filtered: u32,
-    // The level `build_level` makes.
+    // The first level `build_levels` makes.
     level: u32,
     // `total_variation`: its weight over the number of neighbouring pairs.
     tv_scale: f32,
+    // The levels `build_levels` makes (at most PYRAMID_GROUP_LEVELS).
+    group_levels: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -179,11 +186,23 @@ fn flat_index(gid: vec3<u32>) -> u32 {
     return gid.y * (params.groups_x * WORKGROUP) + gid.x;
 }
 
+// A value of level `level - 1` (level 0: the model's parameters): row `row` (over the three
+// planes), column `u`, feature `f`.
+fn finer_value(level: u32, row: u32, u: u32, f: u32) -> f32 {
+    let at = (row * side_at(level - 1u) + u) * params.features + f;
+    if (level == 1u) {
+        return model_params[at];
+    }
+    return pyramid[level_base(level - 1u) + at];
+}
+
 @compute @workgroup_size(WORKGROUP)
-fn build_level(@builtin(global_invocation_id) gid: vec3<u32>) {
+fn build_levels(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = flat_index(gid);
-    let l = params.level;
-    let s = side_at(l);
+    let first = params.level;
+    let g = params.group_levels;
+    let top = first + g - 1u;
+    let s = side_at(top);
     let c = params.features;
     if (i >= 3u * s * s * c) {
         return;
@@ -192,18 +211,29 @@ fn build_level(@builtin(global_invocation_id) gid: vec3<u32>) {
     let texel = i / c;
     let u = texel % s;
     let row = texel / s;
-    // Rows run over the three planes one after the other: row r averages rows 2r and 2r + 1.
-    let fine_row = 2u * s * c;
-    let a = (2u * row) * fine_row + 2u * u * c + f;
-    let b = a + fine_row;
-    var sum: f32;
-    if (l == 1u) {
-        sum = model_params[a] + model_params[a + c] + model_params[b] + model_params[b + c];
-    } else {
-        let src = level_base(l - 1u);
-        sum = pyramid[src + a] + pyramid[src + a + c] + pyramid[src + b] + pyramid[src + b + c];
+    // The block of level first - 1 under this texel of level `top`, then each level's 2x2 box
+    // filters over it in place (a texel is written at or before the first value it reads).
+    let b = 1u << g;
+    var block: array<f32, PYRAMID_BLOCK_AREA>;
+    for (var y = 0u; y < b; y = y + 1u) {
+        for (var x = 0u; x < b; x = x + 1u) {
+            block[y * b + x] = finer_value(first, row * b + y, u * b + x, f);
+        }
     }
-    pyramid[level_base(l) + i] = 0.25 * sum;
+    var side = b;
+    for (var l = first; l <= top; l = l + 1u) {
+        let finer = side;
+        side = side / 2u;
+        for (var y = 0u; y < side; y = y + 1u) {
+            for (var x = 0u; x < side; x = x + 1u) {
+                let a = 2u * y * finer + 2u * x;
+                let v = 0.25 * (block[a] + block[a + 1u] + block[a + finer] + block[a + finer + 1u]);
+                block[y * side + x] = v;
+                let at = ((row * side + y) * side_at(l) + u * side + x) * c + f;
+                pyramid[level_base(l) + at] = v;
+            }
+        }
+    }
 }
 
 @compute @workgroup_size(WORKGROUP)

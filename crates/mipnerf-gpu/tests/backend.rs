@@ -785,3 +785,69 @@ fn guided_training_follows_the_cpu(ctx: mipnerf_gpu::GpuContext, chunk: Option<u
     eprintln!("guided renders after {steps} steps: CPU vs GPU PSNR {psnr:.1} dB; {ran} of {} rays ran", image.pixels());
     assert!(psnr >= MIN_RENDER_AGREEMENT_PSNR, "CPU and GPU guided renders differ: {psnr:.1} dB");
 }
+
+/// Most dispatches a training step of the Tri-Mip recipe may record: launches, not arithmetic,
+/// bound a small field's step on hardware (`docs/results/tri-mip/gpu/`).
+const MAX_TRI_MIP_STEP_DISPATCHES: u64 = 25;
+
+/// A training step of the Tri-Mip field's recipe (256² planes in 7 levels, the [2, 64, 1, 64]
+/// MLP, coarse and fine levels of the fast preset, the planes' total variation on), with and
+/// without an occupancy grid guiding the samples: at most [`MAX_TRI_MIP_STEP_DISPATCHES`]
+/// dispatches, one submission and nothing read back unless the step reports its losses.
+#[test]
+fn a_tri_mip_training_step_makes_few_dispatches_and_reads_nothing_back() {
+    use mipnerf_core::occupancy::{OccupancyConfig, OccupancyGrid, auto_bound};
+    let name = "a_tri_mip_training_step_makes_few_dispatches_and_reads_nothing_back";
+    let ds = Arc::new(lego_tiny());
+    let recipe = TriMipRecipe::RECIPE;
+    let planes = TriMipRecipe::planes(recipe.resolution);
+    let field = Field::TriMip { planes, half_side: 1.5, pre_filtered: true };
+    let cfg = ModelConfig { field, planes_tv_mult: 0.1, ..Preset::Fast.config() };
+    let model = Model::new(TriMipRecipe::with_mlp(cfg, recipe.mlp)).unwrap();
+    assert!(mipnerf_gpu::mlp::MlpBuffers::runs_fused(&model.mlps()[0]), "the recipe's MLP runs fused");
+    let optim = OptimConfig { field: Some(recipe.adam), ..OptimConfig::default() };
+    let grid = OccupancyConfig { resolution: 32, bound: auto_bound(&ds).unwrap(), ..OccupancyConfig::default() };
+    let mut grid = OccupancyGrid::new(grid).unwrap();
+    assert!(grid.carve_with_masks(&ds) > 0);
+    let mut lines = Vec::new();
+    for occupancy in [None, Some(grid)] {
+        let Some(ctx) = context_or_skip(name) else { return };
+        let guided = occupancy.is_some();
+        let grid_updates = occupancy.clone();
+        let state = TrainState { occupancy, ..TrainState::fresh(&model, 1) };
+        let gpu = GpuBackend::new(ctx, model.clone(), optim.clone(), 1, state).unwrap();
+        let mut gpu = gpu.with_data(&ds, 64).unwrap();
+        // Steps that do not report: the most dispatches any of them makes (guided, a step
+        // whose rays all meet occupied cells runs them all; one where some miss gathers the
+        // others first and puts the outputs back after).
+        // A step that updates the grid reads the parameters back first (the update runs on
+        // the host, as the CPU backend's): steps 0, 16 and 32 of a default grid.
+        let mut most = 0;
+        for _ in 0..33 {
+            let k = gpu.step();
+            let before = gpu.work_counters().unwrap();
+            gpu.train_step(false).unwrap();
+            let step = gpu.work_counters().unwrap() - before;
+            let updates = grid_updates.as_ref().is_some_and(|g| g.updates_at(k));
+            if updates || k < 4 {
+                lines.push(format!("guided {guided}, step {k}: {step:?}"));
+            }
+            if updates {
+                assert_eq!(step.bytes_read_back, 4 * model.num_params() as u64, "step {k}: the parameters, once");
+            } else {
+                assert_eq!((step.submits, step.bytes_read_back), (1, 0), "guided {guided}, step {k}: {step:?}");
+            }
+            most = most.max(step.dispatches);
+        }
+        assert!(
+            most <= MAX_TRI_MIP_STEP_DISPATCHES,
+            "guided {guided}: {most} dispatches a step, at most {MAX_TRI_MIP_STEP_DISPATCHES}"
+        );
+        assert!(most >= 10, "guided {guided}: the count counts ({most} dispatches)");
+        // A reporting step reads back its losses: the counters see reads.
+        let before = gpu.work_counters().unwrap();
+        assert!(gpu.train_step(true).unwrap().is_some());
+        assert!((gpu.work_counters().unwrap() - before).bytes_read_back > 0);
+    }
+    eprintln!("{}", lines.join("\n"));
+}

@@ -33,7 +33,7 @@ pub fn prelude() -> String {
     use mipnerf_core::model::PointEncoding;
     use mipnerf_core::render::DensityActivation;
     use mipnerf_core::rng::{RAY_LEVEL_STRIDE, Stream};
-    let consts: [(&str, u32); 32] = [
+    let consts: [(&str, u32); 34] = [
         ("WORKGROUP", WORKGROUP),
         ("REDUCE_WORKGROUP", REDUCE_WORKGROUP),
         ("RAY_SHAPE_CONE", RayShape::Cone as u32),
@@ -57,6 +57,8 @@ pub fn prelude() -> String {
         ("PIXEL_FORMAT_NONE", batch::PixelFormat::None as u32),
         ("MLP_BLOCK_ROWS", mlp_aux::MlpAuxKernels::BLOCK_ROWS as u32),
         ("MLP_MAX_WIDTH", fused_mlp::MAX_WIDTH as u32),
+        ("PYRAMID_GROUP_LEVELS", tri_mip::PYRAMID_GROUP_LEVELS),
+        ("PYRAMID_BLOCK_AREA", 1 << (2 * tri_mip::PYRAMID_GROUP_LEVELS)),
         ("MLP_TILE", fused_mlp::TILE),
         ("MLP_TILE_AREA", fused_mlp::TILE * fused_mlp::TILE),
         ("MLP_JOB_WORDS", fused_mlp::JOB_WORDS as u32),

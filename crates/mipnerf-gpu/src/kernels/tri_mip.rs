@@ -29,7 +29,11 @@ use crate::{GpuContext, GpuError};
 /// The WGSL source of this kernel.
 pub const SOURCE: &str = super::shader_source!("tri_mip.wgsl");
 
-/// The uniform block of `tri_mip.wgsl` (`struct Params`), 48 bytes.
+/// Most levels one dispatch of the pyramid makes (WGSL: `PYRAMID_GROUP_LEVELS`; each invocation
+/// reads a block of `2^levels` texels a side, `PYRAMID_BLOCK_AREA` at most).
+pub const PYRAMID_GROUP_LEVELS: u32 = 4;
+
+/// The uniform block of `tri_mip.wgsl` (`struct Params`), 64 bytes.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct TriMipParams {
@@ -53,10 +57,18 @@ pub struct TriMipParams {
     pub half_side: f32,
     /// 1: each sample read at its footprint's level; 0: at level 0 (the tri-plane baseline).
     pub pre_filtered: u32,
-    /// The level `build_level` makes.
+    /// The first level `build_levels` makes.
     pub level: u32,
     /// The total variation's weight over its number of neighbouring pairs.
     pub tv_scale: f32,
+    /// The levels `build_levels` makes.
+    pub group_levels: u32,
+    /// Padding to 16 bytes.
+    pub pad0: u32,
+    /// Padding.
+    pub pad1: u32,
+    /// Padding.
+    pub pad2: u32,
 }
 
 super::wgsl_struct!(
@@ -74,7 +86,11 @@ super::wgsl_struct!(
         half_side,
         pre_filtered,
         level,
-        tv_scale
+        tv_scale,
+        group_levels,
+        pad0,
+        pad1,
+        pad2
     ]
 );
 
@@ -118,6 +134,10 @@ impl PlaneField {
             pre_filtered: u32::from(self.pre_filtered),
             level: 0,
             tv_scale: 0.0,
+            group_levels: 0,
+            pad0: 0,
+            pad1: 0,
+            pad2: 0,
         }
     }
 
@@ -198,6 +218,30 @@ pub struct TriMipKernel {
     layout: wgpu::BindGroupLayout,
 }
 
+/// The dispatches that build a pyramid of `levels` levels (level 0 included): as few as
+/// [`PYRAMID_GROUP_LEVELS`] allows, the levels above 0 shared out evenly, as (first level,
+/// levels).
+#[must_use]
+pub fn pyramid_groups(levels: usize) -> Vec<(u32, u32)> {
+    let above = levels.saturating_sub(1) as u32;
+    let n = above.div_ceil(PYRAMID_GROUP_LEVELS);
+    let mut first = 1;
+    (0..n)
+        .map(|k| {
+            let take = (above - (first - 1)).div_ceil(n - k);
+            let group = (first, take);
+            first += take;
+            group
+        })
+        .collect()
+}
+
+/// Dispatches a pyramid of `levels` levels takes to build.
+#[must_use]
+pub fn pyramid_dispatches(levels: usize) -> usize {
+    pyramid_groups(levels).len()
+}
+
 impl TriMipKernel {
     /// Compiles the kernels.
     ///
@@ -205,7 +249,7 @@ impl TriMipKernel {
     /// If the device rejects them.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
         let read_only = [true, true, true, false, false, false, false, false];
-        let entries = ["build_level", "encode_planes", "scatter_planes", "push_down", "total_variation"];
+        let entries = ["build_levels", "encode_planes", "scatter_planes", "push_down", "total_variation"];
         let ([build, encode, scatter, push_down, total_variation], layout) =
             crate::kernels::build_entries(ctx, "tri_mip", SOURCE, &read_only, entries)?;
         Ok(Self { build, encode, scatter, push_down, total_variation, layout })
@@ -226,7 +270,8 @@ impl TriMipKernel {
     }
 
     /// Records the levels above 0 of the planes whose level 0 leads `params` into
-    /// `bufs.pyramid`, one dispatch a level.
+    /// `bufs.pyramid`: [`pyramid_dispatches`] dispatches, each making up to
+    /// [`PYRAMID_GROUP_LEVELS`] levels.
     ///
     /// # Errors
     /// Planes too large for one dispatch.
@@ -238,11 +283,11 @@ impl TriMipKernel {
         bufs: &FieldBuffers,
     ) -> Result<(), GpuError> {
         let (r, s, g) = (&bufs.unused_read, &bufs.unused_samples, &bufs.unused_grads);
-        for level in 1..field.planes.levels {
-            let p = TriMipParams { level: level as u32, ..field.params(0, 0) };
-            let n = field.planes.level_len(level) as u64;
+        for (first, levels) in pyramid_groups(field.planes.levels) {
+            let p = TriMipParams { level: first, group_levels: levels, ..field.params(0, 0) };
+            let n = field.planes.level_len((first + levels - 1) as usize) as u64;
             let buffers = [r, r, params, &bufs.pyramid, s, g, &bufs.grad_pyramid, &bufs.tv_rows];
-            self.dispatch(rec, ("tri_mip build_level", &self.build), p, n, buffers)?;
+            self.dispatch(rec, ("tri_mip build_levels", &self.build), p, n, buffers)?;
         }
         Ok(())
     }
