@@ -460,6 +460,9 @@ impl GpuMlp {
     /// caller (rendering) has written to [`MlpBuffers::d_raw_density`], to `grads`; writes the
     /// gradient of the encodings to [`MlpBuffers::d_x`] where there is one (the encodings
     /// entering the first layer only: no skip connection).
+    ///
+    /// # Errors
+    /// A batch too large for one dispatch.
     pub fn backward(
         &self,
         rec: &mut Recorder<'_>,
@@ -468,11 +471,12 @@ impl GpuMlp {
         bufs: &MlpBuffers,
         d_raw_rgb: &wgpu::Buffer,
         grads: &wgpu::Buffer,
-    ) {
+    ) -> Result<(), GpuError> {
         match &bufs.passes {
             Passes::Products(pb) => self.backward_products(rec, shape, params, bufs, pb, d_raw_rgb, grads),
-            Passes::Fused(f) => self.fused.backward(rec, shape, params, &bufs.fused_batch(), f, d_raw_rgb, grads),
+            Passes::Fused(f) => self.fused.backward(rec, shape, &bufs.fused_batch(), f, d_raw_rgb, grads)?,
         }
+        Ok(())
     }
 
     fn backward_products(

@@ -352,7 +352,7 @@ impl GpuModel {
             }
             self.render.encode(rec, rp, &rb)?;
             if let Some(g) = grads {
-                self.mlp.backward(rec, shape, params, bufs, &work.d_rgb, g);
+                self.mlp.backward(rec, shape, params, bufs, &work.d_rgb, g)?;
                 self.field_backward(rec, model, samples, work, g)?;
             }
         }
@@ -651,7 +651,7 @@ impl GpuModel {
         }
         let batch = RayBatch::upload(ctx, rays, targets, model.rays_per_pixel(), model.config().area_loss)?;
         let mut work = ModelBuffers::new(ctx, model, rays.len())?;
-        let params_buf = ctx.storage_buffer("parameters", params, false);
+        let params_buf = ctx.storage_buffer("parameters", params, true);
         let grads = ctx.storage_buffer("gradients", &vec![0.0f32; model.num_params()], true);
         let kept = grid.filter(|_| model.rays_per_pixel() == 1).and_then(|g| kept_rays(g, rays));
         let grid = grid.map(|g| DeviceGrid::new(ctx, g)).transpose()?;

@@ -24,7 +24,7 @@
 
 use mipnerf_core::mlp::MlpShape;
 
-use crate::kernels::{Recorder, WORKGROUP, dispatch_grid};
+use crate::kernels::{Binding, Recorder, WORKGROUP, dispatch_grid};
 use crate::{GpuContext, GpuError};
 
 /// The WGSL source of these kernels.
@@ -34,8 +34,19 @@ pub const SOURCE: &str = super::shader_source!("fused_mlp.wgsl");
 /// of activations (WGSL: `MLP_MAX_WIDTH`).
 pub const MAX_WIDTH: usize = 64;
 
-/// The side of a weight-gradient tile (WGSL: `MLP_TILE`; `MLP_TILE_AREA` is its square).
-pub const TILE: u32 = 16;
+/// Floats of one of the two uniform blocks the weights are copied to (the trunk and heads, the
+/// colour branch): WebGPU's smallest `max_uniform_buffer_binding_size`, 64 KiB, which every
+/// device allows (WGSL: `MLP_UNIFORM_VEC4S` vec4s).
+pub const UNIFORM_FLOATS: usize = 16_384;
+
+/// Samples one weight-gradient invocation sums before it adds its block to the gradient (WGSL:
+/// `MLP_SPLIT_SAMPLES`): 32 runs for a step's level of 16,384 samples, so that the device has
+/// invocations to spare while the compare-exchange additions stay few (16 per run and block).
+pub const SPLIT_SAMPLES: u32 = 512;
+
+/// The side of the blocks of a layer's kernel one weight-gradient invocation sums (WGSL: its
+/// four vec4 accumulators).
+pub const BLOCK: u32 = 4;
 
 /// Words of one weight-gradient job in the table (WGSL: `MLP_JOB_WORDS`).
 pub const JOB_WORDS: usize = 9;
@@ -83,12 +94,12 @@ pub struct FusedMlpParams {
     pub jobs: u32,
     /// 1: the backward pass writes the encodings' gradient.
     pub input_gradient: u32,
+    /// Weight-gradient blocks over all jobs.
+    pub blocks: u32,
+    /// Runs of [`SPLIT_SAMPLES`] samples.
+    pub runs: u32,
     /// Padding to 16 bytes.
     pub pad0: u32,
-    /// Padding.
-    pub pad1: u32,
-    /// Padding.
-    pub pad2: u32,
 }
 
 super::wgsl_struct!(
@@ -108,19 +119,31 @@ super::wgsl_struct!(
         base,
         jobs,
         input_gradient,
-        pad0,
-        pad1,
-        pad2
+        blocks,
+        runs,
+        pad0
     ]
 );
 
 /// Whether the fused kernels run `shape`: no skip connection, every layer and the input at
-/// most [`MAX_WIDTH`] wide.
+/// most [`MAX_WIDTH`] wide, and each part of the weights ([`weight_parts`]) within one uniform
+/// block of [`UNIFORM_FLOATS`].
 #[must_use]
 pub fn fits(shape: &MlpShape) -> bool {
     let c = &shape.config;
     let no_skip = (0..c.net_depth).all(|i| !shape.concat_after(i));
-    no_skip && c.net_width.max(c.net_width_condition).max(c.x_dim) <= MAX_WIDTH
+    let narrow = c.net_width.max(c.net_width_condition).max(c.x_dim) <= MAX_WIDTH;
+    no_skip && narrow && weight_parts(shape).iter().all(|&(_, len)| len <= UNIFORM_FLOATS)
+}
+
+/// The two parts of `shape`'s parameters that the forward and backward passes read from
+/// uniform blocks, as (offset, floats): the trunk with both heads, then the colour branch.
+#[must_use]
+pub fn weight_parts(shape: &MlpShape) -> [(usize, usize); 2] {
+    let ls = &shape.layers;
+    let (start, colour) = (ls[0].kernel, ls[shape.config.net_depth + 2].kernel);
+    let end = ls[ls.len() - 1].bias + 3;
+    [(start, colour - start), (colour, end - colour)]
 }
 
 /// Floats per sample of the kept activations (and of their gradients): the raw density, the
@@ -131,16 +154,24 @@ pub fn row_len(shape: &MlpShape) -> usize {
     1 + c.net_width * (1 + c.net_depth) + c.net_depth_condition * c.net_width_condition
 }
 
-/// The table the kernels read for `shape`: each layer's kernel and bias offsets from the
-/// shape's first parameter, then the weight-gradient jobs; and the number of jobs and of the
-/// weight-gradient workgroups.
+/// The table the kernels read for `shape`: each layer's kernel and bias offsets in its part of
+/// the weights ([`weight_parts`]), then the weight-gradient jobs (offsets from the shape's
+/// first parameter); and the number of jobs and of the weight-gradient blocks.
 #[must_use]
 pub fn table(shape: &MlpShape) -> (Vec<u32>, u32, u32) {
     let c = &shape.config;
     let (d, dc, w, wc) = (c.net_depth, c.net_depth_condition, c.net_width, c.net_width_condition);
     let base = shape.layers[0].kernel;
     let ls = &shape.layers;
-    let mut table: Vec<u32> = ls.iter().flat_map(|l| [(l.kernel - base) as u32, (l.bias - base) as u32]).collect();
+    let [(trunk, _), (colour, _)] = weight_parts(shape);
+    let mut table: Vec<u32> = ls
+        .iter()
+        .enumerate()
+        .flat_map(|(i, l)| {
+            let part = if i < d + 2 { trunk } else { colour };
+            [(l.kernel - part) as u32, (l.bias - part) as u32]
+        })
+        .collect();
     let trunk_at = |i: usize| 1 + w * (1 + i);
     let colour_at = |j: usize| 1 + w * (1 + d) + j * wc;
     let rel = |off: usize| (off - base) as u32;
@@ -167,19 +198,19 @@ pub fn table(shape: &MlpShape) -> (Vec<u32>, u32, u32) {
     }
     let out = &ls[ls.len() - 1];
     job((SOURCE_ACTS, colour_at(dc - 1)), (SOURCE_D_RGB, 0), wc, 3, out.kernel, Some(out.bias));
-    let mut groups = 0u32;
+    let mut blocks = 0u32;
     for j in &jobs {
         let rows = j[4] + u32::from(j[7] != NO_BIAS);
         table.extend_from_slice(j);
-        table.push(groups);
-        groups += rows.div_ceil(TILE) * j[5].div_ceil(TILE);
+        table.push(blocks);
+        blocks += rows.div_ceil(BLOCK) * j[5].div_ceil(BLOCK);
     }
     debug_assert_eq!(table.len(), 2 * ls.len() + JOB_WORDS * jobs.len());
-    (table, jobs.len() as u32, groups)
+    (table, jobs.len() as u32, blocks)
 }
 
 /// The buffers a fused MLP keeps for a batch: the activations and their gradients, the table,
-/// and stand-ins for the bindings a pass does not use.
+/// the two uniform blocks of weights, and stand-ins for the bindings a pass does not use.
 #[derive(Debug)]
 pub struct FusedBuffers {
     /// `n x row_len`: what the forward pass keeps.
@@ -188,7 +219,10 @@ pub struct FusedBuffers {
     pub d_acts: wgpu::Buffer,
     table: wgpu::Buffer,
     jobs: u32,
-    groups: u32,
+    blocks: u32,
+    /// The trunk's and heads' weights, then the colour branch's, copied from the parameters
+    /// before each forward pass.
+    weights: [wgpu::Buffer; 2],
     /// Floats per sample of `acts` and `d_acts`.
     pub row: usize,
     unused: [wgpu::Buffer; 3],
@@ -200,14 +234,23 @@ impl FusedBuffers {
     #[must_use]
     pub fn new(ctx: &GpuContext, shape: &MlpShape, n: usize) -> Self {
         let row = row_len(shape);
-        let (table, jobs, groups) = table(shape);
+        let (table, jobs, blocks) = table(shape);
+        let uniform = |label: &str| {
+            ctx.device().create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: 4 * UNIFORM_FLOATS as u64,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        };
         let nan = |label: &str, len: usize| ctx.storage_buffer(label, &vec![f32::NAN; len.max(1)], true);
         Self {
             acts: nan("fused mlp activations", n * row),
             d_acts: nan("fused mlp activation gradients", n * row),
             table: ctx.storage_buffer("fused mlp table", &table, false),
             jobs,
-            groups,
+            blocks,
+            weights: [uniform("fused mlp trunk weights"), uniform("fused mlp colour weights")],
             row,
             unused: std::array::from_fn(|i| ctx.storage_buffer(&format!("fused mlp unused {i}"), &[0f32], false)),
         }
@@ -216,7 +259,8 @@ impl FusedBuffers {
     /// Device bytes these buffers take.
     #[must_use]
     pub fn bytes(&self) -> u64 {
-        [&self.acts, &self.d_acts, &self.table].iter().map(|b| b.size()).sum::<u64>() + 12
+        let own = [&self.acts, &self.d_acts, &self.table, &self.weights[0], &self.weights[1]];
+        own.iter().map(|b| b.size()).sum::<u64>() + 12
     }
 }
 
@@ -252,10 +296,12 @@ impl FusedMlpKernel {
     /// # Errors
     /// If the device rejects them.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        let read_only = [true, true, true, true, false, false, true, false, false, false];
+        let (read, write) = (Binding::Storage { read_only: true }, Binding::Storage { read_only: false });
+        // table, the two blocks of weights, x, view, acts, raw_rgb, d_rgb, d_acts, d_x, grads.
+        let bindings = [read, Binding::Uniform, Binding::Uniform, read, read, write, write, read, write, write, write];
         let entries = ["forward", "backward_samples", "weight_gradients"];
         let ([forward, backward_samples, weight_gradients], layout) =
-            super::build_entries(ctx, "fused_mlp", SOURCE, &read_only, entries)?;
+            super::build_entries_bound(ctx, "fused_mlp", SOURCE, &bindings, entries, true)?;
         Ok(Self { forward, backward_samples, weight_gradients, layout })
     }
 
@@ -278,15 +324,16 @@ impl FusedMlpKernel {
             base: shape.layers[0].kernel as u32,
             jobs: bufs.jobs,
             input_gradient: u32::from(batch.d_x.is_some()),
+            blocks: bufs.blocks,
+            runs: (batch.n as u32).div_ceil(SPLIT_SAMPLES),
             pad0: 0,
-            pad1: 0,
-            pad2: 0,
         };
         (p, (gx, gy, 1))
     }
 
     /// Records the forward pass: `bufs.acts` and `batch.raw_rgb` from `batch.x` and
-    /// `batch.view`.
+    /// `batch.view`, the weights copied from `params` to the uniform blocks first.
+    /// `params` must allow copies from it (`COPY_SRC`), as the trainer's parameters do.
     pub fn forward(
         &self,
         rec: &mut Recorder<'_>,
@@ -295,39 +342,43 @@ impl FusedMlpKernel {
         batch: &FusedBatch<'_>,
         bufs: &FusedBuffers,
     ) {
+        for (&(offset, len), to) in weight_parts(shape).iter().zip(&bufs.weights) {
+            rec.encoder().copy_buffer_to_buffer(params, 4 * offset as u64, to, 0, 4 * len as u64);
+        }
         let (p, grid) = Self::params(shape, batch, bufs);
         let [u0, u1, u2] = &bufs.unused;
-        let buffers = [&bufs.table, params, batch.x, batch.view, &bufs.acts, batch.raw_rgb, u0, &bufs.d_acts, u1, u2];
+        let [wt, wc] = &bufs.weights;
+        let buffers = [&bufs.table, wt, wc, batch.x, batch.view, &bufs.acts, batch.raw_rgb, u0, &bufs.d_acts, u1, u2];
         rec.dispatch("fused_mlp forward", &self.forward, &self.layout, &p, &buffers, grid);
     }
 
-    /// Records the backward pass of the last forward pass: from the raw colours' gradient
-    /// `d_rgb` and the raw density's (column 0 of `bufs.d_acts`, written by rendering), every
-    /// layer's pre-activation gradient (kept in `bufs.d_acts`), the encodings' gradient (to
-    /// `batch.d_x` where given), and every weight and bias gradient **added** to `grads`.
+    /// Records the backward pass of the last forward pass (the weights it copied): from the raw
+    /// colours' gradient `d_rgb` and the raw density's (column 0 of `bufs.d_acts`, written by
+    /// rendering), every layer's pre-activation gradient (kept in `bufs.d_acts`), the encodings'
+    /// gradient (to `batch.d_x` where given), and every weight and bias gradient **added** to
+    /// `grads`.
+    ///
+    /// # Errors
+    /// A batch too large for one dispatch.
     pub fn backward(
         &self,
         rec: &mut Recorder<'_>,
         shape: &MlpShape,
-        params: &wgpu::Buffer,
         batch: &FusedBatch<'_>,
         bufs: &FusedBuffers,
         d_rgb: &wgpu::Buffer,
         grads: &wgpu::Buffer,
-    ) {
+    ) -> Result<(), GpuError> {
         let (p, grid) = Self::params(shape, batch, bufs);
         let d_x = batch.d_x.unwrap_or(&bufs.unused[1]);
+        let [wt, wc] = &bufs.weights;
         let buffers =
-            [&bufs.table, params, batch.x, batch.view, &bufs.acts, batch.raw_rgb, d_rgb, &bufs.d_acts, d_x, grads];
+            [&bufs.table, wt, wc, batch.x, batch.view, &bufs.acts, batch.raw_rgb, d_rgb, &bufs.d_acts, d_x, grads];
         rec.dispatch("fused_mlp backward", &self.backward_samples, &self.layout, &p, &buffers, grid);
-        rec.dispatch(
-            "fused_mlp weight gradients",
-            &self.weight_gradients,
-            &self.layout,
-            &p,
-            &buffers,
-            (bufs.groups, 1, 1),
-        );
+        let (gx, gy) = dispatch_grid(u64::from(p.blocks) * u64::from(p.runs), WORKGROUP)?;
+        let p = FusedMlpParams { groups_x: gx, ..p };
+        rec.dispatch("fused_mlp weight gradients", &self.weight_gradients, &self.layout, &p, &buffers, (gx, gy, 1));
+        Ok(())
     }
 }
 
@@ -367,8 +418,8 @@ mod tests {
                         seen[w[7] as usize + c] += 1;
                     }
                 }
-                assert_eq!(w[8], next_group, "job {j}: its first workgroup");
-                next_group += (w[4] + u32::from(w[7] != NO_BIAS)).div_ceil(TILE) * w[5].div_ceil(TILE);
+                assert_eq!(w[8], next_group, "job {j}: its first block");
+                next_group += (w[4] + u32::from(w[7] != NO_BIAS)).div_ceil(BLOCK) * w[5].div_ceil(BLOCK);
             }
             assert_eq!(next_group, groups);
             assert!(seen.iter().all(|&n| n == 1), "every parameter exactly once: {seen:?}");

@@ -59,8 +59,8 @@ pub fn prelude() -> String {
         ("MLP_MAX_WIDTH", fused_mlp::MAX_WIDTH as u32),
         ("PYRAMID_GROUP_LEVELS", tri_mip::PYRAMID_GROUP_LEVELS),
         ("PYRAMID_BLOCK_AREA", 1 << (2 * tri_mip::PYRAMID_GROUP_LEVELS)),
-        ("MLP_TILE", fused_mlp::TILE),
-        ("MLP_TILE_AREA", fused_mlp::TILE * fused_mlp::TILE),
+        ("MLP_UNIFORM_VEC4S", (fused_mlp::UNIFORM_FLOATS / 4) as u32),
+        ("MLP_SPLIT_SAMPLES", fused_mlp::SPLIT_SAMPLES),
         ("MLP_JOB_WORDS", fused_mlp::JOB_WORDS as u32),
         ("MLP_NO_BIAS", fused_mlp::NO_BIAS),
         ("MLP_SOURCE_X", fused_mlp::SOURCE_X),
@@ -212,27 +212,37 @@ pub fn dispatch_grid(n_items: u64, workgroup: u32) -> Result<(u32, u32), GpuErro
 /// 1.., read-only where `read_only[i]` is true.
 #[must_use]
 pub fn storage_layout(ctx: &GpuContext, name: &str, read_only: &[bool]) -> wgpu::BindGroupLayout {
-    let mut entries = vec![wgpu::BindGroupLayoutEntry {
-        binding: 0,
+    let bindings: Vec<Binding> = read_only.iter().map(|&read_only| Binding::Storage { read_only }).collect();
+    bindings_layout(ctx, name, &bindings)
+}
+
+/// A binding after a kernel's uniform block (binding 0).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Binding {
+    /// A storage buffer, read-only or not.
+    Storage {
+        /// The kernel only reads it.
+        read_only: bool,
+    },
+    /// A uniform buffer (a kernel's second and later uniform blocks).
+    Uniform,
+}
+
+/// The layout of a uniform block at binding 0 and `bindings` at 1...
+pub fn bindings_layout(ctx: &GpuContext, name: &str, bindings: &[Binding]) -> wgpu::BindGroupLayout {
+    let entry = |binding: u32, ty: wgpu::BufferBindingType| wgpu::BindGroupLayoutEntry {
+        binding,
         visibility: wgpu::ShaderStages::COMPUTE,
-        ty: wgpu::BindingType::Buffer {
-            ty: wgpu::BufferBindingType::Uniform,
-            has_dynamic_offset: false,
-            min_binding_size: None,
-        },
+        ty: wgpu::BindingType::Buffer { ty, has_dynamic_offset: false, min_binding_size: None },
         count: None,
-    }];
-    for (i, &ro) in read_only.iter().enumerate() {
-        entries.push(wgpu::BindGroupLayoutEntry {
-            binding: i as u32 + 1,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Storage { read_only: ro },
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        });
+    };
+    let mut entries = vec![entry(0, wgpu::BufferBindingType::Uniform)];
+    for (i, b) in bindings.iter().enumerate() {
+        let ty = match *b {
+            Binding::Storage { read_only } => wgpu::BufferBindingType::Storage { read_only },
+            Binding::Uniform => wgpu::BufferBindingType::Uniform,
+        };
+        entries.push(entry(i as u32 + 1, ty));
     }
     ctx.device().create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
         label: Some(&format!("{name} layout")),
@@ -285,7 +295,24 @@ pub fn build_entries_with<const N: usize>(
     entries: [&str; N],
     zero_init_workgroup_memory: bool,
 ) -> Result<([wgpu::ComputePipeline; N], wgpu::BindGroupLayout), GpuError> {
-    let layout = storage_layout(ctx, name, read_only);
+    let bindings: Vec<Binding> = read_only.iter().map(|&read_only| Binding::Storage { read_only }).collect();
+    build_entries_bound(ctx, name, source, &bindings, entries, zero_init_workgroup_memory)
+}
+
+/// [`build_entries_with`] for kernels that bind uniform buffers besides their block
+/// ([`Binding`]).
+///
+/// # Errors
+/// [`GpuError::Wgpu`] if the device rejects the shader or a pipeline.
+pub fn build_entries_bound<const N: usize>(
+    ctx: &GpuContext,
+    name: &str,
+    source: &str,
+    bindings: &[Binding],
+    entries: [&str; N],
+    zero_init_workgroup_memory: bool,
+) -> Result<([wgpu::ComputePipeline; N], wgpu::BindGroupLayout), GpuError> {
+    let layout = bindings_layout(ctx, name, bindings);
     let pipelines = entries
         .map(|e| compute_pipeline_entry(ctx, &format!("{name} {e}"), source, e, &layout, zero_init_workgroup_memory));
     ctx.check()?;
