@@ -13,9 +13,9 @@
 //   pre-activation gradient in its row of `d_acts` and writes the encodings' gradient to `d_x`.
 // - `weight_gradients`: one invocation per 4 x 4 block of one layer's kernel (its bias as one
 //   more row, of inputs 1) and run of MLP_SPLIT_SAMPLES samples, summing input x output
-//   gradient over its samples in order and adding the block to `grads` with a compare-exchange
-//   loop on the f32 bits (as the planes' scatter does; the runs' order of addition is the
-//   device's). Which layer part a block belongs to comes from the job list in `table`.
+//   gradient over its samples in order and adding the block to `grads` atomically (as the
+//   planes' scatter does; the runs' order of addition is the device's). Which layer part a
+//   block belongs to comes from the job list in `table`.
 //
 // A row of `acts` (and of `d_acts`, the same places): the raw density, the bottleneck
 // (`net_width`), the trunk's layers (`net_depth x net_width`, after their ReLU), the colour
@@ -66,8 +66,8 @@ struct Params {
 @group(0) @binding(8) var<storage, read> d_rgb: array<f32>;
 @group(0) @binding(9) var<storage, read_write> d_acts: array<f32>;
 @group(0) @binding(10) var<storage, read_write> d_x: array<f32>;
-// The parameters' gradient as f32 bits.
-@group(0) @binding(11) var<storage, read_write> grads: array<atomic<u32>>;
+// The parameters' gradient (`add_to_grads` is generated: kernels::gradient_atomics).
+@group(0) @binding(11) var<storage, read_write> grads: array<GradientAtomic>;
 
 alias Activations = array<f32, MLP_MAX_WIDTH>;
 
@@ -280,18 +280,6 @@ fn backward_samples(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
 }
 
-fn add_to_grad(i: u32, value: f32) {
-    var old = atomicLoad(&grads[i]);
-    loop {
-        let sum = bitcast<u32>(bitcast<f32>(old) + value);
-        let r = atomicCompareExchangeWeak(&grads[i], old, sum);
-        if (r.exchanged) {
-            break;
-        }
-        old = r.old_value;
-    }
-}
-
 // Input row `k` of sample `s` from `source` at `offset` (within `rows`; the bias row `rows`
 // reads 1 where `bias` is set; beyond, 0).
 fn job_input(source: u32, offset: u32, s: u32, k: u32, rows: u32, bias: bool) -> f32 {
@@ -367,9 +355,9 @@ fn weight_gradients(@builtin(global_invocation_id) gid: vec3<u32>) {
                 continue;
             }
             if (k < rows) {
-                add_to_grad(p.base + kernel + k * cols + c, acc[rr][cc]);
+                add_to_grads(p.base + kernel + k * cols + c, acc[rr][cc]);
             } else if (k == rows && bias) {
-                add_to_grad(p.base + bias_at + c, acc[rr][cc]);
+                add_to_grads(p.base + bias_at + c, acc[rr][cc]);
             }
         }
     }

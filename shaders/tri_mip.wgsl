@@ -13,9 +13,10 @@
 //   scene contraction for an unbounded scene), the level `log2(2 radius resolution)`, and the
 //   24 taps (bilinear at the two levels around it) summed in the CPU's order.
 // - `scatter_planes`: the encoding's adjoint, one invocation per (sample, plane): the same taps
-//   recomputed, each texel's gradient added with a compare-exchange loop on the f32's bits
-//   (WGSL's core has no float atomics; every adapter has `atomic<u32>`). The sums' order is the
-//   device's, not the CPU's: equal to rounding.
+//   recomputed, each texel's gradient added atomically: one `atomicAdd` where the device has
+//   float atomics, else a compare-exchange loop on the f32's bits (WGSL's core has no float
+//   atomics; every adapter has `atomic<u32>`). The sums' order is the device's, not the CPU's:
+//   equal to rounding.
 // - `push_down`: the pyramid's gradients carried to level 0 through the box filters' adjoint,
 //   one invocation per level-0 value, nested from the coarsest level down as the CPU's
 //   `Pyramid::push_down` cascades them (the same operations in the same order).
@@ -60,10 +61,11 @@ struct Params {
 @group(0) @binding(4) var<storage, read_write> pyramid: array<f32>;
 // The samples' encodings (`encode_planes` writes them; `scatter_planes` reads their gradient).
 @group(0) @binding(5) var<storage, read_write> encoded: array<f32>;
-// The parameters' gradient (level 0 first) as f32 bits.
-@group(0) @binding(6) var<storage, read_write> grads: array<atomic<u32>>;
-// The gradient of levels 1.., laid out as `pyramid`, as f32 bits.
-@group(0) @binding(7) var<storage, read_write> grad_pyramid: array<atomic<u32>>;
+// The parameters' gradient (level 0 first); `load_grads`, `store_grads` and `add_to_grads`
+// are generated (kernels::gradient_atomics), as for `grad_pyramid`.
+@group(0) @binding(6) var<storage, read_write> grads: array<GradientAtomic>;
+// The gradient of levels 1.., laid out as `pyramid`.
+@group(0) @binding(7) var<storage, read_write> grad_pyramid: array<GradientAtomic>;
 // Per row of level 0 (3 resolution rows): the row's sum of squared neighbour differences.
 @group(0) @binding(8) var<storage, read_write> tv_rows: array<f32>;
 
@@ -269,32 +271,6 @@ fn encode_planes(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
 }
 
-// `value` added to an f32 held as bits, by compare-exchange. One function a buffer: WGSL's core
-// passes no pointer into a storage buffer to a function.
-fn add_to_grads(i: u32, value: f32) {
-    var old = atomicLoad(&grads[i]);
-    loop {
-        let sum = bitcast<u32>(bitcast<f32>(old) + value);
-        let r = atomicCompareExchangeWeak(&grads[i], old, sum);
-        if (r.exchanged) {
-            break;
-        }
-        old = r.old_value;
-    }
-}
-
-fn add_to_grad_pyramid(i: u32, value: f32) {
-    var old = atomicLoad(&grad_pyramid[i]);
-    loop {
-        let sum = bitcast<u32>(bitcast<f32>(old) + value);
-        let r = atomicCompareExchangeWeak(&grad_pyramid[i], old, sum);
-        if (r.exchanged) {
-            break;
-        }
-        old = r.old_value;
-    }
-}
-
 @compute @workgroup_size(WORKGROUP)
 fn scatter_planes(@builtin(global_invocation_id) gid: vec3<u32>) {
     let idx = flat_index(gid);
@@ -342,15 +318,14 @@ fn push_down(@builtin(global_invocation_id) gid: vec3<u32>) {
     for (var l = top; l >= 1u; l = l - 1u) {
         let s = side_at(l);
         let at = level_base(l) + ((plane * s + (v >> l)) * s + (u >> l)) * c + f;
-        let own = bitcast<f32>(atomicLoad(&grad_pyramid[at]));
+        let own = load_grad_pyramid(at);
         if (l == top) {
             acc = own;
         } else {
             acc = own + 0.25 * acc;
         }
     }
-    let g = bitcast<f32>(atomicLoad(&grads[i])) + 0.25 * acc;
-    atomicStore(&grads[i], bitcast<u32>(g));
+    store_grads(i, load_grads(i) + 0.25 * acc);
 }
 
 @compute @workgroup_size(WORKGROUP)
@@ -384,8 +359,7 @@ fn total_variation(@builtin(global_invocation_id) gid: vec3<u32>) {
             d = d + e;
             acc = acc + e * e;
         }
-        let g = bitcast<f32>(atomicLoad(&grads[here + i])) + 2.0 * params.tv_scale * d;
-        atomicStore(&grads[here + i], bitcast<u32>(g));
+        store_grads(here + i, load_grads(here + i) + 2.0 * params.tv_scale * d);
     }
     tv_rows[r] = acc;
 }

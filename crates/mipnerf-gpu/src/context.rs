@@ -202,7 +202,23 @@ pub struct GpuContext {
     staging: Mutex<Option<wgpu::Buffer>>,
     timeout: std::time::Duration,
     memory_budget: Option<u64>,
+    gradient_atomics: GradientAtomics,
 }
+
+/// How kernels add into gradients that many invocations share (the Tri-Mip planes' scatter,
+/// the fused MLP's weight gradients).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GradientAtomics {
+    /// A compare-exchange loop on the f32's bits in an `atomic<u32>`: every adapter.
+    CompareExchange,
+    /// `atomicAdd` on an `atomic<f32>` (`SHADER_FLOAT32_ATOMIC`): one instruction, where the
+    /// device offers it.
+    Float,
+}
+
+/// Set to any value: kernels add gradients by compare-exchange even where the device offers
+/// float atomics (to compare the two).
+pub const DISABLE_FLOAT_ATOMICS_ENV: &str = "MIPNERF_DISABLE_FLOAT_ATOMICS";
 
 impl std::fmt::Debug for GpuContext {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -260,7 +276,8 @@ impl GpuContext {
         let info = adapter.get_info();
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("mipnerf device"),
-            required_features: wgpu::Features::empty(),
+            // Float atomics where offered (the gradients' scatter); nothing else is needed.
+            required_features: adapter.features() & wgpu::Features::SHADER_FLOAT32_ATOMIC,
             required_limits: adapter.limits(),
             experimental_features: wgpu::ExperimentalFeatures::disabled(),
             memory_hints: wgpu::MemoryHints::Performance,
@@ -272,7 +289,8 @@ impl GpuContext {
 
     /// A context on a device and queue an app already owns (made from the adapter `info`
     /// describes). The context installs its error and device-lost callbacks on the device. The
-    /// kernels need no features, and one limit above WebGPU's defaults: at least
+    /// kernels need no features (they use `SHADER_FLOAT32_ATOMIC` where the device was made
+    /// with it, see [`GradientAtomics`]), and one limit above WebGPU's defaults: at least
     /// [`MIN_STORAGE_BUFFERS_PER_STAGE`] storage buffers per shader stage (request it in
     /// `required_limits`; every Vulkan, Metal and DX12 GPU has it). The other limits the device
     /// was made with bound the batch (a batch too large for them runs in chunks or is refused
@@ -285,6 +303,12 @@ impl GpuContext {
         if let Some((limit, have, need)) = limits_problem(&device.limits()) {
             return Err(GpuError::UnsupportedLimit { adapter: info.name.clone(), limit, have, need });
         }
+        let float_atomics = device.features().contains(wgpu::Features::SHADER_FLOAT32_ATOMIC);
+        let gradient_atomics = if float_atomics && std::env::var_os(DISABLE_FLOAT_ATOMICS_ENV).is_none() {
+            GradientAtomics::Float
+        } else {
+            GradientAtomics::CompareExchange
+        };
         let sink = Arc::new(Mutex::new(ErrorSink::default()));
         let s = Arc::clone(&sink);
         device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
@@ -303,7 +327,28 @@ impl GpuContext {
             staging: Mutex::new(None),
             timeout: DEFAULT_DEVICE_TIMEOUT,
             memory_budget: None,
+            gradient_atomics,
         })
+    }
+
+    /// How the kernels built on this context add shared gradients: float atomics where the
+    /// device has them (unless [`DISABLE_FLOAT_ATOMICS_ENV`] is set), else compare-exchange.
+    #[must_use]
+    pub fn gradient_atomics(&self) -> GradientAtomics {
+        self.gradient_atomics
+    }
+
+    /// This context with kernels built from now on adding shared gradients by `atomics`.
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for float atomics on a device made without them.
+    pub fn with_gradient_atomics(mut self, atomics: GradientAtomics) -> Result<Self, GpuError> {
+        if atomics == GradientAtomics::Float && !self.device.features().contains(wgpu::Features::SHADER_FLOAT32_ATOMIC)
+        {
+            return Err(GpuError::InvalidInput(format!("{} has no float atomics", self.adapter.name)));
+        }
+        self.gradient_atomics = atomics;
+        Ok(self)
     }
 
     /// Sets how long a wait on the device may take ([`DEFAULT_DEVICE_TIMEOUT`] otherwise).

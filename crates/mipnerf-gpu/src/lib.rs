@@ -41,7 +41,9 @@ mod model;
 pub mod select;
 pub mod trainer;
 
-pub use context::{AdapterChoice, AdapterSummary, GpuContext, list_adapters};
+pub use context::{
+    AdapterChoice, AdapterSummary, DISABLE_FLOAT_ATOMICS_ENV, GpuContext, GradientAtomics, list_adapters,
+};
 pub use select::{BackendChoice, BackendSetup, DeviceOptions, OpenError, OpenedBackend, open_backend};
 pub use trainer::GpuBackend;
 
@@ -249,5 +251,23 @@ pub mod test_support {
                 None
             }
         }
+    }
+
+    /// Contexts for a test to build kernels on, one for each way of adding shared gradients
+    /// ([`GradientAtomics`](crate::GradientAtomics)): compare-exchange always, float atomics
+    /// where the adapter has them (lavapipe does; a line says when it does not). Empty where
+    /// [`context_or_skip`] skips.
+    #[must_use]
+    pub fn contexts_of_each_atomics(test: &str) -> Vec<(crate::GradientAtomics, GpuContext)> {
+        use crate::GradientAtomics;
+        let mut out = Vec::new();
+        for atomics in [GradientAtomics::CompareExchange, GradientAtomics::Float] {
+            let Some(ctx) = context_or_skip(test) else { return out };
+            match ctx.with_gradient_atomics(atomics) {
+                Ok(ctx) => out.push((atomics, ctx)),
+                Err(e) => eprintln!("{test}: {atomics:?} not run: {e}"),
+            }
+        }
+        out
     }
 }

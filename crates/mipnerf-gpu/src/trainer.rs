@@ -28,6 +28,7 @@ use mipnerf_core::model::{LevelOutput, Levels, Mode, Model};
 use mipnerf_core::occupancy::OccupancyGrid;
 use mipnerf_core::train::{AdamState, OptimConfig, StepReport};
 
+use crate::GradientAtomics;
 use crate::kernels::adam::{AdamBuffers, AdamKernel, AdamStep};
 use crate::kernels::batch::{BatchKernel, DeviceImages, Draw};
 use crate::kernels::compact::{Compaction, kept_rays};
@@ -538,7 +539,11 @@ impl Backend for GpuBackend {
     fn describe(&self) -> String {
         let a = &self.ctx.adapter();
         let mib = |b: u64| b as f64 / 1048576.0;
-        let mut s = format!("GPU: {} ({}, {})", a.name, a.backend, a.device_type);
+        let atomics = match self.ctx.gradient_atomics() {
+            GradientAtomics::Float => "float atomics",
+            GradientAtomics::CompareExchange => "compare-exchange",
+        };
+        let mut s = format!("GPU: {} ({}, {}; shared gradients by {atomics})", a.name, a.backend, a.device_type);
         if let Some(t) = &self.train {
             let chunks =
                 t.chunks.as_ref().map_or(String::new(), |(sub, _)| format!(" in chunks of {} rays", sub.capacity()));

@@ -15,7 +15,9 @@ use mipnerf_core::{PixelCenters, Ray, RayShape, stages};
 use mipnerf_gpu::GpuError;
 use mipnerf_gpu::kernels::Recorder;
 use mipnerf_gpu::kernels::cast_ipe::CastIpeKernel;
-use mipnerf_gpu::test_support::{HARDWARE_ROUNDING_REL, context_or_skip, hardware_perturbations};
+use mipnerf_gpu::test_support::{
+    HARDWARE_ROUNDING_REL, context_or_skip, contexts_of_each_atomics, hardware_perturbations,
+};
 
 /// How far past the CPU reference's own spread under perturbed inputs a hardware GPU may land
 /// (`check_kernel_conditioned`): twice it, the perturbations being a sample.
@@ -226,8 +228,6 @@ fn fused_mlp_forward_and_backward_match_cpu_reference() {
     use mipnerf_core::mlp::{MlpConfig, MlpShape};
     use mipnerf_gpu::mlp::{GpuMlp, MlpBuffers};
     use rand::{Rng, SeedableRng, rngs::SmallRng};
-    let Some(ctx) = context_or_skip("fused_mlp_forward_and_backward_match_cpu_reference") else { return };
-    let gpu = GpuMlp::new(&ctx).unwrap();
     let recipe = MlpConfig {
         net_depth: 2,
         net_width: 64,
@@ -247,23 +247,27 @@ fn fused_mlp_forward_and_backward_match_cpu_reference() {
         view_dim: 9,
     };
     let mut bad = Vec::new();
-    for (ci, (cfg, n_rays, spr, base)) in [(recipe, 16, 16, 0), (deeper, 37, 29, 1000)].into_iter().enumerate() {
-        // A shape at an offset in the parameters, as a field's MLP after the planes.
-        let shape = MlpShape::new(cfg, base).unwrap();
-        assert!(MlpBuffers::runs_fused(&shape), "shape {ci} runs fused");
-        let mut rng = SmallRng::seed_from_u64(ci as u64);
-        let mut params = vec![0.0; base + shape.num_params];
-        shape.init_glorot(&mut params, 7);
-        for l in &shape.layers {
-            for b in &mut params[l.bias..l.bias + l.fan_out] {
-                *b = rng.random_range(-0.2..0.2);
+    for (atomics, ctx) in contexts_of_each_atomics("fused_mlp_forward_and_backward_match_cpu_reference") {
+        let gpu = GpuMlp::new(&ctx).unwrap();
+        for (ci, (cfg, n_rays, spr, base)) in [(recipe, 16, 16, 0), (deeper, 37, 29, 1000)].into_iter().enumerate() {
+            // A shape at an offset in the parameters, as a field's MLP after the planes.
+            let shape = MlpShape::new(cfg, base).unwrap();
+            assert!(MlpBuffers::runs_fused(&shape), "shape {ci} runs fused");
+            let mut rng = SmallRng::seed_from_u64(ci as u64);
+            let mut params = vec![0.0; base + shape.num_params];
+            shape.init_glorot(&mut params, 7);
+            for l in &shape.layers {
+                for b in &mut params[l.bias..l.bias + l.fan_out] {
+                    *b = rng.random_range(-0.2..0.2);
+                }
             }
+            let case = MlpCase::random(params, &cfg, n_rays, spr, &mut rng);
+            let cpu = |c: &MlpCase| mlp_on_cpu(&shape, c, true);
+            let on_gpu = |c: &MlpCase| mlp_on_gpu(&ctx, &gpu, &shape, c, true);
+            let tol = |_: &str| Tolerance::new(TOL_GPU_MLP_ABS, TOL_GPU_MLP_REL);
+            let label = format!("fused shape {ci}, {atomics:?}");
+            bad.extend(check_kernel(&label, cpu, on_gpu, &case, tol).into_mismatches());
         }
-        let case = MlpCase::random(params, &cfg, n_rays, spr, &mut rng);
-        let cpu = |c: &MlpCase| mlp_on_cpu(&shape, c, true);
-        let on_gpu = |c: &MlpCase| mlp_on_gpu(&ctx, &gpu, &shape, c, true);
-        let tol = |_: &str| Tolerance::new(TOL_GPU_MLP_ABS, TOL_GPU_MLP_REL);
-        bad.extend(check_kernel(&format!("fused shape {ci}"), cpu, on_gpu, &case, tol).into_mismatches());
     }
     assert_none(&bad);
 }

@@ -4,13 +4,14 @@
 
 use std::path::PathBuf;
 
+use mipnerf_gpu::GradientAtomics;
 use mipnerf_gpu::kernels::{
     ALL_SOURCES, FRUSTUM_SOURCE, RNG_SOURCE, WgslStruct,
     adam::AdamParams,
     batch::{BatchParams, GpuView},
     cast_ipe::CastIpeParams,
     compact::{ExpandParams, GatherParams},
-    compose,
+    compose, compose_with,
     fused_mlp::FusedMlpParams,
     matmul::MatmulParams,
     mlp_aux::AuxParams,
@@ -58,6 +59,12 @@ fn every_shader_file_parses_and_validates_as_composed() {
             continue;
         }
         if let Err(e) = parse_and_validate(&name, &compose(&src)) {
+            failures.push(e);
+        }
+        // Kernels with shared gradients also as the devices with float atomics compile them.
+        if src.contains("array<GradientAtomic>")
+            && let Err(e) = parse_and_validate(&name, &compose_with(&src, GradientAtomics::Float))
+        {
             failures.push(e);
         }
         assert!(

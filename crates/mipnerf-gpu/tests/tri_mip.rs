@@ -15,7 +15,7 @@ use mipnerf_core::tri_mip::{Pyramid, TriMipConfig, total_variation};
 use mipnerf_core::{PixelCenters, Ray, stages};
 use mipnerf_gpu::kernels::tri_mip::{PlaneField, TriMipKernel};
 use mipnerf_gpu::model::GpuModel;
-use mipnerf_gpu::test_support::context_or_skip;
+use mipnerf_gpu::test_support::{context_or_skip, contexts_of_each_atomics};
 use rand::{Rng, SeedableRng, rngs::SmallRng};
 
 /// The pyramid: each texel the mean of four, `0.25 · (((a + b) + c) + d)` on both sides, with
@@ -145,37 +145,39 @@ fn the_samples_encodings_are_the_cpus() {
 
 #[test]
 fn the_planes_gradient_is_the_cpus_and_the_encodings_adjoint() {
-    let Some(ctx) = context_or_skip("the_planes_gradient_is_the_cpus_and_the_encodings_adjoint") else { return };
-    let kernel = TriMipKernel::new(&ctx).unwrap();
     let mut bad = Vec::new();
-    for (name, model, unbounded) in cases() {
-        let field = PlaneField::of(&model).unwrap();
-        let (rays, t) = rays_and_edges(unbounded);
-        let params = visible_params(&model, 3);
-        let mut rng = SmallRng::seed_from_u64(4);
-        let n_x = rays.len() * 16 * field.planes.encoding_dim();
-        let d_x: Vec<f32> = (0..n_x).map(|_| rng.random_range(-1.0..1.0)).collect();
-        let want = model.encode_intervals_backward(&params, &rays, &t, &d_x);
-        let got = kernel.run_backward(&ctx, &field, &rays, &t, &d_x).unwrap();
-        assert!(want.iter().filter(|g| **g != 0.0).count() > 500, "{name}: the samples reach few texels");
-        let worst = got.iter().zip(&want).map(|(g, w)| (g - w).abs() / w.abs().max(1e-3)).fold(0.0, f32::max);
-        eprintln!("{name}: gradients differ by {worst:e} (relative, above 1e-3) at most");
-        bad.extend(mismatches(name, &got, &want, TOL_GRADIENT));
-        // The adjoint identity on the device alone: the encoding's change under a change of
-        // the planes, against the gradient's product with that change.
-        let delta: Vec<f32> = (0..model.field_params()).map(|_| rng.random_range(-0.01..0.01)).collect();
-        let moved: Vec<f32> =
-            params.iter().enumerate().map(|(i, p)| p + delta.get(i).copied().unwrap_or(0.0)).collect();
-        let (before, after) = (
-            kernel.run_encode(&ctx, &field, &rays, &t, &params).unwrap(),
-            kernel.run_encode(&ctx, &field, &rays, &t, &moved).unwrap(),
-        );
-        let through_encoding: f64 =
-            d_x.iter().zip(after.iter().zip(&before)).map(|(d, (a, b))| f64::from(*d) * f64::from(a - b)).sum();
-        let through_gradient: f64 = got.iter().zip(&delta).map(|(g, d)| f64::from(*g) * f64::from(*d)).sum();
-        let rel = (through_encoding - through_gradient).abs() / through_gradient.abs();
-        eprintln!("{name}: adjoint identity {through_encoding:.6e} vs {through_gradient:.6e} ({rel:e})");
-        assert!(rel < TOL_ADJOINT_REL, "{name}: adjoint identity off by {rel:e}");
+    for (atomics, ctx) in contexts_of_each_atomics("the_planes_gradient_is_the_cpus_and_the_encodings_adjoint") {
+        let kernel = TriMipKernel::new(&ctx).unwrap();
+        for (name, model, unbounded) in cases() {
+            let name = &format!("{name}, {atomics:?}");
+            let field = PlaneField::of(&model).unwrap();
+            let (rays, t) = rays_and_edges(unbounded);
+            let params = visible_params(&model, 3);
+            let mut rng = SmallRng::seed_from_u64(4);
+            let n_x = rays.len() * 16 * field.planes.encoding_dim();
+            let d_x: Vec<f32> = (0..n_x).map(|_| rng.random_range(-1.0..1.0)).collect();
+            let want = model.encode_intervals_backward(&params, &rays, &t, &d_x);
+            let got = kernel.run_backward(&ctx, &field, &rays, &t, &d_x).unwrap();
+            assert!(want.iter().filter(|g| **g != 0.0).count() > 500, "{name}: the samples reach few texels");
+            let worst = got.iter().zip(&want).map(|(g, w)| (g - w).abs() / w.abs().max(1e-3)).fold(0.0, f32::max);
+            eprintln!("{name}: gradients differ by {worst:e} (relative, above 1e-3) at most");
+            bad.extend(mismatches(name, &got, &want, TOL_GRADIENT));
+            // The adjoint identity on the device alone: the encoding's change under a change
+            // of the planes, against the gradient's product with that change.
+            let delta: Vec<f32> = (0..model.field_params()).map(|_| rng.random_range(-0.01..0.01)).collect();
+            let moved: Vec<f32> =
+                params.iter().enumerate().map(|(i, p)| p + delta.get(i).copied().unwrap_or(0.0)).collect();
+            let (before, after) = (
+                kernel.run_encode(&ctx, &field, &rays, &t, &params).unwrap(),
+                kernel.run_encode(&ctx, &field, &rays, &t, &moved).unwrap(),
+            );
+            let through_encoding: f64 =
+                d_x.iter().zip(after.iter().zip(&before)).map(|(d, (a, b))| f64::from(*d) * f64::from(a - b)).sum();
+            let through_gradient: f64 = got.iter().zip(&delta).map(|(g, d)| f64::from(*g) * f64::from(*d)).sum();
+            let rel = (through_encoding - through_gradient).abs() / through_gradient.abs();
+            eprintln!("{name}: adjoint identity {through_encoding:.6e} vs {through_gradient:.6e} ({rel:e})");
+            assert!(rel < TOL_ADJOINT_REL, "{name}: adjoint identity off by {rel:e}");
+        }
     }
     assert_none(&bad);
 }
@@ -213,38 +215,40 @@ const TOL_MODEL_GRAD_REL: f32 = 2e-3;
 
 #[test]
 fn a_models_loss_and_gradient_on_the_planes_are_the_cpus() {
-    let Some(ctx) = context_or_skip("a_models_loss_and_gradient_on_the_planes_are_the_cpus") else { return };
-    let gpu = GpuModel::new(&ctx).unwrap();
     let mut bad = Vec::new();
-    for (name, model, unbounded) in cases() {
-        let mut cfg: ModelConfig = model.config().clone();
-        cfg.planes_tv_mult = 0.1;
-        cfg.num_levels = 1;
-        let model = Model::new(cfg).unwrap();
-        let (rays, _) = rays_and_edges(unbounded);
-        let params = visible_params(&model, 7);
-        let mut rng = SmallRng::seed_from_u64(8);
-        let targets: Vec<[f32; 3]> = rays.iter().map(|_| [rng.random(), rng.random(), rng.random()]).collect();
-        let mode = Mode::Train { seed: 9, step: 3 };
-        let mut want = vec![0.0; model.num_params()];
-        let cpu = model.loss_and_grad(&params, &rays, &targets, mode, &mut want);
-        let (stats, got) = gpu.loss_and_grad(&ctx, &model, &params, &rays, &targets, mode).unwrap();
-        let rel = (stats.loss - cpu.loss).abs() / cpu.loss;
-        eprintln!(
-            "{name}: loss {} vs the CPU's {} ({rel:e}); total variation {}",
-            stats.loss, cpu.loss, stats.planes_tv
-        );
-        assert!(rel <= TOL_MODEL_LOSS_REL, "{name}: loss {} vs the CPU's {}", stats.loss, cpu.loss);
-        assert!((stats.planes_tv - cpu.planes_tv).abs() <= 1e-6 * cpu.planes_tv, "{name}: total variation");
-        let fp = model.field_params();
-        assert!(want[..fp].iter().filter(|g| **g != 0.0).count() > 500, "{name}: the planes take little gradient");
-        for (part, range) in [("planes", 0..fp), ("mlp", fp..want.len())] {
-            let (got, want) = (&got[range.clone()], &want[range]);
-            let largest = want.iter().fold(0.0f32, |m, g| m.max(g.abs()));
-            let worst = got.iter().zip(want).map(|(g, w)| (g - w).abs()).fold(0.0, f32::max) / largest;
-            eprintln!("{name} {part}: gradients differ by {worst:e} of the largest ({largest:e}) at most");
-            let tol = Tolerance::new(TOL_MODEL_GRAD_OF_LARGEST * largest, TOL_MODEL_GRAD_REL);
-            bad.extend(mismatches(&format!("{name} {part}"), got, want, tol));
+    for (atomics, ctx) in contexts_of_each_atomics("a_models_loss_and_gradient_on_the_planes_are_the_cpus") {
+        let gpu = GpuModel::new(&ctx).unwrap();
+        for (name, model, unbounded) in cases() {
+            let name = &format!("{name}, {atomics:?}");
+            let mut cfg: ModelConfig = model.config().clone();
+            cfg.planes_tv_mult = 0.1;
+            cfg.num_levels = 1;
+            let model = Model::new(cfg).unwrap();
+            let (rays, _) = rays_and_edges(unbounded);
+            let params = visible_params(&model, 7);
+            let mut rng = SmallRng::seed_from_u64(8);
+            let targets: Vec<[f32; 3]> = rays.iter().map(|_| [rng.random(), rng.random(), rng.random()]).collect();
+            let mode = Mode::Train { seed: 9, step: 3 };
+            let mut want = vec![0.0; model.num_params()];
+            let cpu = model.loss_and_grad(&params, &rays, &targets, mode, &mut want);
+            let (stats, got) = gpu.loss_and_grad(&ctx, &model, &params, &rays, &targets, mode).unwrap();
+            let rel = (stats.loss - cpu.loss).abs() / cpu.loss;
+            eprintln!(
+                "{name}: loss {} vs the CPU's {} ({rel:e}); total variation {}",
+                stats.loss, cpu.loss, stats.planes_tv
+            );
+            assert!(rel <= TOL_MODEL_LOSS_REL, "{name}: loss {} vs the CPU's {}", stats.loss, cpu.loss);
+            assert!((stats.planes_tv - cpu.planes_tv).abs() <= 1e-6 * cpu.planes_tv, "{name}: total variation");
+            let fp = model.field_params();
+            assert!(want[..fp].iter().filter(|g| **g != 0.0).count() > 500, "{name}: the planes take little gradient");
+            for (part, range) in [("planes", 0..fp), ("mlp", fp..want.len())] {
+                let (got, want) = (&got[range.clone()], &want[range]);
+                let largest = want.iter().fold(0.0f32, |m, g| m.max(g.abs()));
+                let worst = got.iter().zip(want).map(|(g, w)| (g - w).abs()).fold(0.0, f32::max) / largest;
+                eprintln!("{name} {part}: gradients differ by {worst:e} of the largest ({largest:e}) at most");
+                let tol = Tolerance::new(TOL_MODEL_GRAD_OF_LARGEST * largest, TOL_MODEL_GRAD_REL);
+                bad.extend(mismatches(&format!("{name} {part}"), got, want, tol));
+            }
         }
     }
     assert_none(&bad);

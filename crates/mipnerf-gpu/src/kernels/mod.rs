@@ -1,7 +1,7 @@
 //! One type per WGSL kernel, each owning its pipeline and bind-group layout, and the helpers they
 //! share.
 
-use crate::{GpuContext, GpuError};
+use crate::{GpuContext, GpuError, GradientAtomics};
 
 /// Invocations per workgroup of the one-dimensional kernels (WGSL: `WORKGROUP`).
 pub const WORKGROUP: u32 = 64;
@@ -76,12 +76,62 @@ pub fn prelude() -> String {
     out
 }
 
-/// A kernel's complete WGSL: the generated [`prelude`], the shared [`RNG_SOURCE`] and
-/// [`FRUSTUM_SOURCE`], then the kernel's own file. What the device compiles and the naga test
-/// validates.
+/// A kernel's complete WGSL with shared gradients added by compare-exchange (every adapter):
+/// [`compose_with`].
 #[must_use]
 pub fn compose(own: &str) -> String {
-    format!("{}\n{RNG_SOURCE}\n{FRUSTUM_SOURCE}\n{own}", prelude())
+    compose_with(own, GradientAtomics::CompareExchange)
+}
+
+/// A kernel's complete WGSL: the generated [`prelude`], the shared [`RNG_SOURCE`] and
+/// [`FRUSTUM_SOURCE`], the kernel's own file, and for each of its buffers declared
+/// `array<GradientAtomic>` the functions that load, store and add to it ([`gradient_atomics`]).
+/// What the device compiles and the naga test validates.
+#[must_use]
+pub fn compose_with(own: &str, atomics: GradientAtomics) -> String {
+    format!("{}\n{RNG_SOURCE}\n{FRUSTUM_SOURCE}\n{own}\n{}", prelude(), gradient_atomics(own, atomics))
+}
+
+/// The WGSL of shared gradients for the kernel `own`: the type `GradientAtomic` (`atomic<f32>`
+/// with float atomics, else `atomic<u32>` holding the f32's bits), and for each buffer `X` that
+/// `own` declares `array<GradientAtomic>`, `load_X(i)`, `store_X(i, v)` and `add_to_X(i, v)`
+/// (a compare-exchange loop, or one `atomicAdd`). Generated because WGSL's core takes no
+/// pointer to a storage buffer as a function's argument: one function a buffer.
+#[must_use]
+pub fn gradient_atomics(own: &str, atomics: GradientAtomics) -> String {
+    let buffers: Vec<&str> = own
+        .lines()
+        .filter(|l| l.contains("var<storage, read_write>") && l.contains("array<GradientAtomic>"))
+        .filter_map(|l| l.split("read_write>").nth(1)?.split(':').next().map(str::trim))
+        .collect();
+    if buffers.is_empty() {
+        return String::new();
+    }
+    let float = atomics == GradientAtomics::Float;
+    let mut out = format!("alias GradientAtomic = atomic<{}>;\n", if float { "f32" } else { "u32" });
+    for x in buffers {
+        if float {
+            out += &format!(
+                "fn load_{x}(i: u32) -> f32 {{ return atomicLoad(&{x}[i]); }}\n\
+                 fn store_{x}(i: u32, v: f32) {{ atomicStore(&{x}[i], v); }}\n\
+                 fn add_to_{x}(i: u32, v: f32) {{ atomicAdd(&{x}[i], v); }}\n"
+            );
+        } else {
+            out += &format!(
+                "fn load_{x}(i: u32) -> f32 {{ return bitcast<f32>(atomicLoad(&{x}[i])); }}\n\
+                 fn store_{x}(i: u32, v: f32) {{ atomicStore(&{x}[i], bitcast<u32>(v)); }}\n\
+                 fn add_to_{x}(i: u32, v: f32) {{\n\
+                 \x20   var old = atomicLoad(&{x}[i]);\n\
+                 \x20   loop {{\n\
+                 \x20       let r = atomicCompareExchangeWeak(&{x}[i], old, bitcast<u32>(bitcast<f32>(old) + v));\n\
+                 \x20       if (r.exchanged) {{ break; }}\n\
+                 \x20       old = r.old_value;\n\
+                 \x20   }}\n\
+                 }}\n"
+            );
+        }
+    }
+    out
 }
 
 /// A member of a uniform or storage struct as the WGSL must declare it: name, byte offset and
@@ -332,7 +382,7 @@ pub fn compute_pipeline_entry(
 ) -> wgpu::ComputePipeline {
     let module = ctx.device().create_shader_module(wgpu::ShaderModuleDescriptor {
         label: Some(name),
-        source: wgpu::ShaderSource::Wgsl(compose(source).into()),
+        source: wgpu::ShaderSource::Wgsl(compose_with(source, ctx.gradient_atomics()).into()),
     });
     let pl = ctx.device().create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
         label: Some(&format!("{name} pipeline layout")),
