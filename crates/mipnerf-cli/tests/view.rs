@@ -611,3 +611,30 @@ fn the_viewer_serves_a_run_of_the_tri_mip_field() {
     let frames = sse.lines().filter(|l| l.starts_with("data: ") && *l != "data: {}").count();
     assert!(frames >= 2, "the coarse-to-fine stream sends its frames: {sse}");
 }
+
+/// A Tri-Mip run trained on the GPU, served by the viewer rendering on the GPU: a still of the
+/// size asked for, not blank.
+#[test]
+fn the_viewer_serves_a_tri_mip_run_rendered_on_the_gpu() {
+    if mipnerf_gpu::test_support::context_or_skip("the_viewer_serves_a_tri_mip_run_rendered_on_the_gpu").is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let data = common::small_demo_scene(dir.path(), 2);
+    let run = dir.path().join("run");
+    let cfg = dir.path().join("small.toml");
+    std::fs::write(&cfg, "tri_mip_resolution = 32\n").unwrap();
+    let (d, r, c) = (data.to_str().unwrap(), run.to_str().unwrap(), cfg.to_str().unwrap());
+    let train = ["train", "--data", d, "--out", r, "--steps", "20", "--batch-rays", "256", "--preset", "fast"];
+    run_ok(&[&train[..], &["--field", "tri-mip", "--config", c, "--backend", "gpu", "--quiet"]].concat());
+    let server = start(&["view", "--run", r, "--port", "0", "--backend", "gpu"]);
+    let addr = server.addr.as_str();
+    let (status, _, info) = get(addr, "/api/info");
+    assert_eq!(status, 200);
+    let info: serde_json::Value = serde_json::from_slice(&info).unwrap();
+    let (status, ty, png) = get(addr, &format!("/api/render?{}", query(&info, 24, 20)));
+    assert_eq!((status, ty.as_str()), (200, "image/png"), "{}", String::from_utf8_lossy(&png));
+    assert_eq!(png_size(&png), (24, 20));
+    let frame = image::load_from_memory(&png).unwrap().to_rgb8();
+    assert!(distinct_colours(&frame) > 1, "a blank frame");
+}
