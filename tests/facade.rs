@@ -118,13 +118,13 @@ fn a_cpu_only_build_compiles_nothing_of_wgpu() {
     }
 }
 
-/// The README's library example is the crate's doctest, line for line (the doctest's hidden
-/// `# ` lines aside), so the README shows code the test command runs.
+/// The library guide's example (`docs/guide/library.md`) is the crate's doctest, line for line
+/// (the doctest's hidden `# ` lines aside), so the guide shows code the test command runs.
 #[test]
 fn the_readme_example_is_the_doctest() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let readme = std::fs::read_to_string(root.join("README.md")).unwrap();
-    let section = readme.split("## Use it as a library").nth(1).expect("the README's library section");
+    let readme = std::fs::read_to_string(root.join("docs/guide/library.md")).unwrap();
+    let section = readme.split("# Use it as a library").nth(1).expect("the guide's library section");
     let readme_block: Vec<&str> =
         section.split("```rust\n").nth(1).unwrap().split("\n```").next().unwrap().lines().collect();
     let lib = std::fs::read_to_string(root.join("src/lib.rs")).unwrap();
@@ -134,7 +134,7 @@ fn the_readme_example_is_the_doctest() {
     let len = doc[start..].iter().position(|l| *l == "```").unwrap();
     let doctest: Vec<&str> =
         doc[start..start + len].iter().copied().filter(|l| !l.starts_with("# ") && *l != "#").collect();
-    assert_eq!(readme_block, doctest, "README.md's library example differs from src/lib.rs's doctest");
+    assert_eq!(readme_block, doctest, "docs/guide/library.md's example differs from src/lib.rs's doctest");
     assert!(doctest.len() > 10, "{doctest:?}");
 }
 
@@ -155,7 +155,7 @@ fn options_out_of_range_are_errors_naming_the_option() {
 
 /// A COLMAP capture (forward-facing, in NDC) trains with the official LLFF settings the data
 /// implies: cylinders, no white background; occupancy-guided sampling runs on it with its grid
-/// over the NDC cube (issue 38).
+/// over the NDC cube.
 #[test]
 fn forward_facing_data_trains_with_cylinders_and_occupancy_in_ndc() {
     let colmap = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/colmap_lego");

@@ -1,7 +1,7 @@
-//! The module graph stays layered (issue 42): in every crate, no top-level module names a module
+//! The module graph stays layered (a reader can start at the bottom): in every crate, no top-level module names a module
 //! that names it back, directly or through others (the graph of `crate::` references between a
 //! crate's top-level modules has no cycle); no source file is over 800 lines; the CLI's `main.rs`
-//! only dispatches (under 250). `scripts/module-graph.py` prints the same graph.
+//! only dispatches (under 250). `scripts/dev/module-graph.py` prints the same graph.
 #![allow(clippy::unwrap_used, missing_docs)]
 
 use std::collections::{BTreeMap, BTreeSet};

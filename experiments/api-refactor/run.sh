@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 28 item 5: `mipnerf bench` side by side, before and after the kernel-reference and API
+# The API clean-up item 5: `mipnerf bench` side by side, before and after the kernel-reference and API
 # clean-up, on the same machine in one sitting: the two binaries alternate, three rounds each, so
 # that drift of the machine hits both alike. Writes docs/results/api/bench-side-by-side.md.
 #   BEFORE=path/to/old/mipnerf AFTER=target/release/mipnerf bash experiments/api-refactor/run.sh
@@ -18,7 +18,7 @@ for r in $(seq 1 "$rounds"); do
     done
 done
 {
-    echo "# mipnerf bench side by side (issue 28 item 5)"
+    echo "# mipnerf bench side by side"
     echo
     echo "Made by \`experiments/api-refactor/run.sh\` on $(date -u +%Y-%m-%d), $(nproc) cores ($(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs)),"
     echo "GPU rows on lavapipe. before: \`$before\` ($BEFORE_COMMIT), after: \`$after\` ($AFTER_COMMIT); $rounds rounds, alternating;"

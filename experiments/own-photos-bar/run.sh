@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# The first-hour bar of issue 26, run as a user runs it: the README's own-photos steps 2 and 3
+# The first-hour bar of the first-hour round, run as a user runs it: the README's own-photos steps 2 and 3
 # (`mipnerf colmap`, then the train command it prints, then eval) on 40 lego photos of 400 px
-# reconstructed by pycolmap with the README's settings (step 1: scripts/make-colmap-workspaces.sh
+# reconstructed by pycolmap with the README's settings (step 1: scripts/data/make-colmap-workspaces.sh
 # bar WORKSPACE). Writes the process step's and the run's output, the evaluation's metrics and a
 # picture of every held-out photo beside its render to docs/results/own-photos/bar/.
 #

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The live viewer's frame latency and training stall (issue 27), measured with `mipnerf bench
+# The live viewer's frame latency and training stall, measured with `mipnerf bench
 # --viewer` on lego256 runs of the fast and tiny presets after 10 and 5 minutes of training, on
 # this machine's CPU. Writes docs/results/viewer/{fast,tiny}.txt, each headed by the commands
 # and the binary's commit.

@@ -419,7 +419,7 @@ fn bench_prints_throughput_of_each_backend() {
         None => assert!(!text.contains("bf16 on"), "{text}"),
     }
     if both {
-        // The device work per step and per render chunk (issue 18): after the first step and the
+        // The device work per step and per render chunk (bind groups cached, one pass): after the first step and the
         // first chunk, nothing is made; a step reads nothing back unless it reports its losses.
         let work = |what: &str| -> Vec<u64> {
             let row = text
@@ -762,7 +762,7 @@ fn piped_output_gets_plain_progress_lines_and_quiet_silences_them() {
     assert!(!quiet.lines().any(|l| l.starts_with("train: ") || l.starts_with("eval: ")), "{quiet}");
 }
 
-/// The real COLMAP reconstruction committed under tests/data (see scripts/make-colmap-test-data.sh).
+/// The real COLMAP reconstruction committed under tests/data (see scripts/data/make-colmap-test-data.sh).
 fn colmap_scene() -> std::path::PathBuf {
     std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/colmap_lego")
 }
@@ -1005,8 +1005,7 @@ fn the_fast_preset_skips_empty_space_and_its_grid_reaches_eval_and_render() {
     assert!(ck.occupancy.is_some(), "the GPU run's checkpoint lost its grid");
 }
 
-/// Issue 38: the fast preset on a forward-facing capture (the fern fixture, NDC rays), refused
-/// before: its grid lives in NDC space over the cube that holds every training ray, carved where
+/// The fast preset on a forward-facing capture (the fern fixture, NDC rays), once refused: its grid lives in NDC space over the cube that holds every training ray, carved where
 /// no training ray reaches, learnt past its warm-up, and used by eval, the spiral's video and
 /// (where there is an adapter) the GPU backend.
 #[test]

@@ -1,5 +1,5 @@
 //! `train --masks DIR`: photos of an object in a room, with a foreground mask per photo, train
-//! the object alone (issue 39); bad masks are refused naming the file.
+//! the object alone; bad masks are refused naming the file.
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
 
 mod common;
@@ -15,8 +15,8 @@ fn s(p: &Path) -> &str {
 }
 
 /// How much darker than the demo scene's own colours the photographed object is: a dark object
-/// over a white (or random) background is where a model's colour could die (issue 39's grey
-/// renders).
+/// over a white (or random) background is where a model's colour could die (a masked real
+/// capture once rendered grey).
 const DARKEN: f32 = 0.3;
 
 /// The colour of the "room" behind the object in pixel `(x, y)`: a bright, colourful pattern
@@ -103,7 +103,7 @@ const MIN_COLOUR_KEPT: f64 = 0.5;
 
 /// A dark, coloured object photographed in a bright room, with masks: trained with `--masks`
 /// (spherified, the fast preset), its held-out renders show the object alone over white, in
-/// colour. Before issue 39 nothing took masks, and the LLFF loader dropped a photo's alpha from
+/// colour. Before masks were read, nothing took them, and the LLFF loader dropped a photo's alpha from
 /// its targets.
 #[test]
 fn a_dark_coloured_object_with_masks_keeps_its_colours_and_leaves_the_room_out() {

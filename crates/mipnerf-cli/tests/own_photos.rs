@@ -1,7 +1,7 @@
 //! `mipnerf colmap`, the process step from a COLMAP workspace to a dataset, on real pycolmap
 //! output (tests/data/colmap_workspaces: one workspace per camera model that needs undistorting,
 //! two of them with more than one model; tests/data/colmap_lego: a PINHOLE model COLMAP
-//! undistorted itself), and the README's own-photos section followed as written.
+//! undistorted itself), and the own-photos guide (docs/guide/own-photos.md) followed as written.
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
 
 mod common;
@@ -188,11 +188,12 @@ fn few_registered_photos_are_a_warning_above_the_minimum() {
     assert!(text.contains("warning: only 2 photos are registered; 25 or more"), "{text}");
 }
 
-/// The shell commands of the README's own-photos block, continuation lines joined, comments
-/// dropped.
+/// The shell commands of the own-photos guide's block (`docs/guide/own-photos.md`),
+/// continuation lines joined, comments dropped.
 fn readme_commands() -> Vec<String> {
-    let readme = std::fs::read_to_string(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../README.md")).unwrap();
-    let start = readme.find("<!-- own-photos:begin -->").expect("the README marks its own-photos block");
+    let guide = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../docs/guide/own-photos.md");
+    let readme = std::fs::read_to_string(guide).unwrap();
+    let start = readme.find("<!-- own-photos:begin -->").expect("the guide marks its own-photos block");
     let end = readme.find("<!-- own-photos:end -->").unwrap();
     let block = &readme[start..end];
     let mut commands = Vec::new();
@@ -217,14 +218,14 @@ fn the_readmes_own_photos_section_works_as_written() {
     let commands = readme_commands();
     let (colmap, ours): (Vec<&String>, Vec<&String>) = commands.iter().partition(|c| !c.starts_with("mipnerf "));
     // Step 1 is COLMAP's (its result here is the committed workspace, made by pycolmap with the
-    // same settings: scripts/make-colmap-workspaces.py).
+    // same settings: scripts/data/make-colmap-workspaces.py).
     assert_eq!(colmap.len(), 4, "{colmap:?}");
     assert!(colmap.iter().all(|c| c.starts_with("colmap ") || c.starts_with("mkdir ")), "{colmap:?}");
     for option in ["domain_size_pooling", "estimate_affine_shape", "peak_threshold 0.004", "init_min_num_inliers 50"] {
-        assert!(commands.iter().any(|c| c.contains(option)), "the README's COLMAP step sets {option}");
+        assert!(commands.iter().any(|c| c.contains(option)), "the guide's COLMAP step sets {option}");
     }
     let script = std::fs::read_to_string(
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scripts/make-colmap-workspaces.py"),
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scripts/data/make-colmap-workspaces.py"),
     )
     .unwrap();
     for option in [
@@ -351,7 +352,7 @@ fn app1_segment(jpeg: &[u8]) -> &[u8] {
 }
 
 /// A copy of the real `simple_radial` workspace whose photos carry the EXIF of the fixture
-/// `exif` (tests/data/exif, written by Pillow: scripts/make-exif-fixtures.py), spliced in after
+/// `exif` (tests/data/exif, written by Pillow: scripts/data/make-exif-fixtures.py), spliced in after
 /// each JPEG's start marker.
 fn workspace_with_exif(dir: &Path, exif: &str) -> PathBuf {
     let ws = dir.join(format!("workspace-{exif}"));

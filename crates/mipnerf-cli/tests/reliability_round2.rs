@@ -1,4 +1,4 @@
-//! The second round of held-out probes (issue 29), one test per finding: a render never replaces
+//! The second round of held-out probes of what users hit, one test per finding: a render never replaces
 //! a user's files, extreme numbers are errors or run (never a panic), nonsense cameras are
 //! refused naming the file, field and index, `--resume` refuses flags that change the run,
 //! explicitly given LPIPS weights and unverifiable checkpoints are not read quietly, memory is

@@ -1,4 +1,4 @@
-//! Round 3 (issue 41): what a user's files could still lose. Each test reproduces a reported
+//! Round 3 of the held-out probes: what a user's files could still lose. Each test reproduces a reported
 //! case: export over a device, a folder, a link or a foreign file, and both exports on one path;
 //! convert and colmap replacing or mixing into a user's dataset, or killing the old one when they
 //! fail part-way; render folders mixing two renders.
@@ -421,7 +421,7 @@ fn colmap_models_that_make_no_sense_are_refused_at_once_naming_what_is_wrong() {
 }
 
 /// A `train` refused before it writes anything (here an occupancy grid far larger than the scene;
-/// issue 38's first report was occupancy on forward-facing data, now accepted) leaves no folder
+/// occupancy on forward-facing data was refused here once, and is now accepted) leaves no folder
 /// behind that it made; a folder that was there stays.
 #[test]
 fn a_refused_train_leaves_no_folder_it_made() {

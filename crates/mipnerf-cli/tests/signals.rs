@@ -1,5 +1,5 @@
 //! Every long phase stops on Ctrl-C or SIGTERM with exit code 130, and leaves nothing that looks
-//! complete and is not (issue 26, item 3): eval, render, convert, demo (in training and after
+//! complete and is not (a user kills a long phase and must trust what is left): eval, render, convert, demo (in training and after
 //! it), and a second signal stops at once. Training's own signal handling (the checkpoint, the
 //! byte-identical resume) is in `reliability.rs`; the experiment's in `cli.rs`.
 #![allow(clippy::unwrap_used, missing_docs)]
@@ -233,7 +233,7 @@ fn the_demo_stops_in_training_and_after_it_and_a_second_signal_stops_at_once() {
     mipnerf_core::checkpoint::load(&run.join("checkpoint.safetensors"), &model).unwrap();
 }
 
-/// Issue 26, item 4: what users hit, each shown.
+/// What users hit when they stop a run, each shown.
 #[test]
 fn resume_with_nothing_to_do_convert_of_a_colmap_folder_and_help_defaults_say_what_to_do() {
     let dir = tempfile::tempdir().unwrap();

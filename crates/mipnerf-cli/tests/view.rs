@@ -318,7 +318,7 @@ fn the_viewer_serves_frames_coarse_to_fine_and_a_browser_moves_its_camera() {
     let img = image::open(&shot).unwrap().to_rgb8();
     assert_eq!(img.dimensions(), (1000, 900));
     assert!(distinct_colours(&img) > 50, "the screenshot is blank");
-    // The README's picture of the viewer is this screenshot.
+    // The viewer guide's picture is this screenshot.
     if let Ok(keep) = std::env::var("MIPNERF_VIEWER_SCREENSHOT") {
         std::fs::copy(&shot, keep).unwrap();
     }

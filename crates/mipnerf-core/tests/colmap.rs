@@ -1,5 +1,5 @@
 //! COLMAP scenes: a real reconstruction (tests/data/colmap_lego, made by
-//! scripts/make-colmap-test-data.sh with PyPI's pycolmap) read in both forms, turned into the
+//! scripts/data/make-colmap-test-data.sh with PyPI's pycolmap) read in both forms, turned into the
 //! `poses_bounds.npy` LLFF's imgs2poses gives, aligned with the Blender ground truth, and every
 //! kind of damaged model refused with a clear error.
 #![allow(clippy::unwrap_used, missing_docs)]
@@ -378,7 +378,7 @@ fn the_process_step_names_the_photos_colmap_may_have_got_wrong() {
 const TOL_EXIF_FOCAL: f64 = 1e-12;
 
 /// The focal length the photos' EXIF implies (`data::focal`), on tags Pillow wrote
-/// (tests/data/exif, scripts/make-exif-fixtures.py).
+/// (tests/data/exif, scripts/data/make-exif-fixtures.py).
 #[test]
 fn the_focal_length_a_photos_exif_implies() {
     use data::focal::{FILM_DIAGONAL_MM, FocalSource, exif_focal};

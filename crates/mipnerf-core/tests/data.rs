@@ -332,8 +332,7 @@ fn llff_scene_loads_with_ndc_rays_holdout_and_spiral() {
 /// a mask of the photo's size as it is, a larger one of the same aspect area-resampled, a JPEG's
 /// near-black and near-white levels snapped to 0 and 1, a cut-out's alpha taken over its colours;
 /// composited on white, the targets keep the
-/// object and leave out the rest (before issue 39 an LLFF photo's alpha never reached its
-/// targets).
+/// object and leave out the rest (an LLFF photo's alpha once never reached its targets).
 #[test]
 fn llff_photos_take_their_masks_as_alpha_and_composite_on_white() {
     let dir = tempfile::tempdir().unwrap();
@@ -829,7 +828,7 @@ proptest::proptest! {
         failure_persistence: None,
         ..Default::default()
     })]
-    // Property (issue 29): a numeric field of metadata.json set to an extreme finite value either
+    // Property (a hand-edited file must fail clearly or run): a numeric field of metadata.json set to an extreme finite value either
     // fails to load with an error naming metadata.json, or the scene trains a step and renders a
     // view without panicking.
     #[test]

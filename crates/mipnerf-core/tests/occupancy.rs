@@ -569,7 +569,7 @@ fn an_unbounded_scene_trains_with_a_contracted_grid_that_keeps_its_dense_cells()
 }
 
 /// The reference the grid's density probes are checked against (the way they ran before
-/// issue 38's fern profile): each probe encoded alone ([`Model::encode_point`], or as it is in a
+/// fern's profile showed their cost): each probe encoded alone ([`Model::encode_point`], or as it is in a
 /// contracted grid), then the batch through the first MLP's full forward pass in a fresh cache,
 /// the raw densities activated.
 fn densities_by_full_forward(model: &Model, params: &[f32], probes: &[Gaussian], contracted: bool) -> Vec<f32> {

@@ -1,5 +1,5 @@
 //! Lens undistortion against COLMAP itself: the real pycolmap reconstructions of
-//! tests/data/colmap_workspaces (one per camera model, made by scripts/make-colmap-workspaces.sh
+//! tests/data/colmap_workspaces (one per camera model, made by scripts/data/make-colmap-workspaces.sh
 //! from 40 lego photos passed through a known lens distortion) with pycolmap's own
 //! `img_from_cam` / `cam_from_img` on a grid and COLMAP's undistortion of three photos.
 

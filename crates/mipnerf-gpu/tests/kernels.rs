@@ -704,7 +704,7 @@ fn view_direction_encoding_matches_cpu_reference() {
     let rays = test_rays(9);
     let mut bad = Vec::new();
     // The paper's 4 degrees, and 12 (arguments up to 2^11 = 2048, as NeRF's positions reach):
-    // issue 18, item 9, the argument reduction holds far from [-pi, pi] without fused multiply-adds.
+    // the argument reduction holds far from [-pi, pi] without fused multiply-adds, on every vendor.
     for deg in [4u32, 12] {
         let len = rays.len() * mip::pos_enc_len(0, deg, true);
         let cpu = |rays: &[Ray]| -> Outputs {
@@ -964,7 +964,7 @@ fn matrix_products_split_or_not_match_f64_within_the_summation_bound() {
     assert_none(&bad);
 }
 
-/// Issue 18, item 6: the product kernels walk row and column tiles in grid-stride loops, so a
+/// Hardware limits: the product kernels walk row and column tiles in grid-stride loops, so a
 /// dispatch never exceeds the device's workgroups per dimension. Capped at 3 workgroups per
 /// dimension, each kernel still covers every tile of a product 7 row tiles tall and 3 column
 /// tiles wide; and the hardware kernel runs on lavapipe past the old limit of the 16-row tiles

@@ -1,5 +1,5 @@
 //! What a hardware GPU can do to a run, shown on a real adapter (lavapipe in CI): waits that time
-//! out, batches that do not fit, memory budgets (issue 18, items 7 and 10).
+//! out, batches that do not fit, memory budgets.
 #![allow(clippy::unwrap_used, missing_docs)]
 
 use std::time::Duration;

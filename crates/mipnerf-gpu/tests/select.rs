@@ -36,7 +36,7 @@ fn every_choice_opens_a_backend_that_trains_and_renders() {
     // Auto either runs on a hardware GPU or says why it did not.
     assert_eq!(auto.backend.describe().starts_with("CPU"), auto.fallback.is_some(), "{:?}", auto.fallback);
     // Falling back for want of a hardware GPU, it names every adapter it saw and why it passed
-    // each over (issue 18, item 8).
+    // each over (so a user learns why their GPU was not used).
     let adapters = mipnerf_gpu::list_adapters();
     if std::env::var_os("WGPU_ADAPTER_NAME").is_none() && adapters.iter().all(|a| a.is_software) {
         let why = auto.fallback.as_deref().unwrap();

@@ -193,7 +193,7 @@ fn the_storage_buffer_limit_is_what_the_busiest_kernel_binds() {
     assert_eq!(most as u32, mipnerf_gpu::context::MIN_STORAGE_BUFFERS_PER_STAGE);
 }
 
-/// Issue 18, item 9: numerics that hold on every vendor. WGSL promises no NaN semantics, so no
+/// Numerics that hold on every vendor. WGSL promises no NaN semantics, so no
 /// kernel tests for NaN by comparing a value with itself (`x != x`, `!(x == x)`); and none calls
 /// `fma`, whose fusing a kernel could come to rely on (the sine reductions split their constants
 /// so that the products are exact instead). The check itself is checked on the forms it rejects.

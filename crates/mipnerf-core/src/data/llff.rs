@@ -113,7 +113,7 @@ pub enum Spherify {
     /// The up axis that of the ring the cameras stand on ([`ring_axis`]), the cameras at `radius`
     /// (root-mean-square distance from the centre), and the render path that ring's own circle.
     /// The mean offset tilts with the capture (27 degrees off the ring's axis on a real 360
-    /// capture, issue 39), and every orbit and spiral with it.
+    /// capture, the ethiopian head), and every orbit and spiral with it.
     Ring {
         /// The cameras' root-mean-square distance from the centre.
         radius: f64,

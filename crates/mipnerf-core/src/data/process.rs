@@ -416,7 +416,7 @@ fn process_source(source: Source, output: &Path, opts: &ProcessOptions) -> Resul
             format!(
                 "the largest COLMAP model registers {registered} of {photos} photos, fewer than the minimum of {} \
                  (`ProcessOptions::min_views`): take more photos with more overlap between neighbours, or try COLMAP's mapper \
-                 with looser settings (the README's own-photos section gives them)",
+                 with looser settings (docs/guide/own-photos.md gives them)",
                 opts.min_views
             ),
         ));

@@ -1,6 +1,6 @@
 #!/bin/bash
 # Scratch experiment: /tmp/s56-coarse is 18dae2a with docs/results/fern/tune-coarse-mlp/scratch.patch applied,
-# /tmp/eh-tune the tuning copy of ethiopian_head (scripts/make-tuning-split.py ... 4); both rows at once, one core each.
+# /tmp/eh-tune the tuning copy of ethiopian_head (scripts/data/make-tuning-split.py ... 4); both rows at once, one core each.
 cd /tmp/eh-coarse
 export RAYON_NUM_THREADS=1
 common="--data /tmp/eh-tune --llff-factor 4 --preset fast --unbounded --seed 0 --backend cpu --time-budget 16m --snapshots 5m --checkpoint-every 200 --log-every 50 --quiet"
