@@ -32,3 +32,24 @@ wait_or_stacks() {
     fi
     wait "$pid"
 }
+
+# Writes what the machine is to $OUT/machine.txt (the GPU, the CPU, the adapters `$1/mipnerf`
+# sees) and prints it; where no NVIDIA adapter shows, points the Vulkan loader at the NVIDIA
+# driver's manifest and lists the adapters again.
+machine_info() {
+    local bin=$1
+    {
+        stamp machine
+        nvidia-smi --query-gpu=name,driver_version,memory.total,clocks.max.sm --format=csv 2>&1
+        lscpu | grep -E "Model name|^CPU\(s\)"
+        stamp adapters
+        "$bin/mipnerf" info
+    } >"$OUT/machine.txt" 2>&1
+    if ! grep -qi "nvidia" "$OUT/machine.txt"; then
+        for icd in /usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json /usr/share/vulkan/icd.d/nvidia_icd.json /etc/vulkan/icd.d/nvidia_icd.json; do
+            [ -f "$icd" ] && export VK_DRIVER_FILES=$icd && break
+        done
+        { stamp "adapters again, VK_DRIVER_FILES=${VK_DRIVER_FILES:-none found}"; "$bin/mipnerf" info; } >>"$OUT/machine.txt" 2>&1
+    fi
+    cat "$OUT/machine.txt"
+}

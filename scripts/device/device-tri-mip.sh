@@ -22,20 +22,7 @@ B=/tmp/dev/bin
 cap() { if [ "$limit" = 1 ]; then echo "$1"; else echo 20; fi; }
 [ -e /work/shared/data/llff/fern ] || { mkdir -p /work/shared/data/llff && ln -s "$PWD/.dev/fern" /work/shared/data/llff/fern; }
 
-{
-    stamp machine
-    nvidia-smi --query-gpu=name,driver_version,memory.total,clocks.max.sm --format=csv 2>&1
-    lscpu | grep -E "Model name|^CPU\(s\)"
-    stamp adapters
-    "$B/mipnerf" info
-} >"$OUT/machine.txt" 2>&1
-if ! grep -qi "nvidia" "$OUT/machine.txt"; then
-    for icd in /usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json /usr/share/vulkan/icd.d/nvidia_icd.json /etc/vulkan/icd.d/nvidia_icd.json; do
-        [ -f "$icd" ] && export VK_DRIVER_FILES=$icd && break
-    done
-    { stamp "adapters again, VK_DRIVER_FILES=${VK_DRIVER_FILES:-none found}"; "$B/mipnerf" info; } >>"$OUT/machine.txt" 2>&1
-fi
-cat "$OUT/machine.txt"
+machine_info "$B"
 
 # The field's GPU tests as CI runs them (CI=true: no adapter is a failure), from the package's
 # folder as cargo would; 120 s in all at most.
