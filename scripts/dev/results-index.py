@@ -3,12 +3,34 @@
 results folder (two levels: docs/results/X and docs/results/X/Y that hold a README or a table),
 its title (the first heading of its README.md, else of its TABLE.md), the experiments whose
 `results` is that folder (the command that remakes it: `mipnerf experiment experiments/NAME`),
-and the commits its rows' JSON files name. Run from the repository root:
+the commits its rows' JSON files name, and whether it is current (STATUS names the folders a later
+one replaced, and those that record one change). Run from the repository root:
 `python3 scripts/dev/results-index.py`."""
 import glob, json, os, re
 
 ROOT = "docs/results"
 BEGIN, END = "<!-- BEGIN RESULTS INDEX: scripts/dev/results-index.py -->", "<!-- END RESULTS INDEX -->"
+
+# Folders whose claim a later folder replaced, or that record one change rather than the product:
+# what the index says of them (every other folder is current).
+STATUS = {
+    "tri-mip/first-5m": "superseded by tri-mip/recipe-5m (the recipe's first 5 minutes)",
+    "tri-mip/fern": "superseded by tri-mip/fern-tv (the recipe with the planes' total variation)",
+    "tri-mip/head-tv": "superseded by tri-mip/head-tv-more (the same split, a wider sweep)",
+    "tri-mip/ethiopian-head": "superseded by tri-mip/head-30m (the planes regularised)",
+    "tri-mip/head-tv-10m": "superseded by tri-mip/head-30m",
+    "time-to-quality": "superseded by fast-preset-30m (the fast preset after its sweep)",
+    "time-to-quality/repeat": "superseded by fast-preset-30m",
+    "fern/before": "history: fern before occupancy-guided sampling",
+    "api": "history: the evidence of the API clean-up and the module restructuring",
+    "reliability": "history: the reliability rounds' before and after, and the behaviour fingerprints",
+    "render-levels": "history: one change (the last level rendered alone)",
+    "packing-loops": "history: one change (the bf16 packing loops)",
+    "amx-alignment": "history: one change (cache-line alignment for AMX)",
+    "amx-k-chunks": "history: one change (AMX over long k)",
+    "occupancy-probes": "history: one change (the grid's probes)",
+    "expf": "history: one change (the IPE's exp)",
+}
 
 
 def title(folder):
@@ -58,12 +80,13 @@ def main():
         rel = os.path.relpath(folder, ROOT)
         link = f"[{rel}]({rel}/{page})" if page else f"{rel} (no README)"
         runs = ", ".join(f"`experiments/{e}`" for e in exps.get(os.path.normpath(folder), [])) or ""
-        rows.append(f"| {link} | {head or ''} | {runs} | {', '.join(commits(folder))} |")
+        status = STATUS.get(rel, "current")
+        rows.append(f"| {link} | {head or ''} | {runs} | {', '.join(commits(folder))} | {status} |")
     table = "\n".join(
         [
             BEGIN,
-            "| folder | what it shows (its first heading) | made by | commits of its rows |",
-            "|---|---|---|---|",
+            "| folder | what it shows (its first heading) | made by | commits of its rows | status |",
+            "|---|---|---|---|---|",
             *rows,
             END,
         ]

@@ -341,6 +341,14 @@ fn run_row(
         if now.precision == Some(crate::config::PrecisionArg::Auto) {
             now.precision = saved.precision;
         }
+        // What training resolves from the data where the row leaves it open (the Tri-Mip
+        // planes' box, the occupancy grid's bound): the run records what it took.
+        if now.tri_mip_bound.is_none() {
+            now.tri_mip_bound = saved.tri_mip_bound;
+        }
+        if now.occupancy_bound.is_none() {
+            now.occupancy_bound = saved.occupancy_bound;
+        }
         // The row's JSON is bound to this checkpoint (its SHA-256), and the checkpoint to the data
         // it trained on: a run on other data is never reported as this row's.
         if let (Some(theirs), Some(ours)) = (&saved.data, &now.data)

@@ -1134,6 +1134,27 @@ fn an_experiment_reruns_auto_precision_rows_and_evaluates_on_another_backend() {
     }
 }
 
+/// A finished Tri-Mip row is done on a second run: the planes' box (and the grid's bound) that
+/// training resolved from the data and recorded is not a change of the row's settings.
+#[test]
+fn an_experiment_finds_a_finished_tri_mip_row_done() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_demo_scene(dir.path(), 2);
+    let exp = small_experiment(dir.path(), 3);
+    let row = "label = \"planes\"\n[settings]\nfield = \"tri-mip\"\npreset = \"fast\"\ntri_mip_resolution = 32\n";
+    std::fs::write(exp.join("planes.toml"), row).unwrap();
+    let toml = exp.join("experiment.toml");
+    let text = std::fs::read_to_string(&toml).unwrap().replace("rows = [\"nerf\", \"mipnerf\"]", "rows = [\"planes\"]");
+    std::fs::write(&toml, text).unwrap();
+    let out = dir.path().join("runs");
+    let (e, d, o) = (exp.to_str().unwrap(), data.to_str().unwrap(), out.to_str().unwrap());
+    let args = ["experiment", e, "--data", d, "--out", o, "--no-lpips"];
+    run_ok(&args);
+    let saved = std::fs::read_to_string(out.join("planes/config.toml")).unwrap();
+    assert!(saved.contains("tri_mip_bound"), "training records the planes' box: {saved}");
+    assert!(run_ok(&args).contains("row planes (planes): done"));
+}
+
 /// Whether `--precision auto` must take the AVX-512 BF16 kernel where `vdpbf16ps` measured `rate`
 /// times the f32 FMA's flops: yes a fifth above core's threshold, no a fifth below it, either in
 /// between (the binary measures the rate again, and the machine is noisy).

@@ -168,7 +168,7 @@ fn forward_facing_photos_train_the_planes_over_ndc_and_an_unbounded_scene_over_i
     assert!(text.contains("over the cube [-2.000, 2.000]^3"), "{text}");
     // The recipe's total variation for an unbounded scene, recorded.
     let config = std::fs::read_to_string(out("unbounded").join("config.toml")).unwrap();
-    assert!(config.contains("tri_mip_tv = 0.1"), "{config}");
+    assert!(config.contains("tri_mip_tv = 1.0"), "{config}");
     let text = run_ok(&["eval", "--run", s(&out("unbounded")), "--backend", "cpu"]);
     assert!(text.contains("PSNR"), "{text}");
 }

@@ -257,10 +257,16 @@ pub struct TriMipRecipe {
     /// (`docs/results/tri-mip/fern-tune/`): a few photos all from one side leave the planes'
     /// texels between their rays free to overfit, and the total variation ties them together.
     pub planes_tv_forward_facing: f32,
-    /// The same on an unbounded scene (its planes over the contracted space): on the ethiopian
-    /// head's held-out training photos, 0.1 took 4 minutes from 19.58 dB (off, flat from the
-    /// first minute) to 20.55 (`docs/results/tri-mip/head-tv/`).
+    /// The same on an unbounded scene (its planes over the contracted space), with
+    /// [`resolution_unbounded`](Self::resolution_unbounded): on the ethiopian head's held-out
+    /// training photos, 4 minutes of training gave 19.58 dB without it (flat from the first
+    /// minute), 20.39 with 0.1, 21.26 with 1 and 21.41 with 3 on 256² planes, and 21.67 with 1
+    /// on 128² planes (`docs/results/tri-mip/head-tv-more/`): a room seen from one orbit leaves
+    /// most texels to overfit, and smoother, coarser planes generalise.
     pub planes_tv_unbounded: f32,
+    /// Texels along a side of the planes of an unbounded scene (the contracted space): 128, the
+    /// best of the same sweep with [`planes_tv_unbounded`](Self::planes_tv_unbounded).
+    pub resolution_unbounded: usize,
 }
 
 impl TriMipRecipe {
@@ -271,7 +277,8 @@ impl TriMipRecipe {
         adam: crate::optim::FieldAdam { lr_mult: 10.0, eps: 1e-15 },
         planes_tv: 0.0,
         planes_tv_forward_facing: 0.1,
-        planes_tv_unbounded: 0.1,
+        planes_tv_unbounded: 1.0,
+        resolution_unbounded: 128,
     };
 
     /// Features a texel (Tri-MipRF's 16: one 64-byte cache line).

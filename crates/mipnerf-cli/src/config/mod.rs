@@ -172,7 +172,7 @@ pub struct TrainSettings {
     pub tri_mip_bound: Option<f32>,
     /// Texels along a side of the Tri-Mip planes (a power of two, 16 to 2048), each of 16
     /// features, in levels down to 4 texels a side [default: the field's recipe,
-    /// `TriMipRecipe::RECIPE`; recorded with the field].
+    /// `TriMipRecipe::RECIPE`: 256, 128 in an unbounded scene; recorded with the field].
     pub tri_mip_resolution: Option<usize>,
     /// The MLP after the Tri-Mip planes: `[trunk depth, trunk width, colour depth, colour
     /// width]` [default: the field's recipe; recorded with the field].
@@ -182,7 +182,7 @@ pub struct TrainSettings {
     pub tri_mip_lr_mult: Option<f32>,
     /// Weight of the Tri-Mip planes' total variation in the loss (TensoRF's regulariser, the
     /// mean squared difference of neighbouring texels) [default: the field's recipe: 0.1 for
-    /// forward-facing photos and unbounded scenes, else 0; recorded when not 0].
+    /// forward-facing photos, 1 for unbounded scenes, else 0; recorded when not 0].
     pub tri_mip_tv: Option<f32>,
     /// Training steps in total [default: 2000].
     pub steps: Option<u64>,
@@ -513,7 +513,11 @@ impl TrainSettings {
             tri_mip_bound: self.tri_mip_bound,
             // The field's recipe where the field is Tri-Mip; kept as given otherwise, for `validate`
             // to refuse.
-            tri_mip_resolution: self.tri_mip_resolution.or(tri_mip.then_some(TriMipRecipe::RECIPE.resolution)),
+            tri_mip_resolution: self.tri_mip_resolution.or(tri_mip.then_some(if unbounded {
+                TriMipRecipe::RECIPE.resolution_unbounded
+            } else {
+                TriMipRecipe::RECIPE.resolution
+            })),
             tri_mip_mlp: self.tri_mip_mlp.or(tri_mip.then_some(TriMipRecipe::RECIPE.mlp)),
             tri_mip_lr_mult: self.tri_mip_lr_mult.or(tri_mip.then_some(TriMipRecipe::RECIPE.adam.lr_mult)),
             tri_mip_tv: self
