@@ -275,11 +275,15 @@ impl Nerf {
         Ok(Self { backend, data, fallback, rays })
     }
 
-    /// Takes `steps` training steps (at least one) and reports the last.
+    /// Takes `steps` training steps and reports the last.
     ///
     /// # Errors
-    /// [`Error::NoData`], or the backend's error (the state before the failing step is kept).
+    /// [`Error::Options`] for `steps` of 0 (there would be no step to report), [`Error::NoData`],
+    /// or the backend's error (the state before the failing step is kept).
     pub fn train(&mut self, steps: u64) -> Result<StepReport, Error> {
+        if steps == 0 {
+            return Err(Error::Options("`Nerf::train(0)`: no step to take or report; ask for at least 1".into()));
+        }
         if self.data.is_none() {
             return Err(Error::NoData);
         }

@@ -38,6 +38,10 @@ fn a_nerf_trains_renders_saves_and_loads_as_it_was() {
     assert_eq!(loaded.step(), 4);
     assert_eq!(loaded.render(&novel_camera()).unwrap(), before);
     assert!(matches!(loaded.train(1), Err(Error::NoData)));
+    // No steps asked for is an error, not one step taken.
+    let err = nerf.train(0).unwrap_err();
+    assert!(matches!(err, Error::Options(_)) && err.to_string().contains("train(0)"), "{err}");
+    assert_eq!(nerf.step(), 4, "train(0) took no step");
     // With data: it trains on from step 4, as the original does.
     let mut resumed = Nerf::load(&path, cpu_tiny(), Some(demo::dataset(3, 12).unwrap())).unwrap();
     assert_eq!(resumed.train(1).unwrap().stats, nerf.train(1).unwrap().stats);
