@@ -259,8 +259,8 @@ impl FusedBuffers {
     /// Device bytes these buffers take.
     #[must_use]
     pub fn bytes(&self) -> u64 {
-        let own = [&self.acts, &self.d_acts, &self.table, &self.weights[0], &self.weights[1]];
-        own.iter().map(|b| b.size()).sum::<u64>() + 12
+        let own = [&self.acts, &self.d_acts, &self.table];
+        own.into_iter().chain(&self.weights).chain(&self.unused).map(wgpu::Buffer::size).sum()
     }
 }
 
