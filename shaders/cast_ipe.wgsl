@@ -13,6 +13,9 @@
 // covariance, t_var u^2 + r_var |J_i x d|^2 / |d|^2 with u = J d, J the contraction's Jacobian at
 // the mean (formed as `contract_jacobian` forms it).
 //
+// In probe mode (`probes` 1) the Gaussians are given, one vec4 a sample in `rays`: an occupancy
+// grid's density probes (`occupancy_update.wgsl`), already in the encoding's space.
+//
 // Output layout, per sample: [sin part | cos part], index (deg - min_deg) * 3 + axis inside a part,
 // samples of a ray contiguous: out[(ray * n_samples + sample) * ipe_len + feature]. NeRF's
 // encoding (`encoding` 2) puts the mean's 3 coordinates first.
@@ -32,6 +35,12 @@ struct Params {
     encoding: u32,
     // 1: an unbounded scene (the scene contraction).
     unbounded: u32,
+    // 1: `rays` holds one Gaussian per sample, (mean.xyz, variance on each axis), in the space
+    // the encoding reads (an occupancy grid's density probes), and `t_vals` is not read.
+    probes: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -98,12 +107,13 @@ fn contract_jacobian(x: vec3<f32>) -> mat3x3<f32> {
     return mat3x3<f32>(vec3<f32>(diag.x, xy, xz), vec3<f32>(xy, diag.y, yz), vec3<f32>(xz, yz, diag.z));
 }
 
-@compute @workgroup_size(WORKGROUP)
-fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let idx = gid.y * (params.groups_x * WORKGROUP) + gid.x;
-    if (idx >= params.n_rays * params.n_samples) {
-        return;
-    }
+struct Gaussian {
+    mean: vec3<f32>,
+    cov: vec3<f32>,
+}
+
+// Sample `idx`'s Gaussian: its frustum's, through the contraction in an unbounded scene.
+fn frustum_gaussian(idx: u32) -> Gaussian {
     let ray = idx / params.n_samples;
     let s = idx % params.n_samples;
     let o_r = rays[2u * ray];
@@ -135,6 +145,24 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         let r = sqrt(r2);
         mean = mean * ((2.0 - 1.0 / r) / r);
     }
+    return Gaussian(mean, cov);
+}
+
+@compute @workgroup_size(WORKGROUP)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let idx = gid.y * (params.groups_x * WORKGROUP) + gid.x;
+    if (idx >= params.n_rays * params.n_samples) {
+        return;
+    }
+    var g: Gaussian;
+    if (params.probes != 0u) {
+        let probe = rays[idx];
+        g = Gaussian(probe.xyz, vec3<f32>(probe.w));
+    } else {
+        g = frustum_gaussian(idx);
+    }
+    let mean = g.mean;
+    var cov = g.cov;
     if (params.encoding != ENCODING_INTEGRATED) {
         cov = vec3<f32>(0.0);
     }

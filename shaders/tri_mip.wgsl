@@ -11,7 +11,9 @@
 // - `encode_planes`: a sample's encoding, one invocation per (sample, plane): the frustum's
 //   moments (`frustum.wgsl`), its mean and footprint radius in the planes' box (through the
 //   scene contraction for an unbounded scene), the level `log2(2 radius resolution)`, and the
-//   24 taps (bilinear at the two levels around it) summed in the CPU's order.
+//   24 taps (bilinear at the two levels around it) summed in the CPU's order. In probe mode
+//   (`probes` 1) the samples are given Gaussians (an occupancy grid's density probes,
+//   `occupancy_update.wgsl`) read at their isotropic standard deviation, as `Model::encode_probe`.
 // - `scatter_planes`: the encoding's adjoint, one invocation per (sample, plane): the same taps
 //   recomputed, each texel's gradient added atomically: one `atomicAdd` where the device has
 //   float atomics, else a compare-exchange loop on the f32's bits (WGSL's core has no float
@@ -45,7 +47,9 @@ struct Params {
     tv_scale: f32,
     // The levels `build_levels` makes (at most PYRAMID_GROUP_LEVELS).
     group_levels: u32,
-    pad0: u32,
+    // 1: `rays` holds one Gaussian per sample, (mean.xyz, variance on each axis), in the planes'
+    // space (an occupancy grid's density probes), and `t_vals` is not read.
+    probes: u32,
     pad1: u32,
     pad2: u32,
 }
@@ -88,6 +92,32 @@ fn level_base(level: u32) -> u32 {
 
 // The point (in the planes' box, [0, 1]^3) and the level a sample reads: Model::encode_samples.
 fn sample_point(sample: u32) -> vec4<f32> {
+    let side = 2.0 * params.half_side;
+    var x: vec3<f32>;
+    var radius: f32;
+    if (params.probes != 0u) {
+        // Model::encode_probe: the isotropic standard deviation, sqrt of the mean variance.
+        let g = rays[sample];
+        x = g.xyz;
+        radius = 2.0 * sqrt(max(((g.w + g.w) + g.w) / 3.0, 0.0)) / side;
+    } else {
+        let xr = frustum_point(sample);
+        x = xr.xyz;
+        radius = xr.w;
+    }
+    let at = (x + vec3<f32>(params.half_side)) / side;
+    var level = 0.0;
+    if (params.pre_filtered != 0u) {
+        // tri_mip::level_of (a point's log2(0) = -inf reads level 0; WGSL promises nothing of a
+        // NaN radius, which only NaN rays give).
+        level = clamp(log2(2.0 * radius * f32(params.resolution)), 0.0, f32(params.levels - 1u));
+    }
+    return vec4<f32>(at, level);
+}
+
+// A frustum's mean (through the contraction in an unbounded scene) and its footprint's radius
+// over the box's side.
+fn frustum_point(sample: u32) -> vec4<f32> {
     let ray = sample / params.n_samples;
     let j = sample % params.n_samples;
     let o_r = rays[2u * ray];
@@ -109,14 +139,7 @@ fn sample_point(sample: u32) -> vec4<f32> {
             x = x * across;
         }
     }
-    let at = (x + vec3<f32>(params.half_side)) / side;
-    var level = 0.0;
-    if (params.pre_filtered != 0u) {
-        // tri_mip::level_of (a point's log2(0) = -inf reads level 0; WGSL promises nothing of a
-        // NaN radius, which only NaN rays give).
-        level = clamp(log2(2.0 * radius * f32(params.resolution)), 0.0, f32(params.levels - 1u));
-    }
-    return vec4<f32>(at, level);
+    return vec4<f32>(x, radius);
 }
 
 // One tap: the texel's level, the offset of its first feature in that level, its weight.

@@ -3,8 +3,9 @@
 # toolchain and reaches no network), into the ignored folders `.dev` and `.gl`:
 #
 #   .gl/*.deb              the Vulkan loader (Debian's libvulkan1, `apt-get download`)
-#   .dev/tri-mip.tar.xz    stripped release builds: `mipnerf` and the mipnerf-gpu test binaries
-#                          that prove the field (tri_mip, backend, kernels, shaders), by target name
+#   .dev/tri-mip.tar.xz    stripped release builds: `mipnerf`, the mipnerf-gpu test binaries that
+#                          prove the field (tri_mip, backend, kernels, shaders, occupancy_update)
+#                          and the grid_update bench, by target name
 #   .dev/fern/             ../shared/data/llff/fern's images_8 and poses_bounds.npy
 #
 # Then: the device tool's `run` with carry [".dev", ".gl"] and `bash scripts/device/device-tri-mip.sh`.
@@ -20,8 +21,17 @@ import json, shutil, sys
 for line in sys.stdin:
     m = json.loads(line)
     if m.get("reason") == "compiler-artifact" and m.get("executable") and m["target"]["kind"] == ["test"]:
-        if m["target"]["name"] in ("tri_mip", "backend", "kernels", "shaders"):
+        if m["target"]["name"] in ("tri_mip", "backend", "kernels", "shaders", "occupancy_update"):
             shutil.copy(m["executable"], ".dev/bin/" + m["target"]["name"])
+'
+# The grid update's bench (the host's update against the device's).
+cargo bench -p mipnerf-gpu --bench grid_update --no-run --message-format=json 2>/dev/null |
+    python3 -c '
+import json, shutil, sys
+for line in sys.stdin:
+    m = json.loads(line)
+    if m.get("reason") == "compiler-artifact" and m.get("executable") and m["target"]["kind"] == ["bench"]:
+        shutil.copy(m["executable"], ".dev/bin/" + m["target"]["name"])
 '
 strip .dev/bin/*
 tar -C .dev -cJf .dev/tri-mip.tar.xz bin

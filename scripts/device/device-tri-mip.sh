@@ -2,7 +2,7 @@
 # One lease of a GPU device machine for the Tri-Mip field's GPU backend, as one prepared script
 # (what scripts/device/device-tri-mip-prepare.sh made travels in `.dev` and `.gl`): the field's GPU tests
 # on the hardware adapter, `mipnerf bench` of both fields there at 1,024 and 4,096 rays a step,
-# and fern's curve towards NeRF's 25.17 dB with `--backend gpu --field tri-mip`
+# the occupancy grid's update on the host against the device's, and fern's curve towards NeRF's 25.17 dB with `--backend gpu --field tri-mip`
 # (experiments/tri-mip-fern-gpu, its 4,096-ray row: 5 minutes, copies each minute). About 8
 # minutes; results go to $OUT.
 #
@@ -27,7 +27,7 @@ machine_info "$B"
 # The field's GPU tests as CI runs them (CI=true: no adapter is a failure), from the package's
 # folder as cargo would; 120 s in all at most.
 {
-    for t in shaders tri_mip kernels backend; do
+    for t in shaders tri_mip kernels backend occupancy_update; do
         stamp "test $t"
         (cd crates/mipnerf-gpu && CI=true timeout "$(cap 40)" "$B/$t" 2>&1)
         echo "exit status of $t: $?"
@@ -43,6 +43,12 @@ grep -E "^== |test result|exit status|FAILED|panicked" "$OUT/tests.log"
     done
 } >"$OUT/bench.md" 2>&1
 cat "$OUT/bench.md"
+
+# The occupancy grid's update: the host's (parameters read back, the CPU's field) against the
+# device's (docs/results/tri-mip/gpu/grid-update-lavapipe.txt is lavapipe's).
+stamp "grid update"
+(cd crates/mipnerf-gpu && timeout "$(cap 60)" "$B/grid_update" --bench) >"$OUT/grid-update.md" 2>&1
+cat "$OUT/grid-update.md"
 
 stamp "fern"
 timeout "$(cap 400)" "$B/mipnerf" experiment experiments/tri-mip-fern-gpu --only tri-mip-b4096 \

@@ -242,11 +242,9 @@ impl OccupancyGrid {
     pub fn packed_layers(&self) -> Vec<u32> {
         let n = self.occupied.len();
         let mut words = vec![0u32; ((MAX_DILATION + 1) * n).div_ceil(32)];
-        for (k, layer) in std::iter::once(&self.occupied).chain(&self.dilated).enumerate() {
-            for (i, _) in layer.iter().enumerate().filter(|(_, o)| **o) {
-                let j = k * n + i;
-                words[j / 32] |= 1 << (j % 32);
-            }
+        let bits = std::iter::once(&self.occupied).chain(&self.dilated).flat_map(|layer| layer.iter());
+        for (j, &b) in bits.enumerate() {
+            words[j / 32] |= u32::from(b) << (j % 32);
         }
         words
     }
@@ -397,6 +395,45 @@ impl OccupancyGrid {
             let alpha = if alpha.is_finite() { alpha } else { 1.0 };
             self.opacity[i] = (self.opacity[i] * decay).max(alpha);
         }
+        self.end_update(step);
+    }
+
+    /// Ends an update whose opacities were computed elsewhere: the GPU backend's
+    /// (`shaders/occupancy_update.wgsl`), which keeps `max(decay · old, new)` for each candidate
+    /// cell as [`update`](Self::update) does, from the same random points. Then as
+    /// [`update`](Self::update): the warm-up ends once `step >= warmup_steps`, and the occupied
+    /// cells follow from the opacities.
+    ///
+    /// # Errors
+    /// Opacities of another length, a carved cell that is not carved in `opacity` (or the
+    /// reverse), or a candidate's opacity that is negative or not a number.
+    pub fn update_with_opacity(&mut self, opacity: Vec<f32>, step: u64) -> Result<(), OccupancyError> {
+        if opacity.len() != self.opacity.len() {
+            return Err(OccupancyError(format!(
+                "{} opacities for a grid of {} cells",
+                opacity.len(),
+                self.opacity.len()
+            )));
+        }
+        let bad = self
+            .opacity
+            .iter()
+            .zip(&opacity)
+            .position(|(&old, &new)| if old == CARVED { new != CARVED } else { new.is_nan() || new < 0.0 });
+        if let Some(i) = bad {
+            return Err(OccupancyError(format!(
+                "cell {i}: opacity {} after an update of {} (a carved cell stays carved, a candidate's is at least 0)",
+                opacity[i], self.opacity[i]
+            )));
+        }
+        self.opacity = opacity;
+        self.end_update(step);
+        Ok(())
+    }
+
+    /// An update's end: the warm-up over once `step >= warmup_steps`, the occupied cells from
+    /// the opacities.
+    fn end_update(&mut self, step: u64) {
         if step >= self.config.warmup_steps {
             self.warmed_up = true;
         }
@@ -607,14 +644,31 @@ impl OccupancyGrid {
 }
 
 /// `cells` (`r³`, x fastest) dilated by one cell along each axis: a 3x3x3 maximum, as three
-/// passes of a 3-tap maximum.
+/// passes of a 3-tap maximum, each made of whole slices shifted by one cell (x) or one row or
+/// plane of cells (y, z), which the compiler vectorises.
 fn dilate(cells: &[bool], r: usize) -> Vec<bool> {
+    let n = cells.len();
     let mut cur = cells.to_vec();
-    for stride in [1, r, r * r] {
-        let src = cur.clone();
-        for (i, c) in cur.iter_mut().enumerate() {
-            let pos = (i / stride) % r;
-            *c = src[i] || (pos > 0 && src[i - stride]) || (pos + 1 < r && src[i + stride]);
+    let mut src = cells.to_vec();
+    let or_into = |out: &mut [bool], from: &[bool]| out.iter_mut().zip(from).for_each(|(o, &v)| *o |= v);
+    // Along x, within each line of `r` cells.
+    for (c, s) in cur.chunks_exact_mut(r).zip(src.chunks_exact(r)) {
+        or_into(&mut c[1..], &s[..r - 1]);
+        or_into(&mut c[..r - 1], &s[1..]);
+    }
+    // Along y and z: each row (plane) of `stride` cells takes its neighbours' whole.
+    for stride in [r, r * r] {
+        src.copy_from_slice(&cur);
+        for block in (0..n).step_by(stride * r) {
+            for pos in 0..r {
+                let row = block + pos * stride;
+                if pos > 0 {
+                    or_into(&mut cur[row..row + stride], &src[row - stride..row]);
+                }
+                if pos + 1 < r {
+                    or_into(&mut cur[row..row + stride], &src[row + stride..row + 2 * stride]);
+                }
+            }
         }
     }
     cur
@@ -724,4 +778,34 @@ pub fn ndc_bound(ds: &Dataset) -> Option<f32> {
     }
     let b = b * (1.0 + NDC_BOUND_MARGIN);
     (b.is_finite() && b > 0.0).then_some(b)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::dilate;
+
+    /// The line-by-line dilation is the 3x3x3 maximum, cell by cell, on a sparse random grid
+    /// of an odd size (lines of every axis end inside it).
+    #[test]
+    fn dilation_is_the_3x3x3_maximum() {
+        let r = 7;
+        let mut state = 99u32;
+        let cells: Vec<bool> = (0..r * r * r)
+            .map(|_| {
+                state = crate::rng::pcg_hash(state);
+                state.is_multiple_of(13)
+            })
+            .collect();
+        let at = |x: i64, y: i64, z: i64| {
+            let inside = |c: i64| (0..r as i64).contains(&c);
+            inside(x) && inside(y) && inside(z) && cells[((z * r as i64 + y) * r as i64 + x) as usize]
+        };
+        let mut expected = vec![false; cells.len()];
+        for (i, e) in expected.iter_mut().enumerate() {
+            let (x, y, z) = ((i % r) as i64, ((i / r) % r) as i64, (i / (r * r)) as i64);
+            *e = (-1..=1).any(|dz| (-1..=1).any(|dy| (-1..=1).any(|dx| at(x + dx, y + dy, z + dz))));
+        }
+        assert!(cells.iter().any(|&c| c) && expected.iter().any(|&e| !e), "a grid the test can tell apart");
+        assert_eq!(dilate(&cells, r), expected);
+    }
 }

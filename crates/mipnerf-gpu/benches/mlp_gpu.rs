@@ -5,17 +5,15 @@
 //! the shaders, and prints GFLOP/s of the matrix products. Options: `--samples N`, `--reps R`.
 #![allow(missing_docs, clippy::unwrap_used)]
 
+mod common;
+use common::arg;
+
 use std::time::Instant;
 
 use mipnerf_core::mlp::{MlpConfig, MlpShape};
+use mipnerf_gpu::GpuContext;
 use mipnerf_gpu::kernels::{DispatchCache, Recorder};
 use mipnerf_gpu::mlp::{GpuMlp, MlpBuffers};
-use mipnerf_gpu::{AdapterChoice, GpuContext};
-
-fn arg(name: &str, default: usize) -> usize {
-    let args: Vec<String> = std::env::args().collect();
-    args.iter().position(|a| a == name).and_then(|i| args.get(i + 1)).and_then(|v| v.parse().ok()).unwrap_or(default)
-}
 
 fn time(ctx: &GpuContext, reps: usize, mut record: impl FnMut(&mut Recorder<'_>)) -> f64 {
     let mut cache = DispatchCache::default();
@@ -35,15 +33,8 @@ fn time(ctx: &GpuContext, reps: usize, mut record: impl FnMut(&mut Recorder<'_>)
 }
 
 fn main() {
-    let ctx = match GpuContext::new(AdapterChoice::Any) {
-        Ok(c) => c,
-        Err(e) => {
-            println!("no GPU adapter, nothing to measure: {e}");
-            return;
-        }
-    };
-    // Without --bench (under `cargo test --all-targets`) only prove that it runs, at a small size.
-    let full = std::env::args().any(|a| a == "--bench");
+    let Some(ctx) = common::context() else { return };
+    let full = common::full();
     let samples = arg("--samples", if full { 8192 } else { 256 });
     let reps = arg("--reps", if full { 3 } else { 1 });
     println!(

@@ -19,6 +19,7 @@ pub use crate::kernels::batch::RayBatch;
 use crate::kernels::cast_ipe::{CastIpeKernel, CastIpeParams};
 use crate::kernels::compact::{Compaction, ExpandKernel, ExpandParams, GatherKernel, kept_rays};
 use crate::kernels::occupancy::{DeviceGrid, OccupancyKernel, OccupancyParams};
+use crate::kernels::occupancy_update::{OccupancyUpdateKernel, OccupancyUpdateParams, UpdateBuffers};
 use crate::kernels::render::{RenderBuffers, RenderKernel, RenderParams, background_code};
 use crate::kernels::sample::{SampleKernels, SampleParams};
 use crate::kernels::tri_mip::{FieldBuffers, PlaneField, Samples, TriMipKernel, total_variation_loss};
@@ -181,6 +182,7 @@ impl ModelBuffers {
 pub struct GpuModel {
     sample: SampleKernels,
     occupancy: OccupancyKernel,
+    occupancy_update: OccupancyUpdateKernel,
     cast: CastIpeKernel,
     tri_mip: TriMipKernel,
     view: ViewEncKernel,
@@ -216,6 +218,7 @@ impl GpuModel {
         Ok(Self {
             sample: SampleKernels::with_variant(ctx, s)?,
             occupancy: OccupancyKernel::new(ctx)?,
+            occupancy_update: OccupancyUpdateKernel::new(ctx)?,
             cast: CastIpeKernel::new(ctx)?,
             tri_mip: TriMipKernel::new(ctx)?,
             view: ViewEncKernel::new(ctx)?,
@@ -324,7 +327,7 @@ impl GpuModel {
             } else {
                 self.sample.resample(rec, sp, &t[level - 1], &work.weights, &batch.ids, &t[level])?;
             }
-            let samples = Samples { rays: &batch.rays, t_vals: &t[level], n_rays: nr, n_samples: s };
+            let samples = Samples { rays: &batch.rays, t_vals: &t[level], n_rays: nr, n_samples: s, probes: false };
             self.encode_samples(rec, model, params, samples, work)?;
             // One MLP for all levels, or one per level (the same shape at its own offset).
             let shape = &model.mlps()[if c.separate_mlps { level } else { 0 }];
@@ -384,6 +387,8 @@ impl GpuModel {
                     groups_x: 0,
                     encoding: c.point_encoding as u32,
                     unbounded: u32::from(c.unbounded),
+                    probes: u32::from(samples.probes),
+                    ..CastIpeParams::default()
                 };
                 self.cast.encode(rec, cp, samples.rays, samples.t_vals, x)
             }
@@ -429,6 +434,75 @@ impl GpuModel {
             rec.encoder().clear_buffer(&bufs.grad_pyramid, 0, None);
         }
         self.tri_mip.build_pyramid(rec, &f, params, bufs)
+    }
+
+    /// Records an update of `grid`'s opacities from the model's densities at `params`: the CPU's
+    /// [`OccupancyGrid::update`] up to its end, on the device. For each chunk of cells (as many
+    /// as `work` holds samples): every cell's probe placed (`occupancy_update.wgsl`), encoded by
+    /// the field in its probe mode (`cast_ipe.wgsl` or `tri_mip.wgsl`), the first MLP's forward
+    /// pass, and the cell's opacity kept. The Tri-Mip pyramid must have been built from `params`
+    /// ([`prepare_field`](Self::prepare_field)); `work`'s active rays are left as they were.
+    /// Which cells are occupied follows on the host from the opacities read back
+    /// ([`OccupancyGrid::update_with_opacity`]), where the ray compaction needs them.
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for a grid over the contracted space of a bounded model or the
+    /// reverse (the probes are encoded as they are, in the field's space), and a grid too large
+    /// for one dispatch a chunk.
+    pub fn update_grid(
+        &self,
+        rec: &mut Recorder<'_>,
+        model: &Model,
+        params: &wgpu::Buffer,
+        work: &mut ModelBuffers,
+        grid: &mut DeviceGrid,
+        (seed, step): (u32, u32),
+    ) -> Result<(), GpuError> {
+        let c = model.config();
+        if c.unbounded != grid.contracted() {
+            return Err(GpuError::InvalidInput(format!(
+                "an occupancy grid {} the contracted space for {} scene: its probes would be read in another space",
+                if grid.contracted() { "over" } else { "outside" },
+                if c.unbounded { "an unbounded" } else { "a bounded" }
+            )));
+        }
+        let s = c.num_samples;
+        let chunk = work.capacity() * s;
+        grid.reserve_probes(rec.context(), chunk);
+        let grid = &*grid;
+        let probes = grid.probes().ok_or_else(|| GpuError::InvalidInput("no probe buffer".into()))?;
+        let r = grid.resolution();
+        let n_cells = r * r * r;
+        let active = work.n_rays();
+        let cell_size = 2.0 * grid.bound() / r as f32;
+        for first in (0..n_cells).step_by(chunk) {
+            let count = chunk.min(n_cells - first);
+            let rays = count.div_ceil(s);
+            work.set_active(rays)?;
+            let (raw_density, raw_stride) = work.mlp.raw_density();
+            let up = OccupancyUpdateParams {
+                first_cell: first as u32,
+                n_cells: count as u32,
+                resolution: r as u32,
+                seed,
+                step,
+                contracted: u32::from(grid.contracted()),
+                density_activation: c.density_activation as u32,
+                bound: grid.bound(),
+                cell_size,
+                decay: grid.decay(),
+                density_bias: c.density_bias,
+                raw_stride: raw_stride as u32,
+                ..OccupancyUpdateParams::default()
+            };
+            let bufs = UpdateBuffers { probes, raw_density, grid };
+            self.occupancy_update.place_probes(rec, up, bufs)?;
+            let samples = Samples { rays: probes, t_vals: &work.t_vals[0], n_rays: rays, n_samples: s, probes: true };
+            self.encode_samples(rec, model, params, samples, work)?;
+            self.mlp.forward(rec, &model.mlps()[0], params, &work.mlp);
+            self.occupancy_update.update_opacity(rec, up, bufs)?;
+        }
+        work.set_active(active)
     }
 
     /// After every chunk of a training step: the pyramid's gradient pushed down into the

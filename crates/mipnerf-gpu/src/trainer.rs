@@ -11,8 +11,9 @@
 //! step is the same whatever the device's limits.
 //!
 //! With an occupancy grid (the fast preset), the coarse edges come from `occupancy.wgsl` on the
-//! grid's copy on the device; the grid itself is updated on the host every few steps from
-//! parameters read back then (the CPU backend's code, so both backends keep the same grid). The
+//! grid's copy on the device; every few steps the grid is updated on the device as the CPU
+//! backend updates it (`occupancy_update.wgsl`: the same probes through the same field), and its
+//! opacities read back, from which the host finds the occupied cells (the CPU's code). The
 //! rays that meet no occupied cell are found on the host (the CPU's traversal of the CPU's rays
 //! for the same pixels: the same rays the CPU backend skips) and compacted away on the device
 //! (`kernels::compact`): they render the background without sampling, MLP or rendering
@@ -100,10 +101,12 @@ pub struct GpuBackend {
     render_cache: DispatchCache,
     /// The bind groups of an image's field preparation (the Tri-Mip pyramid), reused.
     field_cache: DispatchCache,
+    /// The bind groups of the occupancy grid's update, reused.
+    grid_cache: DispatchCache,
     /// The camera of the image being rendered, rewritten in place for each image.
     render_cams: Option<DeviceImages>,
-    /// The occupancy grid guiding sampling (kept and updated on the host, as the CPU backend
-    /// does, from parameters read back when an update is due) and its copy on the device.
+    /// The occupancy grid guiding sampling, on the host (for the ray compaction and checkpoints)
+    /// and on the device, where its updates are made (`occupancy_update.wgsl`) and read back.
     occupancy: Option<(OccupancyGrid, DeviceGrid)>,
 }
 
@@ -156,6 +159,7 @@ impl GpuBackend {
             train_cache: DispatchCache::default(),
             render_cache: DispatchCache::default(),
             field_cache: DispatchCache::default(),
+            grid_cache: DispatchCache::default(),
             render_cams: None,
             occupancy,
         })
@@ -269,12 +273,25 @@ impl GpuBackend {
     fn run_step(&mut self, report: bool) -> Result<Option<StepReport>, GpuError> {
         let data = self.train.as_mut().ok_or_else(|| GpuError::InvalidInput("no training data".into()))?;
         // The grid's update when one is due, before the step, from the current parameters (the
-        // CPU trainer's order): the same host code, on parameters read back from the device.
+        // CPU trainer's order): the densities and opacities on the device, the opacities read
+        // back for the occupied cells and their dilations, which the host's ray compaction reads.
         if let Some((grid, on_device)) = &mut self.occupancy
             && grid.updates_at(self.step)
         {
-            let params = self.ctx.read_f32(&self.state.params, self.model.num_params())?;
-            grid.update(&self.model.density_field(&params), self.seed, self.step);
+            let (model, params) = (&self.model, &self.state.params);
+            let mut rec = Recorder::with_cache(&self.ctx, "occupancy update", std::mem::take(&mut self.grid_cache));
+            self.kernels.prepare_field(&mut rec, model, params, &data.work, false)?;
+            self.kernels.update_grid(
+                &mut rec,
+                model,
+                params,
+                &mut data.work,
+                on_device,
+                (self.seed, self.step as u32),
+            )?;
+            self.grid_cache = rec.submit();
+            let opacity = self.ctx.read_f32(on_device.opacity(), grid.opacity.len())?;
+            grid.update_with_opacity(opacity, self.step).map_err(|e| GpuError::InvalidInput(e.to_string()))?;
             on_device.update(&self.ctx, grid)?;
             self.in_flight = 0;
         }

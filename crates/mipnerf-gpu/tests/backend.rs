@@ -790,10 +790,16 @@ fn guided_training_follows_the_cpu(ctx: mipnerf_gpu::GpuContext, chunk: Option<u
 /// bound a small field's step on hardware (`docs/results/tri-mip/gpu/`).
 const MAX_TRI_MIP_STEP_DISPATCHES: u64 = 25;
 
+/// The dispatches a grid update adds to its step: the pyramid (2) once, then for each chunk of
+/// cells the probes, the planes' taps, the fused MLP and the opacities (4).
+const GRID_UPDATE_DISPATCHES: (u64, u64) = (2, 4);
+
 /// A training step of the Tri-Mip field's recipe (256² planes in 7 levels, the [2, 64, 1, 64]
 /// MLP, coarse and fine levels of the fast preset, the planes' total variation on), with and
 /// without an occupancy grid guiding the samples: at most [`MAX_TRI_MIP_STEP_DISPATCHES`]
-/// dispatches, one submission and nothing read back unless the step reports its losses.
+/// dispatches, one submission and nothing read back unless the step reports its losses. A step
+/// that updates the grid (every 16th) adds the update's dispatches ([`GRID_UPDATE_DISPATCHES`])
+/// and reads back the cells' opacities alone (4 bytes a cell, not the parameters).
 #[test]
 fn a_tri_mip_training_step_makes_few_dispatches_and_reads_nothing_back() {
     use mipnerf_core::occupancy::{OccupancyConfig, OccupancyGrid, auto_bound};
@@ -820,9 +826,10 @@ fn a_tri_mip_training_step_makes_few_dispatches_and_reads_nothing_back() {
         // Steps that do not report: the most dispatches any of them makes (guided, a step
         // whose rays all meet occupied cells runs them all; one where some miss gathers the
         // others first and puts the outputs back after).
-        // A step that updates the grid reads the parameters back first (the update runs on
-        // the host, as the CPU backend's): steps 0, 16 and 32 of a default grid.
-        let mut most = 0;
+        // A step that updates the grid (steps 0, 16 and 32 of a default grid) submits the
+        // update first and reads back the cells' opacities, from which the host finds the
+        // occupied cells for its ray compaction.
+        let (mut most, mut most_updating) = (0, 0);
         for _ in 0..33 {
             let k = gpu.step();
             let before = gpu.work_counters().unwrap();
@@ -833,17 +840,28 @@ fn a_tri_mip_training_step_makes_few_dispatches_and_reads_nothing_back() {
                 lines.push(format!("guided {guided}, step {k}: {step:?}"));
             }
             if updates {
-                assert_eq!(step.bytes_read_back, 4 * model.num_params() as u64, "step {k}: the parameters, once");
+                let cells = grid_updates.as_ref().map_or(0, |g| g.opacity.len() as u64);
+                // Submitted: the update, the copy of the opacities to be read, the step.
+                assert_eq!((step.submits, step.bytes_read_back), (3, 4 * cells), "step {k}: the opacities, once");
+                most_updating = most_updating.max(step.dispatches);
             } else {
                 assert_eq!((step.submits, step.bytes_read_back), (1, 0), "guided {guided}, step {k}: {step:?}");
+                most = most.max(step.dispatches);
             }
-            most = most.max(step.dispatches);
         }
         assert!(
             most <= MAX_TRI_MIP_STEP_DISPATCHES,
             "guided {guided}: {most} dispatches a step, at most {MAX_TRI_MIP_STEP_DISPATCHES}"
         );
         assert!(most >= 10, "guided {guided}: the count counts ({most} dispatches)");
+        // The update: the pyramid, then per chunk of cells (as many as the batch has samples)
+        // the probes, their encoding, the MLP and the opacities.
+        let chunks = 32usize.pow(3).div_ceil(64 * model.config().num_samples) as u64;
+        let update = GRID_UPDATE_DISPATCHES.0 + GRID_UPDATE_DISPATCHES.1 * chunks;
+        assert!(
+            !guided || most_updating <= most + update,
+            "guided {guided}: {most_updating} dispatches on a step that updates the grid ({chunks} chunks of cells)"
+        );
         // A reporting step reads back its losses: the counters see reads.
         let before = gpu.work_counters().unwrap();
         assert!(gpu.train_step(true).unwrap().is_some());

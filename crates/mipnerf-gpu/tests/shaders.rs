@@ -16,6 +16,7 @@ use mipnerf_gpu::kernels::{
     matmul::MatmulParams,
     mlp_aux::AuxParams,
     occupancy::OccupancyParams,
+    occupancy_update::OccupancyUpdateParams,
     prelude,
     render::RenderParams,
     sample::SampleParams,
@@ -162,6 +163,7 @@ fn uniform_structs_match_wgsl_member_by_member() {
     check::<AdamParams>("adam.wgsl", &mut mismatches);
     check::<SampleParams>("sample.wgsl", &mut mismatches);
     check::<OccupancyParams>("occupancy.wgsl", &mut mismatches);
+    check::<OccupancyUpdateParams>("occupancy_update.wgsl", &mut mismatches);
     check::<ViewEncParams>("view_enc.wgsl", &mut mismatches);
     check::<BatchParams>("batch.wgsl", &mut mismatches);
     check::<GatherParams>("gather.wgsl", &mut mismatches);

@@ -8,7 +8,7 @@ use crate::kernels::Recorder;
 use crate::kernels::{WORKGROUP, dispatch_grid};
 use crate::{GpuContext, GpuError};
 
-/// The uniform block of `cast_ipe.wgsl` (`struct Params`), 32 bytes.
+/// The uniform block of `cast_ipe.wgsl` (`struct Params`), 48 bytes.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct CastIpeParams {
@@ -30,6 +30,15 @@ pub struct CastIpeParams {
     /// 1: an unbounded scene, the Gaussians carried through the scene contraction
     /// ([`mipnerf_core::contract::contract_frustum`]).
     pub unbounded: u32,
+    /// 1: the rays buffer holds one Gaussian per sample, (mean, variance on each axis), in the
+    /// encoding's space (an occupancy grid's density probes); the edges are not read.
+    pub probes: u32,
+    /// Padding to 16 bytes.
+    pub pad0: u32,
+    /// Padding.
+    pub pad1: u32,
+    /// Padding.
+    pub pad2: u32,
 }
 
 /// The compiled `cast_ipe.wgsl` pipeline and its bind-group layout.
@@ -111,6 +120,7 @@ impl CastIpeKernel {
             groups_x: gx,
             encoding: 0,
             unbounded: u32::from(unbounded),
+            ..CastIpeParams::default()
         };
         let packed = super::packed_rays(rays);
         let out_len = n_items as usize * ipe_len(min_deg, max_deg);
@@ -127,5 +137,5 @@ impl CastIpeKernel {
 super::wgsl_struct!(
     CastIpeParams,
     "Params",
-    [n_rays, n_samples, min_deg, max_deg, ray_shape, groups_x, encoding, unbounded]
+    [n_rays, n_samples, min_deg, max_deg, ray_shape, groups_x, encoding, unbounded, probes, pad0, pad1, pad2]
 );

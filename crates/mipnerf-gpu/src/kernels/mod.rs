@@ -33,7 +33,7 @@ pub fn prelude() -> String {
     use mipnerf_core::model::PointEncoding;
     use mipnerf_core::render::DensityActivation;
     use mipnerf_core::rng::{RAY_LEVEL_STRIDE, Stream};
-    let consts: [(&str, u32); 34] = [
+    let consts: [(&str, u32); 35] = [
         ("WORKGROUP", WORKGROUP),
         ("REDUCE_WORKGROUP", REDUCE_WORKGROUP),
         ("RAY_SHAPE_CONE", RayShape::Cone as u32),
@@ -48,6 +48,7 @@ pub fn prelude() -> String {
         ("STREAM_DENSITY_NOISE", Stream::DensityNoise as u32),
         ("STREAM_RAY_BATCH", Stream::RayBatch as u32),
         ("STREAM_BACKGROUND", Stream::Background as u32),
+        ("STREAM_OCCUPANCY_UPDATE", Stream::OccupancyUpdate as u32),
         ("BACKGROUND_BLACK", render::BACKGROUND_BLACK),
         ("BACKGROUND_WHITE", render::BACKGROUND_WHITE),
         ("BACKGROUND_RANDOM", render::BACKGROUND_RANDOM),
@@ -208,6 +209,7 @@ pub mod fused_mlp;
 pub mod matmul;
 pub mod mlp_aux;
 pub mod occupancy;
+pub mod occupancy_update;
 pub mod render;
 pub mod sample;
 pub mod tri_mip;
@@ -223,6 +225,7 @@ pub const ALL_SOURCES: &[(&str, &str)] = &[
     ("adam.wgsl", adam::SOURCE),
     ("sample.wgsl", sample::SOURCE),
     ("occupancy.wgsl", occupancy::SOURCE),
+    ("occupancy_update.wgsl", occupancy_update::SOURCE),
     ("view_enc.wgsl", view_enc::SOURCE),
     ("batch.wgsl", batch::SOURCE),
     ("gather.wgsl", compact::GATHER_SOURCE),

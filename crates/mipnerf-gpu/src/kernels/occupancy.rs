@@ -48,15 +48,21 @@ pub struct OccupancyParams {
     pub _pad: u32,
 }
 
-/// An [`OccupancyGrid`]'s layers on the device ([`OccupancyGrid::packed_layers`]), with its
-/// layout; [`update`](Self::update) after each change of the grid.
+/// An [`OccupancyGrid`]'s layers on the device ([`OccupancyGrid::packed_layers`]) and its cells'
+/// opacities, with its layout; [`update`](Self::update) after each change of the grid on the
+/// host. The opacities are what an update on the device
+/// ([`crate::model::GpuModel::update_grid`]) keeps.
 #[derive(Debug)]
 pub struct DeviceGrid {
     bits: wgpu::Buffer,
+    opacity: wgpu::Buffer,
+    /// An update's density probes (one vec4 per cell of a chunk), made by the first update.
+    probes: Option<wgpu::Buffer>,
     resolution: u32,
     bound: f32,
     cell_size: f32,
     contracted: bool,
+    decay: f32,
     full: bool,
 }
 
@@ -73,17 +79,22 @@ impl DeviceGrid {
             )));
         }
         let bits = ctx.storage_buffer("occupancy grid layers", &grid.packed_layers(), false);
+        let opacity = ctx.storage_buffer("occupancy grid opacities", &grid.opacity, true);
         Ok(Self {
             bits,
+            opacity,
+            probes: None,
             resolution: r as u32,
             bound: grid.config.bound,
             cell_size: grid.cell_size(),
             contracted: grid.config.contracted,
+            decay: grid.config.decay,
             full: grid.is_full(),
         })
     }
 
-    /// Writes `grid`'s current cells (the same layout as the grid this was made from).
+    /// Writes `grid`'s current cells and opacities (the same layout as the grid this was made
+    /// from).
     ///
     /// # Errors
     /// [`GpuError::InvalidInput`] for a grid of another layout.
@@ -101,8 +112,53 @@ impl DeviceGrid {
             )));
         }
         ctx.queue().write_buffer(&self.bits, 0, bytemuck::cast_slice(&grid.packed_layers()));
+        ctx.queue().write_buffer(&self.opacity, 0, bytemuck::cast_slice(&grid.opacity));
         self.full = grid.is_full();
         Ok(())
+    }
+
+    /// Cells along each axis.
+    #[must_use]
+    pub fn resolution(&self) -> usize {
+        self.resolution as usize
+    }
+
+    /// Half the side of the grid's cube.
+    #[must_use]
+    pub fn bound(&self) -> f32 {
+        self.bound
+    }
+
+    /// Whether the grid lies over an unbounded scene's contracted space.
+    #[must_use]
+    pub fn contracted(&self) -> bool {
+        self.contracted
+    }
+
+    /// The cells' opacities (`resolution³` f32, x fastest; -1 for a carved cell).
+    #[must_use]
+    pub fn opacity(&self) -> &wgpu::Buffer {
+        &self.opacity
+    }
+
+    /// The decay of a cell's remembered opacity at each update.
+    #[must_use]
+    pub fn decay(&self) -> f32 {
+        self.decay
+    }
+
+    /// Makes the probes' buffer hold at least `n` probes (vec4), kept between updates.
+    pub(crate) fn reserve_probes(&mut self, ctx: &GpuContext, n: usize) {
+        if self.probes.as_ref().is_some_and(|b| b.size() < 16 * n as u64) {
+            self.probes = None;
+        }
+        self.probes
+            .get_or_insert_with(|| ctx.storage_buffer("occupancy grid probes", &vec![[0.0f32; 4]; n.max(1)], true));
+    }
+
+    /// The probes' buffer ([`reserve_probes`](Self::reserve_probes)).
+    pub(crate) fn probes(&self) -> Option<&wgpu::Buffer> {
+        self.probes.as_ref()
     }
 
     /// Whether every cell is occupied: the sampler is then the paper's (`sample.wgsl`'s

@@ -63,8 +63,9 @@ pub struct TriMipParams {
     pub tv_scale: f32,
     /// The levels `build_levels` makes.
     pub group_levels: u32,
-    /// Padding to 16 bytes.
-    pub pad0: u32,
+    /// 1: the rays buffer holds one Gaussian per sample, (mean, variance on each axis), in the
+    /// planes' space (an occupancy grid's density probes); the edges are not read.
+    pub probes: u32,
     /// Padding.
     pub pad1: u32,
     /// Padding.
@@ -88,7 +89,7 @@ super::wgsl_struct!(
         level,
         tv_scale,
         group_levels,
-        pad0,
+        probes,
         pad1,
         pad2
     ]
@@ -135,7 +136,7 @@ impl PlaneField {
             level: 0,
             tv_scale: 0.0,
             group_levels: 0,
-            pad0: 0,
+            probes: 0,
             pad1: 0,
             pad2: 0,
         }
@@ -194,17 +195,21 @@ impl FieldBuffers {
 }
 
 /// A batch's samples as the kernels read them: `n_rays` rays (two vec4 each: (origin,
-/// radius), (direction, anything)) of `n_samples` intervals (`n_samples + 1` edges a ray).
+/// radius), (direction, anything)) of `n_samples` intervals (`n_samples + 1` edges a ray); or,
+/// with `probes`, `n_rays * n_samples` Gaussians given one vec4 each in `rays` (mean, variance
+/// on each axis), in the field's space: an occupancy grid's density probes.
 #[derive(Clone, Copy, Debug)]
 pub struct Samples<'a> {
-    /// The rays.
+    /// The rays (or the probes).
     pub rays: &'a wgpu::Buffer,
-    /// Their edges.
+    /// Their edges (bound, not read, for probes).
     pub t_vals: &'a wgpu::Buffer,
     /// Rays.
     pub n_rays: usize,
     /// Intervals a ray.
     pub n_samples: usize,
+    /// `rays` holds Gaussians, not rays.
+    pub probes: bool,
 }
 
 /// The compiled entry points of `tri_mip.wgsl`.
@@ -306,7 +311,7 @@ impl TriMipKernel {
         bufs: &FieldBuffers,
         out: &wgpu::Buffer,
     ) -> Result<(), GpuError> {
-        let p = field.params(samples.n_rays, samples.n_samples);
+        let p = TriMipParams { probes: u32::from(samples.probes), ..field.params(samples.n_rays, samples.n_samples) };
         let n = 3 * samples.n_rays as u64 * samples.n_samples as u64;
         let g = &bufs.unused_grads;
         let buffers = [samples.rays, samples.t_vals, params, &bufs.pyramid, out, g, &bufs.grad_pyramid, &bufs.tv_rows];
@@ -413,7 +418,7 @@ impl TriMipKernel {
         let params_buf = ctx.storage_buffer("tri_mip params", params, false);
         let len = rays.len() * n_samples * field.planes.encoding_dim();
         let out = ctx.storage_buffer("tri_mip encoded", &vec![f32::NAN; len.max(1)], true);
-        let samples = Samples { rays: &ray_buf, t_vals: &t_buf, n_rays: rays.len(), n_samples };
+        let samples = Samples { rays: &ray_buf, t_vals: &t_buf, n_rays: rays.len(), n_samples, probes: false };
         let mut rec = Recorder::new(ctx, "tri_mip encode");
         self.build_pyramid(&mut rec, field, &params_buf, &bufs)?;
         self.encode(&mut rec, field, samples, &params_buf, &bufs, &out)?;
@@ -457,7 +462,7 @@ impl TriMipKernel {
         let (ray_buf, t_buf) = (upload_rays(ctx, rays), ctx.storage_buffer("tri_mip t_vals", t_vals, false));
         let d_x_buf = ctx.storage_buffer("tri_mip d_x", d_x, false);
         let grads = ctx.storage_buffer("tri_mip gradient", &vec![0.0f32; n_params], true);
-        let samples = Samples { rays: &ray_buf, t_vals: &t_buf, n_rays: rays.len(), n_samples };
+        let samples = Samples { rays: &ray_buf, t_vals: &t_buf, n_rays: rays.len(), n_samples, probes: false };
         let mut rec = Recorder::new(ctx, "tri_mip backward");
         self.scatter(&mut rec, field, samples, &d_x_buf, &grads, &bufs)?;
         self.push_down(&mut rec, field, &grads, &bufs)?;

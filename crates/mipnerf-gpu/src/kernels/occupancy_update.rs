@@ -1,0 +1,152 @@
+//! `shaders/occupancy_update.wgsl`: an occupancy grid's update on the device, the density probes
+//! placed in its cells and their opacities kept.
+//!
+//! CPU reference: [`mipnerf_core::occupancy::OccupancyGrid::update`]. The model's passes between
+//! the two entry points are [`crate::model::GpuModel::update_grid`]'s.
+
+use crate::kernels::Recorder;
+use crate::kernels::occupancy::DeviceGrid;
+use crate::{GpuContext, GpuError, kernels};
+
+/// The WGSL source of this kernel.
+pub const SOURCE: &str = super::shader_source!("occupancy_update.wgsl");
+
+/// The uniform block of `occupancy_update.wgsl` (`struct Params`), 64 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct OccupancyUpdateParams {
+    /// The chunk's first cell.
+    pub first_cell: u32,
+    /// Cells in the chunk.
+    pub n_cells: u32,
+    /// Cells along each axis.
+    pub resolution: u32,
+    /// Workgroups along x of the 2-D dispatch grid.
+    pub groups_x: u32,
+    /// Run seed.
+    pub seed: u32,
+    /// The step the update is made at.
+    pub step: u32,
+    /// 1: the grid lies over an unbounded scene's contracted space.
+    pub contracted: u32,
+    /// [`mipnerf_core::render::DensityActivation`] code.
+    pub density_activation: u32,
+    /// Half the side of the grid's cube.
+    pub bound: f32,
+    /// The side of one cell.
+    pub cell_size: f32,
+    /// The decay of a cell's remembered opacity.
+    pub decay: f32,
+    /// Added to the raw density before its activation.
+    pub density_bias: f32,
+    /// Floats between consecutive samples' raw densities.
+    pub raw_stride: u32,
+    /// Padding to 16 bytes.
+    pub pad0: u32,
+    /// Padding.
+    pub pad1: u32,
+    /// Padding.
+    pub pad2: u32,
+}
+
+/// The buffers an update's chunk reads and writes.
+#[derive(Clone, Copy, Debug)]
+pub struct UpdateBuffers<'a> {
+    /// One vec4 per cell of the chunk (mean, variance): written by
+    /// [`OccupancyUpdateKernel::place_probes`], read by the encoders in probe mode.
+    pub probes: &'a wgpu::Buffer,
+    /// The MLP's raw densities of the probes.
+    pub raw_density: &'a wgpu::Buffer,
+    /// The grid whose opacities are kept.
+    pub grid: &'a DeviceGrid,
+}
+
+/// The compiled entry points of `occupancy_update.wgsl`.
+#[derive(Debug)]
+pub struct OccupancyUpdateKernel {
+    place: wgpu::ComputePipeline,
+    update: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+}
+
+impl OccupancyUpdateKernel {
+    /// Compiles the kernel.
+    ///
+    /// # Errors
+    /// If the device rejects it.
+    pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
+        let ([place, update], layout) = kernels::build_entries(
+            ctx,
+            "occupancy_update",
+            SOURCE,
+            &[false, true, false],
+            ["place_probes", "update_opacity"],
+        )?;
+        Ok(Self { place, update, layout })
+    }
+
+    /// Records the density probes of `params`' chunk of cells into `bufs.probes`.
+    ///
+    /// # Errors
+    /// A chunk too large for one dispatch.
+    pub fn place_probes(
+        &self,
+        rec: &mut Recorder<'_>,
+        params: OccupancyUpdateParams,
+        bufs: UpdateBuffers<'_>,
+    ) -> Result<(), GpuError> {
+        self.dispatch(rec, "occupancy_update place_probes", &self.place, params, bufs)
+    }
+
+    /// Records the opacities of `params`' chunk of cells kept from the probes' raw densities in
+    /// `bufs.raw_density`.
+    ///
+    /// # Errors
+    /// A chunk too large for one dispatch.
+    pub fn update_opacity(
+        &self,
+        rec: &mut Recorder<'_>,
+        params: OccupancyUpdateParams,
+        bufs: UpdateBuffers<'_>,
+    ) -> Result<(), GpuError> {
+        self.dispatch(rec, "occupancy_update update_opacity", &self.update, params, bufs)
+    }
+
+    fn dispatch(
+        &self,
+        rec: &mut Recorder<'_>,
+        label: &str,
+        pipeline: &wgpu::ComputePipeline,
+        mut params: OccupancyUpdateParams,
+        bufs: UpdateBuffers<'_>,
+    ) -> Result<(), GpuError> {
+        let (gx, gy) = kernels::dispatch_grid(u64::from(params.n_cells), kernels::WORKGROUP)?;
+        params.groups_x = gx;
+        let buffers = [bufs.probes, bufs.raw_density, bufs.grid.opacity()];
+        rec.dispatch(label, pipeline, &self.layout, &params, &buffers, (gx, gy, 1));
+        Ok(())
+    }
+}
+
+super::wgsl_struct!(
+    OccupancyUpdateParams,
+    "Params",
+    [
+        first_cell,
+        n_cells,
+        resolution,
+        groups_x,
+        seed,
+        step,
+        contracted,
+        density_activation,
+        bound,
+        cell_size,
+        decay,
+        density_bias,
+        raw_stride,
+        pad0,
+        pad1,
+        pad2,
+    ]
+);
