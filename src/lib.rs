@@ -22,7 +22,7 @@
 //! assert!(report.stats.loss.is_finite());
 //! // A novel view: a camera at a pose no training image has, at 32x24 pixels.
 //! let camera = Camera::from_camera_angle_x(32, 24, 0.69, demo::camera_pose(1.0, 0.4))?;
-//! let picture = nerf.render(&camera)?.to_rgb_image();
+//! let picture = nerf.render(&camera)?.to_rgb_image()?;
 //! assert_eq!(picture.dimensions(), (32, 24));
 //! # let dir = tempfile::tempdir()?;
 //! # let path = dir.path().join("lego.safetensors");
@@ -31,31 +31,34 @@
 //! # }
 //! ```
 //!
-//! The `gpu` feature (on by default) brings the WGSL backend ([`mipnerf_gpu`]); without it,
-//! nothing of wgpu is compiled, [`Device::Auto`] runs on the CPU and [`Device::Gpu`] is
+//! The `gpu` feature (on by default) brings the WGSL backend (the `mipnerf-gpu` crate); without
+//! it, nothing of wgpu is compiled, [`Device::Auto`] runs on the CPU and [`Device::Gpu`] is
 //! [`Error::NoGpuBackend`].
 //!
-//! Everything else is in the two library crates, re-exported under their own names:
-//! [`mipnerf_core`] (the maths on the CPU, the reference for every other path: cameras, datasets,
-//! the model and its stages, checkpoints, metrics) and [`mipnerf_gpu`] (the same passes as WGSL
-//! compute shaders, and `open_backend` for the `Backend` trait directly).
+//! This crate re-exports what the calls above take and give. The two library crates behind it,
+//! `mipnerf-core` (the maths on the CPU, the reference for every other path: data formats, the
+//! model and its stages, checkpoints, metrics) and `mipnerf-gpu` (the same passes as WGSL compute
+//! shaders, `open_backend`, a backend on an app's own wgpu device), are for an app that needs
+//! more: depend on them beside this one.
 
 mod nerf;
 
-pub use mipnerf_core;
+pub use image::RgbImage;
 pub use mipnerf_core::Camera;
-pub use mipnerf_core::backend::MAX_BATCH_RAYS;
-pub use mipnerf_core::backend::RenderedImage;
-pub use mipnerf_core::data::{Dataset, Pixels, View, demo};
-pub use mipnerf_core::model::{ModelConfig, Preset};
-pub use mipnerf_core::train::StepReport;
+pub use mipnerf_core::backend::{Backend, BackendError, MAX_BATCH_RAYS, RenderedImage};
+pub use mipnerf_core::checkpoint::CheckpointError;
+pub use mipnerf_core::data::{DataError, Dataset, Pixels, View, demo};
+pub use mipnerf_core::model::{Field, LevelOutput, LossStats, ModelConfig, ModelError, Preset};
+pub use mipnerf_core::schedule::LrSchedule;
+pub use mipnerf_core::train::{OptimConfig, StepReport};
+pub use mipnerf_core::tri_mip::TriMipConfig;
 #[cfg(feature = "gpu")]
-pub use mipnerf_gpu;
-pub use nerf::{Device, Error, Nerf, Options};
+pub use mipnerf_gpu::OpenError;
+pub use nerf::{Device, Error, Nerf, Options, Precision};
 
 use std::sync::Arc;
 
-use mipnerf_core::backend::{Backend, TrainState};
+use mipnerf_core::backend::TrainState;
 use mipnerf_core::model::Model;
 
 /// The backend `options.device` selects, and why `Auto` fell back to the CPU. With the `gpu`

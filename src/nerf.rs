@@ -26,84 +26,82 @@ pub enum Device {
     Auto,
 }
 
-/// How a [`Nerf`] is made. `Options::default()` is the paper's model on the best device; start
-/// from [`Options::preset`] for a smaller one.
+/// The precision of the MLP's matrix products on the CPU.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum Precision {
+    /// f32, as the paper: every device.
+    #[default]
+    F32,
+    /// bf16 products with f32 sums (`mipnerf_core::bf16`): an error ([`Error::Options`]) where
+    /// the run has no kernel for them (a CPU without AMX or AVX-512 BF16, or a GPU).
+    Bf16,
+    /// bf16 where the CPU has a kernel for them, f32 elsewhere: what [`Preset::Fast`] asks.
+    /// [`Nerf::precision`] says which runs.
+    Bf16WhereAvailable,
+}
+
+/// How a [`Nerf`] is made: a preset ([`Options::preset`]; `Options::default()` is
+/// [`Preset::Fast`], sized for a CPU), then `with_*` for what to change. Built only this way, so
+/// that a preset's settings come together (the fast preset's occupancy grid, batch, learning
+/// rates and precision with its model).
+///
+/// ```
+/// use mipnerf::{Device, Options, Preset};
+/// let options = Options::preset(Preset::Tiny).with_device(Device::Cpu).with_seed(7).with_batch_rays(256);
+/// assert_eq!((options.seed(), options.batch_rays()), (7, 256));
+/// ```
 #[derive(Clone, Debug, PartialEq)]
 pub struct Options {
-    /// The model. Two settings follow the data: `white_bkgd` (composited as the data is), and
-    /// for forward-facing data in NDC (LLFF, COLMAP) `ray_shape`, cylinders as the official LLFF
-    /// configuration.
-    pub model: ModelConfig,
-    /// Learning-rate schedule, Adam and gradient clipping.
-    pub optim: OptimConfig,
-    /// Where to run.
-    pub device: Device,
-    /// The seed of the initial parameters and of every random draw of training.
-    pub seed: u32,
-    /// Rays (pixels) per training step.
-    pub batch_rays: usize,
-    /// Occupancy-guided sampling (what the `fast` preset is meant for): a 64³ grid around the
-    /// scene, seeded with the visual hull of the images' alpha, then kept up to date from the
-    /// model's density, so samples go where the scene is. Bounded scenes only.
-    pub occupancy: bool,
-    /// Near and far bounds of renders when the `Nerf` holds no data (loaded for rendering).
-    pub render_bounds: (f32, f32),
-    /// The MLP's products in bf16 on the CPU where it has a kernel for them (AMX or AVX-512
-    /// BF16; see `mipnerf_core::bf16`), f32 elsewhere and on a GPU. [`Preset::Fast`] sets it.
-    pub bf16: bool,
-    /// Training steps on the CPU flush subnormal floats to zero (`mipnerf_core::subnormals`):
-    /// faster where gradients in empty space go subnormal, not bit-identical to a run that keeps
-    /// them. [`Options::preset`] sets it for the presets that do ([`Preset::flushes_subnormals`]).
-    pub flush_subnormals: bool,
+    pub(crate) model: ModelConfig,
+    /// Whether `model` was asked for (a preset or [`Options::with_model`]), rather than the
+    /// default's: [`Nerf::load`] refuses a checkpoint of another model only then.
+    pub(crate) model_chosen: bool,
+    pub(crate) optim: OptimConfig,
+    pub(crate) device: Device,
+    pub(crate) seed: u32,
+    pub(crate) batch_rays: usize,
+    pub(crate) occupancy: bool,
+    pub(crate) render_bounds: (f32, f32),
+    pub(crate) precision: Precision,
+    pub(crate) flush_subnormals: bool,
 }
 
 impl Default for Options {
+    /// [`Preset::Fast`]'s options (a model a CPU trains in minutes), with the model not chosen:
+    /// [`Nerf::load`] takes a checkpoint's model, whatever it is.
     fn default() -> Self {
-        Self {
-            model: ModelConfig::default(),
+        Self { model_chosen: false, ..Self::preset(Preset::Fast) }
+    }
+}
+
+impl Options {
+    /// A named model size with the training settings that go with it: [`Preset::Fast`] trains
+    /// as the CLI's `--preset fast` does ([`FastRecipe`]: occupancy-guided sampling, its batch
+    /// and learning rates, bf16 where the CPU has it); the others with the paper's optimiser,
+    /// 1,024 rays a step, f32.
+    #[must_use]
+    pub fn preset(preset: Preset) -> Self {
+        let mut options = Self {
+            model: preset.config(),
+            model_chosen: true,
             optim: OptimConfig::default(),
             device: Device::Auto,
             seed: 0,
             batch_rays: 1024,
             occupancy: false,
             render_bounds: (2.0, 6.0),
-            bf16: false,
-            flush_subnormals: false,
-        }
-    }
-}
-
-impl Options {
-    /// Refuses values no run can use, naming the option.
-    fn check(&self) -> Result<(), Error> {
-        if !(1..=MAX_BATCH_RAYS).contains(&self.batch_rays) {
-            return Err(Error::Options(format!(
-                "`Options::batch_rays` must be between 1 and {MAX_BATCH_RAYS}, got {}",
-                self.batch_rays
-            )));
-        }
-        let (near, far) = self.render_bounds;
-        if !(near.is_finite() && far.is_finite() && 0.0 <= near && near < far) {
-            return Err(Error::Options(format!(
-                "`Options::render_bounds` must be finite with 0 <= near < far, got ({near}, {far})"
-            )));
-        }
-        Ok(())
-    }
-
-    /// A named model size with the other defaults; [`Preset::Fast`] trains as the CLI's
-    /// `--preset fast` does ([`FastRecipe`]: occupancy-guided sampling, its batch and learning
-    /// rates, bf16 where the CPU has it).
-    #[must_use]
-    pub fn preset(preset: Preset) -> Self {
-        let mut options =
-            Self { model: preset.config(), flush_subnormals: preset.flushes_subnormals(), ..Self::default() };
+            precision: Precision::F32,
+            flush_subnormals: preset.flushes_subnormals(),
+        };
         if preset == Preset::Fast {
             let recipe = FastRecipe::RECIPE;
             options.occupancy = true;
             options.batch_rays = recipe.batch_rays;
             options.optim.lr = recipe.schedule(options.optim.lr.max_steps);
-            options.bf16 = recipe.bf16_where_available;
+            if recipe.bf16_where_available {
+                options.precision = Precision::Bf16WhereAvailable;
+            }
         }
         options
     }
@@ -120,9 +118,152 @@ impl Options {
         self.model.field =
             Field::TriMip { planes: TriMipRecipe::planes(recipe.resolution), half_side, pre_filtered: true };
         self.model.planes_tv_mult = recipe.planes_tv;
+        self.model_chosen = true;
         self.optim.field = Some(recipe.adam);
-        self.bf16 = false;
+        self.precision = Precision::F32;
         self
+    }
+
+    /// Any model in place of the preset's (its other settings kept). Two settings follow the
+    /// data: `white_bkgd` (composited as the data is), and for forward-facing data in NDC (LLFF,
+    /// COLMAP) `ray_shape`, cylinders as the official LLFF configuration.
+    #[must_use]
+    pub fn with_model(mut self, model: ModelConfig) -> Self {
+        self.model = model;
+        self.model_chosen = true;
+        self
+    }
+
+    /// The learning-rate schedule, Adam and gradient clipping.
+    #[must_use]
+    pub fn with_optim(mut self, optim: OptimConfig) -> Self {
+        self.optim = optim;
+        self
+    }
+
+    /// Where to run.
+    #[must_use]
+    pub fn with_device(mut self, device: Device) -> Self {
+        self.device = device;
+        self
+    }
+
+    /// The seed of the initial parameters and of every random draw of training.
+    #[must_use]
+    pub fn with_seed(mut self, seed: u32) -> Self {
+        self.seed = seed;
+        self
+    }
+
+    /// Rays (pixels) per training step, 1 to [`MAX_BATCH_RAYS`].
+    #[must_use]
+    pub fn with_batch_rays(mut self, rays: usize) -> Self {
+        self.batch_rays = rays;
+        self
+    }
+
+    /// Occupancy-guided sampling (what the fast preset is meant for): a 64³ grid around the
+    /// scene, seeded with the visual hull of the images' alpha, then kept up to date from the
+    /// model's density, so samples go where the scene is. Bounded and forward-facing scenes.
+    #[must_use]
+    pub fn with_occupancy(mut self, on: bool) -> Self {
+        self.occupancy = on;
+        self
+    }
+
+    /// Near and far bounds of renders when the `Nerf` holds no data (loaded for rendering from a
+    /// checkpoint that does not say them).
+    #[must_use]
+    pub fn with_render_bounds(mut self, near: f32, far: f32) -> Self {
+        self.render_bounds = (near, far);
+        self
+    }
+
+    /// The precision of the MLP's products on the CPU.
+    #[must_use]
+    pub fn with_precision(mut self, precision: Precision) -> Self {
+        self.precision = precision;
+        self
+    }
+
+    /// Training steps on the CPU flush subnormal floats to zero (`mipnerf_core::subnormals`):
+    /// faster where gradients in empty space go subnormal, not bit-identical to a run that keeps
+    /// them. The presets that do set it ([`Preset::flushes_subnormals`]).
+    #[must_use]
+    pub fn with_flush_subnormals(mut self, flush: bool) -> Self {
+        self.flush_subnormals = flush;
+        self
+    }
+
+    /// The model.
+    #[must_use]
+    pub fn model(&self) -> &ModelConfig {
+        &self.model
+    }
+
+    /// The learning-rate schedule, Adam and gradient clipping.
+    #[must_use]
+    pub fn optim(&self) -> &OptimConfig {
+        &self.optim
+    }
+
+    /// Where to run.
+    #[must_use]
+    pub fn device(&self) -> Device {
+        self.device
+    }
+
+    /// The seed.
+    #[must_use]
+    pub fn seed(&self) -> u32 {
+        self.seed
+    }
+
+    /// Rays per training step.
+    #[must_use]
+    pub fn batch_rays(&self) -> usize {
+        self.batch_rays
+    }
+
+    /// Whether sampling is occupancy-guided.
+    #[must_use]
+    pub fn occupancy(&self) -> bool {
+        self.occupancy
+    }
+
+    /// Near and far bounds of renders without data.
+    #[must_use]
+    pub fn render_bounds(&self) -> (f32, f32) {
+        self.render_bounds
+    }
+
+    /// The precision of the MLP's products on the CPU.
+    #[must_use]
+    pub fn precision(&self) -> Precision {
+        self.precision
+    }
+
+    /// Whether CPU training steps flush subnormals.
+    #[must_use]
+    pub fn flush_subnormals(&self) -> bool {
+        self.flush_subnormals
+    }
+
+    /// Refuses values no run can use, naming the option.
+    fn check(&self) -> Result<(), Error> {
+        if !(1..=MAX_BATCH_RAYS).contains(&self.batch_rays) {
+            return Err(Error::Options(format!(
+                "`Options::with_batch_rays` takes 1 to {MAX_BATCH_RAYS} rays, got {}",
+                self.batch_rays
+            )));
+        }
+        let (near, far) = self.render_bounds;
+        if !(near.is_finite() && far.is_finite() && 0.0 <= near && near < far) {
+            return Err(Error::Options(format!(
+                "`Options::with_render_bounds` takes finite bounds with 0 <= near < far, got ({near}, {far})"
+            )));
+        }
+        Ok(())
     }
 }
 
@@ -170,7 +311,7 @@ pub enum Error {
 /// let report = nerf.train(3)?;
 /// assert!(report.stats.loss.is_finite());
 /// let camera = Camera::from_camera_angle_x(32, 24, 0.69, demo::camera_pose(1.0, 0.4))?;
-/// assert_eq!(nerf.render(&camera)?.to_rgb_image().dimensions(), (32, 24));
+/// assert_eq!(nerf.render(&camera)?.to_rgb_image()?.dimensions(), (32, 24));
 /// # Ok(())
 /// # }
 /// ```
@@ -181,6 +322,8 @@ pub struct Nerf {
     /// How pixels become rays without data: from the checkpoint it was loaded from, else
     /// `Options::render_bounds` through pixel centres.
     rays: RaySettings,
+    /// The precision the MLP's products run in.
+    precision: Precision,
 }
 
 /// How a camera's pixels become rays: bounds, pixel centres, the NDC mapping.
@@ -235,16 +378,28 @@ impl Nerf {
     /// The model saved at `path` by [`Nerf::save`], to render or to train further on `data`. The
     /// checkpoint holds the model's configuration and how its pixels become rays (bounds, pixel
     /// centres, the NDC mapping of forward-facing data), so a model loaded without data renders
-    /// as it did; `options.model` and `options.render_bounds` serve only for a checkpoint saved
-    /// without them (by the CLI, whose run folder keeps them in `config.toml`).
+    /// as it did. `Options::default()` takes the checkpoint's model, whatever it is; options
+    /// whose model was chosen (a preset, [`Options::with_model`]) must match it. The options'
+    /// model and render bounds serve for a checkpoint saved without them (by the CLI, whose run
+    /// folder keeps them in `config.toml`).
     ///
     /// # Errors
-    /// A missing, damaged or foreign checkpoint (its checksum is verified), or as [`Nerf::new`].
+    /// A missing, damaged or foreign checkpoint (its checksum is verified), [`Error::Options`]
+    /// for a chosen model that is not the checkpoint's (both named), or as [`Nerf::new`].
     pub fn load(path: impl AsRef<Path>, options: Options, data: Option<Dataset>) -> Result<Self, Error> {
         let data = data.map(Arc::new);
         let stored = checkpoint::render_settings(path.as_ref())?;
         let mut options = options;
         if let Some(r) = &stored {
+            if options.model_chosen && !same_model(&options.model, &r.model) {
+                return Err(Error::Options(format!(
+                    "{}: the checkpoint holds {}, not {} as `Options` asks; load it with \
+                     `Options::default()` (which takes the checkpoint's model) or the options it was trained with",
+                    path.as_ref().display(),
+                    describe_model(&r.model),
+                    describe_model(&options.model)
+                )));
+            }
             options.model = r.model.clone();
         }
         let model = model_for(&options, data.as_deref())?;
@@ -260,19 +415,30 @@ impl Nerf {
         options.check()?;
         let batch = data.as_ref().map(|d| (Arc::clone(d), options.batch_rays));
         let (mut backend, fallback) = crate::open_backend(options, model, state, batch)?;
-        if options.bf16 && mipnerf_core::bf16::Bf16Support::detect().available() {
-            // A device backend runs f32 only and says so: it keeps f32, as the option promises.
-            let _ = backend.set_precision(mipnerf_core::bf16::Precision::Bf16);
-        }
+        let bf16 = mipnerf_core::bf16::Precision::Bf16;
+        let precision = match options.precision {
+            Precision::F32 => Precision::F32,
+            Precision::Bf16 => {
+                backend
+                    .set_precision(bf16)
+                    .map_err(|e| Error::Options(format!("`Precision::Bf16` on {}: {e}", backend.describe())))?;
+                Precision::Bf16
+            }
+            // f32 where bf16 has no kernel (a CPU without one, a GPU), as the option says.
+            Precision::Bf16WhereAvailable => match backend.set_precision(bf16) {
+                Ok(()) => Precision::Bf16,
+                Err(_) => Precision::F32,
+            },
+        };
         backend.set_flush_subnormals(options.flush_subnormals);
         if data.is_some() {
             let need = backend.host_training_bytes(options.batch_rays);
-            let what = format!("a training step of {} rays (`Options::batch_rays`)", options.batch_rays);
+            let what = format!("a training step of {} rays (`Options::with_batch_rays`)", options.batch_rays);
             mipnerf_core::memory::check(need, &what).map_err(Error::Options)?;
         }
         let (near, far) = options.render_bounds;
         let rays = RaySettings { near, far, centers: mipnerf_core::PixelCenters::Centered, ndc: None };
-        Ok(Self { backend, data, fallback, rays })
+        Ok(Self { backend, data, fallback, rays, precision })
     }
 
     /// Takes `steps` training steps and reports the last.
@@ -364,6 +530,13 @@ impl Nerf {
         self.backend.describe()
     }
 
+    /// The precision the MLP's products run in: [`Precision::Bf16WhereAvailable`] resolved to
+    /// [`Precision::Bf16`] or [`Precision::F32`].
+    #[must_use]
+    pub fn precision(&self) -> Precision {
+        self.precision
+    }
+
     /// Why `Device::Auto` runs on the CPU, when it does.
     #[must_use]
     pub fn fallback(&self) -> Option<&str> {
@@ -375,6 +548,30 @@ impl Nerf {
     pub fn backend(&mut self) -> &mut dyn Backend {
         self.backend.as_mut()
     }
+}
+
+/// Whether two model configurations are the same model, the two settings that follow the data
+/// (`white_bkgd`, `ray_shape`) aside.
+fn same_model(a: &ModelConfig, b: &ModelConfig) -> bool {
+    let fitted = ModelConfig { white_bkgd: a.white_bkgd, ray_shape: a.ray_shape, ..b.clone() };
+    *a == fitted
+}
+
+/// A model in a few words, for errors: its field, its MLP's trunk and its samples.
+fn describe_model(c: &ModelConfig) -> String {
+    let field = match c.field {
+        Field::TriMip { planes, pre_filtered: true, .. } => {
+            format!("the Tri-Mip field ({}² planes)", planes.resolution)
+        }
+        Field::TriMip { planes, pre_filtered: false, .. } => {
+            format!("the tri-plane field ({}² planes)", planes.resolution)
+        }
+        _ => "the Mip-NeRF MLP".to_owned(),
+    };
+    format!(
+        "{field} with a {}x{} trunk and {} samples on {} levels",
+        c.net_depth, c.net_width, c.num_samples, c.num_levels
+    )
 }
 
 /// The model of `options`, composited as the data is, with cylinders for NDC data.

@@ -5,10 +5,16 @@
 
 use std::path::{Path, PathBuf};
 
-use mipnerf::{Camera, Device, Error, Nerf, Options, Preset, demo};
+use mipnerf::{Camera, Device, Error, Nerf, Options, Precision, Preset, demo};
 
 fn cpu_tiny() -> Options {
-    Options { device: Device::Cpu, batch_rays: 64, ..Options::preset(Preset::Tiny) }
+    Options::preset(Preset::Tiny).with_device(Device::Cpu).with_batch_rays(64)
+}
+
+/// The default options (no model chosen: a checkpoint's is taken) on the CPU in f32, so that
+/// renders compare bit for bit with an f32 run's.
+fn cpu_default() -> Options {
+    Options::default().with_device(Device::Cpu).with_precision(Precision::F32)
 }
 
 fn novel_camera() -> Camera {
@@ -70,14 +76,14 @@ fn training_for_a_budget_takes_steps_until_it_is_spent() {
 /// demo's empty space is not full), saved with the parameters.
 #[test]
 fn the_fast_preset_trains_with_an_occupancy_grid() {
-    let options = Options { device: Device::Cpu, batch_rays: 256, ..Options::preset(Preset::Fast) };
-    assert!(options.occupancy);
+    let options = Options::preset(Preset::Fast).with_device(Device::Cpu).with_batch_rays(256);
+    assert!(options.occupancy());
     let mut nerf = Nerf::new(demo::dataset(6, 16).unwrap(), options).unwrap();
     nerf.train(2).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("fast.safetensors");
     nerf.save(&path).unwrap();
-    let ck = mipnerf::mipnerf_core::checkpoint::load(&path, nerf.backend().model()).unwrap();
+    let ck = mipnerf_core::checkpoint::load(&path, nerf.backend().model()).unwrap();
     let grid = ck.occupancy.expect("the grid is saved with the parameters");
     assert!(!grid.is_full(), "the carved grid leaves empty space");
 }
@@ -88,9 +94,9 @@ fn the_fast_preset_trains_with_an_occupancy_grid() {
 #[test]
 fn without_the_gpu_feature_auto_is_the_cpu_and_gpu_an_error() {
     let data = || demo::dataset(2, 8).unwrap();
-    let err = Nerf::new(data(), Options { device: Device::Gpu, ..cpu_tiny() }).unwrap_err();
+    let err = Nerf::new(data(), cpu_tiny().with_device(Device::Gpu)).unwrap_err();
     assert!(matches!(err, Error::NoGpuBackend) && err.to_string().contains("`gpu` feature is off"), "{err}");
-    let mut auto = Nerf::new(data(), Options { device: Device::Auto, ..cpu_tiny() }).unwrap();
+    let mut auto = Nerf::new(data(), cpu_tiny().with_device(Device::Auto)).unwrap();
     assert!(auto.fallback().unwrap().contains("no GPU backend"), "{:?}", auto.fallback());
     assert!(auto.train(1).unwrap().stats.loss.is_finite());
 }
@@ -147,10 +153,10 @@ fn the_readme_example_is_the_doctest() {
 fn options_out_of_range_are_errors_naming_the_option() {
     let data = || demo::dataset(2, 8).unwrap();
     for (options, words) in [
-        (Options { batch_rays: 0, ..cpu_tiny() }, "`Options::batch_rays` must be between 1 and"),
-        (Options { batch_rays: mipnerf::MAX_BATCH_RAYS + 1, ..cpu_tiny() }, "`Options::batch_rays`"),
-        (Options { render_bounds: (6.0, 2.0), ..cpu_tiny() }, "`Options::render_bounds`"),
-        (Options { render_bounds: (f32::NAN, 2.0), ..cpu_tiny() }, "`Options::render_bounds`"),
+        (cpu_tiny().with_batch_rays(0), "`Options::with_batch_rays` takes 1 to"),
+        (cpu_tiny().with_batch_rays(mipnerf::MAX_BATCH_RAYS + 1), "`Options::with_batch_rays`"),
+        (cpu_tiny().with_render_bounds(6.0, 2.0), "`Options::with_render_bounds`"),
+        (cpu_tiny().with_render_bounds(f32::NAN, 2.0), "`Options::with_render_bounds`"),
     ] {
         let err = Nerf::new(data(), options).unwrap_err();
         assert!(matches!(err, Error::Options(_)) && err.to_string().contains(words), "{err}");
@@ -165,21 +171,21 @@ fn forward_facing_data_trains_with_cylinders_and_occupancy_in_ndc() {
     let colmap = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/colmap_lego");
     let mut nerf = Nerf::from_dir(&colmap, cpu_tiny()).unwrap();
     let config = nerf.backend().model().config().clone();
-    assert_eq!((config.ray_shape, config.white_bkgd), (mipnerf::mipnerf_core::RayShape::Cylinder, false));
+    assert_eq!((config.ray_shape, config.white_bkgd), (mipnerf_core::RayShape::Cylinder, false));
     assert!(nerf.train(1).unwrap().stats.loss.is_finite());
-    let mut guided = Nerf::from_dir(&colmap, Options { occupancy: true, ..cpu_tiny() }).unwrap();
+    let mut guided = Nerf::from_dir(&colmap, cpu_tiny().with_occupancy(true)).unwrap();
     assert!(guided.train(1).unwrap().stats.loss.is_finite());
     let grid = guided.backend().checkpoint().unwrap().occupancy.expect("the run keeps its grid");
-    let data =
-        mipnerf::mipnerf_core::data::load(&colmap, mipnerf::mipnerf_core::data::Split::Train, &Default::default());
-    let bound = data.ok().and_then(|d| mipnerf::mipnerf_core::occupancy::ndc_bound(&d));
+    let data = mipnerf_core::data::load(&colmap, mipnerf_core::data::Split::Train, &Default::default());
+    let bound = data.ok().and_then(|d| mipnerf_core::occupancy::ndc_bound(&d));
     assert_eq!(Some(grid.config.bound), bound, "the grid covers the NDC cube");
 }
 
 /// A model saved by `Nerf::save` and loaded without its data renders as before: the checkpoint
 /// holds its configuration (background, ray shape) and how its pixels become rays (bounds, pixel
-/// centres, NDC), for forward-facing COLMAP data and for Blender data, whatever `Options` the
-/// loader passes.
+/// centres, NDC), for forward-facing COLMAP data and for Blender data. Loaded with
+/// `Options::default()` it is the checkpoint's model; options that chose another model are an
+/// error naming both, not a silent swap.
 #[test]
 fn a_saved_model_loaded_without_data_renders_as_before_on_any_data() {
     let colmap = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/colmap_lego");
@@ -188,94 +194,151 @@ fn a_saved_model_loaded_without_data_renders_as_before_on_any_data() {
         let mut nerf = Nerf::from_dir(&data, cpu_tiny()).unwrap();
         nerf.train(2).unwrap();
         let camera = {
-            let ds = mipnerf::mipnerf_core::data::load(
-                &data,
-                mipnerf::mipnerf_core::data::Split::Train,
-                &Default::default(),
-            )
-            .unwrap();
+            let ds = mipnerf_core::data::load(&data, mipnerf_core::data::Split::Train, &Default::default()).unwrap();
             let c = ds.views()[0].camera.clone();
             Camera::from_camera_angle_x(16, 12, 0.8, c.cam2world).unwrap()
         };
         let before = nerf.render(&camera).unwrap();
         let path = dir.path().join(format!("{name}.safetensors"));
         nerf.save(&path).unwrap();
-        // Loaded with the default options (another model size, the default bounds): the stored
-        // settings win.
-        let options = Options { device: Device::Cpu, ..Options::preset(Preset::Small) };
-        let mut loaded = Nerf::load(&path, options, None).unwrap();
+        // The default options (the fast preset's settings, no model chosen): the stored model
+        // and bounds win.
+        let mut loaded = Nerf::load(&path, cpu_default(), None).unwrap();
         assert_eq!(loaded.backend().model().config(), nerf.backend().model().config(), "{name}");
         assert_eq!(loaded.render(&camera).unwrap(), before, "{name}: the loaded model renders otherwise");
+        // The preset it was trained with loads it too; another preset is refused.
+        assert!(Nerf::load(&path, cpu_tiny(), None).is_ok(), "{name}");
+        let err = Nerf::load(&path, Options::preset(Preset::Small).with_device(Device::Cpu), None).unwrap_err();
+        let words = [
+            "not the Mip-NeRF MLP with a 4x128 trunk and 64 samples on 2 levels as `Options` asks",
+            "holds the Mip-NeRF MLP with a",
+            "Options::default()",
+        ];
+        assert!(matches!(err, Error::Options(_)), "{name}: {err}");
+        for w in words {
+            assert!(err.to_string().contains(w), "{name}: `{w}` not in: {err}");
+        }
     }
 }
 
-/// `Options::preset(Preset::Fast)` is the CLI's fast preset: the same recipe from core.
+/// `Options::preset(Preset::Fast)` is the CLI's fast preset: the same recipe from core; the
+/// default options are the fast preset's, sized for a CPU.
 #[test]
 fn the_fast_preset_of_the_library_is_the_clis() {
-    use mipnerf::mipnerf_core::model::FastRecipe;
+    use mipnerf_core::model::FastRecipe;
     let fast = Options::preset(Preset::Fast);
     let recipe = FastRecipe::RECIPE;
-    assert!(fast.occupancy && fast.bf16 == recipe.bf16_where_available);
-    assert_eq!(fast.batch_rays, recipe.batch_rays);
-    assert_eq!(fast.optim.lr, recipe.schedule(fast.optim.lr.max_steps));
-    assert_eq!((fast.optim.lr.lr_init, fast.optim.lr.lr_final), (5e-3, 5e-4), "not the paper's rates");
+    assert!(fast.occupancy() && recipe.bf16_where_available);
+    assert_eq!(fast.precision(), Precision::Bf16WhereAvailable);
+    assert_eq!(fast.batch_rays(), recipe.batch_rays);
+    assert_eq!(fast.optim().lr, recipe.schedule(fast.optim().lr.max_steps));
+    assert_eq!((fast.optim().lr.lr_init, fast.optim().lr.lr_final), (5e-3, 5e-4), "not the paper's rates");
     // Subnormals: flushed where the CLI flushes them by default, kept by the faithful presets.
     for preset in [Preset::Tiny, Preset::Small, Preset::Fast, Preset::Paper] {
-        assert_eq!(Options::preset(preset).flush_subnormals, preset.flushes_subnormals(), "{preset:?}");
+        assert_eq!(Options::preset(preset).flush_subnormals(), preset.flushes_subnormals(), "{preset:?}");
     }
-    assert!(!Options::preset(Preset::Small).flush_subnormals && !Options::preset(Preset::Paper).flush_subnormals);
-    assert!(!Options::default().flush_subnormals);
+    assert!(!Options::preset(Preset::Small).flush_subnormals() && !Options::preset(Preset::Paper).flush_subnormals());
+    // The default: the fast preset's model and settings, not the paper's 612K-parameter model.
+    let default = Options::default();
+    assert_eq!(default.model(), fast.model());
+    assert_eq!(
+        (default.occupancy(), default.batch_rays(), default.precision()),
+        (true, recipe.batch_rays, fast.precision())
+    );
 }
 
-/// The Tri-Mip field through the facade: chosen in `Options::model`, it trains, saves and loads
-/// back as the same model, rendering the same picture bit for bit.
+/// Precision is what was asked or an error: `Precision::Bf16` runs bf16 where the CPU has a
+/// kernel and is an error naming it elsewhere; `Bf16WhereAvailable` says which it runs.
+#[test]
+fn bf16_is_run_or_refused_never_dropped() {
+    let available = mipnerf_core::bf16::Bf16Support::detect().available();
+    let data = || demo::dataset(2, 8).unwrap();
+    match Nerf::new(data(), cpu_tiny().with_precision(Precision::Bf16)) {
+        Ok(mut nerf) => {
+            assert!(available, "bf16 accepted on a CPU without a kernel");
+            assert_eq!(nerf.precision(), Precision::Bf16);
+            assert!(nerf.train(1).unwrap().stats.loss.is_finite());
+        }
+        Err(err) => {
+            assert!(!available, "bf16 refused on a CPU with a kernel: {err}");
+            assert!(matches!(err, Error::Options(_)) && err.to_string().contains("`Precision::Bf16` on CPU"), "{err}");
+        }
+    }
+    let nerf = Nerf::new(data(), cpu_tiny().with_precision(Precision::Bf16WhereAvailable)).unwrap();
+    assert_eq!(nerf.precision(), if available { Precision::Bf16 } else { Precision::F32 });
+    assert_eq!(Nerf::new(data(), cpu_tiny()).unwrap().precision(), Precision::F32);
+}
+
+/// A `Nerf` moves to another thread (an app trains it off its UI thread).
+#[test]
+fn a_nerf_is_send() {
+    fn send<T: Send>(t: T) -> T {
+        t
+    }
+    let mut nerf = send(Nerf::new(demo::dataset(2, 8).unwrap(), cpu_tiny()).unwrap());
+    let step = std::thread::spawn(move || nerf.train(1).map(|r| r.step)).join().unwrap().unwrap();
+    assert_eq!(step, 0);
+}
+
+/// A rendered image made by hand with too few pixels is an error, not an empty picture.
+#[test]
+fn an_inconsistent_rendered_image_is_an_error_not_an_empty_picture() {
+    let mut nerf = Nerf::new(demo::dataset(2, 8).unwrap(), cpu_tiny()).unwrap();
+    let mut image = nerf.render(&novel_camera()).unwrap();
+    let picture: mipnerf::RgbImage = image.to_rgb_image().unwrap();
+    assert_eq!(picture.dimensions(), (12, 8));
+    image.fine.pop();
+    let err = image.to_rgb_image().unwrap_err();
+    assert!(err.to_string().contains("12x8 pixels holds 95"), "{err}");
+}
+
+/// The Tri-Mip field through the facade: chosen with `Options::with_model`, it trains, saves
+/// and loads back as the same model, rendering the same picture bit for bit.
 #[test]
 fn a_tri_mip_nerf_saves_and_loads_as_it_was() {
-    use mipnerf::mipnerf_core::model::Field;
-    use mipnerf::mipnerf_core::tri_mip::TriMipConfig;
-    let mut options = cpu_tiny();
-    options.model.field = Field::TriMip {
+    use mipnerf::{Field, ModelConfig, TriMipConfig};
+    let base = cpu_tiny();
+    let field = Field::TriMip {
         planes: TriMipConfig { resolution: 16, features: 4, levels: 3 },
         half_side: 1.5,
         pre_filtered: true,
     };
-    let mut nerf = Nerf::new(demo::dataset(3, 12).unwrap(), options).unwrap();
+    let options = base.clone().with_model(ModelConfig { field, ..base.model().clone() });
+    let mut nerf = Nerf::new(demo::dataset(3, 12).unwrap(), options.clone()).unwrap();
     nerf.train(3).unwrap();
     let before = nerf.render(&novel_camera()).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("tri-mip.safetensors");
     nerf.save(&path).unwrap();
-    // Loaded with the default options: the checkpoint says which field it is.
-    let mut loaded = Nerf::load(&path, cpu_tiny(), None).unwrap();
-    assert_eq!(loaded.render(&novel_camera()).unwrap(), before);
+    // Loaded with the default options, or the ones it was made with: the checkpoint says
+    // which field it is.
+    for options in [cpu_default(), options] {
+        let mut loaded = Nerf::load(&path, options, None).unwrap();
+        assert_eq!(loaded.render(&novel_camera()).unwrap(), before);
+    }
+    // Options of the plain tiny model name the field the checkpoint holds.
+    let err = Nerf::load(&path, cpu_tiny(), None).unwrap_err();
+    assert!(err.to_string().contains("holds the Tri-Mip field (16² planes)"), "{err}");
 }
 
 /// `Options::tri_mip` brings the field's recipe (its planes, its MLP, the planes' own Adam
 /// settings, f32), and a few steps of it cut the loss on the demo scene.
 #[test]
 fn options_tri_mip_brings_the_fields_recipe_and_trains() {
-    use mipnerf::mipnerf_core::model::{Field, TriMipRecipe};
+    use mipnerf::{Field, ModelConfig, OptimConfig};
+    use mipnerf_core::model::TriMipRecipe;
     let options = cpu_tiny().tri_mip(1.5);
     let recipe = TriMipRecipe::RECIPE;
-    let Field::TriMip { planes, half_side, pre_filtered } = options.model.field else {
-        panic!("not the Tri-Mip field")
-    };
+    let model = options.model().clone();
+    let Field::TriMip { planes, half_side, pre_filtered } = model.field else { panic!("not the Tri-Mip field") };
     assert_eq!((planes, half_side, pre_filtered), (TriMipRecipe::planes(recipe.resolution), 1.5, true));
-    assert_eq!(
-        [
-            options.model.net_depth,
-            options.model.net_width,
-            options.model.net_depth_condition,
-            options.model.net_width_condition
-        ],
-        recipe.mlp
-    );
-    assert_eq!(options.optim.field, Some(recipe.adam));
-    assert!(!options.bf16);
+    assert_eq!([model.net_depth, model.net_width, model.net_depth_condition, model.net_width_condition], recipe.mlp);
+    assert_eq!(options.optim().field, Some(recipe.adam));
+    assert_eq!(options.precision(), Precision::F32);
     // Trained small and at the fast recipe's rate: 32² planes, 200 steps.
-    let mut options = options;
-    options.model.field = Field::TriMip { planes: TriMipRecipe::planes(32), half_side, pre_filtered };
-    options.optim.lr = mipnerf::mipnerf_core::model::FastRecipe::RECIPE.schedule(200);
+    let field = Field::TriMip { planes: TriMipRecipe::planes(32), half_side, pre_filtered };
+    let optim = OptimConfig { lr: mipnerf_core::model::FastRecipe::RECIPE.schedule(200), ..options.optim().clone() };
+    let options = options.with_model(ModelConfig { field, ..model }).with_optim(optim);
     let mut nerf = Nerf::new(demo::dataset(3, 12).unwrap(), options).unwrap();
     let losses: Vec<f32> = (0..200).map(|_| nerf.train(1).unwrap().stats.loss).collect();
     let (first, last) = (losses[..10].iter().sum::<f32>(), losses[190..].iter().sum::<f32>());

@@ -4,11 +4,11 @@
 //! samples there, as Mip-NeRF's hierarchical sampling should.
 #![allow(clippy::unwrap_used, missing_docs)]
 
-use mipnerf::mipnerf_core::RayShape;
-use mipnerf::mipnerf_core::cone;
-use mipnerf::mipnerf_core::mip::{self, Gaussian};
-use mipnerf::mipnerf_core::sampling::{PdfSamples, RESAMPLE_PADDING};
-use mipnerf::mipnerf_core::{Camera, PixelCenters, resample_along_rays, sample_along_rays, volumetric_rendering};
+use mipnerf_core::RayShape;
+use mipnerf_core::cone;
+use mipnerf_core::mip::{self, Gaussian};
+use mipnerf_core::sampling::{PdfSamples, RESAMPLE_PADDING};
+use mipnerf_core::{Camera, PixelCenters, resample_along_rays, sample_along_rays, volumetric_rendering};
 
 /// The slab occupies world z in [SLAB_Z - SLAB_HALF, SLAB_Z + SLAB_HALF].
 const SLAB_Z: f32 = -1.0;
@@ -51,14 +51,8 @@ fn a_slab_renders_at_its_depth_and_the_fine_level_samples_it() {
             assert!(enc.iter().all(|x| x.is_finite() && x.abs() <= 1.0));
         }
         let sigma: Vec<f32> = gs.iter().map(density).collect();
-        let coarse = volumetric_rendering(
-            &rgb,
-            &sigma,
-            &t,
-            ray.direction,
-            mipnerf::mipnerf_core::render::background(true),
-            &mut w,
-        );
+        let coarse =
+            volumetric_rendering(&rgb, &sigma, &t, ray.direction, mipnerf_core::render::background(true), &mut w);
         // Front face at depth 2.85 along the camera axis (t is depth since direction.z = -1).
         assert!(coarse.acc > 0.99, "slab not opaque: acc {}", coarse.acc);
         assert!((coarse.distance - 2.9).abs() < 0.1, "coarse depth {}", coarse.distance);
@@ -69,14 +63,8 @@ fn a_slab_renders_at_its_depth_and_the_fine_level_samples_it() {
         assert!(near_slab > n / 2, "fine level put only {near_slab} of {} edges near the slab", n + 1);
         cone::cast_ray(&t_fine, ray.origin, ray.direction, ray.radius, RayShape::Cone, &mut gs);
         let sigma: Vec<f32> = gs.iter().map(density).collect();
-        let fine = volumetric_rendering(
-            &rgb,
-            &sigma,
-            &t_fine,
-            ray.direction,
-            mipnerf::mipnerf_core::render::background(true),
-            &mut w,
-        );
+        let fine =
+            volumetric_rendering(&rgb, &sigma, &t_fine, ray.direction, mipnerf_core::render::background(true), &mut w);
         assert!((fine.distance - 2.87).abs() < 0.05, "fine depth {}", fine.distance);
     }
 }

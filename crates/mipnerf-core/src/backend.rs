@@ -159,15 +159,25 @@ impl RenderedImage {
     }
 
     /// The fine level's colour as an 8-bit image (clamped to `[0, 1]`, rounded).
-    #[must_use]
-    pub fn to_rgb_image(&self) -> image::RgbImage {
+    ///
+    /// # Errors
+    /// [`BackendError::Invalid`] when `fine` does not hold `width x height` pixels (an image
+    /// assembled by hand; a backend's renders always do).
+    pub fn to_rgb_image(&self) -> Result<image::RgbImage, BackendError> {
         let bytes = self.fine.iter().flat_map(|o| o.rgb.map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8)).collect();
-        image::RgbImage::from_raw(self.width, self.height, bytes).unwrap_or_default()
+        image::RgbImage::from_raw(self.width, self.height, bytes).ok_or_else(|| {
+            BackendError::Invalid(format!(
+                "a rendered image of {}x{} pixels holds {} pixels",
+                self.width,
+                self.height,
+                self.fine.len()
+            ))
+        })
     }
 }
 
 /// Trains and renders one model. Implemented by [`CpuBackend`] and by `mipnerf_gpu::GpuBackend`.
-pub trait Backend {
+pub trait Backend: Send {
     /// What runs the work, for logs: "CPU (2 threads)", "GPU: NVIDIA H100 (Vulkan)".
     fn describe(&self) -> String;
 

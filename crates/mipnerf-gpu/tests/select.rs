@@ -55,7 +55,7 @@ fn every_choice_opens_a_backend_that_trains_and_renders() {
         b.train_step(true).unwrap().unwrap();
         let r = b.render(&spec, Levels::All).unwrap();
         assert_eq!((r.width, r.height, r.fine.len(), r.coarse.as_ref().map(Vec::len)), (8, 8, 64, Some(64)));
-        assert_eq!(r.to_rgb_image().dimensions(), (8, 8));
+        assert_eq!(r.to_rgb_image().unwrap().dimensions(), (8, 8));
     }
 }
 
