@@ -296,6 +296,7 @@ impl GpuMlp {
     ///
     /// # Errors
     /// If the device rejects them.
+    #[cfg(feature = "test-support")]
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
         Ok(Self { matmul: MatmulKernel::new(ctx)?, aux: MlpAuxKernels::new(ctx)?, fused: FusedMlpKernel::new(ctx)? })
     }

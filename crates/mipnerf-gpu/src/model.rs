@@ -240,32 +240,16 @@ impl GpuModel {
     /// Records the model on `batch`: every level's outputs into `work.ray_out`; in training
     /// (`grads` given) also the loss gradient of every parameter, **added** to `grads`.
     ///
-    /// # Errors
-    /// [`GpuError::InvalidInput`] for buffers of another size or rays that are not whole pixels.
-    pub fn encode(
-        &self,
-        rec: &mut Recorder<'_>,
-        model: &Model,
-        params: &wgpu::Buffer,
-        batch: &RayBatch,
-        work: &ModelBuffers,
-        mode: Mode,
-        grads: Option<&wgpu::Buffer>,
-    ) -> Result<(), GpuError> {
-        self.encode_guided(rec, model, params, batch, work, mode, grads, None)
-    }
-
-    /// [`encode`](Self::encode) with occupancy-guided coarse sampling (`occupancy.wgsl`, the
-    /// CPU's `Model::loss_and_grad_guided` and `render_guided`): with a `grid` that is not full
-    /// (and one ray per pixel), the coarse edges lie in each ray's occupied spans, and a ray that
-    /// meets no occupied cell renders the background (no opacity, distance `near`) and adds its
+    /// With a `grid` that is not full (and one ray per pixel) the coarse sampling is
+    /// occupancy-guided (`occupancy.wgsl`, the CPU's `Model::loss_and_grad_guided` and
+    /// `render_guided`): the coarse edges lie in each ray's occupied spans, and a ray that meets
+    /// no occupied cell renders the background (no opacity, distance `near`) and adds its
     /// background's error to the loss and nothing to the gradient. Such a ray still runs the
     /// MLP here (on intervals of zero length); [`encode_compacted`](Self::encode_compacted)
-    /// skips it, as the CPU does. A full grid, or none, records exactly
-    /// [`encode`](Self::encode).
+    /// skips it, as the CPU does. A full grid, or none, is the paper's stratified sampling.
     ///
     /// # Errors
-    /// As [`encode`](Self::encode).
+    /// [`GpuError::InvalidInput`] for buffers of another size or rays that are not whole pixels.
     pub fn encode_guided(
         &self,
         rec: &mut Recorder<'_>,
@@ -553,7 +537,7 @@ impl GpuModel {
     /// or rendering work, as on the CPU.
     ///
     /// # Errors
-    /// As [`encode`](Self::encode), and `work` too small for the kept rays.
+    /// As [`encode_guided`](Self::encode_guided), and `work` too small for the kept rays.
     pub fn encode_compacted(
         &self,
         rec: &mut Recorder<'_>,
@@ -629,7 +613,7 @@ impl GpuModel {
         Ok(())
     }
 
-    /// The losses of the last batch recorded with [`encode`](Self::encode), read back from
+    /// The losses of the last batch recorded with [`encode_guided`](Self::encode_guided), read back from
     /// `ray_out` (one buffer per level, `n_rays x 8` floats: `ModelBuffers::ray_out`, or where a
     /// chunked step gathered them) and the batch's denominator (waits for the device).
     ///
@@ -656,30 +640,6 @@ impl GpuModel {
         }
         let loss = model.level_weights().iter().zip(&losses).map(|(w, l)| w * l).sum();
         Ok(LossStats { losses, loss, mse, distortion: 0.0, planes_tv: 0.0 })
-    }
-
-    /// The outputs of every level for the first `n` rays of the last recorded batch, read back
-    /// and averaged over each pixel's `rays_per_pixel` rays: `n / rays_per_pixel x num_levels`,
-    /// pixel-major, as `Model::render` returns them.
-    ///
-    /// # Errors
-    /// Any error wgpu reports, or `n` beyond the buffers or not whole pixels.
-    pub fn read_outputs(
-        &self,
-        ctx: &GpuContext,
-        work: &ModelBuffers,
-        n: usize,
-        rays_per_pixel: usize,
-    ) -> Result<Vec<LevelOutput>, GpuError> {
-        let rpp = rays_per_pixel.max(1);
-        if n > work.capacity || !n.is_multiple_of(rpp) {
-            return Err(GpuError::InvalidInput(format!(
-                "{n} outputs of buffers for {} ({rpp} rays per pixel)",
-                work.capacity
-            )));
-        }
-        let levels: Vec<Vec<f32>> = work.ray_out.iter().map(|b| ctx.read_f32(b, n * 8)).collect::<Result<_, _>>()?;
-        Ok(level_outputs(&levels, n, rpp))
     }
 
     /// The loss of a batch and the gradient of every parameter, computed on the device from

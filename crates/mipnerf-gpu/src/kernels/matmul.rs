@@ -137,6 +137,7 @@ pub enum MatmulVariant {
 impl MatmulVariant {
     /// The variant for `ctx`'s adapter: blocked on a software adapter, tiled on hardware.
     #[must_use]
+    #[cfg(feature = "test-support")]
     pub fn for_adapter(ctx: &GpuContext) -> Self {
         if ctx.adapter().is_software { Self::Blocked } else { Self::Tiled }
     }
@@ -183,6 +184,7 @@ impl MatmulKernel {
     ///
     /// # Errors
     /// If the device rejects it.
+    #[cfg(feature = "test-support")]
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
         Self::with_variant(ctx, MatmulVariant::for_adapter(ctx))
     }
@@ -215,15 +217,10 @@ impl MatmulKernel {
         Ok(Self { pipeline, reduce, layout, variant, max_groups, target_groups })
     }
 
-    /// The variant this kernel runs.
-    #[must_use]
-    pub fn variant(&self) -> MatmulVariant {
-        self.variant
-    }
-
     /// Caps the workgroups per dispatch dimension below the device's limit (tests use it to
     /// reach the grid-stride loops at small sizes).
     #[must_use]
+    #[cfg(feature = "test-support")]
     pub fn with_max_groups_per_dim(mut self, groups: u32) -> Self {
         self.max_groups = groups.clamp(1, self.max_groups);
         self

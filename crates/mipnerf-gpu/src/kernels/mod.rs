@@ -80,6 +80,7 @@ pub fn prelude() -> String {
 /// A kernel's complete WGSL with shared gradients added by compare-exchange (every adapter):
 /// [`compose_with`].
 #[must_use]
+#[cfg(feature = "test-support")]
 pub fn compose(own: &str) -> String {
     compose_with(own, GradientAtomics::CompareExchange)
 }
@@ -138,6 +139,7 @@ pub fn gradient_atomics(own: &str, atomics: GradientAtomics) -> String {
 /// A member of a uniform or storage struct as the WGSL must declare it: name, byte offset and
 /// WGSL type.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg(feature = "test-support")]
 pub struct Member {
     /// Field name (the same in Rust and WGSL).
     pub name: &'static str,
@@ -148,28 +150,35 @@ pub struct Member {
 }
 
 /// A Rust type's WGSL spelling.
+#[cfg(feature = "test-support")]
 pub trait WgslType {
     /// E.g. `u32`, `vec4<f32>`.
     const WGSL: &'static str;
 }
+#[cfg(feature = "test-support")]
 impl WgslType for u32 {
     const WGSL: &'static str = "u32";
 }
+#[cfg(feature = "test-support")]
 impl WgslType for i32 {
     const WGSL: &'static str = "i32";
 }
+#[cfg(feature = "test-support")]
 impl WgslType for f32 {
     const WGSL: &'static str = "f32";
 }
+#[cfg(feature = "test-support")]
 impl WgslType for [f32; 4] {
     const WGSL: &'static str = "vec4<f32>";
 }
+#[cfg(feature = "test-support")]
 impl WgslType for [u32; 4] {
     const WGSL: &'static str = "vec4<u32>";
 }
 
 /// The WGSL type of the field that `_field` reads (type inference only).
 #[must_use]
+#[cfg(feature = "test-support")]
 pub fn wgsl_type_of<S, T: WgslType>(_field: fn(&S) -> &T) -> &'static str {
     T::WGSL
 }
@@ -177,6 +186,7 @@ pub fn wgsl_type_of<S, T: WgslType>(_field: fn(&S) -> &T) -> &'static str {
 /// A `#[repr(C)]` struct shared with WGSL: its WGSL name and its members (padding left out), which
 /// the shader test compares, name by name, offset by offset and type by type, with the struct
 /// naga reflects from the kernel's source.
+#[cfg(feature = "test-support")]
 pub trait WgslStruct {
     /// The struct's name in the WGSL.
     const WGSL_NAME: &'static str;
@@ -187,6 +197,7 @@ pub trait WgslStruct {
 /// Implements [`WgslStruct`] for `$t` (named `$name` in WGSL) with the fields listed.
 macro_rules! wgsl_struct {
     ($t:ty, $name:literal, [$($f:ident),* $(,)?]) => {
+        #[cfg(feature = "test-support")]
         impl $crate::kernels::WgslStruct for $t {
             const WGSL_NAME: &'static str = $name;
             fn members() -> Vec<$crate::kernels::Member> {
@@ -217,6 +228,7 @@ pub mod view_enc;
 
 /// Every kernel's own WGSL file of the crate, by file name, for validation and `mipnerf info`
 /// (compiled as [`compose`]d).
+#[cfg(feature = "test-support")]
 pub const ALL_SOURCES: &[(&str, &str)] = &[
     ("cast_ipe.wgsl", cast_ipe::SOURCE),
     ("matmul.wgsl", matmul::SOURCE),
@@ -259,14 +271,6 @@ pub fn dispatch_grid(n_items: u64, workgroup: u32) -> Result<(u32, u32), GpuErro
         return Err(GpuError::InvalidInput(format!("{n_items} invocations exceed one dispatch")));
     }
     Ok((gx as u32, gy as u32))
-}
-
-/// A bind-group layout of one uniform block at binding 0 followed by storage buffers at bindings
-/// 1.., read-only where `read_only[i]` is true.
-#[must_use]
-pub fn storage_layout(ctx: &GpuContext, name: &str, read_only: &[bool]) -> wgpu::BindGroupLayout {
-    let bindings: Vec<Binding> = read_only.iter().map(|&read_only| Binding::Storage { read_only }).collect();
-    bindings_layout(ctx, name, &bindings)
 }
 
 /// A binding after a kernel's uniform block (binding 0).

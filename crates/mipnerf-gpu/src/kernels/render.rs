@@ -156,6 +156,7 @@ pub enum RenderVariant {
 impl RenderVariant {
     /// The variant for `ctx`'s adapter.
     #[must_use]
+    #[cfg(feature = "test-support")]
     pub fn for_adapter(ctx: &GpuContext) -> Self {
         if ctx.adapter().is_software { Self::PerRay } else { Self::Wide }
     }
@@ -176,6 +177,7 @@ impl RenderKernel {
     ///
     /// # Errors
     /// If the device rejects it.
+    #[cfg(feature = "test-support")]
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
         Self::with_variant(ctx, RenderVariant::for_adapter(ctx))
     }
@@ -243,6 +245,7 @@ impl RenderKernel {
 
 /// What `render.wgsl` reads, held on the host: the inputs of [`RenderKernel::run`].
 #[derive(Clone, Copy, Debug)]
+#[cfg(feature = "test-support")]
 pub struct RenderInputs<'a> {
     /// `n x 3` raw colours (`n` = rays x samples).
     pub raw_rgb: &'a [f32],
@@ -262,6 +265,7 @@ pub struct RenderInputs<'a> {
 
 /// What `render.wgsl` writes, read back by [`RenderKernel::run`].
 #[derive(Clone, Debug, PartialEq)]
+#[cfg(feature = "test-support")]
 pub struct RenderOutputs {
     /// `n` rendering weights.
     pub weights: Vec<f32>,
@@ -281,6 +285,7 @@ impl RenderKernel {
     /// # Errors
     /// [`GpuError::InvalidInput`] for lengths that disagree with `params`, or any error wgpu
     /// reports.
+    #[cfg(feature = "test-support")]
     pub fn run(
         &self,
         ctx: &GpuContext,

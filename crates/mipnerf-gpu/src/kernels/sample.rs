@@ -52,6 +52,7 @@ pub enum ResampleVariant {
 impl ResampleVariant {
     /// The variant for `ctx`'s adapter.
     #[must_use]
+    #[cfg(feature = "test-support")]
     pub fn for_adapter(ctx: &GpuContext) -> Self {
         if ctx.adapter().is_software { Self::PerRay } else { Self::Wide }
     }
@@ -71,6 +72,7 @@ impl SampleKernels {
     ///
     /// # Errors
     /// If the device rejects them.
+    #[cfg(feature = "test-support")]
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
         Self::with_variant(ctx, ResampleVariant::for_adapter(ctx))
     }

@@ -19,9 +19,11 @@
 //! (lavapipe and most hardware have it) would make each addition one instruction behind the
 //! same interface; it is not used yet.
 
+#[cfg(feature = "test-support")]
+use mipnerf_core::Ray;
+use mipnerf_core::RayShape;
 use mipnerf_core::model::{Field, Model};
 use mipnerf_core::tri_mip::{TriMipConfig, total_variation_scale};
-use mipnerf_core::{Ray, RayShape};
 
 use crate::kernels::{Recorder, WORKGROUP, dispatch_grid};
 use crate::{GpuContext, GpuError};
@@ -241,12 +243,6 @@ pub fn pyramid_groups(levels: usize) -> Vec<(u32, u32)> {
         .collect()
 }
 
-/// Dispatches a pyramid of `levels` levels takes to build.
-#[must_use]
-pub fn pyramid_dispatches(levels: usize) -> usize {
-    pyramid_groups(levels).len()
-}
-
 impl TriMipKernel {
     /// Compiles the kernels.
     ///
@@ -275,7 +271,7 @@ impl TriMipKernel {
     }
 
     /// Records the levels above 0 of the planes whose level 0 leads `params` into
-    /// `bufs.pyramid`: [`pyramid_dispatches`] dispatches, each making up to
+    /// `bufs.pyramid`: one dispatch per group of [`pyramid_groups`], each making up to
     /// [`PYRAMID_GROUP_LEVELS`] levels.
     ///
     /// # Errors
@@ -397,6 +393,7 @@ impl TriMipKernel {
     ///
     /// # Errors
     /// Inconsistent sizes; any error wgpu reports.
+    #[cfg(feature = "test-support")]
     pub fn run_encode(
         &self,
         ctx: &GpuContext,
@@ -430,6 +427,7 @@ impl TriMipKernel {
     ///
     /// # Errors
     /// Any error wgpu reports.
+    #[cfg(feature = "test-support")]
     pub fn run_build(&self, ctx: &GpuContext, field: &PlaneField, params: &[f32]) -> Result<Vec<f32>, GpuError> {
         let bufs = FieldBuffers::new(ctx, field);
         let params_buf = ctx.storage_buffer("tri_mip params", params, false);
@@ -445,6 +443,7 @@ impl TriMipKernel {
     ///
     /// # Errors
     /// Inconsistent sizes; any error wgpu reports.
+    #[cfg(feature = "test-support")]
     pub fn run_backward(
         &self,
         ctx: &GpuContext,
@@ -475,6 +474,7 @@ impl TriMipKernel {
     ///
     /// # Errors
     /// Any error wgpu reports.
+    #[cfg(feature = "test-support")]
     pub fn run_total_variation(
         &self,
         ctx: &GpuContext,
@@ -495,11 +495,13 @@ impl TriMipKernel {
 
 /// The rays as the kernels read them ([`super::packed_rays`]; at least one, checked by
 /// [`samples_per_ray`]).
+#[cfg(feature = "test-support")]
 fn upload_rays(ctx: &GpuContext, rays: &[Ray]) -> wgpu::Buffer {
     ctx.storage_buffer("tri_mip rays", &super::packed_rays(rays), false)
 }
 
 /// Intervals a ray of `t_vals` for `rays` (at least one ray of at least one interval).
+#[cfg(feature = "test-support")]
 fn samples_per_ray(rays: &[Ray], t_vals: &[f32]) -> Result<usize, GpuError> {
     if rays.is_empty() || !t_vals.len().is_multiple_of(rays.len()) || t_vals.len() / rays.len() < 2 {
         return Err(GpuError::InvalidInput(format!("tri_mip: {} edges for {} rays", t_vals.len(), rays.len())));
