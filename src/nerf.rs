@@ -10,7 +10,8 @@ use mipnerf_core::backend::{Backend, BackendError, ImageSpec, MAX_BATCH_RAYS, Re
 use mipnerf_core::checkpoint::{self, CheckpointError};
 use mipnerf_core::data::{self, DataError, Dataset, LoadOptions, Split, View};
 use mipnerf_core::model::{FastRecipe, Field, Levels, Model, ModelConfig, ModelError, Preset, TriMipRecipe};
-use mipnerf_core::occupancy::{OccupancyConfig, OccupancyGrid};
+use mipnerf_core::occupancy::{GridPlan, OccupancyGrid};
+use mipnerf_core::schedule::LrSchedule;
 use mipnerf_core::train::{OptimConfig, StepReport};
 
 /// Where a [`Nerf`] runs.
@@ -324,6 +325,8 @@ pub struct Nerf {
     rays: RaySettings,
     /// The precision the MLP's products run in.
     precision: Precision,
+    /// The options' learning-rate schedule, which [`Nerf::train_for`] stretches to its budget.
+    schedule: LrSchedule,
 }
 
 /// How a camera's pixels become rays: bounds, pixel centres, the NDC mapping.
@@ -438,7 +441,7 @@ impl Nerf {
         }
         let (near, far) = options.render_bounds;
         let rays = RaySettings { near, far, centers: mipnerf_core::PixelCenters::Centered, ndc: None };
-        Ok(Self { backend, data, fallback, rays, precision })
+        Ok(Self { backend, data, fallback, rays, precision, schedule: options.optim.lr })
     }
 
     /// Takes `steps` training steps and reports the last.
@@ -459,15 +462,29 @@ impl Nerf {
         Ok(self.backend.train_step(true)?.expect("a backend reports when asked"))
     }
 
-    /// Trains for `budget` of wall-clock time (at least one step) and reports the last step.
+    /// Trains for `budget` of wall-clock time (at least one step) and reports the last step. The
+    /// learning rate's decay is stretched over the steps the budget allows at the speed measured
+    /// so far, so that it reaches the schedule's final rate as the budget runs out, as
+    /// `mipnerf train --time-budget` does (`LrSchedule::stretched_to_budget`); each call is a
+    /// budget of its own. [`Nerf::train`] follows the options' schedule by step.
     ///
     /// # Errors
     /// As [`Nerf::train`].
     pub fn train_for(&mut self, budget: Duration) -> Result<StepReport, Error> {
+        if self.data.is_none() {
+            return Err(Error::NoData);
+        }
         let start = Instant::now();
+        let budget = budget.as_secs_f64();
+        let mut steps = 0u64;
         loop {
+            let elapsed = start.elapsed().as_secs_f64();
+            let per_step = (steps > 0).then(|| elapsed / steps as f64);
+            let step = self.step();
+            self.backend.set_lr_schedule(self.schedule.stretched_to_budget(step, budget - elapsed, per_step));
             let report = self.train(1)?;
-            if start.elapsed() >= budget {
+            steps += 1;
+            if start.elapsed().as_secs_f64() >= budget {
                 return Ok(report);
             }
         }
@@ -586,17 +603,12 @@ fn model_for(options: &Options, data: Option<&Dataset>) -> Result<Model, Error> 
     Ok(Model::new(config)?)
 }
 
-/// A 64³ occupancy grid around the scene of `data`, carved by its images' alpha; for
-/// forward-facing data, over the NDC cube, carved where no training ray reaches.
+/// The fast recipe's occupancy grid around the scene of `data` as the CLI lays it
+/// ([`OccupancyGrid::for_data`]): carved by its images' alpha; for forward-facing data, over the
+/// NDC cube, carved where no training ray reaches.
 fn occupancy_grid(data: &Dataset) -> Result<OccupancyGrid, Error> {
-    let bound = mipnerf_core::occupancy::auto_bound(data)
-        .ok_or_else(|| Error::Occupancy("a camera's near bound reaches the origin: no cube fits the scene".into()))?;
     let resolution = FastRecipe::RECIPE.occupancy_resolution;
-    let mut grid = OccupancyGrid::new(OccupancyConfig { resolution, bound, ..OccupancyConfig::default() })
-        .map_err(|e| Error::Occupancy(e.to_string()))?;
-    grid.carve_with_masks(data);
-    if data.ndc.is_some() {
-        grid.carve_unreached(data);
-    }
+    let plan = GridPlan { resolution, bound: None, unbounded: false, carve_masks: true };
+    let (grid, _) = OccupancyGrid::for_data(data, plan).map_err(|e| Error::Occupancy(e.to_string()))?;
     Ok(grid)
 }

@@ -64,12 +64,26 @@ fn a_dataset_folder_trains_and_a_missing_one_is_named() {
     assert!(matches!(err, Error::Data(_)) && err.to_string().contains("no_such_scene"), "{err}");
 }
 
-/// A time budget takes at least one step and stops soon after the budget.
+/// A time budget takes at least one step and stops soon after the budget, its learning rate
+/// decayed to the schedule's final rate as the budget runs out (as `--time-budget`), where
+/// steps follow the schedule by step.
 #[test]
-fn training_for_a_budget_takes_steps_until_it_is_spent() {
-    let mut nerf = Nerf::new(demo::dataset(2, 8).unwrap(), cpu_tiny()).unwrap();
-    let report = nerf.train_for(std::time::Duration::from_millis(200)).unwrap();
-    assert!(nerf.step() >= 1 && report.step + 1 == nerf.step(), "{} steps, last {}", nerf.step(), report.step);
+fn training_for_a_budget_takes_steps_until_it_is_spent_and_ends_the_decay_with_it() {
+    use mipnerf::{LrSchedule, OptimConfig};
+    let lr = LrSchedule { lr_delay_steps: 0, ..LrSchedule::default() };
+    let options = cpu_tiny().with_optim(OptimConfig { lr, ..OptimConfig::default() });
+    let mut nerf = Nerf::new(demo::dataset(2, 8).unwrap(), options.clone()).unwrap();
+    let first = nerf.train(1).unwrap();
+    let report = nerf.train_for(std::time::Duration::from_millis(400)).unwrap();
+    let steps = nerf.step() - 1;
+    assert!(steps >= 5 && report.step == nerf.step() - 1, "{steps} steps, last {}", report.step);
+    // The last step is at most a step's decay (a factor (init/final)^(1/steps)) above the final rate.
+    let slack = (lr.lr_init / lr.lr_final).powf(1.0 / steps as f32);
+    assert!(report.lr <= lr.lr_final * slack * 1.01, "the last rate {} of {steps} steps", report.lr);
+    assert!(first.lr >= 0.99 * lr.lr_init, "{}", first.lr);
+    // By steps alone, the schedule's own million-step decay: the rate barely moves.
+    let mut by_steps = Nerf::new(demo::dataset(2, 8).unwrap(), options).unwrap();
+    assert!(by_steps.train(steps + 1).unwrap().lr >= 0.99 * lr.lr_init);
 }
 
 /// The fast preset guides sampling with an occupancy grid carved from the images' alpha (the

@@ -13,7 +13,7 @@ use mipnerf_core::checkpoint::{self};
 use mipnerf_core::data::{self, Dataset, Format, Split};
 use mipnerf_core::model::Levels;
 use mipnerf_core::model::{Field, Model};
-use mipnerf_core::occupancy::{OccupancyConfig, OccupancyGrid};
+use mipnerf_core::occupancy::{GridPlan, OccupancyGrid};
 
 use crate::backend;
 use crate::config::{Backend, PrecisionArg, TrainSettings};
@@ -205,21 +205,16 @@ pub const OCCUPANCY_BOUND_RANGE: f32 = 100.0;
 /// with the visual hull of the training masks where the data has transparency (and the settings
 /// allow it), said in one line.
 fn new_occupancy_grid(s: &TrainSettings, ds: &Dataset) -> Result<OccupancyGrid> {
+    let resolution = s.occupancy_resolution.unwrap_or(64);
     if s.unbounded == Some(true) {
         // All of an unbounded scene's space, contracted into the ball of radius 2.
-        let bound = mipnerf_core::occupancy::CONTRACTED_BOUND;
-        let config = OccupancyConfig {
-            resolution: s.occupancy_resolution.unwrap_or(64),
-            bound,
-            contracted: true,
-            ..OccupancyConfig::default()
-        };
-        let grid = OccupancyGrid::new(config)?;
+        let plan = GridPlan { resolution, bound: None, unbounded: true, carve_masks: false };
+        let (grid, _) = OccupancyGrid::for_data(ds, plan)?;
+        let bound = grid.config.bound;
         eprintln!(
-            "occupancy: {r}^3 cells over the contracted space [-{bound}, {bound}]^3 (an unbounded scene: the cells \
-             beyond the contracted ball never sampled; {:.1}% of cells left)",
+            "occupancy: {resolution}^3 cells over the contracted space [-{bound}, {bound}]^3 (an unbounded scene: the \
+             cells beyond the contracted ball never sampled; {:.1}% of cells left)",
             100.0 * grid.occupied_fraction(),
-            r = config.resolution,
         );
         return Ok(grid);
     }
@@ -242,27 +237,22 @@ fn new_occupancy_grid(s: &TrainSettings, ds: &Dataset) -> Result<OccupancyGrid> 
              origin): pass --occupancy-bound B (half the side of a cube around the origin that holds the scene)",
         )?,
     };
-    let config =
-        OccupancyConfig { resolution: s.occupancy_resolution.unwrap_or(64), bound, ..OccupancyConfig::default() };
-    let mut grid = OccupancyGrid::new(config)?;
     let t = Instant::now();
-    let carved = if s.occupancy_masks.unwrap_or(true) { grid.carve_with_masks(ds) } else { 0 };
-    // An NDC grid's cube reaches past the cameras' frustums: the cells no training ray reaches
-    // are never sampled nor updated.
-    let unreached = if ds.ndc.is_some() { grid.carve_unreached(ds) } else { 0 };
+    let plan =
+        GridPlan { resolution, bound: Some(bound), unbounded: false, carve_masks: s.occupancy_masks.unwrap_or(true) };
+    let (grid, carved) = OccupancyGrid::for_data(ds, plan)?;
     eprintln!(
-        "occupancy: {r}^3 cells over [-{bound:.3}, {bound:.3}]^3{}; {} ({:.1}% of cells left, {:.1}s)",
+        "occupancy: {resolution}^3 cells over [-{bound:.3}, {bound:.3}]^3{}; {} ({:.1}% of cells left, {:.1}s)",
         if ds.ndc.is_some() { " in NDC space" } else { "" },
         if ds.ndc.is_some() {
-            format!("{unreached} that no training ray reaches carved")
-        } else if carved > 0 {
-            format!("{carved} carved by the training masks")
+            format!("{} that no training ray reaches carved", carved.unreached)
+        } else if carved.by_masks > 0 {
+            format!("{} carved by the training masks", carved.by_masks)
         } else {
             "no masks carved".to_string()
         },
         100.0 * grid.occupied_fraction(),
         t.elapsed().as_secs_f64(),
-        r = config.resolution,
     );
     Ok(grid)
 }
@@ -614,13 +604,9 @@ impl<'a> TrainLoop<'a> {
     /// `--time-budget`: the schedule's decay stretched over the steps that the budget allows at
     /// this segment's speed so far (the warm-up keeps its step count).
     fn stretch_schedule(&mut self, budget: f64, lr: mipnerf_core::schedule::LrSchedule) {
-        let step = self.be.step();
         let secs = self.t0.elapsed().as_secs_f64();
-        let per_step = if self.segment_steps > 0 { secs / self.segment_steps as f64 } else { f64::INFINITY };
-        let left = ((budget - self.elapsed()) / per_step).max(0.0);
-        // Before the first step is timed, the decay has not started: a horizon far away.
-        let total = if per_step.is_finite() { step + left.ceil() as u64 } else { u64::from(u32::MAX) };
-        self.be.set_lr_schedule(mipnerf_core::schedule::LrSchedule { max_steps: total.max(step + 1), ..lr });
+        let per_step = (self.segment_steps > 0).then(|| secs / self.segment_steps as f64);
+        self.be.set_lr_schedule(lr.stretched_to_budget(self.be.step(), budget - self.elapsed(), per_step));
     }
 
     /// Saves the run and copies it (checkpoint, configuration, training time) to

@@ -37,4 +37,40 @@ impl LrSchedule {
         let log_lerp = ((1.0 - t) * self.lr_init.ln() + t * self.lr_final.ln()).exp();
         delay_rate * log_lerp
     }
+
+    /// This schedule with its decay stretched over the steps a time budget allows, from step
+    /// `step`: `budget_left` seconds of training left at `seconds_per_step` each, so that the
+    /// rate reaches `lr_final` as the budget runs out (the warm-up keeps its step count). Before
+    /// a step has been timed (`seconds_per_step` `None`) the decay has not started: a horizon
+    /// of `u32::MAX` steps. What `mipnerf train --time-budget` and the library's
+    /// `Nerf::train_for` train with, recomputed at every step as the speed becomes known.
+    #[must_use]
+    pub fn stretched_to_budget(self, step: u64, budget_left: f64, seconds_per_step: Option<f64>) -> Self {
+        let total = match seconds_per_step.filter(|s| s.is_finite() && *s > 0.0) {
+            Some(per_step) => step + (budget_left / per_step).max(0.0).ceil() as u64,
+            None => u64::from(u32::MAX),
+        };
+        Self { max_steps: total.max(step + 1), ..self }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::LrSchedule;
+
+    /// The stretched decay ends with the budget: at the budget's last step the rate is
+    /// `lr_final`, half-way it is the log-midpoint; untimed, the decay has not started.
+    #[test]
+    fn a_budget_stretches_the_decay_to_end_with_it() {
+        let base = LrSchedule { lr_delay_steps: 0, ..LrSchedule::default() };
+        // 100 s left at 0.5 s a step from step 10: 200 more steps, the horizon at 210.
+        let s = base.stretched_to_budget(10, 100.0, Some(0.5));
+        assert_eq!(s.max_steps, 210);
+        assert!((s.lr(210) - base.lr_final).abs() <= 1e-9, "{}", s.lr(210));
+        let mid = (base.lr_init * base.lr_final).sqrt();
+        assert!((s.lr(105) - mid).abs() <= 1e-3 * mid, "{} against {mid}", s.lr(105));
+        assert_eq!(base.stretched_to_budget(10, 100.0, None).max_steps, u64::from(u32::MAX));
+        // A spent budget: the horizon is the next step, the rate the final one.
+        assert_eq!(base.stretched_to_budget(10, -5.0, Some(0.5)).max_steps, 11);
+    }
 }

@@ -270,31 +270,32 @@ impl GpuBackend {
         Ok(Checkpoint { step: self.step, params, adam: AdamState { m, v, t: self.adam_t }, occupancy })
     }
 
-    fn run_step(&mut self, report: bool) -> Result<Option<StepReport>, GpuError> {
-        let data = self.train.as_mut().ok_or_else(|| GpuError::InvalidInput("no training data".into()))?;
-        // The grid's update when one is due, before the step, from the current parameters (the
-        // CPU trainer's order): the densities and opacities on the device, the opacities read
-        // back for the occupied cells and their dilations, which the host's ray compaction reads.
-        if let Some((grid, on_device)) = &mut self.occupancy
-            && grid.updates_at(self.step)
-        {
-            let (model, params) = (&self.model, &self.state.params);
-            let mut rec = Recorder::with_cache(&self.ctx, "occupancy update", std::mem::take(&mut self.grid_cache));
-            self.kernels.prepare_field(&mut rec, model, params, &data.work, false)?;
-            self.kernels.update_grid(
-                &mut rec,
-                model,
-                params,
-                &mut data.work,
-                on_device,
-                (self.seed, self.step as u32),
-            )?;
-            self.grid_cache = rec.submit();
-            let opacity = self.ctx.read_f32(on_device.opacity(), grid.opacity.len())?;
-            grid.update_with_opacity(opacity, self.step).map_err(|e| GpuError::InvalidInput(e.to_string()))?;
-            on_device.update(&self.ctx, grid)?;
-            self.in_flight = 0;
+    /// The grid's update when one is due, before the step, from the current parameters (the
+    /// CPU trainer's order): the densities and opacities on the device, the opacities read back
+    /// for the occupied cells and their dilations, which the host's ray compaction reads.
+    fn update_grid_if_due(&mut self) -> Result<(), GpuError> {
+        let (Some(data), Some((grid, on_device))) = (self.train.as_mut(), self.occupancy.as_mut()) else {
+            return Ok(());
+        };
+        if !grid.updates_at(self.step) {
+            return Ok(());
         }
+        let (model, params) = (&self.model, &self.state.params);
+        let mut rec = Recorder::with_cache(&self.ctx, "occupancy update", std::mem::take(&mut self.grid_cache));
+        self.kernels.prepare_field(&mut rec, model, params, &data.work, false)?;
+        let at = (self.seed, self.step as u32);
+        self.kernels.update_grid(&mut rec, model, params, &mut data.work, on_device, at)?;
+        self.grid_cache = rec.submit();
+        let opacity = self.ctx.read_f32(on_device.opacity(), grid.opacity.len())?;
+        grid.update_with_opacity(opacity, self.step).map_err(|e| GpuError::InvalidInput(e.to_string()))?;
+        on_device.update(&self.ctx, grid)?;
+        self.in_flight = 0;
+        Ok(())
+    }
+
+    fn run_step(&mut self, report: bool) -> Result<Option<StepReport>, GpuError> {
+        self.update_grid_if_due()?;
+        let data = self.train.as_mut().ok_or_else(|| GpuError::InvalidInput("no training data".into()))?;
         let grid = self.occupancy.as_ref().map(|(_, g)| g);
         let ctx = &self.ctx;
         let step = self.step;

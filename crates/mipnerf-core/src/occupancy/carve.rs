@@ -6,10 +6,61 @@
 use glam::Vec3;
 use rayon::prelude::*;
 
-use super::{CARVED, OccupancyGrid, UNREACHED_STRIDE, dilate, sign};
+use super::{CARVED, CONTRACTED_BOUND, OccupancyConfig, OccupancyError, OccupancyGrid, UNREACHED_STRIDE, dilate, sign};
 use crate::data::Dataset;
 
+/// How a run lays its grid over its data ([`OccupancyGrid::for_data`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GridPlan {
+    /// Cells along each axis.
+    pub resolution: usize,
+    /// The cube's half side; `None`: from the cameras ([`auto_bound`]). Not read for an
+    /// unbounded scene, whose grid covers the contracted space.
+    pub bound: Option<f32>,
+    /// An unbounded scene: the grid over the contracted space ([`crate::contract`]).
+    pub unbounded: bool,
+    /// Seed the grid with the visual hull of the training masks, where the data has them.
+    pub carve_masks: bool,
+}
+
+/// The cells carved before training ([`OccupancyGrid::for_data`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Carved {
+    /// Outside the training masks' visual hull.
+    pub by_masks: usize,
+    /// Reached by no training ray (forward-facing data in NDC space).
+    pub unreached: usize,
+}
+
 impl OccupancyGrid {
+    /// A run's grid before training, what the CLI's `train` and the library's `Nerf` both lay:
+    /// for an unbounded scene, over the contracted space, nothing carved; else over the plan's
+    /// cube (or the cameras'), seeded with the visual hull of the training masks where the data
+    /// has transparency and the plan asks, and for forward-facing data in NDC space with the
+    /// cells no training ray reaches carved.
+    ///
+    /// # Errors
+    /// No bound given and none from the cameras (a camera's near bound reaches the origin), or
+    /// settings [`OccupancyGrid::new`] refuses.
+    pub fn for_data(ds: &Dataset, plan: GridPlan) -> Result<(Self, Carved), OccupancyError> {
+        let resolution = plan.resolution;
+        if plan.unbounded {
+            let config =
+                OccupancyConfig { resolution, bound: CONTRACTED_BOUND, contracted: true, ..OccupancyConfig::default() };
+            return Ok((Self::new(config)?, Carved::default()));
+        }
+        let bound = plan
+            .bound
+            .or_else(|| auto_bound(ds))
+            .ok_or_else(|| OccupancyError("no cube fits the scene: a camera's near bound reaches the origin".into()))?;
+        let mut grid = Self::new(OccupancyConfig { resolution, bound, ..OccupancyConfig::default() })?;
+        let by_masks = if plan.carve_masks { grid.carve_with_masks(ds) } else { 0 };
+        // An NDC grid's cube reaches past the cameras' frustums: the cells no training ray
+        // reaches are never sampled nor updated.
+        let unreached = if ds.ndc.is_some() { grid.carve_unreached(ds) } else { 0 };
+        Ok((grid, Carved { by_masks, unreached }))
+    }
+
     /// Marks as [`CARVED`] every cell that some training view with an alpha mask shows as
     /// entirely transparent: the cell's eight corners project in front of the camera and inside
     /// the image, and every pixel of the rectangle they span has alpha below `0.5 / 255`. Only

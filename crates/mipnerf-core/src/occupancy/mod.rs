@@ -26,7 +26,7 @@ mod carve;
 mod probes;
 mod traversal;
 
-pub use carve::{NDC_BOUND_MARGIN, auto_bound, ndc_bound};
+pub use carve::{Carved, GridPlan, NDC_BOUND_MARGIN, auto_bound, ndc_bound};
 
 use glam::Vec3;
 
