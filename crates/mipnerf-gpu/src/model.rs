@@ -177,6 +177,23 @@ impl ModelBuffers {
     }
 }
 
+/// What a pass of the model reads besides its rays: the model and its parameters on the
+/// device, training (random draws, the loss gradient) or rendering, where the gradient is added
+/// (training), and the occupancy grid that guides the coarse samples (none: the paper's).
+#[derive(Clone, Copy, Debug)]
+pub struct Pass<'a> {
+    /// The model.
+    pub model: &'a Model,
+    /// Its parameters.
+    pub params: &'a wgpu::Buffer,
+    /// Training (seed and step) or rendering.
+    pub mode: Mode,
+    /// The gradient every parameter's is **added** to; `None` to render.
+    pub grads: Option<&'a wgpu::Buffer>,
+    /// The grid guiding the coarse samples.
+    pub grid: Option<&'a DeviceGrid>,
+}
+
 /// The kernels of a model step.
 #[derive(Debug)]
 pub struct GpuModel {
@@ -250,17 +267,14 @@ impl GpuModel {
     ///
     /// # Errors
     /// [`GpuError::InvalidInput`] for buffers of another size or rays that are not whole pixels.
-    pub fn encode_guided(
+    pub fn encode(
         &self,
         rec: &mut Recorder<'_>,
-        model: &Model,
-        params: &wgpu::Buffer,
+        pass: Pass<'_>,
         batch: &RayBatch,
         work: &ModelBuffers,
-        mode: Mode,
-        grads: Option<&wgpu::Buffer>,
-        grid: Option<&DeviceGrid>,
     ) -> Result<(), GpuError> {
+        let Pass { model, params, mode, grads, grid } = pass;
         let grid = grid.filter(|g| !g.is_full() && model.rays_per_pixel() == 1);
         if batch.n_rays() != work.n_rays || batch.n_rays() == 0 {
             return Err(GpuError::InvalidInput(format!(
@@ -529,7 +543,7 @@ impl GpuModel {
         Ok(total_variation_loss(&f.planes, weight, &rows) as f32)
     }
 
-    /// [`encode_guided`](Self::encode_guided) on only the rays of `batch` that `compaction`'s
+    /// [`encode`](Self::encode) on only the rays of `batch` that `compaction`'s
     /// last [`upload`](Compaction::upload) kept (those that meet an occupied cell of `grid`):
     /// they are gathered into `compaction.batch` and run with `work` (its active rays set here);
     /// every level's outputs are then put back in batch order in `compaction.outs`, with the
@@ -537,24 +551,20 @@ impl GpuModel {
     /// or rendering work, as on the CPU.
     ///
     /// # Errors
-    /// As [`encode_guided`](Self::encode_guided), and `work` too small for the kept rays.
+    /// As [`encode`](Self::encode), and `work` too small for the kept rays.
     pub fn encode_compacted(
         &self,
         rec: &mut Recorder<'_>,
-        model: &Model,
-        params: &wgpu::Buffer,
+        pass: Pass<'_>,
         batch: &RayBatch,
         compaction: &mut Compaction,
         work: &mut ModelBuffers,
-        mode: Mode,
-        grads: Option<&wgpu::Buffer>,
-        grid: Option<&DeviceGrid>,
     ) -> Result<(), GpuError> {
         if self.gather_kept(rec, batch, compaction)? {
             work.set_active(compaction.n_kept())?;
-            self.encode_guided(rec, model, params, &compaction.batch, work, mode, grads, grid)?;
+            self.encode(rec, pass, &compaction.batch, work)?;
         }
-        self.expand_outputs(rec, model, mode, batch, compaction, &work.ray_out)
+        self.expand_outputs(rec, pass.model, pass.mode, batch, compaction, &work.ray_out)
     }
 
     /// Records the gathering of the rays `compaction` keeps from `batch` into
@@ -613,7 +623,7 @@ impl GpuModel {
         Ok(())
     }
 
-    /// The losses of the last batch recorded with [`encode_guided`](Self::encode_guided), read back from
+    /// The losses of the last batch recorded with [`encode`](Self::encode), read back from
     /// `ray_out` (one buffer per level, `n_rays x 8` floats: `ModelBuffers::ray_out`, or where a
     /// chunked step gathered them) and the batch's denominator (waits for the device).
     ///
@@ -661,7 +671,7 @@ impl GpuModel {
     }
 
     /// [`loss_and_grad`](Self::loss_and_grad) with occupancy-guided sampling under `grid` (see
-    /// [`encode_guided`](Self::encode_guided)): the device's counterpart of the CPU's
+    /// [`encode`](Self::encode)): the device's counterpart of the CPU's
     /// `Model::loss_and_grad_guided`.
     ///
     /// # Errors
@@ -691,27 +701,17 @@ impl GpuModel {
         let grid = grid.map(|g| DeviceGrid::new(ctx, g)).transpose()?;
         let mut rec = Recorder::new(ctx, "model step");
         self.prepare_field(&mut rec, model, &params_buf, &work, true)?;
-        let g = Some(&grads);
+        let pass = Pass { model, params: &params_buf, mode, grads: Some(&grads), grid: grid.as_ref() };
         let mut losses = if let Some(kept) = kept {
             // Only the rays that meet an occupied cell run, as on the CPU.
             let mut compaction = Compaction::new(ctx, rays.len(), model.config().num_levels);
             compaction.upload(ctx, &kept, rays.len())?;
-            self.encode_compacted(
-                &mut rec,
-                model,
-                &params_buf,
-                &batch,
-                &mut compaction,
-                &mut work,
-                mode,
-                g,
-                grid.as_ref(),
-            )?;
+            self.encode_compacted(&mut rec, pass, &batch, &mut compaction, &mut work)?;
             self.finish_field(&mut rec, model, &params_buf, &work, &grads)?;
             let _ = rec.submit();
             self.read_losses(ctx, model, &batch, &compaction.outs)?
         } else {
-            self.encode_guided(&mut rec, model, &params_buf, &batch, &work, mode, g, grid.as_ref())?;
+            self.encode(&mut rec, pass, &batch, &work)?;
             self.finish_field(&mut rec, model, &params_buf, &work, &grads)?;
             let _ = rec.submit();
             self.read_losses(ctx, model, &batch, &work.ray_out)?

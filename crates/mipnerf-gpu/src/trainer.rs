@@ -35,7 +35,7 @@ use crate::kernels::batch::{BatchKernel, DeviceImages, Draw};
 use crate::kernels::compact::{Compaction, kept_rays};
 use crate::kernels::occupancy::DeviceGrid;
 use crate::kernels::{DispatchCache, Recorder};
-use crate::model::{GpuModel, ModelBuffers, RayBatch};
+use crate::model::{GpuModel, ModelBuffers, Pass, RayBatch};
 use crate::{GpuContext, GpuError};
 
 /// Most rays per render chunk when chosen automatically.
@@ -321,7 +321,7 @@ impl GpuBackend {
         let draw = Draw::Random { seed: self.seed, step: step as u32, random_bkgd: self.model.config().random_bkgd };
         let (area_loss, k) = (self.model.config().area_loss, self.model.config().supersample);
         self.batch_kernel.encode(&mut rec, images, draw, area_loss, k, batch)?;
-        let grads = Some(&self.state.grads);
+        let pass = Pass { model: &self.model, params: &self.state.params, mode, grads: Some(&self.state.grads), grid };
         // The rays that run: the whole batch, or the kept ones gathered out of it.
         let n_src = match kept.as_deref_mut() {
             Some(c) => {
@@ -334,62 +334,7 @@ impl GpuBackend {
             None => n,
         };
         let src: &RayBatch = kept.as_deref().map_or(&*batch, |c| &c.batch);
-        match chunks.as_mut() {
-            None => {
-                if n_src > 0 {
-                    work.set_active(n_src)?;
-                    self.kernels.encode_guided(
-                        &mut rec,
-                        &self.model,
-                        &self.state.params,
-                        src,
-                        work,
-                        mode,
-                        grads,
-                        grid,
-                    )?;
-                }
-            }
-            Some((sub, outs)) => {
-                // Each chunk's rays are copied out of the batch; the gradients add up in `grads`.
-                let chunk = sub.capacity();
-                for first in (0..n_src).step_by(chunk) {
-                    let m = chunk.min(n_src - first);
-                    for (from, to, floats) in [
-                        (&src.rays, &sub.rays, 8),
-                        (&src.bounds, &sub.bounds, 2),
-                        (&src.viewdirs, &sub.viewdirs, 3),
-                        (&src.targets, &sub.targets, 4),
-                        (&src.ids, &sub.ids, 1),
-                    ] {
-                        let per_ray = floats * 4;
-                        rec.encoder().copy_buffer_to_buffer(
-                            from,
-                            (first * per_ray) as u64,
-                            to,
-                            0,
-                            (m * per_ray) as u64,
-                        );
-                    }
-                    rec.encoder().copy_buffer_to_buffer(&src.norm, 0, &sub.norm, 0, 4);
-                    sub.set_active(m)?;
-                    work.set_active(m)?;
-                    self.kernels.encode_guided(
-                        &mut rec,
-                        &self.model,
-                        &self.state.params,
-                        sub,
-                        work,
-                        mode,
-                        grads,
-                        grid,
-                    )?;
-                    for (from, to) in work.ray_out.iter().zip(outs.iter()) {
-                        rec.encoder().copy_buffer_to_buffer(from, 0, to, (first * 32) as u64, (m * 32) as u64);
-                    }
-                }
-            }
-        }
+        encode_batch(&self.kernels, &mut rec, pass, (src, n_src), work, chunks.as_mut())?;
         // Every level's outputs in batch order, for the losses: the background for the rays that
         // were not kept.
         let ray_out: &[wgpu::Buffer] = match (&kept, chunks.as_ref()) {
@@ -499,24 +444,14 @@ impl GpuBackend {
             let mut rec = Recorder::with_cache(ctx, "render chunk", std::mem::take(&mut self.render_cache));
             let draw = Draw::Sequential { first: first as u32 };
             self.batch_kernel.encode(&mut rec, cams, draw, false, k, batch)?;
-            let params = &self.state.params;
+            let pass = Pass { model: &self.model, params: &self.state.params, mode: Mode::Eval, grads: None, grid };
             let outs = match kept {
                 Some(c) => {
-                    self.kernels.encode_compacted(
-                        &mut rec,
-                        &self.model,
-                        params,
-                        batch,
-                        c,
-                        work,
-                        Mode::Eval,
-                        None,
-                        grid,
-                    )?;
+                    self.kernels.encode_compacted(&mut rec, pass, batch, c, work)?;
                     &c.outs
                 }
                 None => {
-                    self.kernels.encode_guided(&mut rec, &self.model, params, batch, work, Mode::Eval, None, grid)?;
+                    self.kernels.encode(&mut rec, pass, batch, work)?;
                     &work.ray_out
                 }
             };
@@ -613,6 +548,48 @@ impl Backend for GpuBackend {
     fn work_counters(&self) -> Option<WorkCounters> {
         Some(self.ctx.counters())
     }
+}
+
+/// Records the model on the first `n` rays of `src` (`(src, n)`) with `work`: at once, or in
+/// chunks of `chunks`' batch, each chunk's rays copied out of `src`, its outputs copied into
+/// `chunks`' per-level buffers at the chunk's place (the gradients add up in `pass.grads`).
+fn encode_batch(
+    kernels: &GpuModel,
+    rec: &mut Recorder<'_>,
+    pass: Pass<'_>,
+    (src, n): (&RayBatch, usize),
+    work: &mut ModelBuffers,
+    chunks: Option<&mut (RayBatch, Vec<wgpu::Buffer>)>,
+) -> Result<(), GpuError> {
+    let Some((sub, outs)) = chunks else {
+        if n > 0 {
+            work.set_active(n)?;
+            kernels.encode(rec, pass, src, work)?;
+        }
+        return Ok(());
+    };
+    let chunk = sub.capacity();
+    for first in (0..n).step_by(chunk) {
+        let m = chunk.min(n - first);
+        for (from, to, floats) in [
+            (&src.rays, &sub.rays, 8),
+            (&src.bounds, &sub.bounds, 2),
+            (&src.viewdirs, &sub.viewdirs, 3),
+            (&src.targets, &sub.targets, 4),
+            (&src.ids, &sub.ids, 1),
+        ] {
+            let per_ray = floats * 4;
+            rec.encoder().copy_buffer_to_buffer(from, (first * per_ray) as u64, to, 0, (m * per_ray) as u64);
+        }
+        rec.encoder().copy_buffer_to_buffer(&src.norm, 0, &sub.norm, 0, 4);
+        sub.set_active(m)?;
+        work.set_active(m)?;
+        kernels.encode(rec, pass, sub, work)?;
+        for (from, to) in work.ray_out.iter().zip(outs.iter()) {
+            rec.encoder().copy_buffer_to_buffer(from, 0, to, (first * 32) as u64, (m * 32) as u64);
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]
