@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use glam::Vec3;
-use mipnerf_core::data::Split;
+use mipnerf_core::data::{BatchDraw, Split};
 use mipnerf_core::export;
 
 use crate::run::{load_split, load_trained, read_config};
@@ -136,7 +136,7 @@ pub fn export(a: &ExportArgs, session: &Session) -> Result<()> {
         }
         let t = std::time::Instant::now();
         let (mut rays, mut targets) = (Vec::new(), Vec::new());
-        ds.sample_batch(a.count, s.seed.unwrap_or(0), 0, 1, false, &mut rays, &mut targets);
+        ds.sample_batch(BatchDraw::new(a.count, s.seed.unwrap_or(0), 0), &mut rays, &mut targets);
         let (points, colors) = export::ray_points(&model, &ck.params, &rays, ck.occupancy.as_ref(), a.min_opacity);
         export::write_points_ply(path, &points, &colors).with_context(|| format!("writing {}", path.display()))?;
         println!(

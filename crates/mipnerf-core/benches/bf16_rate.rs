@@ -12,8 +12,8 @@
 use std::time::{Duration, Instant};
 
 use mipnerf_core::bench::product_operands;
-use mipnerf_core::bf16::{Bf16Kernel, Bf16Matrix, Bf16Support, Operand, Reads, matmul_bf16_with_on};
-use mipnerf_core::linalg::Layout;
+use mipnerf_core::bf16::{Bf16Kernel, Bf16Matrix, Bf16Support, Operand, Reads, matmul_bf16};
+use mipnerf_core::linalg::{Layout, Product};
 
 /// The product: one chunk of the fast preset (64 rays x 16 samples) through a 128-wide layer.
 const M: usize = 1024;
@@ -81,7 +81,7 @@ fn timeline(kernel: Bf16Kernel, seconds: f64) -> Vec<f64> {
     while Instant::now() < end {
         let (start, mut products) = (Instant::now(), 0u32);
         while start.elapsed() < WINDOW {
-            matmul_bf16_with_on(kernel, c, a, b, M, W, W, false);
+            matmul_bf16(c, a, b, Product { m: M, k: W, n: W, accumulate: false }, Some(kernel));
             products += 1;
         }
         rates.push(flops * f64::from(products) / start.elapsed().as_secs_f64() / 1e9);

@@ -10,21 +10,21 @@
 //! and 16 bytes past one (where `malloc` puts a large block).
 #![allow(missing_docs)]
 
-use mipnerf_core::bench::{Product, product_gflops, product_operands, timed_gflops};
+use mipnerf_core::bench::{ProductFn, product_gflops, product_operands, timed_gflops};
 
-use mipnerf_core::bf16::{Bf16Kernel, Bf16Matrix, Operand, Reads, matmul_bf16_on, matmul_bf16_with_on};
-use mipnerf_core::linalg::{Layout, matmul};
+use mipnerf_core::bf16::{Bf16Kernel, Bf16Matrix, Operand, Reads, matmul_bf16};
+use mipnerf_core::linalg::{Layout, Product, matmul};
 
 fn main() {
     let quick = std::env::args().any(|a| a == "--quick") || !std::env::args().any(|a| a == "--bench");
     let (rows, reps) = if quick { (256, 1) } else { (8192, 9) };
-    let mut kernels: Vec<(&str, Box<Product>)> = vec![("f32 (gemm)", Box::new(matmul))];
+    let mut kernels: Vec<(&str, Box<ProductFn>)> = vec![("f32 (gemm)", Box::new(matmul))];
     for kernel in Bf16Kernel::ALL {
         match kernel.check() {
             Ok(()) => kernels.push((
                 kernel.name(),
-                Box::new(move |c: &mut [f32], a: &[f32], la, b: &[f32], lb, m, k, n, acc| {
-                    matmul_bf16_on(kernel, c, a, la, b, lb, m, k, n, acc);
+                Box::new(move |c: &mut [f32], a: &[f32], la, b: &[f32], lb, p| {
+                    matmul_bf16(c, Operand::f32(a, la), Operand::f32(b, lb), p, Some(kernel));
                 }),
             )),
             Err(why) => println!("{}: not measured ({why})", kernel.name()),
@@ -42,7 +42,10 @@ fn main() {
         for (name, la, lb, m, k, n) in shapes {
             let rates: Vec<String> = kernels
                 .iter()
-                .map(|(_, p)| format!("{:.1}", product_gflops(p.as_ref(), la, lb, m, k, n, reps, 0)))
+                .map(|(_, p)| {
+                    let shape = Product { m, k, n, accumulate: false };
+                    format!("{:.1}", product_gflops(p.as_ref(), (la, lb), shape, reps, 0))
+                })
                 .collect();
             println!("| {name} | {m} x {k} x {n} | {} |", rates.join(" | "));
         }
@@ -104,5 +107,7 @@ fn packed_gflops(
     let a = Operand { values: &x, layout, packed: Some(&x_packed) };
     let b = Operand { values: &right, layout: Layout::Normal, packed: Some(&right_packed) };
     let (m, k) = if weight_gradient { (w, samples) } else { (samples, w) };
-    timed_gflops(m, k, w, reps, c_past_line, |c| matmul_bf16_with_on(kernel, c, a, b, m, k, w, false))
+    timed_gflops(m, k, w, reps, c_past_line, |c| {
+        matmul_bf16(c, a, b, Product { m, k, n: w, accumulate: false }, Some(kernel))
+    })
 }

@@ -11,7 +11,7 @@ use crate::bf16::Precision;
 use crate::camera::{Camera, PixelCenters};
 use crate::checkpoint::Checkpoint;
 use crate::cone::Ray;
-use crate::data::{Dataset, Ndc, push_camera_rays};
+use crate::data::{BatchDraw, Dataset, Ndc, RaySpec, push_camera_rays};
 use crate::model::{LevelOutput, Levels, Model};
 use crate::occupancy::OccupancyGrid;
 use crate::schedule::LrSchedule;
@@ -120,8 +120,8 @@ impl ImageSpec {
         let w = self.camera.width as usize;
         for i in first..(first + count).min(self.pixels()) {
             let (x, y) = ((i % w) as u32, (i / w) as u32);
-            let bounds = (self.near, self.far);
-            push_camera_rays(&self.camera, x, y, self.centers, bounds, 1.0, self.ndc, self.supersample, out);
+            let spec = RaySpec { centers: self.centers, bounds: (self.near, self.far), lossmult: 1.0, ndc: self.ndc };
+            push_camera_rays(&self.camera, x, y, spec, self.supersample, out);
         }
     }
 }
@@ -451,7 +451,15 @@ impl Backend for CpuBackend {
         let t = &self.trainer;
         let c = t.model.config();
         check_ndc_supersample(ds.ndc, c.supersample)?;
-        ds.sample_batch(*batch, t.seed, t.step as u32, c.supersample, c.random_bkgd, &mut self.rays, &mut self.targets);
+        ds.sample_batch(
+            BatchDraw {
+                supersample: c.supersample,
+                random_bkgd: c.random_bkgd,
+                ..BatchDraw::new(*batch, t.seed, t.step as u32)
+            },
+            &mut self.rays,
+            &mut self.targets,
+        );
         let _flushed = self.flush_subnormals.then(crate::subnormals::Flushed::begin);
         let rep = self.trainer.train_step(&self.rays, &self.targets);
         // The CPU has the losses anyway; it returns them only when asked, as the trait says.

@@ -10,7 +10,7 @@ use crate::backend::{Backend, BackendError, ImageSpec};
 use crate::camera::{Camera, PixelCenters};
 use crate::cone::Ray;
 use crate::data::{Dataset, Pixels, Split, View, demo};
-use crate::linalg::{Layout, matmul};
+use crate::linalg::{Layout, Product, matmul};
 use crate::model::{Levels, Model, ModelConfig};
 use crate::train::{OptimConfig, Trainer};
 use rayon::prelude::*;
@@ -90,7 +90,7 @@ pub fn sgemm_gflops(m: usize, k: usize, n: usize, reps: usize) -> f64 {
             let t = Instant::now();
             c.par_chunks_mut(rows * n).zip(a.par_chunks(rows * k)).for_each(|(c, a)| {
                 let mm = a.len() / k;
-                matmul(c, a, Layout::Normal, &b, Layout::Normal, mm, k, n, false);
+                matmul(c, a, Layout::Normal, &b, Layout::Normal, Product { m: mm, k, n, accumulate: false });
             });
             t.elapsed().as_secs_f64()
         })
@@ -100,28 +100,25 @@ pub fn sgemm_gflops(m: usize, k: usize, n: usize, reps: usize) -> f64 {
 }
 
 /// A matrix product with [`matmul`]'s signature: `c (m x n) = [c +] a · b`.
-pub type Product = dyn Fn(&mut [f32], &[f32], Layout, &[f32], Layout, usize, usize, usize, bool) + Sync;
+pub type ProductFn = dyn Fn(&mut [f32], &[f32], Layout, &[f32], Layout, Product) + Sync;
 
-/// GFLOP/s of one thread's product of the given shape and layouts (`a` is `m x k`, `b` `k x n`
+/// GFLOP/s of one thread's product of shape `p` (not accumulating) and layouts (`a` is `m x k`, `b` `k x n`
 /// as the product sees them) on [`product_operands`], timed by [`timed_gflops`]: to compare the
 /// f32 and bf16 kernels on the MLP's three products (forward, input gradient, weight gradient).
 ///
 /// # Panics
 /// As [`timed_gflops`].
 #[must_use]
-#[allow(clippy::too_many_arguments)]
 pub fn product_gflops(
-    product: &Product,
-    la: Layout,
-    lb: Layout,
-    m: usize,
-    k: usize,
-    n: usize,
+    product: &ProductFn,
+    (la, lb): (Layout, Layout),
+    p: Product,
     reps: usize,
     c_past_line: usize,
 ) -> f64 {
+    let Product { m, k, n, .. } = p;
     let (a, b) = product_operands(m, k, n);
-    timed_gflops(m, k, n, reps, c_past_line, |c| product(c, &a, la, &b, lb, m, k, n, false))
+    timed_gflops(m, k, n, reps, c_past_line, |c| product(c, &a, la, &b, lb, p))
 }
 
 /// The deterministic operands the product benchmarks multiply: `a` (`m x k` values) and `b`

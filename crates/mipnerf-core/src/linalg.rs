@@ -26,22 +26,27 @@ pub fn checked_len(rows: usize, cols: usize) -> usize {
     rows.checked_mul(cols).unwrap_or_else(|| panic!("a {rows} x {cols} matrix has more elements than usize holds"))
 }
 
-/// `c (m x n) = [c +] a (m x k) · b (k x n)`, with `a` and `b` stored as `la` and `lb` say, and
-/// `c` overwritten (`accumulate == false`) or added to.
+/// The shape of a product `c (m x n) = [c +] a (m x k) · b (k x n)`, and whether it adds to `c`
+/// (`accumulate`) or overwrites it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Product {
+    /// Rows of `a` and `c`.
+    pub m: usize,
+    /// Columns of `a`, rows of `b`.
+    pub k: usize,
+    /// Columns of `b` and `c`.
+    pub n: usize,
+    /// Add to `c` rather than overwrite it.
+    pub accumulate: bool,
+}
+
+/// `c (m x n) = [c +] a (m x k) · b (k x n)` for `p`'s shape, with `a` and `b` stored as `la`
+/// and `lb` say, and `c` overwritten or added to (`p.accumulate`).
 ///
 /// # Panics
 /// If a slice is shorter than its shape needs, or a size product overflows ([`checked_len`]).
-pub fn matmul(
-    c: &mut [f32],
-    a: &[f32],
-    la: Layout,
-    b: &[f32],
-    lb: Layout,
-    m: usize,
-    k: usize,
-    n: usize,
-    accumulate: bool,
-) {
+pub fn matmul(c: &mut [f32], a: &[f32], la: Layout, b: &[f32], lb: Layout, p: Product) {
+    let Product { m, k, n, accumulate } = p;
     assert!(c.len() >= checked_len(m, n), "matmul: c has {} < {m}x{n}", c.len());
     assert!(a.len() >= checked_len(m, k), "matmul: a has {} < {m}x{k}", a.len());
     assert!(b.len() >= checked_len(k, n), "matmul: b has {} < {k}x{n}", b.len());
@@ -115,7 +120,7 @@ mod tests {
         for (m, k, n) in [(1usize << 60, 1 << 4, 1), (1, 1 << 60, 1 << 4), (1 << 33, 1, 1 << 33)] {
             let caught = std::panic::catch_unwind(|| {
                 let mut c = Vec::new();
-                matmul(&mut c, &[], Layout::Normal, &[], Layout::Normal, m, k, n, false);
+                matmul(&mut c, &[], Layout::Normal, &[], Layout::Normal, Product { m, k, n, accumulate: false });
             });
             let message = caught.expect_err("an overflowing shape must panic");
             let text = message.downcast_ref::<String>().cloned().unwrap_or_default();
@@ -144,11 +149,11 @@ mod tests {
                 for lb in [Layout::Normal, Layout::Transposed] {
                     let want = naive(&a, la, &b, lb, m, k, n);
                     let mut c = vec![1.0; m * n];
-                    matmul(&mut c, &a, la, &b, lb, m, k, n, false);
+                    matmul(&mut c, &a, la, &b, lb, Product { m, k, n, accumulate: false });
                     for (g, w) in c.iter().zip(&want) {
                         assert!((g - w).abs() < 1e-4, "{m}x{k}x{n} {la:?} {lb:?}: {g} vs {w}");
                     }
-                    matmul(&mut c, &a, la, &b, lb, m, k, n, true);
+                    matmul(&mut c, &a, la, &b, lb, Product { m, k, n, accumulate: true });
                     for (g, w) in c.iter().zip(&want) {
                         assert!((g - 2.0 * w).abs() < 2e-4, "accumulate {m}x{k}x{n} {la:?} {lb:?}");
                     }

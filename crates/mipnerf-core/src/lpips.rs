@@ -25,7 +25,7 @@ use std::path::{Path, PathBuf};
 use rayon::prelude::*;
 use safetensors::{Dtype, SafeTensors};
 
-use crate::linalg::{Layout, matmul};
+use crate::linalg::{Layout, Product, matmul};
 
 /// The reference's input shift, per channel (applied after scaling to `[-1, 1]`).
 pub const SHIFT: [f32; 3] = [-0.030, -0.088, -0.188];
@@ -410,7 +410,14 @@ fn conv_relu(x: &Act, c: &Conv) -> Act {
                 }
             }
         }
-        matmul(dst, &cols, Layout::Normal, &c.kernel, Layout::Normal, n, kk, c.cout, false);
+        matmul(
+            dst,
+            &cols,
+            Layout::Normal,
+            &c.kernel,
+            Layout::Normal,
+            Product { m: n, k: kk, n: c.cout, accumulate: false },
+        );
         for px in dst.chunks_exact_mut(c.cout) {
             for (v, b) in px.iter_mut().zip(&c.bias) {
                 *v = (*v + b).max(0.0);

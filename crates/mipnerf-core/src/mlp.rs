@@ -22,8 +22,8 @@ use std::ops::Range;
 
 use rand::{Rng, SeedableRng, rngs::SmallRng};
 
-use crate::bf16::{Bf16Matrix, Operand, Precision, Reads, matmul_bf16_with, uses_bf16};
-use crate::linalg::{Layout, matmul};
+use crate::bf16::{Bf16Matrix, Operand, Precision, Reads, matmul_bf16, uses_bf16};
+use crate::linalg::{Layout, Product, matmul};
 use crate::lines::Lines;
 use crate::wide::wide;
 
@@ -339,25 +339,16 @@ fn dense(p: Precision, params: &[f32], l: &DenseLayer, parts: &[(Operand<'_>, us
     let mut r0 = 0;
     for (k, &(input, width)) in parts.iter().enumerate() {
         let rows = Operand::f32(l.kernel_rows(params, r0, width), Layout::Normal);
-        product(p, out, input, rows, n, width, l.fan_out, k > 0);
+        product(p, out, input, rows, Product { m: n, k: width, n: l.fan_out, accumulate: k > 0 });
         r0 += width;
     }
 }
 
-/// [`matmul`] or [`matmul_bf16_with`], as `precision` says.
-fn product(
-    precision: Precision,
-    c: &mut [f32],
-    a: Operand<'_>,
-    b: Operand<'_>,
-    m: usize,
-    k: usize,
-    n: usize,
-    accumulate: bool,
-) {
+/// [`matmul`] or [`matmul_bf16`], as `precision` says.
+fn product(precision: Precision, c: &mut [f32], a: Operand<'_>, b: Operand<'_>, p: Product) {
     match precision {
-        Precision::F32 => matmul(c, a.values, a.layout, b.values, b.layout, m, k, n, accumulate),
-        Precision::Bf16 => matmul_bf16_with(c, a, b, m, k, n, accumulate),
+        Precision::F32 => matmul(c, a.values, a.layout, b.values, b.layout, p),
+        Precision::Bf16 => matmul_bf16(c, a, b, p, None),
     }
 }
 
@@ -468,7 +459,13 @@ impl MlpShape {
         let l0 = self.condition(0);
         resize(view_proj, n_rays * wc);
         let view_rows = Operand::f32(l0.kernel_rows(params, w, c.view_dim), Layout::Normal);
-        product(p, view_proj, Operand::f32(view, Layout::Normal), view_rows, n_rays, c.view_dim, wc, false);
+        product(
+            p,
+            view_proj,
+            Operand::f32(view, Layout::Normal),
+            view_rows,
+            Product { m: n_rays, k: c.view_dim, n: wc, accumulate: false },
+        );
         add_bias(view_proj, l0.bias(params), false);
         for j in 0..c.net_depth_condition {
             let (before, rest) = cond.split_at_mut(j);
@@ -586,7 +583,7 @@ impl MlpShape {
         let weight_grad =
             |grads: &mut [f32], l: &DenseLayer, r0: usize, input: Operand<'_>, in_w: usize, dz: Operand<'_>, rows| {
                 let k = &mut grads[l.kernel + r0 * l.fan_out..l.kernel + (r0 + in_w) * l.fan_out];
-                product(p, k, input, dz, in_w, rows, l.fan_out, true);
+                product(p, k, input, dz, Product { m: in_w, k: rows, n: l.fan_out, accumulate: true });
             };
         // A layer's kernel (its first `rows` rows), transposed: the input gradient's right operand.
         let kernel_t = |l: &DenseLayer, rows: usize| Operand::f32(l.kernel_rows(params, 0, rows), transposed);
@@ -598,7 +595,7 @@ impl MlpShape {
         weight_grad(grads, l, 0, packed.cond[last].operand(&cond[last], transposed), wc, d_rgb, n);
         add_col_sums(&mut grads[l.bias..l.bias + 3], d_raw_rgb);
         resize(grad_a, n * wc);
-        product(p, grad_a, d_rgb, kernel_t(l, wc), n, 3, wc, false);
+        product(p, grad_a, d_rgb, kernel_t(l, wc), Product { m: n, k: 3, n: wc, accumulate: false });
         // Condition layers, top down. grad_a holds d(output of layer j).
         for j in (0..c.net_depth_condition).rev() {
             let l = self.condition(j);
@@ -612,7 +609,13 @@ impl MlpShape {
                 let input = packed.cond[j - 1].operand(&cond[j - 1], transposed);
                 weight_grad(grads, l, 0, input, wc, packed.dz.right(grad_a), n);
                 resize(grad_b, n * wc);
-                product(p, grad_b, packed.dz.operand(grad_a, normal), kernel_t(l, wc), n, wc, wc, false);
+                product(
+                    p,
+                    grad_b,
+                    packed.dz.operand(grad_a, normal),
+                    kernel_t(l, wc),
+                    Product { m: n, k: wc, n: wc, accumulate: false },
+                );
                 std::mem::swap(grad_a, grad_b);
             } else {
                 let input = packed.bottleneck.operand(bottleneck, transposed);
@@ -627,7 +630,13 @@ impl MlpShape {
                 weight_grad(grads, l, w, view_t, c.view_dim, d_ray, n_rays);
                 // d bottleneck.
                 resize(grad_b, n * w);
-                product(p, grad_b, packed.dz.operand(grad_a, normal), kernel_t(l, w), n, wc, w, false);
+                product(
+                    p,
+                    grad_b,
+                    packed.dz.operand(grad_a, normal),
+                    kernel_t(l, w),
+                    Product { m: n, k: wc, n: w, accumulate: false },
+                );
             }
         }
         // grad_b = d bottleneck (no activation). Heads read [top, x?].
@@ -642,7 +651,13 @@ impl MlpShape {
                 weight_grad(grads, l, w, packed.x.operand(x, transposed), c.x_dim, packed.dz.right(dz), n);
             }
             add_col_sums(&mut grads[l.bias..l.bias + l.fan_out], dz);
-            product(p, grad_z, packed.dz.operand(dz, normal), kernel_t(l, w), n, l.fan_out, w, !first);
+            product(
+                p,
+                grad_z,
+                packed.dz.operand(dz, normal),
+                kernel_t(l, w),
+                Product { m: n, k: l.fan_out, n: w, accumulate: !first },
+            );
         }
         // Trunk, top down. grad_z holds d(output of layer i).
         for i in (0..c.net_depth).rev() {
@@ -662,7 +677,13 @@ impl MlpShape {
                     weight_grad(grads, l, w, packed.x.operand(x, transposed), c.x_dim, packed.dz.right(grad_z), n);
                 }
                 resize(grad_a, n * w);
-                product(p, grad_a, packed.dz.operand(grad_z, normal), kernel_t(l, w), n, w, w, false);
+                product(
+                    p,
+                    grad_a,
+                    packed.dz.operand(grad_z, normal),
+                    kernel_t(l, w),
+                    Product { m: n, k: w, n: w, accumulate: false },
+                );
                 std::mem::swap(grad_a, grad_z);
             }
         }
@@ -694,10 +715,7 @@ impl MlpShape {
             Layout::Normal,
             kernel,
             Layout::Transposed,
-            n,
-            c.net_width,
-            c.x_dim,
-            false,
+            Product { m: n, k: c.net_width, n: c.x_dim, accumulate: false },
         );
     }
 

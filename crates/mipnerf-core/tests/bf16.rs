@@ -6,9 +6,9 @@
 
 use mipnerf_core::bf16::{
     Bf16Kernel, Bf16Matrix, Bf16Support, Operand, Reads, bf16_product_relative_bound, matmul_bf16,
-    matmul_bf16_emulated, matmul_bf16_on, matmul_bf16_with_on, round_to_bf16,
+    matmul_bf16_emulated, round_to_bf16,
 };
-use mipnerf_core::linalg::{Layout, matmul};
+use mipnerf_core::linalg::{Layout, Product, matmul};
 use mipnerf_core::test_support::skipped_for_cpu_feature;
 
 /// Deterministic values spread over [-2, 2] with a few exact zeros, away from subnormals.
@@ -28,13 +28,13 @@ fn at(x: &[f32], l: Layout, rows: usize, cols: usize, r: usize, c: usize) -> f64
     f64::from(if l == Layout::Normal { x[r * cols + c] } else { x[c * rows + r] })
 }
 
-type Product<'a> = &'a dyn Fn(&mut [f32], &[f32], Layout, &[f32], Layout, usize, usize, usize, bool);
+type ProductFn<'a> = &'a dyn Fn(&mut [f32], &[f32], Layout, &[f32], Layout, Product);
 
 /// Checks `product` on `m x k x n` for all four layouts, overwriting and accumulating, against the
 /// exact product of the **f32** operands in f64; the error of each element must stay under
 /// `bf16_product_relative_bound(k) * sum |a| |b|` (plus the accumulated start value's rounding).
 /// Returns the largest ratio of error to bound seen; reports every mismatch in one message.
-fn check(product: Product<'_>, m: usize, k: usize, n: usize) -> f64 {
+fn check(product: ProductFn<'_>, m: usize, k: usize, n: usize) -> f64 {
     let a = values(m * k, (m * 31 + k) as u64);
     let b = values(k * n, (n * 17 + k) as u64);
     let bound = bf16_product_relative_bound(k);
@@ -45,7 +45,7 @@ fn check(product: Product<'_>, m: usize, k: usize, n: usize) -> f64 {
             for accumulate in [false, true] {
                 let start = values(m * n, 5);
                 let mut c = start.clone();
-                product(&mut c, &a, la, &b, lb, m, k, n, accumulate);
+                product(&mut c, &a, la, &b, lb, Product { m, k, n, accumulate });
                 for i in 0..m {
                     for j in 0..n {
                         let (mut exact, mut abs) = (0.0f64, 0.0f64);
@@ -101,7 +101,14 @@ fn emulated_bf16_product_stays_within_the_bf16_bound_of_the_f64_product() {
 #[test]
 fn the_emulation_panics_on_sizes_whose_product_overflows() {
     let caught = std::panic::catch_unwind(|| {
-        matmul_bf16_emulated(&mut [], &[], Layout::Normal, &[], Layout::Normal, 1 << 60, 1 << 4, 16, false)
+        matmul_bf16_emulated(
+            &mut [],
+            &[],
+            Layout::Normal,
+            &[],
+            Layout::Normal,
+            Product { m: 1 << 60, k: 1 << 4, n: 16, accumulate: false },
+        )
     });
     assert!(caught.is_err(), "the bf16 emulation checks its sizes too");
 }
@@ -110,8 +117,8 @@ fn the_emulation_panics_on_sizes_whose_product_overflows() {
 /// reordering of the f32 sums of the emulation (same rounded operands).
 fn check_kernel(kernel: Bf16Kernel) {
     for (m, k, n) in SHAPES {
-        let product = |c: &mut [f32], a: &[f32], la, b: &[f32], lb, m, k, n, acc| {
-            matmul_bf16_on(kernel, c, a, la, b, lb, m, k, n, acc);
+        let product = |c: &mut [f32], a: &[f32], la, b: &[f32], lb, p| {
+            matmul_bf16(c, Operand::f32(a, la), Operand::f32(b, lb), p, Some(kernel));
         };
         check(&product, m, k, n);
         // Same rounded operands: the two differ only in the order of the f32 sums. Both of
@@ -120,12 +127,18 @@ fn check_kernel(kernel: Bf16Kernel) {
         let b = values(k * n, 4);
         for la in [Layout::Normal, Layout::Transposed] {
             let (mut got, mut want) = (vec![f32::NAN; m * n], vec![0.0; m * n]);
-            matmul_bf16_on(kernel, &mut got, &a, la, &b, Layout::Normal, m, k, n, false);
-            matmul_bf16_emulated(&mut want, &a, la, &b, Layout::Normal, m, k, n, false);
+            matmul_bf16(
+                &mut got,
+                Operand::f32(&a, la),
+                Operand::f32(&b, Layout::Normal),
+                Product { m, k, n, accumulate: false },
+                Some(kernel),
+            );
+            matmul_bf16_emulated(&mut want, &a, la, &b, Layout::Normal, Product { m, k, n, accumulate: false });
             let ra: Vec<f32> = a.iter().map(|&x| round_to_bf16(x).abs()).collect();
             let rb: Vec<f32> = b.iter().map(|&x| round_to_bf16(x).abs()).collect();
             let mut abs = vec![0.0; m * n];
-            matmul(&mut abs, &ra, la, &rb, Layout::Normal, m, k, n, false);
+            matmul(&mut abs, &ra, la, &rb, Layout::Normal, Product { m, k, n, accumulate: false });
             for (idx, (g, w)) in got.iter().zip(&want).enumerate() {
                 let tol = 2.0 * k as f32 * f32::EPSILON * abs[idx];
                 assert!((g - w).abs() <= tol, "{} {la:?} {m}x{k}x{n} [{idx}]: {g} vs emulated {w}", kernel.name());
@@ -172,14 +185,20 @@ fn amx_and_avx512_kernels_agree() {
     let (a, b) = (values(m * k, 8), values(k * n, 9));
     let run = |kernel| {
         let mut c = vec![f32::NAN; m * n];
-        matmul_bf16_on(kernel, &mut c, &a, Layout::Transposed, &b, Layout::Normal, m, k, n, false);
+        matmul_bf16(
+            &mut c,
+            Operand::f32(&a, Layout::Transposed),
+            Operand::f32(&b, Layout::Normal),
+            Product { m, k, n, accumulate: false },
+            Some(kernel),
+        );
         c
     };
     let (amx, avx) = (run(Bf16Kernel::Amx), run(Bf16Kernel::Avx512));
     let ra: Vec<f32> = a.iter().map(|&x| round_to_bf16(x).abs()).collect();
     let rb: Vec<f32> = b.iter().map(|&x| round_to_bf16(x).abs()).collect();
     let mut abs = vec![0.0; m * n];
-    matmul(&mut abs, &ra, Layout::Transposed, &rb, Layout::Normal, m, k, n, false);
+    matmul(&mut abs, &ra, Layout::Transposed, &rb, Layout::Normal, Product { m, k, n, accumulate: false });
     for (idx, (x, y)) in amx.iter().zip(&avx).enumerate() {
         assert!((x - y).abs() <= 2.0 * k as f32 * f32::EPSILON * abs[idx], "[{idx}]: AMX {x} vs AVX-512 {y}");
     }
@@ -243,8 +262,14 @@ fn operands_packed_once_give_the_bits_of_operands_packed_by_each_product() {
                     for accumulate in [false, true] {
                         let start = values(m * n, 11);
                         let (mut got, mut want) = (start.clone(), start.clone());
-                        matmul_bf16_with_on(kernel, &mut got, a, b, m, k, n, accumulate);
-                        matmul_bf16_on(kernel, &mut want, a.values, a.layout, b.values, b.layout, m, k, n, accumulate);
+                        matmul_bf16(&mut got, a, b, Product { m, k, n, accumulate }, Some(kernel));
+                        matmul_bf16(
+                            &mut want,
+                            Operand::f32(a.values, a.layout),
+                            Operand::f32(b.values, b.layout),
+                            Product { m, k, n, accumulate },
+                            Some(kernel),
+                        );
                         let same = got.iter().zip(&want).all(|(g, w)| g.to_bits() == w.to_bits());
                         assert!(
                             same,
@@ -268,7 +293,13 @@ fn operands_packed_once_give_the_bits_of_operands_packed_by_each_product() {
     let caught = std::panic::catch_unwind(|| {
         let mut c = vec![0.0; 32 * 32];
         let a = Operand { values: &x, layout: Layout::Transposed, packed: Some(&packed) };
-        matmul_bf16_with_on(kernel, &mut c, a, Operand::f32(&g, Layout::Normal), 32, 64, 32, false);
+        matmul_bf16(
+            &mut c,
+            a,
+            Operand::f32(&g, Layout::Normal),
+            Product { m: 32, k: 64, n: 32, accumulate: false },
+            Some(kernel),
+        );
     });
     assert!(caught.is_err(), "a matrix packed only as a left operand is refused as a transposed one");
 }
@@ -287,8 +318,20 @@ fn matmul_bf16_runs_the_detected_kernel() {
     let (m, k, n) = (40, 64, 48);
     let (a, b) = (values(m * k, 1), values(k * n, 2));
     let (mut got, mut want) = (vec![0.0; m * n], vec![0.0; m * n]);
-    matmul_bf16(&mut got, &a, Layout::Normal, &b, Layout::Normal, m, k, n, false);
-    matmul_bf16_on(kernel, &mut want, &a, Layout::Normal, &b, Layout::Normal, m, k, n, false);
+    matmul_bf16(
+        &mut got,
+        Operand::f32(&a, Layout::Normal),
+        Operand::f32(&b, Layout::Normal),
+        Product { m, k, n, accumulate: false },
+        None,
+    );
+    matmul_bf16(
+        &mut want,
+        Operand::f32(&a, Layout::Normal),
+        Operand::f32(&b, Layout::Normal),
+        Product { m, k, n, accumulate: false },
+        Some(kernel),
+    );
     assert_eq!(got, want, "matmul_bf16 is {}'s product", kernel.name());
 }
 
@@ -466,19 +509,37 @@ fn amx_products_over_long_k_give_the_bits_of_their_halves_added() {
     let (a, b) = (values(m * k, 31), values(k * n, 32));
     let kernel = Bf16Kernel::Amx;
     let mut whole = vec![0.0f32; m * n];
-    matmul_bf16_on(kernel, &mut whole, &a, Layout::Normal, &b, Layout::Normal, m, k, n, false);
+    matmul_bf16(
+        &mut whole,
+        Operand::f32(&a, Layout::Normal),
+        Operand::f32(&b, Layout::Normal),
+        Product { m, k, n, accumulate: false },
+        Some(kernel),
+    );
     let columns = |from: usize, to: usize| -> Vec<f32> {
         (0..m).flat_map(|r| a[r * k + from..r * k + to].iter().copied()).collect()
     };
     let (a1, a2) = (columns(0, half), columns(half, k));
     let mut halves = vec![0.0f32; m * n];
-    matmul_bf16_on(kernel, &mut halves, &a1, Layout::Normal, &b[..half * n], Layout::Normal, m, half, n, false);
-    matmul_bf16_on(kernel, &mut halves, &a2, Layout::Normal, &b[half * n..], Layout::Normal, m, k - half, n, true);
+    matmul_bf16(
+        &mut halves,
+        Operand::f32(&a1, Layout::Normal),
+        Operand::f32(&b[..half * n], Layout::Normal),
+        Product { m, k: half, n, accumulate: false },
+        Some(kernel),
+    );
+    matmul_bf16(
+        &mut halves,
+        Operand::f32(&a2, Layout::Normal),
+        Operand::f32(&b[half * n..], Layout::Normal),
+        Product { m, k: k - half, n, accumulate: true },
+        Some(kernel),
+    );
     let differ = whole.iter().zip(&halves).filter(|(x, y)| x.to_bits() != y.to_bits()).count();
     assert_eq!(differ, 0, "{differ} of {} values differ between k in chunks and k in two halves", m * n);
     // And the product is the product: within the bf16 bound of the emulation's.
     let mut emulated = vec![0.0f32; m * n];
-    matmul_bf16_emulated(&mut emulated, &a, Layout::Normal, &b, Layout::Normal, m, k, n, false);
+    matmul_bf16_emulated(&mut emulated, &a, Layout::Normal, &b, Layout::Normal, Product { m, k, n, accumulate: false });
     let scale = emulated.iter().fold(0.0f32, |s, v| s.max(v.abs()));
     let worst = whole.iter().zip(&emulated).fold(0.0f32, |s, (x, y)| s.max((x - y).abs()));
     // f32 sums of 9,000 terms in another order: far inside a thousandth of the largest value.

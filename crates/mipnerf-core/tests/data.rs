@@ -7,7 +7,9 @@ use std::path::{Path, PathBuf};
 
 use common::*;
 use mipnerf_core::Camera;
-use mipnerf_core::data::{self, DataError, Dataset, LoadOptions, Pixels, Split, View, demo, llff, multiscale};
+use mipnerf_core::data::{
+    self, BatchDraw, DataError, Dataset, LoadOptions, Pixels, Split, View, demo, llff, multiscale,
+};
 
 fn lego_tiny() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/lego_tiny")
@@ -158,7 +160,7 @@ fn batches_come_from_every_scale_with_their_lossmult() {
         .unwrap();
     let ds = data::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap();
     let (mut rays, mut targets) = (Vec::new(), Vec::new());
-    ds.sample_batch(4000, 1, 0, 1, false, &mut rays, &mut targets);
+    ds.sample_batch(BatchDraw::new(4000, 1, 0), &mut rays, &mut targets);
     assert_eq!((rays.len(), targets.len()), (4000, 4000));
     let mut seen = std::collections::BTreeMap::new();
     for r in &rays {
@@ -169,11 +171,11 @@ fn batches_come_from_every_scale_with_their_lossmult() {
     let frac0 = f64::from(seen[&1]) / 4000.0;
     assert!((frac0 - 256.0 / 340.0).abs() < 0.03, "{frac0}");
     let (mut r2, mut t2) = (Vec::new(), Vec::new());
-    ds.sample_batch(4000, 1, 0, 1, false, &mut r2, &mut t2);
+    ds.sample_batch(BatchDraw::new(4000, 1, 0), &mut r2, &mut t2);
     assert_eq!(rays, r2, "batches are a function of (seed, step)");
-    ds.sample_batch(4000, 1, 1, 1, false, &mut r2, &mut t2);
+    ds.sample_batch(BatchDraw::new(4000, 1, 1), &mut r2, &mut t2);
     assert_ne!(rays, r2);
-    ds.sample_batch(10, 1, 0, 3, false, &mut r2, &mut t2);
+    ds.sample_batch(BatchDraw { supersample: 3, ..BatchDraw::new(10, 1, 0) }, &mut r2, &mut t2);
     assert_eq!((r2.len(), t2.len()), (90, 10), "3x3 rays per pixel");
     assert!((r2[0].radius * 3.0 - rays[0].radius).abs() < 1e-6 && r2[0].origin == rays[0].origin);
     assert_ne!(rays, r2);
@@ -189,8 +191,8 @@ fn random_background_batches_composite_each_target_on_its_pixels_colour() {
     assert!(ds.has_transparency());
     let (mut rays, mut targets, mut r2, mut white) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let (seed, step) = (3, 11);
-    ds.sample_batch(2000, seed, step, 1, true, &mut rays, &mut targets);
-    ds.sample_batch(2000, seed, step, 1, false, &mut r2, &mut white);
+    ds.sample_batch(BatchDraw { random_bkgd: true, ..BatchDraw::new(2000, seed, step) }, &mut rays, &mut targets);
+    ds.sample_batch(BatchDraw::new(2000, seed, step), &mut r2, &mut white);
     assert_eq!(rays, r2, "the background changes the targets, not the pixels drawn");
     let (mut opaque, mut clear) = (0, 0);
     for (i, ((ray, t), w)) in rays.iter().zip(&targets).zip(&white).enumerate() {

@@ -10,7 +10,7 @@ use std::sync::Arc;
 use mipnerf_core::backend::{Backend, CpuBackend, ImageSpec, TrainState};
 use mipnerf_core::camera::{Camera, PixelCenters};
 use mipnerf_core::compare::{Outputs, Tolerance, assert_none, check_kernel, mismatches};
-use mipnerf_core::data::{self, Dataset, LoadOptions, Pixels, Split, View, demo};
+use mipnerf_core::data::{self, BatchDraw, Dataset, LoadOptions, Pixels, Split, View, demo};
 use mipnerf_core::model::{Field, LevelOutput, Levels, LossStats, Model, ModelConfig, Preset, TriMipRecipe};
 use mipnerf_core::train::OptimConfig;
 use mipnerf_gpu::GpuBackend;
@@ -96,7 +96,7 @@ fn device_batches_are_the_cpu_batches() {
             // The CPU reference: the CPU backend's batch of the same seed and step.
             let cpu = |ds: &Dataset| -> Outputs {
                 let (mut rays, mut targets) = (Vec::new(), Vec::new());
-                ds.sample_batch(n, seed, step, 1, random_bkgd, &mut rays, &mut targets);
+                ds.sample_batch(BatchDraw { random_bkgd, ..BatchDraw::new(n, seed, step) }, &mut rays, &mut targets);
                 let col = |f: &dyn Fn(&mipnerf_core::Ray) -> Vec<f32>| rays.iter().flat_map(f).collect::<Vec<f32>>();
                 let lm: f64 = rays.iter().map(|r| if area_loss { f64::from(r.lossmult) } else { 1.0 }).sum();
                 vec![
@@ -189,7 +189,7 @@ fn device_ndc_batches_match_the_cpu() {
     };
     let cpu = |ds: &Dataset| -> Outputs {
         let (mut rays, mut targets) = (Vec::new(), Vec::new());
-        ds.sample_batch(n, 5, 1, 1, false, &mut rays, &mut targets);
+        ds.sample_batch(BatchDraw::new(n, 5, 1), &mut rays, &mut targets);
         let packed: Vec<f32> = rays
             .iter()
             .flat_map(|r| [r.origin.extend(r.radius).to_array(), r.direction.extend(r.lossmult).to_array()].concat())
@@ -765,7 +765,7 @@ fn guided_training_follows_the_cpu(ctx: mipnerf_gpu::GpuContext, chunk: Option<u
     // The last step ran under the saved grid (updated before step 12, the last update): the
     // batch's rays that meet an occupied cell, and no others, ran through the model.
     let (mut rays, mut targets) = (Vec::new(), Vec::new());
-    ds.sample_batch(batch, seed, (steps - 1) as u32, 1, false, &mut rays, &mut targets);
+    ds.sample_batch(BatchDraw::new(batch, seed, (steps - 1) as u32), &mut rays, &mut targets);
     let kept = grid_g.active_rays(&rays).len();
     assert!(0 < kept && kept < batch, "the learnt grid keeps {kept} of {batch} rays");
     assert_eq!(ran[steps as usize - 1], kept as u64, "rays run through the GPU model at the last step: {ran:?}");

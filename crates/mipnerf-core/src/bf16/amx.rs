@@ -96,18 +96,9 @@ const K_CHUNK_TILES: usize = 8;
 /// scratch block. Where the packed operands outgrow [`WHOLE_K_MAX_BYTES`], k runs in chunks of
 /// [`K_CHUNK_TILES`] tiles, every block of `c` stored after one chunk and loaded again for the
 /// next: the same multiply-adds in the same order on the same f32 accumulators, so the same bits.
-pub(super) fn product(
-    c: &mut [f32],
-    a: &[u16],
-    b: &[u32],
-    m: usize,
-    n: usize,
-    mp: usize,
-    kp: usize,
-    np: usize,
-    accumulate: bool,
-) {
-    super::assert_packed(super::Bf16Kernel::Amx, c, a.len(), b, m, n, mp, kp, np);
+pub(super) fn product(c: &mut [f32], a: &[u16], b: &[u32], shape: super::PackedShape) {
+    super::assert_packed(super::Bf16Kernel::Amx, c, a.len(), b, shape);
+    let super::PackedShape { m, n, mp, kp, np, accumulate } = shape;
     let cfg = TileConfig::all_16x64();
     let k_tiles = kp / K_STEP;
     let mut scratch = ScratchBlock([0f32; BLOCK * BLOCK]);

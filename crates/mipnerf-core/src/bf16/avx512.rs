@@ -6,7 +6,7 @@ use std::hint::black_box;
 use std::time::{Duration, Instant};
 
 use super::packed::PackedLeft;
-use super::{K_STEP, a_index, b_index};
+use super::{K_STEP, PackedShape, a_index, b_index};
 
 /// Output rows per step of the micro-kernel: half a packed 16-row tile.
 const ROWS: usize = 8;
@@ -108,24 +108,23 @@ fn time_chains(rounds: usize, step: impl Fn(__m512) -> __m512) -> Duration {
 /// k in passes of [`KC`], each pass sweeping the output in 8 x 32 blocks held in sixteen
 /// registers. Rows and columns past `m` and `n` are computed on the zero padding and
 /// neither read nor written in `c`.
-pub(super) fn product(
-    c: &mut [f32],
-    a: PackedLeft<'_>,
-    b: &[u32],
-    m: usize,
-    n: usize,
-    mp: usize,
-    kp: usize,
-    np: usize,
-    accumulate: bool,
-) {
+pub(super) fn product(c: &mut [f32], a: PackedLeft<'_>, b: &[u32], shape: PackedShape) {
     let a_values = match a {
         PackedLeft::Tiles(a) => a.len(),
         PackedLeft::Pairs(a) => a.len().saturating_mul(2),
     };
-    super::assert_packed(super::Bf16Kernel::Avx512, c, a_values, b, m, n, mp, kp, np);
+    super::assert_packed(super::Bf16Kernel::Avx512, c, a_values, b, shape);
     // SAFETY: the CPU has AVX-512 F and BF16 and the sizes are asserted (above).
-    unsafe { sweep(c, a, b, m, n, kp, accumulate) };
+    unsafe { sweep(c, a, b, shape) };
+}
+
+/// Where one block of [`block`] lies: its first row and column, and the range of k it sums.
+#[derive(Clone, Copy, Debug)]
+struct BlockAt {
+    i0: usize,
+    j0: usize,
+    k0: usize,
+    k1: usize,
 }
 
 /// [`product`]'s passes and blocks, compiled with the kernel's features so that [`block`] is
@@ -135,7 +134,8 @@ pub(super) fn product(
 /// As [`product`]'s asserts: the CPU has AVX-512 F and BF16, and the buffers are as large as
 /// the padded sizes need.
 #[target_feature(enable = "avx512f,avx512bf16")]
-unsafe fn sweep(c: &mut [f32], a: PackedLeft<'_>, b: &[u32], m: usize, n: usize, kp: usize, accumulate: bool) {
+unsafe fn sweep(c: &mut [f32], a: PackedLeft<'_>, b: &[u32], shape: PackedShape) {
+    let PackedShape { m, n, kp, accumulate, .. } = shape;
     let a_bytes: (*const u8, usize) = match a {
         PackedLeft::Tiles(a) => (a.as_ptr().cast(), size_of_val(a)),
         PackedLeft::Pairs(a) => (a.as_ptr().cast(), size_of_val(a)),
@@ -147,16 +147,15 @@ unsafe fn sweep(c: &mut [f32], a: PackedLeft<'_>, b: &[u32], m: usize, n: usize,
             for (jb, j0) in (0..n).step_by(COLS).enumerate() {
                 prefetch_next_rows(a_bytes, i0, jb, column_blocks, kp, k0..k1);
                 prefetch_next_output(c, i0 + ROWS, j0, n);
-                let accumulate = accumulate || k0 > 0;
+                let block_shape = PackedShape { accumulate: accumulate || k0 > 0, ..shape };
+                let at = BlockAt { i0, j0, k0, k1 };
                 // SAFETY: the CPU has AVX-512 F and BF16 (asserted in `product`); the block's rows
                 // lie below mp and its columns below np (m <= mp, n <= np, both multiples of
                 // the block), k0..k1 below kp, and the sizes of the buffers are asserted.
                 unsafe {
                     match a {
-                        PackedLeft::Tiles(a) => {
-                            block::<false>(c, a.as_ptr().cast(), b, m, n, kp, i0, j0, k0, k1, accumulate);
-                        }
-                        PackedLeft::Pairs(a) => block::<true>(c, a.as_ptr(), b, m, n, kp, i0, j0, k0, k1, accumulate),
+                        PackedLeft::Tiles(a) => block::<false>(c, a.as_ptr().cast(), b, block_shape, at),
+                        PackedLeft::Pairs(a) => block::<true>(c, a.as_ptr(), b, block_shape, at),
                     }
                 }
             }
@@ -220,19 +219,9 @@ fn prefetch_next_output(c: &[f32], i0: usize, j0: usize, n: usize) {
 /// holds `kp / 2 x np` pairs, and `c` at least `m x n`.
 #[inline]
 #[target_feature(enable = "avx512f,avx512bf16")]
-unsafe fn block<const A_PAIRS: bool>(
-    c: &mut [f32],
-    a: *const u32,
-    b: &[u32],
-    m: usize,
-    n: usize,
-    kp: usize,
-    i0: usize,
-    j0: usize,
-    k0: usize,
-    k1: usize,
-    accumulate: bool,
-) {
+unsafe fn block<const A_PAIRS: bool>(c: &mut [f32], a: *const u32, b: &[u32], shape: PackedShape, at: BlockAt) {
+    let PackedShape { m, n, kp, accumulate, .. } = shape;
+    let BlockAt { i0, j0, k0, k1 } = at;
     // Valid columns of each of the two vectors, as load and store masks.
     let masks: [u16; 2] = std::array::from_fn(|v| {
         let valid = n.saturating_sub(j0 + 16 * v).min(16);

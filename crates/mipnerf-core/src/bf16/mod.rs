@@ -30,7 +30,7 @@
 use std::cell::RefCell;
 use std::sync::OnceLock;
 
-use crate::linalg::{Layout, matmul};
+use crate::linalg::{Layout, Product, matmul};
 use crate::lines::Lines;
 
 use packed::PackedLeft;
@@ -339,79 +339,24 @@ pub fn uses_bf16(m: usize, k: usize, n: usize) -> bool {
 }
 
 /// `c (m x n) = [c +] a (m x k) · b (k x n)` as [`matmul`], with `a` and `b` rounded to bf16 and
-/// the products accumulated in f32, on the kernel [`Bf16Support::detect`] chose. Shapes below
-/// [`MIN_BF16_DIM`] run [`matmul`] in f32.
+/// the products accumulated in f32, on `kernel` or, for `None`, the one
+/// [`Bf16Support::detect`] chose. An operand packed before ([`Operand::packed`], [`Bf16Matrix`])
+/// is read as packed (it must have been packed for the kernel: [`Bf16Matrix::pack_for`]), the
+/// others are packed here: the same bits either way. Shapes below [`MIN_BF16_DIM`] run
+/// [`matmul`] in f32.
 ///
 /// # Panics
-/// If a slice is shorter than its shape needs, or if the CPU has no bf16 kernel
-/// ([`Bf16Support::detect`]): callers choose [`Precision::Bf16`] only after checking it.
-pub fn matmul_bf16(
-    c: &mut [f32],
-    a: &[f32],
-    la: Layout,
-    b: &[f32],
-    lb: Layout,
-    m: usize,
-    k: usize,
-    n: usize,
-    accumulate: bool,
-) {
-    let kernel = Bf16Support::detect().kernel();
+/// If a slice is shorter than its shape needs, if a size product overflows, if the CPU cannot
+/// run `kernel` ([`Bf16Kernel::check`]) or, for `None`, has no bf16 kernel (callers choose
+/// [`Precision::Bf16`] only after checking [`Bf16Support::detect`]), or if a packed operand's
+/// shape or layouts do not match its role.
+pub fn matmul_bf16(c: &mut [f32], a: Operand<'_>, b: Operand<'_>, p: Product, kernel: Option<Bf16Kernel>) {
+    let kernel = kernel.or_else(|| Bf16Support::detect().kernel());
     let kernel = kernel.unwrap_or_else(|| panic!("matmul_bf16 without a bf16 kernel: {:?}", Bf16Support::detect()));
-    matmul_bf16_on(kernel, c, a, la, b, lb, m, k, n, accumulate);
-}
-
-/// [`matmul_bf16`] on the given kernel, whichever [`Bf16Support::detect`] prefers: to test and
-/// time each kernel on a CPU that has both.
-///
-/// # Panics
-/// If a slice is shorter than its shape needs, if a size product overflows, or if the CPU cannot
-/// run `kernel` ([`Bf16Kernel::check`]).
-pub fn matmul_bf16_on(
-    kernel: Bf16Kernel,
-    c: &mut [f32],
-    a: &[f32],
-    la: Layout,
-    b: &[f32],
-    lb: Layout,
-    m: usize,
-    k: usize,
-    n: usize,
-    accumulate: bool,
-) {
-    matmul_bf16_with_on(kernel, c, Operand::f32(a, la), Operand::f32(b, lb), m, k, n, accumulate);
-}
-
-/// [`matmul_bf16`] on operands that may have been packed before ([`Operand::packed`],
-/// [`Bf16Matrix`]): those are read as packed, the others packed here. The same bits as
-/// [`matmul_bf16`] on the operands' values.
-///
-/// # Panics
-/// As [`matmul_bf16`]; also if a packed operand's shape or layouts do not match its role.
-pub fn matmul_bf16_with(c: &mut [f32], a: Operand<'_>, b: Operand<'_>, m: usize, k: usize, n: usize, accumulate: bool) {
-    let kernel = Bf16Support::detect().kernel();
-    let kernel = kernel.unwrap_or_else(|| panic!("matmul_bf16 without a bf16 kernel: {:?}", Bf16Support::detect()));
-    matmul_bf16_with_on(kernel, c, a, b, m, k, n, accumulate);
-}
-
-/// [`matmul_bf16_with`] on the given kernel ([`matmul_bf16_on`]); packed operands must have
-/// been packed for it ([`Bf16Matrix::pack_for`]).
-///
-/// # Panics
-/// As [`matmul_bf16_on`] and [`matmul_bf16_with`].
-pub fn matmul_bf16_with_on(
-    kernel: Bf16Kernel,
-    c: &mut [f32],
-    a: Operand<'_>,
-    b: Operand<'_>,
-    m: usize,
-    k: usize,
-    n: usize,
-    accumulate: bool,
-) {
+    let Product { m, k, n, accumulate } = p;
     let (la, lb) = (a.layout, b.layout);
     if !uses_bf16(m, k, n) {
-        matmul(c, a.values, la, b.values, lb, m, k, n, accumulate);
+        matmul(c, a.values, la, b.values, lb, p);
         return;
     }
     let size = crate::linalg::checked_len;
@@ -447,10 +392,11 @@ pub fn matmul_bf16_with_on(
                 PackedLeft::Tiles(&p.a)
             }
         };
+        let shape = PackedShape { m, n, mp, kp, np, accumulate };
         match (kernel, a_packed) {
-            (Bf16Kernel::Amx, PackedLeft::Tiles(a)) => amx::product(c, a, b_pairs, m, n, mp, kp, np, accumulate),
+            (Bf16Kernel::Amx, PackedLeft::Tiles(a)) => amx::product(c, a, b_pairs, shape),
             (Bf16Kernel::Amx, PackedLeft::Pairs(_)) => unreachable!("the AMX kernel's operands are packed in tiles"),
-            (Bf16Kernel::Avx512, a) => avx512::product(c, a, b_pairs, m, n, mp, kp, np, accumulate),
+            (Bf16Kernel::Avx512, a) => avx512::product(c, a, b_pairs, shape),
         }
     });
 }
@@ -461,22 +407,25 @@ const BLOCK: usize = 32;
 /// The packed operands' padding of k: the bf16 values of k per tile multiply-add.
 const K_STEP: usize = 32;
 
-/// What every kernel's `product` rests its `unsafe` code on: the CPU runs `kernel`, the padded
-/// sizes are whole blocks at least the real ones, and the packed `a` (`a_values`, at least
-/// `mp x kp` bf16 values), the packed `b` (`kp / 2 x np` pairs) and `c` (`m x n`) are that large
-/// (sizes checked against overflow).
-#[cfg(target_arch = "x86_64")]
-fn assert_packed(
-    kernel: Bf16Kernel,
-    c: &[f32],
-    a_values: usize,
-    b: &[u32],
+/// The shape of a product on packed operands: `c`'s `m x n`, the padded `mp x kp x np` the
+/// operands were packed to, and whether the product adds to `c` (`accumulate`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct PackedShape {
     m: usize,
     n: usize,
     mp: usize,
     kp: usize,
     np: usize,
-) {
+    accumulate: bool,
+}
+
+/// What every kernel's `product` rests its `unsafe` code on: the CPU runs `kernel`, the padded
+/// sizes are whole blocks at least the real ones, and the packed `a` (`a_values`, at least
+/// `mp x kp` bf16 values), the packed `b` (`kp / 2 x np` pairs) and `c` (`m x n`) are that large
+/// (sizes checked against overflow).
+#[cfg(target_arch = "x86_64")]
+fn assert_packed(kernel: Bf16Kernel, c: &[f32], a_values: usize, b: &[u32], s: PackedShape) {
+    let PackedShape { m, n, mp, kp, np, .. } = s;
     if let Err(why) = kernel.check() {
         panic!("the {} kernel on a CPU without it: {why}", kernel.name());
     }
@@ -488,24 +437,15 @@ fn assert_packed(
 
 /// The same rounding as [`matmul_bf16`] on any CPU: `a` and `b` rounded to bf16 (as f32 values),
 /// then the f32 product. Differs from the AMX kernel only in the order of the f32 additions.
-pub fn matmul_bf16_emulated(
-    c: &mut [f32],
-    a: &[f32],
-    la: Layout,
-    b: &[f32],
-    lb: Layout,
-    m: usize,
-    k: usize,
-    n: usize,
-    accumulate: bool,
-) {
+pub fn matmul_bf16_emulated(c: &mut [f32], a: &[f32], la: Layout, b: &[f32], lb: Layout, p: Product) {
+    let Product { m, k, n, .. } = p;
     if !uses_bf16(m, k, n) {
-        matmul(c, a, la, b, lb, m, k, n, accumulate);
+        matmul(c, a, la, b, lb, p);
         return;
     }
     let a: Vec<f32> = a[..crate::linalg::checked_len(m, k)].iter().map(|&x| round_to_bf16(x)).collect();
     let b: Vec<f32> = b[..crate::linalg::checked_len(k, n)].iter().map(|&x| round_to_bf16(x)).collect();
-    matmul(c, &a, la, &b, lb, m, k, n, accumulate);
+    matmul(c, &a, la, &b, lb, p);
 }
 
 /// Per-thread packing buffers, kept between products.

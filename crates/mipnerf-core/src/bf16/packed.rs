@@ -5,7 +5,7 @@
 //! gradient and the right operand of the weight gradient. [`matmul_bf16`](super::matmul_bf16)
 //! packs both operands of every product, so each of these matrices would be read in f32,
 //! rounded and packed twice. A [`Bf16Matrix`] is packed once, in one pass, in every layout
-//! its products read ([`Reads`]), and [`matmul_bf16_with`](super::matmul_bf16_with) reads it.
+//! its products read ([`Reads`]), and [`matmul_bf16`](super::matmul_bf16) reads it.
 //! The values are the same bits either way: packing is rounding, the same rounding.
 
 use std::ops::Range;
@@ -62,7 +62,7 @@ impl Bf16Matrix {
     }
 
     /// [`pack`](Self::pack) for the given kernel, for products on
-    /// [`matmul_bf16_with_on`](super::matmul_bf16_with_on).
+    /// [`matmul_bf16`](super::matmul_bf16).
     ///
     /// # Panics
     /// If `x` is shorter than `rows x cols`, or if the CPU cannot run `kernel`.
@@ -204,7 +204,7 @@ pub(super) enum PackedLeft<'a> {
     Pairs(&'a [u32]),
 }
 
-/// One operand of [`matmul_bf16_with`](super::matmul_bf16_with): its f32 values and layout as
+/// One operand of [`matmul_bf16`](super::matmul_bf16): its f32 values and layout as
 /// [`matmul_bf16`](super::matmul_bf16) takes them, and, if it was packed before, its packing,
 /// which the product then reads instead of packing the values. The values are still read where
 /// the product runs in f32 (shapes below [`super::MIN_BF16_DIM`]).

@@ -345,11 +345,19 @@ impl Dataset {
         if self.white_bkgd { [r * a + (1.0 - a), g * a + (1.0 - a), b * a + (1.0 - a)] } else { [r, g, b] }
     }
 
+    /// How view `v`'s pixels become rays: the dataset's pixel centres and NDC mapping, the
+    /// view's bounds and loss weight.
+    #[must_use]
+    pub fn ray_spec(&self, v: usize) -> RaySpec {
+        let view = &self.views[v];
+        RaySpec { centers: self.centers, bounds: (view.near, view.far), lossmult: view.lossmult, ndc: self.ndc }
+    }
+
     /// The ray of pixel `(x, y)` of view `v` (in NDC space for NDC datasets).
     #[must_use]
     pub fn ray(&self, v: usize, x: u32, y: u32) -> Ray {
         let view = &self.views[v];
-        camera_ray(&view.camera, x, y, self.centers, (view.near, view.far), view.lossmult, self.ndc)
+        camera_ray(&view.camera, x, y, self.ray_spec(v))
     }
 
     /// Every ray of view `v`, row-major.
@@ -363,7 +371,7 @@ impl Dataset {
     /// [`push_camera_rays`]).
     pub fn push_pixel_rays(&self, v: usize, x: u32, y: u32, k: usize, out: &mut Vec<Ray>) {
         let view = &self.views[v];
-        push_camera_rays(&view.camera, x, y, self.centers, (view.near, view.far), view.lossmult, self.ndc, k, out);
+        push_camera_rays(&view.camera, x, y, self.ray_spec(v), k, out);
     }
 
     /// Every target colour of view `v`, row-major.
@@ -373,26 +381,19 @@ impl Dataset {
         (0..c.height).flat_map(|y| (0..c.width).map(move |x| (x, y))).map(|(x, y)| self.target(v, x, y)).collect()
     }
 
-    /// A training batch of `n` pixels drawn uniformly (with replacement) from all pixels of all
-    /// views, a pure function of `(seed, step)`. Fills `targets` with one colour per pixel and
-    /// `rays` with `supersample²` rays per pixel (see [`push_pixel_rays`](Self::push_pixel_rays)).
-    /// With `random_bkgd` (the model's `ModelConfig::random_bkgd`), batch pixel `i`'s target is
+    /// A training batch of `draw.pixels` pixels drawn uniformly (with replacement) from all
+    /// pixels of all views, a pure function of `(seed, step)`. Fills `targets` with one colour
+    /// per pixel and `rays` with `supersample²` rays per pixel (see
+    /// [`push_pixel_rays`](Self::push_pixel_rays)). With `random_bkgd` (the model's
+    /// `ModelConfig::random_bkgd`), batch pixel `i`'s target is
     /// its straight colour composited on [`random_background`](crate::rng::random_background)`(seed,
     /// step, i)`, the colour the model renders it on; otherwise [`target`](Self::target).
     ///
     /// # Panics
     /// If `n` is `2^31` or more (two 32-bit random draws per pixel are counted in a `u32`);
     /// callers bound the batch well below that.
-    pub fn sample_batch(
-        &self,
-        n: usize,
-        seed: u32,
-        step: u32,
-        supersample: usize,
-        random_bkgd: bool,
-        rays: &mut Vec<Ray>,
-        targets: &mut Vec<[f32; 3]>,
-    ) {
+    pub fn sample_batch(&self, draw: BatchDraw, rays: &mut Vec<Ray>, targets: &mut Vec<[f32; 3]>) {
+        let BatchDraw { pixels: n, seed, step, supersample, random_bkgd } = draw;
         rays.clear();
         targets.clear();
         for (i, (v, x, y)) in self.batch_pixels(n, seed, step).enumerate() {
@@ -478,18 +479,50 @@ impl Dataset {
     }
 }
 
-/// The ray of pixel `(x, y)` of `camera` with bounds `(near, far)`, mapped to NDC space when
-/// `ndc` is given (forward-facing scenes).
+/// Which training batch [`Dataset::sample_batch`] draws: how many pixels, for which run and
+/// step, with how many rays a pixel and on what background.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BatchDraw {
+    /// Pixels in the batch.
+    pub pixels: usize,
+    /// The run's seed.
+    pub seed: u32,
+    /// The training step.
+    pub step: u32,
+    /// `supersample²` rays a pixel (a supersampled NeRF's), 1 for Mip-NeRF's one cone.
+    pub supersample: usize,
+    /// Targets composited on the random background the model renders them on.
+    pub random_bkgd: bool,
+}
+
+impl BatchDraw {
+    /// `pixels` pixels of step `step` of run `seed`, one ray a pixel, the dataset's own
+    /// background.
+    #[must_use]
+    pub fn new(pixels: usize, seed: u32, step: u32) -> Self {
+        Self { pixels, seed, step, supersample: 1, random_bkgd: false }
+    }
+}
+
+/// How a camera's pixels become rays: where in a pixel its ray passes, the near and far
+/// bounds, the loss weight the rays carry, and the NDC mapping of forward-facing data.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RaySpec {
+    /// Where in a pixel its ray passes.
+    pub centers: PixelCenters,
+    /// Near and far bounds along the ray.
+    pub bounds: (f32, f32),
+    /// The loss weight of the rays (a multiscale dataset's per-scale weight).
+    pub lossmult: f32,
+    /// The NDC mapping of a forward-facing dataset.
+    pub ndc: Option<Ndc>,
+}
+
+/// The ray of pixel `(x, y)` of `camera` made as `spec` says, mapped to NDC space when
+/// `spec.ndc` is given (forward-facing scenes).
 #[must_use]
-pub fn camera_ray(
-    camera: &Camera,
-    x: u32,
-    y: u32,
-    centers: PixelCenters,
-    (near, far): (f32, f32),
-    lossmult: f32,
-    ndc: Option<Ndc>,
-) -> Ray {
+pub fn camera_ray(camera: &Camera, x: u32, y: u32, spec: RaySpec) -> Ray {
+    let RaySpec { centers, bounds: (near, far), lossmult, ndc } = spec;
     let ray = camera.ray_at(x, y, centers, near, far, lossmult);
     match ndc {
         None => ray,
@@ -500,19 +533,9 @@ pub fn camera_ray(
 /// Appends the `k x k` rays of pixel `(x, y)` of `camera` for a supersampled NeRF: through a
 /// regular sub-pixel grid, each a cone of `1/k` of the pixel's radius. With `k == 1`, the pixel's
 /// own ray ([`camera_ray`]). Sub-pixel rays in NDC space are not supported: `k` is taken as 1.
-pub fn push_camera_rays(
-    camera: &Camera,
-    x: u32,
-    y: u32,
-    centers: PixelCenters,
-    bounds: (f32, f32),
-    lossmult: f32,
-    ndc: Option<Ndc>,
-    k: usize,
-    out: &mut Vec<Ray>,
-) {
-    let base = camera_ray(camera, x, y, centers, bounds, lossmult, ndc);
-    if k <= 1 || ndc.is_some() {
+pub fn push_camera_rays(camera: &Camera, x: u32, y: u32, spec: RaySpec, k: usize, out: &mut Vec<Ray>) {
+    let base = camera_ray(camera, x, y, spec);
+    if k <= 1 || spec.ndc.is_some() {
         out.push(base);
         return;
     }

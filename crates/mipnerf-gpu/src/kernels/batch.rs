@@ -271,8 +271,8 @@ impl DeviceImages {
 /// Which pixels a batch holds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Draw {
-    /// Uniformly drawn with replacement, as `Dataset::sample_batch(n, seed, step, ..,
-    /// random_bkgd, ..)` draws them, targets included.
+    /// Uniformly drawn with replacement, as `Dataset::sample_batch` draws them (`BatchDraw`:
+    /// the same seed, step and `random_bkgd`), targets included.
     Random {
         /// Run seed.
         seed: u32,
