@@ -1,5 +1,5 @@
 // Compaction of a batch to the rays an occupancy grid lets through (mipnerf-core's guided
-// `Model::loss_and_grad_guided` and `render_guided`, which run the MLP on those rays only), one
+// `Model::loss_and_grad` with a grid and `render_guided`, which run the MLP on those rays only), one
 // invocation per kept ray: kept ray j is batch ray `kept[j]` (the host's ascending list); its
 // ray, bounds, view direction, target and batch index (the key of its random streams) are
 // copied. `expand.wgsl` puts the outputs back in batch order.

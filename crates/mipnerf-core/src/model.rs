@@ -79,6 +79,26 @@ impl LossStats {
 /// Rays processed together by one thread.
 pub const CHUNK_RAYS: usize = 64;
 
+/// A training batch on the host: `rays` ([`Model::rays_per_pixel`] a pixel) and one target
+/// colour a pixel.
+#[derive(Clone, Copy, Debug)]
+pub struct TrainBatch<'a> {
+    /// The rays.
+    pub rays: &'a [Ray],
+    /// A colour a pixel.
+    pub targets: &'a [[f32; 3]],
+}
+
+/// What [`Model::loss_and_grad`] may reuse and what guides it; the default reuses nothing and
+/// samples as the paper does.
+#[derive(Debug, Default)]
+pub struct GradWith<'a> {
+    /// Per-chunk gradient buffers kept across calls.
+    pub scratch: Option<&'a mut GradScratch>,
+    /// The occupancy grid guiding the coarse samples.
+    pub grid: Option<&'a OccupancyGrid>,
+}
+
 /// Per-chunk gradient buffers, kept between training steps to avoid reallocating them.
 #[derive(Default, Debug, Clone)]
 pub struct GradScratch {
@@ -290,56 +310,27 @@ impl Model {
     }
 
     /// The loss of a batch and, added to `grads` (zeroed by the caller), its gradient with
-    /// respect to every parameter. `targets` has one colour per pixel; `rays` has
-    /// [`rays_per_pixel`](Self::rays_per_pixel) rays per pixel.
+    /// respect to every parameter. `batch.targets` has one colour per pixel; `batch.rays` has
+    /// [`rays_per_pixel`](Self::rays_per_pixel) rays per pixel. `with` says what the pass may
+    /// reuse (`scratch`: per-chunk gradient buffers kept across calls, so that no call after
+    /// the first of a batch size allocates) and what guides it: with a `grid` (see
+    /// [`render_guided`](Self::render_guided)) the rays that meet no occupied cell add their
+    /// background's error to the loss and nothing to the gradient; a full grid, or none, gives
+    /// exactly the paper's result.
     ///
     /// # Panics
     /// If the lengths disagree.
     pub fn loss_and_grad(
         &self,
         params: &[f32],
-        rays: &[Ray],
-        targets: &[[f32; 3]],
+        batch: TrainBatch<'_>,
         mode: Mode,
         grads: &mut [f32],
+        with: GradWith<'_>,
     ) -> LossStats {
-        self.loss_and_grad_with(params, rays, targets, mode, grads, &mut GradScratch::default())
-    }
-
-    /// [`loss_and_grad`](Self::loss_and_grad) reusing `scratch`'s per-chunk gradient buffers
-    /// across calls (no allocation after the first call of a given batch size).
-    ///
-    /// # Panics
-    /// If the lengths disagree.
-    pub fn loss_and_grad_with(
-        &self,
-        params: &[f32],
-        rays: &[Ray],
-        targets: &[[f32; 3]],
-        mode: Mode,
-        grads: &mut [f32],
-        scratch: &mut GradScratch,
-    ) -> LossStats {
-        self.loss_and_grad_guided(params, rays, targets, mode, grads, scratch, None)
-    }
-
-    /// [`loss_and_grad_with`](Self::loss_and_grad_with) with occupancy-guided sampling (see
-    /// [`render_guided`](Self::render_guided)): rays that meet no occupied cell add their
-    /// background's error to the loss and nothing to the gradient. A full grid, or none, gives
-    /// exactly [`loss_and_grad_with`](Self::loss_and_grad_with)'s result.
-    ///
-    /// # Panics
-    /// If the lengths disagree.
-    pub fn loss_and_grad_guided(
-        &self,
-        params: &[f32],
-        rays: &[Ray],
-        targets: &[[f32; 3]],
-        mode: Mode,
-        grads: &mut [f32],
-        scratch: &mut GradScratch,
-        grid: Option<&OccupancyGrid>,
-    ) -> LossStats {
+        let TrainBatch { rays, targets } = batch;
+        let mut own = GradScratch::default();
+        let (scratch, grid) = (with.scratch.unwrap_or(&mut own), with.grid);
         let rpp = self.rays_per_pixel();
         assert_eq!(rays.len(), targets.len() * rpp, "loss_and_grad: rays per pixel");
         assert_eq!(params.len(), self.num_params, "loss_and_grad: parameter count");

@@ -1,6 +1,7 @@
 //! The training step on the CPU: the model's loss and gradient, the optimiser ([`crate::optim`],
 //! re-exported here) and the occupancy grid's updates.
 
+use crate::model::{GradWith, TrainBatch};
 use rayon::prelude::*;
 
 use crate::cone::Ray;
@@ -79,7 +80,13 @@ impl Trainer {
         let mode = Mode::Train { seed: self.seed, step: self.step as u32 };
         let (params, grads, scratch) = (&self.params, &mut self.grads, &mut self.scratch);
         let grid = self.occupancy.as_ref();
-        let stats = self.model.loss_and_grad_guided(params, rays, targets, mode, grads, scratch, grid);
+        let stats = self.model.loss_and_grad(
+            params,
+            TrainBatch { rays, targets },
+            mode,
+            grads,
+            GradWith { scratch: Some(scratch), grid },
+        );
         let lr = self.optim.lr.lr(self.step);
         let clip = (self.optim.grad_max_val, self.optim.grad_max_norm);
         let split = self.optim.field.map(|f| (self.model.field_params(), f));

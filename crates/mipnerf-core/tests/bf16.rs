@@ -9,6 +9,7 @@ use mipnerf_core::bf16::{
     matmul_bf16_emulated, round_to_bf16,
 };
 use mipnerf_core::linalg::{Layout, Product, matmul};
+use mipnerf_core::model::{GradWith, TrainBatch};
 use mipnerf_core::test_support::skipped_for_cpu_feature;
 
 /// Deterministic values spread over [-2, 2] with a few exact zeros, away from subnormals.
@@ -381,7 +382,7 @@ fn bf16_model_loss_and_gradients_follow_the_f32_model() {
     let mode = Mode::Train { seed: 1, step: 11 };
     let run = |m: &Model| {
         let mut g = vec![0.0; m.num_params()];
-        let stats = m.loss_and_grad(&params, rays, colours, mode, &mut g);
+        let stats = m.loss_and_grad(&params, TrainBatch { rays, targets: colours }, mode, &mut g, GradWith::default());
         (stats, g)
     };
     let ((s32, g32), (s16, g16)) = (run(&f32_model), run(&bf16_model));

@@ -6,6 +6,7 @@
 mod common;
 use common::*;
 use mipnerf_core::Ray;
+use mipnerf_core::model::{GradWith, TrainBatch};
 use mipnerf_core::model::{Mode, Model, ModelConfig};
 use serde_json::Value;
 
@@ -124,7 +125,7 @@ fn check_loss_and_grads(
     mm: &mut Mismatches,
 ) {
     let mut g = vec![0.0; model.num_params()];
-    let s = model.loss_and_grad(p, rays, targets, Mode::Eval, &mut g);
+    let s = model.loss_and_grad(p, TrainBatch { rays, targets }, Mode::Eval, &mut g, GradWith::default());
     let ours: Vec<f32> = s.losses.iter().map(|l| l * OFFICIAL_LOSS_FACTOR).collect();
     mm.check(&format!("{what} losses"), &ours, &flat(&stats["losses"]), TOL_MODEL);
     mm.check(&format!("{what} loss"), &[s.loss * OFFICIAL_LOSS_FACTOR], &[f(&stats["loss"])], TOL_MODEL);
@@ -165,7 +166,13 @@ fn small_model_losses_and_gradients_match_official_train_step() {
     );
     // Our per-channel losses are the lossmult-weighted MSE the README of the golden files derives.
     let mut grads = vec![0.0; model.num_params()];
-    let s = model.loss_and_grad(&params(&model, &g, false), &rays, &targets, Mode::Eval, &mut grads);
+    let s = model.loss_and_grad(
+        &params(&model, &g, false),
+        TrainBatch { rays: &rays, targets: &targets },
+        Mode::Eval,
+        &mut grads,
+        GradWith::default(),
+    );
     for level in 0..2 {
         let d = &g["loss"]["derived_per_level_from_eager_forward"][level];
         mm.check(

@@ -16,6 +16,7 @@ use mipnerf_core::data::{self, LoadOptions, Split};
 use mipnerf_core::mip::Gaussian;
 use mipnerf_core::mlp::MlpCache;
 use mipnerf_core::model::{GradScratch, LevelOutput, Levels, Mode, Model, ModelConfig, Preset};
+use mipnerf_core::model::{GradWith, TrainBatch};
 use mipnerf_core::occupancy::{CARVED, CONTRACTED_BOUND, DensityField, OccupancyConfig, OccupancyGrid, auto_bound};
 use mipnerf_core::rng::{RayRng, Stream};
 use mipnerf_core::sampling::{sample_along_rays, sample_along_segments};
@@ -57,9 +58,20 @@ fn a_full_grid_samples_renders_and_trains_exactly_as_the_paper() {
     let mode = Mode::Train { seed: 7, step: 11 };
     let mut g_paper = vec![0.0; m.num_params()];
     let mut g_full = vec![0.0; m.num_params()];
-    let paper = m.loss_and_grad(&params, &rays, &colours, mode, &mut g_paper);
-    let guided =
-        m.loss_and_grad_guided(&params, &rays, &colours, mode, &mut g_full, &mut GradScratch::default(), Some(&full));
+    let paper = m.loss_and_grad(
+        &params,
+        TrainBatch { rays: &rays, targets: &colours },
+        mode,
+        &mut g_paper,
+        GradWith::default(),
+    );
+    let guided = m.loss_and_grad(
+        &params,
+        TrainBatch { rays: &rays, targets: &colours },
+        mode,
+        &mut g_full,
+        GradWith { scratch: Some(&mut GradScratch::default()), grid: Some(&full) },
+    );
     assert_eq!(paper, guided);
     assert_eq!(
         g_paper.iter().map(|g| g.to_bits()).collect::<Vec<_>>(),
@@ -289,7 +301,13 @@ fn rays_that_meet_no_occupied_cell_render_the_background_and_add_no_gradient() {
     for m in [&m, &random] {
         let mut g = vec![0.0; m.num_params()];
         let mut scratch = GradScratch::default();
-        let stats = m.loss_and_grad_guided(&params, &miss_rays, &miss_targets, mode, &mut g, &mut scratch, Some(&grid));
+        let stats = m.loss_and_grad(
+            &params,
+            TrainBatch { rays: &miss_rays, targets: &miss_targets },
+            mode,
+            &mut g,
+            GradWith { scratch: Some(&mut scratch), grid: Some(&grid) },
+        );
         assert!(g.iter().all(|&x| x == 0.0), "empty rays moved the parameters");
         let background = |i: usize| {
             if m.config().random_bkgd { mipnerf_core::rng::random_background(0, 0, i as u32) } else { [1.0; 3] }
@@ -462,9 +480,20 @@ fn a_fresh_contracted_grid_samples_and_trains_exactly_as_the_unbounded_sampler()
     assert!(left > 0.5 && left < 0.7, "{left}");
     let mode = Mode::Train { seed: 7, step: 11 };
     let (mut g_paper, mut g_grid) = (vec![0.0; m.num_params()], vec![0.0; m.num_params()]);
-    let paper = m.loss_and_grad(&params, &rays, &colours, mode, &mut g_paper);
-    let guided =
-        m.loss_and_grad_guided(&params, &rays, &colours, mode, &mut g_grid, &mut GradScratch::default(), Some(&grid));
+    let paper = m.loss_and_grad(
+        &params,
+        TrainBatch { rays: &rays, targets: &colours },
+        mode,
+        &mut g_paper,
+        GradWith::default(),
+    );
+    let guided = m.loss_and_grad(
+        &params,
+        TrainBatch { rays: &rays, targets: &colours },
+        mode,
+        &mut g_grid,
+        GradWith { scratch: Some(&mut GradScratch::default()), grid: Some(&grid) },
+    );
     assert_eq!(paper, guided);
     assert_eq!(g_paper, g_grid);
     assert_eq!(m.render(&params, &rays), m.render_guided(&params, &rays, Some(&grid)));

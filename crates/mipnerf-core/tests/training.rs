@@ -4,6 +4,7 @@
 
 mod common;
 use common::scene::ball_scene;
+use mipnerf_core::model::{GradWith, TrainBatch};
 use mipnerf_core::model::{Mode, Model, ModelConfig, Preset};
 use mipnerf_core::train::{OptimConfig, Trainer, clip_gradients};
 use rand::{Rng, SeedableRng, rngs::SmallRng};
@@ -96,7 +97,13 @@ fn whole_loss_gradient_matches_finite_differences(random_bkgd: bool, distortion:
     }
     let mode = Mode::Train { seed: 1, step: 0 };
     let mut grads = vec![0.0; model.num_params()];
-    let stats = model.loss_and_grad(&params, &rays[..40], &colours[..40], mode, &mut grads);
+    let stats = model.loss_and_grad(
+        &params,
+        TrainBatch { rays: &rays[..40], targets: &colours[..40] },
+        mode,
+        &mut grads,
+        GradWith::default(),
+    );
     if distortion > 0.0 {
         // Its share of the loss is not negligible, so the check below tests it.
         assert!(stats.distortion > 0.1 * stats.loss, "{stats:?}");
@@ -105,7 +112,17 @@ fn whole_loss_gradient_matches_finite_differences(random_bkgd: bool, distortion:
     }
     let loss = |p: &[f32]| {
         let mut g = vec![0.0; model.num_params()];
-        f64::from(model.loss_and_grad(p, &rays[..40], &colours[..40], mode, &mut g).loss)
+        f64::from(
+            model
+                .loss_and_grad(
+                    p,
+                    TrainBatch { rays: &rays[..40], targets: &colours[..40] },
+                    mode,
+                    &mut g,
+                    GradWith::default(),
+                )
+                .loss,
+        )
     };
     let fd = |p: &mut Vec<f32>, i: usize, h: f32| common::central_difference(loss, p, i, h);
     let (mut bad, mut checked, mut skipped) = (Vec::new(), 0, 0);

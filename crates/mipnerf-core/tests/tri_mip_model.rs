@@ -8,6 +8,7 @@ mod common;
 use common::scene::ball_scene;
 use mipnerf_core::checkpoint::{self, Checkpoint};
 use mipnerf_core::model::{Field, Mode, Model, ModelConfig, Preset};
+use mipnerf_core::model::{GradWith, TrainBatch};
 use mipnerf_core::train::{AdamConfig, AdamState, FieldAdam, OptimConfig, Trainer};
 use mipnerf_core::tri_mip::TriMipConfig;
 use rand::{Rng, SeedableRng, rngs::SmallRng};
@@ -64,10 +65,26 @@ fn the_whole_loss_matches_finite_differences(unbounded: bool) {
     }
     let mode = Mode::Train { seed: 1, step: 0 };
     let mut grads = vec![0.0; model.num_params()];
-    model.loss_and_grad(&params, &rays[..40], &colours[..40], mode, &mut grads);
+    model.loss_and_grad(
+        &params,
+        TrainBatch { rays: &rays[..40], targets: &colours[..40] },
+        mode,
+        &mut grads,
+        GradWith::default(),
+    );
     let loss = |p: &[f32]| {
         let mut g = vec![0.0; model.num_params()];
-        f64::from(model.loss_and_grad(p, &rays[..40], &colours[..40], mode, &mut g).loss)
+        f64::from(
+            model
+                .loss_and_grad(
+                    p,
+                    TrainBatch { rays: &rays[..40], targets: &colours[..40] },
+                    mode,
+                    &mut g,
+                    GradWith::default(),
+                )
+                .loss,
+        )
     };
     let fd = |p: &mut Vec<f32>, i: usize, h: f32| common::central_difference(loss, p, i, h);
     // Plane parameters the batch reaches (a non-zero gradient), and some of every MLP layer.

@@ -4,6 +4,7 @@
 
 use mipnerf_core::bf16::Precision;
 use mipnerf_core::compare::{KernelCheck, Tolerance, check_kernel};
+use mipnerf_core::model::{GradWith, TrainBatch};
 use mipnerf_core::model::{Mode, Model, ModelConfig, PointEncoding, Preset};
 use mipnerf_core::sampling::Spacing;
 use mipnerf_core::{Ray, RayShape, stages};
@@ -76,14 +77,16 @@ pub fn model_step(ctx: &GpuContext, rays: &[Ray]) -> Result<ModelStepCheck, GpuE
     let targets: Vec<[f32; 3]> = (0..rays.len()).map(|i| [(i % 5) as f32 / 5.0, 0.5, (i % 3) as f32 / 3.0]).collect();
     let mode = Mode::Train { seed: 1, step: 0 };
     let mut grads = vec![0.0; model.num_params()];
-    let cpu = model.loss_and_grad(&params, rays, &targets, mode, &mut grads);
+    let cpu =
+        model.loss_and_grad(&params, TrainBatch { rays, targets: &targets }, mode, &mut grads, GradWith::default());
     let scale = grads.iter().fold(0.0f32, |m, x| m.max(x.abs())).max(1e-20);
     let gpu = GpuModel::new(ctx)?;
     let check = check_kernel(
         "model step (loss; gradients, absolute, against the largest)",
         |_: &()| vec![("loss", vec![cpu.loss]), ("gradients", grads.clone())],
         |_| {
-            let (stats, g) = gpu.loss_and_grad(ctx, &model, &params, rays, &targets, mode)?;
+            let (stats, g) =
+                gpu.loss_and_grad(ctx, &model, &params, TrainBatch { rays, targets: &targets }, mode, None)?;
             Ok::<_, GpuError>(vec![("loss", vec![stats.loss]), ("gradients", g)])
         },
         &(),

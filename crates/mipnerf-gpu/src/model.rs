@@ -10,8 +10,7 @@
 //! The batch comes in a [`RayBatch`]: made on the device by `batch.wgsl` (training and chunked
 //! rendering, see [`crate::trainer`]) or uploaded from the host ([`RayBatch::upload`]).
 
-use mipnerf_core::Ray;
-use mipnerf_core::model::{LevelOutput, LossStats, Mode, Model};
+use mipnerf_core::model::{LevelOutput, LossStats, Mode, Model, TrainBatch};
 use mipnerf_core::occupancy::OccupancyGrid;
 
 use crate::kernels::Recorder;
@@ -258,7 +257,7 @@ impl GpuModel {
     /// (`grads` given) also the loss gradient of every parameter, **added** to `grads`.
     ///
     /// With a `grid` that is not full (and one ray per pixel) the coarse sampling is
-    /// occupancy-guided (`occupancy.wgsl`, the CPU's `Model::loss_and_grad_guided` and
+    /// occupancy-guided (`occupancy.wgsl`, the CPU's `Model::loss_and_grad` with a grid and
     /// `render_guided`): the coarse edges lie in each ray's occupied spans, and a ray that meets
     /// no occupied cell renders the background (no opacity, distance `near`) and adds its
     /// background's error to the loss and nothing to the gradient. Such a ray still runs the
@@ -653,39 +652,23 @@ impl GpuModel {
     }
 
     /// The loss of a batch and the gradient of every parameter, computed on the device from
-    /// `params` (uploaded) for `rays` (`Model::rays_per_pixel` per pixel) and `targets` (one per
-    /// pixel).
+    /// `params` (uploaded) for `batch` (`Model::rays_per_pixel` rays a pixel, a target a pixel),
+    /// with occupancy-guided sampling under `grid` where one is given (see
+    /// [`encode`](Self::encode)): the device's counterpart of the CPU's `Model::loss_and_grad`.
     ///
     /// # Errors
-    /// [`GpuError::InvalidInput`] for inconsistent sizes; any error wgpu reports.
+    /// [`GpuError::InvalidInput`] for inconsistent sizes and a grid the kernel does not take;
+    /// any error wgpu reports.
     pub fn loss_and_grad(
         &self,
         ctx: &GpuContext,
         model: &Model,
         params: &[f32],
-        rays: &[Ray],
-        targets: &[[f32; 3]],
-        mode: Mode,
-    ) -> Result<(LossStats, Vec<f32>), GpuError> {
-        self.loss_and_grad_guided(ctx, model, params, rays, targets, mode, None)
-    }
-
-    /// [`loss_and_grad`](Self::loss_and_grad) with occupancy-guided sampling under `grid` (see
-    /// [`encode`](Self::encode)): the device's counterpart of the CPU's
-    /// `Model::loss_and_grad_guided`.
-    ///
-    /// # Errors
-    /// As [`loss_and_grad`](Self::loss_and_grad), and a grid the kernel does not take.
-    pub fn loss_and_grad_guided(
-        &self,
-        ctx: &GpuContext,
-        model: &Model,
-        params: &[f32],
-        rays: &[Ray],
-        targets: &[[f32; 3]],
+        batch: TrainBatch<'_>,
         mode: Mode,
         grid: Option<&OccupancyGrid>,
     ) -> Result<(LossStats, Vec<f32>), GpuError> {
+        let TrainBatch { rays, targets } = batch;
         if params.len() != model.num_params() {
             return Err(GpuError::InvalidInput(format!(
                 "{} parameters for a model of {}",

@@ -9,6 +9,7 @@ use mipnerf_core::compare::{Outputs, Tolerance, assert_none, check_kernel, check
 use mipnerf_core::contract::UNBOUNDED_FAR;
 use mipnerf_core::data::demo;
 use mipnerf_core::mip::{self, ipe_len};
+use mipnerf_core::model::{GradWith, TrainBatch};
 use mipnerf_core::model::{Mode, PointEncoding};
 use mipnerf_core::sampling::Spacing;
 use mipnerf_core::{PixelCenters, Ray, RayShape, stages};
@@ -819,11 +820,23 @@ fn whole_model_loss_and_gradients_match_cpu_reference() {
                 rays.clone()
             };
             let mut cpu_grads = vec![0.0; model.num_params()];
-            let cpu = model.loss_and_grad(&params, &rays, &targets, mode, &mut cpu_grads);
+            let cpu = model.loss_and_grad(
+                &params,
+                TrainBatch { rays: &rays, targets: &targets },
+                mode,
+                &mut cpu_grads,
+                GradWith::default(),
+            );
             if model.config().density_noise > 0.0 {
                 // The case is only meaningful if the noise moves the loss well beyond the tolerance.
                 let quiet = Model::new(ModelConfig { density_noise: 0.0, ..model.config().clone() }).unwrap();
-                let plain = quiet.loss_and_grad(&params, &rays, &targets, mode, &mut vec![0.0; model.num_params()]);
+                let plain = quiet.loss_and_grad(
+                    &params,
+                    TrainBatch { rays: &rays, targets: &targets },
+                    mode,
+                    &mut vec![0.0; model.num_params()],
+                    GradWith::default(),
+                );
                 assert!((plain.loss - cpu.loss).abs() > 20.0 * TOL_GPU_MODEL_REL * cpu.loss, "noise changes nothing");
             }
             let scale = cpu_grads.iter().fold(0.0f32, |m, g| m.max(g.abs()));
@@ -838,11 +851,18 @@ fn whole_model_loss_and_gradients_match_cpu_reference() {
                 &format!("{set:?} case {ci}"),
                 |rays: &[Ray]| {
                     let mut g = vec![0.0; model.num_params()];
-                    let out = model.loss_and_grad(&params, rays, &targets, mode, &mut g);
+                    let out = model.loss_and_grad(
+                        &params,
+                        TrainBatch { rays, targets: &targets },
+                        mode,
+                        &mut g,
+                        GradWith::default(),
+                    );
                     vec![("losses", out.losses), ("mse", out.mse), ("grads", g)]
                 },
                 |rays| {
-                    let (stats, grads) = gpu.loss_and_grad(&ctx, &model, &params, rays, &targets, mode)?;
+                    let (stats, grads) =
+                        gpu.loss_and_grad(&ctx, &model, &params, TrainBatch { rays, targets: &targets }, mode, None)?;
                     Ok::<_, GpuError>(vec![("losses", stats.losses), ("mse", stats.mse), ("grads", grads)])
                 },
                 (&rays[..], &moved, SPREAD_FACTOR),
@@ -1231,8 +1251,13 @@ fn occupancy_guided_model_matches_cpu_reference() {
         ] {
             let mut cpu_grads = vec![0.0; model.num_params()];
             let mut scratch = GradScratch::default();
-            let cpu =
-                model.loss_and_grad_guided(&params, &rays, &targets, mode, &mut cpu_grads, &mut scratch, Some(&grid));
+            let cpu = model.loss_and_grad(
+                &params,
+                TrainBatch { rays: &rays, targets: &targets },
+                mode,
+                &mut cpu_grads,
+                GradWith { scratch: Some(&mut scratch), grid: Some(&grid) },
+            );
             let scale = cpu_grads.iter().fold(0.0f32, |m, g| m.max(g.abs()));
             let tag = format!("{set:?} {mode:?} random background {}", model.config().random_bkgd);
             let check = check_kernel(
@@ -1240,8 +1265,14 @@ fn occupancy_guided_model_matches_cpu_reference() {
                 |_: &()| vec![("losses", cpu.losses.clone()), ("grads", cpu_grads.clone())],
                 |_| {
                     let before = ctx.counters().model_rays;
-                    let (stats, grads) =
-                        gpu.loss_and_grad_guided(&ctx, model, &params, &rays, &targets, mode, Some(&grid))?;
+                    let (stats, grads) = gpu.loss_and_grad(
+                        &ctx,
+                        model,
+                        &params,
+                        TrainBatch { rays: &rays, targets: &targets },
+                        mode,
+                        Some(&grid),
+                    )?;
                     // Only the rays that meet an occupied cell ran through the model, as on the CPU.
                     assert_eq!(ctx.counters().model_rays - before, active as u64, "{set:?} {mode:?}: rays run");
                     Ok::<_, GpuError>(vec![("losses", stats.losses), ("grads", grads)])
@@ -1256,8 +1287,12 @@ fn occupancy_guided_model_matches_cpu_reference() {
             OccupancyGrid::new(OccupancyConfig { resolution: 16, bound: 1.5, ..OccupancyConfig::default() }).unwrap();
         assert!(full.is_full());
         let mode = Mode::Train { seed: 3, step: 7 };
-        let plain = gpu.loss_and_grad(&ctx, &model, &params, &rays, &targets, mode).unwrap();
-        let guided = gpu.loss_and_grad_guided(&ctx, &model, &params, &rays, &targets, mode, Some(&full)).unwrap();
+        let plain = gpu
+            .loss_and_grad(&ctx, &model, &params, TrainBatch { rays: &rays, targets: &targets }, mode, None)
+            .unwrap();
+        let guided = gpu
+            .loss_and_grad(&ctx, &model, &params, TrainBatch { rays: &rays, targets: &targets }, mode, Some(&full))
+            .unwrap();
         assert_eq!(plain.1, guided.1, "{set:?}: a full grid changes the GPU's gradient");
         assert_eq!(plain.0.losses, guided.0.losses, "{set:?}: a full grid changes the GPU's losses");
     }

@@ -10,6 +10,7 @@ use mipnerf_core::compare::{Tolerance, assert_none, mismatches};
 use mipnerf_core::contract::UNBOUNDED_FAR;
 use mipnerf_core::data::demo;
 use mipnerf_core::model::{Field, Mode, Model, ModelConfig, Preset};
+use mipnerf_core::model::{GradWith, TrainBatch};
 use mipnerf_core::sampling::Spacing;
 use mipnerf_core::tri_mip::{Pyramid, TriMipConfig, total_variation};
 use mipnerf_core::{PixelCenters, Ray, stages};
@@ -230,8 +231,16 @@ fn a_models_loss_and_gradient_on_the_planes_are_the_cpus() {
             let targets: Vec<[f32; 3]> = rays.iter().map(|_| [rng.random(), rng.random(), rng.random()]).collect();
             let mode = Mode::Train { seed: 9, step: 3 };
             let mut want = vec![0.0; model.num_params()];
-            let cpu = model.loss_and_grad(&params, &rays, &targets, mode, &mut want);
-            let (stats, got) = gpu.loss_and_grad(&ctx, &model, &params, &rays, &targets, mode).unwrap();
+            let cpu = model.loss_and_grad(
+                &params,
+                TrainBatch { rays: &rays, targets: &targets },
+                mode,
+                &mut want,
+                GradWith::default(),
+            );
+            let (stats, got) = gpu
+                .loss_and_grad(&ctx, &model, &params, TrainBatch { rays: &rays, targets: &targets }, mode, None)
+                .unwrap();
             let rel = (stats.loss - cpu.loss).abs() / cpu.loss;
             eprintln!(
                 "{name}: loss {} vs the CPU's {} ({rel:e}); total variation {}",

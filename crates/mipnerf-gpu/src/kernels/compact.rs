@@ -1,13 +1,13 @@
 //! `shaders/gather.wgsl` and `shaders/expand.wgsl`: a batch compacted to the rays an occupancy
 //! grid lets through, and their outputs put back in batch order with the background for the
 //! others, so that rays that meet no occupied cell cost no sampling, MLP or rendering work (the
-//! CPU's guided `Model::loss_and_grad_guided` and `render_guided` do the same).
+//! CPU's guided `Model::loss_and_grad` and `render_guided` do the same).
 //!
 //! Which rays meet an occupied cell is decided on the host, with the CPU's own traversal of the
 //! CPU's own rays (`OccupancyGrid::active_rays`), so both backends skip exactly the same rays;
 //! the host uploads the list ([`Compaction::upload`]) in order with the step's commands.
 //!
-//! CPU reference: the compaction of [`mipnerf_core::model::Model::loss_and_grad_guided`].
+//! CPU reference: the compaction of [`mipnerf_core::model::Model::loss_and_grad`] with a grid.
 
 use mipnerf_core::occupancy::OccupancyGrid;
 
