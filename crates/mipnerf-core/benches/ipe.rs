@@ -14,7 +14,7 @@ use mipnerf_core::bf16::Precision;
 use mipnerf_core::cone::{Ray, RayShape};
 use mipnerf_core::config::PointEncoding;
 use mipnerf_core::mip::ipe_len;
-use mipnerf_core::stages::cast_and_encode;
+use mipnerf_core::stages::{CastIpe, cast_and_encode};
 
 fn main() {
     let quick = std::env::args().any(|a| a == "--quick") || !std::env::args().any(|a| a == "--bench");
@@ -51,8 +51,15 @@ fn main() {
         let mut times: Vec<f64> = (0..reps)
             .map(|_| {
                 let start = Instant::now();
-                let encoding = (PointEncoding::Integrated, precision);
-                cast_and_encode(&rays, &t, (samples, false), RayShape::Cone, encoding, (min_deg, max_deg), &mut x);
+                let stage = CastIpe {
+                    n_samples: samples,
+                    shape: RayShape::Cone,
+                    unbounded: false,
+                    encoding: PointEncoding::Integrated,
+                    min_deg,
+                    max_deg,
+                };
+                cast_and_encode(&rays, &t, stage, precision, &mut x);
                 std::hint::black_box(&x);
                 start.elapsed().as_secs_f64() / (rays.len() * samples) as f64 * 1e9
             })

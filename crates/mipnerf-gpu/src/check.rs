@@ -36,19 +36,22 @@ pub fn cast_ipe(ctx: &GpuContext, rays: &[Ray]) -> Result<KernelCheck, GpuError>
     stages::sample_intervals(rays, n, Spacing::Depth, Mode::Eval, &ids, &mut t);
     let kernel = CastIpeKernel::new(ctx)?;
     let degrees = (0, 16);
+    let stage = stages::CastIpe {
+        n_samples: n,
+        shape: RayShape::Cone,
+        unbounded: false,
+        encoding: PointEncoding::Integrated,
+        min_deg: degrees.0,
+        max_deg: degrees.1,
+    };
     Ok(check_kernel(
         "cast_ipe",
         |(rays, t): &(&[Ray], &[f32])| {
             let mut x = vec![0.0; rays.len() * n * mipnerf_core::mip::ipe_len(degrees.0, degrees.1)];
-            let encoding = (PointEncoding::Integrated, Precision::F32);
-            stages::cast_and_encode(rays, t, (n, false), RayShape::Cone, encoding, degrees, &mut x);
+            stages::cast_and_encode(rays, t, stage, Precision::F32, &mut x);
             vec![("features", x)]
         },
-        |(rays, t)| {
-            kernel
-                .run(ctx, rays, t, n as u32, (RayShape::Cone, false), degrees.0, degrees.1)
-                .map(|x| vec![("features", x)])
-        },
+        |(rays, t)| kernel.run(ctx, rays, t, stage).map(|x| vec![("features", x)]),
         &(rays, &t[..]),
         |_| Tolerance::abs(TOL_IPE_ABS),
     ))

@@ -77,26 +77,17 @@ fn cast_ipe_matches_cpu_reference() {
     // Unbounded scenes cast cones only (`Model::new` refuses cylinders there).
     for (shape, unbounded) in [(RayShape::Cone, false), (RayShape::Cylinder, false), (RayShape::Cone, true)] {
         let input = if unbounded { (&inside[..], &t_inside[..]) } else { (&rays[..], &t[..]) };
+        let (min_deg, max_deg) = degrees;
+        let stage =
+            stages::CastIpe { n_samples: n, shape, unbounded, encoding: PointEncoding::Integrated, min_deg, max_deg };
         let check = check_kernel(
             &format!("cast_ipe {shape:?} unbounded {unbounded} on {}", ctx.adapter().name),
             |(rays, t): &(&[Ray], &[f32])| {
                 let mut x = vec![0.0; rays.len() * n * ipe_len(degrees.0, degrees.1)];
-                stages::cast_and_encode(
-                    rays,
-                    t,
-                    (n, unbounded),
-                    shape,
-                    (PointEncoding::Integrated, Precision::F32),
-                    degrees,
-                    &mut x,
-                );
+                stages::cast_and_encode(rays, t, stage, Precision::F32, &mut x);
                 vec![("features", x)]
             },
-            |(rays, t)| {
-                kernel
-                    .run(&ctx, rays, t, n as u32, (shape, unbounded), degrees.0, degrees.1)
-                    .map(|x| vec![("features", x)])
-            },
+            |(rays, t)| kernel.run(&ctx, rays, t, stage).map(|x| vec![("features", x)]),
             &input,
             |_| Tolerance::abs(sin_feature_tolerance(&ctx)),
         );
@@ -112,7 +103,15 @@ fn cast_ipe_rejects_inconsistent_sizes() {
     };
     let kernel = CastIpeKernel::new(&ctx).unwrap();
     let rays = vec![Ray { direction: Vec3::NEG_Z, ..Ray::default() }; 2];
-    let err = kernel.run(&ctx, &rays, &[2.0, 3.0, 4.0], 2, (RayShape::Cone, false), 0, 16).unwrap_err();
+    let stage = mipnerf_core::stages::CastIpe {
+        n_samples: 2,
+        shape: RayShape::Cone,
+        unbounded: false,
+        encoding: PointEncoding::Integrated,
+        min_deg: 0,
+        max_deg: 16,
+    };
+    let err = kernel.run(&ctx, &rays, &[2.0, 3.0, 4.0], stage).unwrap_err();
     assert!(err.to_string().contains("3 t values for 2 rays"), "{err}");
 }
 

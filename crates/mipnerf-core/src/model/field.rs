@@ -70,8 +70,15 @@ impl Model {
         let c = &self.config;
         let s = c.num_samples;
         let Field::TriMip { planes, half_side, pre_filtered } = c.field else {
-            let (encoding, degrees) = ((c.point_encoding, precision), (c.min_deg_point, c.max_deg_point));
-            stages::cast_and_encode(rays, &ws.t, (s, c.unbounded), c.ray_shape, encoding, degrees, &mut ws.x);
+            let stage = stages::CastIpe {
+                n_samples: s,
+                shape: c.ray_shape,
+                unbounded: c.unbounded,
+                encoding: c.point_encoding,
+                min_deg: c.min_deg_point,
+                max_deg: c.max_deg_point,
+            };
+            stages::cast_and_encode(rays, &ws.t, stage, precision, &mut ws.x);
             return;
         };
         let pyramid = field.pyramid.as_ref().expect("the Tri-Mip field's pass has its pyramid");

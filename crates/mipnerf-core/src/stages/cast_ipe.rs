@@ -39,6 +39,26 @@ pub fn encode_gaussian(
     }
 }
 
+/// What the cast-and-encode stage makes of a batch's intervals, the same for
+/// [`cast_and_encode`] and the device's kernel (`CastIpeKernel::run`, `cast_ipe.wgsl`): the
+/// intervals a ray, the footprint's shape, whether the scene is unbounded (the Gaussians
+/// contracted), and the point encoding with its degrees.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CastIpe {
+    /// Intervals a ray (`n_samples + 1` edges).
+    pub n_samples: usize,
+    /// Cones or cylinders.
+    pub shape: RayShape,
+    /// An unbounded scene: the Gaussians carried through the scene contraction.
+    pub unbounded: bool,
+    /// IPE, PE of the means, or NeRF's PE.
+    pub encoding: PointEncoding,
+    /// The first degree of the encoding.
+    pub min_deg: u32,
+    /// One past the last degree.
+    pub max_deg: u32,
+}
+
 /// Casts each ray's intervals (`t`: `n_samples + 1` edges per ray) as conical frustums (or
 /// cylinders), each a Gaussian ([`cast_ray`]; in an unbounded scene carried through the scene
 /// contraction, [`cast_ray_contracted`]), and encodes them ([`encode_gaussian`]) into `x`:
@@ -53,15 +73,8 @@ pub fn encode_gaussian(
 ///
 /// # Panics
 /// If `t` or `x` has the wrong length for `rays.len()` rays.
-pub fn cast_and_encode(
-    rays: &[Ray],
-    t: &[f32],
-    (n_samples, unbounded): (usize, bool),
-    shape: RayShape,
-    (encoding, precision): (PointEncoding, Precision),
-    (min_deg, max_deg): (u32, u32),
-    x: &mut [f32],
-) {
+pub fn cast_and_encode(rays: &[Ray], t: &[f32], stage: CastIpe, precision: Precision, x: &mut [f32]) {
+    let CastIpe { n_samples, shape, unbounded, encoding, min_deg, max_deg } = stage;
     assert_eq!(t.len(), rays.len() * (n_samples + 1), "cast_and_encode: t values");
     let width = encoding.width(min_deg, max_deg);
     assert_eq!(x.len(), rays.len() * n_samples * width, "cast_and_encode: features");

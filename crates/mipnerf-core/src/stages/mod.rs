@@ -26,7 +26,7 @@ mod sample;
 mod view_enc;
 
 pub use adam::adam_step;
-pub use cast_ipe::{cast_and_encode, encode_gaussian};
+pub use cast_ipe::{CastIpe, cast_and_encode, encode_gaussian};
 pub use render::{
     RenderedSamples, add_density_noise, distortion_loss, normalised_distance, render_rays, render_rays_backward,
 };

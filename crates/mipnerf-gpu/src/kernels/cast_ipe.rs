@@ -2,7 +2,8 @@
 //!
 //! CPU reference: [`mipnerf_core::stages::cast_and_encode`].
 
-use mipnerf_core::{Ray, RayShape, mip::ipe_len};
+#[cfg(feature = "test-support")]
+use mipnerf_core::{Ray, stages::CastIpe};
 
 use crate::kernels::Recorder;
 use crate::kernels::{WORKGROUP, dispatch_grid};
@@ -80,25 +81,20 @@ impl CastIpeKernel {
         Ok(())
     }
 
-    /// Casts every ray's intervals (`t_vals`: `n_samples + 1` edges per ray, row-major) and encodes
-    /// them; returns `rays.len() * n_samples * ipe_len(min_deg, max_deg)` features laid out as
-    /// [`mipnerf_core::mip::integrated_pos_enc`] writes them, sample after sample.
+    /// Casts every ray's intervals (`t_vals`: `stage.n_samples + 1` edges per ray, row-major)
+    /// and encodes them as `stage` says, as [`mipnerf_core::stages::cast_and_encode`] does with
+    /// the same `stage`; returns `rays.len() * n_samples` rows of the encoding's width, sample
+    /// after sample.
     ///
     /// The output buffer is filled with NaN before the kernel runs, so a feature the kernel failed
     /// to write shows up as NaN.
     ///
     /// # Errors
     /// [`GpuError::InvalidInput`] for inconsistent sizes, or any error wgpu reports.
-    pub fn run(
-        &self,
-        ctx: &GpuContext,
-        rays: &[Ray],
-        t_vals: &[f32],
-        n_samples: u32,
-        (shape, unbounded): (RayShape, bool),
-        min_deg: u32,
-        max_deg: u32,
-    ) -> Result<Vec<f32>, GpuError> {
+    pub fn run(&self, ctx: &GpuContext, rays: &[Ray], t_vals: &[f32], stage: CastIpe) -> Result<Vec<f32>, GpuError> {
+        let CastIpe { n_samples, shape, unbounded, encoding, min_deg, max_deg } = stage;
+        let n_samples = u32::try_from(n_samples)
+            .map_err(|_| GpuError::InvalidInput(format!("cast_ipe: {n_samples} samples per ray")))?;
         if n_samples == 0 || t_vals.len() != rays.len() * (n_samples as usize + 1) {
             return Err(GpuError::InvalidInput(format!(
                 "cast_ipe: {} t values for {} rays of {n_samples} samples",
@@ -118,12 +114,12 @@ impl CastIpeKernel {
             max_deg,
             ray_shape: shape as u32,
             groups_x: gx,
-            encoding: 0,
+            encoding: encoding as u32,
             unbounded: u32::from(unbounded),
             ..CastIpeParams::default()
         };
         let packed = super::packed_rays(rays);
-        let out_len = n_items as usize * ipe_len(min_deg, max_deg);
+        let out_len = n_items as usize * encoding.width(min_deg, max_deg);
         let ray_buf = ctx.storage_buffer("cast_ipe rays", &packed, false);
         let t_buf = ctx.storage_buffer("cast_ipe t_vals", t_vals, false);
         let out_buf = ctx.storage_buffer("cast_ipe encoded", &vec![f32::NAN; out_len], true);
