@@ -18,7 +18,7 @@ use crate::mip::Gaussian;
 use crate::mlp::{MlpCache, MlpConfigError, MlpShape};
 use crate::occupancy::{DensityField, OccupancyGrid};
 use crate::render;
-use crate::stages;
+use crate::stages::{self, LevelRays, RawGradients, RawOutputs};
 use crate::tri_mip::{Pyramid, Taps};
 use crate::wide::wide;
 
@@ -490,8 +490,14 @@ impl Model {
                 (0, None) => stages::sample_intervals(rays, s, c.spacing(), mode, &ws.ids, &mut ws.t),
                 _ => {
                     let (t, w) = (&ws.t, &ws.samples.weights);
-                    let spaced = (s, c.spacing());
-                    stages::resample_intervals(t, w, spaced, c.resample_padding, level, mode, &ws.ids, &mut ws.t_next);
+                    let how = stages::Resample {
+                        n_samples: s,
+                        spacing: c.spacing(),
+                        padding: c.resample_padding,
+                        level,
+                        mode,
+                    };
+                    stages::resample_intervals(t, w, how, &ws.ids, &mut ws.t_next);
                     std::mem::swap(&mut ws.t, &mut ws.t_next);
                 }
             }
@@ -512,8 +518,9 @@ impl Model {
                 ws.cache.raw_rgb.resize(3 * n, 0.0);
             }
             stages::add_density_noise(c.density_noise, level, mode, &ws.ids, s, &mut ws.cache.raw_density[..n]);
-            let raw = (&ws.cache.raw_rgb[..3 * n], &ws.cache.raw_density[..n]);
-            stages::render_rays(c, raw.0, raw.1, &ws.t, rays, &ws.backgrounds, &mut ws.samples, &mut ws.per_ray);
+            let raw = RawOutputs { rgb: &ws.cache.raw_rgb[..3 * n], density: &ws.cache.raw_density[..n] };
+            let level_rays = LevelRays { t: &ws.t, rays, backgrounds: &ws.backgrounds };
+            stages::render_rays(c, raw, level_rays, &mut ws.samples, &mut ws.per_ray);
             self.average_pixels(ws);
             match out.as_mut() {
                 Some((out, Levels::All)) => self.write_level_output(level, c.num_levels, ws, out),
@@ -524,9 +531,10 @@ impl Model {
                 continue;
             };
             self.loss_gradient(level, rays, tg, norm, &mut sums[level], ws);
-            let raw = (&ws.cache.raw_rgb[..3 * n], &ws.cache.raw_density[..n]);
-            let d_raw = (&mut ws.d_raw_rgb[..], &mut ws.d_raw_density[..]);
-            stages::render_rays_backward(c, raw, &ws.t, rays, &ws.backgrounds, &ws.samples, &ws.d_ray_rgb, d_raw);
+            let raw = RawOutputs { rgb: &ws.cache.raw_rgb[..3 * n], density: &ws.cache.raw_density[..n] };
+            let level_rays = LevelRays { t: &ws.t, rays, backgrounds: &ws.backgrounds };
+            let d_raw = RawGradients { rgb: &mut ws.d_raw_rgb[..], density: &mut ws.d_raw_density[..] };
+            stages::render_rays_backward(c, raw, level_rays, &ws.samples, &ws.d_ray_rgb, d_raw);
             if dist_scale > 0.0 && level + 1 == c.num_levels {
                 sums[c.num_levels][0] += f64::from(self.distortion_backward(rays, dist_scale, ws));
             }

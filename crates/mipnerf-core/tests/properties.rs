@@ -93,7 +93,7 @@ proptest! {
         let rays = [Ray { origin: Vec3::new(0.3, -0.2, 0.1), direction: Vec3::new(0.6, 0.8, -0.3), radius: 0.002, near, far, ..Ray::default() }];
         let mut fine = vec![0.0; 33];
         let mode = if randomized { Mode::Train { seed, step: 3 } } else { Mode::Eval };
-        stages::resample_intervals(&t, &weights, (32, Spacing::Unbounded), RESAMPLE_PADDING, 1, mode, &[ray], &mut fine);
+        stages::resample_intervals(&t, &weights, stages::Resample { n_samples: 32, spacing: Spacing::Unbounded, padding: RESAMPLE_PADDING, level: 1, mode }, &[ray], &mut fine);
         prop_assert!(fine.windows(2).all(|p| p[0] <= p[1]), "not sorted: {:?}", fine);
         prop_assert!(fine.iter().all(|&x| inside(x)), "outside [{}, {}]: {:?}", near, far, fine);
         let mut gs = vec![Gaussian::default(); 32];
@@ -135,7 +135,13 @@ fn unbounded_resampling_is_even_in_s_not_in_t() {
     let mut weights = vec![0.0f32; n];
     weights[n - 1] = 1.0;
     let mut fine = vec![0.0; n + 1];
-    stages::resample_intervals(&t, &weights, (n, Spacing::Unbounded), 0.0, 1, Mode::Eval, &[0], &mut fine);
+    stages::resample_intervals(
+        &t,
+        &weights,
+        stages::Resample { n_samples: n, spacing: Spacing::Unbounded, padding: 0.0, level: 1, mode: Mode::Eval },
+        &[0],
+        &mut fine,
+    );
     let (s0, s1) = (ray_distance_to_s(t[n - 1]), ray_distance_to_s(t[n]));
     // The blur spreads the weight onto the interval before the last: look at the last one's.
     let last: Vec<f32> = fine.iter().copied().filter(|&x| x >= t[n - 1]).collect();

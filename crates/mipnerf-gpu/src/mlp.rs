@@ -12,7 +12,7 @@ use mipnerf_core::mlp::{DenseLayer, MlpShape};
 use crate::kernels::Recorder;
 use crate::kernels::fused_mlp::{self, FusedBatch, FusedBuffers, FusedMlpKernel};
 use crate::kernels::matmul::{Epilogue, MAX_SPLITS, MIN_K_PER_SPLIT, MatmulKernel, MatmulVariant, Operand};
-use crate::kernels::mlp_aux::MlpAuxKernels;
+use crate::kernels::mlp_aux::{ColSums, MlpAuxKernels};
 use crate::{GpuContext, GpuError};
 
 /// The buffers of one batch: inputs, kept activations, outputs, scratch.
@@ -367,7 +367,8 @@ impl GpuMlp {
             );
             r0 += width;
         }
-        self.aux.col_sums(rec, (dz, 0), (grads, l.bias), n, l.fan_out, true, &pb.col_scratch);
+        let sums = ColSums { rows: n, cols: l.fan_out, accumulate: true };
+        self.aux.col_sums(rec, (dz, 0), (grads, l.bias), sums, &pb.col_scratch);
         if let Some(d) = d_first {
             let (first, width) = parts[0];
             let epi = Epilogue { accumulate: d.accumulate, mask: d.relu.then_some((first, 0)), ..Epilogue::default() };
@@ -518,7 +519,8 @@ impl GpuMlp {
                 let dz = Operand::new(&g[a], 0);
                 let wb = Operand::new(grads, l.kernel);
                 self.matmul.encode_split(rec, (w, n, wc), bottleneck_t, dz, wb, add, (scratch, len));
-                self.aux.col_sums(rec, (&g[a], 0), (grads, l.bias), n, wc, true, &pb.col_scratch);
+                let sums = ColSums { rows: n, cols: wc, accumulate: true };
+                self.aux.col_sums(rec, (&g[a], 0), (grads, l.bias), sums, &pb.col_scratch);
                 let d_bottleneck = Operand::strided(&pb.d_heads, 1, hw);
                 let kt = Operand::t(params, l.kernel);
                 self.matmul.encode(rec, (n, wc, w), dz, kt, d_bottleneck, Epilogue::default());
@@ -554,7 +556,8 @@ impl GpuMlp {
             );
             r0 += width;
         }
-        self.aux.col_sums(rec, (&pb.d_heads, 0), (&pb.heads_g, t * hw), n, hw, false, &pb.col_scratch);
+        let sums = ColSums { rows: n, cols: hw, accumulate: false };
+        self.aux.col_sums(rec, (&pb.d_heads, 0), (&pb.heads_g, t * hw), sums, &pb.col_scratch);
         self.aux.unpack_heads_add(rec, &pb.heads_g, grads, (ls[d].kernel, ls[d + 1].kernel), (t + 1, w));
         let z = 0;
         let relu = Epilogue { mask: Some((top[0].0, 0)), ..Epilogue::default() };

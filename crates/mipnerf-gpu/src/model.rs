@@ -17,7 +17,7 @@ use crate::kernels::Recorder;
 pub use crate::kernels::batch::RayBatch;
 use crate::kernels::cast_ipe::{CastIpeKernel, CastIpeParams};
 use crate::kernels::compact::{Compaction, ExpandKernel, ExpandParams, GatherKernel, kept_rays};
-use crate::kernels::occupancy::{DeviceGrid, OccupancyKernel, OccupancyParams};
+use crate::kernels::occupancy::{DeviceGrid, GuidedRays, OccupancyKernel, OccupancyParams};
 use crate::kernels::occupancy_update::{OccupancyUpdateKernel, OccupancyUpdateParams, UpdateBuffers};
 use crate::kernels::render::{RenderBuffers, RenderKernel, RenderParams, background_code};
 use crate::kernels::sample::{SampleKernels, SampleParams};
@@ -317,7 +317,8 @@ impl GpuModel {
                             step,
                             ..OccupancyParams::default()
                         };
-                        self.occupancy.sample(rec, op, g, &batch.rays, &batch.bounds, &batch.ids, &t[0])?;
+                        let rays = GuidedRays { rays: &batch.rays, bounds: &batch.bounds, ray_ids: &batch.ids };
+                        self.occupancy.sample(rec, op, g, rays, &t[0])?;
                     }
                     None => self.sample.stratified(rec, sp, &batch.bounds, &batch.ids, &t[0])?,
                 }

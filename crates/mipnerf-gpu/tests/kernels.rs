@@ -432,16 +432,9 @@ fn render_forward_loss_and_backward_match_cpu_reference() {
         let cpu = |c: &RenderCase| -> Outputs {
             let mut samples = stages::RenderedSamples::default();
             let mut per_ray = vec![RenderedRay::default(); nr];
-            stages::render_rays(
-                &cfg,
-                &c.raw_rgb,
-                &c.raw_density,
-                &c.t,
-                &c.rays,
-                &c.backgrounds,
-                &mut samples,
-                &mut per_ray,
-            );
+            let raw = stages::RawOutputs { rgb: &c.raw_rgb, density: &c.raw_density };
+            let level = stages::LevelRays { t: &c.t, rays: &c.rays, backgrounds: &c.backgrounds };
+            stages::render_rays(&cfg, raw, level, &mut samples, &mut per_ray);
             // Per ray: colour, distance, opacity, the area-weighted and the plain squared error.
             let mut out = Vec::new();
             let mut d_ray_rgb = Vec::new();
@@ -451,9 +444,8 @@ fn render_forward_loss_and_backward_match_cpu_reference() {
                 d_ray_rgb.push(pixel_loss_gradient(o.rgb, *target, lossmult(ray), level_weight, norm));
             }
             let (mut d_rgb, mut d_density) = (vec![0.0; n * 3], vec![0.0; n]);
-            let raw = (&c.raw_rgb[..], &c.raw_density[..]);
-            let d_raw = (&mut d_rgb[..], &mut d_density[..]);
-            stages::render_rays_backward(&cfg, raw, &c.t, &c.rays, &c.backgrounds, &samples, &d_ray_rgb, d_raw);
+            let d_raw = stages::RawGradients { rgb: &mut d_rgb[..], density: &mut d_density[..] };
+            stages::render_rays_backward(&cfg, raw, level, &samples, &d_ray_rgb, d_raw);
             vec![("weights", samples.weights), ("ray outputs", out), ("d raw rgb", d_rgb), ("d raw density", d_density)]
         };
         // GPU, outputs poisoned with NaN.
@@ -632,7 +624,13 @@ fn sampling_and_resampling_match_cpu_reference() {
             let cpu = |(rays, w): &(Vec<Ray>, Vec<f32>)| -> Outputs {
                 let (mut coarse, mut fine) = (vec![0.0; nr * (s + 1)], vec![0.0; nr * (s + 1)]);
                 stages::sample_intervals(rays, s, spacing, mode, &ids, &mut coarse);
-                stages::resample_intervals(&coarse, w, (s, spacing), RESAMPLE_PADDING, 1, mode, &ids, &mut fine);
+                stages::resample_intervals(
+                    &coarse,
+                    w,
+                    stages::Resample { n_samples: s, spacing, padding: RESAMPLE_PADDING, level: 1, mode },
+                    &ids,
+                    &mut fine,
+                );
                 vec![compared("coarse", coarse), compared("fine", fine)]
             };
             // GPU, outputs poisoned.
@@ -1147,7 +1145,7 @@ fn guided_edges_match_cpu(
     spacings: &[Spacing],
 ) {
     use mipnerf_core::contract::ray_distance_to_s;
-    use mipnerf_gpu::kernels::occupancy::{DeviceGrid, OccupancyKernel, OccupancyParams};
+    use mipnerf_gpu::kernels::occupancy::{DeviceGrid, GuidedRays, OccupancyKernel, OccupancyParams};
     use mipnerf_gpu::model::RayBatch;
     let kernel = OccupancyKernel::new(ctx).unwrap();
     let nr = rays.len();
@@ -1207,7 +1205,8 @@ fn guided_edges_match_cpu(
             };
             let mut rec = Recorder::new(ctx, "occupancy test");
             let b_ids = ctx.storage_buffer("ray ids", &ids, false);
-            kernel.sample(&mut rec, params, &on_device, &batch.rays, &batch.bounds, &b_ids, &t_out)?;
+            let rays = GuidedRays { rays: &batch.rays, bounds: &batch.bounds, ray_ids: &b_ids };
+            kernel.sample(&mut rec, params, &on_device, rays, &t_out)?;
             let _ = rec.submit();
             Ok(vec![("edges", in_s(ctx.read_f32(&t_out, nr * (s + 1))?))])
         };

@@ -28,7 +28,8 @@ mod view_enc;
 pub use adam::adam_step;
 pub use cast_ipe::{CastIpe, cast_and_encode, encode_gaussian};
 pub use render::{
-    RenderedSamples, add_density_noise, distortion_loss, normalised_distance, render_rays, render_rays_backward,
+    LevelRays, RawGradients, RawOutputs, RenderedSamples, add_density_noise, distortion_loss, normalised_distance,
+    render_rays, render_rays_backward,
 };
-pub use sample::{resample_intervals, sample_intervals, sample_occupied_intervals};
+pub use sample::{Resample, resample_intervals, sample_intervals, sample_occupied_intervals};
 pub use view_enc::encode_view_directions;

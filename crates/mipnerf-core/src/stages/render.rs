@@ -54,6 +54,37 @@ impl RenderedSamples {
     }
 }
 
+/// The MLP's raw outputs of a level: three colour values and a density a sample, before their
+/// activations.
+#[derive(Clone, Copy, Debug)]
+pub struct RawOutputs<'a> {
+    /// `3 n` raw colour values.
+    pub rgb: &'a [f32],
+    /// `n` raw densities.
+    pub density: &'a [f32],
+}
+
+/// The gradients of the loss with respect to a level's raw outputs, as [`RawOutputs`] holds them.
+#[derive(Debug)]
+pub struct RawGradients<'a> {
+    /// `3 n` values.
+    pub rgb: &'a mut [f32],
+    /// `n` values.
+    pub density: &'a mut [f32],
+}
+
+/// The rays a level renders: each ray's interval edges (`n_samples + 1`), the rays, and each
+/// ray's background colour.
+#[derive(Clone, Copy, Debug)]
+pub struct LevelRays<'a> {
+    /// The interval edges, ray after ray.
+    pub t: &'a [f32],
+    /// The rays.
+    pub rays: &'a [Ray],
+    /// A background a ray.
+    pub backgrounds: &'a [[f32; 3]],
+}
+
 /// The MLP's raw outputs activated (density: softplus or ReLU with `density_bias`; colour:
 /// sigmoid with `rgb_padding`) and composited along each ray ([`render::volumetric_rendering`]
 /// on `backgrounds[r]`): writes `samples` and each ray's colour, distance and opacity to `out`.
@@ -63,14 +94,12 @@ impl RenderedSamples {
 /// If the lengths disagree with `rays.len()` rays of `cfg.num_samples` samples.
 pub fn render_rays(
     cfg: &ModelConfig,
-    raw_rgb: &[f32],
-    raw_density: &[f32],
-    t: &[f32],
-    rays: &[Ray],
-    backgrounds: &[[f32; 3]],
+    raw: RawOutputs<'_>,
+    level: LevelRays<'_>,
     samples: &mut RenderedSamples,
     out: &mut [RenderedRay],
 ) {
+    let (RawOutputs { rgb: raw_rgb, density: raw_density }, LevelRays { t, rays, backgrounds }) = (raw, level);
     let s = cfg.num_samples;
     let n = rays.len() * s;
     assert!(
@@ -111,14 +140,14 @@ pub fn render_rays(
 /// If the lengths disagree with `rays.len()` rays of `cfg.num_samples` samples.
 pub fn render_rays_backward(
     cfg: &ModelConfig,
-    (raw_rgb, raw_density): (&[f32], &[f32]),
-    t: &[f32],
-    rays: &[Ray],
-    backgrounds: &[[f32; 3]],
+    raw: RawOutputs<'_>,
+    level: LevelRays<'_>,
     samples: &RenderedSamples,
     d_ray_rgb: &[[f32; 3]],
-    (d_raw_rgb, d_raw_density): (&mut [f32], &mut [f32]),
+    d_raw: RawGradients<'_>,
 ) {
+    let (RawOutputs { rgb: raw_rgb, density: raw_density }, LevelRays { t, rays, backgrounds }) = (raw, level);
+    let RawGradients { rgb: d_raw_rgb, density: d_raw_density } = d_raw;
     let s = cfg.num_samples;
     let n = rays.len() * s;
     assert!(

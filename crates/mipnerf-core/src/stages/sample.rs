@@ -73,6 +73,23 @@ fn jitter(mode: Mode, id: u32) -> Option<RayRng> {
     }
 }
 
+/// How [`resample_intervals`] draws a level's edges (`sample.wgsl`'s `resample` takes the same
+/// settings in its uniform block): intervals a ray, their spacing, the weights' padding, the
+/// level (its random stream), and training's jitter or rendering's even offsets.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Resample {
+    /// Intervals a ray.
+    pub n_samples: usize,
+    /// Linear in depth, in disparity, or in the unbounded scene's normalised distance.
+    pub spacing: Spacing,
+    /// Added to the coarse weights before they are normalised (the official `resample_padding`).
+    pub padding: f32,
+    /// The level drawn (1 for the fine level), which picks its random stream.
+    pub level: usize,
+    /// Training (random offsets) or rendering (even ones).
+    pub mode: Mode,
+}
+
 /// The edges of level `level` (1 or more) drawn from the previous level's: per ray, the inverse
 /// CDF of its `weights` (blurred and padded by `padding`, [`sampling::resample_along_rays`]) at
 /// stratified random offsets in training (the ray's `ResampleOffsets` stream at this level), at
@@ -85,16 +102,8 @@ fn jitter(mode: Mode, id: u32) -> Option<RayRng> {
 ///
 /// # Panics
 /// If the lengths disagree with `ray_ids.len()` rays of `n_samples` intervals.
-pub fn resample_intervals(
-    t_coarse: &[f32],
-    weights: &[f32],
-    (n_samples, spacing): (usize, Spacing),
-    padding: f32,
-    level: usize,
-    mode: Mode,
-    ray_ids: &[u32],
-    t_fine: &mut [f32],
-) {
+pub fn resample_intervals(t_coarse: &[f32], weights: &[f32], how: Resample, ray_ids: &[u32], t_fine: &mut [f32]) {
+    let Resample { n_samples, spacing, padding, level, mode } = how;
     use crate::contract::{ray_distance_to_s, s_to_ray_distance};
     let (s, nr) = (n_samples, ray_ids.len());
     assert!(

@@ -30,6 +30,18 @@ pub struct AuxParams {
     pub groups_x: u32,
 }
 
+/// The shape of [`MlpAuxKernels::col_sums`]: `rows x cols` summed down the rows, added to the
+/// output (`accumulate`) or written.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ColSums {
+    /// Rows summed.
+    pub rows: usize,
+    /// Columns (sums).
+    pub cols: usize,
+    /// Add to the output rather than overwrite it.
+    pub accumulate: bool,
+}
+
 /// The three pipelines of `mlp_aux.wgsl`.
 #[derive(Debug)]
 pub struct MlpAuxKernels {
@@ -77,19 +89,19 @@ impl MlpAuxKernels {
         rows.div_ceil(Self::BLOCK_ROWS) * cols
     }
 
-    /// `out[col] (+)= sum over rows of x[row, col]`, in a fixed order: for more than
-    /// [`BLOCK_ROWS`](Self::BLOCK_ROWS) rows, blocks of rows are summed first (into `scratch`,
+    /// `out[col] (+)= sum over rows of x[row, col]` for `sums`' shape, `x` and `out` at their
+    /// element offsets, in a fixed order: for more than [`BLOCK_ROWS`](Self::BLOCK_ROWS) rows,
+    /// blocks of rows are summed first (into `scratch`,
     /// [`col_sums_scratch_len`](Self::col_sums_scratch_len) floats), then the blocks.
     pub fn col_sums(
         &self,
         rec: &mut Recorder<'_>,
         x: (&wgpu::Buffer, usize),
         out: (&wgpu::Buffer, usize),
-        rows: usize,
-        cols: usize,
-        accumulate: bool,
+        sums: ColSums,
         scratch: &wgpu::Buffer,
     ) {
+        let ColSums { rows, cols, accumulate } = sums;
         let (x, rows) = if rows > Self::BLOCK_ROWS {
             let params = AuxParams {
                 rows: rows as u32,

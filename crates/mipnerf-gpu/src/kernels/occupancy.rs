@@ -169,6 +169,19 @@ impl DeviceGrid {
     }
 }
 
+/// The rays [`OccupancyKernel::sample`] reads: two vec4 per ray ((origin, radius), (direction,
+/// anything)), `(near, far)` per ray, and each ray's index in its step's batch (the stream of
+/// its jitter).
+#[derive(Clone, Copy, Debug)]
+pub struct GuidedRays<'a> {
+    /// The rays.
+    pub rays: &'a wgpu::Buffer,
+    /// Their bounds.
+    pub bounds: &'a wgpu::Buffer,
+    /// Their indices in the batch.
+    pub ray_ids: &'a wgpu::Buffer,
+}
+
 /// The pipeline of `occupancy.wgsl`.
 #[derive(Debug)]
 pub struct OccupancyKernel {
@@ -198,11 +211,10 @@ impl OccupancyKernel {
         rec: &mut Recorder<'_>,
         mut params: OccupancyParams,
         grid: &DeviceGrid,
-        rays: &wgpu::Buffer,
-        bounds: &wgpu::Buffer,
-        ray_ids: &wgpu::Buffer,
+        rays: GuidedRays<'_>,
         t_out: &wgpu::Buffer,
     ) -> Result<(), GpuError> {
+        let GuidedRays { rays, bounds, ray_ids } = rays;
         if params.n_samples == 0 || params.n_samples as usize > kernels::sample::MAX_SAMPLES {
             return Err(GpuError::InvalidInput(format!(
                 "occupancy: {} samples per ray (1..={})",
