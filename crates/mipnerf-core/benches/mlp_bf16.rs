@@ -87,7 +87,13 @@ fn main() {
                             cache.set_training(true);
                             cache.set_pack_in_each_product(each);
                             shape.forward(params, x, view, rays, samples, cache);
-                            shape.backward(params, x, view, samples, cache, d_rgb, d_density, grads);
+                            shape.backward(
+                                params,
+                                mipnerf_core::mlp::MlpInputs { x, view, samples_per_ray: samples },
+                                cache,
+                                mipnerf_core::mlp::OutputGradients { rgb: d_rgb, density: d_density },
+                                grads,
+                            );
                         });
                     }
                 });

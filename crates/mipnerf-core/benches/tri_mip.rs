@@ -67,7 +67,13 @@ fn mlp_costs(
     let forward = per_sample(reps, n, || shape.forward(&params, &x, &view, rays, per_ray, &mut cache));
     let both = per_sample(reps, n, || {
         shape.forward(&params, &x, &view, rays, per_ray, &mut cache);
-        shape.backward(&params, &x, &view, per_ray, &mut cache, &d_rgb, &d_density, &mut grads);
+        shape.backward(
+            &params,
+            mipnerf_core::mlp::MlpInputs { x: &x, view: &view, samples_per_ray: per_ray },
+            &mut cache,
+            mipnerf_core::mlp::OutputGradients { rgb: &d_rgb, density: &d_density },
+            &mut grads,
+        );
         if input_gradient {
             shape.input_gradient(&params, &cache, &mut d_x);
         }

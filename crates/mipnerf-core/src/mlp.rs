@@ -111,6 +111,29 @@ pub struct MlpShape {
 #[error("invalid MLP configuration: {0}")]
 pub struct MlpConfigError(pub String);
 
+/// What a forward pass of the MLP read, which its backward pass reads again: the samples'
+/// encodings (`x_dim` a sample), the rays' view encodings (`view_dim` a ray), and the samples a
+/// ray.
+#[derive(Clone, Copy, Debug)]
+pub struct MlpInputs<'a> {
+    /// The samples' encodings.
+    pub x: &'a [f32],
+    /// The rays' view encodings.
+    pub view: &'a [f32],
+    /// Samples a ray.
+    pub samples_per_ray: usize,
+}
+
+/// The loss gradient with respect to the MLP's raw outputs: three colour values and a density
+/// a sample.
+#[derive(Clone, Copy, Debug)]
+pub struct OutputGradients<'a> {
+    /// `3 n` values.
+    pub rgb: &'a [f32],
+    /// `n` values.
+    pub density: &'a [f32],
+}
+
 impl MlpShape {
     /// Lays out the MLP of `config`, starting at offset `base` of the flat buffer.
     ///
@@ -560,14 +583,13 @@ impl MlpShape {
     pub fn backward(
         &self,
         params: &[f32],
-        x: &[f32],
-        view: &[f32],
-        samples_per_ray: usize,
+        inputs: MlpInputs<'_>,
         cache: &mut MlpCache,
-        d_raw_rgb: &[f32],
-        d_raw_density: &[f32],
+        d_raw: OutputGradients<'_>,
         grads: &mut [f32],
     ) {
+        let MlpInputs { x, view, samples_per_ray } = inputs;
+        let OutputGradients { rgb: d_raw_rgb, density: d_raw_density } = d_raw;
         let c = &self.config;
         let (n, n_rays) = (cache.n, cache.n_rays);
         assert!(!cache.density_only, "mlp backward: the last forward pass was density-only");
@@ -749,7 +771,13 @@ mod tests {
             shape.forward(&params, &x, &view, n_rays, samples, &mut cache);
             let (d_rgb, d_density) = (vec![0.1; n * 3], vec![0.2; n]);
             let mut grads = vec![0.0; shape.num_params];
-            shape.backward(&params, &x, &view, samples, &mut cache, &d_rgb, &d_density, &mut grads);
+            shape.backward(
+                &params,
+                super::MlpInputs { x: &x, view: &view, samples_per_ray: samples },
+                &mut cache,
+                super::OutputGradients { rgb: &d_rgb, density: &d_density },
+                &mut grads,
+            );
             let MlpCache { trunk, bottleneck, cond, grad_a, grad_b, grad_z, view_proj, grad_ray, .. } = &cache;
             let buffers = trunk.iter().chain(cond).chain([bottleneck, grad_a, grad_b, grad_z, view_proj, grad_ray]);
             for (i, buffer) in buffers.enumerate() {

@@ -99,6 +99,18 @@ pub struct GradWith<'a> {
     pub grid: Option<&'a OccupancyGrid>,
 }
 
+/// One chunk of whole pixels for [`Model::run_chunk`]: its rays, their indices in the batch
+/// (their random streams), their occupied spans when a grid guides the samples, in training
+/// the targets with the loss's norm and the distortion loss's scale, and the mode.
+#[derive(Clone, Copy)]
+struct Chunk<'a> {
+    rays: &'a [Ray],
+    ids: RayIds<'a>,
+    spans: Option<ChunkSpans<'a>>,
+    targets: Option<(&'a [[f32; 3]], f32, f32)>,
+    mode: Mode,
+}
+
 /// Per-chunk gradient buffers, kept between training steps to avoid reallocating them.
 #[derive(Default, Debug, Clone)]
 pub struct GradScratch {
@@ -381,7 +393,8 @@ impl Model {
                 WORKSPACE.with(|ws| {
                     let ws = &mut ws.borrow_mut();
                     let targets = Some((tg, norm, dist_scale));
-                    self.run_chunk(params, &field, rays, ids, spans, targets, mode, ws, Some((g, fg)), None)
+                    let chunk = Chunk { rays, ids, spans, targets, mode };
+                    self.run_chunk(params, &field, chunk, ws, Some((g, fg)), None)
                 })
             })
             .collect();
@@ -457,15 +470,12 @@ impl Model {
         &self,
         params: &[f32],
         field: &FieldState,
-        rays: &[Ray],
-        ids: RayIds<'_>,
-        spans: Option<ChunkSpans<'_>>,
-        targets: Option<(&[[f32; 3]], f32, f32)>,
-        mode: Mode,
+        chunk: Chunk<'_>,
         ws: &mut Workspace,
         mut grads: Option<(&mut [f32], &mut FieldGrads)>,
         mut out: Option<(&mut [LevelOutput], Levels)>,
     ) -> Vec<[f64; 2]> {
+        let Chunk { rays, ids, spans, targets, mode } = chunk;
         let c = &self.config;
         let (s, n) = (c.num_samples, rays.len() * c.num_samples);
         self.size_workspace(rays.len(), ws);
@@ -539,7 +549,13 @@ impl Model {
                 sums[c.num_levels][0] += f64::from(self.distortion_backward(rays, dist_scale, ws));
             }
             let (x, view, cache) = (&ws.x, &ws.view, &mut ws.cache);
-            mlp.backward(params, x, view, s, cache, &ws.d_raw_rgb, &ws.d_raw_density, grads);
+            mlp.backward(
+                params,
+                crate::mlp::MlpInputs { x, view, samples_per_ray: s },
+                cache,
+                crate::mlp::OutputGradients { rgb: &ws.d_raw_rgb, density: &ws.d_raw_density },
+                grads,
+            );
             self.field_backward(params, mlp, n, ws, field_grads);
         }
         sums

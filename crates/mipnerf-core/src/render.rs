@@ -96,6 +96,31 @@ pub const fn background(white_bkgd: bool) -> [f32; 3] {
     if white_bkgd { [1.0; 3] } else { [0.0; 3] }
 }
 
+/// What [`volumetric_rendering`] composites along one ray: the samples' colours and densities,
+/// the interval edges, the ray's direction (its length scales the intervals) and the background.
+#[derive(Clone, Copy, Debug)]
+pub struct RayComposite<'a> {
+    /// A colour a sample.
+    pub rgb: &'a [[f32; 3]],
+    /// A density a sample.
+    pub density: &'a [f32],
+    /// `n + 1` interval edges.
+    pub t_vals: &'a [f32],
+    /// The ray's direction.
+    pub dir: Vec3,
+    /// The background colour.
+    pub bg: [f32; 3],
+}
+
+/// The loss gradient with respect to a ray's composited colour and accumulated opacity.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Upstream {
+    /// Of the colour.
+    pub d_rgb: [f32; 3],
+    /// Of the opacity.
+    pub d_acc: f32,
+}
+
 /// The backward pass of [`volumetric_rendering`] with respect to the colours and densities.
 ///
 /// Given the upstream gradients `d_rgb` (of the composited colour) and `d_acc` (of the accumulated
@@ -108,17 +133,14 @@ pub const fn background(white_bkgd: bool) -> [f32; 3] {
 /// # Panics
 /// If the lengths disagree.
 pub fn volumetric_rendering_backward(
-    rgb: &[[f32; 3]],
-    density: &[f32],
-    t_vals: &[f32],
-    dir: Vec3,
-    bg: [f32; 3],
+    ray: RayComposite<'_>,
     weights: &[f32],
-    d_rgb: [f32; 3],
-    d_acc: f32,
+    upstream: Upstream,
     grad_rgb: &mut [[f32; 3]],
     grad_density: &mut [f32],
 ) {
+    let RayComposite { rgb, density, t_vals, dir, bg } = ray;
+    let Upstream { d_rgb, d_acc } = upstream;
     let n = density.len();
     assert!(
         rgb.len() == n && t_vals.len() == n + 1 && weights.len() == n && grad_rgb.len() == n && grad_density.len() == n,

@@ -4,8 +4,8 @@
 
 use glam::Vec3;
 use mipnerf_core::render::{
-    DensityActivation, background, rgb_activation, rgb_activation_derivative, volumetric_rendering,
-    volumetric_rendering_backward,
+    DensityActivation, RayComposite, Upstream, background, rgb_activation, rgb_activation_derivative,
+    volumetric_rendering, volumetric_rendering_backward,
 };
 use rand::{Rng, SeedableRng, rngs::SmallRng};
 
@@ -73,7 +73,8 @@ fn volumetric_rendering_backward_matches_finite_differences() {
         volumetric_rendering(&r.rgb, &r.density, &r.t, r.dir, bg, &mut w);
         let mut g_rgb = vec![[0.0; 3]; n];
         let mut g_den = vec![0.0; n];
-        volumetric_rendering_backward(&r.rgb, &r.density, &r.t, r.dir, bg, &w, c, a, &mut g_rgb, &mut g_den);
+        let composite = RayComposite { rgb: &r.rgb, density: &r.density, t_vals: &r.t, dir: r.dir, bg };
+        volumetric_rendering_backward(composite, &w, Upstream { d_rgb: c, d_acc: a }, &mut g_rgb, &mut g_den);
         for i in 0..n {
             let x0 = r.density[i];
             let h = (FD_STEP * f64::from(x0).abs().max(0.3)) as f32;
@@ -117,18 +118,9 @@ fn a_wrong_gradient_is_caught() {
     volumetric_rendering(&r.rgb, &r.density, &r.t, r.dir, background(true), &mut w);
     let mut g_rgb = vec![[0.0; 3]; 4];
     let mut g_den = vec![0.0; 4];
-    volumetric_rendering_backward(
-        &r.rgb,
-        &r.density,
-        &r.t,
-        r.dir,
-        background(true),
-        &w,
-        [1.0, 0.5, -0.3],
-        0.0,
-        &mut g_rgb,
-        &mut g_den,
-    );
+    let composite = RayComposite { rgb: &r.rgb, density: &r.density, t_vals: &r.t, dir: r.dir, bg: background(true) };
+    let upstream = Upstream { d_rgb: [1.0, 0.5, -0.3], d_acc: 0.0 };
+    volumetric_rendering_backward(composite, &w, upstream, &mut g_rgb, &mut g_den);
     let x0 = r.density[1];
     let h = 1e-3f32;
     r.density[1] = x0 + h;

@@ -480,7 +480,13 @@ fn the_mlp_packing_once_gives_the_bits_of_packing_in_each_product() {
             for _ in 0..2 {
                 grads.fill(0.0);
                 shape.forward(&params, &x, &view, rays, samples, &mut cache);
-                shape.backward(&params, &x, &view, samples, &mut cache, &d_rgb, &d_density, &mut grads);
+                shape.backward(
+                    &params,
+                    mipnerf_core::mlp::MlpInputs { x: &x, view: &view, samples_per_ray: samples },
+                    &mut cache,
+                    mipnerf_core::mlp::OutputGradients { rgb: &d_rgb, density: &d_density },
+                    &mut grads,
+                );
             }
             let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
             (bits(&cache.raw_rgb), bits(&cache.raw_density), bits(&grads))

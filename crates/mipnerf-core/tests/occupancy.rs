@@ -680,5 +680,11 @@ fn no_backward_pass_follows_a_density_only_pass() {
     shape.forward(&params, &x, &vec![0.0; n * c.view_dim()], n, 1, &mut cache);
     shape.density(&params, &x, n, &mut cache);
     let mut grads = vec![0.0; params.len()];
-    shape.backward(&params, &x, &vec![0.0; n * c.view_dim()], 1, &mut cache, &[0.0; 12], &[0.0; 4], &mut grads);
+    shape.backward(
+        &params,
+        mipnerf_core::mlp::MlpInputs { x: &x, view: &vec![0.0; n * c.view_dim()], samples_per_ray: 1 },
+        &mut cache,
+        mipnerf_core::mlp::OutputGradients { rgb: &[0.0; 12], density: &[0.0; 4] },
+        &mut grads,
+    );
 }

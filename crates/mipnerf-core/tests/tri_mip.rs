@@ -315,7 +315,13 @@ fn finite_differences_of_the_whole_fields_loss_match_its_backward_pass() {
     let _ = loss(&level0, &mut cache);
     let x = encode_all(&level0);
     let mut weight_grads = vec![0.0; shape.num_params];
-    shape.backward(&weights, &x, &view, per_ray, &mut cache, &w_rgb, &w_density, &mut weight_grads);
+    shape.backward(
+        &weights,
+        mipnerf_core::mlp::MlpInputs { x: &x, view: &view, samples_per_ray: per_ray },
+        &mut cache,
+        mipnerf_core::mlp::OutputGradients { rgb: &w_rgb, density: &w_density },
+        &mut weight_grads,
+    );
     let mut d_x = vec![0.0; n * c.encoding_dim()];
     shape.input_gradient(&weights, &cache, &mut d_x);
     let mut grad0 = vec![0.0f32; c.num_params()];

@@ -164,7 +164,13 @@ fn mlp_on_cpu(shape: &mipnerf_core::mlp::MlpShape, c: &MlpCase, input_gradient: 
     shape.forward(&c.params, &c.x, &c.view, c.n_rays, c.samples_per_ray, &mut cache);
     let (rgb, density) = (cache.raw_rgb.clone(), cache.raw_density.clone());
     let mut grads = vec![0.0; c.params.len()];
-    shape.backward(&c.params, &c.x, &c.view, c.samples_per_ray, &mut cache, &c.d_rgb, &c.d_density, &mut grads);
+    shape.backward(
+        &c.params,
+        mipnerf_core::mlp::MlpInputs { x: &c.x, view: &c.view, samples_per_ray: c.samples_per_ray },
+        &mut cache,
+        mipnerf_core::mlp::OutputGradients { rgb: &c.d_rgb, density: &c.d_density },
+        &mut grads,
+    );
     let mut out = vec![("raw rgb", rgb), ("raw density", density), ("grads", grads)];
     if input_gradient {
         let mut d_x = vec![0.0; c.x.len()];

@@ -3,7 +3,7 @@
 
 use rayon::prelude::*;
 
-use super::{CHUNK_RAYS, Model, RayIds, WORKSPACE};
+use super::{CHUNK_RAYS, Chunk, Model, RayIds, WORKSPACE};
 use crate::cone::Ray;
 use crate::config::Mode;
 use crate::occupancy::OccupancyGrid;
@@ -87,7 +87,8 @@ impl Model {
                     WORKSPACE.with(|ws| {
                         let ws = &mut ws.borrow_mut();
                         let out = Some((&mut out[..], which));
-                        self.run_chunk(params, &field, rays, RayIds::From(0), None, None, Mode::Eval, ws, None, out)
+                        let chunk = Chunk { rays, ids: RayIds::From(0), spans: None, targets: None, mode: Mode::Eval };
+                        self.run_chunk(params, &field, chunk, ws, None, out)
                     });
                     out
                 })
@@ -106,7 +107,8 @@ impl Model {
                 WORKSPACE.with(|ws| {
                     let ws = &mut ws.borrow_mut();
                     let out = Some((&mut out[..], which));
-                    self.run_chunk(params, &field, chunk, ids, Some(spans), None, Mode::Eval, ws, None, out)
+                    let job = Chunk { rays: chunk, ids, spans: Some(spans), targets: None, mode: Mode::Eval };
+                    self.run_chunk(params, &field, job, ws, None, out)
                 });
                 out
             })

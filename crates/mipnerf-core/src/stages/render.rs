@@ -157,15 +157,18 @@ pub fn render_rays_backward(
     let (mut g_rgb, mut g_density) = (vec![[0.0f32; 3]; s], vec![0.0f32; s]);
     for (r, ray) in rays.iter().enumerate() {
         let sl = r * s..(r + 1) * s;
+        let composite = render::RayComposite {
+            rgb: &samples.rgb[sl.clone()],
+            density: &samples.density[sl.clone()],
+            t_vals: &t[r * (s + 1)..(r + 1) * (s + 1)],
+            dir: ray.direction,
+            bg: backgrounds[r],
+        };
+        let upstream = render::Upstream { d_rgb: d_ray_rgb[r], d_acc: 0.0 };
         render::volumetric_rendering_backward(
-            &samples.rgb[sl.clone()],
-            &samples.density[sl.clone()],
-            &t[r * (s + 1)..(r + 1) * (s + 1)],
-            ray.direction,
-            backgrounds[r],
+            composite,
             &samples.weights[sl.clone()],
-            d_ray_rgb[r],
-            0.0,
+            upstream,
             &mut g_rgb,
             &mut g_density,
         );
