@@ -11,11 +11,10 @@ use mipnerf_core::metrics::average_error;
 use mipnerf_core::model::Levels;
 use serde::Serialize;
 
-use crate::config::{Backend, PrecisionArg};
 use crate::images::{rgb_to_png, write_png};
 use crate::lpips::LpipsWeights;
 use crate::outputs::save_keeping_the_old;
-use crate::run::{load_split, open_trained, read_config};
+use crate::run::{RunOn, load_split, open_trained, read_config};
 use crate::run_dir::RunDir;
 use crate::scores::{ImageScore, Metrics, ScaleScore};
 use crate::scores::{flat_clamped, pixel_scores};
@@ -29,15 +28,7 @@ use crate::scores::{flat_clamped, pixel_scores};
 ///
 /// # Errors
 /// Missing run files or data, or weights that are present but unusable.
-pub fn eval(
-    run: &Path,
-    split: Split,
-    backend: Backend,
-    device: &mipnerf_gpu::DeviceOptions,
-    precision: Option<PrecisionArg>,
-    weights: &LpipsWeights,
-    session: &Session,
-) -> Result<Metrics> {
+pub fn eval(run: &Path, split: Split, on: RunOn<'_>, weights: &LpipsWeights, session: &Session) -> Result<Metrics> {
     let s = read_config(run)?;
     let (lpips, lpips_absent) = match weights.open()? {
         Ok(l) => (Some(l), None),
@@ -49,7 +40,7 @@ pub fn eval(
     let lpips = lpips.as_ref();
     let lpips_absent = lpips_absent.as_deref();
     let ds = load_split(&s, split)?;
-    let (mut be, step, precision) = open_trained(run, &s, backend, precision, device, session)?;
+    let (mut be, step, precision) = open_trained(run, &s, on, session)?;
     // Everything goes to eval.partial/, renamed to eval/ once whole: an interrupted or failed
     // eval leaves the previous results as they were and nothing that looks complete.
     let out = RunDir::new(run).eval_partial_of(split);

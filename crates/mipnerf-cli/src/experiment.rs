@@ -696,7 +696,14 @@ fn evaluate(
     session: &Session,
 ) -> Result<crate::scores::Metrics> {
     let backend = eval_backend.or(saved.backend).unwrap_or(crate::config::Backend::Cpu);
-    crate::eval::eval(run_dir, Split::Test, backend, &mipnerf_gpu::DeviceOptions::default(), None, lpips, session)
+    let device = mipnerf_gpu::DeviceOptions::default();
+    crate::eval::eval(
+        run_dir,
+        Split::Test,
+        crate::run::RunOn { backend, precision: None, device: &device },
+        lpips,
+        session,
+    )
 }
 
 #[cfg(test)]

@@ -12,9 +12,9 @@ use mipnerf_core::data::camera_path::{MAX_FRAMES, MAX_SIDE};
 use mipnerf_core::data::{Dataset, Split};
 use mipnerf_core::model::Levels;
 
-use crate::config::{Backend, PrecisionArg, TrainSettings};
+use crate::config::TrainSettings;
 use crate::images::{depth_to_png, rgb_to_png, write_exr, write_png};
-use crate::run::{load_split, open_trained, read_config};
+use crate::run::{RunOn, load_split, open_trained, read_config};
 
 /// Camera paths.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -184,9 +184,7 @@ pub fn render(
     out: &Path,
     target: Target,
     size: Option<(u32, u32)>,
-    backend: Backend,
-    device: &mipnerf_gpu::DeviceOptions,
-    precision: Option<PrecisionArg>,
+    on: RunOn<'_>,
     overwrite: bool,
     session: &Session,
 ) -> Result<Vec<std::path::PathBuf>> {
@@ -298,7 +296,7 @@ pub fn render(
     // Never into a folder of files mipnerf did not write (a dataset's images, say).
     crate::outputs::check_dir(out, "--out", overwrite, crate::outputs::RENDER)?;
     // Load the data first: a bad split fails before the device is opened.
-    let (mut be, _, _) = open_trained(run, &s, backend, precision, device, session)?;
+    let (mut be, _, _) = open_trained(run, &s, on, session)?;
     // Only now, with every argument checked and the model open, is anything created. The
     // outputs of an earlier render into this folder go first (a folder never mixes two renders),
     // and the manifest names every file before any is written, so an interrupted render can be

@@ -64,6 +64,18 @@ pub fn read_config(run: &Path) -> Result<TrainSettings> {
     Ok(TrainSettings { precision: s.precision.or(Some(PrecisionArg::F32)), ..s })
 }
 
+/// Where a command runs a trained model: `--backend`, `--precision` (`None`: the run's own) and
+/// the device options.
+#[derive(Clone, Copy, Debug)]
+pub struct RunOn<'a> {
+    /// `--backend`.
+    pub backend: Backend,
+    /// `--precision`, or the run's.
+    pub precision: Option<PrecisionArg>,
+    /// The adapter and its limits.
+    pub device: &'a mipnerf_gpu::DeviceOptions,
+}
+
 /// A backend holding a run's trained parameters, for rendering.
 ///
 /// # Errors
@@ -71,11 +83,10 @@ pub fn read_config(run: &Path) -> Result<TrainSettings> {
 pub fn open_trained(
     run: &Path,
     s: &TrainSettings,
-    choice: Backend,
-    precision: Option<PrecisionArg>,
-    device: &mipnerf_gpu::DeviceOptions,
+    on: RunOn<'_>,
     session: &Session,
 ) -> Result<(Box<dyn mipnerf_core::backend::Backend>, u64, Precision)> {
+    let RunOn { backend: choice, precision, device } = on;
     let (model, ck) = load_trained(run, s, session)?;
     let step = ck.step;
     let setup = mipnerf_gpu::BackendSetup {

@@ -49,11 +49,11 @@ pub fn train(
     device: &mipnerf_gpu::DeviceOptions,
     session: &Session,
 ) -> Result<TrainOutcome> {
-    let (s, format, model) = resolve_settings(run_dir, file_settings, &flag_settings, resume)?;
+    let resolved = resolve_settings(run_dir, file_settings, &flag_settings, resume)?;
     crate::outputs::check_folder_path(run_dir, "--out")?;
     let created = std::fs::symlink_metadata(run_dir).is_err();
     std::fs::create_dir_all(run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
-    let outcome = train_locked(run_dir, s, format, model, &flag_settings, resume, device, session);
+    let outcome = train_locked(run_dir, resolved, &flag_settings, resume, device, session);
     // A run refused before it wrote anything (its data, its options) leaves no folder behind
     // that it made: only its released lock would be in it.
     if outcome.is_err() && created {
@@ -71,14 +71,13 @@ pub fn train(
 /// everything else.
 fn train_locked(
     run_dir: &Path,
-    s: TrainSettings,
-    format: Format,
-    model: Model,
+    resolved: ResolvedRun,
     flag_settings: &TrainSettings,
     resume: bool,
     device: &mipnerf_gpu::DeviceOptions,
     session: &Session,
 ) -> Result<TrainOutcome> {
+    let ResolvedRun { settings: s, format, model } = resolved;
     let _lock = RunDir::new(run_dir).lock()?;
     // Temporary files that a kill during a save left behind (no other writer exists: we hold the
     // lock); the files they were to replace are intact.
@@ -265,7 +264,7 @@ fn resolve_settings(
     file_settings: Option<TrainSettings>,
     flag_settings: &TrainSettings,
     resume: bool,
-) -> Result<(TrainSettings, Format, Model)> {
+) -> Result<ResolvedRun> {
     let base = if resume { read_config(run_dir)? } else { file_settings.unwrap_or_default() };
     if resume {
         check_resume_flags(run_dir, &base, flag_settings)?;
@@ -312,7 +311,15 @@ fn resolve_settings(
     s.optim_config()?;
     let model = Model::new(s.model_config()?)?;
     s.validate(mipnerf_gpu::GpuBackend::bytes_per_ray(&model))?;
-    Ok((s, format, model))
+    Ok(ResolvedRun { settings: s, format, model })
+}
+
+/// A run's settings resolved (the saved ones on `--resume`, else the file's and the flags'),
+/// the data's format, and the model they describe.
+struct ResolvedRun {
+    settings: TrainSettings,
+    format: Format,
+    model: Model,
 }
 
 /// Refuses `--resume` flags that change what the saved run is (its model, sampler, seed or

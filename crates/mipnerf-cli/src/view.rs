@@ -26,7 +26,7 @@ use mipnerf_core::model::Levels;
 
 use crate::config::{Backend, TrainSettings};
 use crate::metrics_csv::MetricsRows;
-use crate::run::{load_split, open_trained, read_config};
+use crate::run::{RunOn, load_split, open_trained, read_config};
 use crate::run_dir::RunDir;
 
 /// The page.
@@ -319,7 +319,8 @@ fn renderer(a: &ViewArgs, s: &TrainSettings, template: &ImageSpec, jobs: &mpsc::
             if loaded.as_ref().is_none_or(|l| l.2 != mtime) {
                 // A checkpoint that is being replaced is renamed into place whole, so a failed
                 // load is only a missing one: keep the model we have.
-                match open_trained(run, s, a.backend, None, &a.device, &a.session) {
+                let on = RunOn { backend: a.backend, precision: None, device: &a.device };
+                match open_trained(run, s, on, &a.session) {
                     Ok((be, step, _)) => loaded = Some((be, step, mtime)),
                     Err(e) if loaded.is_none() => return Err(e),
                     Err(_) => {}

@@ -117,15 +117,14 @@ fn small_model_forward_matches_official() {
 fn check_loss_and_grads(
     model: &Model,
     p: &[f32],
-    rays: &[Ray],
-    targets: &[[f32; 3]],
-    stats: &Value,
-    grads: &Value,
+    batch: TrainBatch<'_>,
+    official: &Value,
     what: &str,
     mm: &mut Mismatches,
 ) {
+    let (stats, grads) = (&official["train_step_stats"], &official["grads"]);
     let mut g = vec![0.0; model.num_params()];
-    let s = model.loss_and_grad(p, TrainBatch { rays, targets }, Mode::Eval, &mut g, GradWith::default());
+    let s = model.loss_and_grad(p, batch, Mode::Eval, &mut g, GradWith::default());
     let ours: Vec<f32> = s.losses.iter().map(|l| l * OFFICIAL_LOSS_FACTOR).collect();
     mm.check(&format!("{what} losses"), &ours, &flat(&stats["losses"]), TOL_MODEL);
     mm.check(&format!("{what} loss"), &[s.loss * OFFICIAL_LOSS_FACTOR], &[f(&stats["loss"])], TOL_MODEL);
@@ -147,20 +146,16 @@ fn small_model_losses_and_gradients_match_official_train_step() {
     check_loss_and_grads(
         &model,
         &params(&model, &g, false),
-        &rays,
-        &targets,
-        &g["loss"]["train_step_stats"],
-        &g["loss"]["grads"],
+        TrainBatch { rays: &rays, targets: &targets },
+        &g["loss"],
         "init",
         &mut mm,
     );
     check_loss_and_grads(
         &model,
         &params(&model, &g, true),
-        &rays,
-        &targets,
-        &g["bias_perturbed"]["train_step_stats"],
-        &g["bias_perturbed"]["grads"],
+        TrainBatch { rays: &rays, targets: &targets },
+        &g["bias_perturbed"],
         "biased",
         &mut mm,
     );

@@ -11,7 +11,7 @@ use mipnerf_core::mlp::{DenseLayer, MlpShape};
 
 use crate::kernels::Recorder;
 use crate::kernels::fused_mlp::{self, FusedBatch, FusedBuffers, FusedMlpKernel};
-use crate::kernels::matmul::{Epilogue, MAX_SPLITS, MIN_K_PER_SPLIT, MatmulKernel, MatmulVariant, Operand};
+use crate::kernels::matmul::{Epilogue, MAX_SPLITS, MIN_K_PER_SPLIT, MatmulKernel, MatmulVariant, Operand, Product};
 use crate::kernels::mlp_aux::{ColSums, MlpAuxKernels};
 use crate::{GpuContext, GpuError};
 
@@ -280,6 +280,21 @@ pub struct GpuMlp {
 /// One input part of a dense layer: a buffer and its width (kernel rows, in order).
 type Part<'a> = (&'a wgpu::Buffer, usize);
 
+/// One dense layer's pass: the layer, its input parts, and the samples.
+#[derive(Clone, Copy)]
+struct LayerRun<'a> {
+    layer: &'a DenseLayer,
+    parts: &'a [Part<'a>],
+    n: usize,
+}
+
+/// The parameters and the gradient they are added to.
+#[derive(Clone, Copy)]
+struct ParamBuffers<'a> {
+    params: &'a wgpu::Buffer,
+    grads: &'a wgpu::Buffer,
+}
+
 /// Where a layer's backward pass puts the gradient of its first input part.
 #[derive(Clone, Copy)]
 struct InputGrad<'a> {
@@ -314,23 +329,18 @@ impl GpuMlp {
     }
 
     /// `out = act(sum_p part_p · kernel_rows_p + bias)`.
-    fn dense(
-        &self,
-        rec: &mut Recorder<'_>,
-        params: &wgpu::Buffer,
-        l: &DenseLayer,
-        parts: &[Part<'_>],
-        n: usize,
-        out: &wgpu::Buffer,
-        relu: bool,
-    ) {
+    fn dense(&self, rec: &mut Recorder<'_>, params: &wgpu::Buffer, run: LayerRun<'_>, out: &wgpu::Buffer, relu: bool) {
+        let LayerRun { layer: l, parts, n } = run;
         let mut r0 = 0;
         for (k, &(input, width)) in parts.iter().enumerate() {
             let last = k + 1 == parts.len();
             let epi =
                 Epilogue { accumulate: k > 0, bias: last.then_some(l.bias), relu: last && relu, ..Epilogue::default() };
             let b = Operand::new(params, l.kernel + r0 * l.fan_out);
-            self.matmul.encode(rec, (n, width, l.fan_out), Operand::new(input, 0), b, Operand::new(out, 0), epi);
+            self.matmul.encode(
+                rec,
+                Product { shape: (n, width, l.fan_out), a: Operand::new(input, 0), b, c: Operand::new(out, 0), epi },
+            );
             r0 += width;
         }
     }
@@ -342,15 +352,13 @@ impl GpuMlp {
     fn dense_backward(
         &self,
         rec: &mut Recorder<'_>,
-        params: &wgpu::Buffer,
-        grads: &wgpu::Buffer,
-        l: &DenseLayer,
-        parts: &[Part<'_>],
-        n: usize,
+        pg: ParamBuffers<'_>,
+        run: LayerRun<'_>,
         dz: &wgpu::Buffer,
         d_first: Option<InputGrad<'_>>,
         pb: &ProductBuffers,
     ) {
+        let (ParamBuffers { params, grads }, LayerRun { layer: l, parts, n }) = (pg, run);
         let mut r0 = 0;
         for &(input, width) in parts {
             let c = Operand::new(grads, l.kernel + r0 * l.fan_out);
@@ -358,12 +366,9 @@ impl GpuMlp {
             let (scratch, len) = &pb.split_scratch;
             self.matmul.encode_split(
                 rec,
-                (width, n, l.fan_out),
-                Operand::t(input, 0),
-                Operand::new(dz, 0),
-                c,
-                epi,
-                (scratch, *len),
+                Product { shape: (width, n, l.fan_out), a: Operand::t(input, 0), b: Operand::new(dz, 0), c, epi },
+                scratch,
+                *len,
             );
             r0 += width;
         }
@@ -374,11 +379,13 @@ impl GpuMlp {
             let epi = Epilogue { accumulate: d.accumulate, mask: d.relu.then_some((first, 0)), ..Epilogue::default() };
             self.matmul.encode(
                 rec,
-                (n, l.fan_out, width),
-                Operand::new(dz, 0),
-                Operand::t(params, l.kernel),
-                Operand::new(d.out, 0),
-                epi,
+                Product {
+                    shape: (n, l.fan_out, width),
+                    a: Operand::new(dz, 0),
+                    b: Operand::t(params, l.kernel),
+                    c: Operand::new(d.out, 0),
+                    epi,
+                },
             );
         }
     }
@@ -411,7 +418,7 @@ impl GpuMlp {
             } else {
                 vec![(&pb.trunk[i - 1], c.net_width)]
             };
-            self.dense(rec, params, &ls[i], &parts, n, &pb.trunk[i], true);
+            self.dense(rec, params, LayerRun { layer: &ls[i], parts: &parts, n }, &pb.trunk[i], true);
         }
         // Both heads as one product: [density | bottleneck] = top · [K_d | K_b] + [b_d | b_b],
         // with the two layers' kernels and biases packed side by side first.
@@ -423,7 +430,10 @@ impl GpuMlp {
             let last = k + 1 == top.len();
             let epi = Epilogue { accumulate: k > 0, bias: last.then_some(t * hw), ..Epilogue::default() };
             let b = Operand::new(&pb.heads_w, r0 * hw);
-            self.matmul.encode(rec, (n, width, hw), Operand::new(input, 0), b, Operand::new(&pb.heads, 0), epi);
+            self.matmul.encode(
+                rec,
+                Product { shape: (n, width, hw), a: Operand::new(input, 0), b, c: Operand::new(&pb.heads, 0), epi },
+            );
             r0 += width;
         }
         // The first colour layer: relu(bottleneck · W_b + (view · W_v)[ray] + b), the view part
@@ -432,7 +442,10 @@ impl GpuMlp {
         let w_view = Operand::new(params, l.kernel + c.net_width * wc);
         let rows = Operand::new(&pb.view_rows, 0);
         let view = Operand::new(&bufs.view, 0);
-        self.matmul.encode(rec, (bufs.n_rays, c.view_dim, wc), view, w_view, rows, Epilogue::default());
+        self.matmul.encode(
+            rec,
+            Product { shape: (bufs.n_rays, c.view_dim, wc), a: view, b: w_view, c: rows, epi: Epilogue::default() },
+        );
         let epi = Epilogue {
             bias: Some(l.bias),
             relu: true,
@@ -442,13 +455,19 @@ impl GpuMlp {
         let w_b = Operand::new(params, l.kernel);
         let cond0 = Operand::new(&pb.cond[0], 0);
         let bottleneck = Operand::strided(&pb.heads, 1, hw);
-        self.matmul.encode(rec, (n, c.net_width, wc), bottleneck, w_b, cond0, epi);
+        self.matmul.encode(rec, Product { shape: (n, c.net_width, wc), a: bottleneck, b: w_b, c: cond0, epi });
         for j in 1..c.net_depth_condition {
             let parts = [(&pb.cond[j - 1], wc)];
-            self.dense(rec, params, &ls[d + 2 + j], &parts, n, &pb.cond[j], true);
+            self.dense(rec, params, LayerRun { layer: &ls[d + 2 + j], parts: &parts, n }, &pb.cond[j], true);
         }
         let last = &pb.cond[c.net_depth_condition - 1];
-        self.dense(rec, params, &ls[ls.len() - 1], &[(last, c.net_width_condition)], n, &bufs.raw_rgb, false);
+        self.dense(
+            rec,
+            params,
+            LayerRun { layer: &ls[ls.len() - 1], parts: &[(last, c.net_width_condition)], n },
+            &bufs.raw_rgb,
+            false,
+        );
     }
 
     fn top_parts<'a>(&self, shape: &MlpShape, bufs: &'a MlpBuffers, pb: &'a ProductBuffers) -> Vec<Part<'a>> {
@@ -475,7 +494,9 @@ impl GpuMlp {
         grads: &wgpu::Buffer,
     ) -> Result<(), GpuError> {
         match &bufs.passes {
-            Passes::Products(pb) => self.backward_products(rec, shape, params, bufs, pb, d_raw_rgb, grads),
+            Passes::Products(pb) => {
+                self.backward_products(rec, shape, ParamBuffers { params, grads }, bufs, pb, d_raw_rgb);
+            }
             Passes::Fused(f) => self.fused.backward(rec, shape, &bufs.fused_batch(), f, d_raw_rgb, grads)?,
         }
         Ok(())
@@ -485,12 +506,12 @@ impl GpuMlp {
         &self,
         rec: &mut Recorder<'_>,
         shape: &MlpShape,
-        params: &wgpu::Buffer,
+        pg: ParamBuffers<'_>,
         bufs: &MlpBuffers,
         pb: &ProductBuffers,
         d_raw_rgb: &wgpu::Buffer,
-        grads: &wgpu::Buffer,
     ) {
+        let ParamBuffers { params, grads } = pg;
         let c = &shape.config;
         let (n, d, dc) = (bufs.n, c.net_depth, c.net_depth_condition);
         let (w, wc, hw) = (c.net_width, c.net_width_condition, pb.heads_width);
@@ -502,12 +523,26 @@ impl GpuMlp {
         let (mut a, mut b) = (0usize, 1usize);
         let to = |out, relu| Some(InputGrad { out, accumulate: false, relu });
         let last = &pb.cond[dc - 1];
-        self.dense_backward(rec, params, grads, &ls[ls.len() - 1], &[(last, wc)], n, d_raw_rgb, to(&g[a], true), pb);
+        self.dense_backward(
+            rec,
+            pg,
+            LayerRun { layer: &ls[ls.len() - 1], parts: &[(last, wc)], n },
+            d_raw_rgb,
+            to(&g[a], true),
+            pb,
+        );
         // g[a] holds the gradient of colour layer j's pre-activation (its ReLU backward done).
         for j in (0..dc).rev() {
             if j > 0 {
                 let parts = [(&pb.cond[j - 1], wc)];
-                self.dense_backward(rec, params, grads, &ls[d + 2 + j], &parts, n, &g[a], to(&g[b], true), pb);
+                self.dense_backward(
+                    rec,
+                    pg,
+                    LayerRun { layer: &ls[d + 2 + j], parts: &parts, n },
+                    &g[a],
+                    to(&g[b], true),
+                    pb,
+                );
                 std::mem::swap(&mut a, &mut b);
             } else {
                 // The first colour layer. Its bottleneck rows see every sample (the bottleneck is
@@ -518,21 +553,32 @@ impl GpuMlp {
                 let bottleneck_t = Operand::strided_t(&pb.heads, 1, hw);
                 let dz = Operand::new(&g[a], 0);
                 let wb = Operand::new(grads, l.kernel);
-                self.matmul.encode_split(rec, (w, n, wc), bottleneck_t, dz, wb, add, (scratch, len));
+                self.matmul.encode_split(
+                    rec,
+                    Product { shape: (w, n, wc), a: bottleneck_t, b: dz, c: wb, epi: add },
+                    scratch,
+                    len,
+                );
                 let sums = ColSums { rows: n, cols: wc, accumulate: true };
                 self.aux.col_sums(rec, (&g[a], 0), (grads, l.bias), sums, &pb.col_scratch);
                 let d_bottleneck = Operand::strided(&pb.d_heads, 1, hw);
                 let kt = Operand::t(params, l.kernel);
-                self.matmul.encode(rec, (n, wc, w), dz, kt, d_bottleneck, Epilogue::default());
+                self.matmul.encode(
+                    rec,
+                    Product { shape: (n, wc, w), a: dz, b: kt, c: d_bottleneck, epi: Epilogue::default() },
+                );
                 self.aux.group_sums(rec, &g[a], &pb.view_rows, bufs.n_rays, wc, bufs.samples_per_ray());
                 self.matmul.encode_split(
                     rec,
-                    (c.view_dim, bufs.n_rays, wc),
-                    Operand::t(&bufs.view, 0),
-                    Operand::new(&pb.view_rows, 0),
-                    Operand::new(grads, l.kernel + w * wc),
-                    add,
-                    (scratch, len),
+                    Product {
+                        shape: (c.view_dim, bufs.n_rays, wc),
+                        a: Operand::t(&bufs.view, 0),
+                        b: Operand::new(&pb.view_rows, 0),
+                        c: Operand::new(grads, l.kernel + w * wc),
+                        epi: add,
+                    },
+                    scratch,
+                    len,
                 );
             }
         }
@@ -547,12 +593,9 @@ impl GpuMlp {
             let out = Operand::new(&pb.heads_g, r0 * hw);
             self.matmul.encode_split(
                 rec,
-                (width, n, hw),
-                Operand::t(input, 0),
-                dz,
-                out,
-                Epilogue::default(),
-                (scratch, len),
+                Product { shape: (width, n, hw), a: Operand::t(input, 0), b: dz, c: out, epi: Epilogue::default() },
+                scratch,
+                len,
             );
             r0 += width;
         }
@@ -562,19 +605,33 @@ impl GpuMlp {
         let z = 0;
         let relu = Epilogue { mask: Some((top[0].0, 0)), ..Epilogue::default() };
         let kt = Operand::t(&pb.heads_w, 0);
-        self.matmul.encode(rec, (n, hw, w), dz, kt, Operand::new(&g[z], 0), relu);
+        self.matmul.encode(rec, Product { shape: (n, hw, w), a: dz, b: kt, c: Operand::new(&g[z], 0), epi: relu });
         let (mut cur, mut other) = (z, 1);
         for i in (0..d).rev() {
             if i == 0 {
                 let d_x = bufs.d_x.as_ref().map(|out| InputGrad { out, accumulate: false, relu: false });
-                self.dense_backward(rec, params, grads, &ls[0], &[(&bufs.x, c.x_dim)], n, &g[cur], d_x, pb);
+                self.dense_backward(
+                    rec,
+                    pg,
+                    LayerRun { layer: &ls[0], parts: &[(&bufs.x, c.x_dim)], n },
+                    &g[cur],
+                    d_x,
+                    pb,
+                );
             } else {
                 let parts: Vec<Part<'_>> = if shape.concat_after(i - 1) {
                     vec![(&pb.trunk[i - 1], w), (&bufs.x, c.x_dim)]
                 } else {
                     vec![(&pb.trunk[i - 1], w)]
                 };
-                self.dense_backward(rec, params, grads, &ls[i], &parts, n, &g[cur], to(&g[other], true), pb);
+                self.dense_backward(
+                    rec,
+                    pg,
+                    LayerRun { layer: &ls[i], parts: &parts, n },
+                    &g[cur],
+                    to(&g[other], true),
+                    pb,
+                );
                 std::mem::swap(&mut cur, &mut other);
             }
         }

@@ -889,7 +889,7 @@ fn check_product(
     split: bool,
     tag: &str,
 ) -> Vec<String> {
-    use mipnerf_gpu::kernels::matmul::{Epilogue, Operand};
+    use mipnerf_gpu::kernels::matmul::{Epilogue, Operand, Product};
     use rand::{Rng, SeedableRng, rngs::SmallRng};
     let mut rng = SmallRng::seed_from_u64((m * 31 + k * 7 + n) as u64);
     // Offsets inside the buffers, so that they are honoured too.
@@ -921,9 +921,14 @@ fn check_product(
         };
         let mut rec = Recorder::new(ctx, "product test");
         if split {
-            kernel.encode_split(&mut rec, (m, k, n), opa, opb, Operand::new(&buf_c, 0), epi, (&scratch, scratch_len));
+            kernel.encode_split(
+                &mut rec,
+                Product { shape: (m, k, n), a: opa, b: opb, c: Operand::new(&buf_c, 0), epi },
+                &scratch,
+                scratch_len,
+            );
         } else {
-            kernel.encode(&mut rec, (m, k, n), opa, opb, Operand::new(&buf_c, 0), epi);
+            kernel.encode(&mut rec, Product { shape: (m, k, n), a: opa, b: opb, c: Operand::new(&buf_c, 0), epi });
         }
         let _ = rec.submit();
         let got = ctx.read_f32(&buf_c, m * n).unwrap();
@@ -990,7 +995,7 @@ fn matrix_products_split_or_not_match_f64_within_the_summation_bound() {
 /// (65535 x 16 rows) against the CPU.
 #[test]
 fn products_cover_any_size_within_the_dispatch_limit() {
-    use mipnerf_gpu::kernels::matmul::{Epilogue, MatmulKernel, MatmulVariant, Operand};
+    use mipnerf_gpu::kernels::matmul::{Epilogue, MatmulKernel, MatmulVariant, Operand, Product};
     let Some(ctx) = context_or_skip("products_cover_any_size_within_the_dispatch_limit") else {
         return;
     };
@@ -1019,11 +1024,13 @@ fn products_cover_any_size_within_the_dispatch_limit() {
     let mut rec = Recorder::new(&ctx, "big product");
     kernel.encode(
         &mut rec,
-        (m, k, n),
-        Operand::new(&ba, 0),
-        Operand::new(&bb, 0),
-        Operand::new(&bc, 0),
-        Epilogue::default(),
+        Product {
+            shape: (m, k, n),
+            a: Operand::new(&ba, 0),
+            b: Operand::new(&bb, 0),
+            c: Operand::new(&bc, 0),
+            epi: Epilogue::default(),
+        },
     );
     let _ = rec.submit();
     let got = ctx.read_f32(&bc, m * n).unwrap();

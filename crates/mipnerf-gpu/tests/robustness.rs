@@ -26,11 +26,13 @@ fn a_wait_past_the_timeout_is_a_clear_error() {
     for _ in 0..4 {
         kernel.encode(
             &mut rec,
-            (m, k, n),
-            Operand::new(&a, 0),
-            Operand::new(&b, 0),
-            Operand::new(&c, 0),
-            Epilogue::default(),
+            mipnerf_gpu::kernels::matmul::Product {
+                shape: (m, k, n),
+                a: Operand::new(&a, 0),
+                b: Operand::new(&b, 0),
+                c: Operand::new(&c, 0),
+                epi: Epilogue::default(),
+            },
         );
     }
     let _ = rec.submit();

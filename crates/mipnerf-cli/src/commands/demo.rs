@@ -98,15 +98,17 @@ fn demo(d: &Args, device: &mipnerf_gpu::DeviceOptions, session: &Session) -> Res
             eprintln!("demo interrupted while training {name}; run the same command again to continue");
             std::process::exit(signals::EXIT_INTERRUPTED);
         }
-        let metrics = eval::eval(dir, Split::Test, d.backend, device, None, &weights, session)?;
+        let on = crate::run::RunOn { backend: d.backend, precision: None, device };
+        let metrics = eval::eval(dir, Split::Test, on, &weights, session)?;
         println!("{name} test metrics:");
         super::eval::print_scores(&metrics);
         scores.push((name, metrics));
     }
     let test = render::Target::Split(Split::Test);
-    let renders = render::render(out, &out.join("render"), test, None, d.backend, device, None, false, session)?;
+    let on = crate::run::RunOn { backend: d.backend, precision: None, device };
+    let renders = render::render(out, &out.join("render"), test, None, on, false, session)?;
     let orbit = render::Target::Path(render::PathKind::Orbit, 36, render::DEFAULT_FPS);
-    let path = render::render(out, &out.join("render_orbit"), orbit, None, d.backend, device, None, false, session)?;
+    let path = render::render(out, &out.join("render_orbit"), orbit, None, on, false, session)?;
     let fig_path = out.join("antialiasing.png");
     let fig = figure::FigureArgs {
         runs: vec![nerf_dir.clone(), out.to_path_buf()],

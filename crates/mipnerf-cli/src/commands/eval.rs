@@ -42,7 +42,8 @@ pub struct Args {
 pub fn run(a: Args, session: &Session) -> Result<()> {
     let device = a.device.options();
     let split = a.split.into();
-    crate::eval::eval(&a.run, split, a.backend, &device, a.precision, &a.lpips, session).map(|m| {
+    let on = crate::run::RunOn { backend: a.backend, precision: a.precision, device: &device };
+    crate::eval::eval(&a.run, split, on, &a.lpips, session).map(|m| {
         println!("wrote {}", crate::run_dir::RunDir::new(&a.run).eval_metrics_of(split).display());
         print_scores(&m);
     })

@@ -89,6 +89,7 @@ pub fn run(a: Args, session: &Session) -> Result<()> {
     };
     let size = a.width.zip(a.height);
     let device = a.device.options();
-    render::render(&a.run, &a.out, target, size, a.backend, &device, a.precision, a.overwrite, session)
+    let on = crate::run::RunOn { backend: a.backend, precision: a.precision, device: &device };
+    render::render(&a.run, &a.out, target, size, on, a.overwrite, session)
         .map(|files| println!("wrote {} files to {}", files.len(), a.out.display()))
 }

@@ -2,7 +2,6 @@
 //!
 //! CPU reference: [`mipnerf_core::stages::cast_and_encode`].
 
-#[cfg(feature = "test-support")]
 use mipnerf_core::{Ray, stages::CastIpe};
 
 use crate::kernels::Recorder;

@@ -49,6 +49,22 @@ pub struct MatmulParams {
     pub _pad: u32,
 }
 
+/// One product for [`MatmulKernel::encode`]: `c (m x n) (+)= a (m x k) · b (k x n)` for
+/// `shape` `(m, k, n)`, finished by `epi`.
+#[derive(Clone, Copy, Debug)]
+pub struct Product<'a> {
+    /// `(m, k, n)`.
+    pub shape: (usize, usize, usize),
+    /// The left operand.
+    pub a: Operand<'a>,
+    /// The right operand.
+    pub b: Operand<'a>,
+    /// The output.
+    pub c: Operand<'a>,
+    /// What is done with each output.
+    pub epi: Epilogue<'a>,
+}
+
 /// One operand: a buffer, the element offset of the matrix in it, whether it is stored
 /// transposed, and its row stride.
 #[derive(Clone, Copy, Debug)]
@@ -294,17 +310,10 @@ impl MatmulKernel {
         (params, extra)
     }
 
-    /// Records `c (m x n) (+)= a (m x k) · b (k x n)` with `epi`. `c` must be another buffer
-    /// than `a`, `b` and the mask.
-    pub fn encode(
-        &self,
-        rec: &mut Recorder<'_>,
-        (m, k, n): (usize, usize, usize),
-        a: Operand<'_>,
-        b: Operand<'_>,
-        c: Operand<'_>,
-        epi: Epilogue<'_>,
-    ) {
+    /// Records `c (m x n) (+)= a (m x k) · b (k x n)` with `epi` (`job`'s). `c` must be another
+    /// buffer than `a`, `b` and the mask.
+    pub fn encode(&self, rec: &mut Recorder<'_>, job: Product<'_>) {
+        let Product { shape: (m, k, n), a, b, c, epi } = job;
         let (params, extra) = Self::params((m, k, n), a, b, c, &epi, a.buffer);
         let groups = self.product_groups(m, n, 1);
         rec.dispatch("matmul", &self.pipeline, &self.layout, &params, &[a.buffer, b.buffer, c.buffer, extra], groups);
@@ -314,19 +323,11 @@ impl MatmulKernel {
     /// partial products go to `scratch` (`scratch_len` floats, another buffer than the
     /// operands), then a second pass adds them in order into `c` with the epilogue. For products
     /// with few outputs and a long k: the weight gradients.
-    pub fn encode_split(
-        &self,
-        rec: &mut Recorder<'_>,
-        (m, k, n): (usize, usize, usize),
-        a: Operand<'_>,
-        b: Operand<'_>,
-        c: Operand<'_>,
-        epi: Epilogue<'_>,
-        (scratch, scratch_len): (&wgpu::Buffer, usize),
-    ) {
+    pub fn encode_split(&self, rec: &mut Recorder<'_>, job: Product<'_>, scratch: &wgpu::Buffer, scratch_len: usize) {
+        let Product { shape: (m, k, n), a, b, c, epi } = job;
         let plan = self.split_plan((m, k, n), scratch_len);
         if plan.splits == 1 {
-            self.encode(rec, (m, k, n), a, b, c, epi);
+            self.encode(rec, job);
             return;
         }
         let (whole, extra) = Self::params((m, k, n), a, b, c, &epi, scratch);
