@@ -29,6 +29,8 @@ echo "== cargo clippy"
 cargo clippy --workspace --all-targets --locked -- -D warnings
 echo "== cargo test"
 cargo test --workspace --all-targets --locked
+echo "== the CLI and the GPU crate as an app builds them (without the tests' test-support feature)"
+cargo clippy -p mipnerf-cli -p mipnerf-gpu --locked -- -D warnings
 echo "== the CPU-only facade (mipnerf without its gpu feature: no wgpu compiled)"
 cargo clippy -p mipnerf --no-default-features --all-targets --locked -- -D warnings
 cargo test -p mipnerf --no-default-features --locked
