@@ -43,18 +43,58 @@ struct Element {
 pub fn read_points(path: &Path) -> Result<Vec<[f64; 3]>, DataError> {
     let bytes = crate::io::read_regular(path, crate::io::cap::POINT_CLOUD).map_err(|e| DataError::io(path, e))?;
     let bad = |problem: String| DataError::invalid(path, problem);
+    let (header, body) = split_header(&bytes).map_err(bad)?;
+    let (format, elements) = parse_header(header).map_err(bad)?;
+    let Some(v) = elements.iter().position(|e| e.name == "vertex") else {
+        return Err(bad("no \"vertex\" element: the file holds no points".into()));
+    };
+    let properties = elements[v]
+        .properties
+        .as_ref()
+        .ok_or_else(|| bad("the vertex element has a list property; points have x, y, z and scalars".into()))?;
+    let column = |axis: &str| {
+        properties
+            .iter()
+            .position(|(n, _)| n == axis)
+            .ok_or_else(|| bad(format!("the vertex element has no property \"{axis}\"")))
+    };
+    let xyz = [column("x")?, column("y")?, column("z")?];
+    let count = elements[v].count;
+    // A point is at least one byte of body per property; more points than that is a lie.
+    if count.saturating_mul(properties.len()) > bytes.len() {
+        return Err(bad(format!("declares {count} points, more than its {} bytes can hold", bytes.len())));
+    }
+    crate::memory::check((count as u64).saturating_mul(24), &format!("reading {count} points")).map_err(&bad)?;
+    let vertices = Vertices { before: &elements[..v], properties, xyz, count };
+    let points = if format == Format::Ascii {
+        ascii_points(&bytes[body..], vertices).map_err(bad)?
+    } else {
+        binary_points(&bytes, body, vertices, format == Format::Little).map_err(bad)?
+    };
+    if let Some(i) = points.iter().position(|p| !p.iter().all(|x| x.is_finite())) {
+        return Err(bad(format!("point {i} is not finite: {:?}", points[i])));
+    }
+    Ok(points)
+}
+
+/// The header's text and where the body starts (after the `end_header` line's newline).
+fn split_header(bytes: &[u8]) -> Result<(&str, usize), String> {
     let end = b"end_header";
     let header_end = bytes
         .windows(end.len())
         .position(|w| w == end)
-        .ok_or_else(|| bad("not a PLY file: no \"end_header\" line".into()))?;
-    let header = std::str::from_utf8(&bytes[..header_end]).map_err(|_| bad("the PLY header is not text".into()))?;
-    // The body starts after the end_header line's newline.
+        .ok_or_else(|| "not a PLY file: no \"end_header\" line".to_owned())?;
+    let header = std::str::from_utf8(&bytes[..header_end]).map_err(|_| "the PLY header is not text".to_owned())?;
     let mut body = header_end + end.len();
     while body < bytes.len() && bytes[body] != b'\n' {
         body += 1;
     }
-    body = (body + 1).min(bytes.len());
+    Ok((header, (body + 1).min(bytes.len())))
+}
+
+/// The header's format and elements (an element with a list property has `properties` None).
+fn parse_header(header: &str) -> Result<(Format, Vec<Element>), String> {
+    let bad = |problem: String| problem;
     let mut lines = header.lines();
     if lines.next().map(str::trim) != Some("ply") {
         return Err(bad("not a PLY file: it does not begin with \"ply\"".into()));
@@ -94,73 +134,72 @@ pub fn read_points(path: &Path) -> Result<Vec<[f64; 3]>, DataError> {
         }
     }
     let format = format.ok_or_else(|| bad("the PLY header has no \"format\" line".into()))?;
-    let Some(v) = elements.iter().position(|e| e.name == "vertex") else {
-        return Err(bad("no \"vertex\" element: the file holds no points".into()));
-    };
-    let properties = elements[v]
-        .properties
-        .as_ref()
-        .ok_or_else(|| bad("the vertex element has a list property; points have x, y, z and scalars".into()))?;
-    let column = |axis: &str| {
-        properties
-            .iter()
-            .position(|(n, _)| n == axis)
-            .ok_or_else(|| bad(format!("the vertex element has no property \"{axis}\"")))
-    };
-    let xyz = [column("x")?, column("y")?, column("z")?];
-    let count = elements[v].count;
-    // A point is at least one byte of body per property; more points than that is a lie.
-    if count.saturating_mul(properties.len()) > bytes.len() {
-        return Err(bad(format!("declares {count} points, more than its {} bytes can hold", bytes.len())));
-    }
-    crate::memory::check((count as u64).saturating_mul(24), &format!("reading {count} points")).map_err(&bad)?;
+    Ok((format, elements))
+}
+
+/// The vertex element as the body stores it: the elements before it, its scalar properties
+/// (name, type), the columns of x, y and z, and its count.
+#[derive(Clone, Copy)]
+struct Vertices<'a> {
+    before: &'a [Element],
+    properties: &'a [(String, String)],
+    xyz: [usize; 3],
+    count: usize,
+}
+
+/// The points of an ASCII body: a row a vertex, after the rows of the elements before.
+fn ascii_points(body: &[u8], vertices: Vertices<'_>) -> Result<Vec<[f64; 3]>, String> {
+    let bad = |problem: String| problem;
+    let Vertices { before, xyz, count, .. } = vertices;
     let mut points = Vec::with_capacity(count);
-    if format == Format::Ascii {
-        let text = std::str::from_utf8(&bytes[body..]).map_err(|_| bad("the ASCII body is not text".into()))?;
-        // Saturating: counts are the header's word, and a lie must not overflow.
-        let skip = elements[..v].iter().fold(0usize, |n, e| n.saturating_add(e.count));
-        let mut rows = text.lines().filter(|l| !l.trim().is_empty()).skip(skip);
-        for i in 0..count {
-            let row = rows.next().ok_or_else(|| bad(format!("ends after {i} of its {count} points")))?;
-            let words: Vec<&str> = row.split_whitespace().collect();
-            let mut p = [0.0; 3];
-            for (a, &c) in xyz.iter().enumerate() {
-                p[a] = words
-                    .get(c)
-                    .and_then(|w| w.parse::<f64>().ok())
-                    .ok_or_else(|| bad(format!("point {i}: {row:?} has no number in column {c}")))?;
-            }
-            points.push(p);
+    let text = std::str::from_utf8(body).map_err(|_| bad("the ASCII body is not text".into()))?;
+    // Saturating: counts are the header's word, and a lie must not overflow.
+    let skip = before.iter().fold(0usize, |n, e| n.saturating_add(e.count));
+    let mut rows = text.lines().filter(|l| !l.trim().is_empty()).skip(skip);
+    for i in 0..count {
+        let row = rows.next().ok_or_else(|| bad(format!("ends after {i} of its {count} points")))?;
+        let words: Vec<&str> = row.split_whitespace().collect();
+        let mut p = [0.0; 3];
+        for (a, &c) in xyz.iter().enumerate() {
+            p[a] = words
+                .get(c)
+                .and_then(|w| w.parse::<f64>().ok())
+                .ok_or_else(|| bad(format!("point {i}: {row:?} has no number in column {c}")))?;
         }
-    } else {
-        let mut at = body;
-        for e in &elements[..v] {
-            let p = e.properties.as_ref().ok_or_else(|| {
-                bad(format!(
-                    "the element \"{}\" before the vertices has a list property, which a binary file cannot skip",
-                    e.name
-                ))
-            })?;
-            let size: usize = p.iter().filter_map(|(_, t)| type_size(t)).sum();
-            at = at.saturating_add(size.saturating_mul(e.count));
-        }
-        let sizes: Vec<usize> = properties.iter().filter_map(|(_, t)| type_size(t)).collect();
-        let stride: usize = sizes.iter().sum();
-        let offsets: Vec<usize> = sizes.iter().scan(0, |o, s| Some(std::mem::replace(o, *o + s))).collect();
-        if at.saturating_add(stride.saturating_mul(count)) > bytes.len() {
-            return Err(bad(format!("its body is shorter than the {count} points its header declares")));
-        }
-        for i in 0..count {
-            let mut p = [0.0; 3];
-            for (a, &c) in xyz.iter().enumerate() {
-                let start = at + i * stride + offsets[c];
-                p[a] = scalar(&bytes[start..start + sizes[c]], &properties[c].1, format == Format::Little);
-            }
-            points.push(p);
-        }
+        points.push(p);
     }
-    if let Some(i) = points.iter().position(|p| !p.iter().all(|x| x.is_finite())) {
-        return Err(bad(format!("point {i} is not finite: {:?}", points[i])));
+    Ok(points)
+}
+
+/// The points of a binary body: fixed-size rows, after the rows of the elements before.
+fn binary_points(bytes: &[u8], body: usize, vertices: Vertices<'_>, little: bool) -> Result<Vec<[f64; 3]>, String> {
+    let bad = |problem: String| problem;
+    let Vertices { before, properties, xyz, count } = vertices;
+    let mut points = Vec::with_capacity(count);
+    let mut at = body;
+    for e in before {
+        let p = e.properties.as_ref().ok_or_else(|| {
+            bad(format!(
+                "the element \"{}\" before the vertices has a list property, which a binary file cannot skip",
+                e.name
+            ))
+        })?;
+        let size: usize = p.iter().filter_map(|(_, t)| type_size(t)).sum();
+        at = at.saturating_add(size.saturating_mul(e.count));
+    }
+    let sizes: Vec<usize> = properties.iter().filter_map(|(_, t)| type_size(t)).collect();
+    let stride: usize = sizes.iter().sum();
+    let offsets: Vec<usize> = sizes.iter().scan(0, |o, s| Some(std::mem::replace(o, *o + s))).collect();
+    if at.saturating_add(stride.saturating_mul(count)) > bytes.len() {
+        return Err(bad(format!("its body is shorter than the {count} points its header declares")));
+    }
+    for i in 0..count {
+        let mut p = [0.0; 3];
+        for (a, &c) in xyz.iter().enumerate() {
+            let start = at + i * stride + offsets[c];
+            p[a] = scalar(&bytes[start..start + sizes[c]], &properties[c].1, little);
+        }
+        points.push(p);
     }
     Ok(points)
 }
