@@ -485,45 +485,7 @@ pub fn from_rows(
         ));
     }
     let focal = rows[0][14] / f64::from(factor.max(1));
-    // Rotation columns [down, right, back] -> [right, up, back]: [y, -x, z] of the stored columns.
-    let mut poses: Vec<Pose> = rows
-        .iter()
-        .map(|r| {
-            let m = |i: usize, j: usize| r[i * 5 + j];
-            std::array::from_fn(|i| [m(i, 1), -m(i, 0), m(i, 2), m(i, 3)])
-        })
-        .collect();
-    let bounds: Vec<[f64; 2]> = rows.iter().map(|r| [r[15], r[16]]).collect();
-    let min_b = bounds.iter().map(|b| b[0]).fold(f64::INFINITY, f64::min);
-    let max_b = bounds.iter().map(|b| b[1]).fold(f64::NEG_INFINITY, f64::max);
-    if !(min_b > 0.0 && max_b > min_b) {
-        return Err(DataError::invalid(
-            &npy,
-            format!("depth bounds must be positive with far > near, found {min_b}..{max_b}"),
-        ));
-    }
-    // The poses in the data's own frame, for the similarity the loader applies to it.
-    let data_poses = poses.clone();
-    let scale = 1.0 / (min_b * 0.75);
-    for (i, p) in poses.iter_mut().enumerate() {
-        for row in p.iter_mut() {
-            row[3] *= scale;
-        }
-        // Named by its row here: after recentring on the mean camera, one camera far away
-        // moves every camera far away.
-        if let Some(t) = p.iter().map(|row| row[3]).find(|t| t.abs() > crate::camera::MAX_SCENE_COORDINATE) {
-            return Err(DataError::invalid(
-                &npy,
-                format!(
-                    "row {i}: a coordinate of the camera's position is {:.3e} times the nearest depth bound (column 15's smallest \
-                     value) away; at most {:e} is taken (a wrong row, or bounds in other units than the poses)",
-                    t.abs() * 0.75,
-                    crate::camera::MAX_SCENE_COORDINATE * 0.75
-                ),
-            ));
-        }
-    }
-    let (min_b, max_b) = (min_b * scale, max_b * scale);
+    let ScaledPoses { data_poses, poses, scale, bounds: (min_b, max_b) } = scaled_poses(&npy, rows)?;
     let avg = poses_avg(&poses);
     let mut poses: Vec<Pose> = poses.iter().map(|p| relative(&avg, p)).collect();
     let (near, far, path, ndc, sphere_scale) = if let Some(how) = spherify {
@@ -572,6 +534,63 @@ pub fn from_rows(
             .map_err(|e| DataError::invalid(&npy, format!("render path: {e}")))?;
     }
     Ok(ds)
+}
+
+/// The poses of LLFF rows in the loader's axes, in the data's own frame and scaled so that the
+/// nearest depth bound is at 4/3 (the official `1 / (0.75 near)`), with that scale and the
+/// scaled bounds.
+struct ScaledPoses {
+    data_poses: Vec<Pose>,
+    poses: Vec<Pose>,
+    scale: f64,
+    bounds: (f64, f64),
+}
+
+/// [`ScaledPoses`] of `rows` (of the file `npy`, which errors name).
+///
+/// # Errors
+/// Bounds that are not positive with far > near; a camera farther from the others than
+/// [`crate::camera::MAX_SCENE_COORDINATE`] in units of the nearest bound.
+fn scaled_poses(npy: &Path, rows: &[[f64; 17]]) -> Result<ScaledPoses, DataError> {
+    // Rotation columns [down, right, back] -> [right, up, back]: [y, -x, z] of the stored columns.
+    let mut poses: Vec<Pose> = rows
+        .iter()
+        .map(|r| {
+            let m = |i: usize, j: usize| r[i * 5 + j];
+            std::array::from_fn(|i| [m(i, 1), -m(i, 0), m(i, 2), m(i, 3)])
+        })
+        .collect();
+    let bounds: Vec<[f64; 2]> = rows.iter().map(|r| [r[15], r[16]]).collect();
+    let min_b = bounds.iter().map(|b| b[0]).fold(f64::INFINITY, f64::min);
+    let max_b = bounds.iter().map(|b| b[1]).fold(f64::NEG_INFINITY, f64::max);
+    if !(min_b > 0.0 && max_b > min_b) {
+        return Err(DataError::invalid(
+            npy,
+            format!("depth bounds must be positive with far > near, found {min_b}..{max_b}"),
+        ));
+    }
+    // The poses in the data's own frame, for the similarity the loader applies to it.
+    let data_poses = poses.clone();
+    let scale = 1.0 / (min_b * 0.75);
+    for (i, p) in poses.iter_mut().enumerate() {
+        for row in p.iter_mut() {
+            row[3] *= scale;
+        }
+        // Named by its row here: after recentring on the mean camera, one camera far away
+        // moves every camera far away.
+        if let Some(t) = p.iter().map(|row| row[3]).find(|t| t.abs() > crate::camera::MAX_SCENE_COORDINATE) {
+            return Err(DataError::invalid(
+                npy,
+                format!(
+                    "row {i}: a coordinate of the camera's position is {:.3e} times the nearest depth bound (column 15's smallest \
+                     value) away; at most {:e} is taken (a wrong row, or bounds in other units than the poses)",
+                    t.abs() * 0.75,
+                    crate::camera::MAX_SCENE_COORDINATE * 0.75
+                ),
+            ));
+        }
+    }
+    Ok(ScaledPoses { data_poses, poses, scale, bounds: (min_b * scale, max_b * scale) })
 }
 
 /// NDC origin and direction of the world ray through continuous pixel coordinates `(px, py)`:
