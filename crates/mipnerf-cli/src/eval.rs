@@ -95,22 +95,7 @@ pub fn eval(run: &Path, split: Split, on: RunOn<'_>, weights: &LpipsWeights, ses
         pb.inc();
     }
     pb.finish();
-    let mut per_scale = Vec::new();
-    for scale in ds.scales() {
-        let imgs: Vec<&ImageScore> = per_image.iter().filter(|i| i.scale == scale).collect();
-        let n = imgs.len() as f64;
-        let mean = |f: fn(&ImageScore) -> f64| imgs.iter().map(|i| f(i)).sum::<f64>() / n;
-        let (psnr, ss) = (mean(|i| i.psnr), mean(|i| i.ssim));
-        let lp = imgs.iter().map(|i| i.lpips).sum::<Option<f64>>().map(|sum| sum / n);
-        per_scale.push(ScaleScore {
-            scale,
-            psnr,
-            ssim: ss,
-            lpips: lp,
-            avg_error: average_error(psnr, ss, lp),
-            images: imgs.len(),
-        });
-    }
+    let per_scale = per_scale_scores(&ds.scales(), &per_image);
     let over_scales = |f: fn(&ScaleScore) -> f64| per_scale.iter().map(f).sum::<f64>() / per_scale.len().max(1) as f64;
     let lpips_mean = per_scale.iter().map(|s| s.lpips).sum::<Option<f64>>().map(|sum| sum / per_scale.len() as f64);
     let lpips_absent = match (lpips, lpips_mean) {
@@ -139,9 +124,38 @@ pub fn eval(run: &Path, split: Split, on: RunOn<'_>, weights: &LpipsWeights, ses
         step,
         precision,
     };
-    let json = serde_json::to_string_pretty(&metrics)?;
+    write_reports(&out, run, &metrics, &entries)?;
+    swap_in(&out, &RunDir::new(run).eval_of(split))?;
+    Ok(metrics)
+}
+
+/// The mean scores of each scale's images.
+fn per_scale_scores(scales: &[u32], per_image: &[ImageScore]) -> Vec<ScaleScore> {
+    let mut per_scale = Vec::new();
+    for &scale in scales {
+        let imgs: Vec<&ImageScore> = per_image.iter().filter(|i| i.scale == scale).collect();
+        let n = imgs.len() as f64;
+        let mean = |f: fn(&ImageScore) -> f64| imgs.iter().map(|i| f(i)).sum::<f64>() / n;
+        let (psnr, ss) = (mean(|i| i.psnr), mean(|i| i.ssim));
+        let lp = imgs.iter().map(|i| i.lpips).sum::<Option<f64>>().map(|sum| sum / n);
+        per_scale.push(ScaleScore {
+            scale,
+            psnr,
+            ssim: ss,
+            lpips: lp,
+            avg_error: average_error(psnr, ss, lp),
+            images: imgs.len(),
+        });
+    }
+    per_scale
+}
+
+/// The evaluation's reports in `out`: metrics.json and .md, the PSNR bars, the error map's
+/// colour bar and the page of every image.
+fn write_reports(out: &Path, run: &Path, metrics: &Metrics, entries: &[crate::html::Entry]) -> Result<()> {
+    let json = serde_json::to_string_pretty(metrics)?;
     save_keeping_the_old(&out.join("metrics.json"), json.as_bytes())?;
-    save_keeping_the_old(&out.join("metrics.md"), markdown(&metrics).as_bytes())?;
+    save_keeping_the_old(&out.join("metrics.md"), markdown(metrics).as_bytes())?;
     let bars: Vec<(String, u32, f64)> = metrics.per_image.iter().map(|i| (i.file.clone(), i.scale, i.psnr)).collect();
     crate::plot::psnr_bars(&out.join("psnr_per_image.png"), &bars)?;
     crate::plot::colour_bar(
@@ -151,9 +165,7 @@ pub fn eval(run: &Path, split: Split, on: RunOn<'_>, weights: &LpipsWeights, ses
         f64::from(crate::html::ERROR_MAP_MAX),
         crate::images::turbo,
     )?;
-    crate::html::write_index(&out, run, &metrics, &entries)?;
-    swap_in(&out, &RunDir::new(run).eval_of(split))?;
-    Ok(metrics)
+    crate::html::write_index(out, run, metrics, entries)
 }
 
 /// Puts the finished `partial` folder in place of `dest`: `dest` is renamed aside (`.old`),
