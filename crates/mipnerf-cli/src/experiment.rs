@@ -314,6 +314,49 @@ pub fn experiment(args: &ExperimentArgs, session: &Session) -> Result<()> {
     Ok(())
 }
 
+/// The steps a row's run in `run_dir` has taken, after checking that it is this row's: trained
+/// on the same data with the settings the row (`resolved`) and the protocol now give.
+///
+/// # Errors
+/// A run on other data or with other settings (named, with the way out), or an unreadable one.
+fn steps_done(id: &str, run_dir: &Path, resolved: &TrainSettings, session: &Session) -> Result<u64> {
+    let saved = run::read_config(run_dir)?;
+    let mut now = resolved.clone();
+    // `auto` precision is whatever the training machine had: the run records which ran.
+    if now.precision == Some(crate::config::PrecisionArg::Auto) {
+        now.precision = saved.precision;
+    }
+    // What training resolves from the data where the row leaves it open (the Tri-Mip
+    // planes' box, the occupancy grid's bound): the run records what it took.
+    if now.tri_mip_bound.is_none() {
+        now.tri_mip_bound = saved.tri_mip_bound;
+    }
+    if now.occupancy_bound.is_none() {
+        now.occupancy_bound = saved.occupancy_bound;
+    }
+    // The row's JSON is bound to this checkpoint (its SHA-256), and the checkpoint to the data
+    // it trained on: a run on other data is never reported as this row's.
+    if let (Some(theirs), Some(ours)) = (&saved.data, &now.data)
+        && !run::same_path(theirs, ours)
+    {
+        bail!(
+            "{}: this run trained on {}, not on --data {}; move it away (or pass another --out) to train the row \
+             on this data",
+            run_dir.display(),
+            theirs.display(),
+            ours.display()
+        );
+    }
+    if comparable(&saved) != comparable(&now) {
+        bail!(
+            "{}: this run was made with other settings than {id}.toml and the protocol now give; \
+             move it away to train the row again",
+            run_dir.display()
+        );
+    }
+    Ok(run::load_trained(run_dir, &saved, session)?.1.step)
+}
+
 /// Trains (or resumes) and evaluates one row; `false` when interrupted.
 fn run_row(
     id: &str,
@@ -333,44 +376,7 @@ fn run_row(
     let steps = settings.resolved(llff).steps.unwrap_or(2000);
     let budget = settings.time_budget_seconds()?;
     let ckpt = RunDir::new(run_dir).checkpoint();
-    let mut done_steps = 0;
-    if ckpt.is_file() {
-        let saved = run::read_config(run_dir)?;
-        let mut now = settings.resolved(llff);
-        // `auto` precision is whatever the training machine had: the run records which ran.
-        if now.precision == Some(crate::config::PrecisionArg::Auto) {
-            now.precision = saved.precision;
-        }
-        // What training resolves from the data where the row leaves it open (the Tri-Mip
-        // planes' box, the occupancy grid's bound): the run records what it took.
-        if now.tri_mip_bound.is_none() {
-            now.tri_mip_bound = saved.tri_mip_bound;
-        }
-        if now.occupancy_bound.is_none() {
-            now.occupancy_bound = saved.occupancy_bound;
-        }
-        // The row's JSON is bound to this checkpoint (its SHA-256), and the checkpoint to the data
-        // it trained on: a run on other data is never reported as this row's.
-        if let (Some(theirs), Some(ours)) = (&saved.data, &now.data)
-            && !run::same_path(theirs, ours)
-        {
-            bail!(
-                "{}: this run trained on {}, not on --data {}; move it away (or pass another --out) to train the row \
-                 on this data",
-                run_dir.display(),
-                theirs.display(),
-                ours.display()
-            );
-        }
-        if comparable(&saved) != comparable(&now) {
-            bail!(
-                "{}: this run was made with other settings than {id}.toml and the protocol now give; \
-                 move it away to train the row again",
-                run_dir.display()
-            );
-        }
-        done_steps = run::load_trained(run_dir, &saved, session)?.1.step;
-    }
+    let done_steps = if ckpt.is_file() { steps_done(id, run_dir, &settings.resolved(llff), session)? } else { 0 };
     let spent = if done_steps > 0 { run::train_seconds(run_dir)?.unwrap_or(0.0) } else { 0.0 };
     let trained = done_steps >= steps || budget.is_some_and(|b| spent >= b);
     if !trained {
