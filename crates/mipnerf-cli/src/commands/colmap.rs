@@ -80,6 +80,15 @@ fn colmap(
     };
     let t = std::time::Instant::now();
     let r = crate::outputs::locked(output, "colmap", "--output", || Ok(data::process::process(input, output, &opts)?))?;
+    print_registration(&r, input);
+    print_camera(&r, t);
+    print_train_command(&r, output);
+    Ok(())
+}
+
+/// What `colmap` says of the photos: the model taken, the photos registered, left out and
+/// suspect, and the warnings.
+fn print_registration(r: &data::process::ProcessReport, input: &Path) {
     let taken = r.model_dir.strip_prefix(input).unwrap_or(&r.model_dir).display().to_string();
     let capture = r.source == data::process::SourceKind::Transforms;
     if capture {
@@ -115,6 +124,12 @@ fn colmap(
     for w in &r.warnings {
         eprintln!("warning: {w}");
     }
+}
+
+/// What `colmap` says of the camera: the lens and its undistortion, the focal check, the scene's
+/// bounds, the photos held out and how the cameras face.
+fn print_camera(r: &data::process::ProcessReport, t: std::time::Instant) {
+    let capture = r.source == data::process::SourceKind::Transforms;
     // A capture's poses are COLMAP's too (or another tool's): what the step says of them.
     let who = if capture { "the capture's" } else { "COLMAP's" };
     let l = &r.lens;
@@ -132,7 +147,7 @@ fn colmap(
         r.factor,
         t.elapsed().as_secs_f64()
     );
-    print_focal_check(&r, who);
+    print_focal_check(r, who);
     println!(
         "scene bounds: near {:.4}, far {:.4} ({}, 0.1 and 99.9 percentiles)",
         r.bounds.0,
@@ -157,6 +172,10 @@ fn colmap(
             "facing one way (a forward-facing capture): training in NDC space, as LLFF scenes do"
         }
     );
+}
+
+/// What `colmap` says of the backdrop and the masks, and the command that trains the scene.
+fn print_train_command(r: &data::process::ProcessReport, output: &Path) {
     let (white, black) = r.border_shares;
     let (background, backdrop) = match r.backdrop {
         Some(data::process::Backdrop::White) => {
@@ -202,7 +221,6 @@ fn colmap(
         output.display(),
         r.factor,
     );
-    Ok(())
 }
 
 /// Prints the reconstruction's focal length (`who`'s: COLMAP's, or the capture's) against the
