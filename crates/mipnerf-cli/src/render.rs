@@ -200,97 +200,7 @@ pub fn render(
     {
         bail!("--fps must be between 1 and 240, got {fps}");
     }
-    // (name, image) per image.
-    let mut jobs: Vec<(String, ImageSpec)> = Vec::new();
-    // A sequence of frames: the training split, its cameras, and whether to check them against
-    // the photos' region.
-    let mut sequence: Option<(Dataset, Vec<Camera>, bool)> = None;
-    match &target {
-        Target::Split(split) => {
-            let ds = load_split(&s, *split)?;
-            for v in 0..ds.views().len() {
-                let view = &ds.views()[v];
-                let stem = view.file.file_stem().map_or_else(|| format!("{v:04}"), |x| x.to_string_lossy().to_string());
-                let mut image = ImageSpec::of_view(&ds, v, k);
-                if let Some((w, h)) = size {
-                    image.camera = resized(&view.camera, w, h)?;
-                }
-                jobs.push((stem, image));
-            }
-        }
-        Target::Path(kind, frames, _) => {
-            let frames = *frames;
-            if frames == 0 || frames > MAX_FRAMES {
-                bail!("--frames must be between 1 and {MAX_FRAMES}, got {frames}");
-            }
-            let train = load_split(&s, Split::Train)?;
-            let test = load_split(&s, Split::Test).ok();
-            let kind = *kind;
-            if train.ndc.is_some()
-                && (kind == PathKind::Orbit || test.as_ref().is_none_or(|t| t.render_path.is_empty()))
-            {
-                bail!("forward-facing (NDC) scenes only have the spiral path: pass --path spiral");
-            }
-            let cameras = path_cameras(&train, test.as_ref(), kind, frames)?
-                .into_iter()
-                .map(|cam| match size {
-                    None => Ok(cam),
-                    Some((w, h)) => resized(&cam, w, h),
-                })
-                .collect::<Result<Vec<_>>>()?;
-            // LLFF's spiral stays in front of the photos by construction: only orbits are checked.
-            let check = train.ndc.is_none();
-            sequence = Some((train, cameras, check));
-        }
-        Target::Cameras(file, frames, _, frame, dataparser) => {
-            use mipnerf_core::data::{camera_path, nerfstudio};
-            // Asked of the file before the training split loads, so that such a path fails at once.
-            if dataparser.is_none() && camera_path::is_nerfstudio_path(file) {
-                bail!(
-                    "{}: a camera path of nerfstudio's viewer, whose poses are in the frame of the model nerfstudio \
-                     trained: give --dataparser-transforms with that model's dataparser_transforms.json (beside its \
-                     config.yml); the mipnerf run must be trained on data from the same capture or COLMAP model",
-                    file.display()
-                );
-            }
-            let train = load_split(&s, Split::Train)?;
-            // What the file leaves out is the first full-scale training photo's.
-            let mut cameras = camera_path::read(file, &train.views()[0].camera, size)?;
-            // Into the data's frame (from nerfstudio's model's), then into the scene's.
-            let to_data = dataparser.as_deref().map(nerfstudio::dataparser_to_data).transpose()?;
-            let to_scene = (to_data.is_some() || *frame == CameraFrame::Data).then_some(train.data_to_scene);
-            if let Some(to_scene) = to_scene {
-                let to_data = to_data.unwrap_or(mipnerf_core::camera::Similarity::IDENTITY);
-                cameras = cameras
-                    .into_iter()
-                    .enumerate()
-                    .map(|(i, c)| {
-                        Camera::from_pix2cam(c.width, c.height, c.pix2cam, to_scene.pose(&to_data.pose(&c.cam2world)))
-                            .map_err(|e| anyhow::anyhow!("{}: camera {i}, moved into the scene: {e}", file.display()))
-                    })
-                    .collect::<Result<_>>()?;
-            }
-            if let Some(frames) = *frames {
-                if frames == 0 || frames > MAX_FRAMES {
-                    bail!("--frames must be between 1 and {MAX_FRAMES}, got {frames}");
-                }
-                cameras = mipnerf_core::data::camera_path::interpolate(&cameras, frames)
-                    .map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))?;
-            }
-            sequence = Some((train, cameras, true));
-        }
-    }
-    // A path's or a camera file's frames: each the first training photo's image but for its
-    // camera, named in order.
-    if let Some((train, cameras, check)) = sequence {
-        if check && let Some(note) = outside_the_photos(&train, &cameras) {
-            eprintln!("note: {note}");
-        }
-        let template = ImageSpec::of_view(&train, 0, k);
-        for (i, camera) in cameras.into_iter().enumerate() {
-            jobs.push((format!("frame_{i:04}"), ImageSpec { camera, ..template.clone() }));
-        }
-    }
+    let jobs = render_jobs(&s, &target, size, k)?;
     let cameras_file: Vec<mipnerf_core::Camera> = jobs.iter().map(|(_, image)| image.camera.clone()).collect();
     let cameras_file = mipnerf_core::data::camera_path::to_text(&cameras_file);
     // Never into a folder of files mipnerf did not write (a dataset's images, say).
@@ -310,52 +220,8 @@ pub fn render(
     // From here a signal stops the render between files (inside an image, at once), saying how
     // many images it wrote (none while the colour bar is drawn); every file on disk is whole.
     let cooperation = crate::signals::Cooperation::start();
-    // The depth PNGs' colours, explained once for the folder.
-    if let Some((_, first)) = jobs.first() {
-        let title = "depth (transparent: white)";
-        crate::plot::colour_bar(
-            &out.join(DEPTH_SCALE),
-            title,
-            f64::from(first.near),
-            f64::from(first.far),
-            crate::images::turbo,
-        )?;
-    }
-    let mut written = Vec::new();
-    // The cameras, first: a render stopped midway names the frames it was to render.
-    match cameras_file {
-        Some(text) => {
-            let path = out.join(CAMERAS);
-            mipnerf_core::io::write_atomic(&path, text.as_bytes())?;
-            written.push(path);
-        }
-        None => eprintln!("note: no {CAMERAS}: the cameras' intrinsics are not a plain pinhole's (fl_x, fl_y, cx, cy)"),
-    }
-    // A path's preview and video, made frame by frame as the frames come (so a long path at a
-    // large size holds no more than a frame of video and a small preview); none for frames of
-    // different sizes (a camera file may give each its own).
-    let (mut preview, mut video) = (None, None);
-    if let (Some(fps), Some((_, first))) = (target.fps(), jobs.first()) {
-        let (w, h) = (first.camera.width, first.camera.height);
-        if let Some((_, other)) = jobs.iter().find(|(_, j)| (j.camera.width, j.camera.height) != (w, h)) {
-            eprintln!(
-                "note: no preview.gif or {VIDEO}: the frames are of different sizes ({w}x{h}, {}x{}, ...); pass \
-                 --width and --height for one size",
-                other.camera.width, other.camera.height
-            );
-        } else {
-            preview = Some(crate::images::Preview::new(jobs.len(), w, h));
-            if w.min(h) >= crate::images::MIN_VIDEO_SIDE {
-                video = Some(crate::images::Video::new(&out.join(VIDEO), w, h, fps)?);
-            } else {
-                eprintln!(
-                    "note: no {VIDEO}: {w}x{h} frames are smaller than H.264 takes ({} px a side); pass --width and \
-                     --height",
-                    crate::images::MIN_VIDEO_SIDE
-                );
-            }
-        }
-    }
+    let mut written = write_depth_scale_and_cameras(out, &jobs, cameras_file)?;
+    let (mut preview, mut video) = preview_and_video(target.fps(), &jobs, out)?;
     let mut pb = session.progress("render", 0, jobs.len() as u64);
     for (i, (name, image)) in jobs.iter().enumerate() {
         let left = format!(
@@ -417,6 +283,176 @@ pub fn render(
         written.push(out.join(VIDEO));
     }
     Ok(written)
+}
+
+/// The files of a render's folder besides its frames: the depth PNGs' colour bar (explained once
+/// for the folder) and the cameras (first: a render stopped midway names the frames it was to
+/// render; none for cameras that are not a plain pinhole's). Returns the files written.
+fn write_depth_scale_and_cameras(
+    out: &Path,
+    jobs: &[(String, ImageSpec)],
+    cameras_file: Option<String>,
+) -> Result<Vec<std::path::PathBuf>> {
+    // The depth PNGs' colours, explained once for the folder.
+    if let Some((_, first)) = jobs.first() {
+        let title = "depth (transparent: white)";
+        crate::plot::colour_bar(
+            &out.join(DEPTH_SCALE),
+            title,
+            f64::from(first.near),
+            f64::from(first.far),
+            crate::images::turbo,
+        )?;
+    }
+    let mut written = Vec::new();
+    // The cameras, first: a render stopped midway names the frames it was to render.
+    match cameras_file {
+        Some(text) => {
+            let path = out.join(CAMERAS);
+            mipnerf_core::io::write_atomic(&path, text.as_bytes())?;
+            written.push(path);
+        }
+        None => eprintln!("note: no {CAMERAS}: the cameras' intrinsics are not a plain pinhole's (fl_x, fl_y, cx, cy)"),
+    }
+    Ok(written)
+}
+
+/// The images a render makes, each with its name: the split's views, or a path's or a camera
+/// file's frames (each the first training photo's image but for its camera, named in order).
+fn render_jobs(
+    s: &TrainSettings,
+    target: &Target,
+    size: Option<(u32, u32)>,
+    k: usize,
+) -> Result<Vec<(String, ImageSpec)>> {
+    // (name, image) per image.
+    let mut jobs: Vec<(String, ImageSpec)> = Vec::new();
+    // A sequence of frames: the training split, its cameras, and whether to check them against
+    // the photos' region.
+    let mut sequence: Option<(Dataset, Vec<Camera>, bool)> = None;
+    match target {
+        Target::Split(split) => {
+            let ds = load_split(s, *split)?;
+            for v in 0..ds.views().len() {
+                let view = &ds.views()[v];
+                let stem = view.file.file_stem().map_or_else(|| format!("{v:04}"), |x| x.to_string_lossy().to_string());
+                let mut image = ImageSpec::of_view(&ds, v, k);
+                if let Some((w, h)) = size {
+                    image.camera = resized(&view.camera, w, h)?;
+                }
+                jobs.push((stem, image));
+            }
+        }
+        Target::Path(kind, frames, _) => {
+            let frames = *frames;
+            if frames == 0 || frames > MAX_FRAMES {
+                bail!("--frames must be between 1 and {MAX_FRAMES}, got {frames}");
+            }
+            let train = load_split(s, Split::Train)?;
+            let test = load_split(s, Split::Test).ok();
+            let kind = *kind;
+            if train.ndc.is_some()
+                && (kind == PathKind::Orbit || test.as_ref().is_none_or(|t| t.render_path.is_empty()))
+            {
+                bail!("forward-facing (NDC) scenes only have the spiral path: pass --path spiral");
+            }
+            let cameras = path_cameras(&train, test.as_ref(), kind, frames)?
+                .into_iter()
+                .map(|cam| match size {
+                    None => Ok(cam),
+                    Some((w, h)) => resized(&cam, w, h),
+                })
+                .collect::<Result<Vec<_>>>()?;
+            // LLFF's spiral stays in front of the photos by construction: only orbits are checked.
+            let check = train.ndc.is_none();
+            sequence = Some((train, cameras, check));
+        }
+        Target::Cameras(file, frames, _, frame, dataparser) => {
+            use mipnerf_core::data::{camera_path, nerfstudio};
+            // Asked of the file before the training split loads, so that such a path fails at once.
+            if dataparser.is_none() && camera_path::is_nerfstudio_path(file) {
+                bail!(
+                    "{}: a camera path of nerfstudio's viewer, whose poses are in the frame of the model nerfstudio \
+                     trained: give --dataparser-transforms with that model's dataparser_transforms.json (beside its \
+                     config.yml); the mipnerf run must be trained on data from the same capture or COLMAP model",
+                    file.display()
+                );
+            }
+            let train = load_split(s, Split::Train)?;
+            // What the file leaves out is the first full-scale training photo's.
+            let mut cameras = camera_path::read(file, &train.views()[0].camera, size)?;
+            // Into the data's frame (from nerfstudio's model's), then into the scene's.
+            let to_data = dataparser.as_deref().map(nerfstudio::dataparser_to_data).transpose()?;
+            let to_scene = (to_data.is_some() || *frame == CameraFrame::Data).then_some(train.data_to_scene);
+            if let Some(to_scene) = to_scene {
+                let to_data = to_data.unwrap_or(mipnerf_core::camera::Similarity::IDENTITY);
+                cameras = cameras
+                    .into_iter()
+                    .enumerate()
+                    .map(|(i, c)| {
+                        Camera::from_pix2cam(c.width, c.height, c.pix2cam, to_scene.pose(&to_data.pose(&c.cam2world)))
+                            .map_err(|e| anyhow::anyhow!("{}: camera {i}, moved into the scene: {e}", file.display()))
+                    })
+                    .collect::<Result<_>>()?;
+            }
+            if let Some(frames) = *frames {
+                if frames == 0 || frames > MAX_FRAMES {
+                    bail!("--frames must be between 1 and {MAX_FRAMES}, got {frames}");
+                }
+                cameras = mipnerf_core::data::camera_path::interpolate(&cameras, frames)
+                    .map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))?;
+            }
+            sequence = Some((train, cameras, true));
+        }
+    }
+    // A path's or a camera file's frames: each the first training photo's image but for its
+    // camera, named in order.
+    if let Some((train, cameras, check)) = sequence {
+        if check && let Some(note) = outside_the_photos(&train, &cameras) {
+            eprintln!("note: {note}");
+        }
+        let template = ImageSpec::of_view(&train, 0, k);
+        for (i, camera) in cameras.into_iter().enumerate() {
+            jobs.push((format!("frame_{i:04}"), ImageSpec { camera, ..template.clone() }));
+        }
+    }
+    Ok(jobs)
+}
+
+/// A path's preview and video, made frame by frame as the frames come (so a long path at a
+/// large size holds no more than a frame of video and a small preview); none for frames of
+/// different sizes (a camera file may give each its own), nor without `fps` (not a path).
+fn preview_and_video(
+    fps: Option<u32>,
+    jobs: &[(String, ImageSpec)],
+    out: &Path,
+) -> Result<(Option<crate::images::Preview>, Option<crate::images::Video>)> {
+    // A path's preview and video, made frame by frame as the frames come (so a long path at a
+    // large size holds no more than a frame of video and a small preview); none for frames of
+    // different sizes (a camera file may give each its own).
+    let (mut preview, mut video) = (None, None);
+    if let (Some(fps), Some((_, first))) = (fps, jobs.first()) {
+        let (w, h) = (first.camera.width, first.camera.height);
+        if let Some((_, other)) = jobs.iter().find(|(_, j)| (j.camera.width, j.camera.height) != (w, h)) {
+            eprintln!(
+                "note: no preview.gif or {VIDEO}: the frames are of different sizes ({w}x{h}, {}x{}, ...); pass \
+                 --width and --height for one size",
+                other.camera.width, other.camera.height
+            );
+        } else {
+            preview = Some(crate::images::Preview::new(jobs.len(), w, h));
+            if w.min(h) >= crate::images::MIN_VIDEO_SIDE {
+                video = Some(crate::images::Video::new(&out.join(VIDEO), w, h, fps)?);
+            } else {
+                eprintln!(
+                    "note: no {VIDEO}: {w}x{h} frames are smaller than H.264 takes ({} px a side); pass --width and \
+                     --height",
+                    crate::images::MIN_VIDEO_SIDE
+                );
+            }
+        }
+    }
+    Ok((preview, video))
 }
 
 /// The four files of the frame `name`: its image, depth and opacity EXRs, and depth picture.
