@@ -23,7 +23,7 @@ use std::path::{Path, PathBuf};
 use rayon::prelude::*;
 
 use super::DataError;
-use super::colmap::{self, ColmapCamera};
+use super::colmap::{self, ColmapCamera, ColmapModel};
 use super::focal::{self, FocalCheck};
 use super::llff::LLFF_HOLD;
 use super::undistort::{self, LensCamera, Pinhole};
@@ -369,96 +369,14 @@ fn process_source(source: Source, output: &Path, opts: &ProcessOptions) -> Resul
             .count();
     }
     colmap::check_model(&model, &model_dir)?;
-    // The photos left out, each of which must be registered (a name given twice, or an empty
-    // one from a trailing comma, counts once or not at all).
-    let mut excluded: Vec<String> = Vec::new();
-    for name in &opts.exclude {
-        if name.is_empty() || excluded.contains(name) {
-            continue;
-        }
-        let before = model.images.len();
-        model.images.retain(|im| im.name != *name);
-        if model.images.len() == before {
-            return Err(DataError::invalid(
-                &model_dir,
-                match kind {
-                    SourceKind::Colmap => {
-                        format!("--exclude {name}: the model registers no photo of that name (names are as in images/)")
-                    }
-                    SourceKind::Transforms => format!(
-                        "--exclude {name}: no frame has that photo (names are the frames' file_path without ./, such \
-                         as {})",
-                        model.images.first().map_or("images/a.jpg", |im| im.name.as_str())
-                    ),
-                },
-            ));
-        }
-        excluded.push(name.clone());
-    }
+    let excluded = exclude_photos(&mut model, kind, &model_dir, &opts.exclude)?;
     let suspects = suspect_photos(&model);
     let registered = model.images.len();
     let mut warnings = notes;
-    if registered < opts.min_views && !excluded.is_empty() {
-        return Err(DataError::invalid(
-            &model_dir,
-            format!(
-                "the largest COLMAP model registers {} of {photos} photos; leaving out {} (`ProcessOptions::exclude`) \
-                 leaves {registered}, fewer than the minimum of {} (`ProcessOptions::min_views`): leave out fewer photos",
-                registered + excluded.len(),
-                excluded.len(),
-                opts.min_views
-            ),
-        ));
-    }
-    if registered < opts.min_views {
-        return Err(DataError::invalid(
-            &model_dir,
-            format!(
-                "the largest COLMAP model registers {registered} of {photos} photos, fewer than the minimum of {} \
-                 (`ProcessOptions::min_views`): take more photos with more overlap between neighbours, or try COLMAP's mapper \
-                 with looser settings (docs/guide/own-photos.md gives them)",
-                opts.min_views
-            ),
-        ));
-    }
-    if registered < opts.recommended_views {
-        warnings.push(format!(
-            "only {registered} photos are registered; {} or more give a much better model",
-            opts.recommended_views
-        ));
-    }
+    let counts = Registered { registered, photos, excluded: excluded.len() };
+    check_registered(counts, opts, &model_dir, &mut warnings)?;
     let cams = model_dir.join("cameras");
-    let first = model.cameras.first().cloned().ok_or_else(|| DataError::invalid(&cams, "no cameras"))?;
-    // The camera's size against a photo's, before anything is computed from the camera (a
-    // camera 2^32 pixels wide would otherwise be undistorted pixel by pixel).
-    if let Some(im) = model.images.iter().find(|im| im.camera_id == first.id) {
-        let file = images_dir.join(&im.name);
-        let (w, h) = super::image_size(&file)?;
-        if (u64::from(w), u64::from(h)) != (first.width, first.height) {
-            return Err(DataError::invalid(
-                &cams,
-                format!(
-                    "camera {} is {}x{}, but its photo {} is {w}x{h}: the model is not of these photos (or they were \
-                     resized after COLMAP ran)",
-                    first.id, first.width, first.height, im.name
-                ),
-            ));
-        }
-    }
-    let used: std::collections::HashSet<u32> = model.images.iter().map(|im| im.camera_id).collect();
-    if let Some(c) = model.cameras.iter().find(|c| {
-        used.contains(&c.id)
-            && (c.model_id, c.width, c.height, &c.params) != (first.model_id, first.width, first.height, &first.params)
-    }) {
-        return Err(DataError::invalid(
-            &cams,
-            format!(
-                "camera {} differs from camera {}: the photos must share one camera (one lens, one zoom); \
-                 reconstruct with COLMAP's --ImageReader.single_camera 1 (pycolmap: camera_mode=CameraMode.SINGLE)",
-                c.id, first.id
-            ),
-        ));
-    }
+    let first = shared_camera(&model, &images_dir, &cams)?;
     let lens = LensCamera::from_colmap(&first).map_err(|e| DataError::invalid(&cams, e))?;
     let named: Vec<(String, PathBuf)> =
         model.images.iter().map(|im| (im.name.clone(), images_dir.join(&im.name))).collect();
@@ -531,16 +449,7 @@ fn process_source(source: Source, output: &Path, opts: &ProcessOptions) -> Resul
         Ok(border_counts(&out, nw as usize, nh as usize))
     });
     let counts = counts.collect::<Result<Vec<_>, _>>()?;
-    let total = counts.iter().map(|c| c[2]).sum::<u64>().max(1) as f64;
-    let white = counts.iter().map(|c| c[0]).sum::<u64>() as f64 / total;
-    let black = counts.iter().map(|c| c[1]).sum::<u64>() as f64 / total;
-    let backdrop = if white >= BACKDROP_SHARE {
-        Some(Backdrop::White)
-    } else if black >= BACKDROP_SHARE {
-        Some(Backdrop::Black)
-    } else {
-        None
-    };
+    let (backdrop, (white, black)) = backdrop_of(&counts);
     // The new images are whole: only now does the old dataset stop being whole (its index goes
     // first, so that a crash in these three steps leaves no index over mixed images).
     if npy.is_file() {
@@ -555,14 +464,6 @@ fn process_source(source: Source, output: &Path, opts: &ProcessOptions) -> Resul
 
     let near = rows.iter().map(|r| r[15]).fold(f64::INFINITY, f64::min);
     let far = rows.iter().map(|r| r[16]).fold(f64::NEG_INFINITY, f64::max);
-    // Viewing directions: minus the "back" column of each pose.
-    let mut mean = [0.0f64; 3];
-    for r in &rows {
-        for (k, m) in mean.iter_mut().enumerate() {
-            *m -= r[k * 5 + 2] / rows.len() as f64;
-        }
-    }
-    let resultant = mean.iter().map(|m| m * m).sum::<f64>().sqrt();
     let held_out = names.iter().enumerate().filter(|(i, _)| i % LLFF_HOLD == 0).map(|(_, n)| n.clone()).collect();
     Ok(ProcessReport {
         source: kind,
@@ -576,7 +477,7 @@ fn process_source(source: Source, output: &Path, opts: &ProcessOptions) -> Resul
         factor,
         size,
         bounds: (near, far),
-        all_around: resultant < ALL_AROUND_BELOW,
+        all_around: faces_all_around(&rows),
         held_out,
         backdrop,
         border_shares: (white, black),
@@ -586,6 +487,159 @@ fn process_source(source: Source, output: &Path, opts: &ProcessOptions) -> Resul
         masks: masks_folder,
         warnings,
     })
+}
+
+/// Leaves the photos named in `exclude` out of `model` (of the source `kind` at `model_dir`,
+/// which errors name); each must be registered, and a name given twice, or an empty one from a
+/// trailing comma, counts once or not at all. Returns the names left out.
+fn exclude_photos(
+    model: &mut ColmapModel,
+    kind: SourceKind,
+    model_dir: &Path,
+    exclude: &[String],
+) -> Result<Vec<String>, DataError> {
+    // The photos left out, each of which must be registered (a name given twice, or an empty
+    // one from a trailing comma, counts once or not at all).
+    let mut excluded: Vec<String> = Vec::new();
+    for name in exclude {
+        if name.is_empty() || excluded.contains(name) {
+            continue;
+        }
+        let before = model.images.len();
+        model.images.retain(|im| im.name != *name);
+        if model.images.len() == before {
+            return Err(DataError::invalid(
+                model_dir,
+                match kind {
+                    SourceKind::Colmap => {
+                        format!("--exclude {name}: the model registers no photo of that name (names are as in images/)")
+                    }
+                    SourceKind::Transforms => format!(
+                        "--exclude {name}: no frame has that photo (names are the frames' file_path without ./, such \
+                         as {})",
+                        model.images.first().map_or("images/a.jpg", |im| im.name.as_str())
+                    ),
+                },
+            ));
+        }
+        excluded.push(name.clone());
+    }
+    Ok(excluded)
+}
+
+/// How many photos a model registers of how many, and how many were left out.
+#[derive(Clone, Copy)]
+struct Registered {
+    registered: usize,
+    photos: usize,
+    excluded: usize,
+}
+
+/// Refuses a model that registers fewer photos than `opts.min_views` (saying whether leaving
+/// photos out made it so), and warns under `opts.recommended_views`.
+fn check_registered(
+    counts: Registered,
+    opts: &ProcessOptions,
+    model_dir: &Path,
+    warnings: &mut Vec<String>,
+) -> Result<(), DataError> {
+    let Registered { registered, photos, excluded } = counts;
+    if registered < opts.min_views && excluded > 0 {
+        return Err(DataError::invalid(
+            model_dir,
+            format!(
+                "the largest COLMAP model registers {} of {photos} photos; leaving out {} (`ProcessOptions::exclude`) \
+                 leaves {registered}, fewer than the minimum of {} (`ProcessOptions::min_views`): leave out fewer photos",
+                registered + excluded,
+                excluded,
+                opts.min_views
+            ),
+        ));
+    }
+    if registered < opts.min_views {
+        return Err(DataError::invalid(
+            model_dir,
+            format!(
+                "the largest COLMAP model registers {registered} of {photos} photos, fewer than the minimum of {} \
+                 (`ProcessOptions::min_views`): take more photos with more overlap between neighbours, or try COLMAP's mapper \
+                 with looser settings (docs/guide/own-photos.md gives them)",
+                opts.min_views
+            ),
+        ));
+    }
+    if registered < opts.recommended_views {
+        warnings.push(format!(
+            "only {registered} photos are registered; {} or more give a much better model",
+            opts.recommended_views
+        ));
+    }
+    Ok(())
+}
+
+/// The one camera every registered photo shares, checked against its first photo's size.
+fn shared_camera(model: &ColmapModel, images_dir: &Path, cams: &Path) -> Result<ColmapCamera, DataError> {
+    let first = model.cameras.first().cloned().ok_or_else(|| DataError::invalid(cams, "no cameras"))?;
+    // The camera's size against a photo's, before anything is computed from the camera (a
+    // camera 2^32 pixels wide would otherwise be undistorted pixel by pixel).
+    if let Some(im) = model.images.iter().find(|im| im.camera_id == first.id) {
+        let file = images_dir.join(&im.name);
+        let (w, h) = super::image_size(&file)?;
+        if (u64::from(w), u64::from(h)) != (first.width, first.height) {
+            return Err(DataError::invalid(
+                cams,
+                format!(
+                    "camera {} is {}x{}, but its photo {} is {w}x{h}: the model is not of these photos (or they were \
+                     resized after COLMAP ran)",
+                    first.id, first.width, first.height, im.name
+                ),
+            ));
+        }
+    }
+    let used: std::collections::HashSet<u32> = model.images.iter().map(|im| im.camera_id).collect();
+    if let Some(c) = model.cameras.iter().find(|c| {
+        used.contains(&c.id)
+            && (c.model_id, c.width, c.height, &c.params) != (first.model_id, first.width, first.height, &first.params)
+    }) {
+        return Err(DataError::invalid(
+            cams,
+            format!(
+                "camera {} differs from camera {}: the photos must share one camera (one lens, one zoom); \
+                 reconstruct with COLMAP's --ImageReader.single_camera 1 (pycolmap: camera_mode=CameraMode.SINGLE)",
+                c.id, first.id
+            ),
+        ));
+    }
+    Ok(first)
+}
+
+/// The photos' backdrop from their border pixels' counts (near white, near black, all), with
+/// the shares of white and black.
+fn backdrop_of(counts: &[[u64; 3]]) -> (Option<Backdrop>, (f64, f64)) {
+    let total = counts.iter().map(|c| c[2]).sum::<u64>().max(1) as f64;
+    let white = counts.iter().map(|c| c[0]).sum::<u64>() as f64 / total;
+    let black = counts.iter().map(|c| c[1]).sum::<u64>() as f64 / total;
+    let backdrop = if white >= BACKDROP_SHARE {
+        Some(Backdrop::White)
+    } else if black >= BACKDROP_SHARE {
+        Some(Backdrop::Black)
+    } else {
+        None
+    };
+    (backdrop, (white, black))
+}
+
+/// Whether the cameras look all around the scene: their mean viewing direction (minus the
+/// "back" column of each pose) is short.
+fn faces_all_around(rows: &[[f64; 17]]) -> bool {
+    // Viewing directions: minus the "back" column of each pose.
+    let mut mean = [0.0f64; 3];
+    for r in rows {
+        for (k, m) in mean.iter_mut().enumerate() {
+            *m -= r[k * 5 + 2] / rows.len() as f64;
+        }
+    }
+    let resultant = mean.iter().map(|m| m * m).sum::<f64>().sqrt();
+    resultant < ALL_AROUND_BELOW
 }
 
 /// The mask `path` of a photo of the COLMAP camera `lens` (its size, or larger with its aspect
