@@ -1,7 +1,8 @@
 //! The module graph stays layered (a reader can start at the bottom): in every crate, no top-level module names a module
 //! that names it back, directly or through others (the graph of `crate::` references between a
 //! crate's top-level modules has no cycle); no source file is over 800 lines; the CLI's `main.rs`
-//! only dispatches (under 250). `scripts/dev/module-graph.py` prints the same graph.
+//! only dispatches (under 250); no function of the library code is over 120 lines.
+//! `scripts/dev/module-graph.py` prints the same graph.
 #![allow(clippy::unwrap_used, missing_docs)]
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -131,4 +132,63 @@ fn the_cycle_finder_finds_a_cycle_and_passes_a_chain() {
     assert_eq!(left.keys().cloned().collect::<Vec<_>>(), ["eval", "html", "plot"]);
     let code = "use crate::{a, b::C};\nfn f() { crate::d::g(); mipnerf_crate::x(); } // crate::e\n/* crate::f */";
     assert_eq!(crate_refs(&strip_comments(code)), ["a", "b", "d"].iter().map(|s| s.to_string()).collect());
+}
+
+/// The longest a function of the library code may be.
+const MAX_FUNCTION_LINES: usize = 120;
+
+/// Each function with a body in `code` (comments stripped): its name and its lines, from its
+/// `fn` line to the brace that closes it (braces in strings and chars are rare enough here to
+/// be ignored).
+fn function_lengths(code: &str) -> Vec<(String, usize)> {
+    let lines: Vec<&str> = code.lines().collect();
+    let mut out = Vec::new();
+    for (i, line) in lines.iter().enumerate() {
+        let t = line.trim_start();
+        let t = t.strip_prefix("pub ").or_else(|| t.strip_prefix("pub(crate) ")).unwrap_or(t);
+        let t = t.strip_prefix("pub(super) ").unwrap_or(t);
+        let t = t.strip_prefix("const ").unwrap_or(t);
+        let t = t.strip_prefix("unsafe ").unwrap_or(t);
+        let Some(rest) = t.strip_prefix("fn ") else { continue };
+        let name: String = rest.chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect();
+        let (mut depth, mut opened) = (0i64, false);
+        for (j, l) in lines[i..].iter().enumerate() {
+            if !opened && l.trim_end().ends_with(';') && !l.contains('{') {
+                break;
+            }
+            depth += l.matches('{').count() as i64 - l.matches('}').count() as i64;
+            opened |= l.contains('{');
+            if opened && depth <= 0 {
+                out.push((name.clone(), j + 1));
+                break;
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn no_function_of_the_library_code_is_longer_than_120_lines() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let mut files = Vec::new();
+    for krate in ["mipnerf-core", "mipnerf-gpu", "mipnerf-cli"] {
+        rust_files(&root.join("crates").join(krate).join("src"), &mut files);
+    }
+    rust_files(&root.join("src"), &mut files);
+    files.sort();
+    let mut long = Vec::new();
+    for f in &files {
+        for (name, n) in function_lengths(&strip_comments(&std::fs::read_to_string(f).unwrap())) {
+            if n > MAX_FUNCTION_LINES {
+                long.push(format!("{} {name}: {n} lines", f.strip_prefix(&root).unwrap().display()));
+            }
+        }
+    }
+    assert!(long.is_empty(), "functions over {MAX_FUNCTION_LINES} lines:\n{}", long.join("\n"));
+}
+
+#[test]
+fn the_function_scan_measures_a_function_to_its_closing_brace() {
+    let code = "pub fn a(x: u32) -> u32 {\n    if x > 0 {\n        1\n    } else {\n        2\n    }\n}\nfn b();\n";
+    assert_eq!(function_lengths(code), vec![("a".to_string(), 7)]);
 }

@@ -40,6 +40,14 @@ pub struct Product {
     pub accumulate: bool,
 }
 
+impl Product {
+    /// `m x k · k x n`, added to `c` when `accumulate`.
+    #[must_use]
+    pub const fn of(m: usize, k: usize, n: usize, accumulate: bool) -> Self {
+        Self { m, k, n, accumulate }
+    }
+}
+
 /// `c (m x n) = [c +] a (m x k) · b (k x n)` for `p`'s shape, with `a` and `b` stored as `la`
 /// and `lb` say, and `c` overwritten or added to (`p.accumulate`).
 ///

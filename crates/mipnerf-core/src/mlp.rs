@@ -362,7 +362,7 @@ fn dense(p: Precision, params: &[f32], l: &DenseLayer, parts: &[(Operand<'_>, us
     let mut r0 = 0;
     for (k, &(input, width)) in parts.iter().enumerate() {
         let rows = Operand::f32(l.kernel_rows(params, r0, width), Layout::Normal);
-        product(p, out, input, rows, Product { m: n, k: width, n: l.fan_out, accumulate: k > 0 });
+        product(p, out, input, rows, Product::of(n, width, l.fan_out, k > 0));
         r0 += width;
     }
 }
@@ -487,7 +487,7 @@ impl MlpShape {
             view_proj,
             Operand::f32(view, Layout::Normal),
             view_rows,
-            Product { m: n_rays, k: c.view_dim, n: wc, accumulate: false },
+            Product::of(n_rays, c.view_dim, wc, false),
         );
         add_bias(view_proj, l0.bias(params), false);
         for j in 0..c.net_depth_condition {
@@ -605,7 +605,7 @@ impl MlpShape {
         let weight_grad =
             |grads: &mut [f32], l: &DenseLayer, r0: usize, input: Operand<'_>, in_w: usize, dz: Operand<'_>, rows| {
                 let k = &mut grads[l.kernel + r0 * l.fan_out..l.kernel + (r0 + in_w) * l.fan_out];
-                product(p, k, input, dz, Product { m: in_w, k: rows, n: l.fan_out, accumulate: true });
+                product(p, k, input, dz, Product::of(in_w, rows, l.fan_out, true));
             };
         // A layer's kernel (its first `rows` rows), transposed: the input gradient's right operand.
         let kernel_t = |l: &DenseLayer, rows: usize| Operand::f32(l.kernel_rows(params, 0, rows), transposed);
@@ -617,7 +617,7 @@ impl MlpShape {
         weight_grad(grads, l, 0, packed.cond[last].operand(&cond[last], transposed), wc, d_rgb, n);
         add_col_sums(&mut grads[l.bias..l.bias + 3], d_raw_rgb);
         resize(grad_a, n * wc);
-        product(p, grad_a, d_rgb, kernel_t(l, wc), Product { m: n, k: 3, n: wc, accumulate: false });
+        product(p, grad_a, d_rgb, kernel_t(l, wc), Product::of(n, 3, wc, false));
         // Condition layers, top down. grad_a holds d(output of layer j).
         for j in (0..c.net_depth_condition).rev() {
             let l = self.condition(j);
@@ -631,13 +631,7 @@ impl MlpShape {
                 let input = packed.cond[j - 1].operand(&cond[j - 1], transposed);
                 weight_grad(grads, l, 0, input, wc, packed.dz.right(grad_a), n);
                 resize(grad_b, n * wc);
-                product(
-                    p,
-                    grad_b,
-                    packed.dz.operand(grad_a, normal),
-                    kernel_t(l, wc),
-                    Product { m: n, k: wc, n: wc, accumulate: false },
-                );
+                product(p, grad_b, packed.dz.operand(grad_a, normal), kernel_t(l, wc), Product::of(n, wc, wc, false));
                 std::mem::swap(grad_a, grad_b);
             } else {
                 let input = packed.bottleneck.operand(bottleneck, transposed);
@@ -652,13 +646,7 @@ impl MlpShape {
                 weight_grad(grads, l, w, view_t, c.view_dim, d_ray, n_rays);
                 // d bottleneck.
                 resize(grad_b, n * w);
-                product(
-                    p,
-                    grad_b,
-                    packed.dz.operand(grad_a, normal),
-                    kernel_t(l, w),
-                    Product { m: n, k: wc, n: w, accumulate: false },
-                );
+                product(p, grad_b, packed.dz.operand(grad_a, normal), kernel_t(l, w), Product::of(n, wc, w, false));
             }
         }
         // grad_b = d bottleneck (no activation). Heads read [top, x?].
@@ -673,13 +661,7 @@ impl MlpShape {
                 weight_grad(grads, l, w, packed.x.operand(x, transposed), c.x_dim, packed.dz.right(dz), n);
             }
             add_col_sums(&mut grads[l.bias..l.bias + l.fan_out], dz);
-            product(
-                p,
-                grad_z,
-                packed.dz.operand(dz, normal),
-                kernel_t(l, w),
-                Product { m: n, k: l.fan_out, n: w, accumulate: !first },
-            );
+            product(p, grad_z, packed.dz.operand(dz, normal), kernel_t(l, w), Product::of(n, l.fan_out, w, !first));
         }
         // Trunk, top down. grad_z holds d(output of layer i).
         for i in (0..c.net_depth).rev() {
@@ -699,13 +681,7 @@ impl MlpShape {
                     weight_grad(grads, l, w, packed.x.operand(x, transposed), c.x_dim, packed.dz.right(grad_z), n);
                 }
                 resize(grad_a, n * w);
-                product(
-                    p,
-                    grad_a,
-                    packed.dz.operand(grad_z, normal),
-                    kernel_t(l, w),
-                    Product { m: n, k: w, n: w, accumulate: false },
-                );
+                product(p, grad_a, packed.dz.operand(grad_z, normal), kernel_t(l, w), Product::of(n, w, w, false));
                 std::mem::swap(grad_a, grad_z);
             }
         }
@@ -737,7 +713,7 @@ impl MlpShape {
             Layout::Normal,
             kernel,
             Layout::Transposed,
-            Product { m: n, k: c.net_width, n: c.x_dim, accumulate: false },
+            Product::of(n, c.net_width, c.x_dim, false),
         );
     }
 

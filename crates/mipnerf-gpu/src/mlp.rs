@@ -288,6 +288,12 @@ struct LayerRun<'a> {
     n: usize,
 }
 
+impl<'a> LayerRun<'a> {
+    const fn new(layer: &'a DenseLayer, parts: &'a [Part<'a>], n: usize) -> Self {
+        Self { layer, parts, n }
+    }
+}
+
 /// The parameters and the gradient they are added to.
 #[derive(Clone, Copy)]
 struct ParamBuffers<'a> {
@@ -418,7 +424,7 @@ impl GpuMlp {
             } else {
                 vec![(&pb.trunk[i - 1], c.net_width)]
             };
-            self.dense(rec, params, LayerRun { layer: &ls[i], parts: &parts, n }, &pb.trunk[i], true);
+            self.dense(rec, params, LayerRun::new(&ls[i], &parts, n), &pb.trunk[i], true);
         }
         // Both heads as one product: [density | bottleneck] = top · [K_d | K_b] + [b_d | b_b],
         // with the two layers' kernels and biases packed side by side first.
@@ -458,13 +464,13 @@ impl GpuMlp {
         self.matmul.encode(rec, Product { shape: (n, c.net_width, wc), a: bottleneck, b: w_b, c: cond0, epi });
         for j in 1..c.net_depth_condition {
             let parts = [(&pb.cond[j - 1], wc)];
-            self.dense(rec, params, LayerRun { layer: &ls[d + 2 + j], parts: &parts, n }, &pb.cond[j], true);
+            self.dense(rec, params, LayerRun::new(&ls[d + 2 + j], &parts, n), &pb.cond[j], true);
         }
         let last = &pb.cond[c.net_depth_condition - 1];
         self.dense(
             rec,
             params,
-            LayerRun { layer: &ls[ls.len() - 1], parts: &[(last, c.net_width_condition)], n },
+            LayerRun::new(&ls[ls.len() - 1], &[(last, c.net_width_condition)], n),
             &bufs.raw_rgb,
             false,
         );
@@ -526,7 +532,7 @@ impl GpuMlp {
         self.dense_backward(
             rec,
             pg,
-            LayerRun { layer: &ls[ls.len() - 1], parts: &[(last, wc)], n },
+            LayerRun::new(&ls[ls.len() - 1], &[(last, wc)], n),
             d_raw_rgb,
             to(&g[a], true),
             pb,
@@ -535,14 +541,7 @@ impl GpuMlp {
         for j in (0..dc).rev() {
             if j > 0 {
                 let parts = [(&pb.cond[j - 1], wc)];
-                self.dense_backward(
-                    rec,
-                    pg,
-                    LayerRun { layer: &ls[d + 2 + j], parts: &parts, n },
-                    &g[a],
-                    to(&g[b], true),
-                    pb,
-                );
+                self.dense_backward(rec, pg, LayerRun::new(&ls[d + 2 + j], &parts, n), &g[a], to(&g[b], true), pb);
                 std::mem::swap(&mut a, &mut b);
             } else {
                 // The first colour layer. Its bottleneck rows see every sample (the bottleneck is
@@ -610,28 +609,14 @@ impl GpuMlp {
         for i in (0..d).rev() {
             if i == 0 {
                 let d_x = bufs.d_x.as_ref().map(|out| InputGrad { out, accumulate: false, relu: false });
-                self.dense_backward(
-                    rec,
-                    pg,
-                    LayerRun { layer: &ls[0], parts: &[(&bufs.x, c.x_dim)], n },
-                    &g[cur],
-                    d_x,
-                    pb,
-                );
+                self.dense_backward(rec, pg, LayerRun::new(&ls[0], &[(&bufs.x, c.x_dim)], n), &g[cur], d_x, pb);
             } else {
                 let parts: Vec<Part<'_>> = if shape.concat_after(i - 1) {
                     vec![(&pb.trunk[i - 1], w), (&bufs.x, c.x_dim)]
                 } else {
                     vec![(&pb.trunk[i - 1], w)]
                 };
-                self.dense_backward(
-                    rec,
-                    pg,
-                    LayerRun { layer: &ls[i], parts: &parts, n },
-                    &g[cur],
-                    to(&g[other], true),
-                    pb,
-                );
+                self.dense_backward(rec, pg, LayerRun::new(&ls[i], &parts, n), &g[cur], to(&g[other], true), pb);
                 std::mem::swap(&mut cur, &mut other);
             }
         }

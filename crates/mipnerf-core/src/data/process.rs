@@ -382,31 +382,14 @@ fn process_source(source: Source, output: &Path, opts: &ProcessOptions) -> Resul
         model.images.iter().map(|im| (im.name.clone(), images_dir.join(&im.name))).collect();
     let focal = focal::check_focal((lens.fx * lens.fy).sqrt(), &named, lens.width, lens.height);
     if let Some(masks) = &opts.masks {
-        super::masks::check_folder(masks, &folders[0])?;
-    }
-    // Every registered photo's mask is there and usable before anything is written.
-    if let Some(masks) = &opts.masks {
-        named.par_iter().try_for_each(|(name, _)| -> Result<(), DataError> {
-            super::masks::read_mask(&super::masks::mask_file(masks, Path::new(name))?, lens.width, lens.height)
-                .map(|_| ())
-        })?;
+        check_masks(masks, &folders[0], &named, &lens)?;
     }
     let pinhole = undistort::undistorted_pinhole(&lens);
     let long = pinhole.width.max(pinhole.height);
     let factor = if opts.max_size == 0 { 1 } else { long.div_ceil(opts.max_size).max(1) };
     let size = ((pinhole.width / factor).max(1), (pinhole.height / factor).max(1));
     // The poses and bounds of the undistorted camera: the same extrinsics and points, a pinhole.
-    let id = first.id;
-    model.cameras = vec![ColmapCamera {
-        id,
-        model_id: 0,
-        width: u64::from(pinhole.width),
-        height: u64::from(pinhole.height),
-        params: vec![pinhole.focal, f64::from(pinhole.width) / 2.0, f64::from(pinhole.height) / 2.0],
-    }];
-    for im in &mut model.images {
-        im.camera_id = id;
-    }
+    with_pinhole(&mut model, first.id, &pinhole);
     let (rows, names) = colmap::poses_bounds(&model, &model_dir)?;
 
     // The output folder: new, empty, or (with overwrite) one whose dataset this step wrote. The
@@ -487,6 +470,30 @@ fn process_source(source: Source, output: &Path, opts: &ProcessOptions) -> Resul
         masks: masks_folder,
         warnings,
     })
+}
+
+/// Checks the masks' folder against the photos' and reads every registered photo's mask
+/// (`named`: name and file), all before anything is written.
+fn check_masks(masks: &Path, photos: &Path, named: &[(String, PathBuf)], lens: &LensCamera) -> Result<(), DataError> {
+    super::masks::check_folder(masks, photos)?;
+    named.par_iter().try_for_each(|(name, _)| -> Result<(), DataError> {
+        super::masks::read_mask(&super::masks::mask_file(masks, Path::new(name))?, lens.width, lens.height).map(|_| ())
+    })
+}
+
+/// `model` with its one camera (of id `id`) replaced by the undistorted `pinhole`: the same
+/// extrinsics and points, every photo on that camera.
+fn with_pinhole(model: &mut ColmapModel, id: u32, pinhole: &undistort::Pinhole) {
+    model.cameras = vec![ColmapCamera {
+        id,
+        model_id: 0,
+        width: u64::from(pinhole.width),
+        height: u64::from(pinhole.height),
+        params: vec![pinhole.focal, f64::from(pinhole.width) / 2.0, f64::from(pinhole.height) / 2.0],
+    }];
+    for im in &mut model.images {
+        im.camera_id = id;
+    }
 }
 
 /// Leaves the photos named in `exclude` out of `model` (of the source `kind` at `model_dir`,
