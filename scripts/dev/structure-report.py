@@ -51,7 +51,14 @@ def functions(text):
         if "{" not in sig:
             i = j + 1
             continue
-        params = sig[sig.find("(") + 1 : sig.rfind(")")] if "(" in sig else ""
+        params = ""
+        if "(" in sig:
+            start, depth = sig.find("("), 0
+            for end in range(start, len(sig)):
+                depth += {"(": 1, ")": -1}.get(sig[end], 0)
+                if depth == 0:
+                    break
+            params = sig[start + 1 : end]
         n_params = len([p for p in split_params(params) if p.strip() and p.strip() not in ("self", "&self", "&mut self", "mut self")])
         braces, k = 0, i
         started = False
