@@ -48,7 +48,7 @@ cat "$OUT/machine.txt"
 # The GPU tests, as CI runs them (CI=true: a test that finds no adapter fails), each from its
 # package's folder as cargo would; 150 s in all at most.
 {
-    for t in shaders select robustness kernels backend both_backends; do
+    for t in shaders select robustness kernel_cast_ipe kernel_mlp kernel_render kernel_adam kernel_sample kernel_model kernel_occupancy backend both_backends; do
         stamp "test $t"
         (cd crates/mipnerf-gpu && CI=true timeout 60 "$B/$t" 2>&1)
         echo "exit status of $t: $?"

@@ -4,7 +4,7 @@
 #
 #   .gl/*.deb              the Vulkan loader (Debian's libvulkan1, `apt-get download`)
 #   .dev/tri-mip.tar.xz    stripped release builds: `mipnerf`, the mipnerf-gpu test binaries that
-#                          prove the field (tri_mip, backend, kernels, shaders, occupancy_update)
+#                          prove the field (tri_mip, backend, kernel_mlp, kernel_occupancy, shaders, occupancy_update)
 #                          and the grid_update bench, by target name
 #   .dev/fern/             ../shared/data/llff/fern's images_8 and poses_bounds.npy
 #
@@ -21,7 +21,7 @@ import json, shutil, sys
 for line in sys.stdin:
     m = json.loads(line)
     if m.get("reason") == "compiler-artifact" and m.get("executable") and m["target"]["kind"] == ["test"]:
-        if m["target"]["name"] in ("tri_mip", "backend", "kernels", "shaders", "occupancy_update"):
+        if m["target"]["name"] in ("tri_mip", "backend", "kernel_mlp", "kernel_occupancy", "shaders", "occupancy_update"):
             shutil.copy(m["executable"], ".dev/bin/" + m["target"]["name"])
 '
 # The grid update's bench (the host's update against the device's).

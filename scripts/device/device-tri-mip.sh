@@ -27,7 +27,7 @@ machine_info "$B"
 # The field's GPU tests as CI runs them (CI=true: no adapter is a failure), from the package's
 # folder as cargo would; 120 s in all at most.
 {
-    for t in shaders tri_mip kernels backend occupancy_update; do
+    for t in shaders tri_mip kernel_mlp kernel_occupancy backend occupancy_update; do
         stamp "test $t"
         (cd crates/mipnerf-gpu && CI=true timeout "$(cap 40)" "$B/$t" 2>&1)
         echo "exit status of $t: $?"

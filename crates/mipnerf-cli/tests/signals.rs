@@ -1,7 +1,7 @@
 //! Every long phase stops on Ctrl-C or SIGTERM with exit code 130, and leaves nothing that looks
 //! complete and is not (a user kills a long phase and must trust what is left): eval, render, convert, demo (in training and after
 //! it), and a second signal stops at once. Training's own signal handling (the checkpoint, the
-//! byte-identical resume) is in `reliability.rs`; the experiment's in `cli.rs`.
+//! byte-identical resume) is in `long_runs.rs`; the experiment's in `cli.rs`.
 #![allow(clippy::unwrap_used, missing_docs)]
 
 mod common;

@@ -203,7 +203,7 @@ fn the_planes_total_variation_is_the_cpus() {
 /// encodings, rendering, the MLP's backward pass into the encodings, the scatter, the
 /// push-down and the total variation) against the CPU's. The loss is summed in f64 from the
 /// same per-ray errors; the gradients carry the MLP's summation order (as the Mip-NeRF field's
-/// do, `TOL_GPU_MLP_REL` in kernels.rs) and the scatter's, so a gradient that is a sum of
+/// do, `TOL_GPU_MLP_REL` in kernel_mlp.rs) and the scatter's, so a gradient that is a sum of
 /// terms cancelling to near zero is off by a few ulps of its terms: the absolute bound is a
 /// share of the largest gradient of its part (planes or MLP). Measured on lavapipe: 4.2e-6 of
 /// the largest at worst. One level: a second one resamples its edges from the first's weights,

@@ -1,4 +1,4 @@
-//! The second round of held-out probes of what users hit, one test per finding: a render never replaces
+//! Bad inputs are errors that name their cause, never panics or quiet reads: a render never replaces
 //! a user's files, extreme numbers are errors or run (never a panic), nonsense cameras are
 //! refused naming the file, field and index, `--resume` refuses flags that change the run,
 //! explicitly given LPIPS weights and unverifiable checkpoints are not read quietly, memory is
@@ -77,7 +77,7 @@ fn edited(data: &Path, to: &Path, key: &str, index: Option<usize>, value: &serde
     to.to_path_buf()
 }
 
-/// Finding 1: `render --out DATASET/images_test` wrote over the ground truth.
+/// `render --out DATASET/images_test` once wrote over the ground truth.
 #[test]
 fn a_render_never_replaces_files_mipnerf_did_not_write() {
     let dir = tempfile::tempdir().unwrap();
@@ -120,7 +120,7 @@ fn a_render_never_replaces_files_mipnerf_did_not_write() {
     run_ok(&["figure", "--run", r, "--out", fig.to_str().unwrap()]);
 }
 
-/// Findings 2 and 3: extreme finite numbers panicked (far >= 3e38) or were accepted (focal 0,
+/// Extreme finite numbers once panicked (far >= 3e38) or were accepted (focal 0,
 /// negative or 1e-30, cam2world entries of 1e20, lossmult 1e30); RAYON_NUM_THREADS=100000
 /// panicked. Property: over extreme values of every numeric field, `train` either refuses with
 /// an error naming metadata.json, the field and the entry, or trains, and then eval and render
@@ -216,7 +216,7 @@ fn extreme_numbers_in_the_data_are_errors_naming_the_field_or_run_and_never_pani
     assert!(out.status.code() == Some(1) && err.contains("RAYON_NUM_THREADS"), "{err}");
 }
 
-/// Finding 4: `--resume --model nerf` continued a Mip-NeRF run as NeRF; `--resume --data OTHER`
+/// `--resume --model nerf` once continued a Mip-NeRF run as NeRF; `--resume --data OTHER`
 /// resumed on other data.
 #[test]
 fn resume_refuses_flags_that_change_what_the_run_is() {
@@ -252,7 +252,7 @@ fn resume_refuses_flags_that_change_what_the_run_is() {
     assert!(help.contains("Flags that may change on resume"), "{help}");
 }
 
-/// Finding 5: corrupt LPIPS weights given explicitly gave `"lpips": null` and exit 0; a
+/// Corrupt LPIPS weights given explicitly once gave `"lpips": null` and exit 0; a
 /// checkpoint without its checksum was read with only a note.
 #[test]
 fn explicit_lpips_weights_that_do_not_work_and_unverifiable_checkpoints_are_errors() {
@@ -344,7 +344,7 @@ fn explicit_lpips_weights_that_do_not_work_and_unverifiable_checkpoints_are_erro
     }
 }
 
-/// Finding 6: a batch or a metadata.json too large for a memory limit aborted in the allocator
+/// A batch or a metadata.json too large for a memory limit once aborted in the allocator
 /// (exit 134); a failed write of metrics.json must keep the previous one.
 #[test]
 fn memory_is_checked_before_it_is_taken_and_a_failed_eval_keeps_the_previous_results() {
@@ -402,7 +402,7 @@ fn memory_is_checked_before_it_is_taken_and_a_failed_eval_keeps_the_previous_res
     assert!(!run.join("eval.partial").exists() && !run.join("eval.old").exists());
 }
 
-/// Finding 7: `mipnerf experiment --data OTHER` reported every row done from the old JSON.
+/// `mipnerf experiment --data OTHER` once reported every row done from the old JSON.
 #[test]
 fn an_experiment_never_reports_rows_of_another_dataset_as_done() {
     let dir = tempfile::tempdir().unwrap();

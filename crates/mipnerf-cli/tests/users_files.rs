@@ -1,5 +1,5 @@
-//! Round 3 of the held-out probes: what a user's files could still lose. Each test reproduces a reported
-//! case: export over a device, a folder, a link or a foreign file, and both exports on one path;
+//! A user's files are never lost nor mixed into: export over a device, a folder, a link or a
+//! foreign file, and both exports on one path;
 //! convert and colmap replacing or mixing into a user's dataset, or killing the old one when they
 //! fail part-way; render folders mixing two renders.
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
