@@ -77,9 +77,11 @@ fn training_for_a_budget_takes_steps_until_it_is_spent_and_ends_the_decay_with_i
     let report = nerf.train_for(std::time::Duration::from_millis(400)).unwrap();
     let steps = nerf.step() - 1;
     assert!(steps >= 5 && report.step == nerf.step() - 1, "{steps} steps, last {}", report.step);
-    // The last step is at most a step's decay (a factor (init/final)^(1/steps)) above the final rate.
-    let slack = (lr.lr_init / lr.lr_final).powf(1.0 / steps as f32);
-    assert!(report.lr <= lr.lr_final * slack * 1.01, "the last rate {} of {steps} steps", report.lr);
+    // The last step's rate has decayed at least three quarters of the way (in log) to the final
+    // rate (the schedule's horizon is an estimate from the steps' times, which jitter: exactly
+    // the final rate is not promised). Without the stretch it would still be near `lr_init`.
+    let three_quarters = lr.lr_final * (lr.lr_init / lr.lr_final).powf(0.25);
+    assert!(report.lr <= three_quarters, "the last rate {} of {steps} steps, over {three_quarters}", report.lr);
     assert!(first.lr >= 0.99 * lr.lr_init, "{}", first.lr);
     // By steps alone, the schedule's own million-step decay: the rate barely moves.
     let mut by_steps = Nerf::new(demo::dataset(2, 8).unwrap(), options).unwrap();
