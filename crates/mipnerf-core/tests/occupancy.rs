@@ -70,7 +70,7 @@ fn a_full_grid_samples_renders_and_trains_exactly_as_the_paper() {
         TrainBatch { rays: &rays, targets: &colours },
         mode,
         &mut g_full,
-        GradWith { scratch: Some(&mut GradScratch::default()), grid: Some(&full) },
+        GradWith { grid: Some(&full), ..GradWith::default() },
     );
     assert_eq!(paper, guided);
     assert_eq!(
@@ -492,7 +492,7 @@ fn a_fresh_contracted_grid_samples_and_trains_exactly_as_the_unbounded_sampler()
         TrainBatch { rays: &rays, targets: &colours },
         mode,
         &mut g_grid,
-        GradWith { scratch: Some(&mut GradScratch::default()), grid: Some(&grid) },
+        GradWith { grid: Some(&grid), ..GradWith::default() },
     );
     assert_eq!(paper, guided);
     assert_eq!(g_paper, g_grid);

@@ -49,9 +49,9 @@ pub struct OccupancyParams {
 }
 
 /// An [`OccupancyGrid`]'s layers on the device ([`OccupancyGrid::packed_layers`]) and its cells'
-/// opacities, with its layout; [`update`](Self::update) after each change of the grid on the
-/// host. The opacities are what an update on the device
-/// ([`crate::model::GpuModel::update_grid`]) keeps.
+/// opacities, with its layout: the opacities are uploaded once and then kept by the updates on
+/// the device ([`crate::model::GpuModel::update_grid`]); [`update`](Self::update) writes the
+/// layers the host finds from them.
 #[derive(Debug)]
 pub struct DeviceGrid {
     bits: wgpu::Buffer,
@@ -93,8 +93,9 @@ impl DeviceGrid {
         })
     }
 
-    /// Writes `grid`'s current cells and opacities (the same layout as the grid this was made
-    /// from).
+    /// Writes `grid`'s occupied cells and their dilations (the same layout as the grid this was
+    /// made from). Not its opacities: those on the device are the ones the device's update keeps
+    /// ([`crate::model::GpuModel::update_grid`]), which the host's were read from.
     ///
     /// # Errors
     /// [`GpuError::InvalidInput`] for a grid of another layout.
@@ -112,7 +113,6 @@ impl DeviceGrid {
             )));
         }
         ctx.queue().write_buffer(&self.bits, 0, bytemuck::cast_slice(&grid.packed_layers()));
-        ctx.queue().write_buffer(&self.opacity, 0, bytemuck::cast_slice(&grid.opacity));
         self.full = grid.is_full();
         Ok(())
     }
