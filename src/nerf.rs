@@ -8,11 +8,12 @@ use std::time::{Duration, Instant};
 use mipnerf_core::Camera;
 use mipnerf_core::backend::{Backend, BackendError, ImageSpec, MAX_BATCH_RAYS, RenderedImage, TrainState};
 use mipnerf_core::checkpoint::{self, CheckpointError};
-use mipnerf_core::data::{self, DataError, Dataset, LoadOptions, Split, View};
+use mipnerf_core::dataset::{DataError, Dataset, Split, View};
 use mipnerf_core::model::{FastRecipe, Field, Levels, Model, ModelConfig, ModelError, Preset, TriMipRecipe};
 use mipnerf_core::occupancy::{GridPlan, OccupancyGrid};
 use mipnerf_core::schedule::LrSchedule;
 use mipnerf_core::train::{OptimConfig, StepReport};
+use mipnerf_data::LoadOptions;
 
 /// Where a [`Nerf`] runs.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -125,9 +126,11 @@ impl Options {
         self
     }
 
-    /// Any model in place of the preset's (its other settings kept). Two settings follow the
-    /// data: `white_bkgd` (composited as the data is), and for forward-facing data in NDC (LLFF,
-    /// COLMAP) `ray_shape`, cylinders as the official LLFF configuration.
+    /// Any model in place of the preset's (its other settings kept). Some settings follow the
+    /// data as the CLI's do ([`mipnerf_core::config::DataFit`]): `white_bkgd` (composited as the
+    /// data is); for forward-facing data in NDC (LLFF, COLMAP) `ray_shape`, cylinders, and
+    /// `density_noise` 1 where it is 0, as the official LLFF configuration; for masked photos
+    /// `random_bkgd`.
     #[must_use]
     pub fn with_model(mut self, model: ModelConfig) -> Self {
         self.model = model;
@@ -335,7 +338,7 @@ struct RaySettings {
     near: f32,
     far: f32,
     centers: mipnerf_core::PixelCenters,
-    ndc: Option<mipnerf_core::data::Ndc>,
+    ndc: Option<mipnerf_core::dataset::Ndc>,
 }
 
 impl std::fmt::Debug for Nerf {
@@ -351,7 +354,7 @@ impl Nerf {
     /// An invalid model, occupancy on data it cannot guide, or a device that cannot be opened.
     pub fn new(data: Dataset, options: Options) -> Result<Self, Error> {
         let data = Arc::new(data);
-        let model = model_for(&options, Some(&data))?;
+        let model = model_for(&options, &data)?;
         let mut state = TrainState::fresh(&model, options.seed);
         if options.occupancy {
             state.occupancy = Some(occupancy_grid(&data)?);
@@ -369,13 +372,13 @@ impl Nerf {
     }
 
     /// A fresh model to train on the training split of a dataset folder (Blender, multiscale
-    /// Blender, LLFF or COLMAP; see `mipnerf_core::data::load`).
+    /// Blender, LLFF or COLMAP; see `mipnerf_data::load`).
     ///
     /// # Errors
     /// A folder that is no dataset or a malformed one (the error names the file), or as
     /// [`Nerf::new`].
     pub fn from_dir(dir: impl AsRef<Path>, options: Options) -> Result<Self, Error> {
-        Self::new(data::load(dir.as_ref(), Split::Train, &LoadOptions::default())?, options)
+        Self::new(mipnerf_data::load(dir.as_ref(), Split::Train, &LoadOptions::default())?, options)
     }
 
     /// The model saved at `path` by [`Nerf::save`], to render or to train further on `data`. The
@@ -405,7 +408,12 @@ impl Nerf {
             }
             options.model = r.model.clone();
         }
-        let model = model_for(&options, data.as_deref())?;
+        let mut config = options.model.clone();
+        if let Some(ds) = data.as_deref() {
+            // A trained model: what the data is changes its rays, not how it was trained.
+            ds.model_fit().apply_to_rays(&mut config);
+        }
+        let model = Model::new(config)?;
         let state = TrainState::from_checkpoint(checkpoint::load(path.as_ref(), &model)?);
         let mut nerf = Self::open(model, state, data, &options)?;
         if let Some(r) = stored {
@@ -567,10 +575,17 @@ impl Nerf {
     }
 }
 
-/// Whether two model configurations are the same model, the two settings that follow the data
-/// (`white_bkgd`, `ray_shape`) aside.
+/// Whether two model configurations are the same model, the settings that follow the data
+/// ([`mipnerf_core::config::DataFit`]: `white_bkgd`, `ray_shape`, `density_noise`, `random_bkgd`)
+/// aside.
 fn same_model(a: &ModelConfig, b: &ModelConfig) -> bool {
-    let fitted = ModelConfig { white_bkgd: a.white_bkgd, ray_shape: a.ray_shape, ..b.clone() };
+    let fitted = ModelConfig {
+        white_bkgd: a.white_bkgd,
+        ray_shape: a.ray_shape,
+        density_noise: a.density_noise,
+        random_bkgd: a.random_bkgd,
+        ..b.clone()
+    };
     *a == fitted
 }
 
@@ -591,15 +606,10 @@ fn describe_model(c: &ModelConfig) -> String {
     )
 }
 
-/// The model of `options`, composited as the data is, with cylinders for NDC data.
-fn model_for(options: &Options, data: Option<&Dataset>) -> Result<Model, Error> {
+/// The model of `options` fitted to the data as the CLI fits it ([`Dataset::model_fit`]).
+fn model_for(options: &Options, data: &Dataset) -> Result<Model, Error> {
     let mut config = options.model.clone();
-    if let Some(ds) = data {
-        config.white_bkgd = ds.white_bkgd;
-        if ds.ndc.is_some() {
-            config.ray_shape = mipnerf_core::RayShape::Cylinder;
-        }
-    }
+    data.model_fit().apply(&mut config);
     Ok(Model::new(config)?)
 }
 

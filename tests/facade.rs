@@ -180,19 +180,20 @@ fn options_out_of_range_are_errors_naming_the_option() {
 }
 
 /// A COLMAP capture (forward-facing, in NDC) trains with the official LLFF settings the data
-/// implies: cylinders, no white background; occupancy-guided sampling runs on it with its grid
-/// over the NDC cube.
+/// implies, as the CLI's `train` takes them (`DataFit`): cylinders, no white background, density
+/// noise 1; occupancy-guided sampling runs on it with its grid over the NDC cube.
 #[test]
 fn forward_facing_data_trains_with_cylinders_and_occupancy_in_ndc() {
     let colmap = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/colmap_lego");
     let mut nerf = Nerf::from_dir(&colmap, cpu_tiny()).unwrap();
     let config = nerf.backend().model().config().clone();
-    assert_eq!((config.ray_shape, config.white_bkgd), (mipnerf_core::RayShape::Cylinder, false));
+    let fitted = (config.ray_shape, config.white_bkgd, config.density_noise, config.random_bkgd);
+    assert_eq!(fitted, (mipnerf_core::RayShape::Cylinder, false, 1.0, false));
     assert!(nerf.train(1).unwrap().stats.loss.is_finite());
     let mut guided = Nerf::from_dir(&colmap, cpu_tiny().with_occupancy(true)).unwrap();
     assert!(guided.train(1).unwrap().stats.loss.is_finite());
     let grid = guided.backend().checkpoint().unwrap().occupancy.expect("the run keeps its grid");
-    let data = mipnerf_core::data::load(&colmap, mipnerf_core::data::Split::Train, &Default::default());
+    let data = mipnerf_data::load(&colmap, mipnerf_core::dataset::Split::Train, &Default::default());
     let bound = data.ok().and_then(|d| mipnerf_core::occupancy::ndc_bound(&d));
     assert_eq!(Some(grid.config.bound), bound, "the grid covers the NDC cube");
 }
@@ -210,7 +211,7 @@ fn a_saved_model_loaded_without_data_renders_as_before_on_any_data() {
         let mut nerf = Nerf::from_dir(&data, cpu_tiny()).unwrap();
         nerf.train(2).unwrap();
         let camera = {
-            let ds = mipnerf_core::data::load(&data, mipnerf_core::data::Split::Train, &Default::default()).unwrap();
+            let ds = mipnerf_data::load(&data, mipnerf_core::dataset::Split::Train, &Default::default()).unwrap();
             let c = ds.views()[0].camera.clone();
             Camera::from_camera_angle_x(16, 12, 0.8, c.cam2world).unwrap()
         };

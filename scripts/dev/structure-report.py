@@ -116,7 +116,9 @@ def report(commit):
     facade = show(commit, "src/lib.rs")
     reexports_crates = len(re.findall(r"^pub use mipnerf_(core|gpu);", facade, re.M))
     core_lines = sum(v for f, v in sizes.items() if f.startswith("crates/mipnerf-core/src/"))
+    # The data formats: in the core's data/ folder until they moved to the mipnerf-data crate.
     data_lines = sum(v for f, v in sizes.items() if f.startswith("crates/mipnerf-core/src/data/"))
+    data_crate_lines = sum(v for f, v in sizes.items() if f.startswith("crates/mipnerf-data/src/"))
     return {
         "README lines": readme,
         "Rust files over 800 lines": sum(1 for v in sizes.values() if v > 800),
@@ -131,6 +133,8 @@ def report(commit):
         "files at the top of scripts/": len(scripts_top),
         "the facade re-exports whole crates": reexports_crates,
         "core lines / of them data formats (core/data/)": f"{core_lines} / {data_lines}",
+        "mipnerf-data lines (the data formats' own crate)": data_crate_lines,
+        "ARCHITECTURE.md lines": show(commit, "ARCHITECTURE.md").count("\n"),
     }
 
 

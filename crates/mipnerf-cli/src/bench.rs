@@ -9,7 +9,7 @@ use clap::ValueEnum;
 use mipnerf_core::backend::{ImageSpec, TrainState, WorkCounters};
 use mipnerf_core::bench::{backend_throughput, synthetic_dataset};
 use mipnerf_core::bf16::{Bf16Kernel, Bf16Support};
-use mipnerf_core::data::demo;
+use mipnerf_core::demo;
 use mipnerf_core::model::Levels;
 use mipnerf_core::model::{Field, Model, TriMipRecipe};
 use mipnerf_core::train::OptimConfig;

@@ -9,7 +9,7 @@ use clap::ValueEnum;
 use mipnerf_core::Ray;
 use mipnerf_core::backend::{Backend as _, CpuBackend, TrainState};
 use mipnerf_core::compare::KernelCheck;
-use mipnerf_core::data::demo;
+use mipnerf_core::demo;
 use mipnerf_core::model::{Model, Preset};
 use mipnerf_core::train::OptimConfig;
 use mipnerf_gpu::{GpuBackend, GpuContext};

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 use mipnerf_core::backend::ImageSpec;
-use mipnerf_core::data::Split;
+use mipnerf_core::dataset::Split;
 use mipnerf_core::metrics::average_error;
 use mipnerf_core::model::Levels;
 use serde::Serialize;

@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use mipnerf_core::data::Split;
+use mipnerf_core::dataset::Split;
 use serde::{Deserialize, Serialize};
 
 use crate::config::TrainSettings;
@@ -241,7 +241,7 @@ fn data_width(data: &Path, settings: &TrainSettings) -> Result<u32> {
     let meta = data.join("metadata.json");
     if !meta.is_file() {
         let s = TrainSettings { data: Some(data.to_path_buf()), ..settings.clone() };
-        let ds = run::load_split(&s, mipnerf_core::data::Split::Test)?;
+        let ds = run::load_split(&s, mipnerf_core::dataset::Split::Test)?;
         return ds
             .views()
             .first()
@@ -371,8 +371,8 @@ fn run_row(
     let llff = settings
         .data
         .as_deref()
-        .and_then(|d| mipnerf_core::data::detect_format(d).ok())
-        .is_some_and(mipnerf_core::data::Format::is_photos);
+        .and_then(|d| mipnerf_data::detect_format(d).ok())
+        .is_some_and(mipnerf_data::Format::is_photos);
     let steps = settings.resolved(llff).steps.unwrap_or(2000);
     let budget = settings.time_budget_seconds()?;
     let ckpt = RunDir::new(run_dir).checkpoint();

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use glam::Vec3;
-use mipnerf_core::data::{BatchDraw, Split};
+use mipnerf_core::dataset::{BatchDraw, Split};
 use mipnerf_core::export;
 
 use crate::run::{load_split, load_trained, read_config};

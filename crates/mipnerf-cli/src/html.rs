@@ -7,7 +7,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use anyhow::{Context, Result};
-use mipnerf_core::data::Split;
+use mipnerf_core::dataset::Split;
 
 use crate::scores::Metrics;
 

@@ -8,9 +8,9 @@ use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
 use mipnerf_core::Camera;
 use mipnerf_core::backend::ImageSpec;
-use mipnerf_core::data::camera_path::{MAX_FRAMES, MAX_SIDE};
-use mipnerf_core::data::{Dataset, Split};
+use mipnerf_core::dataset::{Dataset, Split};
 use mipnerf_core::model::Levels;
+use mipnerf_data::camera_path::{MAX_FRAMES, MAX_SIDE};
 
 use crate::config::TrainSettings;
 use crate::images::{depth_to_png, rgb_to_png, write_exr, write_png};
@@ -32,7 +32,7 @@ pub enum Target {
     Split(Split),
     /// `frames` cameras along a path, and the video's frames per second.
     Path(PathKind, usize, u32),
-    /// The cameras of a camera file ([`mipnerf_core::data::camera_path`]), or that many frames
+    /// The cameras of a camera file ([`mipnerf_data::camera_path`]), or that many frames
     /// along a smooth path through them as keyframes, the video's frames per second, and the
     /// frame the file's poses are in (or nerfstudio's `dataparser_transforms.json`, whose model's
     /// frame they are in).
@@ -202,7 +202,7 @@ pub fn render(
     }
     let jobs = render_jobs(&s, &target, size, k)?;
     let cameras_file: Vec<mipnerf_core::Camera> = jobs.iter().map(|(_, image)| image.camera.clone()).collect();
-    let cameras_file = mipnerf_core::data::camera_path::to_text(&cameras_file);
+    let cameras_file = mipnerf_data::camera_path::to_text(&cameras_file);
     // Never into a folder of files mipnerf did not write (a dataset's images, say).
     crate::outputs::check_dir(out, "--out", overwrite, crate::outputs::RENDER)?;
     // Load the data first: a bad split fails before the device is opened.
@@ -368,7 +368,7 @@ fn render_jobs(
             sequence = Some((train, cameras, check));
         }
         Target::Cameras(file, frames, _, frame, dataparser) => {
-            use mipnerf_core::data::{camera_path, nerfstudio};
+            use mipnerf_data::{camera_path, nerfstudio};
             // Asked of the file before the training split loads, so that such a path fails at once.
             if dataparser.is_none() && camera_path::is_nerfstudio_path(file) {
                 bail!(
@@ -399,7 +399,7 @@ fn render_jobs(
                 if frames == 0 || frames > MAX_FRAMES {
                     bail!("--frames must be between 1 and {MAX_FRAMES}, got {frames}");
                 }
-                cameras = mipnerf_core::data::camera_path::interpolate(&cameras, frames)
+                cameras = mipnerf_data::camera_path::interpolate(&cameras, frames)
                     .map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))?;
             }
             sequence = Some((train, cameras, true));
@@ -474,7 +474,7 @@ fn incomplete_render(out: &Path, jobs: &[(String, ImageSpec)], complete: usize, 
     let cameras: Vec<mipnerf_core::Camera> = jobs[..complete].iter().map(|(_, image)| image.camera.clone()).collect();
     let kept_cameras = complete > 0
         && out.join(CAMERAS).is_file()
-        && mipnerf_core::data::camera_path::to_text(&cameras)
+        && mipnerf_data::camera_path::to_text(&cameras)
             .is_some_and(|text| mipnerf_core::io::write_atomic(&out.join(CAMERAS), text.as_bytes()).is_ok());
     if !kept_cameras {
         dropped.insert(CAMERAS.to_owned());
@@ -514,12 +514,12 @@ mod tests {
     /// no photo was taken, are named.
     #[test]
     fn frames_outside_the_photos_region_are_named() {
-        let train = mipnerf_core::data::demo::dataset(16, 8).unwrap();
+        let train = mipnerf_core::demo::dataset(16, 8).unwrap();
         let orbit = path_cameras(&train, None, PathKind::Orbit, 12).unwrap();
         assert_eq!(outside_the_photos(&train, &orbit), None);
         let base = &train.views()[0].camera;
         let below = |az: f64| {
-            let pose = mipnerf_core::data::demo::camera_pose(az, -60f64.to_radians());
+            let pose = mipnerf_core::demo::camera_pose(az, -60f64.to_radians());
             Camera::from_pix2cam(base.width, base.height, base.pix2cam, pose).unwrap()
         };
         let mut path = orbit[..4].to_vec();
@@ -535,8 +535,8 @@ mod tests {
     /// moved sideways, say nothing; one turned round (or aside) is named.
     #[test]
     fn forward_facing_frames_that_look_away_are_named() {
-        let mut train = mipnerf_core::data::demo::dataset(16, 8).unwrap();
-        train.ndc = Some(mipnerf_core::data::Ndc { focal: 20.0, width: 16.0, height: 16.0 });
+        let mut train = mipnerf_core::demo::dataset(16, 8).unwrap();
+        train.ndc = Some(mipnerf_core::dataset::Ndc { focal: 20.0, width: 16.0, height: 16.0 });
         let photo = train.views()[0].camera.clone();
         let mut moved = photo.clone();
         moved.cam2world[0][3] += 0.5;

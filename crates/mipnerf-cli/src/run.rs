@@ -7,8 +7,9 @@ use anyhow::{Context, Result, bail};
 use mipnerf_core::backend::TrainState;
 use mipnerf_core::bf16::Precision;
 use mipnerf_core::checkpoint::{self, Checkpoint};
-use mipnerf_core::data::{self, Dataset, LoadOptions, Split};
+use mipnerf_core::dataset::{Dataset, Split};
 use mipnerf_core::model::Model;
+use mipnerf_data::LoadOptions;
 
 use crate::backend;
 use crate::config::{Backend, PrecisionArg, TrainSettings};
@@ -36,7 +37,7 @@ pub fn load_split(s: &TrainSettings, split: Split) -> Result<Dataset> {
         centers: s.centers(),
         unbounded: s.unbounded.unwrap_or(false),
     };
-    Ok(data::load(dir, split, &opts)?)
+    Ok(mipnerf_data::load(dir, split, &opts)?)
 }
 
 /// The error for a run whose dataset folder `dir` is gone: where the run names it, and how to

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
-use mipnerf_core::data::Split;
+use mipnerf_core::dataset::Split;
 
 /// The resolved configuration of the run.
 pub const CONFIG: &str = "config.toml";

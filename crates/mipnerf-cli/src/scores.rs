@@ -2,7 +2,7 @@
 //! scored against its photo: PSNR, SSIM with the official settings, and the clamping both use.
 
 use mipnerf_core::bf16::Precision;
-use mipnerf_core::data::Split;
+use mipnerf_core::dataset::Split;
 use mipnerf_core::metrics::{SsimConfig, mse_to_psnr, ssim};
 use serde::Serialize;
 

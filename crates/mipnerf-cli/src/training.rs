@@ -10,10 +10,11 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use mipnerf_core::backend::TrainState;
 use mipnerf_core::checkpoint::{self};
-use mipnerf_core::data::{self, Dataset, Format, Split};
+use mipnerf_core::dataset::{Dataset, Split};
 use mipnerf_core::model::Levels;
 use mipnerf_core::model::{Field, Model};
 use mipnerf_core::occupancy::{GridPlan, OccupancyGrid};
+use mipnerf_data::Format;
 
 use crate::backend;
 use crate::config::{Backend, PrecisionArg, TrainSettings};
@@ -289,7 +290,7 @@ fn resolve_settings(
     if resume && !data_dir.exists() {
         return Err(crate::run::moved_dataset(&data_dir));
     }
-    let format = data::detect_format(&data_dir)?;
+    let format = mipnerf_data::detect_format(&data_dir)?;
     // The dataset is stored as an absolute path, so that eval, render and --resume work from any
     // working directory.
     let data_dir = std::path::absolute(&data_dir).with_context(|| format!("resolving {}", data_dir.display()))?;

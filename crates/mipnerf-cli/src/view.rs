@@ -21,7 +21,7 @@ use anyhow::{Context, Result, bail};
 use base64::Engine;
 use mipnerf_core::backend::ImageSpec;
 use mipnerf_core::camera::Camera;
-use mipnerf_core::data::Split;
+use mipnerf_core::dataset::Split;
 use mipnerf_core::model::Levels;
 
 use crate::config::{Backend, TrainSettings};
@@ -423,9 +423,9 @@ fn band(image: &ImageSpec, y0: u32, y1: u32) -> (ImageSpec, usize) {
 use image::ImageEncoder;
 
 /// The run's cameras, field of view, up direction and starting pose, as the page reads them.
-fn info_json(run: &Path, s: &TrainSettings, train: &mipnerf_core::data::Dataset) -> Result<String> {
+fn info_json(run: &Path, s: &TrainSettings, train: &mipnerf_core::dataset::Dataset) -> Result<String> {
     let test = load_split(s, Split::Test).ok();
-    let poses = |ds: &mipnerf_core::data::Dataset| -> Vec<[[f64; 4]; 3]> {
+    let poses = |ds: &mipnerf_core::dataset::Dataset| -> Vec<[[f64; 4]; 3]> {
         ds.views().iter().filter(|v| v.scale == 0).map(|v| v.camera.cam2world).collect()
     };
     let train_poses = poses(train);
@@ -630,7 +630,7 @@ fn stream(request: crate::http::Request, tx: &mpsc::Sender<Job>, req: FrameReque
 mod tests {
     use super::*;
     use mipnerf_core::PixelCenters;
-    use mipnerf_core::data::Ndc;
+    use mipnerf_core::dataset::Ndc;
 
     /// Ray components of a band and of the whole image agree to this (f64 pixel offsets folded
     /// into `pix2cam` move the f32 rays by an ulp at most).
@@ -641,7 +641,7 @@ mod tests {
     /// supersampling; the bands cover every row once.
     #[test]
     fn a_frame_rendered_in_bands_has_the_whole_frames_rays() {
-        let pose = mipnerf_core::data::demo::camera_pose(0.3, 0.5);
+        let pose = mipnerf_core::demo::camera_pose(0.3, 0.5);
         for (w, h, ndc, k) in
             [(24, 20, false, 1), (100, 83, false, 1), (64, 131, true, 1), (40, 205, false, 2), (3, 2, false, 1)]
         {

@@ -297,8 +297,8 @@ fn explicit_lpips_weights_that_do_not_work_and_unverifiable_checkpoints_are_erro
     let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
     // A scene large enough for AlexNet (31 px a side) at its two finer scales.
     let big = dir.path().join("big");
-    let cfg = mipnerf_core::data::demo::DemoConfig { size: 64, train_views: 2, test_views: 1, supersample: 1 };
-    mipnerf_core::data::demo::write_demo_scene(&big.join("data"), &cfg).unwrap();
+    let cfg = mipnerf_data::demo::DemoConfig { size: 64, train_views: 2, test_views: 1, supersample: 1 };
+    mipnerf_data::demo::write_demo_scene(&big.join("data"), &cfg).unwrap();
     let run64 = big.join("run");
     train(&big.join("data"), &run64, "2");
     for (name, edit) in [("huge", 1e30f32), ("negative", -1.0)] {

@@ -140,7 +140,8 @@ fn the_adapter_is_chosen_by_index_name_or_environment() {
 
 /// PSNR of the best constant colour (the image's mean) for each test image of each scale.
 fn constant_psnr_per_scale(data: &std::path::Path) -> std::collections::BTreeMap<u32, f64> {
-    use mipnerf_core::data::{LoadOptions, Split, load};
+    use mipnerf_core::dataset::Split;
+    use mipnerf_data::{LoadOptions, load};
     let ds = load(data, Split::Test, &LoadOptions::default()).unwrap();
     let mut per_scale: std::collections::BTreeMap<u32, Vec<f64>> = Default::default();
     for v in 0..ds.views().len() {
@@ -801,7 +802,7 @@ fn a_colmap_scene_trains_directly_and_converts_to_llff() {
         run_ok(&["convert", "--input", scene.to_str().unwrap(), "--output", llff.to_str().unwrap(), "--to", "llff"]);
     assert!(out.contains("--llff-factor 4") && llff.join("poses_bounds.npy").is_file(), "{out}");
     let n = std::fs::read_dir(llff.join("images_4")).unwrap().count();
-    let model = mipnerf_core::data::colmap::read_model(&scene.join("sparse/0")).unwrap();
+    let model = mipnerf_data::colmap::read_model(&scene.join("sparse/0")).unwrap();
     assert_eq!(n, model.images.len());
     let r2 = dir.path().join("run2");
     run_ok(&[
@@ -1010,7 +1011,8 @@ fn the_fast_preset_skips_empty_space_and_its_grid_reaches_eval_and_render() {
 /// (where there is an adapter) the GPU backend.
 #[test]
 fn the_fast_preset_trains_forward_facing_photos_with_its_grid_in_ndc() {
-    use mipnerf_core::data::{self, LoadOptions, Split};
+    use mipnerf_core::dataset::Split;
+    use mipnerf_data::LoadOptions;
     let dir = tempfile::tempdir().unwrap();
     let data = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/llff_fern_tiny");
     let run = dir.path().join("run");
@@ -1018,7 +1020,8 @@ fn the_fast_preset_trains_forward_facing_photos_with_its_grid_in_ndc() {
     let args = ["train", "--data", d, "--llff-factor", "64", "--out", r, "--preset", "fast", "--steps", "300"];
     let text = run_ok(&[&args[..], &["--batch-rays", "128"]].concat());
     assert!(text.contains("in NDC space") && text.contains("that no training ray reaches carved"), "{text}");
-    let ds = data::load(&data, Split::Train, &LoadOptions { llff_factor: 64, ..LoadOptions::default() }).unwrap();
+    let ds =
+        mipnerf_data::load(&data, Split::Train, &LoadOptions { llff_factor: 64, ..LoadOptions::default() }).unwrap();
     let bound = mipnerf_core::occupancy::ndc_bound(&ds).unwrap();
     assert!((1.0..2.0).contains(&bound), "the NDC cube's half side: {bound}");
     let model = mipnerf_core::model::Model::new(mipnerf_core::model::ModelConfig {

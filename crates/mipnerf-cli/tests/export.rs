@@ -5,7 +5,7 @@
 mod common;
 use common::{mipnerf, run_ok};
 
-/// The demo scene's sphere (`mipnerf_core::data::demo`): centre and radius. Above z = 0.1 nothing
+/// The demo scene's sphere (`mipnerf_core::demo`): centre and radius. Above z = 0.1 nothing
 /// else of the scene is (the floor is at z = -0.55, the box's top at -0.15).
 const SPHERE_C: [f32; 3] = [0.0, 0.0, 0.15];
 const SPHERE_R: f32 = 0.7;
@@ -103,8 +103,8 @@ fn sphere_errors(ply: &Ply) -> (f32, f32, usize) {
 fn the_demo_spheres_mesh_and_points_lie_on_the_true_sphere() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
-    let cfg = mipnerf_core::data::demo::DemoConfig { size: 64, train_views: 20, test_views: 1, supersample: 2 };
-    mipnerf_core::data::demo::write_demo_scene(&data, &cfg).unwrap();
+    let cfg = mipnerf_data::demo::DemoConfig { size: 64, train_views: 20, test_views: 1, supersample: 2 };
+    mipnerf_data::demo::write_demo_scene(&data, &cfg).unwrap();
     let run = dir.path().join("run");
     let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
     run_ok(&["train", "--data", d, "--out", r, "--preset", "fast", "--steps", "1500", "--backend", "cpu"]);

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use common::{run_err, run_ok};
 use mipnerf_core::camera::Camera;
-use mipnerf_core::data::demo;
+use mipnerf_core::demo;
 
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()
@@ -63,7 +63,7 @@ fn masked_capture(dir: &Path, size: u32, n: usize) -> PathBuf {
         row[16] = 6.0;
         rows.push(row);
     }
-    mipnerf_core::data::llff::write_poses_bounds(&data.join("poses_bounds.npy"), &rows).unwrap();
+    mipnerf_data::llff::write_poses_bounds(&data.join("poses_bounds.npy"), &rows).unwrap();
     data
 }
 

@@ -197,7 +197,7 @@ fn a_runs_camera_files_and_settings_that_are_fifos_devices_or_binary_are_refused
     check("--cameras on /dev/zero", render(&["--cameras", s(&cameras)]), &["cameras.json", "is a device"]);
     // LLFF's poses file given as a camera file: said to be NumPy, not "invalid UTF-8".
     let npy = dir.path().join("poses_bounds.npy");
-    mipnerf_core::data::llff::write_poses_bounds(&npy, &[[0.0; 17]]).unwrap();
+    mipnerf_data::llff::write_poses_bounds(&npy, &[[0.0; 17]]).unwrap();
     let text = run_err(&strs(&render(&["--cameras", s(&npy)])).split('\u{0}').collect::<Vec<_>>());
     assert!(text.contains("poses_bounds.npy: is a NumPy array file"), "{text}");
     assert!(!text.contains("UTF-8"), "{text}");
@@ -241,7 +241,7 @@ fn a_runs_camera_files_and_settings_that_are_fifos_devices_or_binary_are_refused
 /// The number of rows of a `poses_bounds.npy` and of images in the dataset folder `data`'s one
 /// image folder.
 fn poses_and_images(data: &Path) -> (usize, usize, Vec<String>) {
-    let rows = mipnerf_core::data::llff::read_poses_bounds(&data.join("poses_bounds.npy")).unwrap().len();
+    let rows = mipnerf_data::llff::read_poses_bounds(&data.join("poses_bounds.npy")).unwrap().len();
     let folders: Vec<String> = std::fs::read_dir(data)
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().to_string())

@@ -79,7 +79,7 @@ fn a_nerfstudio_capture_gives_the_dataset_of_its_colmap_workspace() {
         assert!(std::fs::read(x).unwrap() == std::fs::read(y).unwrap(), "{}", x.display());
     }
     // The same poses: nerfstudio's applied_transform undone, the capture's frame is COLMAP's.
-    let read = |d: &Path| mipnerf_core::data::llff::read_poses_bounds(&d.join("poses_bounds.npy")).unwrap();
+    let read = |d: &Path| mipnerf_data::llff::read_poses_bounds(&d.join("poses_bounds.npy")).unwrap();
     let (rows, reference_rows) = (read(&ours), read(&theirs));
     assert_eq!(rows.len(), reference_rows.len());
     for (r, q) in rows.iter().zip(&reference_rows) {
@@ -210,7 +210,7 @@ fn cameras_in_the_datas_frame_and_nerfstudios_render_as_the_split() {
     };
     // The held-out rows (every 8th), as OpenGL camera-to-world poses: [down, right, back,
     // centre, hwf] per row turned to [right, up, back, centre].
-    let rows = mipnerf_core::data::llff::read_poses_bounds(&data.join("poses_bounds.npy")).unwrap();
+    let rows = mipnerf_data::llff::read_poses_bounds(&data.join("poses_bounds.npy")).unwrap();
     let held_out: Vec<&[f64; 17]> = rows.iter().step_by(8).collect();
     let pose = |r: &[f64; 17]| -> [[f64; 4]; 3] {
         std::array::from_fn(|i| [r[i * 5 + 1], -r[i * 5], r[i * 5 + 2], r[i * 5 + 3]])
@@ -360,7 +360,7 @@ fn a_colmap_model_beside_a_capture_gives_its_points_and_tracks() {
     for (x, y) in a.iter().zip(&b) {
         assert!(std::fs::read(x).unwrap() == std::fs::read(y).unwrap(), "{}", x.display());
     }
-    let read = |d: &Path| mipnerf_core::data::llff::read_poses_bounds(&d.join("poses_bounds.npy")).unwrap();
+    let read = |d: &Path| mipnerf_data::llff::read_poses_bounds(&d.join("poses_bounds.npy")).unwrap();
     for (r, q) in read(&out).iter().zip(&read(&reference)) {
         for k in [15, 16] {
             assert!((r[k] / q[k] - scale).abs() < 1e-9 * scale, "bound {k}: {} against {} x {scale}", r[k], q[k]);

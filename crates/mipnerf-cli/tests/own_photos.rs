@@ -56,7 +56,7 @@ fn the_largest_of_several_models_is_taken_and_the_dataset_trains() {
     let images = pngs(&scene.join("images_2"));
     assert_eq!(images.len(), 37);
     assert_eq!(image::image_dimensions(&images[0]).unwrap(), (162, 162));
-    let rows = mipnerf_core::data::llff::read_poses_bounds(&scene.join("poses_bounds.npy")).unwrap();
+    let rows = mipnerf_data::llff::read_poses_bounds(&scene.join("poses_bounds.npy")).unwrap();
     assert_eq!(rows.len(), 37);
     assert_eq!([rows[0][4], rows[0][9], rows[0][14]], [325.0, 325.0, rows[0][14]]);
     assert!(!dir.path().join("scene").join(".mipnerf-partial-images_2").exists());
@@ -328,7 +328,7 @@ fn photos_named_by_exclude_are_left_out() {
     assert!(!fresh.exists());
     // Leaving out too many says so (not "take more photos"), and the photos' own folder is no
     // folder of masks.
-    let model = mipnerf_core::data::colmap::read_model(&ws.join("sparse/0")).unwrap();
+    let model = mipnerf_data::colmap::read_model(&ws.join("sparse/0")).unwrap();
     let many = model.images.iter().skip(3).map(|im| im.name.as_str()).collect::<Vec<_>>().join(",");
     let err = run_err(&["colmap", "--input", s(&ws), "--output", s(&fresh), "--exclude", &many]);
     assert!(err.contains("leaves") && err.contains("(--exclude)") && err.contains("leave out fewer photos"), "{err}");

@@ -64,8 +64,8 @@ fn pngs(dir: &Path) -> Vec<std::path::PathBuf> {
 /// and a half here).
 fn trained(dir: &Path) -> std::path::PathBuf {
     let data = dir.join("data");
-    let cfg = mipnerf_core::data::demo::DemoConfig { size: 128, train_views: 2, test_views: 6, supersample: 1 };
-    mipnerf_core::data::demo::write_demo_scene(&data, &cfg).unwrap();
+    let cfg = mipnerf_data::demo::DemoConfig { size: 128, train_views: 2, test_views: 6, supersample: 1 };
+    mipnerf_data::demo::write_demo_scene(&data, &cfg).unwrap();
     let run = dir.join("run");
     let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
     run_ok(&[

@@ -145,7 +145,7 @@ fn convert_refuses_a_users_files_and_never_mixes_its_images_into_theirs() {
     std::fs::write(fresh.join("images_2/stray.png"), "left by hand").unwrap();
     run_ok(&args);
     assert_eq!(names(&fresh.join("images_2")), first, "the folder is replaced whole, never mixed");
-    let rows = mipnerf_core::data::llff::read_poses_bounds(&fresh.join("poses_bounds.npy")).unwrap();
+    let rows = mipnerf_data::llff::read_poses_bounds(&fresh.join("poses_bounds.npy")).unwrap();
     assert_eq!(rows.len(), first.len());
 }
 

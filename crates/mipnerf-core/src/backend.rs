@@ -11,7 +11,7 @@ use crate::bf16::Precision;
 use crate::camera::{Camera, PixelCenters};
 use crate::checkpoint::Checkpoint;
 use crate::cone::Ray;
-use crate::data::{BatchDraw, Dataset, Ndc, RaySpec, push_camera_rays};
+use crate::dataset::{BatchDraw, Dataset, Ndc, RaySpec, push_camera_rays};
 use crate::model::{LevelOutput, Levels, Model};
 use crate::occupancy::OccupancyGrid;
 use crate::schedule::LrSchedule;

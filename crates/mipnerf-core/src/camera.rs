@@ -281,7 +281,8 @@ impl Camera {
 }
 
 /// The determinant of the 3x3 matrix whose entry in row `r`, column `c` is `m(r, c)`.
-pub(crate) fn det3(m: impl Fn(usize, usize) -> f64) -> f64 {
+#[must_use]
+pub fn det3(m: impl Fn(usize, usize) -> f64) -> f64 {
     m(0, 0) * (m(1, 1) * m(2, 2) - m(1, 2) * m(2, 1)) - m(0, 1) * (m(1, 0) * m(2, 2) - m(1, 2) * m(2, 0))
         + m(0, 2) * (m(1, 0) * m(2, 1) - m(1, 1) * m(2, 0))
 }

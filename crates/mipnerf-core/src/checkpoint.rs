@@ -208,7 +208,7 @@ pub struct RenderSettings {
     /// Rays through pixel centres or corners.
     pub centers: crate::camera::PixelCenters,
     /// The NDC mapping of forward-facing scenes.
-    pub ndc: Option<crate::data::Ndc>,
+    pub ndc: Option<crate::dataset::Ndc>,
 }
 
 /// The metadata key of [`RenderSettings`].

@@ -5,8 +5,8 @@
 //! ([`crate::stages::cast_and_encode`]).
 //!
 //! Where the rays come from: [`crate::camera::Camera::ray_at`] (pinhole cameras),
-//! [`crate::data::llff::ndc_ray`] (forward-facing scenes in NDC) and the sub-pixel cones of
-//! supersampling ([`crate::data`]); all of them take their radius from [`radius_from_spacing`].
+//! [`crate::dataset::ndc_ray`] (forward-facing scenes in NDC) and the sub-pixel cones of
+//! supersampling ([`crate::dataset`]); all of them take their radius from [`radius_from_spacing`].
 
 use glam::Vec3;
 

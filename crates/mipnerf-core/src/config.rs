@@ -188,6 +188,58 @@ impl Default for ModelConfig {
     }
 }
 
+/// What a dataset implies for the model where nobody chose otherwise: the one rule the CLI's
+/// settings and the library's `Nerf` both follow (`Dataset::model_fit` makes it from a loaded
+/// dataset; the CLI from the format and its flags before loading).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DataFit {
+    /// Forward-facing photos, trained in NDC space (LLFF's protocol).
+    pub forward_facing: bool,
+    /// Images composited on white (Blender's objects, masked photos) rather than alpha dropped.
+    pub white_bkgd: bool,
+    /// Photos with foreground masks: an object alone.
+    pub masked: bool,
+}
+
+impl DataFit {
+    /// Cylinders for NDC rays (the official LLFF setting), else cones.
+    #[must_use]
+    pub fn ray_shape(self) -> RayShape {
+        if self.forward_facing { RayShape::Cylinder } else { RayShape::Cone }
+    }
+
+    /// The official LLFF setting on forward-facing data (+0.30 dB at 3 minutes of the fast preset
+    /// on fern's held-out training photos, `docs/results/fern/tune`), else none.
+    #[must_use]
+    pub fn density_noise(self) -> f32 {
+        if self.forward_facing { 1.0 } else { 0.0 }
+    }
+
+    /// Masked photos train on random backgrounds, so that the model learns where the object ends
+    /// rather than a backdrop's colour (they are evaluated and rendered on white).
+    #[must_use]
+    pub fn random_bkgd(self) -> bool {
+        self.masked
+    }
+
+    /// `model` fitted to what the data is: composited as the data is, rays of the data's shape
+    /// (a trained model loaded for other data: its training settings stay its own).
+    pub fn apply_to_rays(self, model: &mut ModelConfig) {
+        model.white_bkgd = self.white_bkgd;
+        model.ray_shape = self.ray_shape();
+    }
+
+    /// `model` fitted to the data for training: [`apply_to_rays`](Self::apply_to_rays), and the
+    /// data's density noise and random backgrounds where `model` has the presets' (none).
+    pub fn apply(self, model: &mut ModelConfig) {
+        self.apply_to_rays(model);
+        if model.density_noise == 0.0 {
+            model.density_noise = self.density_noise();
+        }
+        model.random_bkgd |= self.random_bkgd();
+    }
+}
+
 /// Samples per level of [`Preset::Fast`]: 16 trained to a higher PSNR than 32 and 48 at a
 /// 2-minute budget (`experiments/fast-preset-sweep`): in occupied space, more steps beat more
 /// samples per ray.
@@ -436,4 +488,31 @@ pub enum Mode {
     },
     /// Deterministic sampling.
     Eval,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn data_fit_sets_what_the_data_is_and_keeps_chosen_training_settings() {
+        let llff = DataFit { forward_facing: true, white_bkgd: false, masked: false };
+        let mut m = ModelConfig::default();
+        llff.apply(&mut m);
+        assert_eq!(
+            (m.ray_shape, m.white_bkgd, m.density_noise, m.random_bkgd),
+            (RayShape::Cylinder, false, 1.0, false)
+        );
+        // A density noise chosen by the user stays; a loaded model's training settings stay too.
+        let mut chosen = ModelConfig { density_noise: 0.5, ..ModelConfig::default() };
+        llff.apply(&mut chosen);
+        assert_eq!(chosen.density_noise, 0.5);
+        let mut loaded = ModelConfig::default();
+        llff.apply_to_rays(&mut loaded);
+        assert_eq!((loaded.ray_shape, loaded.density_noise), (RayShape::Cylinder, 0.0));
+        let masked = DataFit { forward_facing: false, white_bkgd: true, masked: true };
+        let mut m = ModelConfig::default();
+        masked.apply(&mut m);
+        assert_eq!((m.ray_shape, m.white_bkgd, m.density_noise, m.random_bkgd), (RayShape::Cone, true, 0.0, true));
+    }
 }

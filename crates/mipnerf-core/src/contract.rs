@@ -6,7 +6,7 @@
 //!
 //! `contract(x) = x` for `|x| <= 1`, `(2 - 1/|x|) x/|x|` otherwise,
 //!
-//! so the unit ball (where the cameras are, once the scene is scaled, [`crate::data`]) keeps its
+//! so the unit ball (where the cameras are, once the scene is scaled, the `mipnerf-data` loaders) keeps its
 //! geometry and everything beyond it, out to infinity, fills the shell between radius 1 and 2,
 //! with distant space squeezed as disparity is. A conical frustum's Gaussian is carried through the
 //! contraction by its linearisation at the mean (the successor's Eq. 9, its `track_linearize`):

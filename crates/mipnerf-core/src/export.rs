@@ -346,7 +346,7 @@ pub fn ray_points(
 /// occupied cell. Elsewhere the density is whatever the network's initialisation left: a mesh
 /// of it would be floaters.
 pub fn sampled_space<'a>(
-    ds: &'a crate::data::Dataset,
+    ds: &'a crate::dataset::Dataset,
     grid: Option<&'a crate::occupancy::OccupancyGrid>,
 ) -> impl Fn(Vec3) -> bool + Sync + 'a {
     let views: Vec<_> = ds

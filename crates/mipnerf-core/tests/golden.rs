@@ -9,6 +9,7 @@ use mipnerf_core::mip::{self, FrustumMoments, Gaussian};
 use mipnerf_core::render::volumetric_rendering;
 use mipnerf_core::sampling::{self, PdfSamples, RESAMPLE_PADDING};
 use mipnerf_core::schedule::LrSchedule;
+use mipnerf_core::test_support::{Mismatches, TOL_ELEMENTWISE, f, flat, golden};
 use mipnerf_core::{Camera, PixelCenters};
 use mipnerf_core::{RayShape, cone};
 

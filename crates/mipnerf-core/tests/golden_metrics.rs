@@ -4,6 +4,7 @@
 mod common;
 use common::*;
 use mipnerf_core::metrics::{SsimConfig, mse_to_psnr, psnr_to_mse, ssim, ssim_map};
+use mipnerf_core::test_support::{Mismatches, TOL_ELEMENTWISE, f, flat, golden};
 
 /// SSIM is computed in f64 here and in f32 by XLA (its eager and jitted results differ by 2 ulp).
 const TOL_SSIM: Tol = Tol { rel: 1e-5, abs: 2e-6 };

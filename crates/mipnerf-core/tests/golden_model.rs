@@ -8,6 +8,7 @@ use common::*;
 use mipnerf_core::Ray;
 use mipnerf_core::model::{GradWith, TrainBatch};
 use mipnerf_core::model::{Mode, Model, ModelConfig};
+use mipnerf_core::test_support::{Mismatches, f, flat, golden};
 use serde_json::Value;
 
 /// Model outputs and losses: sums over samples and layers in a different order than XLA.

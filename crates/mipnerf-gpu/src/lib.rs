@@ -155,7 +155,8 @@ pub enum GpuError {
 pub mod test_support {
     use std::sync::Arc;
 
-    use mipnerf_core::data::{Dataset, demo};
+    use mipnerf_core::dataset::Dataset;
+    use mipnerf_core::demo;
 
     use crate::{AdapterChoice, GpuContext};
 

@@ -5,7 +5,7 @@
 use std::sync::Arc;
 
 use mipnerf_core::backend::{Backend, BackendError, CpuBackend, TrainState};
-use mipnerf_core::data::Dataset;
+use mipnerf_core::dataset::Dataset;
 use mipnerf_core::model::Model;
 use mipnerf_core::train::OptimConfig;
 

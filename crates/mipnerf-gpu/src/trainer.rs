@@ -24,7 +24,7 @@
 
 use mipnerf_core::backend::{Backend, BackendError, ImageSpec, RenderedImage, TrainState, WorkCounters};
 use mipnerf_core::checkpoint::Checkpoint;
-use mipnerf_core::data::Dataset;
+use mipnerf_core::dataset::Dataset;
 use mipnerf_core::model::{LevelOutput, Levels, Mode, Model};
 use mipnerf_core::occupancy::OccupancyGrid;
 use mipnerf_core::train::{AdamState, OptimConfig, StepReport};

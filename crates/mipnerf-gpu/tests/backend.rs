@@ -10,9 +10,11 @@ use std::sync::Arc;
 use mipnerf_core::backend::{Backend, CpuBackend, ImageSpec, TrainState};
 use mipnerf_core::camera::{Camera, PixelCenters};
 use mipnerf_core::compare::{Outputs, Tolerance, assert_none, check_kernel, mismatches};
-use mipnerf_core::data::{self, BatchDraw, Dataset, LoadOptions, Pixels, Split, View, demo};
+use mipnerf_core::dataset::{BatchDraw, Dataset, Pixels, Split, View};
+use mipnerf_core::demo;
 use mipnerf_core::model::{Field, LevelOutput, Levels, LossStats, Model, ModelConfig, Preset, TriMipRecipe};
 use mipnerf_core::train::OptimConfig;
+use mipnerf_data::LoadOptions;
 use mipnerf_gpu::GpuBackend;
 use mipnerf_gpu::kernels::batch::{BatchKernel, DeviceImages, Draw};
 use mipnerf_gpu::model::RayBatch;
@@ -171,7 +173,7 @@ fn ndc_dataset() -> Dataset {
         .collect();
     let mut ds = Dataset::new(&PathBuf::from("forward-facing"), Split::Train, views, false).unwrap();
     let focal = mipnerf_core::camera::focal_from_camera_angle_x(w, 1.1) as f32;
-    ds.ndc = Some(mipnerf_core::data::Ndc { focal, width: w as f32, height: h as f32 });
+    ds.ndc = Some(mipnerf_core::dataset::Ndc { focal, width: w as f32, height: h as f32 });
     ds
 }
 
@@ -239,7 +241,7 @@ fn images_too_large_for_the_device_are_a_clear_error() {
 
 fn lego_tiny() -> Dataset {
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/lego_tiny");
-    data::load(&dir, Split::Train, &LoadOptions::default()).unwrap()
+    mipnerf_data::load(&dir, Split::Train, &LoadOptions::default()).unwrap()
 }
 
 /// The per-step loss of the two backends. Both draw the same pixels and random numbers; what
@@ -591,7 +593,7 @@ fn the_real_lego_scene_trains_alike_on_both_backends() {
     }
     let Some(ctx) = context_or_skip("the_real_lego_scene_trains_alike_on_both_backends") else { return };
     // 87 views at 800x800: 212 MiB of pixels, more than one 128 MiB binding of lavapipe holds.
-    let ds = Arc::new(data::load(&dir, Split::Train, &LoadOptions::default()).unwrap());
+    let ds = Arc::new(mipnerf_data::load(&dir, Split::Train, &LoadOptions::default()).unwrap());
     let model = Model::new(ModelConfig { num_samples: 16, ..Preset::Tiny.config() }).unwrap();
     let (seed, batch) = (1u32, 32usize);
     let (mut cpu, gpu) = cpu_and_gpu(ctx, &ds, &model, seed, batch);
@@ -649,8 +651,9 @@ fn a_single_level_trains_in_ndc_as_the_cpu() {
 fn ndc_guided_runs_agree(ctx: mipnerf_gpu::GpuContext, num_levels: usize, what: &str) {
     use mipnerf_core::occupancy::{OccupancyConfig, OccupancyGrid, auto_bound};
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/llff_fern_tiny");
-    let ds =
-        Arc::new(data::load(&dir, Split::Train, &LoadOptions { llff_factor: 64, ..LoadOptions::default() }).unwrap());
+    let ds = Arc::new(
+        mipnerf_data::load(&dir, Split::Train, &LoadOptions { llff_factor: 64, ..LoadOptions::default() }).unwrap(),
+    );
     assert!(ds.ndc.is_some());
     let model = Model::new(ModelConfig {
         num_samples: 16,

@@ -10,10 +10,12 @@ use mipnerf_core::Camera;
 use mipnerf_core::backend::{Backend, ImageSpec, RenderedImage, TrainState};
 use mipnerf_core::camera::PixelCenters;
 use mipnerf_core::compare::{Tolerance, assert_close, assert_none, mismatches};
-use mipnerf_core::data::{self, Dataset, LoadOptions, Split, demo};
+use mipnerf_core::dataset::{Dataset, Split};
+use mipnerf_core::demo;
 use mipnerf_core::model::{LevelOutput, Levels, Model, ModelConfig, Preset};
 use mipnerf_core::schedule::LrSchedule;
 use mipnerf_core::train::OptimConfig;
+use mipnerf_data::LoadOptions;
 use mipnerf_gpu::{BackendChoice, BackendSetup, open_backend};
 
 /// Which backend a test body runs on.
@@ -73,7 +75,7 @@ on_every_backend!(
 /// Views of different sizes, poses, bounds and lossmults (a multiscale-like split of lego).
 fn lego_tiny() -> Arc<Dataset> {
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/lego_tiny");
-    Arc::new(data::load(&dir, Split::Train, &LoadOptions::default()).unwrap())
+    Arc::new(mipnerf_data::load(&dir, Split::Train, &LoadOptions::default()).unwrap())
 }
 
 fn setup(model: &Model, state: TrainState, data: Option<(Arc<Dataset>, usize)>) -> BackendSetup {

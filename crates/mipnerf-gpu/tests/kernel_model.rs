@@ -67,13 +67,13 @@ fn whole_model_loss_and_gradients_match_cpu_reference() {
                 let mut out = Vec::new();
                 for p in 0..64u32 {
                     let (x, y) = (p % 8, p / 8);
-                    let spec = mipnerf_core::data::RaySpec {
+                    let spec = mipnerf_core::dataset::RaySpec {
                         centers: PixelCenters::Centered,
                         bounds: (2.0, 6.0),
                         lossmult: 1.0,
                         ndc: None,
                     };
-                    mipnerf_core::data::push_camera_rays(&cam, x, y, spec, k, &mut out);
+                    mipnerf_core::dataset::push_camera_rays(&cam, x, y, spec, k, &mut out);
                 }
                 out
             } else {

@@ -89,13 +89,15 @@ fn occupancy_guided_edges_match_cpu_reference_in_contracted_space() {
 
 #[test]
 fn occupancy_guided_edges_match_cpu_reference_in_ndc() {
-    use mipnerf_core::data::{self, LoadOptions, Split};
+    use mipnerf_core::dataset::Split;
     use mipnerf_core::occupancy::{OccupancyConfig, OccupancyGrid, ndc_bound};
+    use mipnerf_data::LoadOptions;
     let Some(ctx) = context_or_skip("occupancy_guided_edges_match_cpu_reference_in_ndc") else { return };
     // The forward-facing fixture's rays in NDC space, under a grid over the NDC cube with the
     // near leaves (a slab in depth with holes) and part of the far wall occupied.
     let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/llff_fern_tiny");
-    let ds = data::load(&dir, Split::Train, &LoadOptions { llff_factor: 64, ..LoadOptions::default() }).unwrap();
+    let ds =
+        mipnerf_data::load(&dir, Split::Train, &LoadOptions { llff_factor: 64, ..LoadOptions::default() }).unwrap();
     assert!(ds.ndc.is_some());
     let bound = ndc_bound(&ds).unwrap();
     let config = OccupancyConfig { resolution: 32, bound, ..OccupancyConfig::default() };

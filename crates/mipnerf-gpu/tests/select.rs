@@ -5,7 +5,7 @@
 use std::sync::Arc;
 
 use mipnerf_core::backend::{ImageSpec, TrainState};
-use mipnerf_core::data::Dataset;
+use mipnerf_core::dataset::Dataset;
 use mipnerf_core::model::{Levels, Model, Preset};
 use mipnerf_core::train::OptimConfig;
 use mipnerf_gpu::{BackendChoice, BackendSetup, GpuBackend, GpuContext, open_backend};

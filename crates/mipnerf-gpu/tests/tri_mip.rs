@@ -8,7 +8,7 @@
 
 use mipnerf_core::compare::{Tolerance, assert_none, mismatches};
 use mipnerf_core::contract::UNBOUNDED_FAR;
-use mipnerf_core::data::demo;
+use mipnerf_core::demo;
 use mipnerf_core::model::{Field, Mode, Model, ModelConfig, Preset};
 use mipnerf_core::model::{GradWith, TrainBatch};
 use mipnerf_core::sampling::Spacing;

@@ -5,7 +5,6 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Result, bail};
-use mipnerf_core::data;
 
 /// The flags of `mipnerf colmap`.
 #[derive(clap::Args, Debug)]
@@ -20,10 +19,10 @@ pub struct Args {
     pub output: PathBuf,
     /// Downscale by the smallest whole factor that brings the longer side to at most this
     /// many pixels (0: full size).
-    #[arg(long, value_name = "PX", default_value_t = data::process::DEFAULT_MAX_SIZE)]
+    #[arg(long, value_name = "PX", default_value_t = mipnerf_data::process::DEFAULT_MAX_SIZE)]
     pub max_size: u32,
     /// Refuse when the largest model registers fewer photos than this.
-    #[arg(long, value_name = "N", default_value_t = data::process::MIN_REGISTERED_VIEWS)]
+    #[arg(long, value_name = "N", default_value_t = mipnerf_data::process::MIN_REGISTERED_VIEWS)]
     pub min_views: usize,
     /// Replace the dataset in a non-empty --output.
     #[arg(long)]
@@ -70,16 +69,18 @@ fn colmap(
         );
     }
     crate::outputs::check_folder_path(output, "--output")?;
-    let opts = data::process::ProcessOptions {
+    let opts = mipnerf_data::process::ProcessOptions {
         max_size,
         min_views,
-        recommended_views: data::process::RECOMMENDED_VIEWS.max(min_views),
+        recommended_views: mipnerf_data::process::RECOMMENDED_VIEWS.max(min_views),
         overwrite,
         exclude,
         masks,
     };
     let t = std::time::Instant::now();
-    let r = crate::outputs::locked(output, "colmap", "--output", || Ok(data::process::process(input, output, &opts)?))?;
+    let r = crate::outputs::locked(output, "colmap", "--output", || {
+        Ok(mipnerf_data::process::process(input, output, &opts)?)
+    })?;
     print_registration(&r, input);
     print_camera(&r, t);
     print_train_command(&r, output);
@@ -88,9 +89,9 @@ fn colmap(
 
 /// What `colmap` says of the photos: the model taken, the photos registered, left out and
 /// suspect, and the warnings.
-fn print_registration(r: &data::process::ProcessReport, input: &Path) {
+fn print_registration(r: &mipnerf_data::process::ProcessReport, input: &Path) {
     let taken = r.model_dir.strip_prefix(input).unwrap_or(&r.model_dir).display().to_string();
-    let capture = r.source == data::process::SourceKind::Transforms;
+    let capture = r.source == mipnerf_data::process::SourceKind::Transforms;
     if capture {
         println!("{taken}: a capture in nerfstudio's or Instant-NGP's form (its poses, lens and point cloud)");
     }
@@ -128,8 +129,8 @@ fn print_registration(r: &data::process::ProcessReport, input: &Path) {
 
 /// What `colmap` says of the camera: the lens and its undistortion, the focal check, the scene's
 /// bounds, the photos held out and how the cameras face.
-fn print_camera(r: &data::process::ProcessReport, t: std::time::Instant) {
-    let capture = r.source == data::process::SourceKind::Transforms;
+fn print_camera(r: &mipnerf_data::process::ProcessReport, t: std::time::Instant) {
+    let capture = r.source == mipnerf_data::process::SourceKind::Transforms;
     // A capture's poses are COLMAP's too (or another tool's): what the step says of them.
     let who = if capture { "the capture's" } else { "COLMAP's" };
     let l = &r.lens;
@@ -175,13 +176,13 @@ fn print_camera(r: &data::process::ProcessReport, t: std::time::Instant) {
 }
 
 /// What `colmap` says of the backdrop and the masks, and the command that trains the scene.
-fn print_train_command(r: &data::process::ProcessReport, output: &Path) {
+fn print_train_command(r: &mipnerf_data::process::ProcessReport, output: &Path) {
     let (white, black) = r.border_shares;
     let (background, backdrop) = match r.backdrop {
-        Some(data::process::Backdrop::White) => {
+        Some(mipnerf_data::process::Backdrop::White) => {
             (" --background white", "a white backdrop, composited on white (--background white)")
         }
-        Some(data::process::Backdrop::Black) => {
+        Some(mipnerf_data::process::Backdrop::Black) => {
             (" --background black", "a black backdrop, composited on black (--background black)")
         }
         None => ("", "no plain backdrop (the surroundings are learnt)"),
@@ -225,7 +226,7 @@ fn print_train_command(r: &data::process::ProcessReport, output: &Path) {
 
 /// Prints the reconstruction's focal length (`who`'s: COLMAP's, or the capture's) against the
 /// photos' EXIF, and what to do when they disagree.
-fn print_focal_check(r: &data::process::ProcessReport, who: &str) {
+fn print_focal_check(r: &mipnerf_data::process::ProcessReport, who: &str) {
     let Some(c) = &r.focal else {
         println!("focal length: no photo has an EXIF focal length, so {who} {:.0} px is not checked", r.lens.fx);
         return;
@@ -236,7 +237,7 @@ fn print_focal_check(r: &data::process::ProcessReport, who: &str) {
             "focal length: {who} {:.0} px agrees with the photos' EXIF, {} ({from}), within {:.0}%",
             c.colmap_px,
             c.exif,
-            100.0 * (data::focal::FOCAL_MISMATCH_FACTOR - 1.0)
+            100.0 * (mipnerf_data::focal::FOCAL_MISMATCH_FACTOR - 1.0)
         );
         return;
     }

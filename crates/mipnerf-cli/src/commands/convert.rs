@@ -4,7 +4,6 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
-use mipnerf_core::data;
 
 use crate::outputs;
 
@@ -61,7 +60,7 @@ pub fn run(a: Args) -> Result<()> {
             }
             let names = ["metadata.json", "images_train", "images_val", "images_test"];
             into_output_folder(&output, &names, overwrite, || {
-                let done = data::multiscale::convert_resized(&input, &output, size)
+                let done = mipnerf_data::multiscale::convert_resized(&input, &output, size)
                     .map(|splits| println!("converted {splits:?} into {}", output.display()));
                 match size {
                     Some(n) => done.map_err(anyhow::Error::from).with_context(|| format!("--size {n}")),
@@ -115,7 +114,7 @@ fn convert_llff(input: &Path, output: &Path, size: Option<u32>, factor: u32) -> 
     if factor > 64 {
         bail!("--factor must be between 0 and 64, got {factor}");
     }
-    let names = data::colmap::convert_to_llff(input, output, factor)?;
+    let names = mipnerf_data::colmap::convert_to_llff(input, output, factor)?;
     let folder = if factor > 1 { format!("images_{factor}") } else { "images".to_string() };
     println!(
         "wrote {} and {} images to {}/{folder}; train with --data {} --llff-factor {} (add --spherify for a \

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use mipnerf_core::data::{Split, demo};
+use mipnerf_core::dataset::Split;
 
 use super::train::TrainFlags;
 use crate::backend::DeviceArgs;
@@ -59,10 +59,14 @@ fn demo(d: &Args, device: &mipnerf_gpu::DeviceOptions, session: &Session) -> Res
     let out = d.out.as_path();
     let data_dir = out.join("data");
     if !data_dir.join("metadata.json").is_file() {
-        let cfg =
-            demo::DemoConfig { size: d.size, train_views: d.views, test_views: (d.views / 5).max(2), supersample: 4 };
+        let cfg = mipnerf_data::demo::DemoConfig {
+            size: d.size,
+            train_views: d.views,
+            test_views: (d.views / 5).max(2),
+            supersample: 4,
+        };
         let t = std::time::Instant::now();
-        demo::write_demo_scene(&data_dir, &cfg)?;
+        mipnerf_data::demo::write_demo_scene(&data_dir, &cfg)?;
         println!("generated the demo scene in {} ({:.1}s)", data_dir.display(), t.elapsed().as_secs_f64());
     }
     // Mip-NeRF in RUN_DIR, the NeRF baseline in RUN_DIR/nerf: the same data, sampler, budget,

@@ -4,7 +4,7 @@
 //! only dispatches.
 
 use clap::ValueEnum;
-use mipnerf_core::data::Split;
+use mipnerf_core::dataset::Split;
 
 pub mod bench;
 pub mod check;

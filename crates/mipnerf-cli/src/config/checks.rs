@@ -2,7 +2,7 @@
 //! a run would ignore (for its data's format, or without the occupancy grid).
 
 use anyhow::{Result, bail};
-use mipnerf_core::data::Format;
+use mipnerf_data::Format;
 
 use super::{Backend, MAX_BATCH_RAYS, MAX_STEPS, RayShape, TrainSettings};
 

@@ -8,6 +8,7 @@ use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
 use mipnerf_core::PixelCenters;
 use mipnerf_core::RayShape;
+use mipnerf_core::config::DataFit;
 use mipnerf_core::model::{FastRecipe, Field, ModelConfig, PointEncoding, Preset, TriMipRecipe};
 use mipnerf_core::schedule::LrSchedule;
 use mipnerf_core::train::{FieldAdam, OptimConfig};
@@ -447,6 +448,10 @@ impl TrainSettings {
         let unbounded = self.unbounded.unwrap_or(false);
         let spherify = self.spherify.unwrap_or(unbounded);
         let forward_facing = llff && !spherify;
+        // What the data implies where no flag says otherwise, as the library fits it: masked
+        // photos are an object alone, composited as Blender's objects are.
+        let masked = self.masks.is_some();
+        let fit = DataFit { forward_facing, white_bkgd: !llff || masked, masked };
         let preset = self.preset.unwrap_or(PresetArg::Tiny);
         let fast = preset == PresetArg::Fast;
         let tri_mip = self.uses_tri_mip();
@@ -485,17 +490,12 @@ impl TrainSettings {
             misc: Some(self.misc.unwrap_or(mip)),
             centered_pixels: Some(self.centered_pixels.unwrap_or(mip)),
             supersample: Some(self.supersample.unwrap_or(1)),
-            ray_shape: Some(self.ray_shape.unwrap_or(if forward_facing { RayShape::Cylinder } else { RayShape::Cone })),
-            // The official LLFF setting on forward-facing data (+0.30 dB at 3 minutes of the fast
-            // preset on fern's held-out training photos, docs/results/fern/tune); recorded only
-            // when it is not 0, so that the configurations of other runs read as they always did.
-            density_noise: Some(self.density_noise.unwrap_or(if forward_facing { 1.0 } else { 0.0 }))
-                .filter(|&d| d != 0.0),
-            // Masked photos are an object alone: composited as Blender's objects are, trained on
-            // random backgrounds (so that the model learns where the object ends rather than a
-            // backdrop's colour), evaluated and rendered on white.
-            white_bkgd: Some(self.white_bkgd.unwrap_or(!llff || self.masks.is_some())),
-            random_bkgd: Some(self.random_bkgd.unwrap_or(self.masks.is_some())),
+            ray_shape: Some(self.ray_shape.unwrap_or(fit.ray_shape())),
+            // Recorded only when it is not 0, so that the configurations of other runs read as
+            // they always did.
+            density_noise: Some(self.density_noise.unwrap_or(fit.density_noise())).filter(|&d| d != 0.0),
+            white_bkgd: Some(self.white_bkgd.unwrap_or(fit.white_bkgd)),
+            random_bkgd: Some(self.random_bkgd.unwrap_or(fit.random_bkgd())),
             masks: self.masks.clone(),
             half_res: Some(self.half_res.unwrap_or(false)),
             llff_factor: Some(self.llff_factor.unwrap_or(4)),
@@ -505,7 +505,7 @@ impl TrainSettings {
             spherify_radius: if unbounded {
                 self.spherify_radius
             } else {
-                spherify.then(|| self.spherify_radius.unwrap_or(mipnerf_core::data::llff::SPHERIFY_RADIUS as f32))
+                spherify.then(|| self.spherify_radius.unwrap_or(mipnerf_data::llff::SPHERIFY_RADIUS as f32))
             },
             unbounded: self.unbounded.filter(|&u| u),
             distortion_loss: self.distortion_loss.filter(|&d| d != 0.0),

@@ -25,8 +25,8 @@ pub fn small_demo_scene(dir: &std::path::Path, train_views: usize) -> std::path:
 /// A `size`-pixel demo scene of `train_views` training views and one test view in `dir/data`.
 pub fn demo_scene(dir: &std::path::Path, size: u32, train_views: usize) -> std::path::PathBuf {
     let data = dir.join("data");
-    let cfg = mipnerf_core::data::demo::DemoConfig { size, train_views, test_views: 1, supersample: 1 };
-    mipnerf_core::data::demo::write_demo_scene(&data, &cfg).unwrap();
+    let cfg = mipnerf_data::demo::DemoConfig { size, train_views, test_views: 1, supersample: 1 };
+    mipnerf_data::demo::write_demo_scene(&data, &cfg).unwrap();
     data
 }
 

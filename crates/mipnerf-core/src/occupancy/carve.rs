@@ -7,7 +7,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use super::{CARVED, CONTRACTED_BOUND, OccupancyConfig, OccupancyError, OccupancyGrid, UNREACHED_STRIDE, dilate, sign};
-use crate::data::Dataset;
+use crate::dataset::Dataset;
 
 /// How a run lays its grid over its data ([`OccupancyGrid::for_data`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -176,7 +176,7 @@ struct Mask {
 }
 
 impl Mask {
-    fn of_view(v: &crate::data::View) -> Option<Self> {
+    fn of_view(v: &crate::dataset::View) -> Option<Self> {
         let (w, h) = (v.camera.width as usize, v.camera.height as usize);
         let mut sat = vec![0u32; (w + 1) * (h + 1)];
         let mut any_transparent = false;

@@ -1,12 +1,12 @@
 //! `shaders/batch.wgsl`: ray batches made on the device from images and cameras that live there,
 //! and [`RayBatch`], the batch's buffers that every kernel of the model reads.
 //!
-//! CPU reference: [`mipnerf_core::data::push_camera_rays`] (rays) and the CPU backend's batch draw.
+//! CPU reference: [`mipnerf_core::dataset::push_camera_rays`] (rays) and the CPU backend's batch draw.
 
 use mipnerf_core::Ray;
 use mipnerf_core::backend::ImageSpec;
 use mipnerf_core::camera::{Camera, PixelCenters};
-use mipnerf_core::data::{Dataset, Ndc, Pixels};
+use mipnerf_core::dataset::{Dataset, Ndc, Pixels};
 use mipnerf_core::rng::{RayRng, Stream};
 
 use crate::kernels::Recorder;

@@ -6,7 +6,7 @@ pub use glam::Vec3;
 pub use mipnerf_core::bf16::Precision;
 pub use mipnerf_core::compare::{Outputs, Tolerance, assert_none, check_kernel, check_kernel_conditioned, mismatches};
 pub use mipnerf_core::contract::UNBOUNDED_FAR;
-pub use mipnerf_core::data::demo;
+pub use mipnerf_core::demo;
 pub use mipnerf_core::mip::{self, ipe_len};
 pub use mipnerf_core::model::{GradWith, TrainBatch};
 pub use mipnerf_core::model::{Mode, PointEncoding};

@@ -9,11 +9,13 @@ use std::path::Path;
 
 use serde_json::{Value, json};
 
-use super::{
+use crate::{
     DataError, Dataset, Pixels, Split, View, blender, check_pixel_memory, down2, pose_from_json, read_json,
     read_png_rgba, show, write_png_rgba,
 };
-use crate::camera::{Camera, MAX_FIELD_OF_VIEW_DEG, MAX_SCENE_COORDINATE, MIN_FIELD_OF_VIEW_DEG, pinhole_pix2cam};
+use mipnerf_core::camera::{
+    Camera, MAX_FIELD_OF_VIEW_DEG, MAX_SCENE_COORDINATE, MIN_FIELD_OF_VIEW_DEG, pinhole_pix2cam,
+};
 
 /// Scales the official converter writes.
 pub const NUM_SCALES: u32 = 4;
@@ -40,7 +42,7 @@ pub fn quantise(rgba: &[f32]) -> Vec<u8> {
 /// Writes one split's images at `n_scales` scales into `out/images_{split}/` and returns its
 /// `metadata.json` entry. `focal` is the full-resolution focal length in pixels. The folder is
 /// filled under a temporary name and replaces `out/images_{split}/` only when whole
-/// ([`crate::io::swap_in_dir`]).
+/// ([`mipnerf_core::io::swap_in_dir`]).
 ///
 /// # Errors
 /// [`DataError`] for sizes not divisible by `2^n_scales` (the official converter's requirement)
@@ -55,12 +57,12 @@ pub fn write_split(
     far: f64,
 ) -> Result<Value, DataError> {
     let meta = fill_split(out, split, images, focal, n_scales, near, far)?;
-    crate::io::swap_in_dir(&out.join(format!("images_{split}")))?;
+    mipnerf_core::io::swap_in_dir(&out.join(format!("images_{split}")))?;
     Ok(meta)
 }
 
 /// [`write_split`] up to the swap: the images are left in the temporary folder
-/// ([`crate::io::partial_dir`] of `out/images_{split}`).
+/// ([`mipnerf_core::io::partial_dir`] of `out/images_{split}`).
 fn fill_split(
     out: &Path,
     split: Split,
@@ -71,7 +73,7 @@ fn fill_split(
     far: f64,
 ) -> Result<Value, DataError> {
     let imgdir = format!("images_{split}");
-    let partial = crate::io::start_partial_dir(&out.join(&imgdir))?;
+    let partial = mipnerf_core::io::start_partial_dir(&out.join(&imgdir))?;
     let mut meta: Vec<(&str, Vec<Value>)> =
         ["file_path", "cam2world", "width", "height", "focal", "label", "near", "far", "lossmult", "pix2cam"]
             .into_iter()
@@ -129,7 +131,7 @@ pub fn convert(input: &Path, output: &Path) -> Result<Vec<Split>, DataError> {
 }
 
 /// [`convert`], after first box-filtering every Blender image to `width` pixels wide (the height
-/// in proportion): straight RGBA, area average, any ratio ([`super::box_resize`]); the focal
+/// in proportion): straight RGBA, area average, any ratio ([`crate::box_resize`]); the focal
 /// length scales alike. `None` is [`convert`] itself, byte for byte the official converter's.
 ///
 /// # Errors
@@ -177,12 +179,12 @@ pub fn convert_resized(input: &Path, output: &Path, width: Option<u32>) -> Resul
             let (mut w2, mut h2) = (w, h);
             if let Some(n) = width {
                 (w2, h2) = resized_shape(&fr.file, w, h, n)?;
-                rgba = super::box_resize(&rgba, w as usize, h as usize, w2 as usize, h2 as usize);
+                rgba = crate::box_resize(&rgba, w as usize, h as usize, w2 as usize, h2 as usize);
             }
             images.push(SourceImage { width: w2, height: h2, rgba, cam2world: fr.cam2world });
         }
         // The focal length follows the width: the field of view is unchanged.
-        let focal = crate::camera::focal_from_camera_angle_x(images[0].width, angle);
+        let focal = mipnerf_core::camera::focal_from_camera_angle_x(images[0].width, angle);
         let meta =
             fill_split(output, split, &images, focal, NUM_SCALES, f64::from(blender::NEAR), f64::from(blender::FAR))?;
         all.insert(split.name().to_string(), meta);
@@ -193,7 +195,7 @@ pub fn convert_resized(input: &Path, output: &Path, width: Option<u32>) -> Resul
         std::fs::remove_file(&meta_path).map_err(|e| DataError::io(&meta_path, e))?;
     }
     for split in &done {
-        crate::io::swap_in_dir(&output.join(format!("images_{split}")))?;
+        mipnerf_core::io::swap_in_dir(&output.join(format!("images_{split}")))?;
     }
     write_metadata(output, &Value::Object(all))?;
     Ok(done)
@@ -217,11 +219,11 @@ fn resized_shape(file: &Path, w: u32, h: u32, width: u32) -> Result<(u32, u32), 
     Ok((width, (hh / u64::from(w)) as u32))
 }
 
-/// Writes `metadata.json` atomically ([`crate::io::write_atomic`]).
+/// Writes `metadata.json` atomically ([`mipnerf_core::io::write_atomic`]).
 pub(crate) fn write_metadata(dir: &Path, meta: &Value) -> Result<(), DataError> {
     let path = dir.join("metadata.json");
     let text = serde_json::to_string_pretty(meta).map_err(|e| DataError::invalid(&path, e.to_string()))?;
-    crate::io::write_atomic(&path, text.as_bytes()).map_err(|e| DataError::io(&e.path, e.error))
+    mipnerf_core::io::write_atomic(&path, text.as_bytes()).map_err(|e| DataError::io(&e.path, e.error))
 }
 
 fn list<'a>(

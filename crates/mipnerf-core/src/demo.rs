@@ -1,6 +1,7 @@
 //! The built-in demo scene: a procedural scene with fine, high-frequency detail that aliases when
-//! undersampled, rendered by an analytic ray tracer with supersampled ground truth, written in the
-//! multiscale Blender format. It needs no files and generates in well under a second.
+//! undersampled, rendered by an analytic ray tracer with supersampled ground truth. It needs no files and
+//! generates in well under a second: in memory here ([`dataset`]), in the multiscale Blender format
+//! on disk by `mipnerf_data::demo::write_demo_scene`.
 //!
 //! The scene (world units, `z` up, inside the radius-1.3 ball that the Blender scenes use): a
 //! sphere with fine horizontal bands, a disc floor with a fine plaid, and a box with fine stripes.
@@ -15,31 +16,11 @@ use std::path::Path;
 use glam::DVec3;
 use rayon::prelude::*;
 
-use super::{DataError, Split, multiscale};
-use crate::camera::{Camera, focal_from_camera_angle_x};
+use crate::camera::Camera;
+use crate::dataset::{DataError, Dataset, Pixels, Split, View};
 
 /// Horizontal field of view of the demo cameras (the lego scene's).
 pub const CAMERA_ANGLE_X: f64 = 0.691_111_207;
-
-/// Settings of the demo scene.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct DemoConfig {
-    /// Full-resolution image size (square; divisible by 16).
-    pub size: u32,
-    /// Training views.
-    pub train_views: usize,
-    /// Test views.
-    pub test_views: usize,
-    /// Rays per pixel along each axis for the ground truth at full resolution (coarser scales are
-    /// box filtered from it, so they are supersampled `2^j` times more).
-    pub supersample: u32,
-}
-
-impl Default for DemoConfig {
-    fn default() -> Self {
-        Self { size: 64, train_views: 40, test_views: 8, supersample: 4 }
-    }
-}
 
 /// The camera-to-world pose of a demo camera at azimuth `az` and elevation `el` (radians),
 /// distance 4 from the origin, looking at it, `z` up (OpenGL axes: the camera looks down its -z).
@@ -72,18 +53,18 @@ pub fn view_poses(n: usize, offset: f64) -> Vec<[[f64; 4]; 3]> {
 ///
 /// # Errors
 /// [`DataError::Invalid`] when `n` or `side` is 0.
-pub fn dataset(n: usize, side: u32) -> Result<super::Dataset, DataError> {
+pub fn dataset(n: usize, side: u32) -> Result<Dataset, DataError> {
     let views = view_poses(n, 0.0)
         .into_iter()
         .enumerate()
         .map(|(i, pose)| {
             let camera = Camera::from_camera_angle_x(side, side, 0.69, pose)
                 .map_err(|e| DataError::invalid(Path::new("<demo scene>"), e.to_string()))?;
-            let pixels = super::Pixels::RgbaF32(render_view(&camera, 1));
-            Ok(super::View::in_memory(&format!("demo view {i}"), camera, pixels, 2.0, 6.0))
+            let pixels = Pixels::RgbaF32(render_view(&camera, 1));
+            Ok(View::in_memory(&format!("demo view {i}"), camera, pixels, 2.0, 6.0))
         })
         .collect::<Result<Vec<_>, DataError>>()?;
-    super::Dataset::from_views(Split::Train, views, true)
+    Dataset::from_views(Split::Train, views, true)
 }
 
 /// A `side x side` camera at a fixed oblique pose, 4 units from the scene's centre and looking
@@ -204,53 +185,4 @@ pub fn render_view(camera: &Camera, ss: u32) -> Vec<f32> {
         }
     });
     out
-}
-
-/// Generates the demo scene into `dir` in the multiscale Blender format (train and test splits,
-/// 4 scales each, `metadata.json`).
-///
-/// # Errors
-/// [`DataError`] for an invalid size or unwritable files.
-pub fn write_demo_scene(dir: &Path, cfg: &DemoConfig) -> Result<(), DataError> {
-    if cfg.size == 0 || !cfg.size.is_multiple_of(16) {
-        return Err(DataError::invalid(
-            dir,
-            format!("demo scene: the image size must be a positive multiple of 16, got {}", cfg.size),
-        ));
-    }
-    if cfg.train_views == 0 || cfg.test_views == 0 {
-        return Err(DataError::invalid(
-            dir,
-            format!(
-                "demo scene: both splits need views, got {} training and {} test views",
-                cfg.train_views, cfg.test_views
-            ),
-        ));
-    }
-    // One split's images are held at once, in f32 RGBA, before they are written.
-    let views = cfg.train_views.max(cfg.test_views) as u64;
-    let need = views.saturating_mul(u64::from(cfg.size).pow(2)).saturating_mul(16);
-    crate::memory::check(need, &format!("rendering {views} demo views of {0}x{0} pixels", cfg.size))
-        .map_err(|e| DataError::invalid(dir, format!("demo scene: {e}; choose a smaller size or fewer views")))?;
-    std::fs::create_dir_all(dir).map_err(|e| DataError::io(dir, e))?;
-    let focal = focal_from_camera_angle_x(cfg.size, CAMERA_ANGLE_X);
-    let mut all = serde_json::Map::new();
-    for (split, n, offset) in [(Split::Train, cfg.train_views, 0.0), (Split::Test, cfg.test_views, 0.37)] {
-        let images: Vec<multiscale::SourceImage> = view_poses(n, offset)
-            .into_iter()
-            .map(|pose| {
-                let cam = Camera::from_camera_angle_x(cfg.size, cfg.size, CAMERA_ANGLE_X, pose)
-                    .unwrap_or_else(|e| unreachable!("demo camera: {e}"));
-                multiscale::SourceImage {
-                    width: cfg.size,
-                    height: cfg.size,
-                    rgba: render_view(&cam, cfg.supersample),
-                    cam2world: pose,
-                }
-            })
-            .collect();
-        let meta = multiscale::write_split(dir, split, &images, focal, multiscale::NUM_SCALES, 2.0, 6.0)?;
-        all.insert(split.name().to_string(), meta);
-    }
-    multiscale::write_metadata(dir, &serde_json::Value::Object(all))
 }

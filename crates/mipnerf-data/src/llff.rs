@@ -13,9 +13,8 @@ use std::path::Path;
 
 use glam::{DMat3, DVec3};
 
-use super::{DataError, Dataset, Ndc, Pixels, Split, View, check_pixel_memory, image_pixels, read_png_rgba};
-use crate::camera::{Camera, PixelCenters, Similarity, pinhole_pix2cam};
-use crate::cone::{Ray, radius_from_spacing};
+use crate::{DataError, Dataset, Ndc, Pixels, Split, View, check_pixel_memory, image_pixels, read_png_rgba};
+use mipnerf_core::camera::{Camera, Similarity, pinhole_pix2cam};
 
 /// Every `LLFF_HOLD`-th image is a test image.
 pub const LLFF_HOLD: usize = 8;
@@ -119,7 +118,7 @@ pub enum Spherify {
         radius: f64,
     },
     /// As [`Ring`](Self::Ring), scaled so that the farthest camera lies on the unit sphere: an
-    /// unbounded scene's poses (mip-NeRF 360's normalisation, [`crate::contract`]), the same for
+    /// unbounded scene's poses (mip-NeRF 360's normalisation, [`mipnerf_core::contract`]), the same for
     /// every split, as it is taken over every photo.
     UnitBall,
 }
@@ -311,7 +310,8 @@ fn fit_circle(points: &[(f64, f64)]) -> ((f64, f64), f64) {
 /// [`DataError`] naming the file for an unreadable file, another dtype or shape, or non-finite
 /// values.
 pub fn read_poses_bounds(path: &Path) -> Result<Vec<[f64; 17]>, DataError> {
-    let bytes = crate::io::read_regular(path, crate::io::cap::POSES).map_err(|e| DataError::io(path, e))?;
+    let bytes =
+        mipnerf_core::io::read_regular(path, mipnerf_core::io::cap::POSES).map_err(|e| DataError::io(path, e))?;
     let npy = npyz::NpyFile::new(&bytes[..]).map_err(|e| DataError::invalid(path, format!("not a .npy file: {e}")))?;
     let shape = npy.shape().to_vec();
     if shape.len() != 2 || shape[1] != 17 || shape[0] == 0 {
@@ -336,7 +336,7 @@ pub fn read_poses_bounds(path: &Path) -> Result<Vec<[f64; 17]>, DataError> {
     Ok(values.chunks_exact(17).map(|c| std::array::from_fn(|i| c[i])).collect())
 }
 
-/// Writes `poses_bounds.npy` (float64, `N x 17`) atomically ([`crate::io::write_atomic`]).
+/// Writes `poses_bounds.npy` (float64, `N x 17`) atomically ([`mipnerf_core::io::write_atomic`]).
 ///
 /// # Errors
 /// [`DataError`] for an unwritable file.
@@ -353,7 +353,7 @@ pub fn write_poses_bounds(path: &Path, rows: &[[f64; 17]]) -> Result<(), DataErr
         w.extend(rows.iter().flatten().copied()).map_err(|e| DataError::io(path, e))?;
         w.finish().map_err(|e| DataError::io(path, e))?;
     }
-    Ok(crate::io::write_atomic(path, &bytes)?)
+    Ok(mipnerf_core::io::write_atomic(path, &bytes)?)
 }
 
 /// The error for a scene without the image folder `factor` picks: names the folders it has and
@@ -550,7 +550,7 @@ struct ScaledPoses {
 ///
 /// # Errors
 /// Bounds that are not positive with far > near; a camera farther from the others than
-/// [`crate::camera::MAX_SCENE_COORDINATE`] in units of the nearest bound.
+/// [`mipnerf_core::camera::MAX_SCENE_COORDINATE`] in units of the nearest bound.
 fn scaled_poses(npy: &Path, rows: &[[f64; 17]]) -> Result<ScaledPoses, DataError> {
     // Rotation columns [down, right, back] -> [right, up, back]: [y, -x, z] of the stored columns.
     let mut poses: Vec<Pose> = rows
@@ -578,61 +578,17 @@ fn scaled_poses(npy: &Path, rows: &[[f64; 17]]) -> Result<ScaledPoses, DataError
         }
         // Named by its row here: after recentring on the mean camera, one camera far away
         // moves every camera far away.
-        if let Some(t) = p.iter().map(|row| row[3]).find(|t| t.abs() > crate::camera::MAX_SCENE_COORDINATE) {
+        if let Some(t) = p.iter().map(|row| row[3]).find(|t| t.abs() > mipnerf_core::camera::MAX_SCENE_COORDINATE) {
             return Err(DataError::invalid(
                 npy,
                 format!(
                     "row {i}: a coordinate of the camera's position is {:.3e} times the nearest depth bound (column 15's smallest \
                      value) away; at most {:e} is taken (a wrong row, or bounds in other units than the poses)",
                     t.abs() * 0.75,
-                    crate::camera::MAX_SCENE_COORDINATE * 0.75
+                    mipnerf_core::camera::MAX_SCENE_COORDINATE * 0.75
                 ),
             ));
         }
     }
     Ok(ScaledPoses { data_poses, poses, scale, bounds: (min_b * scale, max_b * scale) })
-}
-
-/// NDC origin and direction of the world ray through continuous pixel coordinates `(px, py)`:
-/// the official `convert_to_ndc` with the near plane at 1.
-fn ndc_of(camera: &Camera, px: f64, py: f64, ndc: Ndc) -> (DVec3, DVec3) {
-    let d = DVec3::from_array(camera.direction_f64(px, py));
-    let o = DVec3::from_array(camera.origin());
-    let near = 1.0;
-    let t = -(near + o.z) / d.z;
-    let o = o + t * d;
-    let (fx, fy) =
-        (2.0 * f64::from(ndc.focal) / f64::from(ndc.width), 2.0 * f64::from(ndc.focal) / f64::from(ndc.height));
-    let origin = DVec3::new(-fx * (o.x / o.z), -fy * (o.y / o.z), 1.0 + 2.0 * near / o.z);
-    let dir = DVec3::new(-fx * (d.x / d.z - o.x / o.z), -fy * (d.y / d.z - o.y / o.z), -2.0 * near / o.z);
-    (origin, dir)
-}
-
-/// The NDC version of `world` (the ray of pixel `(x, y)`): origin and direction in NDC, the view
-/// direction left as the world direction (unnormalised, as the official code does), and the
-/// radius from the spacing of neighbouring NDC origins along both axes (the last row and column
-/// reuse the one before the last, as in the official code), times `2/sqrt(12)`.
-#[must_use]
-pub fn ndc_ray(camera: &Camera, x: u32, y: u32, centers: PixelCenters, ndc: Ndc, world: Ray) -> Ray {
-    let off = centers.offset();
-    let at = |px: u32, py: u32| ndc_of(camera, f64::from(px) + off, f64::from(py) + off, ndc).0;
-    let (o, d) = ndc_of(camera, f64::from(x) + off, f64::from(y) + off, ndc);
-    let (w, h) = (camera.width, camera.height);
-    let pick = |v: u32, n: u32| if v + 1 < n { v } else { n.saturating_sub(3) };
-    let dy = if h > 1 { (at(x, pick(y, h)) - at(x, pick(y, h) + 1)).length() } else { 0.0 };
-    let dx = if w > 1 { (at(pick(x, w), y) - at(pick(x, w) + 1, y)).length() } else { 0.0 };
-    let spacing = match (h > 1, w > 1) {
-        (true, true) => 0.5 * (dx + dy),
-        (true, false) => dy,
-        (false, _) => dx,
-    };
-    Ray {
-        origin: o.as_vec3(),
-        direction: d.as_vec3(),
-        viewdir: world.direction,
-        radius: radius_from_spacing(spacing),
-        lossmult: 1.0,
-        near: world.near,
-        far: world.far,
-    }
 }

@@ -1,17 +1,17 @@
 //! The process step (`mipnerf colmap`): from a COLMAP workspace (the photos in `images/`, the
 //! mapper's models in `sparse/N/`), or a capture in nerfstudio's or Instant-NGP's
-//! `transforms.json` form read as one model ([`super::nerfstudio`]), to a dataset the trainer
+//! `transforms.json` form read as one model ([`crate::nerfstudio`]), to a dataset the trainer
 //! reads.
 //!
 //! 1. Every model in `sparse/` is counted and the one with the most registered photos is taken
 //!    (COLMAP numbers its models as it finds them, not by size).
 //! 2. Fewer registered photos than [`ProcessOptions::min_views`] is an error, fewer than
 //!    [`ProcessOptions::recommended_views`] a warning.
-//! 3. The photos are undistorted in Rust ([`super::undistort`]) to one centred pinhole.
+//! 3. The photos are undistorted in Rust ([`crate::undistort`]) to one centred pinhole.
 //! 4. They are box-filtered by the integer factor that brings their longer side to at most
 //!    [`ProcessOptions::max_size`], and written as PNGs to `images_{factor}/`, numbered in name
 //!    order, with LLFF's `poses_bounds.npy` for the undistorted camera (LLFF's `imgs2poses`,
-//!    [`super::colmap::poses_bounds`]), so `train --data OUT --llff-factor {factor}` reads them,
+//!    [`crate::colmap::poses_bounds`]), so `train --data OUT --llff-factor {factor}` reads them,
 //!    holding out every 8th photo for testing as LLFF does.
 //!
 //! A step that stops part-way leaves no `poses_bounds.npy`, so a half-written dataset never loads:
@@ -22,11 +22,11 @@ use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
 
-use super::DataError;
-use super::colmap::{self, ColmapCamera, ColmapModel};
-use super::focal::{self, FocalCheck};
-use super::llff::LLFF_HOLD;
-use super::undistort::{self, LensCamera, Pinhole};
+use crate::DataError;
+use crate::colmap::{self, ColmapCamera, ColmapModel};
+use crate::focal::{self, FocalCheck};
+use crate::llff::LLFF_HOLD;
+use crate::undistort::{self, LensCamera, Pinhole};
 
 /// Registered photos below which the step refuses: a radiance field from fewer views is a guess.
 pub const MIN_REGISTERED_VIEWS: usize = 8;
@@ -70,7 +70,7 @@ pub struct ProcessOptions {
     /// [`suspect_photos`] names.
     pub exclude: Vec<String>,
     /// A folder of foreground masks, one per photo (named as the photo, PNG or JPEG, white = the
-    /// object; [`super::masks`]), carried through the undistortion and the downscaling to
+    /// object; [`crate::masks`]), carried through the undistortion and the downscaling to
     /// `masks_{factor}/` beside the images, named as they are, for `train --masks`.
     pub masks: Option<PathBuf>,
 }
@@ -299,7 +299,7 @@ pub fn process(input: &Path, output: &Path, opts: &ProcessOptions) -> Result<Pro
 pub enum SourceKind {
     /// A COLMAP workspace: `images/` and the models in `sparse/`.
     Colmap,
-    /// A capture in nerfstudio's or Instant-NGP's `transforms.json` form ([`super::nerfstudio`]).
+    /// A capture in nerfstudio's or Instant-NGP's `transforms.json` form ([`crate::nerfstudio`]).
     Transforms,
 }
 
@@ -322,9 +322,9 @@ impl Source {
     /// A COLMAP workspace when `input` has `sparse/`, else a capture when it has
     /// `transforms.json`.
     fn read(input: &Path) -> Result<Self, DataError> {
-        if !input.join("sparse").is_dir() && super::nerfstudio::is_capture(input) {
-            let capture = super::nerfstudio::read(input)?;
-            let file = input.join(super::nerfstudio::TRANSFORMS);
+        if !input.join("sparse").is_dir() && crate::nerfstudio::is_capture(input) {
+            let capture = crate::nerfstudio::read(input)?;
+            let file = input.join(crate::nerfstudio::TRANSFORMS);
             return Ok(Self {
                 kind: SourceKind::Transforms,
                 models: vec![(0, file.clone(), capture.model.images.len())],
@@ -405,14 +405,14 @@ fn process_source(source: Source, output: &Path, opts: &ProcessOptions) -> Resul
     }
     check_output(output, &ours, opts.overwrite)?;
     std::fs::create_dir_all(output).map_err(|e| DataError::io(output, e))?;
-    crate::io::record(output, "colmap", ours.iter().cloned())?;
-    let partial = crate::io::start_partial_dir(&folder)?;
-    let partial_masks = masks_folder.as_deref().map(crate::io::start_partial_dir).transpose()?;
+    mipnerf_core::io::record(output, "colmap", ours.iter().cloned())?;
+    let partial = mipnerf_core::io::start_partial_dir(&folder)?;
+    let partial_masks = masks_folder.as_deref().map(mipnerf_core::io::start_partial_dir).transpose()?;
     let target = LensCamera::from(pinhole);
     let counts = names.par_iter().enumerate().map(|(i, name)| -> Result<[u64; 3], DataError> {
         let file = images_dir.join(name);
-        super::check_present(&file, "registered in the COLMAP model but missing from images/")?;
-        let (w, h, rgba, _) = super::read_png_rgba(&file)?;
+        crate::check_present(&file, "registered in the COLMAP model but missing from images/")?;
+        let (w, h, rgba, _) = crate::read_png_rgba(&file)?;
         if (w, h) != (lens.width, lens.height) {
             return Err(DataError::invalid(
                 &file,
@@ -421,13 +421,13 @@ fn process_source(source: Source, output: &Path, opts: &ProcessOptions) -> Resul
         }
         let und = undistort::warp(&rgba, 4, &lens, &target);
         let (nw, nh) = size;
-        let out = if factor > 1 { super::box_resize_rgba8(&und, target.width, target.height, nw, nh) } else { und };
+        let out = if factor > 1 { crate::box_resize_rgba8(&und, target.width, target.height, nw, nh) } else { und };
         let stem = Path::new(name).file_stem().map_or_else(String::new, |s| s.to_string_lossy().into_owned());
         let written = format!("{i:04}_{stem}.png");
-        super::write_png_rgba(&partial.join(&written), nw, nh, &out)?;
+        crate::write_png_rgba(&partial.join(&written), nw, nh, &out)?;
         if let (Some(dir), Some(partial_masks)) = (&opts.masks, &partial_masks) {
-            let mask = mask_through(&super::masks::mask_file(dir, Path::new(name))?, &lens, &target, size)?;
-            super::write_png_rgba(&partial_masks.join(&written), nw, nh, &mask)?;
+            let mask = mask_through(&crate::masks::mask_file(dir, Path::new(name))?, &lens, &target, size)?;
+            crate::write_png_rgba(&partial_masks.join(&written), nw, nh, &mask)?;
         }
         Ok(border_counts(&out, nw as usize, nh as usize))
     });
@@ -438,12 +438,12 @@ fn process_source(source: Source, output: &Path, opts: &ProcessOptions) -> Resul
     if npy.is_file() {
         std::fs::remove_file(&npy).map_err(|e| DataError::io(&npy, e))?;
     }
-    crate::io::swap_in_dir(&folder)?;
+    mipnerf_core::io::swap_in_dir(&folder)?;
     if let Some(masks_folder) = &masks_folder {
-        crate::io::swap_in_dir(masks_folder)?;
+        mipnerf_core::io::swap_in_dir(masks_folder)?;
     }
     remove_earlier_outputs(output, &ours)?;
-    super::llff::write_poses_bounds(&npy, &rows)?;
+    crate::llff::write_poses_bounds(&npy, &rows)?;
 
     let near = rows.iter().map(|r| r[15]).fold(f64::INFINITY, f64::min);
     let far = rows.iter().map(|r| r[16]).fold(f64::NEG_INFINITY, f64::max);
@@ -475,9 +475,9 @@ fn process_source(source: Source, output: &Path, opts: &ProcessOptions) -> Resul
 /// Checks the masks' folder against the photos' and reads every registered photo's mask
 /// (`named`: name and file), all before anything is written.
 fn check_masks(masks: &Path, photos: &Path, named: &[(String, PathBuf)], lens: &LensCamera) -> Result<(), DataError> {
-    super::masks::check_folder(masks, photos)?;
+    crate::masks::check_folder(masks, photos)?;
     named.par_iter().try_for_each(|(name, _)| -> Result<(), DataError> {
-        super::masks::read_mask(&super::masks::mask_file(masks, Path::new(name))?, lens.width, lens.height).map(|_| ())
+        crate::masks::read_mask(&crate::masks::mask_file(masks, Path::new(name))?, lens.width, lens.height).map(|_| ())
     })
 }
 
@@ -590,7 +590,7 @@ fn shared_camera(model: &ColmapModel, images_dir: &Path, cams: &Path) -> Result<
     // camera 2^32 pixels wide would otherwise be undistorted pixel by pixel).
     if let Some(im) = model.images.iter().find(|im| im.camera_id == first.id) {
         let file = images_dir.join(&im.name);
-        let (w, h) = super::image_size(&file)?;
+        let (w, h) = crate::image_size(&file)?;
         if (u64::from(w), u64::from(h)) != (first.width, first.height) {
             return Err(DataError::invalid(
                 cams,
@@ -650,18 +650,18 @@ fn faces_all_around(rows: &[[f64; 17]]) -> bool {
 }
 
 /// The mask `path` of a photo of the COLMAP camera `lens` (its size, or larger with its aspect
-/// ratio: [`super::masks::read_mask`]), undistorted to `target` as the photo is and box-filtered
+/// ratio: [`crate::masks::read_mask`]), undistorted to `target` as the photo is and box-filtered
 /// to `size`: grey RGBA8 (`train --masks` reads its luminance).
 ///
 /// # Errors
-/// [`super::masks::read_mask`]'s: undecodable, of another size, all black; naming the file.
+/// [`crate::masks::read_mask`]'s: undecodable, of another size, all black; naming the file.
 fn mask_through(path: &Path, lens: &LensCamera, target: &LensCamera, size: (u32, u32)) -> Result<Vec<u8>, DataError> {
-    let alpha = super::masks::read_mask(path, lens.width, lens.height)?;
+    let alpha = crate::masks::read_mask(path, lens.width, lens.height)?;
     let grey: Vec<u8> = alpha.iter().map(|a| (a * 255.0).round() as u8).collect();
     let und = undistort::warp(&grey, 1, lens, target);
     let rgba: Vec<u8> = und.iter().flat_map(|&v| [v, v, v, 255]).collect();
     Ok(if size != (target.width, target.height) {
-        super::box_resize_rgba8(&rgba, target.width, target.height, size.0, size.1)
+        crate::box_resize_rgba8(&rgba, target.width, target.height, size.0, size.1)
     } else {
         rgba
     })
@@ -673,7 +673,7 @@ fn mask_through(path: &Path, lens: &LensCamera, target: &LensCamera, size: (u32,
 /// old photos lie beside the new poses. Only this step's outputs are touched: what its manifest
 /// lists as `colmap`'s, or, from a version whose manifest did not say, its image and mask folders.
 fn remove_earlier_outputs(output: &Path, ours: &[String]) -> Result<(), DataError> {
-    let stale: BTreeSet<String> = crate::io::writers(output)?
+    let stale: BTreeSet<String> = mipnerf_core::io::writers(output)?
         .into_iter()
         .filter(|(name, by)| match by.as_deref() {
             Some(by) => by == "colmap",
@@ -690,7 +690,7 @@ fn remove_earlier_outputs(output: &Path, ours: &[String]) -> Result<(), DataErro
             Err(_) => {}
         }
     }
-    Ok(crate::io::forget(output, &stale)?)
+    Ok(mipnerf_core::io::forget(output, &stale)?)
 }
 
 /// Refuses an output folder that holds anything (but this step's manifest and temporary folders)
@@ -703,8 +703,8 @@ fn check_output(output: &Path, ours: &[String], overwrite: bool) -> Result<(), D
     if !output.is_dir() {
         return Err(DataError::invalid(output, "is a file, not a folder"));
     }
-    let recorded = crate::io::recorded(output)?;
-    let entries = crate::io::names_in(output)?;
+    let recorded = mipnerf_core::io::recorded(output)?;
+    let entries = mipnerf_core::io::names_in(output)?;
     if !entries.is_empty() && !overwrite {
         return Err(DataError::invalid(
             output,
@@ -720,7 +720,7 @@ fn check_output(output: &Path, ours: &[String], overwrite: bool) -> Result<(), D
                 "holds {} that this step did not write (they are not in its {}); they are left as they are: \
                  choose another folder, or move them away",
                 taken.iter().map(|n| n.as_str()).collect::<Vec<_>>().join(" and "),
-                crate::io::MANIFEST
+                mipnerf_core::io::MANIFEST
             ),
         ));
     }

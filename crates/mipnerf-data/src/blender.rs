@@ -6,11 +6,11 @@
 
 use std::path::{Path, PathBuf};
 
-use super::{
+use crate::{
     DataError, Dataset, Pixels, Split, View, check_pixel_memory, down2, image_pixels, pose_from_json, read_json,
     read_png_rgba,
 };
-use crate::camera::Camera;
+use mipnerf_core::camera::Camera;
 
 /// Near bound of the Blender scenes.
 pub const NEAR: f32 = 2.0;

@@ -24,8 +24,8 @@ use std::path::{Path, PathBuf};
 
 use glam::{DMat3, DQuat, DVec3};
 
-use super::llff::{self, LlffImage};
-use super::{DataError, Dataset, Split, read_png_rgba};
+use crate::llff::{self, LlffImage};
+use crate::{DataError, Dataset, Split, read_png_rgba};
 
 /// A COLMAP camera model this module reads.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -213,12 +213,13 @@ fn has_model(dir: &Path) -> bool {
 fn registered_images(dir: &Path) -> Option<usize> {
     let bin = dir.join("images.bin");
     if bin.is_file() {
-        let mut f = crate::io::open_regular(&bin).ok()?;
+        let mut f = mipnerf_core::io::open_regular(&bin).ok()?;
         let mut b = [0u8; 8];
         std::io::Read::read_exact(&mut f, &mut b).ok()?;
         return usize::try_from(u64::from_le_bytes(b)).ok();
     }
-    let text = crate::io::read_regular_text(&dir.join("images.txt"), crate::io::cap::COLMAP_MODEL).ok()?;
+    let text =
+        mipnerf_core::io::read_regular_text(&dir.join("images.txt"), mipnerf_core::io::cap::COLMAP_MODEL).ok()?;
     Some(text.lines().filter(|l| !l.starts_with('#')).count() / 2)
 }
 
@@ -306,7 +307,7 @@ impl<'a> Reader<'a> {
 }
 
 fn read_bytes(path: &Path) -> Result<Vec<u8>, DataError> {
-    crate::io::read_regular(path, crate::io::cap::COLMAP_MODEL).map_err(|e| DataError::io(path, e))
+    mipnerf_core::io::read_regular(path, mipnerf_core::io::cap::COLMAP_MODEL).map_err(|e| DataError::io(path, e))
 }
 
 fn param_count(path: &Path, model_id: i32, camera: u32) -> Result<usize, DataError> {
@@ -375,7 +376,8 @@ fn read_points_bin(path: &Path) -> Result<Vec<ColmapPoint>, DataError> {
 
 /// Non-comment lines of a text model, with their 1-based line numbers.
 fn text_lines(path: &Path) -> Result<Vec<(usize, String)>, DataError> {
-    let text = crate::io::read_regular_text(path, crate::io::cap::COLMAP_MODEL).map_err(|e| DataError::io(path, e))?;
+    let text = mipnerf_core::io::read_regular_text(path, mipnerf_core::io::cap::COLMAP_MODEL)
+        .map_err(|e| DataError::io(path, e))?;
     Ok(text.lines().enumerate().filter(|(_, l)| !l.starts_with('#')).map(|(i, l)| (i + 1, l.to_string())).collect())
 }
 
@@ -557,7 +559,7 @@ pub fn poses_bounds(model: &ColmapModel, model_dir: &Path) -> Result<(Vec<[f64; 
                      wrong; reconstruct again",
                     im.id,
                     im.name,
-                    super::show(near)
+                    crate::show(near)
                 ),
             ));
         }
@@ -569,9 +571,9 @@ pub fn poses_bounds(model: &ColmapModel, model_dir: &Path) -> Result<(Vec<[f64; 
                      outlier point the model should not hold; remove it (or reconstruct again)",
                     im.id,
                     im.name,
-                    super::show(near),
-                    super::show(far),
-                    super::show(MAX_DEPTH_RATIO)
+                    crate::show(near),
+                    crate::show(far),
+                    crate::show(MAX_DEPTH_RATIO)
                 ),
             ));
         }
@@ -708,7 +710,7 @@ pub fn read_images(
     let mut out = Vec::with_capacity(names.len());
     for n in names {
         let file = if from_small { small.join(n) } else { dir.join("images").join(n) };
-        super::check_present(
+        crate::check_present(
             &file,
             "listed in the COLMAP model's images but missing on disk (the model and images/ disagree)",
         )?;
@@ -723,7 +725,7 @@ pub fn read_images(
             }
             if factor > 1 {
                 let (nw, nh) = ((w / factor).max(1), (h / factor).max(1));
-                im.rgba = super::box_resize_rgba8(&im.rgba, w, h, nw, nh);
+                im.rgba = crate::box_resize_rgba8(&im.rgba, w, h, nw, nh);
                 (im.width, im.height) = (nw, nh);
             }
         }
@@ -781,18 +783,18 @@ pub fn convert_to_llff(input: &Path, out: &Path, factor: u32) -> Result<Vec<Stri
     let Scene { rows, names, images, .. } = Scene::read(input, factor)?;
     let folder = if factor > 1 { out.join(format!("images_{factor}")) } else { out.join("images") };
     std::fs::create_dir_all(out).map_err(|e| DataError::io(out, e))?;
-    let partial = crate::io::start_partial_dir(&folder)?;
+    let partial = mipnerf_core::io::start_partial_dir(&folder)?;
     for (i, im) in images.iter().enumerate() {
         // Numbered in name order, so any reader that sorts the folder finds them in the rows' order.
         let stem = Path::new(&names[i]).file_stem().map_or_else(String::new, |s| s.to_string_lossy().into_owned());
-        super::write_png_rgba(&partial.join(format!("{i:04}_{stem}.png")), im.width, im.height, &im.rgba)?;
+        crate::write_png_rgba(&partial.join(format!("{i:04}_{stem}.png")), im.width, im.height, &im.rgba)?;
     }
     // The new images are whole: only now does the old dataset stop being whole.
     let npy = out.join("poses_bounds.npy");
     if npy.is_file() {
         std::fs::remove_file(&npy).map_err(|e| DataError::io(&npy, e))?;
     }
-    crate::io::swap_in_dir(&folder)?;
+    mipnerf_core::io::swap_in_dir(&folder)?;
     llff::write_poses_bounds(&npy, &rows)?;
     Ok(names)
 }

@@ -3,13 +3,14 @@
 #![allow(clippy::unwrap_used, missing_docs)]
 
 mod common;
+
 use std::path::{Path, PathBuf};
 
-use common::*;
 use mipnerf_core::Camera;
-use mipnerf_core::data::{
-    self, BatchDraw, DataError, Dataset, LoadOptions, Pixels, Split, View, demo, llff, multiscale,
-};
+use mipnerf_core::dataset::{BatchDraw, DataError, Dataset, Pixels, Split, View};
+use mipnerf_core::demo;
+use mipnerf_core::test_support::{Mismatches, TOL_ELEMENTWISE, f, flat, golden, mutate};
+use mipnerf_data::{LoadOptions, llff, multiscale};
 
 fn lego_tiny() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/lego_tiny")
@@ -66,7 +67,7 @@ fn multiscale_conversion_matches_the_official_converter() {
             TOL_ELEMENTWISE,
         );
         assert_eq!(meta["file_path"][j], level["file_path"]);
-        px = data::down2(&px, w, w);
+        px = mipnerf_data::down2(&px, w, w);
         w /= 2;
     }
     mm.finish("multiscale_conversion_matches_the_official_converter");
@@ -74,7 +75,7 @@ fn multiscale_conversion_matches_the_official_converter() {
 
 #[test]
 fn blender_scene_loads_with_cameras_and_composited_pixels() {
-    let ds = data::load(&lego_tiny(), Split::Train, &LoadOptions::default()).unwrap();
+    let ds = mipnerf_data::load(&lego_tiny(), Split::Train, &LoadOptions::default()).unwrap();
     assert_eq!(ds.views().len(), 4);
     assert_eq!((ds.views()[0].camera.width, ds.views()[0].camera.height), (100, 100));
     assert_eq!(ds.num_pixels(), 4 * 100 * 100);
@@ -87,7 +88,8 @@ fn blender_scene_loads_with_cameras_and_composited_pixels() {
     );
     // Half resolution: 2x2 area filter.
     let half =
-        data::load(&lego_tiny(), Split::Train, &LoadOptions { half_res: true, ..LoadOptions::default() }).unwrap();
+        mipnerf_data::load(&lego_tiny(), Split::Train, &LoadOptions { half_res: true, ..LoadOptions::default() })
+            .unwrap();
     assert_eq!(half.views()[0].camera.width, 50);
     let (full, hv) = (&ds, &half);
     let avg: [f32; 3] =
@@ -105,24 +107,24 @@ fn the_real_lego_scene_loads() {
         eprintln!("SKIPPED the_real_lego_scene_loads: {} is absent (it lives in ../shared)", dir.display());
         return;
     }
-    let test = data::load(&dir, Split::Test, &LoadOptions::default()).unwrap();
+    let test = mipnerf_data::load(&dir, Split::Test, &LoadOptions::default()).unwrap();
     assert_eq!(test.views().len(), 13);
     assert_eq!((test.views()[0].camera.width, test.views()[0].camera.height), (800, 800));
     assert!(test.num_pixels() == 13 * 640_000);
     // A missing split is an error only when it is asked for.
-    let err = data::load(&dir, Split::Val, &LoadOptions::default()).unwrap_err().to_string();
+    let err = mipnerf_data::load(&dir, Split::Val, &LoadOptions::default()).unwrap_err().to_string();
     assert!(err.contains("transforms_val.json"), "{err}");
 }
 
 #[test]
 fn demo_scene_generates_every_scale_and_loads() {
     let dir = tempfile::tempdir().unwrap();
-    let cfg = demo::DemoConfig { size: 32, train_views: 6, test_views: 2, supersample: 3 };
+    let cfg = mipnerf_data::demo::DemoConfig { size: 32, train_views: 6, test_views: 2, supersample: 3 };
     let t = std::time::Instant::now();
-    demo::write_demo_scene(dir.path(), &cfg).unwrap();
+    mipnerf_data::demo::write_demo_scene(dir.path(), &cfg).unwrap();
     eprintln!("demo scene generated in {:?}", t.elapsed());
-    assert_eq!(data::detect_format(dir.path()).unwrap(), data::Format::Multiscale);
-    let train = data::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap();
+    assert_eq!(mipnerf_data::detect_format(dir.path()).unwrap(), mipnerf_data::Format::Multiscale);
+    let train = mipnerf_data::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap();
     assert_eq!(train.views().len(), 6 * 4);
     assert_eq!(train.scales(), vec![0, 1, 2, 3]);
     for v in train.views() {
@@ -156,9 +158,12 @@ fn demo_scene_generates_every_scale_and_loads() {
 #[test]
 fn batches_come_from_every_scale_with_their_lossmult() {
     let dir = tempfile::tempdir().unwrap();
-    demo::write_demo_scene(dir.path(), &demo::DemoConfig { size: 16, train_views: 3, test_views: 1, supersample: 1 })
-        .unwrap();
-    let ds = data::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap();
+    mipnerf_data::demo::write_demo_scene(
+        dir.path(),
+        &mipnerf_data::demo::DemoConfig { size: 16, train_views: 3, test_views: 1, supersample: 1 },
+    )
+    .unwrap();
+    let ds = mipnerf_data::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap();
     let (mut rays, mut targets) = (Vec::new(), Vec::new());
     ds.sample_batch(BatchDraw::new(4000, 1, 0), &mut rays, &mut targets);
     assert_eq!((rays.len(), targets.len()), (4000, 4000));
@@ -185,9 +190,12 @@ fn batches_come_from_every_scale_with_their_lossmult() {
 fn random_background_batches_composite_each_target_on_its_pixels_colour() {
     // The demo scene's object is opaque over a transparent backdrop: pixels of every alpha.
     let dir = tempfile::tempdir().unwrap();
-    demo::write_demo_scene(dir.path(), &demo::DemoConfig { size: 16, train_views: 3, test_views: 1, supersample: 1 })
-        .unwrap();
-    let ds = data::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap();
+    mipnerf_data::demo::write_demo_scene(
+        dir.path(),
+        &mipnerf_data::demo::DemoConfig { size: 16, train_views: 3, test_views: 1, supersample: 1 },
+    )
+    .unwrap();
+    let ds = mipnerf_data::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap();
     assert!(ds.has_transparency());
     let (mut rays, mut targets, mut r2, mut white) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let (seed, step) = (3, 11);
@@ -300,10 +308,10 @@ fn make_llff(dir: &Path) {
 fn llff_scene_loads_with_ndc_rays_holdout_and_spiral() {
     let dir = tempfile::tempdir().unwrap();
     make_llff(dir.path());
-    assert_eq!(data::detect_format(dir.path()).unwrap(), data::Format::Llff);
+    assert_eq!(mipnerf_data::detect_format(dir.path()).unwrap(), mipnerf_data::Format::Llff);
     let opts = LoadOptions { white_bkgd: Some(false), ..LoadOptions::default() };
-    let train = data::load(dir.path(), Split::Train, &opts).unwrap();
-    let test = data::load(dir.path(), Split::Test, &opts).unwrap();
+    let train = mipnerf_data::load(dir.path(), Split::Train, &opts).unwrap();
+    let test = mipnerf_data::load(dir.path(), Split::Test, &opts).unwrap();
     assert_eq!((train.views().len(), test.views().len()), (7, 2), "every 8th image (0 and 8) is held out");
     assert!(!train.white_bkgd && train.ndc.is_some());
     assert_eq!(test.render_path.len(), llff::RENDER_FRAMES);
@@ -324,7 +332,7 @@ fn llff_scene_loads_with_ndc_rays_holdout_and_spiral() {
         }
     }
     // The spherical variant loads too, with world-space rays.
-    let sph = data::load(dir.path(), Split::Test, &LoadOptions { llff_spherify: true, ..opts }).unwrap();
+    let sph = mipnerf_data::load(dir.path(), Split::Test, &LoadOptions { llff_spherify: true, ..opts }).unwrap();
     assert!(sph.ndc.is_none() && sph.render_path.len() == llff::RENDER_FRAMES);
     let r = sph.ray(0, 3, 3);
     assert!(r.near > 0.0 && r.far > r.near && r.origin.is_finite());
@@ -365,10 +373,10 @@ fn llff_photos_take_their_masks_as_alpha_and_composite_on_white() {
         }
     }
     let opts = LoadOptions { white_bkgd: Some(true), masks: Some(masks.clone()), ..LoadOptions::default() };
-    let train = data::load(dir.path(), Split::Train, &opts).unwrap();
+    let train = mipnerf_data::load(dir.path(), Split::Train, &opts).unwrap();
     assert!(train.white_bkgd && train.has_transparency());
     assert!(train.notes.iter().any(|n| n.contains("7 photos masked by")), "{:?}", train.notes);
-    let plain = data::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap();
+    let plain = mipnerf_data::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap();
     assert!(!plain.white_bkgd && !plain.has_transparency(), "photos are not composited by default");
     for (v, view) in train.views().iter().enumerate() {
         for y in 0..h {
@@ -386,7 +394,7 @@ fn llff_photos_take_their_masks_as_alpha_and_composite_on_white() {
     }
     // The photos' own folder given as their masks is refused, naming it.
     let photos = train.views()[0].file.parent().unwrap().to_path_buf();
-    let err = data::load(dir.path(), Split::Train, &LoadOptions { masks: Some(photos.clone()), ..opts })
+    let err = mipnerf_data::load(dir.path(), Split::Train, &LoadOptions { masks: Some(photos.clone()), ..opts })
         .unwrap_err()
         .to_string();
     assert!(err.contains("the photos' own folder") && err.contains(&photos.display().to_string()), "{err}");
@@ -400,7 +408,7 @@ fn spherified_cameras_sit_at_the_radius_asked_for() {
     make_llff(dir.path());
     let load = |radius: f64, split: Split| {
         let opts = LoadOptions { llff_spherify: true, spherify_radius: Some(radius), ..LoadOptions::default() };
-        data::load(dir.path(), split, &opts).unwrap()
+        mipnerf_data::load(dir.path(), split, &opts).unwrap()
     };
     let rms = |ds: &Dataset| {
         let d2: f64 = ds.views().iter().map(|v| glam::DVec3::from_array(v.camera.origin()).length_squared()).sum();
@@ -469,7 +477,7 @@ fn spherified_poses_take_the_axis_of_the_cameras_ring() {
     let load = |radius: Option<f64>, split: Split| {
         let opts =
             LoadOptions { llff_factor: 1, llff_spherify: true, spherify_radius: radius, ..LoadOptions::default() };
-        data::load(dir.path(), split, &opts).unwrap()
+        mipnerf_data::load(dir.path(), split, &opts).unwrap()
     };
     let heights = |ds: &Dataset| -> Vec<f64> { ds.views().iter().map(|v| v.camera.origin()[2]).collect() };
     let spread = |h: &[f64]| {
@@ -543,7 +551,7 @@ fn edit_json(path: &Path, f: impl FnOnce(&mut serde_json::Value)) {
 
 #[test]
 fn bad_inputs_get_clear_errors_naming_the_file() {
-    let load = |d: &Path| data::load(d, Split::Train, &LoadOptions::default());
+    let load = |d: &Path| mipnerf_data::load(d, Split::Train, &LoadOptions::default());
     let case = |setup: &dyn Fn(&Path)| {
         let dir = tempfile::tempdir().unwrap();
         copy_lego(dir.path());
@@ -611,8 +619,11 @@ fn bad_inputs_get_clear_errors_naming_the_file() {
     assert_error(load(&empty.path().join("nope")).unwrap_err(), "nope", "No such file");
     // Multiscale metadata with lists of different lengths, and an LLFF file of the wrong shape.
     let ms = tempfile::tempdir().unwrap();
-    demo::write_demo_scene(ms.path(), &demo::DemoConfig { size: 16, train_views: 2, test_views: 1, supersample: 1 })
-        .unwrap();
+    mipnerf_data::demo::write_demo_scene(
+        ms.path(),
+        &mipnerf_data::demo::DemoConfig { size: 16, train_views: 2, test_views: 1, supersample: 1 },
+    )
+    .unwrap();
     edit_json(&ms.path().join("metadata.json"), |v| drop(v["train"]["near"].as_array_mut().unwrap().pop()));
     assert_error(load(ms.path()).unwrap_err(), "metadata.json", "\"near\" has 7 entries, \"file_path\" has 8");
     let ll = tempfile::tempdir().unwrap();
@@ -662,19 +673,19 @@ fn box_resize_averages_areas_at_any_ratio() {
     // A factor of 2 is the official 2x2 box filter.
     let (w, h) = (6, 4);
     let img: Vec<f32> = (0..w * h * 4).map(|i| ((i * 37) % 101) as f32 / 100.0).collect();
-    let a = data::box_resize(&img, w, h, 3, 2);
-    let b = data::down2(&img, w, h);
+    let a = mipnerf_data::box_resize(&img, w, h, 3, 2);
+    let b = mipnerf_data::down2(&img, w, h);
     assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-6), "{a:?} vs {b:?}");
     // 3 -> 2 pixels in a row: each output covers 1.5 source pixels.
     let row: Vec<f32> = [0.0, 0.3, 0.9].iter().flat_map(|&v| [v, 1.0 - v, v, 1.0]).collect();
-    let r = data::box_resize(&row, 3, 1, 2, 1);
+    let r = mipnerf_data::box_resize(&row, 3, 1, 2, 1);
     let want0 = (0.0 + 0.5 * 0.3) / 1.5;
     let want1 = (0.5 * 0.3 + 0.9) / 1.5;
     assert!((r[0] - want0).abs() < 1e-6 && (r[4] - want1).abs() < 1e-6, "{r:?}");
     // Straight alpha is averaged like the other channels, and the mean of the image is kept.
     assert!((r[3] - 1.0).abs() < 1e-6);
     let big: Vec<f32> = (0..10 * 10 * 4).map(|i| (i % 7) as f32 / 7.0).collect();
-    let small = data::box_resize(&big, 10, 10, 4, 4);
+    let small = mipnerf_data::box_resize(&big, 10, 10, 4, 4);
     for c in 0..4 {
         let m = |v: &[f32], n: usize| v.iter().skip(c).step_by(4).sum::<f32>() / n as f32;
         assert!((m(&big, 100) - m(&small, 16)).abs() < 1e-5, "channel {c}");
@@ -686,11 +697,11 @@ fn convert_with_a_size_box_filters_first_and_checks_the_size() {
     let out = tempfile::tempdir().unwrap();
     let splits = multiscale::convert_resized(&lego_tiny(), out.path(), Some(48)).unwrap();
     assert_eq!(splits, vec![Split::Train, Split::Test]);
-    let ds = data::load(out.path(), Split::Train, &LoadOptions::default()).unwrap();
+    let ds = mipnerf_data::load(out.path(), Split::Train, &LoadOptions::default()).unwrap();
     let widths: Vec<u32> = ds.views().iter().take(4).map(|v| v.camera.width).collect();
     assert_eq!(widths, vec![48, 24, 12, 6]);
     // The field of view is kept: the focal length scales with the width.
-    let full = data::load(&lego_tiny(), Split::Train, &LoadOptions::default()).unwrap();
+    let full = mipnerf_data::load(&lego_tiny(), Split::Train, &LoadOptions::default()).unwrap();
     let ratio = full.views()[0].camera.pix2cam[0][0] / ds.views()[0].camera.pix2cam[0][0];
     assert!((ratio - 48.0 / 100.0).abs() < 1e-6, "focal ratio {ratio}");
     // The full scale is the area average of the source image, quantised as the converter does.
@@ -699,7 +710,7 @@ fn convert_with_a_size_box_filters_first_and_checks_the_size() {
         (img.width(), img.height(), img.clone().into_raw(), ())
     };
     let f: Vec<f32> = src.iter().map(|&b| f32::from(b) / 255.0).collect();
-    let want = multiscale::quantise(&data::box_resize(&f, w as usize, h as usize, 48, 48));
+    let want = multiscale::quantise(&mipnerf_data::box_resize(&f, w as usize, h as usize, 48, 48));
     let got = image::open(out.path().join("images_train/000_d0.png")).unwrap().to_rgba8().into_raw();
     assert_eq!(got, want);
     // Sizes that cannot be made into 4 whole scales, or that upsample, are refused.
@@ -714,11 +725,14 @@ fn convert_with_a_size_box_filters_first_and_checks_the_size() {
 fn multiscale_numbers_are_checked_and_each_error_names_the_key_and_the_index() {
     use serde_json::json;
     let base = tempfile::tempdir().unwrap();
-    demo::write_demo_scene(base.path(), &demo::DemoConfig { size: 16, train_views: 2, test_views: 1, supersample: 1 })
-        .unwrap();
+    mipnerf_data::demo::write_demo_scene(
+        base.path(),
+        &mipnerf_data::demo::DemoConfig { size: 16, train_views: 2, test_views: 1, supersample: 1 },
+    )
+    .unwrap();
     let meta = base.path().join("metadata.json");
     let original = std::fs::read_to_string(&meta).unwrap();
-    let load = || data::load(base.path(), Split::Train, &LoadOptions::default());
+    let load = || mipnerf_data::load(base.path(), Split::Train, &LoadOptions::default());
     type Edit = Box<dyn Fn(&mut serde_json::Value)>;
     let cases: Vec<(Edit, &str)> = vec![
         (
@@ -770,11 +784,7 @@ fn multiscale_numbers_are_checked_and_each_error_names_the_key_and_the_index() {
 proptest::proptest! {
     // Every parser a user feeds, given mutated bytes of a valid file, returns Ok or an error and
     // never panics. Cases here: 48 per parser (PROPTEST_CASES=100000 for the long run; see README).
-    #![proptest_config(proptest::prelude::ProptestConfig {
-        cases: fuzz_cases(),
-        failure_persistence: None,
-        ..Default::default()
-    })]
+    #![proptest_config(common::fuzz_config())]
     #[test]
     fn mutated_files_never_panic_a_parser(
         ops in proptest::collection::vec((0u8..4, 0.0f64..1.0, proptest::num::u8::ANY), 1..6),
@@ -783,17 +793,17 @@ proptest::proptest! {
         use mipnerf_core::model::{Model, Preset};
         // metadata.json of a multiscale scene.
         let ms = tempfile::tempdir().unwrap();
-        demo::write_demo_scene(ms.path(), &demo::DemoConfig { size: 16, train_views: 1, test_views: 1, supersample: 1 })
+        mipnerf_data::demo::write_demo_scene(ms.path(), &mipnerf_data::demo::DemoConfig { size: 16, train_views: 1, test_views: 1, supersample: 1 })
             .unwrap();
         let meta = ms.path().join("metadata.json");
         std::fs::write(&meta, mutate(std::fs::read(&meta).unwrap(), &ops)).unwrap();
-        let _ = data::load(ms.path(), Split::Train, &LoadOptions::default());
+        let _ = mipnerf_data::load(ms.path(), Split::Train, &LoadOptions::default());
         // transforms_train.json of a Blender scene.
         let bl = tempfile::tempdir().unwrap();
         copy_lego(bl.path());
         let tf = bl.path().join("transforms_train.json");
         std::fs::write(&tf, mutate(std::fs::read(&tf).unwrap(), &ops)).unwrap();
-        let _ = data::load(bl.path(), Split::Train, &LoadOptions::default());
+        let _ = mipnerf_data::load(bl.path(), Split::Train, &LoadOptions::default());
         // A checkpoint.
         let model = Model::new(Preset::Tiny.config()).unwrap();
         let ck = tempfile::tempdir().unwrap();
@@ -825,11 +835,7 @@ fn extreme() -> impl proptest::strategy::Strategy<Value = f64> {
 }
 
 proptest::proptest! {
-    #![proptest_config(proptest::prelude::ProptestConfig {
-        cases: fuzz_cases(),
-        failure_persistence: None,
-        ..Default::default()
-    })]
+    #![proptest_config(common::fuzz_config())]
     // Property (a hand-edited file must fail clearly or run): a numeric field of metadata.json set to an extreme finite value either
     // fails to load with an error naming metadata.json, or the scene trains a step and renders a
     // view without panicking.
@@ -844,7 +850,7 @@ proptest::proptest! {
         use mipnerf_core::backend::{Backend, CpuBackend, ImageSpec, TrainState};
         use mipnerf_core::model::{Model, Preset};
         let dir = tempfile::tempdir().unwrap();
-        demo::write_demo_scene(dir.path(), &demo::DemoConfig { size: 16, train_views: 1, test_views: 1, supersample: 1 })
+        mipnerf_data::demo::write_demo_scene(dir.path(), &mipnerf_data::demo::DemoConfig { size: 16, train_views: 1, test_views: 1, supersample: 1 })
             .unwrap();
         let path = dir.path().join("metadata.json");
         let mut m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
@@ -856,7 +862,7 @@ proptest::proptest! {
             _ => e[key][entry] = serde_json::json!(value),
         }
         std::fs::write(&path, m.to_string()).unwrap();
-        let ds = match data::load(dir.path(), Split::Train, &LoadOptions::default()) {
+        let ds = match mipnerf_data::load(dir.path(), Split::Train, &LoadOptions::default()) {
             Ok(ds) => ds,
             Err(err) => {
                 let msg = err.to_string();
@@ -911,7 +917,7 @@ fn unbounded_photos_put_the_farthest_camera_on_the_unit_sphere() {
             unbounded,
             ..LoadOptions::default()
         };
-        data::load(dir.path(), split, &opts).unwrap()
+        mipnerf_data::load(dir.path(), split, &opts).unwrap()
     };
     let origins = |ds: &Dataset| -> Vec<glam::DVec3> {
         ds.views().iter().map(|v| glam::DVec3::from_array(v.camera.origin())).collect()
@@ -947,7 +953,7 @@ fn unbounded_photos_put_the_farthest_camera_on_the_unit_sphere() {
 fn forward_facing_photos_unbounded_are_said_to_differ_from_the_llff_protocol() {
     let fern = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/llff_fern_tiny");
     let opts = LoadOptions { llff_factor: 64, llff_spherify: true, unbounded: true, ..LoadOptions::default() };
-    let ds = data::load(&fern, Split::Train, &opts).unwrap();
+    let ds = mipnerf_data::load(&fern, Split::Train, &opts).unwrap();
     assert!(ds.notes.iter().any(|n| n.contains("all look one way") && n.contains("NDC")), "{:?}", ds.notes);
 }
 
@@ -958,14 +964,15 @@ fn unbounded_scenes_need_spherified_photos() {
     let dir = tempfile::tempdir().unwrap();
     make_tilted_ring(dir.path());
     let opts = LoadOptions { llff_factor: 1, unbounded: true, ..LoadOptions::default() };
-    let err = data::load(dir.path(), Split::Train, &opts).unwrap_err().to_string();
+    let err = mipnerf_data::load(dir.path(), Split::Train, &opts).unwrap_err().to_string();
     assert!(
         err.contains("NDC") && err.contains("--spherify") && err.contains(&dir.path().display().to_string()),
         "{err}"
     );
-    let err = data::load(&lego_tiny(), Split::Train, &LoadOptions { unbounded: true, ..LoadOptions::default() })
-        .unwrap_err()
-        .to_string();
+    let err =
+        mipnerf_data::load(&lego_tiny(), Split::Train, &LoadOptions { unbounded: true, ..LoadOptions::default() })
+            .unwrap_err()
+            .to_string();
     assert!(err.contains("Blender") && err.contains("lego_tiny"), "{err}");
 }
 
@@ -988,7 +995,7 @@ fn the_data_to_scene_similarity_takes_each_photo_to_its_camera() {
         ("unbounded", LoadOptions { llff_spherify: true, unbounded: true, ..base.clone() }),
     ];
     for (mode, opts) in modes {
-        let ds = data::load(&fern, Split::Train, &opts).unwrap();
+        let ds = mipnerf_data::load(&fern, Split::Train, &opts).unwrap();
         let s = ds.data_to_scene;
         assert!(s.scale > 0.0 && s.scale.is_finite(), "{mode}");
         // The train split: every photo but every 8th.
@@ -1008,6 +1015,6 @@ fn the_data_to_scene_similarity_takes_each_photo_to_its_camera() {
         }
     }
     // Blender's frame is the scene's.
-    let lego = data::load(&lego_tiny(), Split::Train, &LoadOptions::default()).unwrap();
+    let lego = mipnerf_data::load(&lego_tiny(), Split::Train, &LoadOptions::default()).unwrap();
     assert_eq!(lego.data_to_scene, mipnerf_core::camera::Similarity::IDENTITY);
 }

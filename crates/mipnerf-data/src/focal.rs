@@ -93,7 +93,7 @@ impl std::fmt::Display for ExifFocal {
 #[must_use]
 pub fn exif_focal(path: &Path, width: u32, height: u32) -> Option<ExifFocal> {
     use exif::{In, Tag, Value};
-    let file = crate::io::open_regular(path).ok()?;
+    let file = mipnerf_core::io::open_regular(path).ok()?;
     let data = exif::Reader::new().read_from_container(&mut std::io::BufReader::new(file)).ok()?;
     let real = |tag: Tag| -> Option<f64> {
         let field = data.get_field(tag, In::PRIMARY)?;

@@ -1,11 +1,11 @@
 //! The positions of a PLY point cloud: the `x`, `y`, `z` of its `vertex` element, from an ASCII
 //! or binary (little- or big-endian) file, every other property read past. nerfstudio writes its
 //! capture's COLMAP points so (`sparse_pc.ply`, ASCII); the process step takes the photos' depth
-//! bounds from them ([`super::nerfstudio`]).
+//! bounds from them ([`crate::nerfstudio`]).
 
 use std::path::Path;
 
-use super::DataError;
+use crate::DataError;
 
 /// The bytes of one value of a PLY scalar type (both the old names and the sized ones).
 fn type_size(name: &str) -> Option<usize> {
@@ -41,7 +41,8 @@ struct Element {
 /// it, a list property in a binary file's element before or in the vertices, a body shorter than
 /// its header declares, a value that is not a number, or a point that is not finite.
 pub fn read_points(path: &Path) -> Result<Vec<[f64; 3]>, DataError> {
-    let bytes = crate::io::read_regular(path, crate::io::cap::POINT_CLOUD).map_err(|e| DataError::io(path, e))?;
+    let bytes =
+        mipnerf_core::io::read_regular(path, mipnerf_core::io::cap::POINT_CLOUD).map_err(|e| DataError::io(path, e))?;
     let bad = |problem: String| DataError::invalid(path, problem);
     let (header, body) = split_header(&bytes).map_err(bad)?;
     let (format, elements) = parse_header(header).map_err(bad)?;
@@ -64,7 +65,7 @@ pub fn read_points(path: &Path) -> Result<Vec<[f64; 3]>, DataError> {
     if count.saturating_mul(properties.len()) > bytes.len() {
         return Err(bad(format!("declares {count} points, more than its {} bytes can hold", bytes.len())));
     }
-    crate::memory::check((count as u64).saturating_mul(24), &format!("reading {count} points")).map_err(&bad)?;
+    mipnerf_core::memory::check((count as u64).saturating_mul(24), &format!("reading {count} points")).map_err(&bad)?;
     let vertices = Vertices { before: &elements[..v], properties, xyz, count };
     let points = if format == Format::Ascii {
         ascii_points(&bytes[body..], vertices).map_err(bad)?

@@ -5,10 +5,13 @@
 #![allow(clippy::unwrap_used, missing_docs)]
 
 mod common;
+
 use std::path::{Path, PathBuf};
 
 use glam::DVec3;
-use mipnerf_core::data::{self, DataError, LoadOptions, Split, colmap, llff};
+use mipnerf_core::dataset::{DataError, Split};
+use mipnerf_core::test_support::mutate;
+use mipnerf_data::{LoadOptions, colmap, llff};
 
 /// Largest difference allowed between the importer's poses_bounds and the reference's: both are
 /// float64 from the same model; they differ only in the order of floating-point operations.
@@ -131,9 +134,9 @@ fn camera_centres_match_blender_after_a_similarity_transform() {
 #[test]
 fn a_colmap_folder_loads_as_a_dataset_with_llff_conventions() {
     let opts = LoadOptions { llff_factor: 2, llff_spherify: true, ..LoadOptions::default() };
-    assert_eq!(data::detect_format(&scene()).unwrap(), data::Format::Colmap);
-    let train = data::load(&scene(), Split::Train, &opts).unwrap();
-    let test = data::load(&scene(), Split::Test, &opts).unwrap();
+    assert_eq!(mipnerf_data::detect_format(&scene()).unwrap(), mipnerf_data::Format::Colmap);
+    let train = mipnerf_data::load(&scene(), Split::Train, &opts).unwrap();
+    let test = mipnerf_data::load(&scene(), Split::Test, &opts).unwrap();
     let n = colmap::read_model(&scene().join("sparse/0")).unwrap().images.len();
     // Every 8th image (0, 8, 16, ...) is held out, as LLFF does.
     assert_eq!(test.views().len(), n.div_ceil(8));
@@ -143,7 +146,7 @@ fn a_colmap_folder_loads_as_a_dataset_with_llff_conventions() {
     // The text model gives the same dataset.
     let dir = tempfile::tempdir().unwrap();
     text_scene(dir.path());
-    let t2 = data::load(dir.path(), Split::Train, &opts).unwrap();
+    let t2 = mipnerf_data::load(dir.path(), Split::Train, &opts).unwrap();
     assert_eq!(t2.views().len(), train.views().len());
     for (a, b) in t2.views().iter().zip(train.views()) {
         assert_eq!(a.camera, b.camera);
@@ -164,8 +167,8 @@ fn convert_to_llff_writes_what_the_llff_loader_reads_back() {
         }
     }
     let opts = LoadOptions { llff_factor: 2, ..LoadOptions::default() };
-    let from_llff = data::load(dir.path(), Split::Train, &opts).unwrap();
-    let from_colmap = data::load(&scene(), Split::Train, &opts).unwrap();
+    let from_llff = mipnerf_data::load(dir.path(), Split::Train, &opts).unwrap();
+    let from_colmap = mipnerf_data::load(&scene(), Split::Train, &opts).unwrap();
     assert_eq!(from_llff.views().len(), from_colmap.views().len());
     for (a, b) in from_llff.views().iter().zip(from_colmap.views()) {
         assert_eq!(a.camera, b.camera);
@@ -180,7 +183,8 @@ fn assert_error(err: DataError, file: &str, problem: &str) {
 
 #[test]
 fn damaged_models_are_clear_errors() {
-    let load = |d: &Path| data::load(d, Split::Train, &LoadOptions { llff_factor: 0, ..LoadOptions::default() });
+    let load =
+        |d: &Path| mipnerf_data::load(d, Split::Train, &LoadOptions { llff_factor: 0, ..LoadOptions::default() });
     let case = |edit: &dyn Fn(&Path)| {
         let dir = tempfile::tempdir().unwrap();
         copy_dir(&scene().join("images"), &dir.path().join("images"));
@@ -280,11 +284,7 @@ fn damaged_models_are_clear_errors() {
 proptest::proptest! {
     // The three binary files, with bytes replaced, inserted, deleted or cut: the reader returns a
     // model or an error, never panics (PROPTEST_CASES for a long run).
-    #![proptest_config(proptest::prelude::ProptestConfig {
-        cases: common::fuzz_cases(),
-        failure_persistence: None,
-        ..Default::default()
-    })]
+    #![proptest_config(common::fuzz_config())]
     #[test]
     fn mutated_binary_models_never_panic_the_reader(
         file in 0usize..3,
@@ -293,7 +293,7 @@ proptest::proptest! {
         let dir = tempfile::tempdir().unwrap();
         copy_dir(&scene().join("sparse/0"), dir.path());
         let f = dir.path().join(["cameras.bin", "images.bin", "points3D.bin"][file]);
-        std::fs::write(&f, common::mutate(std::fs::read(&f).unwrap(), &ops)).unwrap();
+        std::fs::write(&f, mutate(std::fs::read(&f).unwrap(), &ops)).unwrap();
         if let Ok(model) = colmap::read_model(dir.path()) {
             let _ = colmap::poses_bounds(&model, dir.path());
         }
@@ -343,7 +343,7 @@ fn image_at(i: u32, centre: DVec3, right: DVec3, down: DVec3, forward: DVec3) ->
 
 #[test]
 fn the_process_step_names_the_photos_colmap_may_have_got_wrong() {
-    use mipnerf_core::data::process::suspect_photos;
+    use mipnerf_data::process::suspect_photos;
     let clean = ring_capture();
     assert_eq!(suspect_photos(&clean), vec![], "a clean capture");
     let mut model = clean.clone();
@@ -377,11 +377,11 @@ fn the_process_step_names_the_photos_colmap_may_have_got_wrong() {
 /// f64 from the same numbers).
 const TOL_EXIF_FOCAL: f64 = 1e-12;
 
-/// The focal length the photos' EXIF implies (`data::focal`), on tags Pillow wrote
+/// The focal length the photos' EXIF implies (`mipnerf_data::focal`), on tags Pillow wrote
 /// (tests/data/exif, scripts/data/make-exif-fixtures.py).
 #[test]
 fn the_focal_length_a_photos_exif_implies() {
-    use data::focal::{FILM_DIAGONAL_MM, FocalSource, exif_focal};
+    use mipnerf_data::focal::{FILM_DIAGONAL_MM, FocalSource, exif_focal};
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/exif");
     let near = |a: f64, b: f64| ((a - b) / b).abs() < TOL_EXIF_FOCAL;
     // A square photo is no camera's frame: a crop keeping the frame's short side (24 mm).
@@ -420,11 +420,15 @@ fn ethiopian_heads_exif_agrees_with_its_poses() {
         eprintln!("skipped: {} is absent (../shared is not beside the checkout)", photo.display());
         return;
     }
-    let f = data::focal::exif_focal(&photo, 1000, 1000).unwrap();
+    let f = mipnerf_data::focal::exif_focal(&photo, 1000, 1000).unwrap();
     let rows = llff::read_poses_bounds(&root.join("poses_bounds.npy")).unwrap();
     let poses = rows[0][14] * 1000.0 / rows[0][4];
     assert!((f.focal_px / poses - 1.0).abs() < 0.02, "EXIF {f:?}, poses {poses}");
-    let check =
-        data::focal::FocalCheck { colmap_px: 1327.0, exif: f, photo: "DSC_0047.JPG".into(), photos_with_exif: 1 };
+    let check = mipnerf_data::focal::FocalCheck {
+        colmap_px: 1327.0,
+        exif: f,
+        photo: "DSC_0047.JPG".into(),
+        photos_with_exif: 1,
+    };
     assert!(check.disagrees() && (check.ratio() - 1.44).abs() < 0.01, "{}", check.ratio());
 }

@@ -2,7 +2,7 @@
 //! the pinhole images NeRF's cameras assume.
 //!
 //! The maths is COLMAP's (`colmap/src/colmap/sensor/models.h`, `image/undistortion.cc`,
-//! `image/warp.cc`), checked against pycolmap's own functions in `core/tests/undistort.rs`:
+//! `image/warp.cc`), checked against pycolmap's own functions in `mipnerf-data/tests/undistort.rs`:
 //! - a camera maps a point `(u, v)` in normalised coordinates (`x / z`, `y / z`) to pixels by
 //!   adding the model's distortion `(du, dv)` and then `x = fx (u + du) + cx`,
 //!   `y = fy (v + dv) + cy`; pixel centres are at `i + 0.5` (the top-left corner of the image is
@@ -17,7 +17,7 @@
 //! resolution) and the principal point at the image centre, cropped to the largest such image
 //! with no blank pixels (COLMAP keeps `fx != fy` and the principal point where it was).
 
-use super::colmap::{CameraModel, ColmapCamera, intrinsics, model_name, model_of, model_param_count};
+use crate::colmap::{CameraModel, ColmapCamera, intrinsics, model_name, model_of, model_param_count};
 
 /// COLMAP's lens distortion models, with their coefficients.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -177,7 +177,7 @@ impl LensCamera {
         }
         // Lens values no photo has: a field of view outside what the loaders take, a principal
         // point outside the picture, a distortion that folds the picture over itself.
-        let (lo, hi) = (crate::camera::MIN_FIELD_OF_VIEW_DEG, crate::camera::MAX_FIELD_OF_VIEW_DEG);
+        let (lo, hi) = (mipnerf_core::camera::MIN_FIELD_OF_VIEW_DEG, mipnerf_core::camera::MAX_FIELD_OF_VIEW_DEG);
         for (axis, focal, side) in [("horizontal", fx, f64::from(width)), ("vertical", fy, f64::from(height))] {
             let fov = 2.0 * (side / (2.0 * focal)).atan().to_degrees();
             if !(lo..=hi).contains(&fov) {
@@ -185,8 +185,8 @@ impl LensCamera {
                     "camera {}: a focal length of {} px gives a {axis} field of view of {} degrees over {side} px; \
                      photos have {lo} to {hi}",
                     c.id,
-                    super::show(focal),
-                    super::show(fov),
+                    crate::show(focal),
+                    crate::show(fov),
                 ));
             }
         }
@@ -194,8 +194,8 @@ impl LensCamera {
             return Err(format!(
                 "camera {}: the principal point ({}, {}) lies outside the {width}x{height} picture",
                 c.id,
-                super::show(cx),
-                super::show(cy)
+                crate::show(cx),
+                crate::show(cy)
             ));
         }
         if let Some(&bad) = k.iter().find(|x| !(x.is_finite() && x.abs() <= MAX_DISTORTION)) {
@@ -203,7 +203,7 @@ impl LensCamera {
                 "camera {} ({name}): a distortion coefficient of {} is beyond any lens's (at most {MAX_DISTORTION} in \
                  size)",
                 c.id,
-                super::show(bad)
+                crate::show(bad)
             ));
         }
         Ok(Self { fx, fy, cx, cy, width, height, distortion })

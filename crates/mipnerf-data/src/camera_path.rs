@@ -24,8 +24,8 @@ use std::path::Path;
 use glam::{DQuat, DVec3};
 use serde_json::{Map, Value, json};
 
-use super::{DataError, pose_from_json, read_json};
-use crate::camera::{Camera, det3, focal_from_camera_angle_x};
+use crate::{DataError, pose_from_json, read_json};
+use mipnerf_core::camera::{Camera, det3, focal_from_camera_angle_x};
 
 /// The most frames a camera file may hold (as `mipnerf render --frames`).
 pub const MAX_FRAMES: usize = 10_000;
@@ -48,7 +48,7 @@ pub fn read(path: &Path, default: &Camera, size: Option<(u32, u32)>) -> Result<V
     if top.contains_key("camera_path") {
         return nerfstudio_path(path, top, size);
     }
-    let to_data = super::nerfstudio::saved_to_data(top, path)?;
+    let to_data = crate::nerfstudio::saved_to_data(top, path)?;
     let frames = top
         .get("frames")
         .ok_or_else(|| DataError::invalid(path, "missing key \"frames\" (a list of {\"transform_matrix\": 4x4})"))?
@@ -86,7 +86,7 @@ pub fn is_nerfstudio_path(path: &Path) -> bool {
 
 /// The cameras of a camera path of nerfstudio's viewer (its `camera_path.json`): `render_width`
 /// and `render_height`, and for each camera a row-major 4x4 `camera_to_world` (OpenGL's axes, in
-/// the frame of the model nerfstudio trained: [`super::nerfstudio::dataparser_to_data`]) and its
+/// the frame of the model nerfstudio trained: [`crate::nerfstudio::dataparser_to_data`]) and its
 /// vertical field of view `fov` in degrees (three.js's), the principal point at the centre;
 /// at another `size`, the same vertical field of view.
 fn nerfstudio_path(path: &Path, top: &Map<String, Value>, size: Option<(u32, u32)>) -> Result<Vec<Camera>, DataError> {
@@ -122,7 +122,7 @@ fn nerfstudio_path(path: &Path, top: &Map<String, Value>, size: Option<(u32, u32
                 fov.ok_or_else(|| at("\"fov\" must be a vertical field of view in degrees, in (0, 180)".into()))?;
             let (w, h) = size.unwrap_or((w, h));
             let focal = 0.5 * f64::from(h) / (0.5 * fov.to_radians()).tan();
-            let pix2cam = crate::camera::pinhole_pix2cam(w, h, focal);
+            let pix2cam = mipnerf_core::camera::pinhole_pix2cam(w, h, focal);
             Camera::from_pix2cam(w, h, pix2cam, cam2world).map_err(|e| at(e.to_string()))
         })
         .collect()
@@ -357,7 +357,7 @@ pub fn interpolate(keys: &[Camera], frames: usize) -> Result<Vec<Camera>, String
 }
 
 /// The rotation of `camera`'s pose, its axes made orthonormal first (exports may be sloppy by up
-/// to [`crate::camera::AXIS_LENGTH_RANGE`]).
+/// to [`mipnerf_core::camera::AXIS_LENGTH_RANGE`]).
 fn rotation(camera: &Camera) -> DQuat {
     let m = camera.cam2world;
     let axis = |c: usize| DVec3::new(m[0][c], m[1][c], m[2][c]);
@@ -370,7 +370,7 @@ fn rotation(camera: &Camera) -> DQuat {
 #[cfg(test)]
 mod tests {
     use super::{interpolate, read, to_json, to_text};
-    use crate::camera::{Camera, pinhole_pix2cam};
+    use mipnerf_core::camera::{Camera, pinhole_pix2cam};
 
     fn pose(x: f64) -> [[f64; 4]; 3] {
         [[1.0, 0.0, 0.0, x], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 4.0]]

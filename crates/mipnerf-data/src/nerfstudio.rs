@@ -1,5 +1,5 @@
 //! A capture in nerfstudio's (and Instant-NGP's) `transforms.json` form, read as the process step
-//! reads a COLMAP model ([`super::process`]).
+//! reads a COLMAP model ([`crate::process`]).
 //!
 //! nerfstudio's `ns-process-data` writes one `transforms.json` beside the photos, from its COLMAP
 //! run; Instant-NGP's `colmap2nerf.py` and apps that export for either write the same form:
@@ -38,11 +38,11 @@ use std::path::{Path, PathBuf};
 use glam::{DMat3, DQuat, DVec3};
 use serde_json::{Map, Value};
 
-use super::camera_path::number;
-use super::colmap::{ColmapCamera, ColmapImage, ColmapModel, ColmapPoint};
-use super::undistort::LensCamera;
-use super::{DataError, pose_from_json, read_json};
-use crate::camera::{Similarity, focal_from_camera_angle_x};
+use crate::camera_path::number;
+use crate::colmap::{ColmapCamera, ColmapImage, ColmapModel, ColmapPoint};
+use crate::undistort::LensCamera;
+use crate::{DataError, pose_from_json, read_json};
+use mipnerf_core::camera::{Similarity, focal_from_camera_angle_x};
 
 /// The file a capture folder holds.
 pub const TRANSFORMS: &str = "transforms.json";
@@ -78,7 +78,7 @@ pub struct Capture {
 /// [`DataError`] naming the file (and the frame): malformed JSON, no frames, a frame without a
 /// `file_path` or `transform_matrix`, a photo that is not there, a path that leaves the folder,
 /// intrinsics that are not positive finite numbers, a lens this tool cannot undistort, a
-/// rotation that is not one, no point cloud, and [`super::ply::read_points`]'s errors.
+/// rotation that is not one, no point cloud, and [`crate::ply::read_points`]'s errors.
 pub fn read(dir: &Path) -> Result<Capture, DataError> {
     let path = dir.join(TRANSFORMS);
     let json = read_json(&path)?;
@@ -128,7 +128,7 @@ pub fn read(dir: &Path) -> Result<Capture, DataError> {
     let beside = match model_beside(dir)? {
         None => None,
         Some(folder) => {
-            let colmap = super::colmap::read_model(&folder)?;
+            let colmap = crate::colmap::read_model(&folder)?;
             match colmap_to_capture(&colmap, &model) {
                 Ok(fit) => Some((folder, colmap, fit)),
                 Err(e) if ply.is_some() => {
@@ -169,7 +169,7 @@ pub fn read(dir: &Path) -> Result<Capture, DataError> {
             .collect();
     } else if let Some(ply) = ply {
         let ply = dir.join(relative(ply).map_err(|e| DataError::invalid(&path, format!("\"ply_file_path\": {e}")))?);
-        let points: Vec<[f64; 3]> = super::ply::read_points(&ply)?.into_iter().map(|p| to_data.point(p)).collect();
+        let points: Vec<[f64; 3]> = crate::ply::read_points(&ply)?.into_iter().map(|p| to_data.point(p)).collect();
         if points.len() < MIN_CLOUD_POINTS {
             return Err(DataError::invalid(
                 &ply,
@@ -233,9 +233,9 @@ fn model_beside(dir: &Path) -> Result<Option<PathBuf>, DataError> {
     for rel in COLMAP_BESIDE {
         let folder = dir.join(rel);
         if folder.is_dir()
-            && let Ok(models) = super::colmap::models_in(&folder)
+            && let Ok(models) = crate::colmap::models_in(&folder)
         {
-            return Ok(Some(super::colmap::largest(&models).1.clone()));
+            return Ok(Some(crate::colmap::largest(&models).1.clone()));
         }
     }
     Ok(None)
@@ -362,7 +362,7 @@ fn photo_name(dir: &Path, frame: &Map<String, Value>) -> Result<String, String> 
     if !there(&rel) && rel.extension().is_none() && there(&rel.with_extension("png")) {
         rel.set_extension("png");
     }
-    match crate::io::check_regular(&dir.join(&rel)) {
+    match mipnerf_core::io::check_regular(&dir.join(&rel)) {
         Ok(()) => {}
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
             return Err(format!("its photo {} is not there", dir.join(&rel).display()));
@@ -390,7 +390,7 @@ fn camera(frame: &Map<String, Value>, top: &Map<String, Value>, file: &Path) -> 
     let (w, h) = match (number("w", frame, top)?, number("h", frame, top)?) {
         (Some(w), Some(h)) => (w, h),
         (None, None) => {
-            let (w, h) = super::image_size(file).map_err(|e| e.to_string())?;
+            let (w, h) = crate::image_size(file).map_err(|e| e.to_string())?;
             (f64::from(w), f64::from(h))
         }
         _ => return Err("give both \"w\" and \"h\", or neither (the photo's size)".into()),

@@ -6,8 +6,8 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::cast_possible_truncation, missing_docs)]
 use std::path::{Path, PathBuf};
 
-use mipnerf_core::data::colmap::{self, ColmapCamera};
-use mipnerf_core::data::undistort::{self, Distortion, LensCamera};
+use mipnerf_data::colmap::{self, ColmapCamera};
+use mipnerf_data::undistort::{self, Distortion, LensCamera};
 use proptest::prelude::*;
 
 /// pycolmap computes in f64 with the same formulas; the iterative inverse stops at steps below

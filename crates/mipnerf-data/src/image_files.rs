@@ -1,11 +1,11 @@
 //! The image files of a dataset, read and written with errors naming the file: every photo and
-//! mask is opened as a regular file ([`crate::io::open_regular`]: a FIFO or a device given as a
+//! mask is opened as a regular file ([`mipnerf_core::io::open_regular`]: a FIFO or a device given as a
 //! photo is refused by name), a JPEG cut short is refused, and a PNG is encoded in memory and
-//! written whole ([`crate::io::write_encoded`]).
+//! written whole ([`mipnerf_core::io::write_encoded`]).
 
 use std::path::Path;
 
-use super::DataError;
+use crate::DataError;
 
 /// Reads a PNG as straight RGBA8, with errors naming the file.
 pub(crate) fn read_png_rgba(path: &Path) -> Result<(u32, u32, Vec<u8>, u8), DataError> {
@@ -22,7 +22,7 @@ pub(crate) fn read_png_rgba(path: &Path) -> Result<(u32, u32, Vec<u8>, u8), Data
 /// Refuses a file that is missing (saying `missing`) or not a regular file (saying what it is:
 /// a FIFO, a device, a folder), naming it.
 pub(crate) fn check_present(file: &Path, missing: &str) -> Result<(), DataError> {
-    match crate::io::check_regular(file) {
+    match mipnerf_core::io::check_regular(file) {
         Ok(()) => Ok(()),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Err(DataError::invalid(file, missing)),
         Err(e) => Err(DataError::io(file, e)),
@@ -36,11 +36,11 @@ pub(crate) fn image_size(path: &Path) -> Result<(u32, u32), DataError> {
         .map_err(|e| DataError::invalid(path, format!("cannot decode the image (reading its size): {e}")))
 }
 
-/// An image decoder over the regular file `path` ([`crate::io::open_regular`]: a FIFO or a
+/// An image decoder over the regular file `path` ([`mipnerf_core::io::open_regular`]: a FIFO or a
 /// device given as a photo is refused by name, never waited on or read without end), its format
 /// guessed from its first bytes.
 fn image_reader(path: &Path) -> Result<image::ImageReader<std::io::BufReader<std::fs::File>>, DataError> {
-    let file = crate::io::open_regular(path).map_err(|e| DataError::io(path, e))?;
+    let file = mipnerf_core::io::open_regular(path).map_err(|e| DataError::io(path, e))?;
     image::ImageReader::new(std::io::BufReader::new(file)).with_guessed_format().map_err(|e| DataError::io(path, e))
 }
 
@@ -49,7 +49,7 @@ fn image_reader(path: &Path) -> Result<image::ImageReader<std::io::BufReader<std
 /// camera and encoder writes it.
 fn check_jpeg_end(path: &Path) -> Result<(), DataError> {
     use std::io::{Read, Seek, SeekFrom};
-    let mut f = crate::io::open_regular(path).map_err(|e| DataError::io(path, e))?;
+    let mut f = mipnerf_core::io::open_regular(path).map_err(|e| DataError::io(path, e))?;
     let len = f.metadata().map_err(|e| DataError::io(path, e))?.len();
     let mut tail = vec![0u8; len.min(4096) as usize];
     f.seek(SeekFrom::Start(len - tail.len() as u64))
@@ -71,9 +71,9 @@ pub(crate) fn image_pixels(path: &Path) -> Result<u64, DataError> {
     Ok(u64::from(w) * u64::from(h))
 }
 
-/// Writes straight RGBA8 as a PNG, whole or not at all ([`crate::io::replace_with`]).
+/// Writes straight RGBA8 as a PNG, whole or not at all ([`mipnerf_core::io::replace_with`]).
 pub(crate) fn write_png_rgba(path: &Path, width: u32, height: u32, rgba: &[u8]) -> Result<(), DataError> {
-    crate::io::write_encoded(path, |bytes| {
+    mipnerf_core::io::write_encoded(path, |bytes| {
         image::ImageEncoder::write_image(
             image::codecs::png::PngEncoder::new(bytes),
             rgba,

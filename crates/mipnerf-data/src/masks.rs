@@ -9,7 +9,7 @@
 
 use std::path::{Path, PathBuf};
 
-use super::{DataError, Dataset, Pixels, box_resize, read_png_rgba};
+use crate::{DataError, Dataset, Pixels, box_resize, read_png_rgba};
 
 /// Mask values within this many 8-bit levels of 0 or 255 are taken as exactly 0 or 255: a JPEG's
 /// ringing (or a painted mask's stray levels) must not make the backdrop slightly opaque, nor
