@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Public items of each library crate (mipnerf-core, mipnerf-gpu, the facade mipnerf), hidden ones
+# Public items of each library crate (mipnerf-core, mipnerf-data, mipnerf-gpu, the facade mipnerf), hidden ones
 # included, from rustdoc's JSON (an unstable rustdoc output, enabled on the stable toolchain with
 # RUSTC_BOOTSTRAP=1; it builds into target/public-items, not the normal target folder). Counts
 # every item reachable from the crate root through public modules, re-exports, inherent methods,
@@ -7,7 +7,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 export CARGO_TARGET_DIR=target/public-items
-for p in mipnerf-core mipnerf-gpu mipnerf; do
+for p in mipnerf-core mipnerf-data mipnerf-gpu mipnerf; do
     RUSTC_BOOTSTRAP=1 cargo rustdoc -q -p "$p" --lib -- -Z unstable-options --output-format json --document-hidden-items
 done
 echo "# public items ($(git rev-parse --short HEAD)$(git diff --quiet HEAD || echo -dirty)): scripts/dev/public-items.sh"

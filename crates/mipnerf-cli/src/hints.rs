@@ -41,7 +41,7 @@ mod tests {
             }
         }
         let mut s = String::new();
-        for c in ["mipnerf-core", "mipnerf-gpu"] {
+        for c in ["mipnerf-core", "mipnerf-data", "mipnerf-gpu"] {
             walk(&std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(c).join("src"), &mut s);
         }
         s

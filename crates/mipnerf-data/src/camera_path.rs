@@ -24,7 +24,7 @@ use std::path::Path;
 use glam::{DQuat, DVec3};
 use serde_json::{Map, Value, json};
 
-use crate::{DataError, pose_from_json, read_json};
+use crate::{DataError, json_number, pose_from_json, read_json};
 use mipnerf_core::camera::{Camera, det3, focal_from_camera_angle_x};
 
 /// The most frames a camera file may hold (as `mipnerf render --frames`).
@@ -128,19 +128,9 @@ fn nerfstudio_path(path: &Path, top: &Map<String, Value>, size: Option<(u32, u32
         .collect()
 }
 
-/// A number under `key`, from the frame or else the top level; `None` when neither has it.
-pub(super) fn number(key: &str, frame: &Map<String, Value>, top: &Map<String, Value>) -> Result<Option<f64>, String> {
-    match frame.get(key).or_else(|| top.get(key)) {
-        None => Ok(None),
-        Some(v) => {
-            v.as_f64().filter(|x| x.is_finite()).map(Some).ok_or_else(|| format!("\"{key}\" is not a finite number"))
-        }
-    }
-}
-
 /// An image side under `key` (`w` or `h`), from the frame or else the top level.
 fn side(key: &str, frame: &Map<String, Value>, top: &Map<String, Value>) -> Result<Option<u32>, String> {
-    let Some(x) = number(key, frame, top)? else { return Ok(None) };
+    let Some(x) = json_number(key, frame, top)? else { return Ok(None) };
     if x.fract() != 0.0 || !(1.0..=f64::from(MAX_SIDE)).contains(&x) {
         return Err(format!("\"{key}\" is {x}; a side is a whole number of pixels from 1 to {MAX_SIDE}"));
     }
@@ -166,7 +156,7 @@ fn camera(
         (None, None) => (default.width, default.height),
         _ => return Err("give both \"w\" and \"h\", or neither (the training photos' size)".into()),
     };
-    let focal_x = match (number("fl_x", frame, top)?, number("camera_angle_x", frame, top)?) {
+    let focal_x = match (json_number("fl_x", frame, top)?, json_number("camera_angle_x", frame, top)?) {
         (Some(f), _) => f,
         (None, Some(angle)) => {
             if !(angle > 0.0 && angle < std::f64::consts::PI) {
@@ -177,9 +167,9 @@ fn camera(
         // The default camera's focal length, in pixels of this width.
         (None, None) => f64::from(w) / f64::from(default.width) / default.pix2cam[0][0],
     };
-    let focal_y = number("fl_y", frame, top)?.unwrap_or(focal_x);
-    let cx = number("cx", frame, top)?.unwrap_or(0.5 * f64::from(w));
-    let cy = number("cy", frame, top)?.unwrap_or(0.5 * f64::from(h));
+    let focal_y = json_number("fl_y", frame, top)?.unwrap_or(focal_x);
+    let cx = json_number("cx", frame, top)?.unwrap_or(0.5 * f64::from(w));
+    let cy = json_number("cy", frame, top)?.unwrap_or(0.5 * f64::from(h));
     for (key, f) in [("fl_x", focal_x), ("fl_y", focal_y)] {
         if f <= 0.0 {
             return Err(format!("the focal length \"{key}\" is {f}; it must be positive"));

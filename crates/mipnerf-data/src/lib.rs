@@ -283,3 +283,18 @@ pub(crate) fn pose_from_json(v: &serde_json::Value, path: &Path, what: &str) -> 
     }
     Ok(m)
 }
+
+/// A number under `key` of a `transforms.json`-style file (camera paths, nerfstudio captures),
+/// from the frame or else the top level; `None` when neither has it.
+pub(crate) fn json_number(
+    key: &str,
+    frame: &serde_json::Map<String, serde_json::Value>,
+    top: &serde_json::Map<String, serde_json::Value>,
+) -> Result<Option<f64>, String> {
+    match frame.get(key).or_else(|| top.get(key)) {
+        None => Ok(None),
+        Some(v) => {
+            v.as_f64().filter(|x| x.is_finite()).map(Some).ok_or_else(|| format!("\"{key}\" is not a finite number"))
+        }
+    }
+}

@@ -38,8 +38,8 @@ use std::path::{Path, PathBuf};
 use glam::{DMat3, DQuat, DVec3};
 use serde_json::{Map, Value};
 
-use crate::camera_path::number;
 use crate::colmap::{ColmapCamera, ColmapImage, ColmapModel, ColmapPoint};
+use crate::json_number;
 use crate::undistort::LensCamera;
 use crate::{DataError, pose_from_json, read_json};
 use mipnerf_core::camera::{Similarity, focal_from_camera_angle_x};
@@ -387,7 +387,7 @@ fn camera(frame: &Map<String, Value>, top: &Map<String, Value>, file: &Path) -> 
         }
         other => return Err(format!("camera_model {other:?}: expected OPENCV, PINHOLE or SIMPLE_PINHOLE")),
     }
-    let (w, h) = match (number("w", frame, top)?, number("h", frame, top)?) {
+    let (w, h) = match (json_number("w", frame, top)?, json_number("h", frame, top)?) {
         (Some(w), Some(h)) => (w, h),
         (None, None) => {
             let (w, h) = crate::image_size(file).map_err(|e| e.to_string())?;
@@ -398,7 +398,7 @@ fn camera(frame: &Map<String, Value>, top: &Map<String, Value>, file: &Path) -> 
     if !(w >= 1.0 && h >= 1.0 && w.fract() == 0.0 && h.fract() == 0.0 && w.max(h) <= f64::from(u32::MAX)) {
         return Err(format!("the size {w}x{h} is not a whole number of pixels"));
     }
-    let fx = match (number("fl_x", frame, top)?, number("camera_angle_x", frame, top)?) {
+    let fx = match (json_number("fl_x", frame, top)?, json_number("camera_angle_x", frame, top)?) {
         (Some(f), _) => f,
         (None, Some(a)) if a > 0.0 && a < std::f64::consts::PI => {
             // `w` is a whole number of pixels from 1 to u32::MAX (checked above).
@@ -408,15 +408,15 @@ fn camera(frame: &Map<String, Value>, top: &Map<String, Value>, file: &Path) -> 
         (None, Some(a)) => return Err(format!("\"camera_angle_x\" is {a}; a field of view in radians is in (0, pi)")),
         (None, None) => return Err("no focal length: give \"fl_x\" (pixels) or \"camera_angle_x\" (radians)".into()),
     };
-    let fy = number("fl_y", frame, top)?.unwrap_or(fx);
-    let cx = number("cx", frame, top)?.unwrap_or(0.5 * w);
-    let cy = number("cy", frame, top)?.unwrap_or(0.5 * h);
+    let fy = json_number("fl_y", frame, top)?.unwrap_or(fx);
+    let cx = json_number("cx", frame, top)?.unwrap_or(0.5 * w);
+    let cy = json_number("cy", frame, top)?.unwrap_or(0.5 * h);
     let mut k = [0.0; 4];
     for (slot, key) in k.iter_mut().zip(["k1", "k2", "p1", "p2"]) {
-        *slot = number(key, frame, top)?.unwrap_or(0.0);
+        *slot = json_number(key, frame, top)?.unwrap_or(0.0);
     }
     for key in ["k3", "k4"] {
-        if let Some(x) = number(key, frame, top)?.filter(|&x| x != 0.0) {
+        if let Some(x) = json_number(key, frame, top)?.filter(|&x| x != 0.0) {
             return Err(format!(
                 "\"{key}\" is {x}: mipnerf undistorts OpenCV's k1, k2, p1, p2 only; undistort the photos first \
                  (COLMAP's image_undistorter)"
