@@ -487,17 +487,12 @@ impl Model {
         stages::encode_view_directions(rays, c.deg_view, &mut ws.view);
         ws.cache.set_training(grads.is_some());
         for level in 0..c.num_levels {
+            let coarse = stages::Sample { n_samples: s, spacing: c.spacing(), mode };
             match (level, spans) {
-                (0, Some(sp)) => stages::sample_occupied_intervals(
-                    rays,
-                    (sp.starts, sp.spans),
-                    s,
-                    c.spacing(),
-                    mode,
-                    &ws.ids,
-                    &mut ws.t,
-                ),
-                (0, None) => stages::sample_intervals(rays, s, c.spacing(), mode, &ws.ids, &mut ws.t),
+                (0, Some(sp)) => {
+                    stages::sample_occupied_intervals(rays, (sp.starts, sp.spans), coarse, &ws.ids, &mut ws.t);
+                }
+                (0, None) => stages::sample_intervals(rays, coarse, &ws.ids, &mut ws.t),
                 _ => {
                     let (t, w) = (&ws.t, &ws.samples.weights);
                     let how = stages::Resample {
@@ -527,7 +522,8 @@ impl Model {
                 ws.cache.raw_rgb.clear();
                 ws.cache.raw_rgb.resize(3 * n, 0.0);
             }
-            stages::add_density_noise(c.density_noise, level, mode, &ws.ids, s, &mut ws.cache.raw_density[..n]);
+            let noise = stages::DensityNoise { std: c.density_noise, level, mode };
+            stages::add_density_noise(noise, &ws.ids, s, &mut ws.cache.raw_density[..n]);
             let raw = RawOutputs { rgb: &ws.cache.raw_rgb[..3 * n], density: &ws.cache.raw_density[..n] };
             let level_rays = LevelRays { t: &ws.t, rays, backgrounds: &ws.backgrounds };
             stages::render_rays(c, raw, level_rays, &mut ws.samples, &mut ws.per_ray);

@@ -88,10 +88,15 @@ impl Trainer {
             GradWith { scratch: Some(scratch), grid },
         );
         let lr = self.optim.lr.lr(self.step);
-        let clip = (self.optim.grad_max_val, self.optim.grad_max_norm);
-        let split = self.optim.field.map(|f| (self.model.field_params(), f));
+        let step = crate::stages::AdamStep {
+            cfg: self.optim.adam,
+            lr,
+            max_val: self.optim.grad_max_val,
+            max_norm: self.optim.grad_max_norm,
+            split: self.optim.field.map(|f| (self.model.field_params(), f)),
+        };
         let (params, grads) = (&mut self.params, &mut self.grads);
-        let grad_norm = crate::stages::adam_step(&self.optim.adam, lr, clip, split, &mut self.adam, params, grads);
+        let grad_norm = crate::stages::adam_step(&step, &mut self.adam, params, grads);
         let report = StepReport { step: self.step, lr, stats, grad_norm: Some(grad_norm) };
         self.step += 1;
         report

@@ -33,7 +33,12 @@ pub fn cast_ipe(ctx: &GpuContext, rays: &[Ray]) -> Result<KernelCheck, GpuError>
     let n = SAMPLES;
     let ids: Vec<u32> = (0..rays.len() as u32).collect();
     let mut t = vec![0.0; rays.len() * (n + 1)];
-    stages::sample_intervals(rays, n, Spacing::Depth, Mode::Eval, &ids, &mut t);
+    stages::sample_intervals(
+        rays,
+        stages::Sample { n_samples: n, spacing: Spacing::Depth, mode: Mode::Eval },
+        &ids,
+        &mut t,
+    );
     let kernel = CastIpeKernel::new(ctx)?;
     let degrees = (0, 16);
     let stage = stages::CastIpe {

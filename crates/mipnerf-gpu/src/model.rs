@@ -12,15 +12,16 @@
 
 use mipnerf_core::model::{LevelOutput, LossStats, Mode, Model, TrainBatch};
 use mipnerf_core::occupancy::OccupancyGrid;
+use mipnerf_core::stages;
 
 use crate::kernels::Recorder;
 pub use crate::kernels::batch::RayBatch;
 use crate::kernels::cast_ipe::{CastIpeKernel, CastIpeParams};
 use crate::kernels::compact::{Compaction, ExpandKernel, ExpandParams, GatherKernel, kept_rays};
-use crate::kernels::occupancy::{DeviceGrid, GuidedRays, OccupancyKernel, OccupancyParams};
+use crate::kernels::occupancy::{DeviceGrid, GuidedRays, OccupancyKernel};
 use crate::kernels::occupancy_update::{OccupancyUpdateKernel, OccupancyUpdateParams, UpdateBuffers};
 use crate::kernels::render::{RenderBuffers, RenderKernel, RenderParams, background_code};
-use crate::kernels::sample::{SampleKernels, SampleParams};
+use crate::kernels::sample::{CoarseLevel, SampleKernels};
 use crate::kernels::tri_mip::{FieldBuffers, PlaneField, Samples, TriMipKernel, total_variation_loss};
 use crate::kernels::view_enc::ViewEncKernel;
 use crate::mlp::{GpuMlp, MlpBuffers};
@@ -293,37 +294,21 @@ impl GpuModel {
         let bufs = &work.mlp;
         self.view.encode(rec, nr, c.deg_view, &batch.viewdirs, &bufs.view)?;
         for level in 0..c.num_levels {
-            let sp = SampleParams {
-                n_rays: nr as u32,
-                n_samples: s as u32,
-                spacing: c.spacing().code(),
-                randomized: u32::from(randomized),
-                seed,
-                step,
-                level: level as u32,
-                resample_padding: c.resample_padding,
-                ..SampleParams::default()
-            };
             let t = &work.t_vals;
             if level == 0 {
+                let how = stages::Sample { n_samples: s, spacing: c.spacing(), mode };
                 match grid {
                     Some(g) => {
-                        let op = OccupancyParams {
-                            n_rays: sp.n_rays,
-                            n_samples: sp.n_samples,
-                            spacing: sp.spacing,
-                            randomized: sp.randomized,
-                            seed,
-                            step,
-                            ..OccupancyParams::default()
-                        };
                         let rays = GuidedRays { rays: &batch.rays, bounds: &batch.bounds, ray_ids: &batch.ids };
-                        self.occupancy.sample(rec, op, g, rays, &t[0])?;
+                        self.occupancy.sample(rec, nr, how, g, rays, &t[0])?;
                     }
-                    None => self.sample.stratified(rec, sp, &batch.bounds, &batch.ids, &t[0])?,
+                    None => self.sample.stratified(rec, nr, how, &batch.bounds, &batch.ids, &t[0])?,
                 }
             } else {
-                self.sample.resample(rec, sp, &t[level - 1], &work.weights, &batch.ids, &t[level])?;
+                let how =
+                    stages::Resample { n_samples: s, spacing: c.spacing(), padding: c.resample_padding, level, mode };
+                let coarse = CoarseLevel { t: &t[level - 1], weights: &work.weights };
+                self.sample.resample(rec, nr, how, coarse, &batch.ids, &t[level])?;
             }
             let samples = Samples { rays: &batch.rays, t_vals: &t[level], n_rays: nr, n_samples: s, probes: false };
             self.encode_samples(rec, model, params, samples, work)?;
@@ -345,9 +330,7 @@ impl GpuModel {
             };
             let mut rp = RenderParams::new(c, nr, level_w[level], grads.is_some());
             rp.density_stride = bufs.raw_density().1 as u32;
-            if randomized && c.density_noise > 0.0 {
-                rp = rp.with_density_noise(c.density_noise, seed, step, level as u32);
-            }
+            rp = rp.with_density_noise(stages::DensityNoise { std: c.density_noise, level, mode });
             if randomized && c.random_bkgd {
                 rp = rp.with_random_background(seed, step);
             }

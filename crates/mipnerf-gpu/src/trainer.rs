@@ -27,10 +27,11 @@ use mipnerf_core::checkpoint::Checkpoint;
 use mipnerf_core::dataset::Dataset;
 use mipnerf_core::model::{LevelOutput, Levels, Mode, Model};
 use mipnerf_core::occupancy::OccupancyGrid;
+use mipnerf_core::stages::AdamStep;
 use mipnerf_core::train::{AdamState, OptimConfig, StepReport};
 
 use crate::GradientAtomics;
-use crate::kernels::adam::{AdamBuffers, AdamKernel, AdamStep};
+use crate::kernels::adam::{AdamBuffers, AdamKernel};
 use crate::kernels::batch::{BatchKernel, DeviceImages, Draw};
 use crate::kernels::compact::{Compaction, kept_rays};
 use crate::kernels::occupancy::DeviceGrid;
@@ -348,14 +349,13 @@ impl GpuBackend {
         };
         let adam = AdamStep {
             cfg: self.optim.adam,
-            t: self.adam_t + 1,
             lr,
             max_val: self.optim.grad_max_val,
             max_norm: self.optim.grad_max_norm,
             split: self.optim.field.map(|f| (self.model.field_params(), f)),
         };
         self.kernels.finish_field(&mut rec, &self.model, &self.state.params, work, &self.state.grads)?;
-        self.adam_kernel.encode(&mut rec, &adam, &self.state)?;
+        self.adam_kernel.encode(&mut rec, &adam, self.adam_t + 1, &self.state)?;
         self.train_cache = rec.submit();
         self.adam_t += 1;
         self.step += 1;

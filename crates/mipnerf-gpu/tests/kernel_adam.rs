@@ -8,8 +8,9 @@ use common::*;
 
 #[test]
 fn adam_and_gradient_clipping_match_cpu_reference() {
+    use mipnerf_core::stages::AdamStep;
     use mipnerf_core::train::{AdamConfig, AdamState, FieldAdam};
-    use mipnerf_gpu::kernels::adam::{AdamBuffers, AdamKernel, AdamStep};
+    use mipnerf_gpu::kernels::adam::{AdamBuffers, AdamKernel};
     use rand::{Rng, SeedableRng, rngs::SmallRng};
     let Some(ctx) = context_or_skip("adam_and_gradient_clipping_match_cpu_reference") else { return };
     let kernel = AdamKernel::new(&ctx).unwrap();
@@ -31,6 +32,7 @@ fn adam_and_gradient_clipping_match_cpu_reference() {
         (0.0, 0.5, planes),
     ];
     for (max_val, max_norm, split) in cases {
+        let step = AdamStep { cfg, lr, max_val, max_norm, split };
         // The starting parameters and three steps' gradients.
         let mut rng = SmallRng::seed_from_u64(3);
         let params: Vec<f32> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
@@ -38,15 +40,7 @@ fn adam_and_gradient_clipping_match_cpu_reference() {
         let cpu = |(params, steps): &(Vec<f32>, Vec<Vec<f32>>)| -> Outputs {
             let (mut params, mut state, mut norms) = (params.clone(), AdamState::new(n), Vec::new());
             for grads in steps {
-                let norm = stages::adam_step(
-                    &cfg,
-                    lr,
-                    (max_val, max_norm),
-                    split,
-                    &mut state,
-                    &mut params,
-                    &mut grads.clone(),
-                );
+                let norm = stages::adam_step(&step, &mut state, &mut params, &mut grads.clone());
                 norms.push(norm);
             }
             let norms = if max_norm > 0.0 { norms } else { Vec::new() };
@@ -58,7 +52,7 @@ fn adam_and_gradient_clipping_match_cpu_reference() {
             for (t, grads) in (1..).zip(steps) {
                 ctx.queue().write_buffer(&b.grads, 0, bytemuck::cast_slice(grads));
                 let mut rec = Recorder::new(&ctx, "adam test");
-                kernel.encode(&mut rec, &AdamStep { cfg, t, lr, max_val, max_norm, split }, &b)?;
+                kernel.encode(&mut rec, &step, t, &b)?;
                 let _ = rec.submit();
                 if max_norm > 0.0 {
                     norms.push(ctx.read_f32(&b.stats, 1)?[0]);

@@ -17,7 +17,7 @@ fn cast_ipe_matches_cpu_reference() {
     let mut t = vec![0.0; rays.len() * (n + 1)];
     let ids: Vec<u32> = (0..rays.len() as u32).collect();
     let mode = Mode::Train { seed: 7, step: 0 };
-    stages::sample_intervals(&rays, n, Spacing::Depth, mode, &ids, &mut t);
+    stages::sample_intervals(&rays, stages::Sample { n_samples: n, spacing: Spacing::Depth, mode }, &ids, &mut t);
     // An unbounded scene: the same camera moved into the unit ball, edges out to infinity, so
     // that each ray has Gaussians inside the ball (unchanged) and outside it (contracted).
     let inside: Vec<Ray> = rays
@@ -25,7 +25,12 @@ fn cast_ipe_matches_cpu_reference() {
         .map(|r| Ray { origin: r.origin * (0.9 / r.origin.length()), near: 0.1, far: UNBOUNDED_FAR, ..*r })
         .collect();
     let mut t_inside = vec![0.0; rays.len() * (n + 1)];
-    stages::sample_intervals(&inside, n, Spacing::Unbounded, mode, &ids, &mut t_inside);
+    stages::sample_intervals(
+        &inside,
+        stages::Sample { n_samples: n, spacing: Spacing::Unbounded, mode },
+        &ids,
+        &mut t_inside,
+    );
     let degrees = (0, 16);
     let mut bad = Vec::new();
     // Unbounded scenes cast cones only (`Model::new` refuses cylinders there).

@@ -126,7 +126,7 @@ fn guided_edges_match_cpu(
     spacings: &[Spacing],
 ) {
     use mipnerf_core::contract::ray_distance_to_s;
-    use mipnerf_gpu::kernels::occupancy::{DeviceGrid, GuidedRays, OccupancyKernel, OccupancyParams};
+    use mipnerf_gpu::kernels::occupancy::{DeviceGrid, GuidedRays, OccupancyKernel};
     use mipnerf_gpu::model::RayBatch;
     let kernel = OccupancyKernel::new(ctx).unwrap();
     let nr = rays.len();
@@ -165,29 +165,21 @@ fn guided_edges_match_cpu(
     let cases = spacings.iter().flat_map(|&spacing| [(spacing, false), (spacing, true)]);
     for (spacing, randomized) in cases {
         let mode = mode_of(randomized, seed, step);
+        let how = stages::Sample { n_samples: s, spacing, mode };
         let unbounded = spacing == Spacing::Unbounded;
         let in_s = |t: Vec<f32>| if unbounded { t.into_iter().map(ray_distance_to_s).collect() } else { t };
         let cpu = |rays: &[Ray]| -> Outputs {
             let mut t = vec![0.0f32; nr * (s + 1)];
             let (starts, spans) = spans_of_rays(rays);
-            stages::sample_occupied_intervals(rays, (&starts, &spans), s, spacing, mode, &ids, &mut t);
+            stages::sample_occupied_intervals(rays, (&starts, &spans), how, &ids, &mut t);
             vec![("edges", in_s(t))]
         };
         let on_gpu = |_: &[Ray]| -> Result<Outputs, GpuError> {
             let t_out = ctx.storage_buffer("t coarse", &vec![f32::NAN; nr * (s + 1)], true);
-            let params = OccupancyParams {
-                n_rays: nr as u32,
-                n_samples: s as u32,
-                spacing: spacing.code(),
-                randomized: u32::from(randomized),
-                seed,
-                step,
-                ..OccupancyParams::default()
-            };
             let mut rec = Recorder::new(ctx, "occupancy test");
             let b_ids = ctx.storage_buffer("ray ids", &ids, false);
             let rays = GuidedRays { rays: &batch.rays, bounds: &batch.bounds, ray_ids: &b_ids };
-            kernel.sample(&mut rec, params, &on_device, rays, &t_out)?;
+            kernel.sample(&mut rec, nr, how, &on_device, rays, &t_out)?;
             let _ = rec.submit();
             Ok(vec![("edges", in_s(ctx.read_f32(&t_out, nr * (s + 1))?))])
         };

@@ -20,7 +20,7 @@ const TOL_GPU_RESAMPLE_WIDE_S_ABS: f32 = 2e-5;
 fn sampling_and_resampling_match_cpu_reference() {
     use mipnerf_core::contract::ray_distance_to_s;
     use mipnerf_core::sampling::RESAMPLE_PADDING;
-    use mipnerf_gpu::kernels::sample::{ResampleVariant, SampleKernels, SampleParams};
+    use mipnerf_gpu::kernels::sample::{CoarseLevel, ResampleVariant, SampleKernels};
     use rand::{Rng, SeedableRng, rngs::SmallRng};
     let Some(ctx) = context_or_skip("sampling_and_resampling_match_cpu_reference") else { return };
     let mut bad = Vec::new();
@@ -53,6 +53,8 @@ fn sampling_and_resampling_match_cpu_reference() {
         let spacings = [Spacing::Depth, Spacing::Disparity, Spacing::Unbounded];
         for (spacing, randomized) in spacings.into_iter().flat_map(|sp| [(sp, false), (sp, true)]) {
             let mode = mode_of(randomized, seed, step);
+            let coarse_how = stages::Sample { n_samples: s, spacing, mode };
+            let fine_how = stages::Resample { n_samples: s, spacing, padding: RESAMPLE_PADDING, level: 1, mode };
             let rays = if spacing == Spacing::Unbounded { &unbounded } else { &bounded };
             // Unbounded edges are compared in s (TOL_GPU_SAMPLE_S_ABS).
             let compared = |name: &'static str, t: Vec<f32>| -> (&'static str, Vec<f32>) {
@@ -64,29 +66,12 @@ fn sampling_and_resampling_match_cpu_reference() {
             };
             let cpu = |(rays, w): &(Vec<Ray>, Vec<f32>)| -> Outputs {
                 let (mut coarse, mut fine) = (vec![0.0; nr * (s + 1)], vec![0.0; nr * (s + 1)]);
-                stages::sample_intervals(rays, s, spacing, mode, &ids, &mut coarse);
-                stages::resample_intervals(
-                    &coarse,
-                    w,
-                    stages::Resample { n_samples: s, spacing, padding: RESAMPLE_PADDING, level: 1, mode },
-                    &ids,
-                    &mut fine,
-                );
+                stages::sample_intervals(rays, coarse_how, &ids, &mut coarse);
+                stages::resample_intervals(&coarse, w, fine_how, &ids, &mut fine);
                 vec![compared("coarse", coarse), compared("fine", fine)]
             };
             // GPU, outputs poisoned.
             let on_gpu = |(rays, w): &(Vec<Ray>, Vec<f32>)| -> Result<Outputs, GpuError> {
-                let params = SampleParams {
-                    n_rays: nr as u32,
-                    n_samples: s as u32,
-                    spacing: spacing.code(),
-                    randomized: u32::from(randomized),
-                    seed,
-                    step,
-                    level: 1,
-                    resample_padding: RESAMPLE_PADDING,
-                    ..SampleParams::default()
-                };
                 let bounds: Vec<f32> = rays.iter().flat_map(|r| [r.near, r.far]).collect();
                 let b_bounds = ctx.storage_buffer("bounds", &bounds, false);
                 let b_w = ctx.storage_buffer("weights", w, false);
@@ -94,8 +79,8 @@ fn sampling_and_resampling_match_cpu_reference() {
                 let b_f = ctx.storage_buffer("t fine", &vec![f32::NAN; nr * (s + 1)], true);
                 let b_ids = ctx.storage_buffer("ray ids", &ids, false);
                 let mut rec = Recorder::new(&ctx, "sample test");
-                k.stratified(&mut rec, params, &b_bounds, &b_ids, &b_t)?;
-                k.resample(&mut rec, params, &b_t, &b_w, &b_ids, &b_f)?;
+                k.stratified(&mut rec, nr, coarse_how, &b_bounds, &b_ids, &b_t)?;
+                k.resample(&mut rec, nr, fine_how, CoarseLevel { t: &b_t, weights: &b_w }, &b_ids, &b_f)?;
                 let _ = rec.submit();
                 Ok(vec![
                     compared("coarse", ctx.read_f32(&b_t, nr * (s + 1))?),

@@ -80,7 +80,8 @@ fn rays_and_edges(unbounded: bool) -> (Vec<Ray>, Vec<f32>) {
     };
     let ids: Vec<u32> = (0..rays.len() as u32).collect();
     let mut t = vec![0.0; rays.len() * 17];
-    stages::sample_intervals(&rays, 16, spacing, Mode::Train { seed: 5, step: 0 }, &ids, &mut t);
+    let how = stages::Sample { n_samples: 16, spacing, mode: Mode::Train { seed: 5, step: 0 } };
+    stages::sample_intervals(&rays, how, &ids, &mut t);
     (rays, t)
 }
 

@@ -25,11 +25,11 @@ mod render;
 mod sample;
 mod view_enc;
 
-pub use adam::adam_step;
+pub use adam::{AdamStep, adam_step};
 pub use cast_ipe::{CastIpe, cast_and_encode, encode_gaussian};
 pub use render::{
-    LevelRays, RawGradients, RawOutputs, RenderedSamples, add_density_noise, distortion_loss, normalised_distance,
-    render_rays, render_rays_backward,
+    DensityNoise, LevelRays, RawGradients, RawOutputs, RenderedSamples, add_density_noise, distortion_loss,
+    normalised_distance, render_rays, render_rays_backward,
 };
-pub use sample::{Resample, resample_intervals, sample_intervals, sample_occupied_intervals};
+pub use sample::{Resample, Sample, resample_intervals, sample_intervals, sample_occupied_intervals};
 pub use view_enc::encode_view_directions;

@@ -7,20 +7,35 @@ use crate::render::{self, RenderedRay};
 use crate::rng::{RayRng, Stream, ray_level_index};
 use crate::sampling::Spacing;
 
+/// The training noise on a level's raw densities, as [`add_density_noise`] and its kernel
+/// (`render.wgsl`) take it: its standard deviation (the model's `density_noise`), the level (its
+/// random stream), and the mode (noise in training only).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DensityNoise {
+    /// Standard deviation; none at 0.
+    pub std: f32,
+    /// The level, which picks the stream.
+    pub level: usize,
+    /// Training (noise) or rendering (none).
+    pub mode: Mode,
+}
+
+impl DensityNoise {
+    /// Whether any noise is added: in training, with a positive standard deviation.
+    #[must_use]
+    pub fn is_on(self) -> bool {
+        matches!(self.mode, Mode::Train { .. }) && self.std > 0.0
+    }
+}
+
 /// Training only: Gaussian noise of standard deviation `std` on each ray's `n_samples` raw
 /// densities, from the ray's `DensityNoise` stream at `level`. Nothing in evaluation or for
 /// `std <= 0`. Kernel: `render.wgsl` (before the activations).
 ///
 /// # Panics
 /// If `raw_density` is not `ray_ids.len() * n_samples` long.
-pub fn add_density_noise(
-    std: f32,
-    level: usize,
-    mode: Mode,
-    ray_ids: &[u32],
-    n_samples: usize,
-    raw_density: &mut [f32],
-) {
+pub fn add_density_noise(noise: DensityNoise, ray_ids: &[u32], n_samples: usize, raw_density: &mut [f32]) {
+    let DensityNoise { std, level, mode } = noise;
     assert_eq!(raw_density.len(), ray_ids.len() * n_samples, "add_density_noise: raw densities");
     let (Mode::Train { seed, step }, true) = (mode, std > 0.0) else {
         return;

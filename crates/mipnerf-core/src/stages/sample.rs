@@ -6,6 +6,19 @@ use crate::config::Mode;
 use crate::rng::{RayRng, Stream, ray_level_index};
 use crate::sampling::{self, PdfSamples, Spacing};
 
+/// How the coarse level's edges are drawn ([`sample_intervals`], [`sample_occupied_intervals`];
+/// their kernels, `sample.wgsl`'s `stratified` and `occupancy.wgsl`, take the same settings):
+/// intervals a ray, their spacing, and training's jitter or rendering's even edges.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sample {
+    /// Intervals a ray.
+    pub n_samples: usize,
+    /// Linear in depth, in disparity, or in the unbounded scene's normalised distance.
+    pub spacing: Spacing,
+    /// Training (jittered edges) or rendering (even ones).
+    pub mode: Mode,
+}
+
 /// The interval edges of the coarse level: `n_samples + 1` edges per ray between its `near` and
 /// `far`, spaced as `spacing` says ([`sampling::sample_spaced`]), jittered in training by the
 /// ray's `SampleJitter` stream (`ray_ids[r]`: the ray's index in the batch, which picks its
@@ -13,7 +26,8 @@ use crate::sampling::{self, PdfSamples, Spacing};
 ///
 /// # Panics
 /// If `t` is not `rays.len() * (n_samples + 1)` long or `ray_ids` is shorter than `rays`.
-pub fn sample_intervals(rays: &[Ray], n_samples: usize, spacing: Spacing, mode: Mode, ray_ids: &[u32], t: &mut [f32]) {
+pub fn sample_intervals(rays: &[Ray], how: Sample, ray_ids: &[u32], t: &mut [f32]) {
+    let Sample { n_samples, spacing, mode } = how;
     assert_eq!(t.len(), rays.len() * (n_samples + 1), "sample_intervals: t values");
     assert!(ray_ids.len() >= rays.len(), "sample_intervals: {} ray ids for {} rays", ray_ids.len(), rays.len());
     for ((ray, &id), t) in rays.iter().zip(ray_ids).zip(t.chunks_exact_mut(n_samples + 1)) {
@@ -34,12 +48,11 @@ pub fn sample_intervals(rays: &[Ray], n_samples: usize, spacing: Spacing, mode: 
 pub fn sample_occupied_intervals(
     rays: &[Ray],
     (starts, spans): (&[u32], &[[f32; 2]]),
-    n_samples: usize,
-    spacing: Spacing,
-    mode: Mode,
+    how: Sample,
     ray_ids: &[u32],
     t: &mut [f32],
 ) {
+    let Sample { n_samples, spacing, mode } = how;
     use crate::contract::{ray_distance_to_s, s_to_ray_distance};
     assert_eq!(t.len(), rays.len() * (n_samples + 1), "sample_occupied_intervals: t values");
     assert!(

@@ -3,7 +3,7 @@
 //! CPU reference: [`mipnerf_core::stages::adam_step`].
 
 use mipnerf_core::optim::FieldAdam;
-use mipnerf_core::train::AdamConfig;
+use mipnerf_core::stages::AdamStep;
 
 use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
@@ -51,24 +51,6 @@ pub struct AdamParams {
     pub _pad0: u32,
     /// Padding.
     pub _pad1: u32,
-}
-
-/// One update: Adam's settings, the update number, the learning rate and the clipping.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct AdamStep {
-    /// Adam's settings.
-    pub cfg: AdamConfig,
-    /// Update number, 1-based.
-    pub t: u64,
-    /// Learning rate.
-    pub lr: f32,
-    /// Clip each entry to `±max_val` (0: off).
-    pub max_val: f32,
-    /// Clip the norm to `max_norm` (0: off).
-    pub max_norm: f32,
-    /// The field's own parameters (the first ones) and their learning-rate multiplier and
-    /// epsilon, as the CPU's `AdamState::update_split` takes them.
-    pub split: Option<(usize, FieldAdam)>,
 }
 
 /// The buffers of an update of `count` parameters.
@@ -133,12 +115,13 @@ impl AdamKernel {
         Ok(Self { update, sq_partial, norm_finish, layout })
     }
 
-    /// Records the clipping (when on) and update `step` of every parameter in `b`.
+    /// Records the clipping (when on) and update `step` of every parameter in `b`, Adam's
+    /// update number `t` (1-based; the CPU's `AdamState::t` after the update).
     ///
     /// # Errors
     /// [`GpuError::InvalidInput`] for too many parameters for one dispatch.
-    pub fn encode(&self, rec: &mut Recorder<'_>, step: &AdamStep, b: &AdamBuffers) -> Result<(), GpuError> {
-        let t = step.t as i32;
+    pub fn encode(&self, rec: &mut Recorder<'_>, step: &AdamStep, t: u64, b: &AdamBuffers) -> Result<(), GpuError> {
+        let t = t as i32;
         let cfg = &step.cfg;
         let (split, field) = step.split.unwrap_or((0, FieldAdam { lr_mult: 1.0, eps: cfg.eps }));
         if split > b.count {

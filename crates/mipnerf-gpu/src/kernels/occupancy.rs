@@ -2,7 +2,9 @@
 //!
 //! CPU reference: [`mipnerf_core::stages::sample_occupied_intervals`] (the spans from [`mipnerf_core::occupancy::OccupancyGrid::ray_segments`]).
 
+use mipnerf_core::model::Mode;
 use mipnerf_core::occupancy::OccupancyGrid;
+use mipnerf_core::stages::Sample;
 
 use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
@@ -200,21 +202,35 @@ impl OccupancyKernel {
         Ok(Self { pipeline, layout })
     }
 
-    /// Records the coarse edges of every ray (`rays`: two vec4 per ray, `bounds`: (near, far)
-    /// per ray, `ray_ids`: its index in the step's batch, for its jitter) inside `grid`'s
-    /// occupied spans into `t_out`. `params`' grid fields are filled from `grid`.
+    /// Records the coarse edges of `n_rays` rays (`rays`: two vec4 per ray, `bounds`: (near,
+    /// far) per ray, `ray_ids`: its index in the step's batch, for its jitter) inside `grid`'s
+    /// occupied spans into `t_out`, drawn as `how` says.
     ///
     /// # Errors
     /// [`GpuError::InvalidInput`] for a sample count out of range.
     pub fn sample(
         &self,
         rec: &mut Recorder<'_>,
-        mut params: OccupancyParams,
+        n_rays: usize,
+        how: Sample,
         grid: &DeviceGrid,
         rays: GuidedRays<'_>,
         t_out: &wgpu::Buffer,
     ) -> Result<(), GpuError> {
         let GuidedRays { rays, bounds, ray_ids } = rays;
+        let (seed, step, randomized) = match how.mode {
+            Mode::Train { seed, step } => (seed, step, 1),
+            Mode::Eval => (0, 0, 0),
+        };
+        let mut params = OccupancyParams {
+            n_rays: n_rays as u32,
+            n_samples: how.n_samples as u32,
+            spacing: how.spacing.code(),
+            randomized,
+            seed,
+            step,
+            ..OccupancyParams::default()
+        };
         if params.n_samples == 0 || params.n_samples as usize > kernels::sample::MAX_SAMPLES {
             return Err(GpuError::InvalidInput(format!(
                 "occupancy: {} samples per ray (1..={})",

@@ -2,6 +2,9 @@
 //!
 //! CPU reference: [`mipnerf_core::stages::add_density_noise`], [`mipnerf_core::stages::render_rays`] and [`mipnerf_core::stages::render_rays_backward`].
 
+use mipnerf_core::model::Mode;
+use mipnerf_core::stages::DensityNoise;
+
 use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
@@ -82,13 +85,16 @@ impl RenderParams {
         self
     }
 
-    /// With the training noise on raw density of `cfg` for `(seed, step, level)`.
+    /// With the training noise on raw density `noise` (none in evaluation or at 0), as
+    /// [`mipnerf_core::stages::add_density_noise`] adds it.
     #[must_use]
-    pub fn with_density_noise(mut self, std: f32, seed: u32, step: u32, level: u32) -> Self {
-        self.density_noise = std;
-        self.seed = seed;
-        self.step = step;
-        self.level = level;
+    pub fn with_density_noise(mut self, noise: DensityNoise) -> Self {
+        if let (true, Mode::Train { seed, step }) = (noise.is_on(), noise.mode) {
+            self.density_noise = noise.std;
+            self.seed = seed;
+            self.step = step;
+            self.level = noise.level as u32;
+        }
         self
     }
 }

@@ -2,6 +2,10 @@
 //!
 //! CPU reference: [`mipnerf_core::stages::sample_intervals`] and [`mipnerf_core::stages::resample_intervals`].
 
+use mipnerf_core::model::Mode;
+use mipnerf_core::sampling::Spacing;
+use mipnerf_core::stages::{Resample, Sample};
+
 use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
@@ -36,6 +40,36 @@ pub struct SampleParams {
     pub groups_x: u32,
     /// Padding.
     pub _pad: [u32; 3],
+}
+
+/// The level a resampling draws from: its edges and its weights.
+#[derive(Clone, Copy, Debug)]
+pub struct CoarseLevel<'a> {
+    /// The level's edges, `n_samples + 1` per ray.
+    pub t: &'a wgpu::Buffer,
+    /// The level's weights, `n_samples` per ray.
+    pub weights: &'a wgpu::Buffer,
+}
+
+impl SampleParams {
+    /// The uniform block for `n_rays` rays of `n_samples` intervals spaced as `spacing` says,
+    /// jittered in training (`mode`); the level and padding are the resampling's.
+    #[must_use]
+    pub fn new(n_rays: usize, n_samples: usize, spacing: Spacing, mode: Mode) -> Self {
+        let (seed, step, randomized) = match mode {
+            Mode::Train { seed, step } => (seed, step, 1),
+            Mode::Eval => (0, 0, 0),
+        };
+        Self {
+            n_rays: n_rays as u32,
+            n_samples: n_samples as u32,
+            spacing: spacing.code(),
+            randomized,
+            seed,
+            step,
+            ..Self::default()
+        }
+    }
 }
 
 /// How the fine edges are resampled. Both give the same edges up to the rounding of the sums
@@ -113,36 +147,46 @@ impl SampleKernels {
         Ok(())
     }
 
-    /// Records the coarse edges of every ray from `bounds` ((near, far) per ray) into `t_out`,
-    /// jittered (in training) by the streams of the rays' batch indices `ray_ids`.
+    /// Records the coarse edges of `n_rays` rays from `bounds` ((near, far) per ray) into `t_out`,
+    /// jittered (in training) by the streams of the rays' batch indices `ray_ids`:
+    /// [`mipnerf_core::stages::sample_intervals`] with the same `how`.
     ///
     /// # Errors
     /// [`GpuError::InvalidInput`] for a sample count out of range.
     pub fn stratified(
         &self,
         rec: &mut Recorder<'_>,
-        params: SampleParams,
+        n_rays: usize,
+        how: Sample,
         bounds: &wgpu::Buffer,
         ray_ids: &wgpu::Buffer,
         t_out: &wgpu::Buffer,
     ) -> Result<(), GpuError> {
+        let params = SampleParams::new(n_rays, how.n_samples, how.spacing, how.mode);
         self.run(rec, &self.stratified, params, [bounds, bounds, t_out, ray_ids])
     }
 
-    /// Records the fine edges of every ray from the coarse edges and weights into `t_out`, with
-    /// (in training) the offsets of the rays' batch indices `ray_ids`.
+    /// Records the edges of level `how.level` of `n_rays` rays from the `coarse` level's edges and
+    /// weights into `t_out`, with (in training) the offsets of the rays' batch indices `ray_ids`:
+    /// [`mipnerf_core::stages::resample_intervals`] with the same `how`.
     ///
     /// # Errors
     /// [`GpuError::InvalidInput`] for a sample count out of range.
     pub fn resample(
         &self,
         rec: &mut Recorder<'_>,
-        params: SampleParams,
-        t_coarse: &wgpu::Buffer,
-        weights: &wgpu::Buffer,
+        n_rays: usize,
+        how: Resample,
+        coarse: CoarseLevel<'_>,
         ray_ids: &wgpu::Buffer,
         t_out: &wgpu::Buffer,
     ) -> Result<(), GpuError> {
+        let CoarseLevel { t: t_coarse, weights } = coarse;
+        let params = SampleParams {
+            level: how.level as u32,
+            resample_padding: how.padding,
+            ..SampleParams::new(n_rays, how.n_samples, how.spacing, how.mode)
+        };
         self.run(rec, &self.resample, params, [t_coarse, weights, t_out, ray_ids])
     }
 }
