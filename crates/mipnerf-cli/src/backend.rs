@@ -74,6 +74,22 @@ pub struct DeviceArgs {
     pub gpu_memory: Option<u64>,
 }
 
+/// Where a trained run renders (`eval`, `render`): the backend, its GPU flags and the MLP's
+/// precision.
+#[derive(clap::Args, Clone, Debug)]
+pub struct RenderOnArgs {
+    /// Where to render: cpu, gpu (any adapter, software included), or auto (a hardware GPU if
+    /// present, else the CPU).
+    #[arg(long, value_enum, default_value_t = Backend::Auto)]
+    pub backend: Backend,
+    #[command(flatten)]
+    pub device: DeviceArgs,
+    /// Precision of the MLP's matrix products: f32, bf16 (AMX or AVX-512 BF16, CPU backend) or auto
+    /// [default: the precision the run trained with].
+    #[arg(long, value_enum)]
+    pub precision: Option<PrecisionArg>,
+}
+
 impl DeviceArgs {
     /// The [`DeviceOptions`] these flags ask for.
     #[must_use]

@@ -249,21 +249,8 @@ fn a_resumed_run_continues_at_the_right_step() {
     let data = small_demo_scene(dir.path(), 3);
     let run = dir.path().join("run");
     let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
-    run_ok(&[
-        "train",
-        "--data",
-        d,
-        "--out",
-        r,
-        "--steps",
-        "20",
-        "--checkpoint-every",
-        "10",
-        "--batch-rays",
-        "64",
-        "--backend",
-        "cpu",
-    ]);
+    let every_ten = ["--steps", "20", "--checkpoint-every", "10", "--batch-rays", "64", "--backend", "cpu"];
+    run_ok(&[&["train", "--data", d, "--out", r][..], &every_ten].concat());
     // Training into an existing run without --resume is refused, and nothing is overwritten.
     let again = mipnerf(&["train", "--data", d, "--out", r, "--steps", "20"]);
     assert!(!again.status.success());
@@ -1014,11 +1001,9 @@ fn the_fast_preset_trains_forward_facing_photos_with_its_grid_in_ndc() {
     use mipnerf_core::dataset::Split;
     use mipnerf_data::LoadOptions;
     let dir = tempfile::tempdir().unwrap();
-    let data = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/llff_fern_tiny");
-    let run = dir.path().join("run");
-    let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
-    let args = ["train", "--data", d, "--llff-factor", "64", "--out", r, "--preset", "fast", "--steps", "300"];
-    let text = run_ok(&[&args[..], &["--batch-rays", "128"]].concat());
+    let data = common::fern_tiny();
+    let (run, text) = common::train_fern_fast(dir.path(), "300", &["--batch-rays", "128"]);
+    let r = run.to_str().unwrap();
     assert!(text.contains("in NDC space") && text.contains("that no training ray reaches carved"), "{text}");
     let ds =
         mipnerf_data::load(&data, Split::Train, &LoadOptions { llff_factor: 64, ..LoadOptions::default() }).unwrap();

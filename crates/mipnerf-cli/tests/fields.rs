@@ -6,7 +6,7 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use common::{run_err, run_ok, small_demo_scene};
 
@@ -142,7 +142,7 @@ fn what_the_tri_mip_field_does_not_run_is_refused_by_name() {
 fn forward_facing_photos_train_the_planes_over_ndc_and_an_unbounded_scene_over_its_contraction() {
     let dir = tempfile::tempdir().unwrap();
     let out = |name: &str| dir.path().join(name);
-    let fern = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/llff_fern_tiny");
+    let fern = common::fern_tiny();
     let cfg = out("small.toml");
     std::fs::write(&cfg, "tri_mip_resolution = 32\n").unwrap();
     let train = |run: &Path, more: &[&str]| {

@@ -553,12 +553,8 @@ fn the_viewer_bounds_what_a_client_can_make_it_hold_and_drops_frames_nobody_read
 #[test]
 fn a_forward_facing_capture_keeps_its_aspect_and_its_camera_stays_where_the_photos_were() {
     let dir = tempfile::tempdir().unwrap();
-    let data = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/llff_fern_tiny");
-    let run = dir.path().join("run");
-    let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
-    let args =
-        ["train", "--data", d, "--llff-factor", "64", "--out", r, "--preset", "fast", "--steps", "30", "--quiet"];
-    run_ok(&args);
+    let (run, _) = common::train_fern_fast(dir.path(), "30", &["--quiet"]);
+    let r = run.to_str().unwrap();
     let server = start(&["view", "--run", r, "--port", "0"]);
     let addr = server.addr.as_str();
     let (status, _, info) = get(addr, "/api/info");

@@ -155,12 +155,14 @@ impl Field {
 
 impl Default for ModelConfig {
     fn default() -> Self {
+        // The paper's MLP, as `MlpConfig` states it.
+        let mlp = MlpConfig::default();
         Self {
-            net_depth: 8,
-            net_width: 256,
-            skip_layer: 4,
-            net_depth_condition: 1,
-            net_width_condition: 128,
+            net_depth: mlp.net_depth,
+            net_width: mlp.net_width,
+            skip_layer: mlp.skip_layer,
+            net_depth_condition: mlp.net_depth_condition,
+            net_width_condition: mlp.net_width_condition,
             num_samples: 128,
             num_levels: 2,
             separate_mlps: false,

@@ -46,6 +46,8 @@ pub struct MlpConfig {
     pub view_dim: usize,
 }
 
+/// The paper's MLP (and `ModelConfig::default`'s): 8 layers of 256, the skip after the fourth,
+/// one view layer of 128.
 impl Default for MlpConfig {
     fn default() -> Self {
         Self {

@@ -422,10 +422,7 @@ fn a_bf16_run_follows_the_f32_run_from_one_seed() {
     }
     let (rays, colours) = ball_scene(8, 16);
     let steps = 120u64;
-    let optim = OptimConfig {
-        lr: LrSchedule { lr_init: 5e-3, lr_final: 5e-4, max_steps: steps, lr_delay_steps: 0, lr_delay_mult: 1.0 },
-        ..OptimConfig::default()
-    };
+    let optim = common::optim_decaying(5e-3, 5e-4, steps);
     let curve = |precision: Precision| {
         // The small preset's MLP (its products' shapes), with 32 + 32 samples so that the two
         // runs take half a minute rather than a minute.

@@ -144,22 +144,12 @@ fn small_model_losses_and_gradients_match_official_train_step() {
     let rays = rays(&g);
     let targets: Vec<[f32; 3]> = (0..2).map(|i| v3(&g["loss"]["target_pixels"][i]).to_array()).collect();
     let mut mm = Mismatches::default();
-    check_loss_and_grads(
-        &model,
-        &params(&model, &g, false),
-        TrainBatch { rays: &rays, targets: &targets },
-        &g["loss"],
-        "init",
-        &mut mm,
-    );
-    check_loss_and_grads(
-        &model,
-        &params(&model, &g, true),
-        TrainBatch { rays: &rays, targets: &targets },
-        &g["bias_perturbed"],
-        "biased",
-        &mut mm,
-    );
+    // At the official initialisation, and with its biases perturbed (so that every bias's
+    // gradient is exercised away from zero).
+    for (perturbed, golden, label) in [(false, "loss", "init"), (true, "bias_perturbed", "biased")] {
+        let batch = TrainBatch { rays: &rays, targets: &targets };
+        check_loss_and_grads(&model, &params(&model, &g, perturbed), batch, &g[golden], label, &mut mm);
+    }
     // Our per-channel losses are the lossmult-weighted MSE the README of the golden files derives.
     let mut grads = vec![0.0; model.num_params()];
     let s = model.loss_and_grad(

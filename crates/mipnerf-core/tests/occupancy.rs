@@ -13,12 +13,11 @@ use mipnerf_core::compare::{Tolerance, assert_close};
 use mipnerf_core::contract::UNBOUNDED_FAR;
 use mipnerf_core::mip::Gaussian;
 use mipnerf_core::mlp::MlpCache;
-use mipnerf_core::model::{GradScratch, LevelOutput, Levels, Mode, Model, ModelConfig, Preset};
+use mipnerf_core::model::{GradScratch, LevelOutput, Levels, LossStats, Mode, Model, ModelConfig, Preset};
 use mipnerf_core::model::{GradWith, TrainBatch};
 use mipnerf_core::occupancy::{CARVED, CONTRACTED_BOUND, DensityField, OccupancyConfig, OccupancyGrid};
 use mipnerf_core::rng::{RayRng, Stream};
 use mipnerf_core::sampling::{sample_along_rays, sample_along_segments};
-use mipnerf_core::schedule::LrSchedule;
 use mipnerf_core::train::{AdamState, OptimConfig, Trainer};
 use rand::{Rng, SeedableRng, rngs::SmallRng};
 
@@ -46,6 +45,23 @@ fn outputs_flat(o: &[LevelOutput]) -> Vec<f32> {
     o.iter().flat_map(|l| [l.rgb[0], l.rgb[1], l.rgb[2], l.distance, l.acc]).collect()
 }
 
+/// One training step's loss and gradient of `m` at `params` on a batch, with the paper's sampler
+/// and guided by `grid` (seed 7, step 11).
+fn paper_and_guided(
+    m: &Model,
+    params: &[f32],
+    batch: TrainBatch<'_>,
+    grid: &OccupancyGrid,
+) -> ((LossStats, Vec<f32>), (LossStats, Vec<f32>)) {
+    let mode = Mode::Train { seed: 7, step: 11 };
+    let run = |with: GradWith<'_>| {
+        let mut g = vec![0.0; m.num_params()];
+        let stats = m.loss_and_grad(params, batch, mode, &mut g, with);
+        (stats, g)
+    };
+    (run(GradWith::default()), run(GradWith { grid: Some(grid), ..GradWith::default() }))
+}
+
 #[test]
 fn a_full_grid_samples_renders_and_trains_exactly_as_the_paper() {
     let m = model();
@@ -53,23 +69,8 @@ fn a_full_grid_samples_renders_and_trains_exactly_as_the_paper() {
     let params = m.init_params(3);
     let full = OccupancyGrid::new(OccupancyConfig::default()).unwrap();
     assert!(full.is_full());
-    let mode = Mode::Train { seed: 7, step: 11 };
-    let mut g_paper = vec![0.0; m.num_params()];
-    let mut g_full = vec![0.0; m.num_params()];
-    let paper = m.loss_and_grad(
-        &params,
-        TrainBatch { rays: &rays, targets: &colours },
-        mode,
-        &mut g_paper,
-        GradWith::default(),
-    );
-    let guided = m.loss_and_grad(
-        &params,
-        TrainBatch { rays: &rays, targets: &colours },
-        mode,
-        &mut g_full,
-        GradWith { grid: Some(&full), ..GradWith::default() },
-    );
+    let ((paper, g_paper), (guided, g_full)) =
+        paper_and_guided(&m, &params, TrainBatch { rays: &rays, targets: &colours }, &full);
     assert_eq!(paper, guided);
     assert_eq!(
         g_paper.iter().map(|g| g.to_bits()).collect::<Vec<_>>(),
@@ -337,10 +338,7 @@ fn rays_that_meet_no_occupied_cell_render_the_background_and_add_no_gradient() {
 fn the_grid_learns_where_the_density_is() {
     let (rays, colours) = ball_scene(8, 16);
     let steps = 300;
-    let optim = OptimConfig {
-        lr: LrSchedule { lr_init: 5e-3, lr_final: 5e-4, max_steps: steps, lr_delay_steps: 0, lr_delay_mult: 1.0 },
-        ..OptimConfig::default()
-    };
+    let optim = common::optim_decaying(5e-3, 5e-4, steps);
     let mut trainer = Trainer::new(Model::new(Preset::Tiny.config()).unwrap(), optim, 1);
     // A threshold of 0.1 over a cell (σ > 0.56 here): the default, 0.01, keeps cells whose
     // density the model has only begun to lower, and on this scene without masks keeps most.
@@ -437,22 +435,8 @@ fn a_fresh_contracted_grid_samples_and_trains_exactly_as_the_unbounded_sampler()
     // The cells of the cube outside the ball of radius 2 are never candidates (a ball fills
     // pi/6 of its cube; the cells it touches a little more).
     assert!(left > 0.5 && left < 0.7, "{left}");
-    let mode = Mode::Train { seed: 7, step: 11 };
-    let (mut g_paper, mut g_grid) = (vec![0.0; m.num_params()], vec![0.0; m.num_params()]);
-    let paper = m.loss_and_grad(
-        &params,
-        TrainBatch { rays: &rays, targets: &colours },
-        mode,
-        &mut g_paper,
-        GradWith::default(),
-    );
-    let guided = m.loss_and_grad(
-        &params,
-        TrainBatch { rays: &rays, targets: &colours },
-        mode,
-        &mut g_grid,
-        GradWith { grid: Some(&grid), ..GradWith::default() },
-    );
+    let ((paper, g_paper), (guided, g_grid)) =
+        paper_and_guided(&m, &params, TrainBatch { rays: &rays, targets: &colours }, &grid);
     assert_eq!(paper, guided);
     assert_eq!(g_paper, g_grid);
     assert_eq!(m.render(&params, &rays), m.render_guided(&params, &rays, Some(&grid)));
@@ -528,10 +512,7 @@ fn a_contracted_grid_walks_each_ray_through_the_cells_its_contraction_meets() {
 fn an_unbounded_scene_trains_with_a_contracted_grid_that_keeps_its_dense_cells() {
     let (rays, colours) = unbounded_ball_scene(8, 16);
     let steps = 300;
-    let optim = OptimConfig {
-        lr: LrSchedule { lr_init: 5e-3, lr_final: 5e-4, max_steps: steps, lr_delay_steps: 0, lr_delay_mult: 1.0 },
-        ..OptimConfig::default()
-    };
+    let optim = common::optim_decaying(5e-3, 5e-4, steps);
     let mut trainer = Trainer::new(unbounded_model(), optim, 1);
     let r = 16;
     let config = OccupancyConfig { warmup_steps: 100, update_every: 10, threshold: 0.1, ..contracted_config(r) };

@@ -47,13 +47,6 @@ fn training_is_bit_for_bit_reproducible_whatever_the_thread_count() {
     assert!(p1 == p2 && p1 == p3, "parameters differ between thread counts");
 }
 
-/// Central differences of the f32 loss. Steps of 1e-2 keep f32 rounding noise (~1e-7 of a loss of
-/// ~0.1, divided by the step) below the tolerance; where the two step sizes disagree the
-/// difference straddles a ReLU kink and the parameter is skipped (at most a quarter may be).
-const FD_STEP: f32 = 1e-2;
-const FD_ABS: f64 = 3e-5;
-const FD_REL: f64 = 3e-2;
-
 #[test]
 fn whole_loss_gradient_matches_finite_differences_for_every_layer() {
     whole_loss_gradient_matches_finite_differences(false, 0.0);
@@ -110,40 +103,13 @@ fn whole_loss_gradient_matches_finite_differences(random_bkgd: bool, distortion:
     } else {
         assert_eq!(stats.distortion, 0.0);
     }
-    let loss = |p: &[f32]| {
-        let mut g = vec![0.0; model.num_params()];
-        f64::from(
-            model
-                .loss_and_grad(
-                    p,
-                    TrainBatch { rays: &rays[..40], targets: &colours[..40] },
-                    mode,
-                    &mut g,
-                    GradWith::default(),
-                )
-                .loss,
-        )
-    };
-    let fd = |p: &mut Vec<f32>, i: usize, h: f32| common::central_difference(loss, p, i, h);
-    let (mut bad, mut checked, mut skipped) = (Vec::new(), 0, 0);
+    let loss = common::batch_loss(&model, TrainBatch { rays: &rays[..40], targets: &colours[..40] }, mode);
+    let mut picks = Vec::new();
     for l in &model.mlps()[0].layers {
-        let mut picks: Vec<usize> = (0..6).map(|_| l.kernel + rng.random_range(0..l.fan_in * l.fan_out)).collect();
-        picks.extend((0..2).map(|_| l.bias + rng.random_range(0..l.fan_out)));
-        for i in picks {
-            let (a, b) = (fd(&mut params, i, FD_STEP), fd(&mut params, i, FD_STEP / 2.0));
-            if (a - b).abs() > FD_ABS + FD_REL * a.abs() {
-                skipped += 1;
-                continue;
-            }
-            checked += 1;
-            let g = f64::from(grads[i]);
-            if (g - b).abs() > FD_ABS + FD_REL * b.abs() {
-                bad.push(format!("{} param {i}: analytic {g:e}, finite difference {b:e}", l.name));
-            }
-        }
+        picks.extend((0..6).map(|_| (l.name.clone(), l.kernel + rng.random_range(0..l.fan_in * l.fan_out))));
+        picks.extend((0..2).map(|_| (l.name.clone(), l.bias + rng.random_range(0..l.fan_out))));
     }
-    assert!(skipped * 4 <= checked + skipped, "{skipped} of {} parameters sat on kinks", checked + skipped);
-    assert!(bad.is_empty(), "{} of {checked} gradients disagree:\n{}", bad.len(), bad.join("\n"));
+    common::assert_gradients_match_finite_differences(picks, &grads, &mut params, loss);
 }
 
 #[test]

@@ -13,12 +13,6 @@ use mipnerf_core::train::{AdamConfig, AdamState, FieldAdam, OptimConfig, Trainer
 use mipnerf_core::tri_mip::TriMipConfig;
 use rand::{Rng, SeedableRng, rngs::SmallRng};
 
-/// Central differences of the whole loss (f32 passes): the step, and the agreement asked of the
-/// analytic gradient (absolute plus relative), as the Mip-NeRF model's own check uses.
-const FD_STEP: f32 = 1e-2;
-const FD_ABS: f64 = 3e-5;
-const FD_REL: f64 = 3e-2;
-
 /// A small model of the Tri-Mip field: 16² planes of 4 features, 3 levels, a 2 x 32 MLP.
 fn small(pre_filtered: bool) -> ModelConfig {
     let mut cfg = Preset::Tiny.config();
@@ -72,21 +66,7 @@ fn the_whole_loss_matches_finite_differences(unbounded: bool) {
         &mut grads,
         GradWith::default(),
     );
-    let loss = |p: &[f32]| {
-        let mut g = vec![0.0; model.num_params()];
-        f64::from(
-            model
-                .loss_and_grad(
-                    p,
-                    TrainBatch { rays: &rays[..40], targets: &colours[..40] },
-                    mode,
-                    &mut g,
-                    GradWith::default(),
-                )
-                .loss,
-        )
-    };
-    let fd = |p: &mut Vec<f32>, i: usize, h: f32| common::central_difference(loss, p, i, h);
+    let loss = common::batch_loss(&model, TrainBatch { rays: &rays[..40], targets: &colours[..40] }, mode);
     // Plane parameters the batch reaches (a non-zero gradient), and some of every MLP layer.
     let reached: Vec<usize> = (0..model.field_params()).filter(|&i| grads[i] != 0.0).collect();
     assert!(reached.len() > 100, "the batch reaches {} plane parameters", reached.len());
@@ -95,21 +75,7 @@ fn the_whole_loss_matches_finite_differences(unbounded: bool) {
     for l in &model.mlps()[0].layers {
         picks.extend((0..4).map(|_| (l.name.clone(), l.kernel + rng.random_range(0..l.fan_in * l.fan_out))));
     }
-    let (mut bad, mut checked, mut skipped) = (Vec::new(), 0, 0);
-    for (what, i) in picks {
-        let (a, b) = (fd(&mut params, i, FD_STEP), fd(&mut params, i, FD_STEP / 2.0));
-        if (a - b).abs() > FD_ABS + FD_REL * a.abs() {
-            skipped += 1;
-            continue;
-        }
-        checked += 1;
-        let g = f64::from(grads[i]);
-        if (g - b).abs() > FD_ABS + FD_REL * b.abs() {
-            bad.push(format!("{what} param {i}: analytic {g:e}, finite difference {b:e}"));
-        }
-    }
-    assert!(skipped * 4 <= checked + skipped, "{skipped} of {} parameters sat on kinks", checked + skipped);
-    assert!(bad.is_empty(), "{} of {checked} gradients disagree:\n{}", bad.len(), bad.join("\n"));
+    common::assert_gradients_match_finite_differences(picks, &grads, &mut params, loss);
 }
 
 #[test]

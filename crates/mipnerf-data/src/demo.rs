@@ -72,7 +72,8 @@ pub fn write_demo_scene(dir: &Path, cfg: &DemoConfig) -> Result<(), DataError> {
                 }
             })
             .collect();
-        let meta = multiscale::write_split(dir, split, &images, focal, multiscale::NUM_SCALES, 2.0, 6.0)?;
+        let scales = multiscale::Scales { focal, n_scales: multiscale::NUM_SCALES, near: 2.0, far: 6.0 };
+        let meta = multiscale::write_split(dir, split, &images, scales)?;
         all.insert(split.name().to_string(), meta);
     }
     multiscale::write_metadata(dir, &serde_json::Value::Object(all))

@@ -39,39 +39,37 @@ pub fn quantise(rgba: &[f32]) -> Vec<u8> {
     rgba.iter().map(|&x| (x * 255.0).clamp(0.0, 255.0) as u8).collect()
 }
 
-/// Writes one split's images at `n_scales` scales into `out/images_{split}/` and returns its
-/// `metadata.json` entry. `focal` is the full-resolution focal length in pixels. The folder is
-/// filled under a temporary name and replaces `out/images_{split}/` only when whole
-/// ([`mipnerf_core::io::swap_in_dir`]).
+/// How a split's images are laid out at every scale: the full-resolution focal length in pixels,
+/// the number of scales, and every ray's bounds.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Scales {
+    /// Full-resolution focal length, pixels (scale `j`'s is `focal / 2^j`).
+    pub focal: f64,
+    /// Scales, full resolution first, each half the one before.
+    pub n_scales: u32,
+    /// Near bound of every ray.
+    pub near: f64,
+    /// Far bound of every ray.
+    pub far: f64,
+}
+
+/// Writes one split's images at `scales.n_scales` scales into `out/images_{split}/` and returns
+/// its `metadata.json` entry. The folder is filled under a temporary name and replaces
+/// `out/images_{split}/` only when whole ([`mipnerf_core::io::swap_in_dir`]).
 ///
 /// # Errors
 /// [`DataError`] for sizes not divisible by `2^n_scales` (the official converter's requirement)
 /// or unwritable files.
-pub fn write_split(
-    out: &Path,
-    split: Split,
-    images: &[SourceImage],
-    focal: f64,
-    n_scales: u32,
-    near: f64,
-    far: f64,
-) -> Result<Value, DataError> {
-    let meta = fill_split(out, split, images, focal, n_scales, near, far)?;
+pub fn write_split(out: &Path, split: Split, images: &[SourceImage], scales: Scales) -> Result<Value, DataError> {
+    let meta = fill_split(out, split, images, scales)?;
     mipnerf_core::io::swap_in_dir(&out.join(format!("images_{split}")))?;
     Ok(meta)
 }
 
 /// [`write_split`] up to the swap: the images are left in the temporary folder
 /// ([`mipnerf_core::io::partial_dir`] of `out/images_{split}`).
-fn fill_split(
-    out: &Path,
-    split: Split,
-    images: &[SourceImage],
-    focal: f64,
-    n_scales: u32,
-    near: f64,
-    far: f64,
-) -> Result<Value, DataError> {
+fn fill_split(out: &Path, split: Split, images: &[SourceImage], scales: Scales) -> Result<Value, DataError> {
+    let Scales { focal, n_scales, near, far } = scales;
     let imgdir = format!("images_{split}");
     let partial = mipnerf_core::io::start_partial_dir(&out.join(&imgdir))?;
     let mut meta: Vec<(&str, Vec<Value>)> =
@@ -185,8 +183,9 @@ pub fn convert_resized(input: &Path, output: &Path, width: Option<u32>) -> Resul
         }
         // The focal length follows the width: the field of view is unchanged.
         let focal = mipnerf_core::camera::focal_from_camera_angle_x(images[0].width, angle);
-        let meta =
-            fill_split(output, split, &images, focal, NUM_SCALES, f64::from(blender::NEAR), f64::from(blender::FAR))?;
+        let scales =
+            Scales { focal, n_scales: NUM_SCALES, near: f64::from(blender::NEAR), far: f64::from(blender::FAR) };
+        let meta = fill_split(output, split, &images, scales)?;
         all.insert(split.name().to_string(), meta);
         done.push(split);
     }

@@ -33,8 +33,13 @@ fn multiscale_conversion_matches_the_official_converter() {
     let focal = mipnerf_core::camera::focal_from_camera_angle_x(8, inp["camera_angle_x"].as_f64().unwrap());
     let dir = tempfile::tempdir().unwrap();
     let n_down = inp["n_down"].as_u64().unwrap() as u32;
-    let meta =
-        multiscale::write_split(dir.path(), Split::Test, std::slice::from_ref(&img), focal, n_down, 2.0, 6.0).unwrap();
+    let meta = multiscale::write_split(
+        dir.path(),
+        Split::Test,
+        std::slice::from_ref(&img),
+        multiscale::Scales { focal, n_scales: n_down, near: 2.0, far: 6.0 },
+    )
+    .unwrap();
     let mut mm = Mismatches::default();
     let (mut w, mut px) = (8usize, img.rgba.clone());
     for (j, level) in c["outputs"]["levels"].as_array().unwrap().iter().enumerate() {
@@ -155,15 +160,19 @@ fn demo_scene_generates_every_scale_and_loads() {
     assert_eq!(ray, train.ray(3, 5, 7));
 }
 
+/// The demo scene written at 16 px (3 training views, 4 scales each) and its training split
+/// loaded; the folder lives as long as the first value.
+fn small_demo_training_split() -> (tempfile::TempDir, Dataset) {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = mipnerf_data::demo::DemoConfig { size: 16, train_views: 3, test_views: 1, supersample: 1 };
+    mipnerf_data::demo::write_demo_scene(dir.path(), &cfg).unwrap();
+    let ds = mipnerf_data::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap();
+    (dir, ds)
+}
+
 #[test]
 fn batches_come_from_every_scale_with_their_lossmult() {
-    let dir = tempfile::tempdir().unwrap();
-    mipnerf_data::demo::write_demo_scene(
-        dir.path(),
-        &mipnerf_data::demo::DemoConfig { size: 16, train_views: 3, test_views: 1, supersample: 1 },
-    )
-    .unwrap();
-    let ds = mipnerf_data::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap();
+    let (_dir, ds) = small_demo_training_split();
     let (mut rays, mut targets) = (Vec::new(), Vec::new());
     ds.sample_batch(BatchDraw::new(4000, 1, 0), &mut rays, &mut targets);
     assert_eq!((rays.len(), targets.len()), (4000, 4000));
@@ -189,13 +198,7 @@ fn batches_come_from_every_scale_with_their_lossmult() {
 #[test]
 fn random_background_batches_composite_each_target_on_its_pixels_colour() {
     // The demo scene's object is opaque over a transparent backdrop: pixels of every alpha.
-    let dir = tempfile::tempdir().unwrap();
-    mipnerf_data::demo::write_demo_scene(
-        dir.path(),
-        &mipnerf_data::demo::DemoConfig { size: 16, train_views: 3, test_views: 1, supersample: 1 },
-    )
-    .unwrap();
-    let ds = mipnerf_data::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap();
+    let (_dir, ds) = small_demo_training_split();
     assert!(ds.has_transparency());
     let (mut rays, mut targets, mut r2, mut white) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let (seed, step) = (3, 11);

@@ -12,7 +12,7 @@ use mipnerf_core::mlp::{DenseLayer, MlpShape};
 use crate::kernels::Recorder;
 use crate::kernels::fused_mlp::{self, FusedBatch, FusedBuffers, FusedMlpKernel};
 use crate::kernels::matmul::{Epilogue, MAX_SPLITS, MIN_K_PER_SPLIT, MatmulKernel, MatmulVariant, Operand, Product};
-use crate::kernels::mlp_aux::{ColSums, MlpAuxKernels};
+use crate::kernels::mlp_aux::{ColSums, Heads, MlpAuxKernels};
 use crate::{GpuContext, GpuError};
 
 /// The buffers of one batch: inputs, kept activations, outputs, scratch.
@@ -430,7 +430,8 @@ impl GpuMlp {
         // with the two layers' kernels and biases packed side by side first.
         let top = self.top_parts(shape, bufs, pb);
         let (hw, t) = (pb.heads_width, ls[d].fan_in);
-        self.aux.pack_heads(rec, params, (ls[d].kernel, ls[d + 1].kernel), &pb.heads_w, t + 1, c.net_width);
+        let heads = Heads { density: ls[d].kernel, bottleneck: ls[d + 1].kernel, rows: t + 1, cols: c.net_width };
+        self.aux.pack_heads(rec, params, heads, &pb.heads_w);
         let mut r0 = 0;
         for (k, &(input, width)) in top.iter().enumerate() {
             let last = k + 1 == top.len();
@@ -600,7 +601,8 @@ impl GpuMlp {
         }
         let sums = ColSums { rows: n, cols: hw, accumulate: false };
         self.aux.col_sums(rec, (&pb.d_heads, 0), (&pb.heads_g, t * hw), sums, &pb.col_scratch);
-        self.aux.unpack_heads_add(rec, &pb.heads_g, grads, (ls[d].kernel, ls[d + 1].kernel), (t + 1, w));
+        let heads = Heads { density: ls[d].kernel, bottleneck: ls[d + 1].kernel, rows: t + 1, cols: w };
+        self.aux.unpack_heads_add(rec, &pb.heads_g, grads, heads);
         let z = 0;
         let relu = Epilogue { mask: Some((top[0].0, 0)), ..Epilogue::default() };
         let kt = Operand::t(&pb.heads_w, 0);

@@ -15,6 +15,7 @@ use mipnerf_core::occupancy::OccupancyGrid;
 use mipnerf_core::stages;
 
 use crate::kernels::Recorder;
+use crate::kernels::batch::ActiveRays;
 pub use crate::kernels::batch::RayBatch;
 use crate::kernels::cast_ipe::{CastIpeKernel, CastIpeParams};
 use crate::kernels::compact::{Compaction, ExpandKernel, ExpandParams, GatherKernel, kept_rays};
@@ -31,9 +32,8 @@ use crate::{GpuContext, GpuError};
 /// output gradients, and the per-ray outputs of every level.
 #[derive(Debug)]
 pub struct ModelBuffers {
-    /// Rays the next pass uses (at most the capacity these buffers were made for).
-    n_rays: usize,
-    capacity: usize,
+    /// Rays the next pass uses, of those the buffers were made for.
+    active: ActiveRays,
     mlp: MlpBuffers,
     t_vals: Vec<wgpu::Buffer>,
     /// Per level, two vec4 per ray: (rgb, distance), (acc, lossmult * se, se, 0).
@@ -93,8 +93,7 @@ impl ModelBuffers {
             mlp = mlp.with_input_gradient(ctx, shape.config.x_dim);
         }
         Ok(Self {
-            n_rays,
-            capacity: n_rays,
+            active: ActiveRays::all(n_rays),
             mlp,
             t_vals: (0..levels).map(|l| nan(&format!("edges level {l}"), n_rays * (s + 1))).collect(),
             ray_out: (0..levels).map(|l| nan(&format!("ray outputs level {l}"), n_rays * 8)).collect(),
@@ -134,7 +133,7 @@ impl ModelBuffers {
     /// Rays the buffers hold.
     #[must_use]
     pub fn capacity(&self) -> usize {
-        self.capacity
+        self.active.capacity()
     }
 
     /// Device bytes of these buffers for `n_rays` rays: [`bytes_per_ray`](Self::bytes_per_ray)
@@ -147,21 +146,18 @@ impl ModelBuffers {
         Self::bytes_per_ray(model) * n_rays as u64 + 4 * (MlpBuffers::fixed_floats(&model.mlps()[0], n) + field) as u64
     }
 
-    /// Rays the next pass uses (set by [`set_active`](Self::set_active)).
+    /// Rays the next pass runs (set by [`set_active`](Self::set_active)).
     #[must_use]
     pub fn n_rays(&self) -> usize {
-        self.n_rays
+        self.active.n()
     }
 
-    /// Makes the next passes use the first `n` rays (a chunk's tail).
+    /// Runs the next passes on the first `n` rays (a chunk's tail), the MLP's buffers included.
     ///
     /// # Errors
-    /// [`GpuError::InvalidInput`] for `n` of 0 or above the capacity.
+    /// As [`ActiveRays::set`].
     pub fn set_active(&mut self, n: usize) -> Result<(), GpuError> {
-        if n == 0 || n > self.capacity {
-            return Err(GpuError::InvalidInput(format!("{n} rays in buffers for {}", self.capacity)));
-        }
-        self.n_rays = n;
+        self.active.set(n)?;
         self.mlp.set_active(n);
         Ok(())
     }
@@ -276,11 +272,11 @@ impl GpuModel {
     ) -> Result<(), GpuError> {
         let Pass { model, params, mode, grads, grid } = pass;
         let grid = grid.filter(|g| !g.is_full() && model.rays_per_pixel() == 1);
-        if batch.n_rays() != work.n_rays || batch.n_rays() == 0 {
+        if batch.n_rays() != work.n_rays() || batch.n_rays() == 0 {
             return Err(GpuError::InvalidInput(format!(
                 "a batch of {} rays with buffers for {}",
                 batch.n_rays(),
-                work.n_rays
+                work.n_rays()
             )));
         }
         let c = &model.config();

@@ -1,6 +1,5 @@
 //! Adam's kernel (`adam.wgsl`), gradient clipping included, against `stages::adam_step`.
-//! Each kernel runs on a real adapter (lavapipe in CI) and is compared with its CPU reference in
-//! `mipnerf_core::stages` through one check, `mipnerf_core::compare::check_kernel`.
+//! How every kernel test runs and compares: `tests/common/mod.rs`.
 #![allow(clippy::unwrap_used, missing_docs)]
 
 mod common;

@@ -1,6 +1,5 @@
 //! The MLP's kernels (the matrix products, the fused small MLP) against `MlpShape`'s passes and f64 products.
-//! Each kernel runs on a real adapter (lavapipe in CI) and is compared with its CPU reference in
-//! `mipnerf_core::stages` through one check, `mipnerf_core::compare::check_kernel`.
+//! How every kernel test runs and compares: `tests/common/mod.rs`.
 #![allow(clippy::unwrap_used, missing_docs)]
 
 mod common;

@@ -1,6 +1,5 @@
 //! The whole model's pass on the device against `Model::loss_and_grad`, and a missing adapter as an error.
-//! Each kernel runs on a real adapter (lavapipe in CI) and is compared with its CPU reference in
-//! `mipnerf_core::stages` through one check, `mipnerf_core::compare::check_kernel`.
+//! How every kernel test runs and compares: `tests/common/mod.rs`.
 #![allow(clippy::unwrap_used, missing_docs)]
 
 mod common;

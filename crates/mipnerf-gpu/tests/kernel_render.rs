@@ -1,6 +1,5 @@
 //! Volume rendering's kernel (`render.wgsl`) against `stages::render_rays` and its backward pass.
-//! Each kernel runs on a real adapter (lavapipe in CI) and is compared with its CPU reference in
-//! `mipnerf_core::stages` through one check, `mipnerf_core::compare::check_kernel`.
+//! How every kernel test runs and compares: `tests/common/mod.rs`.
 #![allow(clippy::unwrap_used, missing_docs)]
 
 mod common;

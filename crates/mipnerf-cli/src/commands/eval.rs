@@ -5,8 +5,7 @@ use std::path::PathBuf;
 use anyhow::Result;
 
 use super::SplitArg;
-use crate::backend::DeviceArgs;
-use crate::config::{Backend, PrecisionArg};
+use crate::backend::RenderOnArgs;
 use crate::lpips::LpipsWeights;
 use crate::scores::Metrics;
 use crate::session::Session;
@@ -21,16 +20,8 @@ pub struct Args {
     /// RUN_DIR/eval_val/.
     #[arg(long, value_enum, default_value_t = SplitArg::Test)]
     pub split: SplitArg,
-    /// Where to render: cpu, gpu (any adapter, software included), or auto (a hardware GPU if
-    /// present, else the CPU).
-    #[arg(long, value_enum, default_value_t = Backend::Auto)]
-    pub backend: Backend,
     #[command(flatten)]
-    pub device: DeviceArgs,
-    /// Precision of the MLP's matrix products: f32, bf16 (AMX or AVX-512 BF16, CPU backend) or auto
-    /// [default: the precision the run trained with].
-    #[arg(long, value_enum)]
-    pub precision: Option<PrecisionArg>,
+    pub on: RenderOnArgs,
     #[command(flatten)]
     pub lpips: LpipsWeights,
 }
@@ -40,9 +31,9 @@ pub struct Args {
 /// # Errors
 /// As [`crate::eval::eval`].
 pub fn run(a: Args, session: &Session) -> Result<()> {
-    let device = a.device.options();
+    let device = a.on.device.options();
     let split = a.split.into();
-    let on = crate::run::RunOn { backend: a.backend, precision: a.precision, device: &device };
+    let on = crate::run::RunOn { backend: a.on.backend, precision: a.on.precision, device: &device };
     crate::eval::eval(&a.run, split, on, &a.lpips, session).map(|m| {
         println!("wrote {}", crate::run_dir::RunDir::new(&a.run).eval_metrics_of(split).display());
         print_scores(&m);

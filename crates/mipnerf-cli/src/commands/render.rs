@@ -5,8 +5,7 @@ use std::path::PathBuf;
 use anyhow::Result;
 
 use super::SplitArg;
-use crate::backend::DeviceArgs;
-use crate::config::{Backend, PrecisionArg};
+use crate::backend::RenderOnArgs;
 use crate::render;
 use crate::session::Session;
 
@@ -58,16 +57,8 @@ pub struct Args {
     /// Output height in pixels (with --width).
     #[arg(long, requires = "width")]
     pub height: Option<u32>,
-    /// Where to render: cpu, gpu (any adapter, software included), or auto (a hardware GPU if
-    /// present, else the CPU).
-    #[arg(long, value_enum, default_value_t = Backend::Auto)]
-    pub backend: Backend,
     #[command(flatten)]
-    pub device: DeviceArgs,
-    /// Precision of the MLP's matrix products: f32, bf16 (AMX or AVX-512 BF16, CPU backend) or auto
-    /// [default: the precision the run trained with].
-    #[arg(long, value_enum)]
-    pub precision: Option<PrecisionArg>,
+    pub on: RenderOnArgs,
     /// Write into --out even when it holds files mipnerf did not write (files of the same
     /// name are replaced); without it such a folder is refused.
     #[arg(long)]
@@ -88,8 +79,8 @@ pub fn run(a: Args, session: &Session) -> Result<()> {
         (None, None) => render::Target::Split(a.split.unwrap_or(SplitArg::Test).into()),
     };
     let size = a.width.zip(a.height);
-    let device = a.device.options();
-    let on = crate::run::RunOn { backend: a.backend, precision: a.precision, device: &device };
+    let device = a.on.device.options();
+    let on = crate::run::RunOn { backend: a.on.backend, precision: a.on.precision, device: &device };
     render::render(&a.run, &a.out, target, size, on, a.overwrite, session)
         .map(|files| println!("wrote {} files to {}", files.len(), a.out.display()))
 }

@@ -17,6 +17,22 @@ pub fn command() -> Command {
     c
 }
 
+/// The committed forward-facing fixture (`tests/data/llff_fern_tiny`: fern's photos at 1/64),
+/// trained with `--llff-factor 64`.
+pub fn fern_tiny() -> std::path::PathBuf {
+    std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/llff_fern_tiny")
+}
+
+/// `train` of the fern fixture with the fast preset for `steps` steps into `dir/run`, and `extra`
+/// flags; the run's folder and the command's output.
+pub fn train_fern_fast(dir: &std::path::Path, steps: &str, extra: &[&str]) -> (std::path::PathBuf, String) {
+    let (data, run) = (fern_tiny(), dir.join("run"));
+    let (d, r) = (data.to_str().unwrap(), run.to_str().unwrap());
+    let args = ["train", "--data", d, "--llff-factor", "64", "--out", r, "--preset", "fast", "--steps", steps];
+    let text = run_ok(&[&args[..], extra].concat());
+    (run, text)
+}
+
 /// A 16-pixel demo scene of `train_views` training views and one test view in `dir/data`.
 pub fn small_demo_scene(dir: &std::path::Path, train_views: usize) -> std::path::PathBuf {
     demo_scene(dir, 16, train_views)

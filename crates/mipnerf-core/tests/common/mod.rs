@@ -27,6 +27,60 @@ pub fn central_difference(loss: impl Fn(&[f32]) -> f64, p: &mut [f32], i: usize,
     (up - down) / (f64::from(x0 + h) - f64::from(x0 - h))
 }
 
+/// The loss of `model` on `batch` at parameters `p` in `mode` (its gradient dropped): what a
+/// finite-difference check of the whole loss differentiates.
+pub fn batch_loss(
+    model: &mipnerf_core::model::Model,
+    batch: mipnerf_core::model::TrainBatch<'_>,
+    mode: mipnerf_core::model::Mode,
+) -> impl Fn(&[f32]) -> f64 {
+    move |p: &[f32]| {
+        let mut g = vec![0.0; model.num_params()];
+        let with = mipnerf_core::model::GradWith::default();
+        f64::from(model.loss_and_grad(p, batch, mode, &mut g, with).loss)
+    }
+}
+
+/// Finite-difference step of the whole loss's checks: steps of 1e-2 keep f32 rounding noise
+/// (~1e-7 of a loss of ~0.1, divided by the step) below the tolerance.
+pub const FD_STEP: f32 = 1e-2;
+/// A parameter whose differences at `FD_STEP` and half of it disagree by more than this sits on a
+/// kink (a ReLU's, a clamp's) and is skipped; an analytic gradient further than this from the
+/// difference is wrong.
+pub const FD_ABS: f64 = 3e-5;
+/// The relative part of the same bounds.
+pub const FD_REL: f64 = 3e-2;
+
+/// Checks the analytic gradient `grads` of `loss` at `params` against central differences at
+/// the parameters `picks` (each named for the message): all agree, and at most a quarter sit on
+/// kinks.
+///
+/// # Panics
+/// With every disagreement, or when too many picks sit on kinks.
+pub fn assert_gradients_match_finite_differences(
+    picks: Vec<(String, usize)>,
+    grads: &[f32],
+    params: &mut [f32],
+    loss: impl Fn(&[f32]) -> f64,
+) {
+    let (mut bad, mut checked, mut skipped) = (Vec::new(), 0, 0);
+    for (what, i) in picks {
+        let (a, b) =
+            (central_difference(&loss, params, i, FD_STEP), central_difference(&loss, params, i, FD_STEP / 2.0));
+        if (a - b).abs() > FD_ABS + FD_REL * a.abs() {
+            skipped += 1;
+            continue;
+        }
+        checked += 1;
+        let g = f64::from(grads[i]);
+        if (g - b).abs() > FD_ABS + FD_REL * b.abs() {
+            bad.push(format!("{what} param {i}: analytic {g:e}, finite difference {b:e}"));
+        }
+    }
+    assert!(skipped * 4 <= checked + skipped, "{skipped} of {} parameters sat on kinks", checked + skipped);
+    assert!(bad.is_empty(), "{} of {checked} gradients disagree:\n{}", bad.len(), bad.join("\n"));
+}
+
 /// The default optimiser with a learning rate decaying from `lr_init` to `lr_final` over
 /// `steps` steps, without warm-up.
 pub fn optim_decaying(lr_init: f32, lr_final: f32, steps: u64) -> mipnerf_core::train::OptimConfig {

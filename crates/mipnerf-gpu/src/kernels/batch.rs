@@ -409,12 +409,51 @@ super::wgsl_struct!(
 );
 super::wgsl_struct!(GpuView, "View", [dir0, step_x, step_y, origin, size]);
 
+/// How many rays of a set of buffers the next passes use: all of them, or the first few (a
+/// chunk's tail), never more than the buffers hold.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ActiveRays {
+    n: usize,
+    capacity: usize,
+}
+
+impl ActiveRays {
+    /// All `capacity` rays in use.
+    #[must_use]
+    pub fn all(capacity: usize) -> Self {
+        Self { n: capacity, capacity }
+    }
+
+    /// Rays in use.
+    #[must_use]
+    pub fn n(self) -> usize {
+        self.n
+    }
+
+    /// Rays the buffers hold.
+    #[must_use]
+    pub fn capacity(self) -> usize {
+        self.capacity
+    }
+
+    /// Uses the first `n` rays.
+    ///
+    /// # Errors
+    /// [`GpuError::InvalidInput`] for `n` of 0 or above the capacity.
+    pub fn set(&mut self, n: usize) -> Result<(), GpuError> {
+        if n == 0 || n > self.capacity {
+            return Err(GpuError::InvalidInput(format!("{n} rays in buffers for {}", self.capacity)));
+        }
+        self.n = n;
+        Ok(())
+    }
+}
+
 /// The rays of a batch on the device, as the model's kernels read them.
 #[derive(Debug)]
 pub struct RayBatch {
-    /// Rays the next pass makes or reads (at most [`capacity`](Self::capacity)).
-    n_rays: usize,
-    capacity: usize,
+    /// Rays the next pass makes or reads, of those the buffers hold.
+    active: ActiveRays,
     /// `u32` per ray: its index in the step's batch, with which its random numbers (jitter,
     /// resampling offsets, density noise, background) are drawn: `0..n` for a whole batch (as
     /// made), the rays' own indices for a chunk of one or the rays an occupancy grid lets
@@ -438,8 +477,7 @@ impl RayBatch {
     pub fn new(ctx: &GpuContext, n_rays: usize) -> Self {
         let nan = |label: &str, len: usize| ctx.storage_buffer(label, &vec![f32::NAN; len.max(1)], true);
         Self {
-            n_rays,
-            capacity: n_rays,
+            active: ActiveRays::all(n_rays),
             ids: ctx.storage_buffer("batch ray indices", &(0..n_rays.max(1) as u32).collect::<Vec<u32>>(), true),
             rays: nan("batch rays", n_rays * 8),
             bounds: nan("batch bounds", n_rays * 2),
@@ -476,8 +514,7 @@ impl RayBatch {
             targets.iter().flat_map(|t| std::iter::repeat_n([t[0], t[1], t[2], 0.0], rpp)).collect();
         let lm_sum: f64 = rays.iter().step_by(rpp).map(|r| if area_loss { f64::from(r.lossmult) } else { 1.0 }).sum();
         Ok(Self {
-            n_rays: rays.len(),
-            capacity: rays.len(),
+            active: ActiveRays::all(rays.len()),
             ids: ctx.storage_buffer("batch ray indices", &(0..rays.len() as u32).collect::<Vec<u32>>(), true),
             rays: ctx.storage_buffer("batch rays", &packed, true),
             bounds: ctx.storage_buffer("batch bounds", &bounds, true),
@@ -492,24 +529,20 @@ impl RayBatch {
     /// Rays the buffers hold.
     #[must_use]
     pub fn capacity(&self) -> usize {
-        self.capacity
+        self.active.capacity()
     }
 
     /// Rays the next pass makes or reads (set by [`set_active`](Self::set_active)).
     #[must_use]
     pub fn n_rays(&self) -> usize {
-        self.n_rays
+        self.active.n()
     }
 
-    /// Makes the next passes use the first `n` rays (a chunk's tail).
+    /// Makes the next passes make or read the first `n` rays (a chunk's tail): [`ActiveRays::set`].
     ///
     /// # Errors
-    /// [`GpuError::InvalidInput`] for `n` of 0 or above the capacity.
+    /// As [`ActiveRays::set`].
     pub fn set_active(&mut self, n: usize) -> Result<(), GpuError> {
-        if n == 0 || n > self.capacity {
-            return Err(GpuError::InvalidInput(format!("{n} rays in buffers for {}", self.capacity)));
-        }
-        self.n_rays = n;
-        Ok(())
+        self.active.set(n)
     }
 }

@@ -143,47 +143,46 @@ impl MlpAuxKernels {
     }
 }
 
-impl MlpAuxKernels {
-    /// Packs the density layer (`(rows) x 1` at `density` of `params`, bias last) and the
-    /// bottleneck layer (`rows x cols` at `bottleneck`) into `out` as one `rows x (cols + 1)`
-    /// matrix `[density | bottleneck]`.
-    pub fn pack_heads(
-        &self,
-        rec: &mut Recorder<'_>,
-        params: &wgpu::Buffer,
-        (density, bottleneck): (usize, usize),
-        out: &wgpu::Buffer,
-        rows: usize,
-        cols: usize,
-    ) {
-        let params_ = AuxParams {
-            rows: rows as u32,
-            cols: cols as u32,
-            x_off: density as u32,
-            y_off: bottleneck as u32,
+/// The density layer (`rows x 1` at `density` of the parameters, bias last) and the bottleneck
+/// layer (`rows x cols` at `bottleneck`), packed side by side as one `rows x (cols + 1)` matrix
+/// `[density | bottleneck]` so that both heads run as one product.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Heads {
+    /// The density layer's offset in the parameters.
+    pub density: usize,
+    /// The bottleneck layer's offset in the parameters.
+    pub bottleneck: usize,
+    /// The layers' inputs plus one (the bias row).
+    pub rows: usize,
+    /// The bottleneck layer's outputs.
+    pub cols: usize,
+}
+
+impl Heads {
+    /// The uniform block's shape and the bottleneck's offset; the density's offset is set by
+    /// the direction of the copy.
+    fn params(self) -> AuxParams {
+        AuxParams {
+            rows: self.rows as u32,
+            cols: self.cols as u32,
+            y_off: self.bottleneck as u32,
             ..AuxParams::default()
-        };
-        self.run(rec, &self.pack_heads, rows * (cols + 1), params_, params, out);
+        }
+    }
+}
+
+impl MlpAuxKernels {
+    /// Packs the two `heads` layers of `params` into `out`.
+    pub fn pack_heads(&self, rec: &mut Recorder<'_>, params: &wgpu::Buffer, heads: Heads, out: &wgpu::Buffer) {
+        let p = AuxParams { x_off: heads.density as u32, ..heads.params() };
+        self.run(rec, &self.pack_heads, heads.rows * (heads.cols + 1), p, params, out);
     }
 
-    /// Adds the packed heads' gradient `packed` (`rows x (cols + 1)`) to the density layer's
-    /// gradient at `density` of `grads` and the bottleneck layer's at `bottleneck`.
-    pub fn unpack_heads_add(
-        &self,
-        rec: &mut Recorder<'_>,
-        packed: &wgpu::Buffer,
-        grads: &wgpu::Buffer,
-        (density, bottleneck): (usize, usize),
-        (rows, cols): (usize, usize),
-    ) {
-        let params = AuxParams {
-            rows: rows as u32,
-            cols: cols as u32,
-            out_off: density as u32,
-            y_off: bottleneck as u32,
-            ..AuxParams::default()
-        };
-        self.run(rec, &self.unpack_heads_add, rows * (cols + 1), params, packed, grads);
+    /// Adds the packed heads' gradient `packed` to the density layer's gradient and the
+    /// bottleneck layer's in `grads`.
+    pub fn unpack_heads_add(&self, rec: &mut Recorder<'_>, packed: &wgpu::Buffer, grads: &wgpu::Buffer, heads: Heads) {
+        let p = AuxParams { out_off: heads.density as u32, ..heads.params() };
+        self.run(rec, &self.unpack_heads_add, heads.rows * (heads.cols + 1), p, packed, grads);
     }
 }
 

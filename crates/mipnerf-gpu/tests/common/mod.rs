@@ -1,5 +1,7 @@
 //! What the kernel tests share: the imports, the tolerances of the IPE's sines, the demo's
-//! rays and the modes.
+//! rays and the modes. Each kernel test (`kernel_*.rs`, one file a stage) runs its kernel on a
+//! real adapter (lavapipe in CI) and compares it with its CPU reference in
+//! `mipnerf_core::stages` through one check, `mipnerf_core::compare::check_kernel`.
 #![allow(dead_code, unused_imports)]
 
 pub use glam::Vec3;
