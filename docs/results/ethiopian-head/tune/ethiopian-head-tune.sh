@@ -8,10 +8,10 @@
 # Rows ending in 6k train 6000 steps instead (the distortion loss acts against floaters, which
 # grow late).
 #
-# Usage: bash scripts/studies/ethiopian-head-tune.sh [ROW ...]
+# Usage: bash docs/results/ethiopian-head/tune/ethiopian-head-tune.sh [ROW ...]
 #   rows: before ub16 ubocc ubdist ubdist10 ubocc6k ubdist6k; default: the first three
 set -euo pipefail
-cd "$(dirname "$0")/../.."
+cd "$(git -C "$(dirname "$0")" rev-parse --show-toplevel)"
 data=../shared/data/real/ethiopian_head
 [ -d "$data" ] || { echo "skipped: $data is absent"; exit 0; }
 tune=${TMPDIR:-/tmp}/eh-tune

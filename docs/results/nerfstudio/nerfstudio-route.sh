@@ -3,9 +3,9 @@
 # nerfstudio's own colmap_to_json makes of it (scripts/data/make-nerfstudio-capture.sh); prints both
 # reports, how many written images differ, and the ratio of the scenes' bounds. Needs network
 # access to PyPI.
-# Usage: scripts/studies/nerfstudio-route.sh WORKSPACE [BINARY]   (e.g. after scripts/data/colmap-photos.sh)
+# Usage: docs/results/nerfstudio/nerfstudio-route.sh WORKSPACE [BINARY]   (e.g. after scripts/data/colmap-photos.sh)
 set -euo pipefail
-cd "$(dirname "$0")/../.."
+cd "$(git -C "$(dirname "$0")" rev-parse --show-toplevel)"
 ws=$(realpath "$1")
 bin=$(realpath "${2:-target/release/mipnerf}")
 work=$(mktemp -d)

@@ -4,7 +4,7 @@ with a capture's own (REF: poses_bounds.npy over the sorted photos of REF/images
 each photo's centre error (as a share of the cameras' mean distance from their centroid) and its
 rotation error (degrees), and the focal lengths (at REF's image size). Prints one JSON object.
 
-Usage: python3 scripts/studies/compare-poses.py OURS REF
+Usage: python3 docs/results/ethiopian-head/colmap/compare-poses.py OURS REF
 """
 
 import glob

@@ -11,7 +11,7 @@ photo's fitted gains, to show whether the photos differ in exposure or white bal
 With `--photos DIR`, first counts the photos' exposure settings from their EXIF (exposure time,
 f-number, ISO, white balance mode, exposure program, exposure bias).
 
-Usage: scripts/studies/appearance-bound.py RUN/eval [--photos DIR] > report.txt
+Usage: docs/results/ethiopian-head/appearance/appearance-bound.py RUN/eval [--photos DIR] > report.txt
 """
 import glob
 import os

@@ -1,9 +1,9 @@
 #!/bin/bash
 # The depth bounds `mipnerf colmap` measures on the test capture in nerfstudio's form
 # (tests/data/nerfstudio_capture, with the photos of tests/data/colmap_workspaces/opencv) against
-# those of the COLMAP workspace it was made from. Usage: scripts/studies/nerfstudio-bounds.sh [BINARY]
+# those of the COLMAP workspace it was made from. Usage: docs/results/nerfstudio/nerfstudio-bounds.sh [BINARY]
 set -euo pipefail
-cd "$(dirname "$0")/../.."
+cd "$(git -C "$(dirname "$0")" rev-parse --show-toplevel)"
 bin=$(realpath "${1:-target/release/mipnerf}")
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT

@@ -4,12 +4,12 @@
 # scripts/data/colmap-photos.sh), the fast preset --unbounded, seed 0, 3000 steps, evaluated on the 9
 # held-out photos without LPIPS; each run's metrics land in docs/results/ethiopian-head/colmap/route-ROW.json.
 #
-# Usage: bash scripts/studies/ethiopian-head-routes.sh COLMAP_DATASET
+# Usage: bash docs/results/ethiopian-head/colmap/ethiopian-head-routes.sh COLMAP_DATASET
 set -euo pipefail
-cd "$(dirname "$0")/../.."
+cd "$(git -C "$(dirname "$0")" rev-parse --show-toplevel)"
 data=../shared/data/real/ethiopian_head
 [ -d "$data" ] || { echo "skipped: $data is absent"; exit 0; }
-colmap=${1:?usage: bash scripts/studies/ethiopian-head-routes.sh COLMAP_DATASET}
+colmap=${1:?usage: bash docs/results/ethiopian-head/colmap/ethiopian-head-routes.sh COLMAP_DATASET}
 cargo build --release -p mipnerf-cli
 for row in capture colmap; do
     case $row in

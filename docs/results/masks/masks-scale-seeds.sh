@@ -7,7 +7,7 @@
 # (mean of max - min over RGB inside the masks) against the photos'.
 # Needs python3 with numpy and pillow (to make the 250 px copy and measure the colour).
 set -euo pipefail
-cd "$(dirname "$0")/../.."
+cd "$(git -C "$(dirname "$0")" rev-parse --show-toplevel)"
 src=../shared/data/real/ethiopian_head
 work=${WORK:-/tmp/masks-scale-seeds}
 bin=${MIPNERF:-target/release/mipnerf}

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Puts every k-th frame of a path render side by side in one picture, for the README.
 
-    python3 scripts/studies/orbit-strip.py RENDER_DIR STEP OUT.png
+    python3 docs/results/ethiopian-head/orbit-strip.py RENDER_DIR STEP OUT.png
 
 RENDER_DIR is what `mipnerf render --path orbit` wrote (frame_0000.png, ...). Needs pillow.
 """
