@@ -20,7 +20,9 @@ pub use crate::kernels::batch::RayBatch;
 use crate::kernels::cast_ipe::{CastIpeKernel, CastIpeParams};
 use crate::kernels::compact::{Compaction, ExpandKernel, ExpandParams, GatherKernel, kept_rays};
 use crate::kernels::occupancy::{DeviceGrid, GuidedRays, OccupancyKernel};
-use crate::kernels::occupancy_update::{OccupancyUpdateKernel, OccupancyUpdateParams, UpdateBuffers};
+use crate::kernels::occupancy_update::{
+    OccupancyRefreshKernel, OccupancyUpdateKernel, OccupancyUpdateParams, UpdateBuffers,
+};
 use crate::kernels::render::{RenderBuffers, RenderKernel, RenderParams, background_code};
 use crate::kernels::sample::{CoarseLevel, SampleKernels};
 use crate::kernels::tri_mip::{FieldBuffers, PlaneField, Samples, TriMipKernel, total_variation_loss};
@@ -196,6 +198,7 @@ pub struct GpuModel {
     sample: SampleKernels,
     occupancy: OccupancyKernel,
     occupancy_update: OccupancyUpdateKernel,
+    occupancy_refresh: OccupancyRefreshKernel,
     cast: CastIpeKernel,
     tri_mip: TriMipKernel,
     view: ViewEncKernel,
@@ -232,6 +235,7 @@ impl GpuModel {
             sample: SampleKernels::with_variant(ctx, s)?,
             occupancy: OccupancyKernel::new(ctx)?,
             occupancy_update: OccupancyUpdateKernel::new(ctx)?,
+            occupancy_refresh: OccupancyRefreshKernel::new(ctx)?,
             cast: CastIpeKernel::new(ctx)?,
             tri_mip: TriMipKernel::new(ctx)?,
             view: ViewEncKernel::new(ctx)?,
@@ -419,8 +423,8 @@ impl GpuModel {
     /// the field in its probe mode (`cast_ipe.wgsl` or `tri_mip.wgsl`), the first MLP's forward
     /// pass, and the cell's opacity kept. The Tri-Mip pyramid must have been built from `params`
     /// ([`prepare_field`](Self::prepare_field)); `work`'s active rays are left as they were.
-    /// Which cells are occupied follows on the host from the opacities read back
-    /// ([`OccupancyGrid::update_with_opacity`]), where the ray compaction needs them.
+    /// Then, as the update's end, which cells are occupied and their dilations, from the
+    /// opacities on the device (`occupancy_refresh.wgsl`): nothing is read back.
     ///
     /// # Errors
     /// [`GpuError::InvalidInput`] for a grid over the contracted space of a bounded model or the
@@ -446,12 +450,12 @@ impl GpuModel {
         let s = c.num_samples;
         let chunk = work.capacity() * s;
         grid.reserve_probes(rec.context(), chunk);
-        let grid = &*grid;
-        let probes = grid.probes().ok_or_else(|| GpuError::InvalidInput("no probe buffer".into()))?;
-        let r = grid.resolution();
+        let g = &*grid;
+        let probes = g.probes().ok_or_else(|| GpuError::InvalidInput("no probe buffer".into()))?;
+        let r = g.resolution();
         let n_cells = r * r * r;
         let active = work.n_rays();
-        let cell_size = 2.0 * grid.bound() / r as f32;
+        let cell_size = 2.0 * g.bound() / r as f32;
         for first in (0..n_cells).step_by(chunk) {
             let count = chunk.min(n_cells - first);
             let rays = count.div_ceil(s);
@@ -463,23 +467,25 @@ impl GpuModel {
                 resolution: r as u32,
                 seed,
                 step,
-                contracted: u32::from(grid.contracted()),
+                contracted: u32::from(g.contracted()),
                 density_activation: c.density_activation as u32,
-                bound: grid.bound(),
+                bound: g.bound(),
                 cell_size,
-                decay: grid.decay(),
+                decay: g.decay(),
                 density_bias: c.density_bias,
                 raw_stride: raw_stride as u32,
                 ..OccupancyUpdateParams::default()
             };
-            let bufs = UpdateBuffers { probes, raw_density, grid };
+            let bufs = UpdateBuffers { probes, raw_density, grid: g };
             self.occupancy_update.place_probes(rec, up, bufs)?;
             let samples = Samples { rays: probes, t_vals: &work.t_vals[0], n_rays: rays, n_samples: s, probes: true };
             self.encode_samples(rec, model, params, samples, work)?;
             self.mlp.forward(rec, &model.mlps()[0], params, &work.mlp);
             self.occupancy_update.update_opacity(rec, up, bufs)?;
         }
-        work.set_active(active)
+        work.set_active(active)?;
+        let warmed_up = grid.end_update(u64::from(step));
+        self.occupancy_refresh.refresh(rec, grid, warmed_up)
     }
 
     /// After every chunk of a training step: the pyramid's gradient pushed down into the

@@ -11,13 +11,15 @@
 //! step is the same whatever the device's limits.
 //!
 //! With an occupancy grid (the fast preset), the coarse edges come from `occupancy.wgsl` on the
-//! grid's copy on the device; every few steps the grid is updated on the device as the CPU
-//! backend updates it (`occupancy_update.wgsl`: the same probes through the same field), and its
-//! opacities read back, from which the host finds the occupied cells (the CPU's code). The
-//! rays that meet no occupied cell are found on the host (the CPU's traversal of the CPU's rays
-//! for the same pixels: the same rays the CPU backend skips) and compacted away on the device
-//! (`kernels::compact`): they render the background without sampling, MLP or rendering
-//! work, in training and in rendering.
+//! grid on the device; every few steps the grid is updated there as the CPU backend updates it
+//! (`occupancy_update.wgsl`: the same probes through the same field; `occupancy_refresh.wgsl`:
+//! the occupied cells and their dilations), with nothing read back. The rays that miss the
+//! masks' hull (every cell not carved, which training does not change) are found on the host
+//! (the CPU's traversal of the CPU's rays for the same pixels) and compacted away on the device
+//! (`kernels::compact`): they render the background without sampling, MLP or rendering work. A
+//! ray in the hull that meets no occupied cell runs on intervals of zero length: the background,
+//! no gradient, as the CPU backend's skipping gives it. An image reads the grid's opacities once
+//! and compacts its rays against the occupied cells themselves, as the CPU does.
 //!
 //! Rendering runs an image in chunks of a fixed number of rays through buffers that are reused
 //! from chunk to chunk, so the device memory it takes is set by the chunk size, not the image.
@@ -106,9 +108,56 @@ pub struct GpuBackend {
     grid_cache: DispatchCache,
     /// The camera of the image being rendered, rewritten in place for each image.
     render_cams: Option<DeviceImages>,
-    /// The occupancy grid guiding sampling, on the host (for the ray compaction and checkpoints)
-    /// and on the device, where its updates are made (`occupancy_update.wgsl`) and read back.
-    occupancy: Option<(OccupancyGrid, DeviceGrid)>,
+    /// The occupancy grid guiding sampling: on the device, where it is updated.
+    occupancy: Option<Occupancy>,
+}
+
+/// The occupancy grid of a GPU run. It is updated on the device alone (opacities, occupied cells
+/// and dilations), so a training step reads nothing back; the host's copy is brought up to date
+/// (its opacities read) only when a checkpoint or an image needs it.
+#[derive(Debug)]
+struct Occupancy {
+    /// The grid on the device, which samples and updates.
+    device: DeviceGrid,
+    /// The grid on the host as last read (its settings, carving and warm-up are always current).
+    host: OccupancyGrid,
+    /// Whether the device has updated the grid since the host's was read.
+    host_stale: bool,
+    /// Every cell not carved occupied: the rays that miss it are skipped in training. A ray that
+    /// meets only cells the device found empty runs the model on intervals of zero length and
+    /// renders the background with no gradient, as the CPU's skipping gives it.
+    hull: OccupancyGrid,
+}
+
+impl Occupancy {
+    fn new(ctx: &GpuContext, grid: OccupancyGrid) -> Result<Self, GpuError> {
+        let device = DeviceGrid::new(ctx, &grid)?;
+        let hull = OccupancyGrid::from_state(grid.config, grid.opacity.clone(), false)
+            .map_err(|e| GpuError::InvalidInput(e.to_string()))?;
+        Ok(Self { device, host: grid, host_stale: false, hull })
+    }
+
+    /// The grid as the device holds it: its opacities read, the occupied cells found from them.
+    fn read(&self, ctx: &GpuContext) -> Result<OccupancyGrid, GpuError> {
+        if !self.host_stale {
+            return Ok(self.host.clone());
+        }
+        let opacity = ctx.read_f32(self.device.opacity(), self.host.opacity.len())?;
+        OccupancyGrid::from_state(self.host.config, opacity, self.device.warmed_up())
+            .map_err(|e| GpuError::InvalidInput(e.to_string()))
+    }
+
+    /// Brings the host's grid up to date, and the device's layers to the host's (the host's
+    /// mean is in f64: the two agree but for a cell at the threshold to rounding), so that the
+    /// rays the host finds for an image's compaction are those the device samples.
+    fn sync(&mut self, ctx: &GpuContext) -> Result<(), GpuError> {
+        if self.host_stale {
+            self.host = self.read(ctx)?;
+            self.device.update(ctx, &self.host)?;
+            self.host_stale = false;
+        }
+        Ok(())
+    }
 }
 
 impl GpuBackend {
@@ -133,13 +182,7 @@ impl GpuBackend {
         state: TrainState,
     ) -> Result<Self, GpuError> {
         state.check(&model).map_err(|e| GpuError::InvalidInput(e.to_string()))?;
-        let occupancy = match state.occupancy {
-            Some(grid) => {
-                let on_device = DeviceGrid::new(&ctx, &grid)?;
-                Some((grid, on_device))
-            }
-            None => None,
-        };
+        let occupancy = state.occupancy.map(|grid| Occupancy::new(&ctx, grid)).transpose()?;
         let render_chunk = auto_chunk(&ctx, &model);
         Ok(Self {
             kernels: GpuModel::new(&ctx)?,
@@ -267,51 +310,49 @@ impl GpuBackend {
         let params = self.ctx.read_f32(&self.state.params, n)?;
         let m = self.ctx.read_f32(&self.state.m, n)?;
         let v = self.ctx.read_f32(&self.state.v, n)?;
-        let occupancy = self.occupancy.as_ref().map(|(grid, _)| grid.clone());
+        let occupancy = self.occupancy.as_ref().map(|o| o.read(&self.ctx)).transpose()?;
         Ok(Checkpoint { step: self.step, params, adam: AdamState { m, v, t: self.adam_t }, occupancy })
     }
 
     /// The grid's update when one is due, before the step, from the current parameters (the
-    /// CPU trainer's order): the densities and opacities on the device, the opacities read back
-    /// for the occupied cells and their dilations, which the host's ray compaction reads.
+    /// CPU trainer's order): the densities, opacities, occupied cells and dilations on the device,
+    /// nothing read back.
     fn update_grid_if_due(&mut self) -> Result<(), GpuError> {
-        let (Some(data), Some((grid, on_device))) = (self.train.as_mut(), self.occupancy.as_mut()) else {
+        let (Some(data), Some(occupancy)) = (self.train.as_mut(), self.occupancy.as_mut()) else {
             return Ok(());
         };
-        if !grid.updates_at(self.step) {
+        if !occupancy.host.updates_at(self.step) {
             return Ok(());
         }
         let (model, params) = (&self.model, &self.state.params);
         let mut rec = Recorder::with_cache(&self.ctx, "occupancy update", std::mem::take(&mut self.grid_cache));
         self.kernels.prepare_field(&mut rec, model, params, &data.work, false)?;
         let at = (self.seed, self.step as u32);
-        self.kernels.update_grid(&mut rec, model, params, &mut data.work, on_device, at)?;
+        self.kernels.update_grid(&mut rec, model, params, &mut data.work, &mut occupancy.device, at)?;
         self.grid_cache = rec.submit();
-        let opacity = self.ctx.read_f32(on_device.opacity(), grid.opacity.len())?;
-        grid.update_with_opacity(opacity, self.step).map_err(|e| GpuError::InvalidInput(e.to_string()))?;
-        on_device.update(&self.ctx, grid)?;
-        self.in_flight = 0;
+        occupancy.host.warmed_up = occupancy.device.warmed_up();
+        occupancy.host_stale = true;
         Ok(())
     }
 
     fn run_step(&mut self, report: bool) -> Result<Option<StepReport>, GpuError> {
         self.update_grid_if_due()?;
         let data = self.train.as_mut().ok_or_else(|| GpuError::InvalidInput("no training data".into()))?;
-        let grid = self.occupancy.as_ref().map(|(_, g)| g);
+        let grid = self.occupancy.as_ref().map(|o| &o.device);
         let ctx = &self.ctx;
         let step = self.step;
         let mode = Mode::Train { seed: self.seed, step: step as u32 };
         let lr = self.optim.lr.lr(step);
         let TrainData { images, batch, work, chunks, compaction } = data;
         let n = batch.n_rays();
-        // The rays that meet an occupied cell, found on the host for the pixels the device draws.
+        // The rays that meet a cell of the hull, found on the host for the pixels the device draws.
         let mut kept: Option<&mut Compaction> = None;
-        if let (Some((host_grid, _)), Some((cameras, c))) = (&self.occupancy, compaction.as_mut())
-            && !host_grid.is_full()
+        if let (Some(Occupancy { hull, .. }), Some((cameras, c))) = (&self.occupancy, compaction.as_mut())
+            && !hull.is_full()
         {
             let rays: Vec<mipnerf_core::Ray> =
                 cameras.batch_pixels(n, self.seed, step as u32).map(|(v, x, y)| cameras.ray(v, x, y)).collect();
-            if let Some(list) = kept_rays(host_grid, &rays) {
+            if let Some(list) = kept_rays(hull, &rays) {
                 c.upload(ctx, &list, n)?;
                 kept = Some(c);
             }
@@ -379,6 +420,9 @@ impl GpuBackend {
 
     fn render_all(&mut self, image: &ImageSpec) -> Result<Vec<LevelOutput>, GpuError> {
         let rpp = self.model.rays_per_pixel();
+        if let Some(o) = self.occupancy.as_mut() {
+            o.sync(&self.ctx)?;
+        }
         match &mut self.render_cams {
             Some(c) => c.set_camera(&self.ctx, image)?,
             None => self.render_cams = Some(DeviceImages::camera_only(&self.ctx, image)?),
@@ -415,7 +459,7 @@ impl GpuBackend {
         let mut out = Vec::with_capacity(total * levels);
         let ctx = &self.ctx;
         let k = self.model.config().supersample;
-        let grid = self.occupancy.as_ref().map(|(_, g)| g);
+        let grid = self.occupancy.as_ref().map(|o| &o.device);
         // Double buffering: chunk i's outputs are copied to staging[i % 2] in its own command
         // buffer and read back while chunk i + 1 runs.
         let read = |slot: usize, n: usize, after: wgpu::SubmissionIndex| -> Result<Vec<LevelOutput>, GpuError> {
@@ -431,7 +475,8 @@ impl GpuBackend {
             work.set_active(n)?;
             // The chunk's rays that meet an occupied cell, found on the host.
             let mut kept = None;
-            if let (Some((host_grid, _)), Some(c)) = (&self.occupancy, self.render_compaction.as_mut())
+            if let (Some(Occupancy { host: host_grid, .. }), Some(c)) =
+                (&self.occupancy, self.render_compaction.as_mut())
                 && !host_grid.is_full()
             {
                 host_rays.clear();

@@ -1,7 +1,7 @@
 //! An occupancy grid's update on the device (`occupancy_update.wgsl`, the fields' probe modes in
-//! `cast_ipe.wgsl` and `tri_mip.wgsl`, the MLP's forward pass) against the CPU's
-//! `OccupancyGrid::update`, for both fields, bounded and over an unbounded scene's contracted
-//! space, in several chunks of cells.
+//! `cast_ipe.wgsl` and `tri_mip.wgsl`, the MLP's forward pass, and the occupied cells and their
+//! dilations from `occupancy_refresh.wgsl`) against the CPU's `OccupancyGrid::update`, for both
+//! fields, bounded and over an unbounded scene's contracted space, in several chunks of cells.
 #![allow(clippy::unwrap_used, missing_docs)]
 
 use mipnerf_core::backend::TrainState;
@@ -47,6 +47,8 @@ fn update_agrees(what: &str, cfg: ModelConfig, grid: OccupancyConfig) {
     kernels.update_grid(&mut rec, &model, &params_buf, &mut work, &mut on_device, (9, step as u32)).unwrap();
     let _ = rec.submit();
     let opacity = ctx.read_f32(on_device.opacity(), n).unwrap();
+    let words = ctx.read_f32(on_device.layers(), device.packed_layers().len()).unwrap();
+    let layers: Vec<u32> = words.iter().map(|w| w.to_bits()).collect();
     assert_eq!(work.n_rays(), RAYS, "{what}: the buffers' active rays are left as they were");
 
     let (mut worst, mut changed) = (0.0f32, 0);
@@ -59,6 +61,13 @@ fn update_agrees(what: &str, cfg: ModelConfig, grid: OccupancyConfig) {
     assert!(changed > n / 10, "{what}: the update changed only {changed} of {n} cells");
     device.update_with_opacity(opacity, step).unwrap();
     assert!(device.warmed_up, "{what}: the warm-up ends as on the CPU");
+    assert!(on_device.warmed_up(), "{what}: the warm-up ends on the device too");
+    // The occupied cells and their dilations found on the device (`occupancy_refresh.wgsl`) are
+    // the CPU's from the same opacities, bit for bit (the mean of the candidates, f32 on the
+    // device and f64 on the host, decides no cell here).
+    let want = device.packed_layers();
+    let wrong = layers.iter().zip(&want).filter(|(a, b)| a != b).count();
+    assert_eq!(wrong, 0, "{what}: {wrong} of {} words of the layers differ from the CPU's", want.len());
     let candidates: Vec<f32> = host.opacity.iter().copied().filter(|&v| v != CARVED).collect();
     let mean = candidates.iter().map(|&v| f64::from(v)).sum::<f64>() / candidates.len() as f64;
     let threshold = grid.threshold.min(mean as f32);

@@ -238,6 +238,7 @@ pub const ALL_SOURCES: &[(&str, &str)] = &[
     ("sample.wgsl", sample::SOURCE),
     ("occupancy.wgsl", occupancy::SOURCE),
     ("occupancy_update.wgsl", occupancy_update::SOURCE),
+    ("occupancy_refresh.wgsl", occupancy_update::REFRESH_SOURCE),
     ("view_enc.wgsl", view_enc::SOURCE),
     ("batch.wgsl", batch::SOURCE),
     ("gather.wgsl", compact::GATHER_SOURCE),

@@ -58,6 +58,13 @@ pub struct OccupancyParams {
 pub struct DeviceGrid {
     bits: wgpu::Buffer,
     opacity: wgpu::Buffer,
+    /// `[the candidates' mean opacity]`, written and read by the refresh of the layers.
+    mean: wgpu::Buffer,
+    /// The grid's threshold (before its min with the candidates' mean).
+    threshold: f32,
+    /// The update after which cells are occupied by their opacity, and whether one has run.
+    warmup_steps: u64,
+    warmed_up: bool,
     /// An update's density probes (one vec4 per cell of a chunk), made by the first update.
     probes: Option<wgpu::Buffer>,
     resolution: u32,
@@ -80,11 +87,15 @@ impl DeviceGrid {
                 "an occupancy grid of {r} cells per axis: the GPU sampler takes at most {MAX_RESOLUTION}"
             )));
         }
-        let bits = ctx.storage_buffer("occupancy grid layers", &grid.packed_layers(), false);
+        let bits = ctx.storage_buffer("occupancy grid layers", &grid.packed_layers(), true);
         let opacity = ctx.storage_buffer("occupancy grid opacities", &grid.opacity, true);
         Ok(Self {
             bits,
             opacity,
+            mean: ctx.storage_buffer("occupancy grid mean opacity", &[0.0f32], false),
+            threshold: grid.config.threshold,
+            warmup_steps: grid.config.warmup_steps,
+            warmed_up: grid.warmed_up,
             probes: None,
             resolution: r as u32,
             bound: grid.config.bound,
@@ -116,6 +127,7 @@ impl DeviceGrid {
         }
         ctx.queue().write_buffer(&self.bits, 0, bytemuck::cast_slice(&grid.packed_layers()));
         self.full = grid.is_full();
+        self.warmed_up = grid.warmed_up;
         Ok(())
     }
 
@@ -147,6 +159,39 @@ impl DeviceGrid {
     #[must_use]
     pub fn decay(&self) -> f32 {
         self.decay
+    }
+
+    /// The occupied cells' bit layers (`OccupancyGrid::packed_layers`' layout).
+    #[must_use]
+    pub fn layers(&self) -> &wgpu::Buffer {
+        &self.bits
+    }
+
+    /// The threshold of an occupied cell's opacity (before its min with the candidates' mean).
+    #[must_use]
+    pub fn threshold(&self) -> f32 {
+        self.threshold
+    }
+
+    /// The scratch of the refresh: the candidates' mean opacity.
+    pub(crate) fn mean(&self) -> &wgpu::Buffer {
+        &self.mean
+    }
+
+    /// Ends an update made at `step`, as the CPU's grid does: the warm-up over once
+    /// `step >= warmup_steps`. Whether it is. After the warm-up the layers come from the
+    /// opacities on the device, which the host does not read: the grid is no longer known to be
+    /// full (the sampler walks it).
+    pub(crate) fn end_update(&mut self, step: u64) -> bool {
+        self.warmed_up |= step >= self.warmup_steps;
+        self.full &= !self.warmed_up;
+        self.warmed_up
+    }
+
+    /// Whether an update has ended the warm-up.
+    #[must_use]
+    pub fn warmed_up(&self) -> bool {
+        self.warmed_up
     }
 
     /// Makes the probes' buffer hold at least `n` probes (vec4), kept between updates.

@@ -1,8 +1,12 @@
 //! `shaders/occupancy_update.wgsl`: an occupancy grid's update on the device, the density probes
-//! placed in its cells and their opacities kept.
+//! placed in its cells and their opacities kept; `shaders/occupancy_refresh.wgsl`: its end, the
+//! occupied cells and their dilations found from the opacities, on the device too.
 //!
-//! CPU reference: [`mipnerf_core::occupancy::OccupancyGrid::update`]. The model's passes between
-//! the two entry points are [`crate::model::GpuModel::update_grid`]'s.
+//! CPU reference: [`mipnerf_core::occupancy::OccupancyGrid::update`] (its refresh:
+//! [`mipnerf_core::occupancy::OccupancyGrid::packed_layers`] after it). The model's passes
+//! between the two entry points are [`crate::model::GpuModel::update_grid`]'s.
+
+use mipnerf_core::occupancy::MAX_DILATION;
 
 use crate::kernels::Recorder;
 use crate::kernels::occupancy::DeviceGrid;
@@ -10,6 +14,91 @@ use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of this kernel.
 pub const SOURCE: &str = super::shader_source!("occupancy_update.wgsl");
+/// The WGSL source of the refresh of the occupied cells.
+pub const REFRESH_SOURCE: &str = super::shader_source!("occupancy_refresh.wgsl");
+
+/// The uniform block of `occupancy_refresh.wgsl` (`struct Params`), 32 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct RefreshParams {
+    /// Cells along each axis.
+    pub resolution: u32,
+    /// `resolution³`.
+    pub n_cells: u32,
+    /// The layer a dilation writes.
+    pub layer: u32,
+    /// 1: the warm-up is over.
+    pub warmed_up: u32,
+    /// The grid's threshold.
+    pub threshold: f32,
+    /// Workgroups along x of the 2-D dispatch grid.
+    pub groups_x: u32,
+    /// Padding.
+    pub pad0: u32,
+    /// Padding.
+    pub pad1: u32,
+}
+
+/// The compiled entry points of `occupancy_refresh.wgsl`.
+#[derive(Debug)]
+pub struct OccupancyRefreshKernel {
+    mean: wgpu::ComputePipeline,
+    occupied: wgpu::ComputePipeline,
+    dilate: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+}
+
+/// Dispatches a refresh records: the mean, the occupied cells, and one per dilation.
+#[cfg(feature = "test-support")]
+pub const REFRESH_DISPATCHES: u64 = 2 + MAX_DILATION as u64;
+
+impl OccupancyRefreshKernel {
+    /// Compiles the kernel.
+    ///
+    /// # Errors
+    /// If the device rejects it.
+    pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
+        let ([mean, occupied, dilate], layout) = kernels::build_entries(
+            ctx,
+            "occupancy_refresh",
+            REFRESH_SOURCE,
+            &[true, false, false],
+            ["candidate_mean", "occupied", "dilate"],
+        )?;
+        Ok(Self { mean, occupied, dilate, layout })
+    }
+
+    /// Records the occupied cells of `grid` and their dilations into its layers, from its
+    /// opacities on the device, as the CPU's grid finds them after an update (`warmed_up`: the
+    /// warm-up is over, cells are occupied by their opacity): [`REFRESH_DISPATCHES`] dispatches.
+    ///
+    /// # Errors
+    /// A grid too large for one dispatch.
+    pub fn refresh(&self, rec: &mut Recorder<'_>, grid: &DeviceGrid, warmed_up: bool) -> Result<(), GpuError> {
+        let r = grid.resolution() as u32;
+        let n = r * r * r;
+        let (gx, gy) = kernels::dispatch_grid(u64::from(n), kernels::WORKGROUP)?;
+        let p = RefreshParams {
+            resolution: r,
+            n_cells: n,
+            warmed_up: u32::from(warmed_up),
+            threshold: grid.threshold(),
+            groups_x: gx,
+            ..RefreshParams::default()
+        };
+        let bufs = [grid.opacity(), grid.layers(), grid.mean()];
+        rec.encoder().clear_buffer(grid.layers(), 0, None);
+        rec.dispatch("occupancy_refresh candidate_mean", &self.mean, &self.layout, &p, &bufs, (1, 1, 1));
+        rec.dispatch("occupancy_refresh occupied", &self.occupied, &self.layout, &p, &bufs, (gx, gy, 1));
+        for layer in 1..=MAX_DILATION as u32 {
+            let p = RefreshParams { layer, ..p };
+            rec.dispatch("occupancy_refresh dilate", &self.dilate, &self.layout, &p, &bufs, (gx, gy, 1));
+        }
+        Ok(())
+    }
+}
+
+super::wgsl_struct!(RefreshParams, "Params", [resolution, n_cells, layer, warmed_up, threshold, groups_x,]);
 
 /// The uniform block of `occupancy_update.wgsl` (`struct Params`), 64 bytes.
 #[repr(C)]
