@@ -840,12 +840,19 @@ fn a_tri_mip_training_step_makes_few_dispatches_and_reads_nothing_back() {
         // A step that updates the grid (steps 0, 16 and 32 of a default grid) submits the
         // update first, the occupied cells found on the device too.
         let (mut most, mut most_updating) = (0, 0);
+        // A kind of step (updating or not, some rays compacted away or none) seen once makes no
+        // buffer or bind group again: the dispatches' slots are kept by name, for each set of
+        // buffers they bind (the batch's own or its compacted copy).
+        let mut kinds_seen = std::collections::HashSet::new();
         for _ in 0..33 {
             let k = gpu.step();
             let before = gpu.work_counters().unwrap();
             gpu.train_step(false).unwrap();
             let step = gpu.work_counters().unwrap() - before;
             let updates = grid_updates.as_ref().is_some_and(|g| g.updates_at(k));
+            if !kinds_seen.insert((updates, step.dispatches)) {
+                assert_eq!(step.bind_groups_created, 0, "guided {guided}, step {k} made bind groups again: {step:?}");
+            }
             if updates || k < 4 {
                 lines.push(format!("guided {guided}, step {k}: {step:?}"));
             }

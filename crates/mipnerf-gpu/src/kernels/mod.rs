@@ -422,14 +422,20 @@ struct Slot {
 }
 
 /// The bind groups and uniform buffers of a sequence of dispatches, kept from one recording to
-/// the next: the `i`-th dispatch of a recording reuses the `i`-th slot's bind group when it binds
-/// the same buffers with the same layout, and rewrites its uniform only when the parameters
-/// changed (`queue.write_buffer`, which takes effect in order with the submissions). A training
-/// step records the same sequence every step, so after the first one it makes nothing.
+/// the next: the `k`-th dispatch named `name` in a recording reuses the slot of the `k`-th
+/// dispatch of that name in the last one when it binds the same buffers with the same layout,
+/// and rewrites its uniform only when the parameters changed (`queue.write_buffer`, which takes
+/// effect in order with the submissions). A training step records the same dispatches every
+/// step, so after the first one it makes nothing, and a dispatch that comes or goes (the
+/// compaction's gather when some rays miss the grid) leaves the others' slots as they were.
 #[derive(Debug, Default)]
 pub struct DispatchCache {
-    slots: Vec<Slot>,
+    /// Per dispatch (name, ordinal): the slots of the sets of buffers it has bound.
+    slots: std::collections::HashMap<(String, usize), Vec<Slot>>,
 }
+
+/// Sets of buffers one dispatch keeps a slot for.
+const MAX_SLOT_VARIANTS: usize = 4;
 
 /// Records a sequence of dispatches and copies into one command encoder: consecutive dispatches
 /// share one compute pass (wgpu orders the dispatches of a pass that touch the same buffers), a
@@ -440,12 +446,13 @@ pub struct Recorder<'a> {
     pass: Option<wgpu::ComputePass<'static>>,
     enc: wgpu::CommandEncoder,
     cache: DispatchCache,
-    next: usize,
+    /// Dispatches recorded so far, by name.
+    recorded: std::collections::HashMap<String, usize>,
 }
 
 impl std::fmt::Debug for Recorder<'_> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Recorder").field("next", &self.next).finish_non_exhaustive()
+        f.debug_struct("Recorder").field("recorded", &self.recorded).finish_non_exhaustive()
     }
 }
 
@@ -461,7 +468,7 @@ impl<'a> Recorder<'a> {
     #[must_use]
     pub fn with_cache(ctx: &'a GpuContext, label: &str, cache: DispatchCache) -> Self {
         let enc = ctx.device().create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
-        Self { ctx, pass: None, enc, cache, next: 0 }
+        Self { ctx, pass: None, enc, cache, recorded: std::collections::HashMap::new() }
     }
 
     /// The context the recording is for.
@@ -489,21 +496,24 @@ impl<'a> Recorder<'a> {
     ) {
         let ctx = self.ctx;
         let bytes: &[u8] = bytemuck::bytes_of(params);
-        let i = self.next;
-        self.next += 1;
-        let reusable = self.cache.slots.get(i).is_some_and(|s| {
+        let ordinal = self.recorded.entry(name.to_owned()).or_insert(0);
+        let key = (name.to_owned(), *ordinal);
+        *ordinal += 1;
+        let variants = self.cache.slots.entry(key).or_default();
+        let found = variants.iter().position(|s| {
             s.layout == *layout
                 && s.params.len() == bytes.len()
                 && s.buffers.len() == buffers.len()
                 && s.buffers.iter().zip(buffers).all(|(a, b)| a == *b)
         });
-        if reusable {
-            let slot = &mut self.cache.slots[i];
+        let v = if let Some(v) = found {
+            let slot = &mut variants[v];
             if slot.params != bytes {
                 ctx.queue().write_buffer(&slot.uniform, 0, bytes);
                 slot.params.clear();
                 slot.params.extend_from_slice(bytes);
             }
+            v
         } else {
             let uniform = ctx.uniform_buffer(&format!("{name} params"), params);
             let mut entries = vec![wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() }];
@@ -523,12 +533,15 @@ impl<'a> Recorder<'a> {
                 uniform,
                 bind,
             };
-            if i < self.cache.slots.len() {
-                self.cache.slots[i] = slot;
-            } else {
-                self.cache.slots.push(slot);
+            // The oldest variant goes when a dispatch has bound more sets of buffers than a step
+            // alternates between (the batch's own, or its compacted copy).
+            if variants.len() == MAX_SLOT_VARIANTS {
+                variants.remove(0);
             }
-        }
+            variants.push(slot);
+            variants.len() - 1
+        };
+        let bind = variants[v].bind.clone();
         let new_pass = self.pass.is_none();
         ctx.count_dispatch(new_pass);
         let pass = self.pass.get_or_insert_with(|| {
@@ -540,7 +553,7 @@ impl<'a> Recorder<'a> {
                 .forget_lifetime()
         });
         pass.set_pipeline(pipeline);
-        pass.set_bind_group(0, &self.cache.slots[i].bind, &[]);
+        pass.set_bind_group(0, &bind, &[]);
         pass.dispatch_workgroups(groups.0, groups.1, groups.2);
     }
 
