@@ -410,11 +410,20 @@ impl GpuModel {
         work: &ModelBuffers,
         training: bool,
     ) -> Result<(), GpuError> {
-        let (Some(f), Some(bufs)) = (PlaneField::of(model), &work.field) else { return Ok(()) };
         if training {
+            Self::clear_field_gradient(rec, work);
+        }
+        let (Some(f), Some(bufs)) = (PlaneField::of(model), &work.field) else { return Ok(()) };
+        self.tri_mip.build_pyramid(rec, &f, params, bufs)
+    }
+
+    /// Before a training step whose pyramid the grid's update just built from the same
+    /// parameters: the pyramid's gradient cleared, as [`prepare_field`](Self::prepare_field) in
+    /// training does, without building the pyramid again. Nothing for the Mip-NeRF field.
+    pub fn clear_field_gradient(rec: &mut Recorder<'_>, work: &ModelBuffers) {
+        if let Some(bufs) = &work.field {
             rec.encoder().clear_buffer(&bufs.grad_pyramid, 0, None);
         }
-        self.tri_mip.build_pyramid(rec, &f, params, bufs)
     }
 
     /// Records an update of `grid`'s opacities from the model's densities at `params`: the CPU's

@@ -316,13 +316,14 @@ impl GpuBackend {
 
     /// The grid's update when one is due, before the step, from the current parameters (the
     /// CPU trainer's order): the densities, opacities, occupied cells and dilations on the device,
-    /// nothing read back.
-    fn update_grid_if_due(&mut self) -> Result<(), GpuError> {
+    /// nothing read back. Whether it ran (and so built the Tri-Mip pyramid from the step's
+    /// parameters, which the step then uses as it is).
+    fn update_grid_if_due(&mut self) -> Result<bool, GpuError> {
         let (Some(data), Some(occupancy)) = (self.train.as_mut(), self.occupancy.as_mut()) else {
-            return Ok(());
+            return Ok(false);
         };
         if !occupancy.host.updates_at(self.step) {
-            return Ok(());
+            return Ok(false);
         }
         let (model, params) = (&self.model, &self.state.params);
         let mut rec = Recorder::with_cache(&self.ctx, "occupancy update", std::mem::take(&mut self.grid_cache));
@@ -332,11 +333,11 @@ impl GpuBackend {
         self.grid_cache = rec.submit();
         occupancy.host.warmed_up = occupancy.device.warmed_up();
         occupancy.host_stale = true;
-        Ok(())
+        Ok(true)
     }
 
     fn run_step(&mut self, report: bool) -> Result<Option<StepReport>, GpuError> {
-        self.update_grid_if_due()?;
+        let pyramid_built = self.update_grid_if_due()?;
         let data = self.train.as_mut().ok_or_else(|| GpuError::InvalidInput("no training data".into()))?;
         let grid = self.occupancy.as_ref().map(|o| &o.device);
         let ctx = &self.ctx;
@@ -359,7 +360,11 @@ impl GpuBackend {
         }
         let mut rec = Recorder::with_cache(ctx, "train step", std::mem::take(&mut self.train_cache));
         rec.encoder().clear_buffer(&self.state.grads, 0, None);
-        self.kernels.prepare_field(&mut rec, &self.model, &self.state.params, work, true)?;
+        if pyramid_built {
+            GpuModel::clear_field_gradient(&mut rec, work);
+        } else {
+            self.kernels.prepare_field(&mut rec, &self.model, &self.state.params, work, true)?;
+        }
         let draw = Draw::Random { seed: self.seed, step: step as u32, random_bkgd: self.model.config().random_bkgd };
         let (area_loss, k) = (self.model.config().area_loss, self.model.config().supersample);
         self.batch_kernel.encode(&mut rec, images, draw, area_loss, k, batch)?;
