@@ -75,15 +75,6 @@ fn place_probes(@builtin(global_invocation_id) gid: vec3<u32>) {
     probes[idx] = vec4<f32>(cell_center(i) + jitter * h, h * h / 12.0);
 }
 
-// `DensityActivation::forward` (render.wgsl's `density_of`).
-fn density_of(raw: f32) -> f32 {
-    let x = raw + params.density_bias;
-    if (params.density_activation == DENSITY_SOFTPLUS) {
-        return max(x, 0.0) + log(1.0 + exp(-abs(x)));
-    }
-    return max(x, 0.0);
-}
-
 // `OccupancyGrid::world_stretch`: the contraction's radial stretch at a contracted cell's centre
 // outside the unit ball, else 1.
 fn world_stretch(i: u32) -> f32 {
@@ -107,7 +98,7 @@ fn update_opacity(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (old == CARVED) {
         return;
     }
-    let sigma = density_of(raw_density[idx * params.raw_stride]);
+    let sigma = activated_density(raw_density[idx * params.raw_stride], params.density_bias, params.density_activation);
     var alpha = 1.0 - exp(-max(sigma, 0.0) * params.cell_size * world_stretch(i));
     // Not finite (NaN, or an infinite density's): counts as opaque. Tested on the bits, which no
     // compiler may assume away.

@@ -65,11 +65,7 @@ fn sigmoid(x: f32) -> f32 {
 }
 
 fn density_of(raw: f32) -> f32 {
-    let x = raw + p.density_bias;
-    if (p.density_activation == DENSITY_SOFTPLUS) {
-        return max(x, 0.0) + log(1.0 + exp(-abs(x)));
-    }
-    return max(x, 0.0);
+    return activated_density(raw, p.density_bias, p.density_activation);
 }
 
 fn density_derivative(raw: f32) -> f32 {

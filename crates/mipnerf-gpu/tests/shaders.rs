@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use mipnerf_gpu::GradientAtomics;
 use mipnerf_gpu::kernels::{
-    ALL_SOURCES, FRUSTUM_SOURCE, RNG_SOURCE, WgslStruct,
+    ALL_SOURCES, SHARED_SOURCES, WgslStruct,
     adam::AdamParams,
     batch::{BatchParams, GpuView},
     cast_ipe::CastIpeParams,
@@ -49,11 +49,10 @@ fn every_shader_file_parses_and_validates_as_composed() {
     for path in &files {
         let src = std::fs::read_to_string(path).unwrap();
         let name = path.file_name().unwrap().to_string_lossy().to_string();
-        if name == "rng.wgsl" || name == "frustum.wgsl" {
+        if let Some((_, shared)) = SHARED_SOURCES.iter().find(|(n, _)| *n == name) {
             // The shared files, composed in front of every kernel; each also valid on its own
             // after the generated constants.
-            let shared = if name == "rng.wgsl" { RNG_SOURCE } else { FRUSTUM_SOURCE };
-            assert_eq!(src, shared, "{name} differs from the kernels' shared source");
+            assert_eq!(&src, shared, "{name} differs from the kernels' shared source");
             if let Err(e) = parse_and_validate(&name, &format!("{}\n{src}", prelude())) {
                 failures.push(e);
             }
@@ -221,7 +220,7 @@ fn no_kernel_tests_for_nan_by_self_comparison_or_relies_on_fma() {
         found
     }
     let mut bad = Vec::new();
-    for (name, src) in ALL_SOURCES.iter().chain([&("rng.wgsl", RNG_SOURCE), &("frustum.wgsl", FRUSTUM_SOURCE)]) {
+    for (name, src) in ALL_SOURCES.iter().chain(SHARED_SOURCES.iter()) {
         bad.extend(offences(src).into_iter().map(|o| format!("{name} {o}")));
     }
     assert!(bad.is_empty(), "{}", bad.join("\n"));

@@ -24,6 +24,14 @@ pub const RNG_SOURCE: &str = shader_source!("rng.wgsl");
 /// samples (the IPE's and the Tri-Mip planes').
 pub const FRUSTUM_SOURCE: &str = shader_source!("frustum.wgsl");
 
+/// `shaders/activation.wgsl`: the density's activation, shared by rendering and the occupancy
+/// grid's update.
+pub const ACTIVATION_SOURCE: &str = shader_source!("activation.wgsl");
+
+/// The shared WGSL composed in front of every kernel, in order, by file name.
+pub const SHARED_SOURCES: [(&str, &str); 3] =
+    [("rng.wgsl", RNG_SOURCE), ("frustum.wgsl", FRUSTUM_SOURCE), ("activation.wgsl", ACTIVATION_SOURCE)];
+
 /// The WGSL constants that must agree with Rust, generated from the Rust definitions (the one
 /// source of truth): workgroup sizes, the codes of the configuration enums, the random stream
 /// ids and stride, and the pixel formats.
@@ -85,13 +93,14 @@ pub fn compose(own: &str) -> String {
     compose_with(own, GradientAtomics::CompareExchange)
 }
 
-/// A kernel's complete WGSL: the generated [`prelude`], the shared [`RNG_SOURCE`] and
-/// [`FRUSTUM_SOURCE`], the kernel's own file, and for each of its buffers declared
+/// A kernel's complete WGSL: the generated [`prelude`], the [`SHARED_SOURCES`], the kernel's
+/// own file, and for each of its buffers declared
 /// `array<GradientAtomic>` the functions that load, store and add to it ([`gradient_atomics`]).
 /// What the device compiles and the naga test validates.
 #[must_use]
 pub fn compose_with(own: &str, atomics: GradientAtomics) -> String {
-    format!("{}\n{RNG_SOURCE}\n{FRUSTUM_SOURCE}\n{own}\n{}", prelude(), gradient_atomics(own, atomics))
+    let shared: Vec<&str> = SHARED_SOURCES.iter().map(|(_, src)| *src).collect();
+    format!("{}\n{}\n{own}\n{}", prelude(), shared.join("\n"), gradient_atomics(own, atomics))
 }
 
 /// The WGSL of shared gradients for the kernel `own`: the type `GradientAtomic` (`atomic<f32>`
