@@ -204,6 +204,13 @@ pub struct DataFit {
 }
 
 impl DataFit {
+    /// Whether images are composited on white where nobody chose: Blender's objects and masked
+    /// photos (an object alone) are; photos without masks keep no alpha.
+    #[must_use]
+    pub fn white_by_default(photos: bool, masked: bool) -> bool {
+        !photos || masked
+    }
+
     /// Cylinders for NDC rays (the official LLFF setting), else cones.
     #[must_use]
     pub fn ray_shape(self) -> RayShape {

@@ -34,6 +34,7 @@ pub mod undistort;
 use std::path::{Path, PathBuf};
 
 use mipnerf_core::camera::PixelCenters;
+use mipnerf_core::config::DataFit;
 use mipnerf_core::dataset::{DataError, Dataset, Ndc, Pixels, Split, View};
 
 pub(crate) use image_files::{check_present, image_pixels, image_size, read_png_rgba, write_png_rgba};
@@ -167,8 +168,7 @@ impl Default for LoadOptions {
 /// Any [`DataError`] of the format's loader.
 pub fn load(dir: &Path, split: Split, opts: &LoadOptions) -> Result<Dataset, DataError> {
     let format = detect_format(dir)?;
-    // Masked photos are an object alone, composited as Blender's objects are (`DataFit`).
-    let white = opts.white_bkgd.unwrap_or(!format.is_photos() || opts.masks.is_some());
+    let white = opts.white_bkgd.unwrap_or(DataFit::white_by_default(format.is_photos(), opts.masks.is_some()));
     let spherify = opts.llff_spherify.then_some(match (opts.unbounded, opts.spherify_radius) {
         (true, _) => llff::Spherify::UnitBall,
         (false, None) => llff::Spherify::Official,

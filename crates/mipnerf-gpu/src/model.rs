@@ -285,10 +285,7 @@ impl GpuModel {
         }
         let c = &model.config();
         let (nr, s) = (batch.n_rays(), c.num_samples);
-        let (seed, step, randomized) = match mode {
-            Mode::Train { seed, step } => (seed, step, true),
-            Mode::Eval => (0, 0, false),
-        };
+        let (seed, step, randomized) = crate::kernels::mode_uniforms(mode);
         let level_w = model.level_weights();
         rec.context().count_model_rays(nr);
         let bufs = &work.mlp;
@@ -599,10 +596,7 @@ impl GpuModel {
         kept_out: &[wgpu::Buffer],
     ) -> Result<(), GpuError> {
         let c = model.config();
-        let (seed, step, train) = match mode {
-            Mode::Train { seed, step } => (seed, step, true),
-            Mode::Eval => (0, 0, false),
-        };
+        let (seed, step, train) = crate::kernels::mode_uniforms(mode);
         let params = ExpandParams {
             n_rays: batch.n_rays() as u32,
             background: background_code(c.white_bkgd, train && c.random_bkgd),

@@ -119,7 +119,8 @@ pub struct GpuBackend {
 struct Occupancy {
     /// The grid on the device, which samples and updates.
     device: DeviceGrid,
-    /// The grid on the host as last read (its settings, carving and warm-up are always current).
+    /// The grid on the host as last read (its settings and carving are always current; the
+    /// warm-up is the device's, [`DeviceGrid::warmed_up`]).
     host: OccupancyGrid,
     /// Whether the device has updated the grid since the host's was read.
     host_stale: bool,
@@ -331,7 +332,6 @@ impl GpuBackend {
         let at = (self.seed, self.step as u32);
         self.kernels.update_grid(&mut rec, model, params, &mut data.work, &mut occupancy.device, at)?;
         self.grid_cache = rec.submit();
-        occupancy.host.warmed_up = occupancy.device.warmed_up();
         occupancy.host_stale = true;
         Ok(true)
     }

@@ -451,7 +451,7 @@ impl TrainSettings {
         // What the data implies where no flag says otherwise, as the library fits it: masked
         // photos are an object alone, composited as Blender's objects are.
         let masked = self.masks.is_some();
-        let fit = DataFit { forward_facing, white_bkgd: !llff || masked, masked };
+        let fit = DataFit { forward_facing, white_bkgd: DataFit::white_by_default(llff, masked), masked };
         let preset = self.preset.unwrap_or(PresetArg::Tiny);
         let fast = preset == PresetArg::Fast;
         let tri_mip = self.uses_tri_mip();

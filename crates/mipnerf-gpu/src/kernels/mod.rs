@@ -256,6 +256,16 @@ pub const ALL_SOURCES: &[(&str, &str)] = &[
     ("fused_mlp.wgsl", fused_mlp::SOURCE),
 ];
 
+/// What a kernel's uniform block takes of a pass's mode: the run's seed and the step (both 0 in
+/// evaluation), and whether it trains (jitter, density noise, random backgrounds).
+#[must_use]
+pub fn mode_uniforms(mode: mipnerf_core::model::Mode) -> (u32, u32, bool) {
+    match mode {
+        mipnerf_core::model::Mode::Train { seed, step } => (seed, step, true),
+        mipnerf_core::model::Mode::Eval => (0, 0, false),
+    }
+}
+
 /// Rays as every kernel reads them, two vec4 a ray: (origin, radius), (direction, lossmult).
 #[must_use]
 pub fn packed_rays(rays: &[mipnerf_core::Ray]) -> Vec<[f32; 4]> {

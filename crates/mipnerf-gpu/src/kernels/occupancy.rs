@@ -2,7 +2,6 @@
 //!
 //! CPU reference: [`mipnerf_core::stages::sample_occupied_intervals`] (the spans from [`mipnerf_core::occupancy::OccupancyGrid::ray_segments`]).
 
-use mipnerf_core::model::Mode;
 use mipnerf_core::occupancy::OccupancyGrid;
 use mipnerf_core::stages::Sample;
 
@@ -263,15 +262,12 @@ impl OccupancyKernel {
         t_out: &wgpu::Buffer,
     ) -> Result<(), GpuError> {
         let GuidedRays { rays, bounds, ray_ids } = rays;
-        let (seed, step, randomized) = match how.mode {
-            Mode::Train { seed, step } => (seed, step, 1),
-            Mode::Eval => (0, 0, 0),
-        };
+        let (seed, step, train) = kernels::mode_uniforms(how.mode);
         let mut params = OccupancyParams {
             n_rays: n_rays as u32,
             n_samples: how.n_samples as u32,
             spacing: how.spacing.code(),
-            randomized,
+            randomized: u32::from(train),
             seed,
             step,
             ..OccupancyParams::default()

@@ -56,15 +56,12 @@ impl SampleParams {
     /// jittered in training (`mode`); the level and padding are the resampling's.
     #[must_use]
     pub fn new(n_rays: usize, n_samples: usize, spacing: Spacing, mode: Mode) -> Self {
-        let (seed, step, randomized) = match mode {
-            Mode::Train { seed, step } => (seed, step, 1),
-            Mode::Eval => (0, 0, 0),
-        };
+        let (seed, step, train) = kernels::mode_uniforms(mode);
         Self {
             n_rays: n_rays as u32,
             n_samples: n_samples as u32,
             spacing: spacing.code(),
-            randomized,
+            randomized: u32::from(train),
             seed,
             step,
             ..Self::default()
