@@ -7,15 +7,19 @@
 //   invocation summing a stride of cells, then a tree over the workgroup (a fixed order).
 // - `occupied`: one invocation per cell: occupied when not carved and, after the warm-up, above
 //   min(threshold, mean); layer 0's bit set.
-// - `dilate`: one invocation per cell: layer `layer`'s bit set when a cell of the 3x3x3 block
-//   around it (within the grid) is set in layer `layer - 1`.
+// - `dilate`: one invocation per cell: every layer k in 1..=MAX_DILATION at once, each the
+//   layer before it dilated by the 3x3x3 block (within the grid), which is the cells within
+//   Chebyshev distance k of an occupied one: the invocation finds its distance to the nearest
+//   bit of layer 0 within MAX_DILATION cells, reading the rows of the (2 MAX_DILATION + 1)^2
+//   block around it a word or two at a time, and sets layers distance..=MAX_DILATION. Layer 0
+//   is only read, so one dispatch makes them all.
 
 struct Params {
     // Cells along each axis.
     resolution: u32,
     // resolution^3.
     n_cells: u32,
-    // The layer `dilate` writes (1 to MAX_DILATION).
+    // Unused (the dilations were one dispatch a layer).
     layer: u32,
     // 1: the warm-up is over (cells are occupied by their opacity, not all).
     warmed_up: u32,
@@ -94,6 +98,24 @@ fn occupied(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
 }
 
+// Bits x - MAX_DILATION ..= x + MAX_DILATION of layer 0's row that starts at cell `row` (the
+// cells outside the grid left 0), as bits 0 ..= 2 MAX_DILATION of the result.
+fn row_window(row: u32, x: i32) -> u32 {
+    let r = i32(params.resolution);
+    let d = i32(MAX_DILATION);
+    let lo = max(x - d, 0);
+    let hi = min(x + d, r - 1);
+    let j = row + u32(lo);
+    let n = u32(hi - lo + 1);
+    let off = j % 32u;
+    var bits = atomicLoad(&layers[j / 32u]) >> off;
+    if (off + n > 32u) {
+        bits = bits | (atomicLoad(&layers[j / 32u + 1u]) << (32u - off));
+    }
+    bits = bits & ((1u << n) - 1u);
+    return bits << u32(lo - (x - d));
+}
+
 @compute @workgroup_size(WORKGROUP)
 fn dilate(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = cell_index(gid);
@@ -101,18 +123,31 @@ fn dilate(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let r = i32(params.resolution);
+    let d = i32(MAX_DILATION);
     let c = vec3<i32>(i32(i % params.resolution), i32((i / params.resolution) % params.resolution), i32(i / (params.resolution * params.resolution)));
-    for (var dz = -1; dz <= 1; dz = dz + 1) {
-        for (var dy = -1; dy <= 1; dy = dy + 1) {
-            for (var dx = -1; dx <= 1; dx = dx + 1) {
-                let n = c + vec3<i32>(dx, dy, dz);
-                if (all(n >= vec3<i32>(0)) && all(n < vec3<i32>(r))) {
-                    if (bit(params.layer - 1u, u32(n.x + r * (n.y + r * n.z)))) {
-                        set_bit(params.layer, i);
-                        return;
-                    }
+    // The Chebyshev distance to the nearest occupied cell, MAX_DILATION + 1 when none is within
+    // MAX_DILATION.
+    var nearest = d + 1;
+    for (var dz = -d; dz <= d; dz = dz + 1) {
+        for (var dy = -d; dy <= d; dy = dy + 1) {
+            let y = c.y + dy;
+            let z = c.z + dz;
+            let across = max(abs(dy), abs(dz));
+            if (y < 0 || y >= r || z < 0 || z >= r || across >= nearest) {
+                continue;
+            }
+            let window = row_window(u32(r * (y + r * z)), c.x);
+            // The nearest set bit along the row: the narrowest window around the centre.
+            for (var k = 0; k <= d; k = k + 1) {
+                let mask = ((1u << u32(2 * k + 1)) - 1u) << u32(d - k);
+                if ((window & mask) != 0u) {
+                    nearest = min(nearest, max(across, k));
+                    break;
                 }
             }
         }
+    }
+    for (var layer = max(nearest, 1); layer <= d; layer = layer + 1) {
+        set_bit(u32(layer), i);
     }
 }

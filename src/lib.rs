@@ -49,6 +49,7 @@ pub use mipnerf_core::backend::{Backend, BackendError, MAX_BATCH_RAYS, RenderedI
 pub use mipnerf_core::checkpoint::CheckpointError;
 pub use mipnerf_core::dataset::{DataError, Dataset, Pixels, View};
 pub use mipnerf_core::demo;
+pub use mipnerf_core::hash_grid::HashGridConfig;
 pub use mipnerf_core::model::{Field, LevelOutput, LossStats, ModelConfig, ModelError, Preset};
 pub use mipnerf_core::schedule::LrSchedule;
 pub use mipnerf_core::train::{OptimConfig, StepReport};

@@ -9,7 +9,9 @@ use mipnerf_core::Camera;
 use mipnerf_core::backend::{Backend, BackendError, ImageSpec, MAX_BATCH_RAYS, RenderedImage, TrainState};
 use mipnerf_core::checkpoint::{self, CheckpointError};
 use mipnerf_core::dataset::{DataError, Dataset, Split, View};
-use mipnerf_core::model::{FastRecipe, Field, Levels, Model, ModelConfig, ModelError, Preset, TriMipRecipe};
+use mipnerf_core::model::{
+    FastRecipe, Field, HashGridRecipe, Levels, Model, ModelConfig, ModelError, Preset, TriMipRecipe,
+};
 use mipnerf_core::occupancy::{GridPlan, OccupancyGrid};
 use mipnerf_core::schedule::LrSchedule;
 use mipnerf_core::train::{OptimConfig, StepReport};
@@ -120,6 +122,23 @@ impl Options {
         self.model.field =
             Field::TriMip { planes: TriMipRecipe::planes(recipe.resolution), half_side, pre_filtered: true };
         self.model.planes_tv_mult = recipe.planes_tv;
+        self.model_chosen = true;
+        self.optim.field = Some(recipe.adam);
+        self.precision = Precision::F32;
+        self
+    }
+
+    /// These options with the hash-grid field ([`Field::HashGrid`]: Zip-NeRF's hash grid, each
+    /// level down-weighted at the cone's footprint, then a small MLP) in place of the Mip-NeRF
+    /// MLP, with the field's recipe ([`HashGridRecipe`]: its grid, its MLP, the grid's own Adam
+    /// settings) as the CLI's `--field hash-grid` takes it, over the cube of half side
+    /// `half_side` around the origin. CPU only (a GPU device refuses it by name); f32.
+    #[must_use]
+    pub fn hash_grid(mut self, half_side: f32) -> Self {
+        let recipe = HashGridRecipe::RECIPE;
+        self.model = TriMipRecipe::with_mlp(self.model, recipe.mlp);
+        self.model.field = Field::HashGrid { grid: recipe.grid, half_side };
+        self.model.planes_tv_mult = 0.0;
         self.model_chosen = true;
         self.optim.field = Some(recipe.adam);
         self.precision = Precision::F32;
@@ -598,7 +617,10 @@ fn describe_model(c: &ModelConfig) -> String {
         Field::TriMip { planes, pre_filtered: false, .. } => {
             format!("the tri-plane field ({}² planes)", planes.resolution)
         }
-        _ => "the Mip-NeRF MLP".to_owned(),
+        Field::HashGrid { grid, .. } => {
+            format!("the hash grid ({} levels to {} cells a side)", grid.levels, grid.finest)
+        }
+        Field::MipNerf => "the Mip-NeRF MLP".to_owned(),
     };
     format!(
         "{field} with a {}x{} trunk and {} samples on {} levels",

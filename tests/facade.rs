@@ -361,3 +361,35 @@ fn options_tri_mip_brings_the_fields_recipe_and_trains() {
     let (first, last) = (losses[..10].iter().sum::<f32>(), losses[190..].iter().sum::<f32>());
     assert!(last < 0.7 * first, "the loss fell only from {first} to {last}: {losses:?}");
 }
+
+/// `Options::hash_grid` brings the field's recipe (its grid, its MLP, the grid's own Adam
+/// settings, f32); a small grid trains, cuts the loss, saves and loads back as the same model.
+#[test]
+fn options_hash_grid_brings_the_fields_recipe_trains_and_loads_back() {
+    use mipnerf::{Field, HashGridConfig, ModelConfig, OptimConfig};
+    use mipnerf_core::model::HashGridRecipe;
+    let options = cpu_tiny().hash_grid(1.5);
+    let recipe = HashGridRecipe::RECIPE;
+    let model = options.model().clone();
+    assert_eq!(model.field, Field::HashGrid { grid: recipe.grid, half_side: 1.5 });
+    assert_eq!([model.net_depth, model.net_width, model.net_depth_condition, model.net_width_condition], recipe.mlp);
+    assert_eq!(options.optim().field, Some(recipe.adam));
+    assert_eq!(options.precision(), Precision::F32);
+    // Trained small and at the fast recipe's rate: 8 levels to 64 cells, tables of 2^12.
+    let grid = HashGridConfig { levels: 8, features: 2, log2_table: 12, coarsest: 8, finest: 64 };
+    let optim = OptimConfig { lr: mipnerf_core::model::FastRecipe::RECIPE.schedule(200), ..options.optim().clone() };
+    let options =
+        options.with_model(ModelConfig { field: Field::HashGrid { grid, half_side: 1.5 }, ..model }).with_optim(optim);
+    let mut nerf = Nerf::new(demo::dataset(3, 12).unwrap(), options).unwrap();
+    let losses: Vec<f32> = (0..200).map(|_| nerf.train(1).unwrap().stats.loss).collect();
+    let (first, last) = (losses[..10].iter().sum::<f32>(), losses[190..].iter().sum::<f32>());
+    assert!(last < 0.7 * first, "the loss fell only from {first} to {last}: {losses:?}");
+    let before = nerf.render(&novel_camera()).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("hash-grid.safetensors");
+    nerf.save(&path).unwrap();
+    let mut loaded = Nerf::load(&path, cpu_default(), None).unwrap();
+    assert_eq!(loaded.render(&novel_camera()).unwrap(), before);
+    let err = Nerf::load(&path, cpu_tiny(), None).unwrap_err();
+    assert!(err.to_string().contains("holds the hash grid (8 levels to 64 cells a side)"), "{err}");
+}

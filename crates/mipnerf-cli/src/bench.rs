@@ -91,6 +91,10 @@ pub fn bench(a: &BenchArgs, session: &Session) -> Result<()> {
             if choice == Backend::Gpu && precision != PrecisionArg::F32 {
                 continue;
             }
+            if choice == Backend::Gpu && field == FieldArg::HashGrid {
+                println!("{shape}: no GPU row (the hash grid runs on the CPU backend only)");
+                continue;
+            }
             let setup = BackendSetup {
                 model: model.clone(),
                 optim: optim.clone(),
@@ -143,6 +147,12 @@ fn bench_model(preset: PresetArg, field: FieldArg) -> Result<(Model, OptimConfig
     let config = preset.preset().config();
     if field == FieldArg::MipNerf {
         return Ok((Model::new(config)?, OptimConfig::default()));
+    }
+    if field == FieldArg::HashGrid {
+        let recipe = mipnerf_core::model::HashGridRecipe::RECIPE;
+        let mut config = TriMipRecipe::with_mlp(config, recipe.mlp);
+        config.field = Field::HashGrid { grid: recipe.grid, half_side: BENCH_CUBE };
+        return Ok((Model::new(config)?, OptimConfig { field: Some(recipe.adam), ..OptimConfig::default() }));
     }
     let recipe = TriMipRecipe::RECIPE;
     let mut config = TriMipRecipe::with_mlp(config, recipe.mlp);

@@ -182,15 +182,20 @@ fn tri_mip_cube_from_data(mut s: TrainSettings, model: Model, ds: &Dataset) -> R
         s.tri_mip_bound = Some(bound);
     }
     let model = Model::new(s.model_config()?)?;
-    let Field::TriMip { planes: p, .. } = model.config().field else { unreachable!("the field is tri-mip") };
+    let shape = match model.config().field {
+        Field::TriMip { planes: p, .. } => {
+            format!("planes 3 x {}^2 x {} features in {} levels", p.resolution, p.features, p.levels)
+        }
+        Field::HashGrid { grid: g, .. } => format!(
+            "{} levels of {} features from {} to {} cells a side (tables of 2^{})",
+            g.levels, g.features, g.coarsest, g.finest, g.log2_table
+        ),
+        Field::MipNerf => unreachable!("a grid field"),
+    };
     eprintln!(
-        "field: {flag}, planes 3 x {r}^2 x {c} features in {l} levels over the cube [-{b:.3}, {b:.3}]^3 ({} of the \
-         model's {} parameters)",
+        "field: {flag}, {shape} over the cube [-{b:.3}, {b:.3}]^3 ({} of the model's {} parameters)",
         model.field_params(),
         model.num_params(),
-        r = p.resolution,
-        c = p.features,
-        l = p.levels,
         b = s.tri_mip_bound.unwrap_or_default(),
     );
     Ok((s, model))

@@ -1,4 +1,5 @@
-//! `train --field`: the Tri-Mip field trains, is recorded with its planes' cube and recipe,
+//! `train --field`: the hash grid trains, evaluates and renders on the CPU and is refused by name
+//! on the GPU; the Tri-Mip field trains, is recorded with its planes' cube and recipe,
 //! evaluates, renders and exports on the CPU, over NDC's cube on forward-facing photos and the
 //! contracted space in an unbounded scene, and on the GPU backend; what it does not run (the
 //! NeRF model) and settings out of range are refused by name; a Mip-NeRF run records no field.
@@ -193,5 +194,70 @@ fn bench_measures_the_tri_mip_field_beside_the_mlp() {
         let gpu = rows.iter().find(|r| r.starts_with("| tiny, tri-mip") && !r.contains("CPU"));
         assert!(gpu.is_some(), "no GPU row of the Tri-Mip field: {text}");
         assert!(text.matches("device work of").count() >= 2, "{text}");
+    }
+}
+
+#[test]
+fn a_hash_grid_run_trains_evaluates_and_renders_on_the_cpu_and_the_gpu_refuses_it_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_demo_scene(dir.path(), 2);
+    let run = dir.path().join("hash-grid");
+    let args = ["train", "--data", s(&data), "--out", s(&run), "--steps", "20", "--field", "hash-grid"];
+    let text = run_ok(&[&args[..], &["--backend", "cpu"]].concat());
+    // The field's recipe: 16 levels from 16 to 512 cells, tables of 2^17, recorded with the cube.
+    assert!(
+        text.contains("field: hash-grid, 16 levels of 2 features from 16 to 512 cells a side (tables of 2^17)"),
+        "{text}"
+    );
+    let config = std::fs::read_to_string(run.join("config.toml")).unwrap();
+    for key in ["field = \"hash-grid\"", "tri_mip_bound = ", "tri_mip_lr_mult = 2", "tri_mip_mlp = [2, 64, 1, 64]"] {
+        assert!(config.contains(key), "{key} in {config}");
+    }
+    // The planes' own settings are not the grid's.
+    assert!(!config.contains("tri_mip_resolution") && !config.contains("tri_mip_tv"), "{config}");
+    let bytes = std::fs::read(run.join("checkpoint.safetensors")).unwrap();
+    let tensors = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+    let tables = mipnerf_core::model::HashGridRecipe::RECIPE.grid.num_params();
+    assert_eq!(tensors.tensor("hash_grid/tables").unwrap().shape(), [tables / 2, 2]);
+    let text = run_ok(&["eval", "--run", s(&run), "--backend", "cpu"]);
+    assert!(text.contains("PSNR"), "{text}");
+    let frames = dir.path().join("frames");
+    run_ok(&["render", "--run", s(&run), "--out", s(&frames), "--path", "orbit", "--frames", "2", "--backend", "cpu"]);
+    image::open(frames.join("frame_0001.png")).unwrap();
+    // The planes' settings are refused with the grid, by name.
+    let cfg = dir.path().join("planes.toml");
+    std::fs::write(&cfg, "tri_mip_resolution = 64\n").unwrap();
+    let other = dir.path().join("refused");
+    let text = run_err(&[
+        "train",
+        "--data",
+        s(&data),
+        "--out",
+        s(&other),
+        "--steps",
+        "2",
+        "--field",
+        "hash-grid",
+        "--config",
+        s(&cfg),
+    ]);
+    assert!(text.contains("`tri_mip_resolution` (a config-file key) sets the Tri-Mip field's planes"), "{text}");
+    // The GPU backend says it does not run the grid, where an adapter is to ask.
+    if mipnerf_gpu::test_support::context_or_skip("the hash grid on the GPU").is_some() {
+        let gpu = dir.path().join("gpu");
+        let text = run_err(&[
+            "train",
+            "--data",
+            s(&data),
+            "--out",
+            s(&gpu),
+            "--steps",
+            "2",
+            "--field",
+            "hash-grid",
+            "--backend",
+            "gpu",
+        ]);
+        assert!(text.contains("the hash-grid field runs on the CPU backend only (--backend cpu)"), "{text}");
     }
 }

@@ -8,6 +8,8 @@
 //!   features): forward and forward + backward (the IPE itself is `--bench ipe`'s);
 //! - the Tri-Mip encoding at Tri-MipRF's size (3 planes of 512² x 16 features, 8 levels): the
 //!   taps and reads, and the backward scatter;
+//! - the hash grid of its recipe (16 levels of 2 features, 16 to 512 cells, tables of 2^17),
+//!   down-weighted at the same footprints: the reads, and the backward scatter;
 //! - two MLPs after the encoding (48 features, a 16-value view encoding, no skip): Tri-MipRF's
 //!   shape (2 x 128, colour 4 x 128) and a small one (2 x 64, colour 1 x 64), forward + backward
 //!   with the input gradient, in f32 and (where the CPU has a bf16 kernel) in bf16 products;
@@ -152,6 +154,7 @@ fn main() {
             levels.iter().copied().fold(f32::NEG_INFINITY, f32::max),
             forward + backward
         );
+        hash_grid_row(&samples, if quick { 1 } else { 16 }, reps);
         for (name, depth, width, cond_depth, cond_width) in [
             ("Tri-MipRF's shape (2 x 128; colour 4 x 128)", 2, 128, 4, 128),
             ("small (2 x 64; colour 1 x 64)", 2, 64, 1, 64),
@@ -221,5 +224,36 @@ fn batched(planes: TriMipConfig, n: usize, reps: usize) {
         "batched on {threads} threads, {n} samples ({} rays of {per_ray}): encoding {forward:.0} ns a sample, \
          backward scatter (encode_backward_batch) {backward:.0} ns a sample (the per-sample calls: {sequential:.0})",
         n / per_ray
+    );
+}
+
+/// The hash grid's encoding and backward scatter, one sample at a time on this thread, at the
+/// recipe's shape (`levels` levels; 1 for `--quick`), the samples' footprints as the field takes
+/// them (half the cross-section's radius; `samples` carry the Tri-Mip level, so the footprint is
+/// taken again from it).
+fn hash_grid_row(samples: &[(Vec3, f32)], levels: usize, reps: usize) {
+    use mipnerf_core::hash_grid::{GridSample, Levels};
+    let grid = mipnerf_core::hash_grid::HashGridConfig { levels, ..mipnerf_core::model::HashGridRecipe::RECIPE.grid };
+    let levels_of = Levels::new(grid);
+    let mut params = vec![0.0; grid.num_params()];
+    grid.init(&mut params, 4);
+    // The Tri-Mip level is log2 of the footprint's diameter in 512 texels: back to a radius.
+    let points: Vec<GridSample> =
+        samples.iter().map(|&(at, level)| GridSample { at, scale: 0.5 * 2f32.powf(level) / 512.0 / 2.0 }).collect();
+    let (n, dim) = (points.len(), grid.encoding_dim());
+    let mut x = vec![0.0; n * dim];
+    let forward = per_sample(reps, n, || levels_of.encode_many(&params, &points, &mut x));
+    let d_x: Vec<f32> = (0..n * dim).map(|i| ((i % 17) as f32 - 8.0) * 1e-3).collect();
+    let mut grad = vec![0.0; grid.num_params()];
+    let backward = per_sample(reps, n, || levels_of.encode_backward_batch(&[(&points, &d_x)], &mut grad));
+    std::hint::black_box((&x, &grad));
+    println!(
+        "| hash grid ({} levels of {} features, {} to {} cells, tables of 2^{}) | {forward:.0} | {:.0} |",
+        grid.levels,
+        grid.features,
+        grid.coarsest,
+        grid.resolution(grid.levels - 1),
+        grid.log2_table,
+        forward + backward
     );
 }

@@ -73,9 +73,15 @@ fn invalid(path: &Path, problem: impl Into<String>) -> CheckpointError {
 /// `(name, offset, shape)` of every tensor of `model`'s parameters.
 fn tensors(model: &Model) -> Vec<(String, usize, Vec<usize>)> {
     let mut out = Vec::new();
-    if let crate::model::Field::TriMip { planes, .. } = model.config().field {
-        let r = planes.resolution;
-        out.push(("tri_mip/planes".to_owned(), 0, vec![3, r, r, planes.features]));
+    match model.config().field {
+        crate::model::Field::MipNerf => {}
+        crate::model::Field::TriMip { planes, .. } => {
+            let r = planes.resolution;
+            out.push(("tri_mip/planes".to_owned(), 0, vec![3, r, r, planes.features]));
+        }
+        crate::model::Field::HashGrid { grid, .. } => {
+            out.push(("hash_grid/tables".to_owned(), 0, vec![grid.num_params() / grid.features, grid.features]));
+        }
     }
     for (i, mlp) in model.mlps().iter().enumerate() {
         for l in &mlp.layers {

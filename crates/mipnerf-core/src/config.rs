@@ -2,6 +2,7 @@
 //! stage reads and that import no stage. [`crate::model`] re-exports them.
 
 use crate::cone::RayShape;
+use crate::hash_grid::HashGridConfig;
 use crate::mip;
 use crate::mlp::MlpConfig;
 use crate::render::DensityActivation;
@@ -137,6 +138,15 @@ pub enum Field {
         /// Read at the level of the frustum's footprint (true) or at level 0 (false).
         pre_filtered: bool,
     },
+    /// Zip-NeRF's hash grid ([`crate::hash_grid`]) over the same cube, each level down-weighted
+    /// by how much of it the frustum's footprint averages away, before an MLP of the model's
+    /// shape without skip connection.
+    HashGrid {
+        /// The grid's shape.
+        grid: HashGridConfig,
+        /// Half the side of the cube the grid covers, in scene units.
+        half_side: f32,
+    },
 }
 
 /// Whether `v` is 0 (a weight that is off, not written).
@@ -150,6 +160,15 @@ impl Field {
     #[must_use]
     pub fn is_mip_nerf(&self) -> bool {
         *self == Self::MipNerf
+    }
+
+    /// Half the side of the cube a grid field covers (none for Mip-NeRF's, which has no box).
+    #[must_use]
+    pub fn half_side(&self) -> Option<f32> {
+        match *self {
+            Self::MipNerf => None,
+            Self::TriMip { half_side, .. } | Self::HashGrid { half_side, .. } => Some(half_side),
+        }
     }
 }
 
@@ -330,6 +349,34 @@ pub struct TriMipRecipe {
     pub resolution_unbounded: usize,
 }
 
+/// How the hash-grid field trains ([`Field::HashGrid`]) where a run does not say otherwise: its
+/// grid, the small MLP after it (the Tri-Mip recipe's) and the grid's own Adam settings. The
+/// CLI's `--field hash-grid` takes it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HashGridRecipe {
+    /// The grid: 16 levels of 2 features from 16 to 512 cells a side, tables of `2^17` entries
+    /// (Instant-NGP's shape with a table a quarter of its `2^19`: 4.2 M parameters, which a
+    /// dense Adam step on 2 cores moves in a few milliseconds).
+    pub grid: HashGridConfig,
+    /// The MLP after the grid: trunk depth and width, colour branch depth and width.
+    pub mlp: [usize; 4],
+    /// The grid's learning rate over the MLP's, and its Adam epsilon (Instant-NGP's 1e-15): 2,
+    /// which starts the grid at Instant-NGP's 1e-2. On lego's held-out training views 3 minutes
+    /// gave a four-scale mean of 29.95 dB with 2 and 29.99 with 10 (the planes' factor;
+    /// `docs/results/hash-grid/tune/`); on fern's held-out training photos 9 minutes gave 23.23
+    /// with 2 and 22.58 with 10, which fell after 3 minutes (`docs/results/hash-grid/fern-tune/`).
+    pub adam: crate::optim::FieldAdam,
+}
+
+impl HashGridRecipe {
+    /// The recipe.
+    pub const RECIPE: Self = Self {
+        grid: HashGridConfig { levels: 16, features: 2, log2_table: 17, coarsest: 16, finest: 512 },
+        mlp: TriMipRecipe::RECIPE.mlp,
+        adam: crate::optim::FieldAdam { lr_mult: 2.0, eps: 1e-15 },
+    };
+}
+
 impl TriMipRecipe {
     /// The recipe.
     pub const RECIPE: Self = Self {
@@ -459,6 +506,7 @@ impl ModelConfig {
         match self.field {
             Field::MipNerf => self.point_encoding.width(self.min_deg_point, self.max_deg_point),
             Field::TriMip { planes, .. } => planes.encoding_dim(),
+            Field::HashGrid { grid, .. } => grid.encoding_dim(),
         }
     }
 

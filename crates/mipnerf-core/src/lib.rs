@@ -45,6 +45,7 @@ pub mod dataset;
 pub mod demo;
 pub mod expf;
 pub mod export;
+pub mod hash_grid;
 pub mod io;
 pub mod linalg;
 mod lines;

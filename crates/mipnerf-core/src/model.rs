@@ -14,6 +14,7 @@ use rayon::prelude::*;
 
 use crate::bf16::{Bf16Support, Precision};
 use crate::cone::{Ray, RayShape};
+use crate::hash_grid::GridSample;
 use crate::mip::Gaussian;
 use crate::mlp::{MlpCache, MlpConfigError, MlpShape};
 use crate::occupancy::{DensityField, OccupancyGrid};
@@ -22,7 +23,9 @@ use crate::stages::{self, LevelRays, RawGradients, RawOutputs};
 use crate::tri_mip::{Pyramid, Taps};
 use crate::wide::wide;
 
-pub use crate::config::{FAST_SAMPLES, FastRecipe, Field, Mode, ModelConfig, PointEncoding, Preset, TriMipRecipe};
+pub use crate::config::{
+    FAST_SAMPLES, FastRecipe, Field, HashGridRecipe, Mode, ModelConfig, PointEncoding, Preset, TriMipRecipe,
+};
 use field::FieldGrads;
 pub use field::FieldState;
 pub use rendering::{LevelOutput, Levels};
@@ -145,6 +148,8 @@ struct Workspace {
     /// The Tri-Mip field's taps of the level's samples (copied to the chunk's [`FieldGrads`]
     /// in training).
     taps: Vec<Taps>,
+    /// The hash grid's points and footprints of the level's samples (as `taps`).
+    grid_samples: Vec<GridSample>,
 }
 
 impl Model {
@@ -173,7 +178,9 @@ impl Model {
             ));
         }
         if config.planes_tv_mult != 0.0
-            && !(config.planes_tv_mult.is_finite() && config.planes_tv_mult > 0.0 && !config.field.is_mip_nerf())
+            && !(config.planes_tv_mult.is_finite()
+                && config.planes_tv_mult > 0.0
+                && matches!(config.field, Field::TriMip { .. }))
         {
             return Err(ModelError::Config(format!(
                 "planes_tv_mult weighs the Tri-Mip planes' total variation: a positive number with the Tri-Mip \
@@ -197,6 +204,15 @@ impl Model {
                     )));
                 }
                 planes.num_params()
+            }
+            Field::HashGrid { grid, half_side } => {
+                grid.validate().map_err(|e| ModelError::Config(e.to_string()))?;
+                if !(half_side.is_finite() && half_side > 0.0) {
+                    return Err(ModelError::Config(format!(
+                        "the hash grid's cube needs a positive half side, got {half_side}"
+                    )));
+                }
+                grid.num_params()
             }
         };
         let n_mlps = if config.separate_mlps { config.num_levels } else { 1 };
@@ -268,8 +284,10 @@ impl Model {
     #[must_use]
     pub fn init_params(&self, seed: u64) -> Vec<f32> {
         let mut p = vec![0.0; self.num_params];
-        if let Field::TriMip { planes, .. } = self.config.field {
-            planes.init(&mut p[..self.field_params], seed.wrapping_add(0x7431_4D49));
+        match self.config.field {
+            Field::MipNerf => {}
+            Field::TriMip { planes, .. } => planes.init(&mut p[..self.field_params], seed.wrapping_add(0x7431_4D49)),
+            Field::HashGrid { grid, .. } => grid.init(&mut p[..self.field_params], seed.wrapping_add(0x4841_5348)),
         }
         for (i, m) in self.mlps.iter().enumerate() {
             m.init_glorot(&mut p, seed.wrapping_add(i as u64 * 0x9E37_79B9));

@@ -6,7 +6,7 @@
 
 mod common;
 use common::scene::ball_scene;
-use mipnerf_core::checkpoint::{self, Checkpoint};
+use mipnerf_core::checkpoint;
 use mipnerf_core::model::{Field, Mode, Model, ModelConfig, Preset};
 use mipnerf_core::model::{GradWith, TrainBatch};
 use mipnerf_core::train::{AdamConfig, AdamState, FieldAdam, OptimConfig, Trainer};
@@ -143,19 +143,7 @@ fn training_the_planes_is_bit_for_bit_reproducible_whatever_the_thread_count() {
 #[test]
 fn a_checkpoint_holds_the_planes_and_loads_back_exactly() {
     let model = Model::new(small(true)).unwrap();
-    let n = model.num_params();
-    let f = |k: f32| (0..n).map(|i| (i as f32 * 0.37 + k).sin()).collect::<Vec<f32>>();
-    let ck = Checkpoint {
-        step: 5,
-        params: f(0.0),
-        adam: AdamState { m: f(1.0), v: f(2.0).into_iter().map(f32::abs).collect(), t: 5 },
-        occupancy: None,
-    };
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("ck.safetensors");
-    checkpoint::save(&path, &model, &ck).unwrap();
-    let back = checkpoint::load(&path, &model).unwrap();
-    assert!(back.params == ck.params && back.adam.m == ck.adam.m && back.adam.v == ck.adam.v);
+    let (_dir, path) = common::checkpoint_round_trip(&model);
     // The planes are a tensor of their own, [3, R, R, C].
     let bytes = std::fs::read(&path).unwrap();
     let tensors = safetensors::SafeTensors::deserialize(&bytes).unwrap();
@@ -167,43 +155,8 @@ fn a_checkpoint_holds_the_planes_and_loads_back_exactly() {
 }
 
 /// The occupancy grid's density probes read the Tri-Mip planes (at the probe's footprint), not
-/// the IPE: each probe's density is the MLP's on the planes' encoding of its Gaussian.
+/// the IPE.
 #[test]
 fn the_occupancy_probes_of_a_tri_mip_model_read_the_planes() {
-    use mipnerf_core::mip::Gaussian;
-    use mipnerf_core::mlp::MlpCache;
-    use mipnerf_core::occupancy::DensityField;
-    let model = Model::new(small(true)).unwrap();
-    let mut params = model.init_params(6);
-    let mut rng = SmallRng::seed_from_u64(7);
-    for p in &mut params[..model.field_params()] {
-        *p = rng.random_range(-0.5..0.5);
-    }
-    let probes: Vec<Gaussian> = (0..50)
-        .map(|_| Gaussian {
-            mean: glam::Vec3::new(
-                rng.random_range(-1.4..1.4),
-                rng.random_range(-1.4..1.4),
-                rng.random_range(-1.4..1.4),
-            ),
-            cov_diag: glam::Vec3::splat(rng.random_range(0.0..0.01)),
-        })
-        .collect();
-    let got = model.density_field(&params).densities(&probes, false);
-    let state = model.field_state(&params);
-    let dim = model.config().x_dim();
-    let mut x = vec![0.0; probes.len() * dim];
-    for (g, dst) in probes.iter().zip(x.chunks_exact_mut(dim)) {
-        model.encode_probe(&params, &state, g, false, dst);
-    }
-    let mut cache = MlpCache::default();
-    model.mlps()[0].density(&params, &x, probes.len(), &mut cache);
-    let c = model.config();
-    let want: Vec<f32> = cache.raw_density.iter().map(|&r| c.density_activation.forward(r, c.density_bias)).collect();
-    assert_eq!(got, want);
-    // And the planes matter: other planes, other densities.
-    for p in &mut params[..model.field_params()] {
-        *p = -*p;
-    }
-    assert_ne!(model.density_field(&params).densities(&probes, false), got);
+    common::assert_probes_read_the_field(&Model::new(small(true)).unwrap());
 }

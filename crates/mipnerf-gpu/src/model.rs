@@ -59,6 +59,12 @@ impl ModelBuffers {
                 "the distortion loss runs on the CPU backend only (--backend cpu), not in WGSL".into(),
             ));
         }
+        if matches!(c.field, mipnerf_core::model::Field::HashGrid { .. }) {
+            return Err(GpuError::InvalidInput(
+                "the hash-grid field runs on the CPU backend only (--backend cpu): its WGSL kernels are not written"
+                    .into(),
+            ));
+        }
         let (s, levels) = (c.num_samples, c.num_levels);
         let n = n_rays * s;
         let limit = ctx.max_binding_bytes();

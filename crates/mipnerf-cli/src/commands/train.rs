@@ -207,7 +207,9 @@ pub struct TrainFlags {
     /// The field the samples are read from: mip-nerf, the paper's MLP on the frustum's integrated
     /// positional encoding; tri-mip, Tri-MipRF's feature planes read at the frustum's footprint
     /// into a small MLP (CPU backend, bounded scenes); tri-plane, the same planes read at their
-    /// finest level (the aliasing baseline) [default: mip-nerf].
+    /// finest level (the aliasing baseline); hash-grid, Zip-NeRF's multiresolution hash grid,
+    /// each level down-weighted at the frustum's footprint, into the same small MLP (CPU backend
+    /// only) [default: mip-nerf].
     #[arg(long, value_enum)]
     pub field: Option<crate::config::FieldArg>,
     /// Weight of mip-NeRF 360's distortion loss, which gathers each ray's weight into one short

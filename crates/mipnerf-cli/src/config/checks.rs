@@ -7,17 +7,20 @@ use mipnerf_data::Format;
 use super::{Backend, MAX_BATCH_RAYS, MAX_STEPS, RayShape, TrainSettings};
 
 impl TrainSettings {
-    /// The Tri-Mip settings: only with a Tri-Mip field, each within what the planes and the MLP
-    /// can be built with. They are config-file keys, without flags.
+    /// The Tri-Mip settings: the planes' only with a Tri-Mip field, the MLP's and the learning
+    /// rate's with a grid field (Tri-Mip or hash grid), each within what the grid and the MLP can
+    /// be built with. They are config-file keys, without flags.
     pub(super) fn check_tri_mip(&self) -> Result<()> {
-        let set = [
-            ("tri_mip_resolution", self.tri_mip_resolution.is_some()),
-            ("tri_mip_mlp", self.tri_mip_mlp.is_some()),
-            ("tri_mip_lr_mult", self.tri_mip_lr_mult.is_some()),
-            ("tri_mip_tv", self.tri_mip_tv.is_some()),
-        ];
-        if !self.uses_tri_mip() {
-            if let Some((key, _)) = set.iter().find(|(_, on)| *on) {
+        let planes =
+            [("tri_mip_resolution", self.tri_mip_resolution.is_some()), ("tri_mip_tv", self.tri_mip_tv.is_some())];
+        let grid = [("tri_mip_mlp", self.tri_mip_mlp.is_some()), ("tri_mip_lr_mult", self.tri_mip_lr_mult.is_some())];
+        if !self.uses_tri_mip()
+            && let Some((key, _)) = planes.iter().find(|(_, on)| *on)
+        {
+            bail!("`{key}` (a config-file key) sets the Tri-Mip field's planes: add --field tri-mip, or drop it");
+        }
+        if !self.uses_grid_field() {
+            if let Some((key, _)) = grid.iter().find(|(_, on)| *on) {
                 bail!(
                     "`{key}` (a config-file key) sets the Tri-Mip field's planes or MLP: add --field tri-mip, or drop it"
                 );

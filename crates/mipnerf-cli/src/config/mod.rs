@@ -9,7 +9,7 @@ use clap::ValueEnum;
 use mipnerf_core::PixelCenters;
 use mipnerf_core::RayShape;
 use mipnerf_core::config::DataFit;
-use mipnerf_core::model::{FastRecipe, Field, ModelConfig, PointEncoding, Preset, TriMipRecipe};
+use mipnerf_core::model::{FastRecipe, Field, HashGridRecipe, ModelConfig, PointEncoding, Preset, TriMipRecipe};
 use mipnerf_core::schedule::LrSchedule;
 use mipnerf_core::train::{FieldAdam, OptimConfig};
 use serde::{Deserialize, Serialize};
@@ -65,6 +65,9 @@ pub enum FieldArg {
     /// The same planes read at their finest level whatever the cone (point sampling: the
     /// aliasing baseline for tri-mip).
     TriPlane,
+    /// Zip-NeRF's: a multiresolution hash grid, each level down-weighted by how much of it the
+    /// frustum's footprint averages away, into a small MLP (CPU backend).
+    HashGrid,
 }
 
 /// The half side of the planes' cube before the data gives it (replaced when training starts).
@@ -327,6 +330,7 @@ impl FieldArg {
             Self::MipNerf => "mip-nerf",
             Self::TriMip => "tri-mip",
             Self::TriPlane => "tri-plane",
+            Self::HashGrid => "hash-grid",
         }
     }
 }
@@ -454,7 +458,7 @@ impl TrainSettings {
         let fit = DataFit { forward_facing, white_bkgd: DataFit::white_by_default(llff, masked), masked };
         let preset = self.preset.unwrap_or(PresetArg::Tiny);
         let fast = preset == PresetArg::Fast;
-        let tri_mip = self.uses_tri_mip();
+        let (tri_mip, grid) = (self.uses_tri_mip(), self.uses_grid_field());
         // A time budget ends the run, so the step count only caps it when given.
         let steps = self.steps.unwrap_or(if self.time_budget.is_some() { MAX_STEPS } else { 2000 });
         let occupancy = self.uses_occupancy();
@@ -518,8 +522,8 @@ impl TrainSettings {
             } else {
                 TriMipRecipe::RECIPE.resolution
             })),
-            tri_mip_mlp: self.tri_mip_mlp.or(tri_mip.then_some(TriMipRecipe::RECIPE.mlp)),
-            tri_mip_lr_mult: self.tri_mip_lr_mult.or(tri_mip.then_some(TriMipRecipe::RECIPE.adam.lr_mult)),
+            tri_mip_mlp: self.tri_mip_mlp.or(grid.then_some(TriMipRecipe::RECIPE.mlp)),
+            tri_mip_lr_mult: self.tri_mip_lr_mult.or(grid.then(|| self.grid_adam().lr_mult)),
             tri_mip_tv: self
                 .tri_mip_tv
                 .or(tri_mip.then_some(if forward_facing {
@@ -543,7 +547,7 @@ impl TrainSettings {
             // rate, +1.8 dB at 2 minutes) or an AVX-512 BF16 that outruns f32, as on AMD Zen 4
             // (docs/results/precision/); every other preset in f32, the paper's precision.
             // The Tri-Mip field's small MLP is measured in f32 only (docs/results/tri-mip/).
-            precision: Some(self.precision.unwrap_or(if fast && FastRecipe::RECIPE.bf16_where_available && !tri_mip {
+            precision: Some(self.precision.unwrap_or(if fast && FastRecipe::RECIPE.bf16_where_available && !grid {
                 PrecisionArg::Auto
             } else {
                 PrecisionArg::F32
@@ -639,18 +643,23 @@ impl TrainSettings {
         m.white_bkgd = self.white_bkgd.unwrap_or(true);
         m.random_bkgd = self.random_bkgd.unwrap_or(false);
         self.check_tri_mip()?;
-        if let Some(field @ (FieldArg::TriMip | FieldArg::TriPlane)) = self.field {
+        if let Some(field) = self.field.filter(|_| self.uses_grid_field()) {
+            let what = if field == FieldArg::HashGrid { "grid" } else { "planes" };
             if self.model == Some(ModelKind::Nerf) {
-                bail!("--field {} reads the planes into Mip-NeRF's model; leave out --model nerf", field.name());
+                bail!("--field {} reads the {what} into Mip-NeRF's model; leave out --model nerf", field.name());
             }
             let half_side = self.tri_mip_bound.unwrap_or(TRI_MIP_BOUND_UNTIL_DATA);
             if !(half_side.is_finite() && half_side > 0.0) {
                 bail!("tri_mip_bound must be a positive number, got {half_side}");
             }
             let recipe = TriMipRecipe::RECIPE;
-            let planes = TriMipRecipe::planes(self.tri_mip_resolution.unwrap_or(recipe.resolution));
             m = TriMipRecipe::with_mlp(m, self.tri_mip_mlp.unwrap_or(recipe.mlp));
-            m.field = Field::TriMip { planes, half_side, pre_filtered: field == FieldArg::TriMip };
+            m.field = if field == FieldArg::HashGrid {
+                Field::HashGrid { grid: HashGridRecipe::RECIPE.grid, half_side }
+            } else {
+                let planes = TriMipRecipe::planes(self.tri_mip_resolution.unwrap_or(recipe.resolution));
+                Field::TriMip { planes, half_side, pre_filtered: field == FieldArg::TriMip }
+            };
             // Resolved settings carry the recipe's weight for the data (none when it is 0).
             m.planes_tv_mult = self.tri_mip_tv.unwrap_or(0.0);
         }
@@ -688,9 +697,9 @@ impl TrainSettings {
             lr,
             grad_max_norm: self.grad_max_norm.unwrap_or(0.0),
             grad_max_val: self.grad_max_val.unwrap_or(0.0),
-            field: self.uses_tri_mip().then(|| FieldAdam {
-                lr_mult: self.tri_mip_lr_mult.unwrap_or(TriMipRecipe::RECIPE.adam.lr_mult),
-                ..TriMipRecipe::RECIPE.adam
+            field: self.uses_grid_field().then(|| FieldAdam {
+                lr_mult: self.tri_mip_lr_mult.unwrap_or(self.grid_adam().lr_mult),
+                ..self.grid_adam()
             }),
             ..OptimConfig::default()
         })
@@ -701,6 +710,17 @@ impl TrainSettings {
     #[must_use]
     pub fn uses_tri_mip(&self) -> bool {
         matches!(self.field, Some(FieldArg::TriMip | FieldArg::TriPlane))
+    }
+
+    /// Whether a grid (planes or hash grid) feeds a small MLP: `tri_mip_bound`, `_mlp`, `_lr_mult`.
+    #[must_use]
+    pub fn uses_grid_field(&self) -> bool {
+        self.uses_tri_mip() || self.field == Some(FieldArg::HashGrid)
+    }
+
+    /// The grid's own Adam settings in the field's recipe (the planes' or the hash grid's).
+    fn grid_adam(&self) -> FieldAdam {
+        if self.field == Some(FieldArg::HashGrid) { HashGridRecipe::RECIPE.adam } else { TriMipRecipe::RECIPE.adam }
     }
 
     /// Whether the run samples with the occupancy grid: as set, else with the fast preset.

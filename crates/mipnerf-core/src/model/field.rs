@@ -8,6 +8,7 @@
 use super::{Field, Model, Workspace};
 use crate::bf16::Precision;
 use crate::cone::{Ray, RayShape};
+use crate::hash_grid;
 use crate::mip::Gaussian;
 use crate::mlp::MlpShape;
 use crate::stages;
@@ -19,12 +20,14 @@ use crate::tri_mip::{self, Pyramid};
 #[derive(Clone, Debug, Default)]
 pub(super) struct FieldGrads {
     taps: Vec<tri_mip::Taps>,
+    grid_samples: Vec<hash_grid::GridSample>,
     d_x: Vec<f32>,
 }
 
 impl FieldGrads {
     pub(super) fn clear(&mut self) {
         self.taps.clear();
+        self.grid_samples.clear();
         self.d_x.clear();
     }
 }
@@ -34,6 +37,7 @@ impl FieldGrads {
 #[derive(Clone, Debug, Default)]
 pub struct FieldState {
     pyramid: Option<Pyramid>,
+    grid: Option<hash_grid::Levels>,
 }
 
 impl Model {
@@ -48,17 +52,21 @@ impl Model {
     pub fn field_state(&self, params: &[f32]) -> FieldState {
         match self.config.field {
             Field::MipNerf => FieldState::default(),
+            Field::HashGrid { grid, .. } => {
+                FieldState { grid: Some(hash_grid::Levels::new(grid)), ..FieldState::default() }
+            }
             Field::TriMip { planes, .. } => {
                 let mut pyramid = Pyramid::zeros(planes);
                 pyramid.build(&params[..self.field_params]);
-                FieldState { pyramid: Some(pyramid) }
+                FieldState { pyramid: Some(pyramid), ..FieldState::default() }
             }
         }
     }
 
     /// The chunk's samples (`ws.t`'s intervals of `rays`) encoded into `ws.x`: the IPE of
-    /// their Gaussians (Mip-NeRF), or the Tri-Mip planes read at each frustum's footprint (its
-    /// taps kept in `ws.taps` for the backward pass).
+    /// their Gaussians (Mip-NeRF), the Tri-Mip planes read at each frustum's footprint (its
+    /// taps kept in `ws.taps` for the backward pass), or the hash grid down-weighted at it (its
+    /// points and footprints kept in `ws.grid_samples`).
     pub(super) fn encode_samples(
         &self,
         params: &[f32],
@@ -69,7 +77,7 @@ impl Model {
     ) {
         let c = &self.config;
         let s = c.num_samples;
-        let Field::TriMip { planes, half_side, pre_filtered } = c.field else {
+        let Some(half_side) = c.field.half_side() else {
             let stage = stages::CastIpe {
                 n_samples: s,
                 shape: c.ray_shape,
@@ -81,35 +89,55 @@ impl Model {
             stages::cast_and_encode(rays, &ws.t, stage, precision, &mut ws.x);
             return;
         };
-        let pyramid = field.pyramid.as_ref().expect("the Tri-Mip field's pass has its pyramid");
-        let (dim, side) = (planes.encoding_dim(), 2.0 * half_side);
-        ws.taps.resize(rays.len() * s, tri_mip::taps(&planes, glam::Vec3::ZERO, 0.0));
-        for (r, ray) in rays.iter().enumerate() {
-            let t = &ws.t[r * (s + 1)..(r + 1) * (s + 1)];
-            for j in 0..s {
-                let m = match c.ray_shape {
-                    RayShape::Cone => crate::mip::conical_frustum_moments(t[j], t[j + 1], ray.radius),
-                    RayShape::Cylinder => crate::mip::cylinder_moments(t[j], t[j + 1], ray.radius),
-                };
-                // An unbounded scene's planes cover its contracted space, where the cone's
-                // cross-section shrinks with the contraction across the ray.
-                let mut x = ray.origin + ray.direction * m.t_mean;
-                let mut radius = tri_mip::footprint_radius(&m) * ray.direction.length() / side;
-                if c.unbounded {
-                    radius *= crate::contract::contraction_across(x);
-                    x = crate::contract::contract(x);
+        let side = 2.0 * half_side;
+        // Each sample's frustum in the grid's box: its mean, and the radius of its cone's
+        // cross-section there (an unbounded scene's grid covers its contracted space, where the
+        // cross-section shrinks with the contraction across the ray).
+        let in_box = |ray: &Ray, t0: f32, t1: f32| {
+            let m = match c.ray_shape {
+                RayShape::Cone => crate::mip::conical_frustum_moments(t0, t1, ray.radius),
+                RayShape::Cylinder => crate::mip::cylinder_moments(t0, t1, ray.radius),
+            };
+            let mut x = ray.origin + ray.direction * m.t_mean;
+            let mut radius = tri_mip::footprint_radius(&m) * ray.direction.length() / side;
+            if c.unbounded {
+                radius *= crate::contract::contraction_across(x);
+                x = crate::contract::contract(x);
+            }
+            ((x + half_side) / side, radius)
+        };
+        let params = &params[..self.field_params];
+        match c.field {
+            Field::MipNerf => unreachable!("the Mip-NeRF field has no box"),
+            Field::TriMip { planes, pre_filtered, .. } => {
+                let pyramid = field.pyramid.as_ref().expect("the Tri-Mip field's pass has its pyramid");
+                let dim = planes.encoding_dim();
+                ws.taps.resize(rays.len() * s, tri_mip::taps(&planes, glam::Vec3::ZERO, 0.0));
+                for (r, ray) in rays.iter().enumerate() {
+                    let t = &ws.t[r * (s + 1)..(r + 1) * (s + 1)];
+                    for j in 0..s {
+                        let (at, radius) = in_box(ray, t[j], t[j + 1]);
+                        let level = if pre_filtered { tri_mip::level_of(radius, &planes) } else { 0.0 };
+                        let k = r * s + j;
+                        ws.taps[k] = tri_mip::taps(&planes, at, level);
+                        tri_mip::encode(&planes, params, pyramid, &ws.taps[k], &mut ws.x[k * dim..(k + 1) * dim]);
+                    }
                 }
-                let at = (x + half_side) / side;
-                let level = if pre_filtered { tri_mip::level_of(radius, &planes) } else { 0.0 };
-                let k = r * s + j;
-                ws.taps[k] = tri_mip::taps(&planes, at, level);
-                tri_mip::encode(
-                    &planes,
-                    &params[..self.field_params],
-                    pyramid,
-                    &ws.taps[k],
-                    &mut ws.x[k * dim..(k + 1) * dim],
-                );
+            }
+            Field::HashGrid { grid, .. } => {
+                ws.grid_samples.clear();
+                for (r, ray) in rays.iter().enumerate() {
+                    let t = &ws.t[r * (s + 1)..(r + 1) * (s + 1)];
+                    // The footprint as a standard deviation: half the cross-section's radius.
+                    ws.grid_samples.extend(
+                        (0..s)
+                            .map(|j| in_box(ray, t[j], t[j + 1]))
+                            .map(|(at, radius)| hash_grid::GridSample { at, scale: 0.5 * radius }),
+                    );
+                }
+                let levels = field.grid.as_ref().expect("the hash grid's pass has its levels");
+                let n = ws.grid_samples.len() * grid.encoding_dim();
+                levels.encode_many(params, &ws.grid_samples, &mut ws.x[..n]);
             }
         }
     }
@@ -138,7 +166,11 @@ impl Model {
         assert_eq!(d_x.len(), ws.x.len(), "encode_intervals_backward: d_x");
         let mut grad = vec![0.0; self.field_params];
         let n = d_x.len() / self.mlps()[0].config.x_dim.max(1);
-        let chunk = FieldGrads { taps: ws.taps[..n.min(ws.taps.len())].to_vec(), d_x: d_x.to_vec() };
+        let chunk = FieldGrads {
+            taps: ws.taps[..n.min(ws.taps.len())].to_vec(),
+            grid_samples: ws.grid_samples[..n.min(ws.grid_samples.len())].to_vec(),
+            d_x: d_x.to_vec(),
+        };
         self.field_backward_chunks(std::slice::from_ref(&chunk), &mut None, &mut grad);
         grad
     }
@@ -166,11 +198,17 @@ impl Model {
         ws: &Workspace,
         field_grads: &mut FieldGrads,
     ) {
-        let Field::TriMip { planes, .. } = self.config.field else { return };
-        let (dim, start) = (planes.encoding_dim(), field_grads.d_x.len());
+        if self.config.field.is_mip_nerf() {
+            return;
+        }
+        let (dim, start) = (self.config.x_dim(), field_grads.d_x.len());
         field_grads.d_x.resize(start + n * dim, 0.0);
         mlp.input_gradient(params, &ws.cache, &mut field_grads.d_x[start..]);
-        field_grads.taps.extend_from_slice(&ws.taps[..n]);
+        match self.config.field {
+            Field::TriMip { .. } => field_grads.taps.extend_from_slice(&ws.taps[..n]),
+            Field::HashGrid { .. } => field_grads.grid_samples.extend_from_slice(&ws.grid_samples[..n]),
+            Field::MipNerf => {}
+        }
     }
 
     /// After every chunk of a step: the chunks' encoding gradients scattered through their taps
@@ -183,7 +221,16 @@ impl Model {
         grad_pyramid: &mut Option<Pyramid>,
         grad_level0: &mut [f32],
     ) {
-        let Field::TriMip { planes, .. } = self.config.field else { return };
+        let planes = match self.config.field {
+            Field::MipNerf => return,
+            Field::HashGrid { grid, .. } => {
+                let batches: Vec<(&[hash_grid::GridSample], &[f32])> =
+                    chunks.iter().map(|c| (&c.grid_samples[..], &c.d_x[..])).collect();
+                hash_grid::Levels::new(grid).encode_backward_batch(&batches, grad_level0);
+                return;
+            }
+            Field::TriMip { planes, .. } => planes,
+        };
         let pyramid = grad_pyramid.get_or_insert_with(|| Pyramid::zeros(planes));
         if pyramid.config() != planes {
             *pyramid = Pyramid::zeros(planes);
@@ -211,10 +258,11 @@ impl Model {
     /// its mean per-axis variance `σ²` (an occupancy cell's or a point's; contracted first in
     /// an unbounded scene, whose planes cover the contracted space). With `contracted`, `g` is
     /// already in the contracted space (a cell of a contracted occupancy grid) and is read as it
-    /// is. Inlined, as [`encode_point`](Self::encode_point) is.
+    /// is. The hash grid reads it at its mean, down-weighted for `σ` as a sample's footprint.
+    /// Inlined, as [`encode_point`](Self::encode_point) is.
     #[inline(always)]
     pub fn encode_probe(&self, params: &[f32], field: &FieldState, g: &Gaussian, contracted: bool, dst: &mut [f32]) {
-        let Field::TriMip { planes, half_side, pre_filtered } = self.config.field else {
+        let (Field::TriMip { half_side, .. } | Field::HashGrid { half_side, .. }) = self.config.field else {
             if contracted {
                 let c = &self.config;
                 stages::encode_gaussian(g, (c.point_encoding, Precision::F32), c.min_deg_point, c.max_deg_point, dst);
@@ -223,10 +271,16 @@ impl Model {
             }
             return;
         };
-        let pyramid = field.pyramid.as_ref().expect("the Tri-Mip field's pass has its pyramid");
         let side = 2.0 * half_side;
         let g = if self.config.unbounded && !contracted { crate::contract::contract_gaussian(g) } else { *g };
         let radius = 2.0 * (g.cov_diag.element_sum() / 3.0).max(0.0).sqrt() / side;
+        let Field::TriMip { planes, pre_filtered, .. } = self.config.field else {
+            let levels = field.grid.as_ref().expect("the hash grid's pass has its levels");
+            let sample = hash_grid::GridSample { at: (g.mean + half_side) / side, scale: 0.5 * radius };
+            levels.encode(&params[..self.field_params], &sample, dst);
+            return;
+        };
+        let pyramid = field.pyramid.as_ref().expect("the Tri-Mip field's pass has its pyramid");
         let level = if pre_filtered { tri_mip::level_of(radius, &planes) } else { 0.0 };
         let taps = tri_mip::taps(&planes, (g.mean + half_side) / side, level);
         tri_mip::encode(&planes, &params[..self.field_params], pyramid, &taps, dst);

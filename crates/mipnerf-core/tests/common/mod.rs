@@ -124,3 +124,66 @@ pub fn v3(v: &Value) -> glam::Vec3 {
     assert_eq!(x.len(), 3);
     glam::Vec3::new(x[0], x[1], x[2])
 }
+
+/// Saves a checkpoint of `model` holding made-up parameters and Adam moments, loads it back and
+/// checks it is bit for bit what was saved; returns the file's folder and path (the folder kept
+/// alive for the caller to read the file).
+pub fn checkpoint_round_trip(model: &mipnerf_core::model::Model) -> (tempfile::TempDir, std::path::PathBuf) {
+    use mipnerf_core::checkpoint::{self, Checkpoint};
+    use mipnerf_core::train::AdamState;
+    let n = model.num_params();
+    let f = |k: f32| (0..n).map(|i| (i as f32 * 0.37 + k).sin()).collect::<Vec<f32>>();
+    let ck = Checkpoint {
+        step: 5,
+        params: f(0.0),
+        adam: AdamState { m: f(1.0), v: f(2.0).into_iter().map(f32::abs).collect(), t: 5 },
+        occupancy: None,
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("ck.safetensors");
+    checkpoint::save(&path, model, &ck).unwrap();
+    let back = checkpoint::load(&path, model).unwrap();
+    assert!(back.params == ck.params && back.adam.m == ck.adam.m && back.adam.v == ck.adam.v);
+    (dir, path)
+}
+
+/// The occupancy grid's density probes of `model` (a grid field) read its field at each probe's
+/// footprint: each probe's density is the MLP's on the field's encoding of its Gaussian, and
+/// other field parameters give other densities.
+pub fn assert_probes_read_the_field(model: &mipnerf_core::model::Model) {
+    use mipnerf_core::mip::Gaussian;
+    use mipnerf_core::mlp::MlpCache;
+    use mipnerf_core::occupancy::DensityField;
+    use rand::{Rng, SeedableRng};
+    let mut params = model.init_params(6);
+    let mut rng = rand::rngs::SmallRng::seed_from_u64(7);
+    for p in &mut params[..model.field_params()] {
+        *p = rng.random_range(-0.5..0.5);
+    }
+    let probes: Vec<Gaussian> = (0..50)
+        .map(|_| Gaussian {
+            mean: glam::Vec3::new(
+                rng.random_range(-1.4..1.4),
+                rng.random_range(-1.4..1.4),
+                rng.random_range(-1.4..1.4),
+            ),
+            cov_diag: glam::Vec3::splat(rng.random_range(0.0..0.01)),
+        })
+        .collect();
+    let got = model.density_field(&params).densities(&probes, false);
+    let state = model.field_state(&params);
+    let dim = model.config().x_dim();
+    let mut x = vec![0.0; probes.len() * dim];
+    for (g, dst) in probes.iter().zip(x.chunks_exact_mut(dim)) {
+        model.encode_probe(&params, &state, g, false, dst);
+    }
+    let mut cache = MlpCache::default();
+    model.mlps()[0].density(&params, &x, probes.len(), &mut cache);
+    let c = model.config();
+    let want: Vec<f32> = cache.raw_density.iter().map(|&r| c.density_activation.forward(r, c.density_bias)).collect();
+    assert_eq!(got, want);
+    for p in &mut params[..model.field_params()] {
+        *p = -*p;
+    }
+    assert_ne!(model.density_field(&params).densities(&probes, false), got);
+}

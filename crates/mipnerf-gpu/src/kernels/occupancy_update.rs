@@ -6,8 +6,6 @@
 //! [`mipnerf_core::occupancy::OccupancyGrid::packed_layers`] after it). The model's passes
 //! between the two entry points are [`crate::model::GpuModel::update_grid`]'s.
 
-use mipnerf_core::occupancy::MAX_DILATION;
-
 use crate::kernels::Recorder;
 use crate::kernels::occupancy::DeviceGrid;
 use crate::{GpuContext, GpuError, kernels};
@@ -25,7 +23,7 @@ pub struct RefreshParams {
     pub resolution: u32,
     /// `resolution³`.
     pub n_cells: u32,
-    /// The layer a dilation writes.
+    /// Unused (0): every dilation is one dispatch.
     pub layer: u32,
     /// 1: the warm-up is over.
     pub warmed_up: u32,
@@ -48,9 +46,9 @@ pub struct OccupancyRefreshKernel {
     layout: wgpu::BindGroupLayout,
 }
 
-/// Dispatches a refresh records: the mean, the occupied cells, and one per dilation.
+/// Dispatches a refresh records: the mean, the occupied cells, and every dilation in one.
 #[cfg(feature = "test-support")]
-pub const REFRESH_DISPATCHES: u64 = 2 + MAX_DILATION as u64;
+pub const REFRESH_DISPATCHES: u64 = 3;
 
 impl OccupancyRefreshKernel {
     /// Compiles the kernel.
@@ -90,10 +88,7 @@ impl OccupancyRefreshKernel {
         rec.encoder().clear_buffer(grid.layers(), 0, None);
         rec.dispatch("occupancy_refresh candidate_mean", &self.mean, &self.layout, &p, &bufs, (1, 1, 1));
         rec.dispatch("occupancy_refresh occupied", &self.occupied, &self.layout, &p, &bufs, (gx, gy, 1));
-        for layer in 1..=MAX_DILATION as u32 {
-            let p = RefreshParams { layer, ..p };
-            rec.dispatch("occupancy_refresh dilate", &self.dilate, &self.layout, &p, &bufs, (gx, gy, 1));
-        }
+        rec.dispatch("occupancy_refresh dilate", &self.dilate, &self.layout, &p, &bufs, (gx, gy, 1));
         Ok(())
     }
 }

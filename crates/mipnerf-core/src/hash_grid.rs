@@ -1,0 +1,352 @@
+//! Zip-NeRF's anti-aliased hash grid (Barron et al., "Zip-NeRF", ICCV 2023): Instant-NGP's
+//! multiresolution hash encoding, each level's features down-weighted by how much of that level
+//! the sample's footprint averages away. The Tri-Mip planes' alternative for scenes the planes'
+//! projections confuse: one 3D grid a level, no plane shared by every depth.
+//!
+//! # The grid
+//! `levels` grids of `n_l + 1` vertices a side over the box `[0, 1]^3`, `n_l` growing
+//! geometrically from `coarsest` to `finest` ([`HashGridConfig::resolution`]). A level whose
+//! vertices fit in the table (`(n_l + 1)^3 <= 2^log2_table`) indexes them densely; a finer one
+//! hashes them into `2^log2_table` entries (Instant-NGP's spatial hash, `i ⊕ j·π₂ ⊕ k·π₃`). Each
+//! entry holds `features` values, initialised uniform in `[-INIT_RANGE, INIT_RANGE]` (Instant-NGP's
+//! 1e-4); the parameters are the levels' tables back to back ([`HashGridConfig::offset`]).
+//!
+//! # A sample's features
+//! Trilinear in the 8 vertices of the cell around the sample's point, at every level, times the
+//! level's weight `erf(1 / sqrt(8 σ² n_l²))` ([`downweight`]), concatenated level after level:
+//! `levels · features` values. `σ` is the sample's footprint as a standard deviation in the box's
+//! units ([`GridSample::scale`]): the per-axis spread of the cone's cross-section at the frustum,
+//! `sqrt(r_var)`, the same cross-section the Tri-Mip field's level reads (along a pixel's cone
+//! the frustum's length measures the samples' spacing, not the cone's width). A point (σ = 0)
+//! reads every level at weight 1; a cone wider than a level's cells reads that level near 0,
+//! which is Zip-NeRF's stand-in for the mean of a cell's features under the Gaussian (zero, for
+//! features spread about zero). Zip-NeRF also averages 6 points spread over the frustum
+//! (multisampling); this field reads the frustum's mean alone, 6 times cheaper on a CPU, and
+//! keeps the down-weighting that carries the cone's scale. The weight is not differentiated: the
+//! gradient reaches the features, never the footprint.
+//!
+//! [`Levels::encode`] is the forward pass; [`Levels::encode_backward_batch`] its adjoint, by level
+//! in parallel.
+
+use glam::Vec3;
+use rand::{Rng, SeedableRng, rngs::SmallRng};
+
+use crate::wide::wide;
+
+/// The half width of the uniform initialisation of the tables (Instant-NGP's 1e-4).
+pub const INIT_RANGE: f32 = 1e-4;
+
+/// The most levels a grid may have.
+pub const MAX_LEVELS: usize = 24;
+
+/// The spatial hash's primes for `y` and `z` (Instant-NGP's; `x`'s is 1).
+const PRIMES: [u32; 2] = [2_654_435_761, 805_459_861];
+
+/// The grid's shape.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HashGridConfig {
+    /// Resolution levels (Instant-NGP and Zip-NeRF: 16).
+    pub levels: usize,
+    /// Features an entry (Instant-NGP: 2; Zip-NeRF: 4).
+    pub features: usize,
+    /// `log2` of the entries of a hashed level's table (Instant-NGP: 19; Zip-NeRF: 21).
+    pub log2_table: u32,
+    /// Cells along a side of the coarsest level (Instant-NGP: 16).
+    pub coarsest: usize,
+    /// Cells along a side of the finest level.
+    pub finest: usize,
+}
+
+impl Default for HashGridConfig {
+    fn default() -> Self {
+        Self { levels: 16, features: 2, log2_table: 17, coarsest: 16, finest: 512 }
+    }
+}
+
+/// A [`HashGridConfig`] that cannot be built.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("invalid hash grid: {0}")]
+pub struct HashGridConfigError(pub String);
+
+impl HashGridConfig {
+    /// Checks the shape: 1 to [`MAX_LEVELS`] levels, 1 to 16 features, tables of `2^4` to `2^24`
+    /// entries, and `1 <= coarsest <= finest <= 65,536` cells a side.
+    ///
+    /// # Errors
+    /// The size that is wrong, in words.
+    pub fn validate(&self) -> Result<(), HashGridConfigError> {
+        let Self { levels, features, log2_table, coarsest, finest } = *self;
+        if !(1..=MAX_LEVELS).contains(&levels) || !(1..=16).contains(&features) || !(4..=24).contains(&log2_table) {
+            return Err(HashGridConfigError(format!(
+                "levels {levels} (1 to {MAX_LEVELS}), features {features} (1 to 16), log2_table {log2_table} (4 to 24)"
+            )));
+        }
+        if coarsest == 0 || coarsest > finest || finest > 65_536 {
+            return Err(HashGridConfigError(format!(
+                "cells a side from coarsest {coarsest} to finest {finest} must satisfy 1 <= coarsest <= finest <= 65536"
+            )));
+        }
+        Ok(())
+    }
+
+    /// Cells along a side of `level`: `coarsest · b^level`, rounded down, with `b` the growth that
+    /// takes the last level to `finest`.
+    #[must_use]
+    pub fn resolution(&self, level: usize) -> usize {
+        if self.levels == 1 {
+            return self.coarsest;
+        }
+        let growth = (self.finest as f64 / self.coarsest as f64).ln() / (self.levels - 1) as f64;
+        ((self.coarsest as f64 * (growth * level as f64).exp()) + 1e-6).floor() as usize
+    }
+
+    /// Entries of `level`'s table: its vertices where they fit in `2^log2_table`, else that.
+    #[must_use]
+    pub fn entries(&self, level: usize) -> usize {
+        let side = self.resolution(level) as u64 + 1;
+        side.saturating_pow(3).min(1 << self.log2_table) as usize
+    }
+
+    /// Whether `level` indexes its vertices densely (they fit in its table).
+    #[must_use]
+    pub fn is_dense(&self, level: usize) -> bool {
+        let side = self.resolution(level) as u64 + 1;
+        side.saturating_pow(3) <= 1 << self.log2_table
+    }
+
+    /// Where `level`'s table starts in the parameters.
+    #[must_use]
+    pub fn offset(&self, level: usize) -> usize {
+        (0..level).map(|l| self.entries(l) * self.features).sum()
+    }
+
+    /// The trained parameters: every level's table.
+    #[must_use]
+    pub fn num_params(&self) -> usize {
+        self.offset(self.levels)
+    }
+
+    /// Width of a sample's encoding: every level's features.
+    #[must_use]
+    pub const fn encoding_dim(&self) -> usize {
+        self.levels * self.features
+    }
+
+    /// Fills the tables (`params`, [`Self::num_params`] values) uniform in
+    /// `[-INIT_RANGE, INIT_RANGE]`.
+    ///
+    /// # Panics
+    /// If `params` is not [`Self::num_params`] long.
+    pub fn init(&self, params: &mut [f32], seed: u64) {
+        assert_eq!(params.len(), self.num_params(), "hash grid init: tables");
+        let mut rng = SmallRng::seed_from_u64(seed);
+        params.iter_mut().for_each(|p| *p = rng.random_range(-INIT_RANGE..=INIT_RANGE));
+    }
+
+    /// Each level's constants, for the inner loops.
+    fn level_shapes(&self) -> Vec<LevelShape> {
+        (0..self.levels)
+            .map(|l| LevelShape {
+                cells: self.resolution(l),
+                offset: self.offset(l),
+                dense: self.is_dense(l),
+                mask: (1u32 << self.log2_table) - 1,
+            })
+            .collect()
+    }
+}
+
+/// One level's constants: cells a side, its table's offset, dense or hashed.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct LevelShape {
+    cells: usize,
+    offset: usize,
+    dense: bool,
+    mask: u32,
+}
+
+impl LevelShape {
+    /// The 8 vertices of the cell around `x` (in the box; clamped to its edge), each as its
+    /// entry's first parameter and its trilinear weight.
+    #[inline(always)]
+    fn corners(&self, x: Vec3, features: usize) -> [(usize, f32); 8] {
+        let n = self.cells as f32;
+        let axis = |t: f32| {
+            let p = t.clamp(0.0, 1.0) * n;
+            let i = p.floor().min(n - 1.0).max(0.0);
+            (i as u32, p - i)
+        };
+        let ((i, fx), (j, fy), (k, fz)) = (axis(x.x), axis(x.y), axis(x.z));
+        let side = self.cells as u32 + 1;
+        let mut out = [(0usize, 0.0f32); 8];
+        for (c, o) in out.iter_mut().enumerate() {
+            let (dx, dy, dz) = ((c & 1) as u32, ((c >> 1) & 1) as u32, ((c >> 2) & 1) as u32);
+            let (a, b, d) = (i + dx, j + dy, k + dz);
+            let index = if self.dense {
+                a + side * (b + side * d)
+            } else {
+                (a ^ b.wrapping_mul(PRIMES[0]) ^ d.wrapping_mul(PRIMES[1])) & self.mask
+            };
+            let w = (if dx == 1 { fx } else { 1.0 - fx })
+                * (if dy == 1 { fy } else { 1.0 - fy })
+                * (if dz == 1 { fz } else { 1.0 - fz });
+            *o = (self.offset + index as usize * features, w);
+        }
+        out
+    }
+}
+
+/// Where a sample reads the grid: its point in the box (`[0, 1]^3`) and its footprint's standard
+/// deviation in the box's units (0: a point). Kept from the forward pass for the backward.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct GridSample {
+    /// The frustum's mean, in the box.
+    pub at: Vec3,
+    /// The footprint's per-axis standard deviation `σ`, in the box's units.
+    pub scale: f32,
+}
+
+/// Zip-NeRF's weight of a level of `cells` cells a side (over the box) for a footprint of
+/// standard deviation `scale` (box units): `erf(1 / sqrt(8 σ² n²))`, 1 for a point, near 0
+/// once the footprint spans several cells.
+#[must_use]
+pub fn downweight(scale: f32, cells: usize) -> f32 {
+    let s = scale * cells as f32 * std::f32::consts::SQRT_2 * 2.0;
+    if s.is_nan() || s <= 0.0 { 1.0 } else { erf(1.0 / s) }
+}
+
+/// The error function for `x >= 0`, within 1.5e-7 (Abramowitz and Stegun 7.1.26).
+#[must_use]
+pub fn erf(x: f32) -> f32 {
+    if x.is_infinite() {
+        return 1.0;
+    }
+    let t = 1.0 / (1.0 + 0.327_591_1 * x);
+    let poly = t * (0.254_829_6 + t * (-0.284_496_74 + t * (1.421_413_7 + t * (-1.453_152_1 + t * 1.061_405_4))));
+    1.0 - poly * (-x * x).exp()
+}
+
+/// A grid's shape with each level's constants worked out once (cells a side, where its table
+/// starts, dense or hashed), for the inner loops of [`Levels::encode`] and
+/// [`Levels::encode_backward_batch`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct Levels {
+    config: HashGridConfig,
+    shapes: Vec<LevelShape>,
+}
+
+impl Levels {
+    /// The levels of `config`.
+    #[must_use]
+    pub fn new(config: HashGridConfig) -> Self {
+        Self { config, shapes: config.level_shapes() }
+    }
+
+    /// The grid's shape.
+    #[must_use]
+    pub fn config(&self) -> &HashGridConfig {
+        &self.config
+    }
+
+    /// The sample's encoding: every level's trilinear features at `sample.at` times the level's
+    /// [`downweight`], into `out` ([`HashGridConfig::encoding_dim`] values), from `params` (the
+    /// tables).
+    ///
+    /// # Panics
+    /// If `params` is not [`HashGridConfig::num_params`] or `out` not
+    /// [`HashGridConfig::encoding_dim`] long.
+    pub fn encode(&self, params: &[f32], sample: &GridSample, out: &mut [f32]) {
+        wide(
+            #[inline(always)]
+            || self.encode_inline(params, sample, out),
+        );
+    }
+
+    /// [`Self::encode`] for many samples: sample `k` into `out[k · encoding_dim ..]`, the same
+    /// values. Level after level over every sample, so that one level's table (a megabyte at
+    /// the recipe's `2^17` entries) stays in the core's cache while its samples read it, where
+    /// sample after sample would walk every level's table for each.
+    ///
+    /// # Panics
+    /// As [`Self::encode`], for `out` of `samples.len() · encoding_dim` values.
+    pub fn encode_many(&self, params: &[f32], samples: &[GridSample], out: &mut [f32]) {
+        let (f, dim) = (self.config.features, self.config.encoding_dim());
+        assert_eq!(params.len(), self.config.num_params(), "hash grid encode: tables");
+        assert_eq!(out.len(), samples.len() * dim, "hash grid encode: output");
+        wide(
+            #[inline(always)]
+            || {
+                for (l, shape) in self.shapes.iter().enumerate() {
+                    for (s, o) in samples.iter().zip(out.chunks_exact_mut(dim)) {
+                        let o = &mut o[l * f..(l + 1) * f];
+                        o.fill(0.0);
+                        let weight = downweight(s.scale, shape.cells);
+                        for (at, w) in shape.corners(s.at, f) {
+                            let w = w * weight;
+                            o.iter_mut().zip(&params[at..at + f]).for_each(|(o, p)| *o += w * p);
+                        }
+                    }
+                }
+            },
+        );
+    }
+
+    #[inline(always)]
+    fn encode_inline(&self, params: &[f32], sample: &GridSample, out: &mut [f32]) {
+        let f = self.config.features;
+        assert_eq!(params.len(), self.config.num_params(), "hash grid encode: tables");
+        assert_eq!(out.len(), self.config.encoding_dim(), "hash grid encode: output");
+        for (shape, o) in self.shapes.iter().zip(out.chunks_exact_mut(f)) {
+            o.fill(0.0);
+            let weight = downweight(sample.scale, shape.cells);
+            for (at, w) in shape.corners(sample.at, f) {
+                let w = w * weight;
+                o.iter_mut().zip(&params[at..at + f]).for_each(|(o, p)| *o += w * p);
+            }
+        }
+    }
+
+    /// The adjoint of [`Self::encode`] over batches of samples (each its samples and the
+    /// gradient of their encodings, `samples.len() x encoding_dim`), added to `grad`
+    /// ([`HashGridConfig::num_params`] values), the levels in parallel: each level's entries
+    /// take their contributions in batch order and sample order, so every entry sums them in
+    /// one order whatever the thread count.
+    ///
+    /// # Panics
+    /// If a batch's gradient is not `samples.len() x encoding_dim` or `grad` not the tables'
+    /// length.
+    pub fn encode_backward_batch(&self, batches: &[(&[GridSample], &[f32])], grad: &mut [f32]) {
+        use rayon::prelude::*;
+        let (config, f) = (&self.config, self.config.features);
+        let dim = config.encoding_dim();
+        assert_eq!(grad.len(), config.num_params(), "hash grid encode backward: tables");
+        for (samples, d_x) in batches {
+            assert_eq!(d_x.len(), samples.len() * dim, "hash grid encode backward: d_x");
+        }
+        let mut levels = Vec::with_capacity(config.levels);
+        let mut rest = grad;
+        for (l, shape) in self.shapes.iter().enumerate() {
+            let (here, after) = rest.split_at_mut(config.entries(l) * f);
+            levels.push((l, LevelShape { offset: 0, ..*shape }, here));
+            rest = after;
+        }
+        levels.par_iter_mut().for_each(|(l, shape, table)| {
+            wide(
+                #[inline(always)]
+                || {
+                    for (samples, d_x) in batches {
+                        for (k, s) in samples.iter().enumerate() {
+                            let d = &d_x[k * dim + *l * f..k * dim + (*l + 1) * f];
+                            let weight = downweight(s.scale, shape.cells);
+                            for (at, w) in shape.corners(s.at, f) {
+                                let w = w * weight;
+                                table[at..at + f].iter_mut().zip(d).for_each(|(g, d)| *g += w * d);
+                            }
+                        }
+                    }
+                },
+            );
+        });
+    }
+}
