@@ -167,6 +167,19 @@ struct LevelShape {
 }
 
 impl LevelShape {
+    /// This level's features at `sample` into `out` (`features` values): the trilinear mix of its
+    /// cell's 8 vertices in `params`, times the level's [`downweight`].
+    #[inline(always)]
+    fn read(&self, params: &[f32], sample: &GridSample, out: &mut [f32]) {
+        let f = out.len();
+        out.fill(0.0);
+        let weight = downweight(sample.scale, self.cells);
+        for (at, w) in self.corners(sample.at, f) {
+            let w = w * weight;
+            out.iter_mut().zip(&params[at..at + f]).for_each(|(o, p)| *o += w * p);
+        }
+    }
+
     /// The 8 vertices of the cell around `x` (in the box; clamped to its edge), each as its
     /// entry's first parameter and its trilinear weight.
     #[inline(always)]
@@ -279,13 +292,7 @@ impl Levels {
             || {
                 for (l, shape) in self.shapes.iter().enumerate() {
                     for (s, o) in samples.iter().zip(out.chunks_exact_mut(dim)) {
-                        let o = &mut o[l * f..(l + 1) * f];
-                        o.fill(0.0);
-                        let weight = downweight(s.scale, shape.cells);
-                        for (at, w) in shape.corners(s.at, f) {
-                            let w = w * weight;
-                            o.iter_mut().zip(&params[at..at + f]).for_each(|(o, p)| *o += w * p);
-                        }
+                        shape.read(params, s, &mut o[l * f..(l + 1) * f]);
                     }
                 }
             },
@@ -298,12 +305,7 @@ impl Levels {
         assert_eq!(params.len(), self.config.num_params(), "hash grid encode: tables");
         assert_eq!(out.len(), self.config.encoding_dim(), "hash grid encode: output");
         for (shape, o) in self.shapes.iter().zip(out.chunks_exact_mut(f)) {
-            o.fill(0.0);
-            let weight = downweight(sample.scale, shape.cells);
-            for (at, w) in shape.corners(sample.at, f) {
-                let w = w * weight;
-                o.iter_mut().zip(&params[at..at + f]).for_each(|(o, p)| *o += w * p);
-            }
+            shape.read(params, sample, o);
         }
     }
 
