@@ -122,6 +122,7 @@ impl Options {
         self.model.field =
             Field::TriMip { planes: TriMipRecipe::planes(recipe.resolution), half_side, pre_filtered: true };
         self.model.planes_tv_mult = recipe.planes_tv;
+        self.model.grid_decay_mult = 0.0;
         self.model_chosen = true;
         self.optim.field = Some(recipe.adam);
         self.precision = Precision::F32;
@@ -131,14 +132,16 @@ impl Options {
     /// These options with the hash-grid field ([`Field::HashGrid`]: Zip-NeRF's hash grid, each
     /// level down-weighted at the cone's footprint, then a small MLP) in place of the Mip-NeRF
     /// MLP, with the field's recipe ([`HashGridRecipe`]: its grid, its MLP, the grid's own Adam
-    /// settings) as the CLI's `--field hash-grid` takes it, over the cube of half side
-    /// `half_side` around the origin. CPU only (a GPU device refuses it by name); f32.
+    /// settings, its weight decay for bounded scenes) as the CLI's `--field hash-grid` takes it,
+    /// over the cube of half side `half_side` around the origin. CPU only (a GPU device refuses
+    /// it by name); f32.
     #[must_use]
     pub fn hash_grid(mut self, half_side: f32) -> Self {
         let recipe = HashGridRecipe::RECIPE;
         self.model = TriMipRecipe::with_mlp(self.model, recipe.mlp);
         self.model.field = Field::HashGrid { grid: recipe.grid, half_side };
         self.model.planes_tv_mult = 0.0;
+        self.model.grid_decay_mult = recipe.decay;
         self.model_chosen = true;
         self.optim.field = Some(recipe.adam);
         self.precision = Precision::F32;

@@ -374,6 +374,8 @@ fn options_hash_grid_brings_the_fields_recipe_trains_and_loads_back() {
     assert_eq!(model.field, Field::HashGrid { grid: recipe.grid, half_side: 1.5 });
     assert_eq!([model.net_depth, model.net_width, model.net_depth_condition, model.net_width_condition], recipe.mlp);
     assert_eq!(options.optim().field, Some(recipe.adam));
+    assert_eq!(model.grid_decay_mult, recipe.decay);
+    assert_eq!(options.optim().lr.decay_steps, None);
     assert_eq!(options.precision(), Precision::F32);
     // Trained small and at the fast recipe's rate: 8 levels to 64 cells, tables of 2^12.
     let grid = HashGridConfig { levels: 8, features: 2, log2_table: 12, coarsest: 8, finest: 64 };

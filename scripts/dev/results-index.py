@@ -30,6 +30,8 @@ STATUS = {
     "amx-k-chunks": "history: one change (AMX over long k)",
     "occupancy-probes": "history: one change (the grid's probes)",
     "expf": "history: one change (the IPE's exp)",
+    "hash-grid/fern": "superseded by hash-grid/fern-capped (the recipe for forward-facing photos)",
+    "hash-grid/fern-diverged": "history: the runs whose loss climbed, before hash-grid/stability",
 }
 
 

@@ -131,12 +131,22 @@ fn what_the_tri_mip_field_does_not_run_is_refused_by_name() {
     assert!(text.contains("`tri_mip_mlp` is [trunk depth, trunk width, colour depth, colour width]"), "{text}");
     let text = train_with(&config("lr", "tri_mip_lr_mult = -1.0\n"), &["--field", "tri-mip"]);
     assert!(text.contains("`tri_mip_lr_mult` must be a positive number"), "{text}");
+    let text = train_with(&config("decay", "hash_grid_decay = 0.1\n"), &["--field", "tri-mip"]);
+    assert!(text.contains("`hash_grid_decay` (a config-file key) sets the hash grid's weight decay"), "{text}");
+    let text = train_with(&config("decay-neg", "hash_grid_decay = -1.0\n"), &["--field", "hash-grid"]);
+    assert!(text.contains("`hash_grid_decay` must be a number from 0 (off) to 1000"), "{text}");
+    let text = train_with(&config("eps", "grid_adam_eps = 0.0\n"), &["--field", "hash-grid"]);
+    assert!(text.contains("`grid_adam_eps` must be a positive number"), "{text}");
+    let text = train_with(&config("eps-mip", "grid_adam_eps = 1e-8\n"), &[]);
+    assert!(text.contains("`grid_adam_eps` (a config-file key)"), "{text}");
+    let text = train_with(&config("beta2", "adam_beta2 = 1.0\n"), &[]);
+    assert!(text.contains("`adam_beta2` (a config-file key) must be a number between 0 and 1"), "{text}");
     assert!(!out("refused").exists(), "a refused run leaves no folder");
     // A Mip-NeRF run records no field: its configuration is what it was.
     let run = out("mip");
     run_ok(&["train", "--data", s(&data), "--out", s(&run), "--steps", "2", "--backend", "cpu"]);
     let config = std::fs::read_to_string(run.join("config.toml")).unwrap();
-    assert!(!config.contains("field") && !config.contains("tri_mip"), "{config}");
+    assert!(!config.contains("field") && !config.contains("tri_mip") && !config.contains("adam_beta2"), "{config}");
 }
 
 #[test]
@@ -213,8 +223,11 @@ fn a_hash_grid_run_trains_evaluates_and_renders_on_the_cpu_and_the_gpu_refuses_i
     for key in ["field = \"hash-grid\"", "tri_mip_bound = ", "tri_mip_lr_mult = 2", "tri_mip_mlp = [2, 64, 1, 64]"] {
         assert!(config.contains(key), "{key} in {config}");
     }
-    // The planes' own settings are not the grid's.
-    assert!(!config.contains("tri_mip_resolution") && !config.contains("tri_mip_tv"), "{config}");
+    // The planes' own settings are not the grid's; on a bounded scene its recipe has no weight
+    // decay and the rate decays over the whole run (forward-facing photos: config's tests).
+    for key in ["tri_mip_resolution", "tri_mip_tv", "hash_grid_decay", "lr_decay_steps", "adam_beta2"] {
+        assert!(!config.contains(key), "{key} in {config}");
+    }
     let bytes = std::fs::read(run.join("checkpoint.safetensors")).unwrap();
     let tensors = safetensors::SafeTensors::deserialize(&bytes).unwrap();
     let tables = mipnerf_core::model::HashGridRecipe::RECIPE.grid.num_params();
@@ -224,6 +237,13 @@ fn a_hash_grid_run_trains_evaluates_and_renders_on_the_cpu_and_the_gpu_refuses_i
     let frames = dir.path().join("frames");
     run_ok(&["render", "--run", s(&run), "--out", s(&frames), "--path", "orbit", "--frames", "2", "--backend", "cpu"]);
     image::open(frames.join("frame_0001.png")).unwrap();
+    // The grid's densities export as points, and the run resumes where it stopped.
+    let ply = dir.path().join("points.ply");
+    run_ok(&["export", "--run", s(&run), "--points", s(&ply), "--min-opacity", "0.0"]);
+    assert!(std::fs::read(&ply).unwrap().starts_with(b"ply"), "a PLY file");
+    let text =
+        run_ok(&["train", "--data", s(&data), "--out", s(&run), "--steps", "25", "--backend", "cpu", "--resume"]);
+    assert!(text.contains("resuming from step 20"), "{text}");
     // The planes' settings are refused with the grid, by name.
     let cfg = dir.path().join("planes.toml");
     std::fs::write(&cfg, "tri_mip_resolution = 64\n").unwrap();

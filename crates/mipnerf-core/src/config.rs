@@ -109,6 +109,12 @@ pub struct ModelConfig {
     /// to the texels between them (0: off; the Tri-Mip field only). Not written when 0.
     #[serde(skip_serializing_if = "is_zero")]
     pub planes_tv_mult: f32,
+    /// Weight of Zip-NeRF's normalised weight decay of the hash grid's tables in the loss
+    /// ([`crate::hash_grid::HashGridConfig::weight_decay`]: the sum over levels of the mean
+    /// squared feature; Zip-NeRF's 0.1), which keeps the features that few training rays reach
+    /// near zero (0: off; the hash-grid field only). Not written when 0.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub grid_decay_mult: f32,
     /// The field the samples are read from (the Mip-NeRF MLP on the IPE, the default; or the
     /// Tri-Mip planes before a small MLP). Not written when it is the default, so that the
     /// Mip-NeRF model's checkpoints are the bytes they were.
@@ -204,6 +210,7 @@ impl Default for ModelConfig {
             supersample: 1,
             distortion_loss_mult: 0.0,
             planes_tv_mult: 0.0,
+            grid_decay_mult: 0.0,
             field: Field::MipNerf,
         }
     }
@@ -314,6 +321,7 @@ impl FastRecipe {
             max_steps,
             lr_delay_steps: self.lr_delay_steps,
             lr_delay_mult: 0.01,
+            decay_steps: None,
         }
     }
 }
@@ -366,6 +374,22 @@ pub struct HashGridRecipe {
     /// `docs/results/hash-grid/tune/`); on fern's held-out training photos 9 minutes gave 23.23
     /// with 2 and 22.58 with 10, which fell after 3 minutes (`docs/results/hash-grid/fern-tune/`).
     pub adam: crate::optim::FieldAdam,
+    /// The weight of the grid's normalised weight decay ([`ModelConfig::grid_decay_mult`]) on
+    /// bounded scenes: 0, as lego's results were measured.
+    pub decay: f32,
+    /// The same for forward-facing photos: 0.01, a tenth of Zip-NeRF's. On fern's held-out
+    /// training photos Zip-NeRF's 0.1 cost 1 dB in 9 minutes and 0.01 nothing measurable, with
+    /// the features 5 times smaller and a third fewer occupied cells
+    /// (`docs/results/hash-grid/decay-fern-tune/`).
+    pub decay_forward_facing: f32,
+    /// For forward-facing photos, the steps the learning rate takes to decay to its final value,
+    /// where it stays however long a time budget runs
+    /// ([`crate::schedule::LrSchedule::decay_steps`]): 10,000, about the steps of the 9-minute
+    /// runs on fern's held-out photos that chose this recipe. With the rate held high for longer
+    /// the loss climbs after about 9,000 steps (`docs/results/hash-grid/stability/`); with it
+    /// the climb comes after about 18,000 steps instead (`docs/results/hash-grid/fern-capped/`:
+    /// 24.62 dB at 10 minutes, 19.11 at 30).
+    pub lr_decay_steps_forward_facing: u64,
 }
 
 impl HashGridRecipe {
@@ -374,6 +398,9 @@ impl HashGridRecipe {
         grid: HashGridConfig { levels: 16, features: 2, log2_table: 17, coarsest: 16, finest: 512 },
         mlp: TriMipRecipe::RECIPE.mlp,
         adam: crate::optim::FieldAdam { lr_mult: 2.0, eps: 1e-15 },
+        decay: 0.0,
+        decay_forward_facing: 0.01,
+        lr_decay_steps_forward_facing: 10_000,
     };
 }
 

@@ -144,6 +144,42 @@ impl HashGridConfig {
         params.iter_mut().for_each(|p| *p = rng.random_range(-INIT_RANGE..=INIT_RANGE));
     }
 
+    /// Zip-NeRF's normalised weight decay of the tables: `weight · Σ_l mean(V_l²)`, the mean over
+    /// each level's values, so that a coarse dense level of a few thousand entries weighs as much
+    /// as a hashed one of millions. Returns it (in f64) and adds its gradient `2 weight V / |V_l|`
+    /// to `grad`. Nothing else bounds the features: without it, entries that few training rays
+    /// reach grow where a scene has nothing (floaters; `docs/results/hash-grid/fern-diverged/`).
+    ///
+    /// # Panics
+    /// If `tables` or `grad` is not [`Self::num_params`] long.
+    pub fn weight_decay(&self, tables: &[f32], weight: f32, grad: &mut [f32]) -> f64 {
+        use rayon::prelude::*;
+        assert_eq!(tables.len(), self.num_params(), "hash grid weight decay: tables");
+        assert_eq!(grad.len(), self.num_params(), "hash grid weight decay: gradient");
+        const BLOCK: usize = 1 << 14;
+        let mut total = 0.0f64;
+        for level in 0..self.levels {
+            let range = self.offset(level)..self.offset(level + 1);
+            let count = range.len() as f32;
+            let scale = 2.0 * weight / count;
+            // Each block's sum, then the blocks' in order: the same bits whatever the threads.
+            let sums: Vec<f64> = (grad[range.clone()].par_chunks_mut(BLOCK), tables[range].par_chunks(BLOCK))
+                .into_par_iter()
+                .map(|(g, v)| {
+                    g.iter_mut()
+                        .zip(v)
+                        .map(|(g, &v)| {
+                            *g += scale * v;
+                            f64::from(v) * f64::from(v)
+                        })
+                        .sum::<f64>()
+                })
+                .collect();
+            total += f64::from(weight) * sums.iter().sum::<f64>() / f64::from(count);
+        }
+        total
+    }
+
     /// Each level's constants, for the inner loops.
     fn level_shapes(&self) -> Vec<LevelShape> {
         (0..self.levels)

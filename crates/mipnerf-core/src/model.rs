@@ -67,8 +67,9 @@ pub struct LossStats {
     /// The distortion loss's term in `loss`: `distortion_loss_mult` times its mean over the
     /// batch's rays (0 when off).
     pub distortion: f32,
-    /// The Tri-Mip planes' total variation's term in `loss`, weighted (0 when off).
-    pub planes_tv: f32,
+    /// The field's regulariser's term in `loss`, weighted (0 when off): the Tri-Mip planes' total
+    /// variation or the hash grid's weight decay.
+    pub regulariser: f32,
 }
 
 impl LossStats {
@@ -177,17 +178,7 @@ impl Model {
                     .into(),
             ));
         }
-        if config.planes_tv_mult != 0.0
-            && !(config.planes_tv_mult.is_finite()
-                && config.planes_tv_mult > 0.0
-                && matches!(config.field, Field::TriMip { .. }))
-        {
-            return Err(ModelError::Config(format!(
-                "planes_tv_mult weighs the Tri-Mip planes' total variation: a positive number with the Tri-Mip \
-                 field, got {} with the {:?} field",
-                config.planes_tv_mult, config.field
-            )));
-        }
+        Self::check_regulariser_weights(&config)?;
         if !(config.distortion_loss_mult.is_finite() && (0.0..=1.0).contains(&config.distortion_loss_mult)) {
             return Err(ModelError::Config(format!(
                 "the distortion loss's weight must be between 0 and 1 (the successor's: 0.01), got {}",
@@ -448,7 +439,7 @@ impl Model {
             }
         });
         self.field_backward_chunks(&scratch.chunk_field[..n_chunks], &mut scratch.grad_pyramid, field_grads);
-        let planes_tv = self.field_regulariser(params, field_grads);
+        let regulariser = self.field_regulariser(params, field_grads);
         let levels = self.config.num_levels;
         let mut total = vec![[0.0f64; 2]; levels];
         for s in &sums {
@@ -461,8 +452,8 @@ impl Model {
         let mse: Vec<f32> = total.iter().map(|s| (s[1] / (3.0 * f64::from(n_pix))) as f32).collect();
         // run_chunk's entry after the levels': the chunk's distortion loss, scaled.
         let distortion = sums.iter().filter_map(|s| s.get(levels)).map(|d| d[0]).sum::<f64>() as f32;
-        let loss = self.level_weights().iter().zip(&losses).map(|(w, l)| w * l).sum::<f32>() + distortion + planes_tv;
-        LossStats { losses, loss, mse, distortion, planes_tv }
+        let loss = self.level_weights().iter().zip(&losses).map(|(w, l)| w * l).sum::<f32>() + distortion + regulariser;
+        LossStats { losses, loss, mse, distortion, regulariser }
     }
 
     /// The loss weight of each level: `coarse_loss_mult` for all but the last, 1 for the last.

@@ -13,18 +13,30 @@ pub struct LrSchedule {
     pub lr_delay_steps: u64,
     /// Factor on the rate at step 0; it rises to 1 along a quarter sine over `lr_delay_steps`.
     pub lr_delay_mult: f32,
+    /// At most this many steps of decay: the rate reaches `lr_final` by step
+    /// `min(max_steps, decay_steps)` and stays there, however far a time budget stretches
+    /// `max_steps` (none: `max_steps`). The hash grid's recipe holds its rate down this way.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub decay_steps: Option<u64>,
 }
 
 impl Default for LrSchedule {
     fn default() -> Self {
-        Self { lr_init: 5e-4, lr_final: 5e-6, max_steps: 1_000_000, lr_delay_steps: 2500, lr_delay_mult: 0.01 }
+        Self {
+            lr_init: 5e-4,
+            lr_final: 5e-6,
+            max_steps: 1_000_000,
+            lr_delay_steps: 2500,
+            lr_delay_mult: 0.01,
+            decay_steps: None,
+        }
     }
 }
 
 impl LrSchedule {
     /// The learning rate at `step`:
     /// `[m + (1 - m) sin(π/2 clip(step / delay, 0, 1))] exp((1 - t) ln lr_init + t ln lr_final)`
-    /// with `t = clip(step / max_steps, 0, 1)`.
+    /// with `t = clip(step / min(max_steps, decay_steps), 0, 1)`.
     #[must_use]
     pub fn lr(&self, step: u64) -> f32 {
         let delay_rate = if self.lr_delay_steps > 0 {
@@ -33,7 +45,8 @@ impl LrSchedule {
         } else {
             1.0
         };
-        let t = (step as f64 / self.max_steps.max(1) as f64).clamp(0.0, 1.0) as f32;
+        let horizon = self.max_steps.min(self.decay_steps.unwrap_or(u64::MAX)).max(1);
+        let t = (step as f64 / horizon as f64).clamp(0.0, 1.0) as f32;
         let log_lerp = ((1.0 - t) * self.lr_init.ln() + t * self.lr_final.ln()).exp();
         delay_rate * log_lerp
     }
@@ -72,5 +85,23 @@ mod tests {
         assert_eq!(base.stretched_to_budget(10, 100.0, None).max_steps, u64::from(u32::MAX));
         // A spent budget: the horizon is the next step, the rate the final one.
         assert_eq!(base.stretched_to_budget(10, -5.0, Some(0.5)).max_steps, 11);
+    }
+
+    /// A decay held to `decay_steps` reaches `lr_final` there and stays, however far a budget
+    /// stretches the horizon; a cap past the horizon changes nothing.
+    #[test]
+    fn a_decay_cap_ends_the_decay_early_and_keeps_the_final_rate() {
+        let base = LrSchedule { lr_delay_steps: 0, max_steps: 1000, ..LrSchedule::default() };
+        let capped = LrSchedule { decay_steps: Some(100), ..base };
+        // exp(ln lr_final) in f32: within a few ulps of lr_final.
+        let at_final = |lr: f32| (lr - base.lr_final).abs() <= 1e-6 * base.lr_final;
+        assert!(at_final(capped.lr(100)) && capped.lr(500) == capped.lr(100));
+        assert!((capped.lr(50) - (base.lr_init * base.lr_final).sqrt()).abs() <= 1e-6 * base.lr_init);
+        let stretched = capped.stretched_to_budget(10, 1e6, Some(0.01));
+        assert!(stretched.decay_steps == Some(100) && at_final(stretched.lr(200)));
+        let far = LrSchedule { decay_steps: Some(5000), ..base };
+        for step in [0, 10, 500, 1000, 2000] {
+            assert_eq!(far.lr(step), base.lr(step), "step {step}");
+        }
     }
 }

@@ -371,7 +371,14 @@ fn bf16_model_loss_and_gradients_follow_the_f32_model() {
     assert_eq!(bf16_model.precision(), Precision::Bf16);
     // Parameters after a few f32 steps, so that every layer carries signal.
     let optim = OptimConfig {
-        lr: LrSchedule { lr_init: 5e-3, lr_final: 5e-3, max_steps: 10, lr_delay_steps: 0, lr_delay_mult: 1.0 },
+        lr: LrSchedule {
+            lr_init: 5e-3,
+            lr_final: 5e-3,
+            max_steps: 10,
+            lr_delay_steps: 0,
+            lr_delay_mult: 1.0,
+            decay_steps: None,
+        },
         ..OptimConfig::default()
     };
     let mut warm = Trainer::new(f32_model.clone(), optim, 3);

@@ -266,6 +266,7 @@ fn learning_rate_schedule_matches_official() {
             max_steps: a["max_steps"].as_u64().unwrap(),
             lr_delay_steps: a["lr_delay_steps"].as_u64().unwrap(),
             lr_delay_mult: f(&a["lr_delay_mult"]),
+            decay_steps: None,
         };
         let got: Vec<f32> = c["steps"].as_array().unwrap().iter().map(|s| sched.lr(s.as_u64().unwrap())).collect();
         mm.check(key, &got, &flat(&c["lr"]), TOL_ELEMENTWISE);

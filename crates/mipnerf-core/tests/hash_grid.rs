@@ -241,7 +241,9 @@ fn a_few_hundred_steps_cut_the_loss_on_a_tiny_scene_and_the_bits_do_not_depend_o
     let run = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
         pool.install(|| {
-            let mut trainer = Trainer::new(Model::new(small(1.5)).unwrap(), optim(100), 9);
+            // With the grid's weight decay, whose sums are blocked too.
+            let model = Model::new(ModelConfig { grid_decay_mult: 0.01, ..small(1.5) }).unwrap();
+            let mut trainer = Trainer::new(model, optim(100), 9);
             let losses: Vec<f32> =
                 (0..3).map(|_| trainer.train_step(&rays[..200], &colours[..200]).stats.loss).collect();
             (losses, trainer.params)
@@ -283,4 +285,76 @@ fn a_grid_that_cannot_be_built_is_an_error_naming_it() {
     let mut cfg = small(1.5);
     cfg.planes_tv_mult = 0.5;
     assert!(Model::new(cfg).is_err());
+    // And the grid's weight decay the hash grid's: a positive number, with that field.
+    let mut cfg = small(1.5);
+    for bad in [-0.1, f32::NAN] {
+        cfg.grid_decay_mult = bad;
+        let e = Model::new(cfg.clone()).unwrap_err().to_string();
+        assert!(e.contains("grid_decay_mult"), "{e}");
+    }
+    cfg.grid_decay_mult = 0.1;
+    assert!(Model::new(cfg).is_ok());
+    let cfg = ModelConfig { grid_decay_mult: 0.1, ..Preset::Tiny.config() };
+    assert!(Model::new(cfg).unwrap_err().to_string().contains("hash-grid field"));
+}
+
+/// Sums of squares of a few thousand f32 values in f64, against the same term by term.
+const TOL_DECAY: f64 = 1e-12;
+
+#[test]
+fn the_weight_decay_is_each_levels_mean_square_and_its_gradient_matches_finite_differences() {
+    let grid = small_grid();
+    let tables = random_params(&grid, 11);
+    // Above the recipe's 0.1, so that the decay's gradient on an entry stands well clear of the
+    // finite differences' tolerance.
+    let weight = 2.0;
+    let mut grad = vec![0.5f32; grid.num_params()];
+    let decay = grid.weight_decay(&tables, weight, &mut grad);
+    // Level by level: the mean square over its values, so that the dense coarse levels weigh as
+    // much as the hashed ones with more entries.
+    let mut expected = 0.0f64;
+    for level in 0..grid.levels {
+        let values = &tables[grid.offset(level)..grid.offset(level + 1)];
+        let mean_square = values.iter().map(|&v| f64::from(v) * f64::from(v)).sum::<f64>() / values.len() as f64;
+        expected += f64::from(weight) * mean_square;
+        // The gradient is added to what is there: 2 weight v / count.
+        for (i, &v) in values.iter().enumerate() {
+            let want = 0.5 + 2.0 * weight * v / values.len() as f32;
+            assert!((grad[grid.offset(level) + i] - want).abs() <= 1e-6, "level {level} entry {i}");
+        }
+    }
+    assert!((decay - expected).abs() <= TOL_DECAY * expected, "{decay} against {expected}");
+    assert!(grid.entries(0) < grid.entries(3), "the levels differ in size");
+
+    // Through the model: the loss carries the decay as its regulariser, and the loss's gradient
+    // matches finite differences on grid entries no ray reaches (the decay's alone) and others.
+    let (rays, colours) = ball_scene(2, 6);
+    let mut cfg = small(1.5);
+    cfg.num_levels = 1;
+    let plain = Model::new(cfg.clone()).unwrap();
+    cfg.grid_decay_mult = weight;
+    let model = Model::new(cfg).unwrap();
+    let mut params = model.init_params(3);
+    params[..model.field_params()].copy_from_slice(&tables);
+    let (mode, batch) = (Mode::Train { seed: 1, step: 0 }, TrainBatch { rays: &rays[..40], targets: &colours[..40] });
+    let mut grads = vec![0.0; model.num_params()];
+    let stats = model.loss_and_grad(&params, batch, mode, &mut grads, GradWith::default());
+    let mut plain_grads = vec![0.0; model.num_params()];
+    let plain_stats = plain.loss_and_grad(&params, batch, mode, &mut plain_grads, GradWith::default());
+    assert!((f64::from(stats.regulariser) - expected).abs() <= 1e-6 * expected, "{}", stats.regulariser);
+    assert!((stats.loss - plain_stats.loss - stats.regulariser).abs() <= 1e-6 * stats.loss);
+    let unreached: Vec<usize> = (0..model.field_params()).filter(|&i| plain_grads[i] == 0.0).collect();
+    let reached: Vec<usize> = (0..model.field_params()).filter(|&i| plain_grads[i] != 0.0).collect();
+    assert!(!unreached.is_empty() && !reached.is_empty());
+    let mut rng = SmallRng::seed_from_u64(5);
+    let mut picks = Vec::new();
+    for (what, from) in [("unreached", &unreached), ("reached", &reached)] {
+        picks.extend((0..12).map(|_| (what.to_owned(), from[rng.random_range(0..from.len())])));
+    }
+    common::assert_gradients_match_finite_differences(
+        picks,
+        &grads,
+        &mut params,
+        common::batch_loss(&model, batch, mode),
+    );
 }

@@ -643,7 +643,7 @@ impl GpuModel {
             mse.push((se / (3.0 * pixels as f64)) as f32);
         }
         let loss = model.level_weights().iter().zip(&losses).map(|(w, l)| w * l).sum();
-        Ok(LossStats { losses, loss, mse, distortion: 0.0, planes_tv: 0.0 })
+        Ok(LossStats { losses, loss, mse, distortion: 0.0, regulariser: 0.0 })
     }
 
     /// The loss of a batch and the gradient of every parameter, computed on the device from
@@ -694,8 +694,8 @@ impl GpuModel {
             let _ = rec.submit();
             self.read_losses(ctx, model, &batch, &work.ray_out)?
         };
-        losses.planes_tv = self.read_planes_tv(ctx, model, &work)?;
-        losses.loss += losses.planes_tv;
+        losses.regulariser = self.read_planes_tv(ctx, model, &work)?;
+        losses.loss += losses.regulariser;
         Ok((losses, ctx.read_f32(&grads, model.num_params())?))
     }
 }

@@ -416,8 +416,8 @@ impl GpuBackend {
         }
         self.in_flight = 0;
         let mut stats = self.kernels.read_losses(ctx, &self.model, batch, ray_out)?;
-        stats.planes_tv = self.kernels.read_planes_tv(ctx, &self.model, work)?;
-        stats.loss += stats.planes_tv;
+        stats.regulariser = self.kernels.read_planes_tv(ctx, &self.model, work)?;
+        stats.loss += stats.regulariser;
         let grad_norm =
             if self.optim.grad_max_norm > 0.0 { Some(ctx.read_f32(&self.state.stats, 1)?[0]) } else { None };
         Ok(Some(StepReport { step, lr, stats, grad_norm }))

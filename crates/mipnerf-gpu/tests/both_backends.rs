@@ -163,7 +163,14 @@ fn the_loss_falls_on_a_small_scene(kind: Kind) {
     let ds = mipnerf_gpu::test_support::demo_views(8, 16);
     let model = Model::new(Preset::Tiny.config()).unwrap();
     let optim = OptimConfig {
-        lr: LrSchedule { lr_init: 5e-3, lr_final: 5e-4, max_steps: FALL_STEPS, lr_delay_steps: 0, lr_delay_mult: 1.0 },
+        lr: LrSchedule {
+            lr_init: 5e-3,
+            lr_final: 5e-4,
+            max_steps: FALL_STEPS,
+            lr_delay_steps: 0,
+            lr_delay_mult: 1.0,
+            decay_steps: None,
+        },
         ..OptimConfig::default()
     };
     let mut b = kind.open(BackendSetup { optim, ..setup(&model, TrainState::fresh(&model, 1), Some((ds, 256))) });
@@ -318,7 +325,14 @@ fn a_new_learning_rate_schedule_applies_from_the_next_step(kind: Kind) {
     let ds = mipnerf_gpu::test_support::demo_views(2, 8);
     let mut b = kind.open(setup(&model, TrainState::fresh(&model, 3), Some((ds, 32))));
     b.train_step(false).unwrap();
-    let constant = LrSchedule { lr_init: 0.25, lr_final: 0.25, max_steps: 10, lr_delay_steps: 0, lr_delay_mult: 1.0 };
+    let constant = LrSchedule {
+        lr_init: 0.25,
+        lr_final: 0.25,
+        max_steps: 10,
+        lr_delay_steps: 0,
+        lr_delay_mult: 1.0,
+        decay_steps: None,
+    };
     b.set_lr_schedule(constant);
     let r = b.train_step(true).unwrap().unwrap();
     assert_eq!(r.lr, 0.25, "{kind:?}");

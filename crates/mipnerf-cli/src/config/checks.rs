@@ -13,16 +13,26 @@ impl TrainSettings {
     pub(super) fn check_tri_mip(&self) -> Result<()> {
         let planes =
             [("tri_mip_resolution", self.tri_mip_resolution.is_some()), ("tri_mip_tv", self.tri_mip_tv.is_some())];
-        let grid = [("tri_mip_mlp", self.tri_mip_mlp.is_some()), ("tri_mip_lr_mult", self.tri_mip_lr_mult.is_some())];
+        let grid = [
+            ("tri_mip_mlp", self.tri_mip_mlp.is_some()),
+            ("tri_mip_lr_mult", self.tri_mip_lr_mult.is_some()),
+            ("grid_adam_eps", self.grid_adam_eps.is_some()),
+        ];
         if !self.uses_tri_mip()
             && let Some((key, _)) = planes.iter().find(|(_, on)| *on)
         {
             bail!("`{key}` (a config-file key) sets the Tri-Mip field's planes: add --field tri-mip, or drop it");
         }
+        if self.field != Some(super::FieldArg::HashGrid) && self.hash_grid_decay.is_some() {
+            bail!(
+                "`hash_grid_decay` (a config-file key) sets the hash grid's weight decay: add --field hash-grid, or drop it"
+            );
+        }
         if !self.uses_grid_field() {
             if let Some((key, _)) = grid.iter().find(|(_, on)| *on) {
                 bail!(
-                    "`{key}` (a config-file key) sets the Tri-Mip field's planes or MLP: add --field tri-mip, or drop it"
+                    "`{key}` (a config-file key) sets a grid field's MLP or optimiser: add --field tri-mip or \
+                     hash-grid, or drop it"
                 );
             }
             return Ok(());
@@ -48,10 +58,20 @@ impl TrainSettings {
         {
             bail!("`tri_mip_lr_mult` must be a positive number up to 1000, got {m}");
         }
+        if let Some(e) = self.grid_adam_eps
+            && !(e.is_finite() && e > 0.0 && e <= 1.0)
+        {
+            bail!("`grid_adam_eps` must be a positive number up to 1 (Instant-NGP's 1e-15), got {e}");
+        }
         if let Some(w) = self.tri_mip_tv
             && !(w.is_finite() && (0.0..=1000.0).contains(&w))
         {
             bail!("`tri_mip_tv` must be a number from 0 (off) to 1000, got {w}");
+        }
+        if let Some(w) = self.hash_grid_decay
+            && !(w.is_finite() && (0.0..=1000.0).contains(&w))
+        {
+            bail!("`hash_grid_decay` must be a number from 0 (off) to 1000, got {w}");
         }
         Ok(())
     }
@@ -99,6 +119,17 @@ impl TrainSettings {
             bail!("{} must be a positive number, got {b}", name("occupancy_bound"));
         }
         self.check_tri_mip()?;
+        if self.lr_decay_steps == Some(0) {
+            bail!("`lr_decay_steps` (a config-file key) must be at least 1, got 0");
+        }
+        if let Some(b) = self.adam_beta2
+            && !(b.is_finite() && b > 0.0 && b < 1.0)
+        {
+            bail!(
+                "`adam_beta2` (a config-file key) must be a number between 0 and 1 (flax's 0.999; Instant-NGP's 0.99), \
+                 got {b}"
+            );
+        }
         if let Some(r) = self.spherify_radius
             && !(r.is_finite() && r > 0.0)
         {

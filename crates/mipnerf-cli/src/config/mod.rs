@@ -11,7 +11,7 @@ use mipnerf_core::RayShape;
 use mipnerf_core::config::DataFit;
 use mipnerf_core::model::{FastRecipe, Field, HashGridRecipe, ModelConfig, PointEncoding, Preset, TriMipRecipe};
 use mipnerf_core::schedule::LrSchedule;
-use mipnerf_core::train::{FieldAdam, OptimConfig};
+use mipnerf_core::train::{AdamConfig, FieldAdam, OptimConfig};
 use serde::{Deserialize, Serialize};
 
 mod checks;
@@ -184,10 +184,21 @@ pub struct TrainSettings {
     /// The Tri-Mip planes' learning rate over the MLP's (Tri-MipRF's 10) [default: the field's
     /// recipe; recorded with the field].
     pub tri_mip_lr_mult: Option<f32>,
+    /// Adam's epsilon for a grid field's own parameters (the Tri-Mip planes or the hash grid)
+    /// [default: the field's recipe: Instant-NGP's 1e-15; recorded when set].
+    pub grid_adam_eps: Option<f32>,
     /// Weight of the Tri-Mip planes' total variation in the loss (TensoRF's regulariser, the
     /// mean squared difference of neighbouring texels) [default: the field's recipe: 0.1 for
     /// forward-facing photos, 1 for unbounded scenes, else 0; recorded when not 0].
     pub tri_mip_tv: Option<f32>,
+    /// Weight of Zip-NeRF's normalised weight decay of the hash grid's tables in the loss (the
+    /// sum over levels of the mean squared feature) [default: the field's recipe,
+    /// `HashGridRecipe::RECIPE`: 0.01 for forward-facing photos, else 0; recorded when not 0].
+    pub hash_grid_decay: Option<f32>,
+    /// Adam's `beta2`, the decay of its running mean of squared gradients, for every parameter
+    /// [default: flax's 0.999; recorded when another]. Instant-NGP's 0.99 makes the hash grid's
+    /// loss climb on fern (docs/results/hash-grid/stability).
+    pub adam_beta2: Option<f32>,
     /// Training steps in total [default: 2000].
     pub steps: Option<u64>,
     /// Rays (pixels) per batch [default: 1024].
@@ -210,6 +221,10 @@ pub struct TrainSettings {
     pub lr_delay_steps: Option<u64>,
     /// Learning-rate factor at step 0 of the warm-up [default: 0.01].
     pub lr_delay_mult: Option<f32>,
+    /// The rate reaches `lr_final` by this step and stays there, however long the run or its
+    /// time budget [default: the run's last step; the hash-grid field's recipe,
+    /// `HashGridRecipe::RECIPE`, for forward-facing photos: 10000; recorded when set].
+    pub lr_decay_steps: Option<u64>,
     /// Clip the gradient to this norm (0 = off) [default: 0].
     pub grad_max_norm: Option<f32>,
     /// Clip gradient entries to this magnitude (0 = off) [default: 0].
@@ -350,7 +365,10 @@ impl TrainSettings {
             tri_mip_resolution,
             tri_mip_mlp,
             tri_mip_lr_mult,
+            grid_adam_eps,
             tri_mip_tv,
+            hash_grid_decay,
+            adam_beta2,
             steps,
             batch_rays,
             seed,
@@ -361,6 +379,7 @@ impl TrainSettings {
             lr_final,
             lr_delay_steps,
             lr_delay_mult,
+            lr_decay_steps,
             grad_max_norm,
             grad_max_val,
             num_samples,
@@ -459,6 +478,7 @@ impl TrainSettings {
         let preset = self.preset.unwrap_or(PresetArg::Tiny);
         let fast = preset == PresetArg::Fast;
         let (tri_mip, grid) = (self.uses_tri_mip(), self.uses_grid_field());
+        let (tri_mip_tv, hash_grid_decay, lr_decay_steps) = self.grid_recipe_for(forward_facing, unbounded);
         // A time budget ends the run, so the step count only caps it when given.
         let steps = self.steps.unwrap_or(if self.time_budget.is_some() { MAX_STEPS } else { 2000 });
         let occupancy = self.uses_occupancy();
@@ -524,16 +544,11 @@ impl TrainSettings {
             })),
             tri_mip_mlp: self.tri_mip_mlp.or(grid.then_some(TriMipRecipe::RECIPE.mlp)),
             tri_mip_lr_mult: self.tri_mip_lr_mult.or(grid.then(|| self.grid_adam().lr_mult)),
-            tri_mip_tv: self
-                .tri_mip_tv
-                .or(tri_mip.then_some(if forward_facing {
-                    TriMipRecipe::RECIPE.planes_tv_forward_facing
-                } else if unbounded {
-                    TriMipRecipe::RECIPE.planes_tv_unbounded
-                } else {
-                    TriMipRecipe::RECIPE.planes_tv
-                }))
-                .filter(|&w| w != 0.0),
+            grid_adam_eps: self.grid_adam_eps,
+            tri_mip_tv,
+            hash_grid_decay,
+            adam_beta2: self.adam_beta2.filter(|&b| b != AdamConfig::default().beta2),
+            lr_decay_steps,
             occupancy: Some(occupancy),
             occupancy_resolution: occupancy
                 .then(|| self.occupancy_resolution.unwrap_or(FastRecipe::RECIPE.occupancy_resolution)),
@@ -554,6 +569,27 @@ impl TrainSettings {
             })),
             flush_subnormals: Some(self.flush_subnormals.unwrap_or(preset.preset().flushes_subnormals())),
         }
+    }
+
+    /// The grid fields' recipe for the data where the settings do not say: the planes' total
+    /// variation, the hash grid's weight decay and its rate's decay steps (none where 0 or where
+    /// the field is another).
+    fn grid_recipe_for(&self, forward_facing: bool, unbounded: bool) -> (Option<f32>, Option<f32>, Option<u64>) {
+        let (planes, hash_grid) = (TriMipRecipe::RECIPE, HashGridRecipe::RECIPE);
+        let is_hash_grid = self.field == Some(FieldArg::HashGrid);
+        let planes_tv = if forward_facing {
+            planes.planes_tv_forward_facing
+        } else if unbounded {
+            planes.planes_tv_unbounded
+        } else {
+            planes.planes_tv
+        };
+        let decay = if forward_facing { hash_grid.decay_forward_facing } else { hash_grid.decay };
+        (
+            self.tri_mip_tv.or(self.uses_tri_mip().then_some(planes_tv)).filter(|&w| w != 0.0),
+            self.hash_grid_decay.or(is_hash_grid.then_some(decay)).filter(|&w| w != 0.0),
+            self.lr_decay_steps.or((is_hash_grid && forward_facing).then_some(hash_grid.lr_decay_steps_forward_facing)),
+        )
     }
 
     /// The time budget in seconds, if one is set.
@@ -662,6 +698,7 @@ impl TrainSettings {
             };
             // Resolved settings carry the recipe's weight for the data (none when it is 0).
             m.planes_tv_mult = self.tri_mip_tv.unwrap_or(0.0);
+            m.grid_decay_mult = self.hash_grid_decay.unwrap_or(0.0);
         }
         if m.supersample == 0 || m.supersample > 16 {
             bail!("--supersample must be between 1 and 16, got {}", m.supersample);
@@ -686,6 +723,7 @@ impl TrainSettings {
             max_steps: self.steps.unwrap_or(2000),
             lr_delay_steps: self.lr_delay_steps.unwrap_or(0),
             lr_delay_mult: self.lr_delay_mult.unwrap_or(0.01),
+            decay_steps: self.lr_decay_steps,
         };
         for (name, v) in [("--lr-init", lr.lr_init), ("--lr-final", lr.lr_final), ("--lr-delay-mult", lr.lr_delay_mult)]
         {
@@ -697,11 +735,11 @@ impl TrainSettings {
             lr,
             grad_max_norm: self.grad_max_norm.unwrap_or(0.0),
             grad_max_val: self.grad_max_val.unwrap_or(0.0),
+            adam: AdamConfig { beta2: self.adam_beta2.unwrap_or(AdamConfig::default().beta2), ..AdamConfig::default() },
             field: self.uses_grid_field().then(|| FieldAdam {
                 lr_mult: self.tri_mip_lr_mult.unwrap_or(self.grid_adam().lr_mult),
-                ..self.grid_adam()
+                eps: self.grid_adam_eps.unwrap_or(self.grid_adam().eps),
             }),
-            ..OptimConfig::default()
         })
     }
 
@@ -737,64 +775,4 @@ impl TrainSettings {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::{FAST_LR, PresetArg, TrainSettings};
-
-    /// The learning-rate defaults per kind of data and preset (docs/results/own-photos/lr).
-    #[test]
-    fn learning_rate_defaults_follow_the_data_and_the_preset() {
-        let lr = |preset: Option<PresetArg>, llff: bool| {
-            let r = TrainSettings { preset, ..TrainSettings::default() }.resolved(llff);
-            (r.lr_init.unwrap(), r.lr_final.unwrap())
-        };
-        // Photos: the tiny preset (the default) learns at the fast rate.
-        assert_eq!(lr(None, true), FAST_LR);
-        assert_eq!(lr(Some(PresetArg::Tiny), true), FAST_LR);
-        assert_eq!(lr(Some(PresetArg::Fast), true), FAST_LR);
-        // The faithful presets keep the paper's rate on every kind of data.
-        assert_eq!(lr(Some(PresetArg::Small), true), (5e-4, 5e-6));
-        assert_eq!(lr(Some(PresetArg::Paper), true), (5e-4, 5e-6));
-        // Blender and multiscale data: the paper's rate but for the fast preset.
-        assert_eq!(lr(None, false), (5e-4, 5e-6));
-        assert_eq!(lr(Some(PresetArg::Fast), false), FAST_LR);
-        // A rate given is kept.
-        let given = TrainSettings { lr_init: Some(1e-3), ..TrainSettings::default() }.resolved(true);
-        assert_eq!(given.lr_init, Some(1e-3));
-    }
-
-    /// Subnormals are flushed by default where core's preset says so (tiny, fast), kept by the
-    /// faithful presets (small, paper), and a setting given wins either way.
-    #[test]
-    fn subnormals_follow_the_preset_unless_set() {
-        let flush = |preset, set| {
-            TrainSettings { preset: Some(preset), flush_subnormals: set, ..TrainSettings::default() }
-                .resolved(false)
-                .flush_subnormals
-                .unwrap()
-        };
-        for (preset, by_default) in
-            [(PresetArg::Tiny, true), (PresetArg::Fast, true), (PresetArg::Small, false), (PresetArg::Paper, false)]
-        {
-            assert_eq!(flush(preset, None), by_default, "{preset:?}");
-            assert_eq!(by_default, preset.preset().flushes_subnormals());
-            assert!(flush(preset, Some(true)) && !flush(preset, Some(false)));
-        }
-    }
-
-    /// `--preset fast` is core's fast recipe, the one `Options::preset(Preset::Fast)` takes too
-    /// (tests/facade.rs checks that side).
-    #[test]
-    fn the_fast_preset_is_cores_fast_recipe() {
-        use mipnerf_core::model::FastRecipe;
-        let r = TrainSettings { preset: Some(PresetArg::Fast), ..TrainSettings::default() }.resolved(false);
-        let recipe = FastRecipe::RECIPE;
-        assert_eq!(r.batch_rays, Some(recipe.batch_rays));
-        assert_eq!((r.lr_init.unwrap(), r.lr_final.unwrap()), recipe.lr);
-        assert_eq!((r.lr_delay_steps, r.lr_delay_mult), (Some(recipe.lr_delay_steps), Some(0.01)));
-        assert_eq!((r.occupancy, r.occupancy_resolution), (Some(true), Some(recipe.occupancy_resolution)));
-        assert_eq!(
-            r.precision,
-            Some(if recipe.bf16_where_available { super::PrecisionArg::Auto } else { super::PrecisionArg::F32 })
-        );
-    }
-}
+mod tests;

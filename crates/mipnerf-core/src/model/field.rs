@@ -241,15 +241,48 @@ impl Model {
         pyramid.clear();
     }
 
-    /// The Tri-Mip planes' total variation, weighted by `planes_tv_mult`, with its gradient added
-    /// to `grad_level0`; 0 when off or for Mip-NeRF.
-    pub(super) fn field_regulariser(&self, params: &[f32], grad_level0: &mut [f32]) -> f32 {
-        let Field::TriMip { planes, .. } = self.config.field else { return 0.0 };
-        let weight = self.config.planes_tv_mult;
-        if weight == 0.0 {
-            return 0.0;
+    /// The field regularisers' weights: each a positive number with its field (the planes'
+    /// total variation with the Tri-Mip field, the weight decay with the hash grid), or 0.
+    pub(super) fn check_regulariser_weights(config: &crate::config::ModelConfig) -> Result<(), super::ModelError> {
+        if config.planes_tv_mult != 0.0
+            && !(config.planes_tv_mult.is_finite()
+                && config.planes_tv_mult > 0.0
+                && matches!(config.field, Field::TriMip { .. }))
+        {
+            return Err(super::ModelError::Config(format!(
+                "planes_tv_mult weighs the Tri-Mip planes' total variation: a positive number with the Tri-Mip \
+                 field, got {} with the {:?} field",
+                config.planes_tv_mult, config.field
+            )));
         }
-        tri_mip::total_variation(&planes, &params[..self.field_params], weight, grad_level0) as f32
+        if config.grid_decay_mult != 0.0
+            && !(config.grid_decay_mult.is_finite()
+                && config.grid_decay_mult > 0.0
+                && matches!(config.field, Field::HashGrid { .. }))
+        {
+            return Err(super::ModelError::Config(format!(
+                "grid_decay_mult weighs the hash grid's weight decay: a positive number with the hash-grid field, \
+                 got {} with the {:?} field",
+                config.grid_decay_mult, config.field
+            )));
+        }
+        Ok(())
+    }
+
+    /// The field's regulariser with its gradient added to `grad_field`: the Tri-Mip planes' total
+    /// variation weighted by `planes_tv_mult`, or the hash grid's weight decay weighted by
+    /// `grid_decay_mult`; 0 when off or for Mip-NeRF.
+    pub(super) fn field_regulariser(&self, params: &[f32], grad_field: &mut [f32]) -> f32 {
+        let field = &params[..self.field_params];
+        match self.config.field {
+            Field::TriMip { planes, .. } if self.config.planes_tv_mult != 0.0 => {
+                tri_mip::total_variation(&planes, field, self.config.planes_tv_mult, grad_field) as f32
+            }
+            Field::HashGrid { grid, .. } if self.config.grid_decay_mult != 0.0 => {
+                grid.weight_decay(field, self.config.grid_decay_mult, grad_field) as f32
+            }
+            _ => 0.0,
+        }
     }
 
     /// One Gaussian (world space) encoded by the model's field into `dst` (`x_dim` values): the

@@ -91,6 +91,7 @@ pub fn optim_decaying(lr_init: f32, lr_final: f32, steps: u64) -> mipnerf_core::
             max_steps: steps,
             lr_delay_steps: 0,
             lr_delay_mult: 1.0,
+            decay_steps: None,
         },
         ..mipnerf_core::train::OptimConfig::default()
     }

@@ -1,0 +1,114 @@
+//! The settings' defaults per preset and data.
+
+use super::{FAST_LR, PresetArg, TrainSettings};
+
+/// The learning-rate defaults per kind of data and preset (docs/results/own-photos/lr).
+#[test]
+fn learning_rate_defaults_follow_the_data_and_the_preset() {
+    let lr = |preset: Option<PresetArg>, llff: bool| {
+        let r = TrainSettings { preset, ..TrainSettings::default() }.resolved(llff);
+        (r.lr_init.unwrap(), r.lr_final.unwrap())
+    };
+    // Photos: the tiny preset (the default) learns at the fast rate.
+    assert_eq!(lr(None, true), FAST_LR);
+    assert_eq!(lr(Some(PresetArg::Tiny), true), FAST_LR);
+    assert_eq!(lr(Some(PresetArg::Fast), true), FAST_LR);
+    // The faithful presets keep the paper's rate on every kind of data.
+    assert_eq!(lr(Some(PresetArg::Small), true), (5e-4, 5e-6));
+    assert_eq!(lr(Some(PresetArg::Paper), true), (5e-4, 5e-6));
+    // Blender and multiscale data: the paper's rate but for the fast preset.
+    assert_eq!(lr(None, false), (5e-4, 5e-6));
+    assert_eq!(lr(Some(PresetArg::Fast), false), FAST_LR);
+    // A rate given is kept.
+    let given = TrainSettings { lr_init: Some(1e-3), ..TrainSettings::default() }.resolved(true);
+    assert_eq!(given.lr_init, Some(1e-3));
+}
+
+/// Subnormals are flushed by default where core's preset says so (tiny, fast), kept by the
+/// faithful presets (small, paper), and a setting given wins either way.
+#[test]
+fn subnormals_follow_the_preset_unless_set() {
+    let flush = |preset, set| {
+        TrainSettings { preset: Some(preset), flush_subnormals: set, ..TrainSettings::default() }
+            .resolved(false)
+            .flush_subnormals
+            .unwrap()
+    };
+    for (preset, by_default) in
+        [(PresetArg::Tiny, true), (PresetArg::Fast, true), (PresetArg::Small, false), (PresetArg::Paper, false)]
+    {
+        assert_eq!(flush(preset, None), by_default, "{preset:?}");
+        assert_eq!(by_default, preset.preset().flushes_subnormals());
+        assert!(flush(preset, Some(true)) && !flush(preset, Some(false)));
+    }
+}
+
+/// `--preset fast` is core's fast recipe, the one `Options::preset(Preset::Fast)` takes too
+/// (tests/facade.rs checks that side).
+#[test]
+fn the_fast_preset_is_cores_fast_recipe() {
+    use mipnerf_core::model::FastRecipe;
+    let r = TrainSettings { preset: Some(PresetArg::Fast), ..TrainSettings::default() }.resolved(false);
+    let recipe = FastRecipe::RECIPE;
+    assert_eq!(r.batch_rays, Some(recipe.batch_rays));
+    assert_eq!((r.lr_init.unwrap(), r.lr_final.unwrap()), recipe.lr);
+    assert_eq!((r.lr_delay_steps, r.lr_delay_mult), (Some(recipe.lr_delay_steps), Some(0.01)));
+    assert_eq!((r.occupancy, r.occupancy_resolution), (Some(true), Some(recipe.occupancy_resolution)));
+    assert_eq!(
+        r.precision,
+        Some(if recipe.bf16_where_available { super::PrecisionArg::Auto } else { super::PrecisionArg::F32 })
+    );
+}
+
+/// Adam's `beta2` is flax's unless set, recorded only when set to another, and reaches the
+/// optimiser; the hash grid's weight decay and its rate's decay steps are its recipe's for the
+/// data unless set, and reach the model and the schedule.
+#[test]
+fn adams_beta2_and_the_grids_decay_reach_the_optimiser_and_the_model() {
+    use super::FieldArg;
+    use mipnerf_core::model::HashGridRecipe;
+    let plain = TrainSettings::default().resolved(false);
+    assert_eq!((plain.adam_beta2, plain.optim_config().unwrap().adam.beta2), (None, 0.999));
+    let set = TrainSettings { adam_beta2: Some(0.99), ..TrainSettings::default() }.resolved(false);
+    assert_eq!((set.adam_beta2, set.optim_config().unwrap().adam.beta2), (Some(0.99), 0.99));
+    // The hash grid's recipe: its decay and its rate's decay steps on forward-facing photos.
+    let grid = |decay: Option<f32>, forward_facing: bool| {
+        let s = TrainSettings {
+            field: Some(FieldArg::HashGrid),
+            hash_grid_decay: decay,
+            tri_mip_bound: Some(1.0),
+            ..TrainSettings::default()
+        }
+        .resolved(forward_facing);
+        (s.hash_grid_decay, s.model_config().unwrap().grid_decay_mult, s.optim_config().unwrap().lr.decay_steps)
+    };
+    let recipe = HashGridRecipe::RECIPE;
+    let steps = Some(recipe.lr_decay_steps_forward_facing);
+    assert_eq!(grid(None, true), (Some(recipe.decay_forward_facing), recipe.decay_forward_facing, steps));
+    assert_eq!(recipe.decay, 0.0);
+    assert_eq!(grid(None, false), (None, 0.0, None));
+    assert_eq!(grid(Some(0.5), false), (Some(0.5), 0.5, None));
+    assert_eq!(grid(Some(0.0), true), (None, 0.0, steps));
+    assert_eq!(plain.model_config().unwrap().grid_decay_mult, 0.0);
+    // Other runs decay over all their steps unless told.
+    let decay_steps = |field, set| {
+        let s = TrainSettings { field, lr_decay_steps: set, tri_mip_bound: Some(1.0), ..TrainSettings::default() }
+            .resolved(true);
+        s.optim_config().unwrap().lr.decay_steps
+    };
+    assert_eq!(decay_steps(Some(FieldArg::HashGrid), Some(500)), Some(500));
+    assert_eq!(decay_steps(Some(FieldArg::TriMip), None), None);
+    assert_eq!(decay_steps(None, Some(500)), Some(500));
+    // A grid's Adam epsilon is its recipe's unless set.
+    let eps = |set| {
+        let s = TrainSettings {
+            field: Some(FieldArg::HashGrid),
+            grid_adam_eps: set,
+            tri_mip_bound: Some(1.0),
+            ..TrainSettings::default()
+        }
+        .resolved(true);
+        s.optim_config().unwrap().field.unwrap().eps
+    };
+    assert_eq!((eps(None), eps(Some(1e-8))), (HashGridRecipe::RECIPE.adam.eps, 1e-8));
+}
