@@ -239,7 +239,7 @@ fn a_hash_grid_run_trains_evaluates_and_renders_on_the_cpu_and_the_gpu_refuses_i
     image::open(frames.join("frame_0001.png")).unwrap();
     // The grid's densities export as points, and the run resumes where it stopped.
     let ply = dir.path().join("points.ply");
-    run_ok(&["export", "--run", s(&run), "--points", s(&ply), "--min-opacity", "0.0"]);
+    run_ok(&["export", "--run", s(&run), "--points", s(&ply), "--min-opacity", "0.000001"]);
     assert!(std::fs::read(&ply).unwrap().starts_with(b"ply"), "a PLY file");
     let text =
         run_ok(&["train", "--data", s(&data), "--out", s(&run), "--steps", "25", "--backend", "cpu", "--resume"]);
