@@ -4,35 +4,14 @@
 //   g = g * min(max_norm / (1e-7 + |g|), 1)            (max_norm > 0; |g| after value clipping)
 //   m = b1 m + (1 - b1) g; v = b2 v + (1 - b2) g^2; p -= lr (m / c1) / (sqrt(v / c2) + eps),
 // the first `split` parameters (a field's own, the Tri-Mip planes) with `field_lr` and
-// `field_eps` (`AdamState::update_split`).
+// `field_eps` (`AdamState::update_split`), and, where `field_skip_untouched` is 1, those of them
+// whose gradient is 0 left as they are, moments included (`FieldAdam::skip_untouched`).
 //
 // Entry points: `grad_sq_partial` (one sum of squares per workgroup of REDUCE_WORKGROUP (256) gradients),
 // `grad_norm_finish` (one workgroup: the norm and the clipping factor into `stats`), `main` (the
 // update). The norm passes run only when clipping by norm; the sums are in a fixed order.
 
-struct Params {
-    count: u32,
-    groups_x: u32,
-    lr: f32,
-    beta1: f32,
-    beta2: f32,
-    eps: f32,
-    // 1 - beta1^t and 1 - beta2^t, computed on the host in f32 as the CPU does.
-    c1: f32,
-    c2: f32,
-    // 0: off.
-    max_val: f32,
-    // 0: off.
-    max_norm: f32,
-    // Workgroups of `grad_sq_partial` (entries of `partials`).
-    n_partials: u32,
-    // Parameters before this index take field_lr and field_eps (0: none).
-    split: u32,
-    field_lr: f32,
-    field_eps: f32,
-    _pad0: u32,
-    _pad1: u32,
-}
+// The uniform block `Params` is declared from the Rust struct `AdamParams` (kernels/adam.rs).
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> grads: array<f32>;
@@ -104,6 +83,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     var g = clipped(i);
     if (p.max_norm > 0.0) {
         g = g * stats[1];
+    }
+    if (i < p.split && p.field_skip_untouched != 0u && g == 0.0) {
+        return;
     }
     let mi = p.beta1 * m[i] + (1.0 - p.beta1) * g;
     let vi = p.beta2 * v[i] + (1.0 - p.beta2) * g * g;

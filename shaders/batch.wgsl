@@ -19,49 +19,9 @@
 // - `batch_norm`: one workgroup; writes 3 * sum(lossmult) over the batch's pixels (3 * pixels
 //   without the area loss), the denominator of the loss, in a fixed order (deterministic).
 
-struct Params {
-    n_rays: u32,
-    // 0: draw pixels at random (training), 1: pixels first_pixel.. in raster order (rendering;
-    // rays past the last pixel repeat it).
-    sequential: u32,
-    first_pixel: u32,
-    n_views: u32,
-    total_pixels: u32,
-    // The RayRng key of (seed, step, RayBatch, ray 0), computed on the host.
-    key: u32,
-    // 0: RGBA8 packed in one u32 per pixel, 1: four f32 per pixel, 2: no pixels (no targets).
-    pixel_format: u32,
-    // What the targets are composited on: BACKGROUND_BLACK (alpha dropped), BACKGROUND_WHITE,
-    // or BACKGROUND_RANDOM (training: each pixel on its own random colour, `random_background`).
-    background: u32,
-    // 1: weight rays by their lossmult in the loss's denominator.
-    area_loss: u32,
-    groups_x: u32,
-    // NDC (forward-facing scenes): 2 focal / width and 2 focal / height of the NDC camera; 0: off.
-    ndc_fx: f32,
-    ndc_fy: f32,
-    // Rays per pixel side (the supersampled NeRF): k x k consecutive rays per pixel through a
-    // regular sub-pixel grid, each a cone of 1/k of the pixel's radius. 1: one ray per pixel.
-    supersample: u32,
-    // The pixel-centre offset included in each view's `dir0` (0.5 or 0).
-    centre_offset: f32,
-    // Run seed and step (random backgrounds).
-    seed: u32,
-    step: u32,
-}
+// The uniform block `Params` is declared from the Rust struct `BatchParams` (kernels/batch.rs).
 
-struct View {
-    // xyz: direction through pixel (0, 0); w: cone radius.
-    dir0: vec4<f32>,
-    // xyz: direction change per pixel along x; w: near.
-    step_x: vec4<f32>,
-    // xyz: direction change per pixel along y; w: far.
-    step_y: vec4<f32>,
-    // xyz: camera centre; w: lossmult.
-    origin: vec4<f32>,
-    // width, height, pixel buffer slot (0..3), first word of the view's pixels in that slot.
-    size: vec4<u32>,
-}
+// `View` is declared from the Rust struct `GpuView` (kernels/batch.rs).
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> views: array<View>;

@@ -20,28 +20,7 @@
 // samples of a ray contiguous: out[(ray * n_samples + sample) * ipe_len + feature]. NeRF's
 // encoding (`encoding` 2) puts the mean's 3 coordinates first.
 
-struct Params {
-    n_rays: u32,
-    n_samples: u32,
-    min_deg: u32,
-    max_deg: u32,
-    // 0 = cone, 1 = cylinder
-    ray_shape: u32,
-    // Number of workgroups along x in the 2-D dispatch grid.
-    groups_x: u32,
-    // 0: IPE; 1: zero covariance (PE of the frustum means through the IPE path, the "w/o IPE"
-    // ablation); 2: NeRF's positional encoding of the means: [mean | sin | cos], plain sines
-    // without the 100*pi guard (mipnerf-core's `pos_enc` with the identity).
-    encoding: u32,
-    // 1: an unbounded scene (the scene contraction).
-    unbounded: u32,
-    // 1: `rays` holds one Gaussian per sample, (mean.xyz, variance on each axis), in the space
-    // the encoding reads (an occupancy grid's density probes), and `t_vals` is not read.
-    probes: u32,
-    pad0: u32,
-    pad1: u32,
-    pad2: u32,
-}
+// The uniform block `Params` is declared from the Rust struct `CastIpeParams` (kernels/cast_ipe.rs).
 
 @group(0) @binding(0) var<uniform> params: Params;
 // Two vec4 per ray: (origin.xyz, radius), (direction.xyz, unused).

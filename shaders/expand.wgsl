@@ -3,19 +3,7 @@
 // its compacted ray's; a ray that meets no occupied cell renders the background without running
 // the MLP: its colour, distance near, opacity 0, and its loss terms against its target.
 
-struct Params {
-    n_rays: u32,
-    groups_x: u32,
-    // BACKGROUND_BLACK, BACKGROUND_WHITE or BACKGROUND_RANDOM (training: each pixel's colour of
-    // `random_background`, with seed and step).
-    background: u32,
-    seed: u32,
-    step: u32,
-    // 1: weight the loss terms by lossmult (area loss).
-    area_loss: u32,
-    _pad0: u32,
-    _pad1: u32,
-}
+// The uniform block `Params` is declared from the Rust struct `ExpandParams` (kernels/compact.rs).
 
 @group(0) @binding(0) var<uniform> p: Params;
 // Per batch ray: the index of its kept ray, or 0xffffffff when it meets no occupied cell.

@@ -23,32 +23,7 @@
 // `raw_rgb` (n x 3) and their gradient comes from `d_rgb`. The view direction's encoding enters
 // the first colour layer per sample (the CPU multiplies it once per ray: equal to rounding).
 
-struct Params {
-    // Samples.
-    n: u32,
-    samples_per_ray: u32,
-    x_dim: u32,
-    view_dim: u32,
-    net_depth: u32,
-    net_width: u32,
-    depth_condition: u32,
-    width_condition: u32,
-    // Floats per sample of `acts` and `d_acts`.
-    row: u32,
-    // Workgroups along x of the 2-D dispatch grid.
-    groups_x: u32,
-    // Where the shape's parameters start in `model_params` and `grads`.
-    base: u32,
-    // `weight_gradients`: jobs in `table` (after the layers' offsets).
-    jobs: u32,
-    // `backward_samples`: 1 to write `d_x`.
-    input_gradient: u32,
-    // `weight_gradients`: 4 x 4 blocks over all jobs, and runs of samples.
-    blocks: u32,
-    runs: u32,
-    // To 16 bytes.
-    pad0: u32,
-}
+// The uniform block `Params` is declared from the Rust struct `FusedMlpParams` (kernels/fused_mlp.rs).
 
 @group(0) @binding(0) var<uniform> p: Params;
 // Per layer (the shape's order: trunk, density, bottleneck, colour layers, colour output): its

@@ -4,12 +4,7 @@
 // ray, bounds, view direction, target and batch index (the key of its random streams) are
 // copied. `expand.wgsl` puts the outputs back in batch order.
 
-struct Params {
-    n_kept: u32,
-    groups_x: u32,
-    _pad0: u32,
-    _pad1: u32,
-}
+// The uniform block `Params` is declared from the Rust struct `GatherParams` (kernels/compact.rs).
 
 @group(0) @binding(0) var<uniform> p: Params;
 // The batch indices of the kept rays, ascending.

@@ -20,36 +20,7 @@
 // Both walk row and column tiles in grid-stride loops, so a dispatch of at most 65535 groups per
 // dimension covers any m and n.
 
-struct Params {
-    m: u32,
-    k: u32,
-    n: u32,
-    // bit 0: A transposed; bit 1: B transposed; bit 2: accumulate into C; bit 3: add bias;
-    // bit 4: ReLU after the bias; bit 5: multiply by (mask > 0) after accumulating (ReLU backward);
-    // bit 6: write the raw partial product of split z at c_off + z * m * n (no epilogue);
-    // bit 7: add row (row / rows_per_group) of the per-group matrix in `mask` (before the bias).
-    flags: u32,
-    a_off: u32,
-    b_off: u32,
-    c_off: u32,
-    bias_off: u32,
-    // Entries of k per split (k itself when unsplit).
-    k_chunk: u32,
-    // Partial products `reduce_splits` adds.
-    n_splits: u32,
-    // Workgroups along x of `reduce_splits`'s grid.
-    groups_x: u32,
-    // Offset of the mask (an m x n matrix in `mask`'s buffer), or of the per-group matrix.
-    mask_off: u32,
-    // Rows of C per row of the per-group matrix.
-    rows_per_group: u32,
-    // Elements between stored rows of A (k when stored as used, m when transposed) and between
-    // rows of C (n), for packed matrices; more for a column range of a wider matrix (the fused
-    // heads' columns).
-    a_ld: u32,
-    c_ld: u32,
-    _pad0: u32,
-}
+// The uniform block `Params` is declared from the Rust struct `MatmulParams` (kernels/matmul.rs).
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> a: array<f32>;

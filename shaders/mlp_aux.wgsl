@@ -10,19 +10,7 @@
 // - group_sums: out[r, :] = sum over i < count of x[r * count + i, :] in order (a ray's samples'
 //   gradients, for the view-direction weights, which multiply once per ray).
 
-struct Params {
-    rows: u32,
-    cols: u32,
-    // group_sums: rows per group (samples per ray).
-    count: u32,
-    // Offsets of the operands in their buffers.
-    x_off: u32,
-    y_off: u32,
-    out_off: u32,
-    // col_sums: 1 to add to `out`, 0 to overwrite.
-    accumulate: u32,
-    groups_x: u32,
-}
+// The uniform block `Params` is declared from the Rust struct `AuxParams` (kernels/mlp_aux.rs).
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> x: array<f32>;

@@ -17,26 +17,7 @@
 // `sample.wgsl` spaces an unbounded ray's edges), mapped back to t, the ray's first and last
 // edge kept at its spans' ends.
 
-struct Params {
-    n_rays: u32,
-    // Samples per ray; each ray has n_samples + 1 edges.
-    n_samples: u32,
-    // 0: linear in depth; 1: linear in disparity (a ray with one span); 2: unbounded (in s).
-    spacing: u32,
-    randomized: u32,
-    seed: u32,
-    step: u32,
-    // Cells along each axis.
-    resolution: u32,
-    // Half the side of the cube the grid covers (world units).
-    bound: f32,
-    // The side of one cell, 2 bound / resolution (computed once, in Rust).
-    cell_size: f32,
-    groups_x: u32,
-    // 1: the grid covers an unbounded scene's contracted space (bound 2).
-    contracted: u32,
-    _pad1: u32,
-}
+// The uniform block `Params` is declared from the Rust struct `OccupancyParams` (kernels/occupancy.rs).
 
 @group(0) @binding(0) var<uniform> p: Params;
 // Two vec4 per ray: (origin, radius), (direction, lossmult).

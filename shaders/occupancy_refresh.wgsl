@@ -14,22 +14,7 @@
 //   block around it a word or two at a time, and sets layers distance..=MAX_DILATION. Layer 0
 //   is only read, so one dispatch makes them all.
 
-struct Params {
-    // Cells along each axis.
-    resolution: u32,
-    // resolution^3.
-    n_cells: u32,
-    // Unused (the dilations were one dispatch a layer).
-    layer: u32,
-    // 1: the warm-up is over (cells are occupied by their opacity, not all).
-    warmed_up: u32,
-    // The grid's threshold (before its min with the mean).
-    threshold: f32,
-    // Workgroups along x of the 2-D dispatch grid.
-    groups_x: u32,
-    pad0: u32,
-    pad1: u32,
-}
+// The uniform block `Params` is declared from the Rust struct `RefreshParams` (kernels/occupancy_update.rs).
 
 @group(0) @binding(0) var<uniform> params: Params;
 // Per cell: its remembered opacity, or -1 (carved).

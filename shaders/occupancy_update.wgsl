@@ -11,32 +11,7 @@
 //   as `max(decay old, new)`; a carved cell (opacity -1) is left as it is. Which cells are occupied
 //   follows on the host from the opacities read back (`OccupancyGrid::update_with_opacity`).
 
-struct Params {
-    // The chunk's first cell and its number of cells.
-    first_cell: u32,
-    n_cells: u32,
-    // Cells along each axis.
-    resolution: u32,
-    // Workgroups along x of the 2-D dispatch grid.
-    groups_x: u32,
-    seed: u32,
-    step: u32,
-    // 1: the grid lies over an unbounded scene's contracted space.
-    contracted: u32,
-    // DENSITY_SOFTPLUS or DENSITY_RELU.
-    density_activation: u32,
-    // Half the side of the grid's cube.
-    bound: f32,
-    // The side of one cell.
-    cell_size: f32,
-    decay: f32,
-    density_bias: f32,
-    // Floats between consecutive samples' raw densities.
-    raw_stride: u32,
-    pad0: u32,
-    pad1: u32,
-    pad2: u32,
-}
+// The uniform block `Params` is declared from the Rust struct `OccupancyUpdateParams` (kernels/occupancy_update.rs).
 
 @group(0) @binding(0) var<uniform> params: Params;
 // One vec4 per cell of the chunk: (mean.xyz, variance).

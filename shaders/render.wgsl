@@ -11,35 +11,7 @@
 // (its gradient is mipnerf_core::model::pixel_loss_gradient, the formula's one statement):
 // d_raw_rgb and d_raw_density are written for the MLP's backward pass.
 
-struct Params {
-    n_rays: u32,
-    n_samples: u32,
-    // BACKGROUND_BLACK, BACKGROUND_WHITE or BACKGROUND_RANDOM (training; seed, step, ray_ids).
-    background: u32,
-    // DENSITY_SOFTPLUS or DENSITY_RELU
-    density_activation: u32,
-    density_bias: f32,
-    rgb_padding: f32,
-    // Loss weight of this level.
-    level_weight: f32,
-    // Elements between consecutive samples' raw densities and their gradients (1, or the fused
-    // heads' row length: density is column 0 of [density | bottleneck]).
-    density_stride: u32,
-    train: u32,
-    // 1: weight rays by their lossmult (area loss), 0: by 1.
-    area_loss: u32,
-    groups_x: u32,
-    // Training only: standard deviation of the Gaussian noise added to raw density (0: none),
-    // and what picks its random numbers (mipnerf-core's `Stream::DensityNoise` of stream
-    // the ray's stream at this level: `rng::ray_level_index`).
-    density_noise: f32,
-    seed: u32,
-    step: u32,
-    level: u32,
-    // Rays per pixel side (supersampled NeRF). Above 1, `main` only renders; the loss is the
-    // pixel's (the mean of its k x k rays' colours), computed with its gradient by `pixel_backward`.
-    supersample: u32,
-}
+// The uniform block `Params` is declared from the Rust struct `RenderParams` (kernels/render.rs).
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> raw_rgb: array<f32>;

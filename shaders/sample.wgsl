@@ -7,23 +7,7 @@
 // normalised distance s = t/2 (t < 1), 1 - 1/(2t) (beyond): the coarse edges are stratified in s,
 // the histogram is resampled over the coarse edges' s, and every new edge is mapped back to t.
 
-struct Params {
-    n_rays: u32,
-    // Samples per ray; each ray has n_samples + 1 edges.
-    n_samples: u32,
-    // 0: linear in depth; 1: linear in disparity; 2: unbounded (in s, see above).
-    spacing: u32,
-    randomized: u32,
-    seed: u32,
-    step: u32,
-    // Level of the resampled edges (picks the random stream).
-    level: u32,
-    resample_padding: f32,
-    groups_x: u32,
-    _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
-}
+// The uniform block `Params` is declared from the Rust struct `SampleParams` (kernels/sample.rs).
 
 @group(0) @binding(0) var<uniform> p: Params;
 // stratified: (near, far) per ray. resample: the coarse edges.

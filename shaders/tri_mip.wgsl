@@ -25,34 +25,7 @@
 // - `total_variation`: TensoRF's regulariser of level 0, one invocation per row of a plane, as
 //   `tri_mip::total_variation` loops (its row's loss into `tv_rows`, summed on the host in f64).
 
-struct Params {
-    n_rays: u32,
-    n_samples: u32,
-    // RAY_SHAPE_CONE or RAY_SHAPE_CYLINDER.
-    ray_shape: u32,
-    // Workgroups along x of the 2-D dispatch grid.
-    groups_x: u32,
-    resolution: u32,
-    features: u32,
-    levels: u32,
-    // 1: an unbounded scene (the planes cover the contracted space).
-    unbounded: u32,
-    // The planes' box is the cube [-half_side, half_side]^3.
-    half_side: f32,
-    // 1: read each sample at its footprint's level (tri-mip); 0: at level 0 (tri-plane).
-    pre_filtered: u32,
-    // The first level `build_levels` makes.
-    level: u32,
-    // `total_variation`: its weight over the number of neighbouring pairs.
-    tv_scale: f32,
-    // The levels `build_levels` makes (at most PYRAMID_GROUP_LEVELS).
-    group_levels: u32,
-    // 1: `rays` holds one Gaussian per sample, (mean.xyz, variance on each axis), in the planes'
-    // space (an occupancy grid's density probes), and `t_vals` is not read.
-    probes: u32,
-    pad1: u32,
-    pad2: u32,
-}
+// The uniform block `Params` is declared from the Rust struct `TriMipParams` (kernels/tri_mip.rs).
 
 @group(0) @binding(0) var<uniform> params: Params;
 // Two vec4 per ray: (origin.xyz, radius), (direction.xyz, unused).

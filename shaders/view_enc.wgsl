@@ -1,13 +1,7 @@
 // The positional encoding of view directions (mipnerf-core's `pos_enc` with the identity), one
 // invocation per ray: out = [d (3) | sin(2^l d) (3 deg) | sin(2^l d + pi/2) (3 deg)].
 
-struct Params {
-    n_rays: u32,
-    // Degrees 0..deg_view.
-    deg_view: u32,
-    groups_x: u32,
-    _pad: u32,
-}
+// The uniform block `Params` is declared from the Rust struct `ViewEncParams` (kernels/view_enc.rs).
 
 @group(0) @binding(0) var<uniform> p: Params;
 // Three floats per ray.

@@ -139,6 +139,8 @@ fn what_the_tri_mip_field_does_not_run_is_refused_by_name() {
     assert!(text.contains("`grid_adam_eps` must be a positive number"), "{text}");
     let text = train_with(&config("eps-mip", "grid_adam_eps = 1e-8\n"), &[]);
     assert!(text.contains("`grid_adam_eps` (a config-file key)"), "{text}");
+    let text = train_with(&config("skip-mip", "grid_adam_skip_untouched = true\n"), &[]);
+    assert!(text.contains("`grid_adam_skip_untouched` (a config-file key)"), "{text}");
     let text = train_with(&config("beta2", "adam_beta2 = 1.0\n"), &[]);
     assert!(text.contains("`adam_beta2` (a config-file key) must be a number between 0 and 1"), "{text}");
     assert!(!out("refused").exists(), "a refused run leaves no folder");

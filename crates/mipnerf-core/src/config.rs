@@ -397,7 +397,7 @@ impl HashGridRecipe {
     pub const RECIPE: Self = Self {
         grid: HashGridConfig { levels: 16, features: 2, log2_table: 17, coarsest: 16, finest: 512 },
         mlp: TriMipRecipe::RECIPE.mlp,
-        adam: crate::optim::FieldAdam { lr_mult: 2.0, eps: 1e-15 },
+        adam: crate::optim::FieldAdam { lr_mult: 2.0, eps: 1e-15, skip_untouched: false },
         decay: 0.0,
         decay_forward_facing: 0.01,
         lr_decay_steps_forward_facing: 10_000,
@@ -409,7 +409,7 @@ impl TriMipRecipe {
     pub const RECIPE: Self = Self {
         resolution: 256,
         mlp: [2, 64, 1, 64],
-        adam: crate::optim::FieldAdam { lr_mult: 10.0, eps: 1e-15 },
+        adam: crate::optim::FieldAdam { lr_mult: 10.0, eps: 1e-15, skip_untouched: false },
         planes_tv: 0.0,
         planes_tv_forward_facing: 0.1,
         planes_tv_unbounded: 1.0,

@@ -64,23 +64,29 @@ impl AdamState {
         grads: &[f32],
     ) {
         assert!(params.len() == grads.len() && params.len() == self.m.len(), "adam: lengths");
-        let (first, field) = split.unwrap_or((0, FieldAdam { lr_mult: 1.0, eps: cfg.eps }));
+        let (first, field) = split.unwrap_or((0, FieldAdam::mlp(cfg)));
         assert!(first <= params.len(), "adam: split");
         self.t += 1;
         let t = self.t as i32;
         let c1 = 1.0 - cfg.beta1.powi(t);
         let c2 = 1.0 - cfg.beta2.powi(t);
         const BLOCK: usize = 16 * 1024;
-        let part = |lr: f32, eps: f32, p: &mut [f32], m: &mut [f32], v: &mut [f32], g: &[f32]| {
+        let part = |lr: f32, adam: FieldAdam, p: &mut [f32], m: &mut [f32], v: &mut [f32], g: &[f32]| {
+            let eps = adam.eps;
             p.par_chunks_mut(BLOCK)
                 .zip(m.par_chunks_mut(BLOCK))
                 .zip(v.par_chunks_mut(BLOCK))
                 .zip(g.par_chunks(BLOCK))
                 .for_each(|(((p, m), v), g)| {
-                    for i in 0..p.len() {
+                    let mut step = |i: usize| {
                         m[i] = cfg.beta1 * m[i] + (1.0 - cfg.beta1) * g[i];
                         v[i] = cfg.beta2 * v[i] + (1.0 - cfg.beta2) * g[i] * g[i];
                         p[i] -= lr * (m[i] / c1) / ((v[i] / c2).sqrt() + eps);
+                    };
+                    if adam.skip_untouched {
+                        (0..g.len()).filter(|&i| g[i] != 0.0).for_each(&mut step);
+                    } else {
+                        (0..g.len()).for_each(step);
                     }
                 });
         };
@@ -88,8 +94,8 @@ impl AdamState {
         let (m0, m1) = self.m.split_at_mut(first);
         let (v0, v1) = self.v.split_at_mut(first);
         let (g0, g1) = grads.split_at(first);
-        part(lr * field.lr_mult, field.eps, p0, m0, v0, g0);
-        part(lr, cfg.eps, p1, m1, v1, g1);
+        part(lr * field.lr_mult, field, p0, m0, v0, g0);
+        part(lr, FieldAdam::mlp(cfg), p1, m1, v1, g1);
     }
 }
 
@@ -103,6 +109,27 @@ pub struct FieldAdam {
     pub lr_mult: f32,
     /// Added to the square root of the field's second moments.
     pub eps: f32,
+    /// Leave an entry whose gradient is exactly 0 as it is, its moments included (Instant-NGP's
+    /// rule for its hash tables), instead of moving it on its momentum and decaying its second
+    /// moment: an entry that rays reach once in a while then steps by its gradient over the
+    /// moments it had, not by about three learning rates whatever its gradient (the first moment
+    /// of one gradient over the square root of a second moment decayed towards that gradient's
+    /// square alone: `0.1 / sqrt(0.001)`).
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub skip_untouched: bool,
+}
+
+#[allow(clippy::trivially_copy_pass_by_ref)] // serde's `skip_serializing_if` passes a reference
+fn is_false(b: &bool) -> bool {
+    !*b
+}
+
+impl FieldAdam {
+    /// The MLP's own settings (the rate as given, `cfg`'s epsilon, every entry updated).
+    #[must_use]
+    pub fn mlp(cfg: &AdamConfig) -> Self {
+        Self { lr_mult: 1.0, eps: cfg.eps, skip_untouched: false }
+    }
 }
 
 /// Optimisation settings. Defaults are the official ones.

@@ -225,7 +225,10 @@ fn the_whole_losss_gradient_through_the_grid_and_the_mlp_matches_finite_differen
 }
 
 fn optim(steps: u64) -> OptimConfig {
-    OptimConfig { field: Some(FieldAdam { lr_mult: 2.0, eps: 1e-15 }), ..common::optim_decaying(1e-2, 1e-3, steps) }
+    OptimConfig {
+        field: Some(FieldAdam { lr_mult: 2.0, eps: 1e-15, skip_untouched: false }),
+        ..common::optim_decaying(1e-2, 1e-3, steps)
+    }
 }
 
 #[test]

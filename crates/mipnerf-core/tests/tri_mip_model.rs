@@ -81,7 +81,7 @@ fn the_whole_loss_matches_finite_differences(unbounded: bool) {
 #[test]
 fn the_planes_take_their_own_learning_rate_and_epsilon_in_one_adam_step() {
     let cfg = AdamConfig::default();
-    let field = FieldAdam { lr_mult: 10.0, eps: 1e-15 };
+    let field = FieldAdam { lr_mult: 10.0, eps: 1e-15, skip_untouched: false };
     let params: Vec<f32> = (0..10).map(|i| i as f32 * 0.1).collect();
     // Gradients far below the MLP's epsilon (1e-8), as a texel few rays reach gets.
     let grads: Vec<f32> = (0..10).map(|i| (i as f32 - 4.5) * 1e-10).collect();
@@ -104,6 +104,34 @@ fn the_planes_take_their_own_learning_rate_and_epsilon_in_one_adam_step() {
     for i in 4..10 {
         assert!((both[i] - params[i]).abs() < 1e-4, "MLP {i}: {} -> {}", params[i], both[i]);
     }
+}
+
+#[test]
+fn a_skipped_untouched_entry_keeps_its_value_and_moments() {
+    let cfg = AdamConfig::default();
+    let field = |skip_untouched| FieldAdam { lr_mult: 10.0, eps: 1e-15, skip_untouched };
+    let params: Vec<f32> = (0..8).map(|i| i as f32 * 0.1).collect();
+    let first: Vec<f32> = (0..8).map(|i| (i as f32 - 3.5) * 1e-3).collect();
+    // The second step reaches neither entry 1 (the field's) nor entry 5 (the MLP's).
+    let second: Vec<f32> = first.iter().enumerate().map(|(i, &g)| if i == 1 || i == 5 { 0.0 } else { g }).collect();
+    let run = |skip| {
+        let (mut state, mut p) = (AdamState::new(8), params.clone());
+        state.update_split(&cfg, 1e-3, Some((4, field(skip))), &mut p, &first);
+        let after_first = (p.clone(), state.m.clone(), state.v.clone());
+        state.update_split(&cfg, 1e-3, Some((4, field(skip))), &mut p, &second);
+        (after_first, (p, state.m, state.v))
+    };
+    let ((p1, m1, v1), (p2, m2, v2)) = run(true);
+    // Skipped: the field's untouched entry as it was, its moments included.
+    assert_eq!((p2[1], m2[1], v2[1]), (p1[1], m1[1], v1[1]));
+    // The MLP's untouched entry moves on its momentum and its moments decay, as without the rule.
+    assert!(p2[5] != p1[5] && m2[5] == cfg.beta1 * m1[5] && v2[5] == cfg.beta2 * v1[5]);
+    // The touched entries take the same update either way; without the rule entry 1 moves too.
+    let (_, (dense, _, _)) = run(false);
+    for i in [0, 2, 3, 4, 5, 6, 7] {
+        assert_eq!(p2[i], dense[i], "entry {i}");
+    }
+    assert!(dense[1] != p1[1], "dense Adam moves an untouched entry on its momentum");
 }
 
 fn optim(steps: u64) -> OptimConfig {

@@ -21,7 +21,10 @@ fn adam_and_gradient_clipping_match_cpu_reference() {
     // of about 0.06 is about 1.8, so it is scaled); both. Then a field's own first 300
     // parameters at 10 times the rate with a tiny epsilon (the Tri-Mip planes' split), with and
     // without clipping by norm.
-    let planes = Some((300, FieldAdam { lr_mult: 10.0, eps: 1e-15 }));
+    let planes = Some((300, FieldAdam { lr_mult: 10.0, eps: 1e-15, skip_untouched: false }));
+    // The same with the field's untouched entries skipped, some gradients 0 on both sides of the
+    // split.
+    let sparse = Some((300, FieldAdam { lr_mult: 10.0, eps: 1e-15, skip_untouched: true }));
     let cases = [
         (0.0, 0.0, None),
         (0.05, 0.0, None),
@@ -29,13 +32,21 @@ fn adam_and_gradient_clipping_match_cpu_reference() {
         (0.08, 1.0, None),
         (0.0, 0.0, planes),
         (0.0, 0.5, planes),
+        (0.0, 0.0, sparse),
+        (0.0, 0.5, sparse),
     ];
     for (max_val, max_norm, split) in cases {
         let step = AdamStep { cfg, lr, max_val, max_norm, split };
         // The starting parameters and three steps' gradients.
         let mut rng = SmallRng::seed_from_u64(3);
         let params: Vec<f32> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
-        let steps: Vec<Vec<f32>> = (0..3).map(|_| (0..n).map(|_| rng.random_range(-0.1..0.1)).collect()).collect();
+        let mut steps: Vec<Vec<f32>> = (0..3).map(|_| (0..n).map(|_| rng.random_range(-0.1..0.1)).collect()).collect();
+        if split.is_some_and(|(_, f)| f.skip_untouched) {
+            // After the first step, a third of the first 400 entries untouched, others each step.
+            for (k, grads) in steps.iter_mut().enumerate().skip(1) {
+                grads.iter_mut().take(400).skip(k).step_by(3).for_each(|g| *g = 0.0);
+            }
+        }
         let cpu = |(params, steps): &(Vec<f32>, Vec<Vec<f32>>)| -> Outputs {
             let (mut params, mut state, mut norms) = (params.clone(), AdamState::new(n), Vec::new());
             for grads in steps {

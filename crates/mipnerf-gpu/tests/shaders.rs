@@ -16,7 +16,7 @@ use mipnerf_gpu::kernels::{
     matmul::MatmulParams,
     mlp_aux::AuxParams,
     occupancy::OccupancyParams,
-    occupancy_update::OccupancyUpdateParams,
+    occupancy_update::{OccupancyUpdateParams, RefreshParams},
     prelude,
     render::RenderParams,
     sample::SampleParams,
@@ -58,30 +58,37 @@ fn every_shader_file_parses_and_validates_as_composed() {
             }
             continue;
         }
-        if let Err(e) = parse_and_validate(&name, &compose(&src)) {
+        let shader = ALL_SOURCES.iter().find(|s| s.file == name && s.own == src).unwrap_or_else(|| {
+            panic!("{name} is in shaders/ but not compiled into mipnerf-gpu (kernels::ALL_SOURCES)")
+        });
+        if let Err(e) = parse_and_validate(&name, &compose(shader)) {
             failures.push(e);
         }
         // Kernels with shared gradients also as the devices with float atomics compile them.
         if src.contains("array<GradientAtomic>")
-            && let Err(e) = parse_and_validate(&name, &compose_with(&src, GradientAtomics::Float))
+            && let Err(e) = parse_and_validate(&name, &compose_with(shader, GradientAtomics::Float))
         {
             failures.push(e);
         }
-        assert!(
-            ALL_SOURCES.iter().any(|(n, s)| *n == name && *s == src),
-            "{name} is in shaders/ but not compiled into mipnerf-gpu (kernels::ALL_SOURCES)"
-        );
     }
     assert!(failures.is_empty(), "{} shader(s) failed:\n{}", failures.len(), failures.join("\n"));
 }
 
 #[test]
 fn no_kernel_restates_what_the_shared_sources_define() {
-    // The hash, the stream formula and the generated constants live in one place each.
-    for (name, src) in ALL_SOURCES {
-        for needle in
-            ["fn pcg_hash", "747796405u", "const STREAM_", "const WORKGROUP", "* 8u + ", "@workgroup_size(64)"]
-        {
+    // The hash, the stream formula, the generated constants and the host's structs (declared from
+    // their Rust definitions) live in one place each.
+    for shader in ALL_SOURCES {
+        let (name, src) = (shader.file, shader.own);
+        for needle in [
+            "fn pcg_hash",
+            "747796405u",
+            "const STREAM_",
+            "const WORKGROUP",
+            "* 8u + ",
+            "@workgroup_size(64)",
+            "struct Params",
+        ] {
             assert!(!src.contains(needle), "{name} restates {needle:?}: use shaders/rng.wgsl or the prelude");
         }
     }
@@ -104,7 +111,7 @@ fn a_broken_shader_is_reported_with_its_location() {
 }
 
 /// The layout of the struct named `name` in a WGSL module: its size and its members (name,
-/// offset, WGSL type), padding members (names starting with `_`) left out.
+/// offset, WGSL type).
 fn wgsl_struct(file: &str, src: &str, name: &str) -> (u32, Vec<(String, usize, String)>) {
     let (module, _) = parse_and_validate(file, src).unwrap();
     let mut layouter = naga::proc::Layouter::default();
@@ -128,22 +135,19 @@ fn wgsl_struct(file: &str, src: &str, name: &str) -> (u32, Vec<(String, usize, S
             ref other => format!("{other:?}"),
         }
     };
-    let list = members
-        .iter()
-        .filter_map(|m| {
-            let n = m.name.clone().unwrap_or_default();
-            (!n.starts_with('_')).then(|| (n, m.offset as usize, type_name(m.ty)))
-        })
-        .collect();
+    let list =
+        members.iter().map(|m| (m.name.clone().unwrap_or_default(), m.offset as usize, type_name(m.ty))).collect();
     (layouter[handle].size, list)
 }
 
-/// Asserts that `T` and the WGSL struct it mirrors agree member by member and in size.
+/// Asserts that the layout WGSL gives the declaration generated from `T` is `T`'s, member by
+/// member and in size (a member WGSL aligns further than `#[repr(C)]`, a `vec4` after three
+/// scalars say, or padding left out of `T`'s list, shows here).
 fn check<T: WgslStruct>(file: &str, mismatches: &mut Vec<String>) {
-    let src = compose(ALL_SOURCES.iter().find(|(n, _)| *n == file).unwrap().1);
+    let src = compose(ALL_SOURCES.iter().find(|s| s.file == file).unwrap());
     let (size, wgsl) = wgsl_struct(file, &src, T::WGSL_NAME);
     let rust: Vec<(String, usize, String)> =
-        T::members().into_iter().map(|m| (m.name.to_string(), m.offset, m.ty.to_string())).collect();
+        T::members().into_iter().map(|m| (m.name, m.offset, m.ty.to_string())).collect();
     if rust != wgsl {
         mismatches.push(format!("{file} {}: Rust {rust:?}\n   WGSL {wgsl:?}", T::WGSL_NAME));
     }
@@ -169,6 +173,7 @@ fn uniform_structs_match_wgsl_member_by_member() {
     check::<ExpandParams>("expand.wgsl", &mut mismatches);
     check::<TriMipParams>("tri_mip.wgsl", &mut mismatches);
     check::<FusedMlpParams>("fused_mlp.wgsl", &mut mismatches);
+    check::<RefreshParams>("occupancy_refresh.wgsl", &mut mismatches);
     // The per-view camera record of batch.wgsl, read from a storage array.
     check::<GpuView>("batch.wgsl", &mut mismatches);
     assert!(mismatches.is_empty(), "{} mismatch(es):\n{}", mismatches.len(), mismatches.join("\n"));
@@ -177,20 +182,20 @@ fn uniform_structs_match_wgsl_member_by_member() {
 #[test]
 fn the_member_check_catches_two_swapped_fields_of_one_size() {
     // A Params whose first two u32 fields are swapped in the WGSL: the sizes agree, the members do not.
-    let src = compose(mipnerf_gpu::kernels::view_enc::SOURCE)
+    let src = compose(&mipnerf_gpu::kernels::view_enc::SOURCE)
         .replacen("    n_rays: u32,\n", "    deg_view_: u32,\n", 1)
         .replacen("    deg_view: u32,\n", "    n_rays: u32,\n", 1)
         .replacen("    deg_view_: u32,\n", "    deg_view: u32,\n", 1);
     assert!(src.find("deg_view: u32") < src.find("n_rays: u32"), "the test's edit did not apply");
     let (_, wgsl) = wgsl_struct("swapped.wgsl", &src, "Params");
     let rust: Vec<(String, usize, String)> =
-        ViewEncParams::members().into_iter().map(|m| (m.name.to_string(), m.offset, m.ty.to_string())).collect();
+        ViewEncParams::members().into_iter().map(|m| (m.name, m.offset, m.ty.to_string())).collect();
     assert_ne!(rust, wgsl);
 }
 
 #[test]
 fn the_storage_buffer_limit_is_what_the_busiest_kernel_binds() {
-    let most = ALL_SOURCES.iter().map(|(_, src)| src.matches("var<storage").count()).max().unwrap();
+    let most = ALL_SOURCES.iter().map(|s| s.own.matches("var<storage").count()).max().unwrap();
     assert_eq!(most as u32, mipnerf_gpu::context::MIN_STORAGE_BUFFERS_PER_STAGE);
 }
 
@@ -220,7 +225,8 @@ fn no_kernel_tests_for_nan_by_self_comparison_or_relies_on_fma() {
         found
     }
     let mut bad = Vec::new();
-    for (name, src) in ALL_SOURCES.iter().chain(SHARED_SOURCES.iter()) {
+    let files = ALL_SOURCES.iter().map(|s| (s.file, s.own)).chain(SHARED_SOURCES.iter().copied());
+    for (name, src) in files {
         bad.extend(offences(src).into_iter().map(|o| format!("{name} {o}")));
     }
     assert!(bad.is_empty(), "{}", bad.join("\n"));

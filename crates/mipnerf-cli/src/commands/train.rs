@@ -346,6 +346,7 @@ impl TrainFlags {
             tri_mip_mlp: None,
             tri_mip_lr_mult: None,
             grid_adam_eps: None,
+            grid_adam_skip_untouched: None,
             tri_mip_tv: None,
             hash_grid_decay: None,
             adam_beta2: None,

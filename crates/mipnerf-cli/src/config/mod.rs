@@ -187,6 +187,9 @@ pub struct TrainSettings {
     /// Adam's epsilon for a grid field's own parameters (the Tri-Mip planes or the hash grid)
     /// [default: the field's recipe: Instant-NGP's 1e-15; recorded when set].
     pub grid_adam_eps: Option<f32>,
+    /// Whether Adam leaves a grid field's entries whose gradient is 0 as they are, moments
+    /// included (Instant-NGP's rule) [default: the field's recipe: no; recorded when set].
+    pub grid_adam_skip_untouched: Option<bool>,
     /// Weight of the Tri-Mip planes' total variation in the loss (TensoRF's regulariser, the
     /// mean squared difference of neighbouring texels) [default: the field's recipe: 0.1 for
     /// forward-facing photos, 1 for unbounded scenes, else 0; recorded when not 0].
@@ -366,6 +369,7 @@ impl TrainSettings {
             tri_mip_mlp,
             tri_mip_lr_mult,
             grid_adam_eps,
+            grid_adam_skip_untouched,
             tri_mip_tv,
             hash_grid_decay,
             adam_beta2,
@@ -545,6 +549,7 @@ impl TrainSettings {
             tri_mip_mlp: self.tri_mip_mlp.or(grid.then_some(TriMipRecipe::RECIPE.mlp)),
             tri_mip_lr_mult: self.tri_mip_lr_mult.or(grid.then(|| self.grid_adam().lr_mult)),
             grid_adam_eps: self.grid_adam_eps,
+            grid_adam_skip_untouched: self.grid_adam_skip_untouched,
             tri_mip_tv,
             hash_grid_decay,
             adam_beta2: self.adam_beta2.filter(|&b| b != AdamConfig::default().beta2),
@@ -739,6 +744,7 @@ impl TrainSettings {
             field: self.uses_grid_field().then(|| FieldAdam {
                 lr_mult: self.tri_mip_lr_mult.unwrap_or(self.grid_adam().lr_mult),
                 eps: self.grid_adam_eps.unwrap_or(self.grid_adam().eps),
+                skip_untouched: self.grid_adam_skip_untouched.unwrap_or(self.grid_adam().skip_untouched),
             }),
         })
     }

@@ -67,6 +67,7 @@ fn the_fast_preset_is_cores_fast_recipe() {
 fn adams_beta2_and_the_grids_decay_reach_the_optimiser_and_the_model() {
     use super::FieldArg;
     use mipnerf_core::model::HashGridRecipe;
+    use mipnerf_core::train::FieldAdam;
     let plain = TrainSettings::default().resolved(false);
     assert_eq!((plain.adam_beta2, plain.optim_config().unwrap().adam.beta2), (None, 0.999));
     let set = TrainSettings { adam_beta2: Some(0.99), ..TrainSettings::default() }.resolved(false);
@@ -99,16 +100,15 @@ fn adams_beta2_and_the_grids_decay_reach_the_optimiser_and_the_model() {
     assert_eq!(decay_steps(Some(FieldArg::HashGrid), Some(500)), Some(500));
     assert_eq!(decay_steps(Some(FieldArg::TriMip), None), None);
     assert_eq!(decay_steps(None, Some(500)), Some(500));
-    // A grid's Adam epsilon is its recipe's unless set.
-    let eps = |set| {
-        let s = TrainSettings {
-            field: Some(FieldArg::HashGrid),
-            grid_adam_eps: set,
-            tri_mip_bound: Some(1.0),
-            ..TrainSettings::default()
-        }
-        .resolved(true);
-        s.optim_config().unwrap().field.unwrap().eps
+    // A grid's Adam epsilon, and whether it skips untouched entries, are its recipe's unless set.
+    let grid_adam = |set: TrainSettings| {
+        let s = TrainSettings { field: Some(FieldArg::HashGrid), tri_mip_bound: Some(1.0), ..set }.resolved(true);
+        (s.grid_adam_skip_untouched, s.optim_config().unwrap().field.unwrap())
     };
-    assert_eq!((eps(None), eps(Some(1e-8))), (HashGridRecipe::RECIPE.adam.eps, 1e-8));
+    let recipe = HashGridRecipe::RECIPE.adam;
+    assert_eq!(grid_adam(TrainSettings::default()), (None, recipe));
+    let eps = grid_adam(TrainSettings { grid_adam_eps: Some(1e-8), ..TrainSettings::default() }).1;
+    assert_eq!(eps, FieldAdam { eps: 1e-8, ..recipe });
+    let skip = grid_adam(TrainSettings { grid_adam_skip_untouched: Some(true), ..TrainSettings::default() });
+    assert_eq!(skip, (Some(true), FieldAdam { skip_untouched: true, ..recipe }));
 }

@@ -9,7 +9,7 @@ use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of this kernel.
-pub const SOURCE: &str = super::shader_source!("adam.wgsl");
+pub const SOURCE: super::Shader = super::shader!("adam.wgsl", [AdamParams]);
 
 /// Gradients per workgroup of the norm's first pass.
 const NORM_GROUP: u64 = kernels::REDUCE_WORKGROUP as u64;
@@ -30,15 +30,15 @@ pub struct AdamParams {
     pub beta2: f32,
     /// Adam's epsilon.
     pub eps: f32,
-    /// `1 - beta1^t`.
+    /// `1 - beta1^t`, computed on the host in f32 as the CPU does.
     pub c1: f32,
-    /// `1 - beta2^t`.
+    /// `1 - beta2^t`, likewise.
     pub c2: f32,
     /// Clip each gradient entry to `±max_val` (0: off).
     pub max_val: f32,
     /// Scale the gradient to this norm if larger (0: off).
     pub max_norm: f32,
-    /// Workgroups of the norm's first pass.
+    /// Workgroups of the norm's first pass, `grad_sq_partial` (entries of `partials`).
     pub n_partials: u32,
     /// The parameters before this index are the field's own (the Tri-Mip planes), updated with
     /// `field_lr` and `field_eps` (0: none).
@@ -47,8 +47,9 @@ pub struct AdamParams {
     pub field_lr: f32,
     /// The field's epsilon.
     pub field_eps: f32,
-    /// Padding.
-    pub _pad0: u32,
+    /// 1: the field's entries whose gradient is 0 are left as they are, moments included
+    /// ([`FieldAdam::skip_untouched`]); 0: updated.
+    pub field_skip_untouched: u32,
     /// Padding.
     pub _pad1: u32,
 }
@@ -123,7 +124,7 @@ impl AdamKernel {
     pub fn encode(&self, rec: &mut Recorder<'_>, step: &AdamStep, t: u64, b: &AdamBuffers) -> Result<(), GpuError> {
         let t = t as i32;
         let cfg = &step.cfg;
-        let (split, field) = step.split.unwrap_or((0, FieldAdam { lr_mult: 1.0, eps: cfg.eps }));
+        let (split, field) = step.split.unwrap_or((0, FieldAdam::mlp(cfg)));
         if split > b.count {
             return Err(GpuError::InvalidInput(format!("adam: {split} field parameters of {}", b.count)));
         }
@@ -142,7 +143,7 @@ impl AdamKernel {
             split: split as u32,
             field_lr: step.lr * field.lr_mult,
             field_eps: field.eps,
-            _pad0: 0,
+            field_skip_untouched: u32::from(field.skip_untouched),
             _pad1: 0,
         };
         let bufs = [&b.grads, &b.params, &b.m, &b.v, &b.partials, &b.stats];
@@ -162,5 +163,22 @@ impl AdamKernel {
 super::wgsl_struct!(
     AdamParams,
     "Params",
-    [count, groups_x, lr, beta1, beta2, eps, c1, c2, max_val, max_norm, n_partials, split, field_lr, field_eps]
+    [
+        count,
+        groups_x,
+        lr,
+        beta1,
+        beta2,
+        eps,
+        c1,
+        c2,
+        max_val,
+        max_norm,
+        n_partials,
+        split,
+        field_lr,
+        field_eps,
+        field_skip_untouched,
+        _pad1
+    ]
 );

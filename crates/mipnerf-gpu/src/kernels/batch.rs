@@ -13,7 +13,7 @@ use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of these kernels.
-pub const SOURCE: &str = super::shader_source!("batch.wgsl");
+pub const SOURCE: super::Shader = super::shader!("batch.wgsl", [BatchParams, GpuView]);
 
 /// Pixel buffers a dataset may span (bindings of `batch.wgsl`).
 pub const PIXEL_SLOTS: usize = 4;
@@ -24,7 +24,8 @@ pub const PIXEL_SLOTS: usize = 4;
 pub struct BatchParams {
     /// Rays to make.
     pub n_rays: u32,
-    /// 1: pixels `first_pixel..` in raster order; 0: drawn at random.
+    /// 1: pixels `first_pixel..` in raster order (rendering; rays past the last pixel repeat it);
+    /// 0: drawn at random (training).
     pub sequential: u32,
     /// First pixel (sequential).
     pub first_pixel: u32,
@@ -32,12 +33,14 @@ pub struct BatchParams {
     pub n_views: u32,
     /// Pixels over all views.
     pub total_pixels: u32,
-    /// The `RayRng` key of the step's batch stream.
+    /// The `RayRng` key of the step's batch stream: (seed, step, `RayBatch`, ray 0), computed on
+    /// the host.
     pub key: u32,
-    /// 0: RGBA8, 1: f32 RGBA, 2: no pixels.
+    /// 0: RGBA8 packed in one `u32` a pixel, 1: four f32 a pixel, 2: no pixels (no targets).
     pub pixel_format: u32,
-    /// The background the targets are composited on: `BACKGROUND_BLACK`, `_WHITE` or `_RANDOM`
-    /// (see [`render::background_code`](super::render::background_code)).
+    /// The background the targets are composited on: `BACKGROUND_BLACK` (alpha dropped), `_WHITE`
+    /// or `_RANDOM` (training: each pixel on its own random colour; see
+    /// [`render::background_code`](super::render::background_code)).
     pub background: u32,
     /// 1: weight rays by lossmult in the loss's denominator.
     pub area_loss: u32,
@@ -47,9 +50,10 @@ pub struct BatchParams {
     pub ndc_fx: f32,
     /// NDC: `2 focal / height`.
     pub ndc_fy: f32,
-    /// Rays per pixel side (supersampled NeRF).
+    /// Rays per pixel side (the supersampled NeRF): `k x k` consecutive rays a pixel through a
+    /// regular sub-pixel grid, each a cone of `1/k` of the pixel's radius; 1: one ray a pixel.
     pub supersample: u32,
-    /// The pixel-centre offset in each view's `dir0`.
+    /// The pixel-centre offset in each view's `dir0` (0.5 or 0).
     pub centre_offset: f32,
     /// Run seed (random backgrounds).
     pub seed: u32,
@@ -69,7 +73,7 @@ pub struct GpuView {
     pub step_y: [f32; 4],
     /// Camera centre; w: lossmult.
     pub origin: [f32; 4],
-    /// Width, height, pixel slot, first word of the view's pixels in the slot.
+    /// Width, height, pixel buffer slot (0..3), first word of the view's pixels in that slot.
     pub size: [u32; 4],
 }
 

@@ -24,8 +24,9 @@ pub struct CastIpeParams {
     pub ray_shape: u32,
     /// Workgroups along x of the 2-D dispatch grid.
     pub groups_x: u32,
-    /// 0: IPE; 1: zero covariance (the "w/o IPE" ablation); 2: NeRF's positional encoding of the
-    /// means with the identity.
+    /// 0: IPE; 1: zero covariance (the frustum means' PE through the IPE path, the "w/o IPE"
+    /// ablation); 2: NeRF's positional encoding of the means, `[mean | sin | cos]`, plain sines
+    /// without the `100 pi` guard (mipnerf-core's `pos_enc` with the identity).
     pub encoding: u32,
     /// 1: an unbounded scene, the Gaussians carried through the scene contraction
     /// ([`mipnerf_core::contract::contract_frustum`]).
@@ -49,7 +50,7 @@ pub struct CastIpeKernel {
 }
 
 /// The WGSL source of this kernel.
-pub const SOURCE: &str = super::shader_source!("cast_ipe.wgsl");
+pub const SOURCE: super::Shader = super::shader!("cast_ipe.wgsl", [CastIpeParams]);
 
 impl CastIpeKernel {
     /// Compiles the kernel on `ctx`'s device.

@@ -16,9 +16,9 @@ use crate::kernels::batch::RayBatch;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of the gather kernel.
-pub const GATHER_SOURCE: &str = super::shader_source!("gather.wgsl");
+pub const GATHER_SOURCE: super::Shader = super::shader!("gather.wgsl", [GatherParams]);
 /// The WGSL source of the expand kernel.
-pub const EXPAND_SOURCE: &str = super::shader_source!("expand.wgsl");
+pub const EXPAND_SOURCE: super::Shader = super::shader!("expand.wgsl", [ExpandParams]);
 
 /// `slot` of a batch ray that meets no occupied cell (WGSL: `0xffffffffu`).
 pub const NOT_KEPT: u32 = u32::MAX;
@@ -240,5 +240,5 @@ pub fn kept_rays(grid: &OccupancyGrid, rays: &[mipnerf_core::Ray]) -> Option<Vec
     (kept.len() < rays.len()).then_some(kept)
 }
 
-super::wgsl_struct!(GatherParams, "Params", [n_kept, groups_x,]);
-super::wgsl_struct!(ExpandParams, "Params", [n_rays, groups_x, background, seed, step, area_loss,]);
+super::wgsl_struct!(GatherParams, "Params", [n_kept, groups_x, _pad]);
+super::wgsl_struct!(ExpandParams, "Params", [n_rays, groups_x, background, seed, step, area_loss, _pad]);

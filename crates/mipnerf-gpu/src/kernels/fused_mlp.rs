@@ -28,7 +28,7 @@ use crate::kernels::{Binding, Recorder, WORKGROUP, dispatch_grid};
 use crate::{GpuContext, GpuError};
 
 /// The WGSL source of these kernels.
-pub const SOURCE: &str = super::shader_source!("fused_mlp.wgsl");
+pub const SOURCE: super::Shader = super::shader!("fused_mlp.wgsl", [FusedMlpParams]);
 
 /// The widest layer (and input) the fused kernels take: the size of their two private arrays
 /// of activations (WGSL: `MLP_MAX_WIDTH`).

@@ -8,7 +8,7 @@ use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of this kernel.
-pub const SOURCE: &str = super::shader_source!("matmul.wgsl");
+pub const SOURCE: super::Shader = super::shader!("matmul.wgsl", [MatmulParams]);
 
 /// The uniform block of `matmul.wgsl` (`struct Params`), 64 bytes.
 #[repr(C)]
@@ -20,8 +20,10 @@ pub struct MatmulParams {
     pub k: u32,
     /// Columns of C.
     pub n: u32,
-    /// Bit 0: A transposed; 1: B transposed; 2: accumulate; 3: add bias; 4: ReLU; 5: ReLU-backward
-    /// mask; 6: write split z's raw partial product; 7: add a per-group row.
+    /// Bit 0: A transposed; 1: B transposed; 2: accumulate into C; 3: add the bias; 4: ReLU after
+    /// the bias; 5: multiply by `(mask > 0)` after accumulating (ReLU backward); 6: write the raw
+    /// partial product of split z at `c_off + z m n` (no epilogue); 7: add row
+    /// `row / rows_per_group` of the per-group matrix in `mask` (before the bias).
     pub flags: u32,
     /// Element offset of A in its buffer.
     pub a_off: u32,
@@ -41,9 +43,10 @@ pub struct MatmulParams {
     pub mask_off: u32,
     /// Rows of C per row of the per-group matrix.
     pub rows_per_group: u32,
-    /// Elements between rows of A (stored as used).
+    /// Elements between stored rows of A (k when stored as used, m when transposed), for packed
+    /// matrices; more for a column range of a wider matrix (the fused heads' columns).
     pub a_ld: u32,
-    /// Elements between rows of C.
+    /// Elements between rows of C (n; more for a column range, as `a_ld`).
     pub c_ld: u32,
     /// Padding to 16 bytes.
     pub _pad: u32,
@@ -368,5 +371,22 @@ impl MatmulKernel {
 super::wgsl_struct!(
     MatmulParams,
     "Params",
-    [m, k, n, flags, a_off, b_off, c_off, bias_off, k_chunk, n_splits, groups_x, mask_off, rows_per_group, a_ld, c_ld]
+    [
+        m,
+        k,
+        n,
+        flags,
+        a_off,
+        b_off,
+        c_off,
+        bias_off,
+        k_chunk,
+        n_splits,
+        groups_x,
+        mask_off,
+        rows_per_group,
+        a_ld,
+        c_ld,
+        _pad
+    ]
 );

@@ -6,7 +6,7 @@ use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of these kernels.
-pub const SOURCE: &str = super::shader_source!("mlp_aux.wgsl");
+pub const SOURCE: super::Shader = super::shader!("mlp_aux.wgsl", [AuxParams]);
 
 /// The uniform block of `mlp_aux.wgsl` (`struct Params`), 32 bytes.
 #[repr(C)]
@@ -16,7 +16,7 @@ pub struct AuxParams {
     pub rows: u32,
     /// Columns.
     pub cols: u32,
-    /// Rows per group (group_sums).
+    /// Rows per group (`group_sums`: samples per ray).
     pub count: u32,
     /// Offset of x.
     pub x_off: u32,
@@ -24,7 +24,7 @@ pub struct AuxParams {
     pub y_off: u32,
     /// Offset of out.
     pub out_off: u32,
-    /// col_sums: add to out.
+    /// `col_sums`: 1 to add to `out`, 0 to overwrite it.
     pub accumulate: u32,
     /// Workgroups along x of the dispatch grid.
     pub groups_x: u32,

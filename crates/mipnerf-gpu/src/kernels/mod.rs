@@ -86,22 +86,50 @@ pub fn prelude() -> String {
     out
 }
 
+/// A kernel's WGSL: its own file in `shaders/`, and the structs it shares with the host, whose
+/// WGSL declarations [`compose_with`] generates from their Rust definitions ([`WgslStruct`]): the
+/// one place that states their members, their order and what each means.
+#[derive(Clone, Copy, Debug)]
+pub struct Shader {
+    /// The file's name in `shaders/`.
+    pub file: &'static str,
+    /// The file's text.
+    pub own: &'static str,
+    /// The declarations of the host's structs it reads, in order ([`WgslStruct::declaration`]).
+    pub structs: &'static [fn() -> String],
+}
+
+/// The [`Shader`] of a file of `shaders/` and the `#[repr(C)]` structs (each a [`WgslStruct`])
+/// whose declarations go in front of it.
+macro_rules! shader {
+    ($file:literal, [$($t:ty),* $(,)?]) => {
+        $crate::kernels::Shader {
+            file: $file,
+            own: $crate::kernels::shader_source!($file),
+            structs: &[$(<$t as $crate::kernels::WgslStruct>::declaration),*],
+        }
+    };
+}
+pub(crate) use shader;
+
 /// A kernel's complete WGSL with shared gradients added by compare-exchange (every adapter):
 /// [`compose_with`].
 #[must_use]
 #[cfg(feature = "test-support")]
-pub fn compose(own: &str) -> String {
-    compose_with(own, GradientAtomics::CompareExchange)
+pub fn compose(shader: &Shader) -> String {
+    compose_with(shader, GradientAtomics::CompareExchange)
 }
 
-/// A kernel's complete WGSL: the generated [`prelude`], the [`SHARED_SOURCES`], the kernel's
-/// own file, and for each of its buffers declared
+/// A kernel's complete WGSL: the generated [`prelude`], the [`SHARED_SOURCES`], the declarations
+/// of the host's structs it reads, the kernel's own file, and for each of its buffers declared
 /// `array<GradientAtomic>` the functions that load, store and add to it ([`gradient_atomics`]).
 /// What the device compiles and the naga test validates.
 #[must_use]
-pub fn compose_with(own: &str, atomics: GradientAtomics) -> String {
+pub fn compose_with(shader: &Shader, atomics: GradientAtomics) -> String {
     let shared: Vec<&str> = SHARED_SOURCES.iter().map(|(_, src)| *src).collect();
-    format!("{}\n{}\n{own}\n{}", prelude(), shared.join("\n"), gradient_atomics(own, atomics))
+    let structs: String = shader.structs.iter().map(|declaration| declaration()).collect();
+    let own = shader.own;
+    format!("{}\n{}\n{structs}\n{own}\n{}", prelude(), shared.join("\n"), gradient_atomics(own, atomics))
 }
 
 /// The WGSL of shared gradients for the kernel `own`: the type `GradientAtomic` (`atomic<f32>`
@@ -146,76 +174,98 @@ pub fn gradient_atomics(own: &str, atomics: GradientAtomics) -> String {
     out
 }
 
-/// A member of a uniform or storage struct as the WGSL must declare it: name, byte offset and
-/// WGSL type.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg(feature = "test-support")]
+/// A member of a uniform or storage struct as the WGSL declares it: name, byte offset and WGSL
+/// type.
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Member {
-    /// Field name (the same in Rust and WGSL).
-    pub name: &'static str,
+    /// Field name (the Rust one; a padding array's `k`-th `u32` is the name followed by `k`).
+    pub name: String,
     /// Byte offset in the struct.
     pub offset: usize,
     /// WGSL type, e.g. `u32` or `vec4<f32>`.
     pub ty: &'static str,
 }
 
-/// A Rust type's WGSL spelling.
-#[cfg(feature = "test-support")]
+/// A Rust type's WGSL spelling: one member of type `WGSL`, or (padding arrays) `COUNT` of them
+/// one after the other, since a uniform block's arrays take 16 bytes an element.
 pub trait WgslType {
     /// E.g. `u32`, `vec4<f32>`.
     const WGSL: &'static str;
+    /// Members of type `WGSL` it stands for.
+    const COUNT: usize = 1;
 }
-#[cfg(feature = "test-support")]
 impl WgslType for u32 {
     const WGSL: &'static str = "u32";
 }
-#[cfg(feature = "test-support")]
 impl WgslType for i32 {
     const WGSL: &'static str = "i32";
 }
-#[cfg(feature = "test-support")]
 impl WgslType for f32 {
     const WGSL: &'static str = "f32";
 }
-#[cfg(feature = "test-support")]
 impl WgslType for [f32; 4] {
     const WGSL: &'static str = "vec4<f32>";
 }
-#[cfg(feature = "test-support")]
 impl WgslType for [u32; 4] {
     const WGSL: &'static str = "vec4<u32>";
 }
-
-/// The WGSL type of the field that `_field` reads (type inference only).
-#[must_use]
-#[cfg(feature = "test-support")]
-pub fn wgsl_type_of<S, T: WgslType>(_field: fn(&S) -> &T) -> &'static str {
-    T::WGSL
+impl WgslType for [u32; 2] {
+    const WGSL: &'static str = "u32";
+    const COUNT: usize = 2;
+}
+impl WgslType for [u32; 3] {
+    const WGSL: &'static str = "u32";
+    const COUNT: usize = 3;
 }
 
-/// A `#[repr(C)]` struct shared with WGSL: its WGSL name and its members (padding left out), which
-/// the shader test compares, name by name, offset by offset and type by type, with the struct
-/// naga reflects from the kernel's source.
-#[cfg(feature = "test-support")]
+/// The members the field `name` at `offset` stands for, its type read off `_field` (type
+/// inference only).
+#[must_use]
+pub fn members_of<S, T: WgslType>(name: &str, offset: usize, _field: fn(&S) -> &T) -> Vec<Member> {
+    if T::COUNT == 1 {
+        return vec![Member { name: name.to_owned(), offset, ty: T::WGSL }];
+    }
+    let each = std::mem::size_of::<T>() / T::COUNT;
+    (0..T::COUNT).map(|k| Member { name: format!("{name}{k}"), offset: offset + k * each, ty: T::WGSL }).collect()
+}
+
+/// A `#[repr(C)]` struct shared with WGSL: its WGSL name and its members, from which its WGSL
+/// declaration is generated ([`Shader`]). The shader test checks that the layout WGSL gives the
+/// declaration is the Rust one, member by member, offset by offset, and in size.
 pub trait WgslStruct {
     /// The struct's name in the WGSL.
     const WGSL_NAME: &'static str;
-    /// Its members, padding left out.
+    /// Its members in order, padding included.
     fn members() -> Vec<Member>;
+    /// Its WGSL declaration.
+    #[must_use]
+    fn declaration() -> String {
+        let rust = std::any::type_name::<Self>().rsplit("::").next().unwrap_or_default();
+        let mut out = format!(
+            "// Generated from the Rust struct {rust} (mipnerf_gpu::kernels).\nstruct {} {{\n",
+            Self::WGSL_NAME
+        );
+        for m in Self::members() {
+            out += &format!("    {}: {},\n", m.name, m.ty);
+        }
+        out + "}\n"
+    }
 }
 
-/// Implements [`WgslStruct`] for `$t` (named `$name` in WGSL) with the fields listed.
+/// Implements [`WgslStruct`] for `$t` (named `$name` in WGSL) with the fields listed: every
+/// field, in order.
 macro_rules! wgsl_struct {
     ($t:ty, $name:literal, [$($f:ident),* $(,)?]) => {
-        #[cfg(feature = "test-support")]
         impl $crate::kernels::WgslStruct for $t {
             const WGSL_NAME: &'static str = $name;
             fn members() -> Vec<$crate::kernels::Member> {
-                vec![$($crate::kernels::Member {
-                    name: stringify!($f),
-                    offset: std::mem::offset_of!($t, $f),
-                    ty: $crate::kernels::wgsl_type_of(|s: &$t| &s.$f),
-                }),*]
+                let mut members = Vec::new();
+                $(members.extend($crate::kernels::members_of(
+                    stringify!($f),
+                    std::mem::offset_of!($t, $f),
+                    |s: &$t| &s.$f,
+                ));)*
+                members
             }
         }
     };
@@ -236,25 +286,24 @@ pub mod sample;
 pub mod tri_mip;
 pub mod view_enc;
 
-/// Every kernel's own WGSL file of the crate, by file name, for validation and `mipnerf info`
-/// (compiled as [`compose`]d).
+/// Every kernel's WGSL of the crate, for validation (compiled as [`compose`]d).
 #[cfg(feature = "test-support")]
-pub const ALL_SOURCES: &[(&str, &str)] = &[
-    ("cast_ipe.wgsl", cast_ipe::SOURCE),
-    ("matmul.wgsl", matmul::SOURCE),
-    ("mlp_aux.wgsl", mlp_aux::SOURCE),
-    ("render.wgsl", render::SOURCE),
-    ("adam.wgsl", adam::SOURCE),
-    ("sample.wgsl", sample::SOURCE),
-    ("occupancy.wgsl", occupancy::SOURCE),
-    ("occupancy_update.wgsl", occupancy_update::SOURCE),
-    ("occupancy_refresh.wgsl", occupancy_update::REFRESH_SOURCE),
-    ("view_enc.wgsl", view_enc::SOURCE),
-    ("batch.wgsl", batch::SOURCE),
-    ("gather.wgsl", compact::GATHER_SOURCE),
-    ("expand.wgsl", compact::EXPAND_SOURCE),
-    ("tri_mip.wgsl", tri_mip::SOURCE),
-    ("fused_mlp.wgsl", fused_mlp::SOURCE),
+pub const ALL_SOURCES: &[Shader] = &[
+    cast_ipe::SOURCE,
+    matmul::SOURCE,
+    mlp_aux::SOURCE,
+    render::SOURCE,
+    adam::SOURCE,
+    sample::SOURCE,
+    occupancy::SOURCE,
+    occupancy_update::SOURCE,
+    occupancy_update::REFRESH_SOURCE,
+    view_enc::SOURCE,
+    batch::SOURCE,
+    compact::GATHER_SOURCE,
+    compact::EXPAND_SOURCE,
+    tri_mip::SOURCE,
+    fused_mlp::SOURCE,
 ];
 
 /// What a kernel's uniform block takes of a pass's mode: the run's seed and the step (both 0 in
@@ -336,7 +385,7 @@ pub fn bindings_layout(ctx: &GpuContext, name: &str, bindings: &[Binding]) -> wg
 pub fn build(
     ctx: &GpuContext,
     name: &str,
-    source: &str,
+    source: Shader,
     read_only: &[bool],
 ) -> Result<(wgpu::ComputePipeline, wgpu::BindGroupLayout), GpuError> {
     let ([pipeline], layout) = build_entries(ctx, name, source, read_only, ["main"])?;
@@ -352,7 +401,7 @@ pub fn build(
 pub fn build_entries<const N: usize>(
     ctx: &GpuContext,
     name: &str,
-    source: &str,
+    source: Shader,
     read_only: &[bool],
     entries: [&str; N],
 ) -> Result<([wgpu::ComputePipeline; N], wgpu::BindGroupLayout), GpuError> {
@@ -368,7 +417,7 @@ pub fn build_entries<const N: usize>(
 pub fn build_entries_with<const N: usize>(
     ctx: &GpuContext,
     name: &str,
-    source: &str,
+    source: Shader,
     read_only: &[bool],
     entries: [&str; N],
     zero_init_workgroup_memory: bool,
@@ -385,7 +434,7 @@ pub fn build_entries_with<const N: usize>(
 pub fn build_entries_bound<const N: usize>(
     ctx: &GpuContext,
     name: &str,
-    source: &str,
+    source: Shader,
     bindings: &[Binding],
     entries: [&str; N],
     zero_init_workgroup_memory: bool,
@@ -403,14 +452,14 @@ pub fn build_entries_bound<const N: usize>(
 pub fn compute_pipeline_entry(
     ctx: &GpuContext,
     name: &str,
-    source: &str,
+    source: Shader,
     entry: &str,
     layout: &wgpu::BindGroupLayout,
     zero_init_workgroup_memory: bool,
 ) -> wgpu::ComputePipeline {
     let module = ctx.device().create_shader_module(wgpu::ShaderModuleDescriptor {
         label: Some(name),
-        source: wgpu::ShaderSource::Wgsl(compose_with(source, ctx.gradient_atomics()).into()),
+        source: wgpu::ShaderSource::Wgsl(compose_with(&source, ctx.gradient_atomics()).into()),
     });
     let pl = ctx.device().create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
         label: Some(&format!("{name} pipeline layout")),

@@ -9,7 +9,7 @@ use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of this kernel.
-pub const SOURCE: &str = super::shader_source!("occupancy.wgsl");
+pub const SOURCE: super::Shader = super::shader!("occupancy.wgsl", [OccupancyParams]);
 
 /// Most spans one ray keeps in the kernel (WGSL: `MAX_SPANS`).
 pub const MAX_SPANS: usize = 256;
@@ -39,7 +39,7 @@ pub struct OccupancyParams {
     pub resolution: u32,
     /// Half the side of the grid's cube (world units).
     pub bound: f32,
-    /// The side of one cell (world units).
+    /// The side of one cell (world units), `2 bound / resolution`, computed once on the host.
     pub cell_size: f32,
     /// Workgroups along x.
     pub groups_x: u32,
@@ -300,5 +300,5 @@ impl OccupancyKernel {
 super::wgsl_struct!(
     OccupancyParams,
     "Params",
-    [n_rays, n_samples, spacing, randomized, seed, step, resolution, bound, cell_size, groups_x, contracted,]
+    [n_rays, n_samples, spacing, randomized, seed, step, resolution, bound, cell_size, groups_x, contracted, _pad]
 );

@@ -11,9 +11,9 @@ use crate::kernels::occupancy::DeviceGrid;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of this kernel.
-pub const SOURCE: &str = super::shader_source!("occupancy_update.wgsl");
+pub const SOURCE: super::Shader = super::shader!("occupancy_update.wgsl", [OccupancyUpdateParams]);
 /// The WGSL source of the refresh of the occupied cells.
-pub const REFRESH_SOURCE: &str = super::shader_source!("occupancy_refresh.wgsl");
+pub const REFRESH_SOURCE: super::Shader = super::shader!("occupancy_refresh.wgsl", [RefreshParams]);
 
 /// The uniform block of `occupancy_refresh.wgsl` (`struct Params`), 32 bytes.
 #[repr(C)]
@@ -25,9 +25,9 @@ pub struct RefreshParams {
     pub n_cells: u32,
     /// Unused (0): every dilation is one dispatch.
     pub layer: u32,
-    /// 1: the warm-up is over.
+    /// 1: the warm-up is over (cells are occupied by their opacity, not all of them).
     pub warmed_up: u32,
-    /// The grid's threshold.
+    /// The grid's threshold (before its minimum with the mean).
     pub threshold: f32,
     /// Workgroups along x of the 2-D dispatch grid.
     pub groups_x: u32,
@@ -93,7 +93,7 @@ impl OccupancyRefreshKernel {
     }
 }
 
-super::wgsl_struct!(RefreshParams, "Params", [resolution, n_cells, layer, warmed_up, threshold, groups_x,]);
+super::wgsl_struct!(RefreshParams, "Params", [resolution, n_cells, layer, warmed_up, threshold, groups_x, pad0, pad1]);
 
 /// The uniform block of `occupancy_update.wgsl` (`struct Params`), 64 bytes.
 #[repr(C)]

@@ -9,7 +9,7 @@ use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of this kernel.
-pub const SOURCE: &str = super::shader_source!("render.wgsl");
+pub const SOURCE: super::Shader = super::shader!("render.wgsl", [RenderParams]);
 
 /// The uniform block of `render.wgsl` (`struct Params`), 64 bytes.
 #[repr(C)]
@@ -39,7 +39,9 @@ pub struct RenderParams {
     pub area_loss: u32,
     /// Workgroups along x.
     pub groups_x: u32,
-    /// Standard deviation of the training noise on raw density (0: none).
+    /// Standard deviation of the training noise on raw density (0: none), drawn from
+    /// mipnerf-core's `Stream::DensityNoise` of the ray's stream at this level
+    /// (`rng::ray_level_index`).
     pub density_noise: f32,
     /// Run seed (density noise).
     pub seed: u32,
@@ -47,7 +49,9 @@ pub struct RenderParams {
     pub step: u32,
     /// Level (density noise).
     pub level: u32,
-    /// Rays per pixel side (supersampled NeRF); 1: one ray per pixel.
+    /// Rays per pixel side (supersampled NeRF); 1: one ray per pixel. Above 1, `main` only
+    /// renders: the loss is the pixel's (the mean of its `k x k` rays' colours), computed with its
+    /// gradient by `pixel_backward`.
     pub supersample: u32,
 }
 

@@ -10,7 +10,7 @@ use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of these kernels.
-pub const SOURCE: &str = super::shader_source!("sample.wgsl");
+pub const SOURCE: super::Shader = super::shader!("sample.wgsl", [SampleParams]);
 
 /// Most samples per ray the resampling kernel handles (its CDF lives in private memory).
 pub const MAX_SAMPLES: usize = 1024;
@@ -32,7 +32,7 @@ pub struct SampleParams {
     pub seed: u32,
     /// Step.
     pub step: u32,
-    /// Level of the resampled edges.
+    /// Level of the resampled edges (picks the random stream).
     pub level: u32,
     /// Added to the blurred weights.
     pub resample_padding: f32,
@@ -191,5 +191,5 @@ impl SampleKernels {
 super::wgsl_struct!(
     SampleParams,
     "Params",
-    [n_rays, n_samples, spacing, randomized, seed, step, level, resample_padding, groups_x,]
+    [n_rays, n_samples, spacing, randomized, seed, step, level, resample_padding, groups_x, _pad]
 );

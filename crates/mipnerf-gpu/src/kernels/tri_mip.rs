@@ -29,7 +29,7 @@ use crate::kernels::{Recorder, WORKGROUP, dispatch_grid};
 use crate::{GpuContext, GpuError};
 
 /// The WGSL source of this kernel.
-pub const SOURCE: &str = super::shader_source!("tri_mip.wgsl");
+pub const SOURCE: super::Shader = super::shader!("tri_mip.wgsl", [TriMipParams]);
 
 /// Most levels one dispatch of the pyramid makes (WGSL: `PYRAMID_GROUP_LEVELS`; each invocation
 /// reads a block of `2^levels` texels a side, `PYRAMID_BLOCK_AREA` at most).
@@ -43,7 +43,7 @@ pub struct TriMipParams {
     pub n_rays: u32,
     /// Samples (intervals) per ray.
     pub n_samples: u32,
-    /// `RayShape` code.
+    /// `RayShape` code (`RAY_SHAPE_CONE` or `RAY_SHAPE_CYLINDER`).
     pub ray_shape: u32,
     /// Workgroups along x of the 2-D dispatch grid.
     pub groups_x: u32,
@@ -63,7 +63,7 @@ pub struct TriMipParams {
     pub level: u32,
     /// The total variation's weight over its number of neighbouring pairs.
     pub tv_scale: f32,
-    /// The levels `build_levels` makes.
+    /// The levels `build_levels` makes (at most `PYRAMID_GROUP_LEVELS`).
     pub group_levels: u32,
     /// 1: the rays buffer holds one Gaussian per sample, (mean, variance on each axis), in the
     /// planes' space (an occupancy grid's density probes); the edges are not read.

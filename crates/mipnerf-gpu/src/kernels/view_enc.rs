@@ -6,7 +6,7 @@ use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of this kernel.
-pub const SOURCE: &str = super::shader_source!("view_enc.wgsl");
+pub const SOURCE: super::Shader = super::shader!("view_enc.wgsl", [ViewEncParams]);
 
 /// The uniform block of `view_enc.wgsl` (`struct Params`), 16 bytes.
 #[repr(C)]
@@ -62,4 +62,4 @@ impl ViewEncKernel {
     }
 }
 
-super::wgsl_struct!(ViewEncParams, "Params", [n_rays, deg_view, groups_x]);
+super::wgsl_struct!(ViewEncParams, "Params", [n_rays, deg_view, groups_x, _pad]);
