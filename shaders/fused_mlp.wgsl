@@ -21,7 +21,8 @@
 // (`net_width`), the trunk's layers (`net_depth x net_width`, after their ReLU), the colour
 // branch's (`depth_condition x width_condition`, after their ReLU). The raw colours go to
 // `raw_rgb` (n x 3) and their gradient comes from `d_rgb`. The view direction's encoding enters
-// the first colour layer per sample (the CPU multiplies it once per ray: equal to rounding).
+// the first colour layer per sample (the CPU multiplies it once per ray: equal to rounding),
+// computed from the direction where it is read (the values `view_enc.wgsl` writes).
 
 // The uniform block `Params` is declared from the Rust struct `FusedMlpParams` (kernels/fused_mlp.rs).
 
@@ -34,8 +35,9 @@
 @group(0) @binding(3) var<uniform> colour_weights: array<vec4<f32>, MLP_UNIFORM_VEC4S>;
 // The encodings, n x x_dim.
 @group(0) @binding(4) var<storage, read> x: array<f32>;
-// The view directions' encodings, one row of view_dim per ray.
-@group(0) @binding(5) var<storage, read> view: array<f32>;
+// The view directions, three floats per ray: their encoding (`view_encoding.wgsl`, view_dim
+// values, of degrees 0..(view_dim - 3) / 6) is computed where it is read.
+@group(0) @binding(5) var<storage, read> view_dirs: array<f32>;
 @group(0) @binding(6) var<storage, read_write> acts: array<f32>;
 @group(0) @binding(7) var<storage, read_write> raw_rgb: array<f32>;
 @group(0) @binding(8) var<storage, read> d_rgb: array<f32>;
@@ -55,6 +57,17 @@ alias Activations = array<f32, MLP_MAX_WIDTH>;
 
 fn flat_index(gid: vec3<u32>) -> u32 {
     return gid.y * (p.groups_x * WORKGROUP) + gid.x;
+}
+
+// The direction of sample `s`'s ray.
+fn view_dir(s: u32) -> vec3<f32> {
+    let r = 3u * (s / p.samples_per_ray);
+    return vec3<f32>(view_dirs[r], view_dirs[r + 1u], view_dirs[r + 2u]);
+}
+
+// The view encoding's degrees (its width is 3 + 6 of them).
+fn view_degrees() -> u32 {
+    return (max(p.view_dim, 3u) - 3u) / 6u;
 }
 
 fn layer_count() -> u32 {
@@ -127,7 +140,11 @@ fn forward(@builtin(global_invocation_id) gid: vec3<u32>) {
         acts[r + 1u + o] = z;
     }
     // The first colour layer: [bottleneck | view encoding of the ray] in, into a.
-    let view_row = (s / p.samples_per_ray) * p.view_dim;
+    var view: Activations;
+    let dir = view_dir(s);
+    for (var k = 0u; k < p.view_dim; k = k + 1u) {
+        view[k] = view_encoding(dir, view_degrees(), k);
+    }
     let kernel_c = table[2u * d + 4u];
     let bias_c = table[2u * d + 5u];
     for (var o = 0u; o < wc; o = o + 1u) {
@@ -136,7 +153,7 @@ fn forward(@builtin(global_invocation_id) gid: vec3<u32>) {
             z = z + b[k] * colour_weight(kernel_c + k * wc + o);
         }
         for (var k = 0u; k < p.view_dim; k = k + 1u) {
-            z = z + view[view_row + k] * colour_weight(kernel_c + (w + k) * wc + o);
+            z = z + view[k] * colour_weight(kernel_c + (w + k) * wc + o);
         }
         a[o] = max(z, 0.0);
         acts[r + colour_at(0u) + o] = a[o];
@@ -265,7 +282,7 @@ fn job_input(source: u32, offset: u32, s: u32, k: u32, rows: u32, bias: bool) ->
         return x[s * p.x_dim + offset + k];
     }
     if (source == MLP_SOURCE_VIEW) {
-        return view[(s / p.samples_per_ray) * p.view_dim + offset + k];
+        return view_encoding(view_dir(s), view_degrees(), offset + k);
     }
     return acts[s * p.row + offset + k];
 }

@@ -21,9 +21,12 @@
 //   equal to rounding.
 // - `push_down`: the pyramid's gradients carried to level 0 through the box filters' adjoint,
 //   one invocation per level-0 value, nested from the coarsest level down as the CPU's
-//   `Pyramid::push_down` cascades them (the same operations in the same order).
-// - `total_variation`: TensoRF's regulariser of level 0, one invocation per row of a plane, as
-//   `tri_mip::total_variation` loops (its row's loss into `tv_rows`, summed on the host in f64).
+//   `Pyramid::push_down` cascades them (the same operations in the same order); then, where
+//   `tv_scale` is not 0, the gradient of TensoRF's total variation of level 0 at that value,
+//   added as `tri_mip::total_variation` adds it.
+// - `total_variation`: that regulariser's loss, one invocation per row of a plane, as
+//   `tri_mip::total_variation` loops (its row's sum into `tv_rows`, summed on the host in f64);
+//   for the steps that report their losses.
 
 // The uniform block `Params` is declared from the Rust struct `TriMipParams` (kernels/tri_mip.rs).
 
@@ -301,27 +304,50 @@ fn push_down(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = flat_index(gid);
     let r = params.resolution;
     let c = params.features;
-    if (i >= 3u * r * r * c || params.levels < 2u) {
+    if (i >= 3u * r * r * c) {
         return;
     }
+    var g = load_grads(i);
     let f = i % c;
     let texel = i / c;
     let u = texel % r;
     let v = (texel / r) % r;
     let plane = texel / (r * r);
-    let top = params.levels - 1u;
-    var acc = 0.0;
-    for (var l = top; l >= 1u; l = l - 1u) {
-        let s = side_at(l);
-        let at = level_base(l) + ((plane * s + (v >> l)) * s + (u >> l)) * c + f;
-        let own = load_grad_pyramid(at);
-        if (l == top) {
-            acc = own;
-        } else {
-            acc = own + 0.25 * acc;
+    if (params.levels >= 2u) {
+        let top = params.levels - 1u;
+        var acc = 0.0;
+        for (var l = top; l >= 1u; l = l - 1u) {
+            let s = side_at(l);
+            let at = level_base(l) + ((plane * s + (v >> l)) * s + (u >> l)) * c + f;
+            let own = load_grad_pyramid(at);
+            if (l == top) {
+                acc = own;
+            } else {
+                acc = own + 0.25 * acc;
+            }
         }
+        g = g + 0.25 * acc;
     }
-    store_grads(i, load_grads(i) + 0.25 * acc);
+    if (params.tv_scale != 0.0 && r >= 2u) {
+        // The value's differences with its neighbours along u, then v (the CPU's order).
+        let x = model_params[i];
+        let row = r * c;
+        var d = 0.0;
+        if (u > 0u) {
+            d = d + (x - model_params[i - c]);
+        }
+        if (u + 1u < r) {
+            d = d + (x - model_params[i + c]);
+        }
+        if (v > 0u) {
+            d = d + (x - model_params[i - row]);
+        }
+        if (v + 1u < r) {
+            d = d + (x - model_params[i + row]);
+        }
+        g = g + 2.0 * params.tv_scale * d;
+    }
+    store_grads(i, g);
 }
 
 @compute @workgroup_size(WORKGROUP)
@@ -338,24 +364,14 @@ fn total_variation(@builtin(global_invocation_id) gid: vec3<u32>) {
     var acc = 0.0;
     for (var i = 0u; i < row; i = i + 1u) {
         let x = model_params[here + i];
-        var d = 0.0;
-        if (i >= c) {
-            d = d + (x - model_params[here + i - c]);
-        }
         if (i + c < row) {
             let e = x - model_params[here + i + c];
-            d = d + e;
             acc = acc + e * e;
-        }
-        if (v > 0u) {
-            d = d + (x - model_params[here - row + i]);
         }
         if (v + 1u < size) {
             let e = x - model_params[here + row + i];
-            d = d + e;
             acc = acc + e * e;
         }
-        store_grads(here + i, load_grads(here + i) + 2.0 * params.tv_scale * d);
     }
     tv_rows[r] = acc;
 }

@@ -61,10 +61,13 @@ fn main() {
         let p = ctx.storage_buffer("params", &params, true);
         let g = ctx.storage_buffer("grads", &vec![0.0f32; shape.num_params], false);
         let dr = ctx.storage_buffer("d rgb", &vec![0.01f32; n * 3], false);
+        // The rays' directions (the fused kernels' view input; these shapes run as products).
+        let dirs = ctx.storage_buffer("view directions", &vec![0.577f32; n_rays * 3], false);
         let (dd, stride) = bufs.d_raw_density();
         ctx.queue().write_buffer(dd, 0, bytemuck::cast_slice(&vec![0.01f32; n * stride]));
-        let fwd = time(&ctx, reps, |rec| mlp.forward(rec, &shape, &p, &bufs));
-        let bwd = time(&ctx, reps, |rec| mlp.backward(rec, &shape, &p, &bufs, &dr, &g).expect("backward"));
+        let fwd = time(&ctx, reps, |rec| mlp.forward(rec, &shape, &p, &bufs, &dirs));
+        let pg = mipnerf_gpu::mlp::ParamBuffers { params: &p, grads: &g };
+        let bwd = time(&ctx, reps, |rec| mlp.backward(rec, &shape, pg, &bufs, &dr, &dirs).expect("backward"));
         let fwd_flops: f64 = shape.layers.iter().map(|l| 2.0 * (l.fan_in * l.fan_out) as f64).sum::<f64>() * n as f64;
         let bwd_flops = shape.flops_per_sample() * n as f64 - fwd_flops;
         println!(

@@ -142,6 +142,12 @@ impl MlpBuffers {
         fused_mlp::fits(shape)
     }
 
+    /// Whether these buffers' passes run fused.
+    #[must_use]
+    pub fn runs_fused_passes(&self) -> bool {
+        matches!(self.passes, Passes::Fused(_))
+    }
+
     /// Floats per sample of these buffers for `shape` (the encodings' gradient aside): the
     /// encodings, what the passes keep, the raw colours, and the product kernels' gradient
     /// scratch.
@@ -253,12 +259,12 @@ impl MlpBuffers {
         own + passes + self.d_x.as_ref().map_or(0, wgpu::Buffer::size)
     }
 
-    fn fused_batch(&self) -> FusedBatch<'_> {
+    fn fused_batch<'a>(&'a self, view_dirs: &'a wgpu::Buffer) -> FusedBatch<'a> {
         FusedBatch {
             n: self.n,
             samples_per_ray: self.samples_per_ray(),
             x: &self.x,
-            view: &self.view,
+            view_dirs,
             raw_rgb: &self.raw_rgb,
             d_x: self.d_x.as_ref(),
         }
@@ -294,11 +300,13 @@ impl<'a> LayerRun<'a> {
     }
 }
 
-/// The parameters and the gradient they are added to.
-#[derive(Clone, Copy)]
-struct ParamBuffers<'a> {
-    params: &'a wgpu::Buffer,
-    grads: &'a wgpu::Buffer,
+/// The model's parameters and their gradient, as a pass reads them and adds to it.
+#[derive(Clone, Copy, Debug)]
+pub struct ParamBuffers<'a> {
+    /// The parameters.
+    pub params: &'a wgpu::Buffer,
+    /// Their gradient, added to.
+    pub grads: &'a wgpu::Buffer,
 }
 
 /// Where a layer's backward pass puts the gradient of its first input part.
@@ -397,11 +405,20 @@ impl GpuMlp {
     }
 
     /// Records the forward pass: fills `bufs.raw_rgb` and the raw densities
-    /// ([`MlpBuffers::raw_density`]) from `bufs.x` and `bufs.view`.
-    pub fn forward(&self, rec: &mut Recorder<'_>, shape: &MlpShape, params: &wgpu::Buffer, bufs: &MlpBuffers) {
+    /// ([`MlpBuffers::raw_density`]) from `bufs.x` and the view encodings (the product kernels
+    /// read `bufs.view`; the fused kernels encode the rays' directions `view_dirs` as they read
+    /// them).
+    pub fn forward(
+        &self,
+        rec: &mut Recorder<'_>,
+        shape: &MlpShape,
+        params: &wgpu::Buffer,
+        bufs: &MlpBuffers,
+        view_dirs: &wgpu::Buffer,
+    ) {
         match &bufs.passes {
             Passes::Products(pb) => self.forward_products(rec, shape, params, bufs, pb),
-            Passes::Fused(f) => self.fused.forward(rec, shape, params, &bufs.fused_batch(), f),
+            Passes::Fused(f) => self.fused.forward(rec, shape, params, &bufs.fused_batch(view_dirs), f),
         }
     }
 
@@ -489,22 +506,24 @@ impl GpuMlp {
     /// gradient of the encodings to [`MlpBuffers::d_x`] where there is one (the encodings
     /// entering the first layer only: no skip connection).
     ///
+    /// The view encodings are the forward pass's (`view_dirs` as there).
+    ///
     /// # Errors
     /// A batch too large for one dispatch.
     pub fn backward(
         &self,
         rec: &mut Recorder<'_>,
         shape: &MlpShape,
-        params: &wgpu::Buffer,
+        pg: ParamBuffers<'_>,
         bufs: &MlpBuffers,
         d_raw_rgb: &wgpu::Buffer,
-        grads: &wgpu::Buffer,
+        view_dirs: &wgpu::Buffer,
     ) -> Result<(), GpuError> {
         match &bufs.passes {
-            Passes::Products(pb) => {
-                self.backward_products(rec, shape, ParamBuffers { params, grads }, bufs, pb, d_raw_rgb);
+            Passes::Products(pb) => self.backward_products(rec, shape, pg, bufs, pb, d_raw_rgb),
+            Passes::Fused(f) => {
+                self.fused.backward(rec, shape, &bufs.fused_batch(view_dirs), f, d_raw_rgb, pg.grads)?;
             }
-            Passes::Fused(f) => self.fused.backward(rec, shape, &bufs.fused_batch(), f, d_raw_rgb, grads)?,
         }
         Ok(())
     }

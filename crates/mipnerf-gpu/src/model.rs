@@ -27,7 +27,7 @@ use crate::kernels::render::{RenderBuffers, RenderKernel, RenderParams, backgrou
 use crate::kernels::sample::{CoarseLevel, SampleKernels};
 use crate::kernels::tri_mip::{FieldBuffers, PlaneField, Samples, TriMipKernel, total_variation_loss};
 use crate::kernels::view_enc::ViewEncKernel;
-use crate::mlp::{GpuMlp, MlpBuffers};
+use crate::mlp::{GpuMlp, MlpBuffers, ParamBuffers};
 use crate::{GpuContext, GpuError};
 
 /// The per-level intermediates of a batch of `n_rays` rays: edges, MLP activations, weights,
@@ -295,7 +295,10 @@ impl GpuModel {
         let level_w = model.level_weights();
         rec.context().count_model_rays(nr);
         let bufs = &work.mlp;
-        self.view.encode(rec, nr, c.deg_view, &batch.viewdirs, &bufs.view)?;
+        // The fused MLP encodes the view directions where it reads them.
+        if !bufs.runs_fused_passes() {
+            self.view.encode(rec, nr, c.deg_view, &batch.viewdirs, &bufs.view)?;
+        }
         for level in 0..c.num_levels {
             let t = &work.t_vals;
             if level == 0 {
@@ -317,7 +320,7 @@ impl GpuModel {
             self.encode_samples(rec, model, params, samples, work)?;
             // One MLP for all levels, or one per level (the same shape at its own offset).
             let shape = &model.mlps()[if c.separate_mlps { level } else { 0 }];
-            self.mlp.forward(rec, shape, params, bufs);
+            self.mlp.forward(rec, shape, params, bufs, &batch.viewdirs);
             let rb = RenderBuffers {
                 raw_rgb: &bufs.raw_rgb,
                 raw_density: bufs.raw_density().0,
@@ -339,7 +342,8 @@ impl GpuModel {
             }
             self.render.encode(rec, rp, &rb)?;
             if let Some(g) = grads {
-                self.mlp.backward(rec, shape, params, bufs, &work.d_rgb, g)?;
+                let pg = ParamBuffers { params, grads: g };
+                self.mlp.backward(rec, shape, pg, bufs, &work.d_rgb, &batch.viewdirs)?;
                 self.field_backward(rec, model, samples, work, g)?;
             }
         }
@@ -492,7 +496,8 @@ impl GpuModel {
             self.occupancy_update.place_probes(rec, up, bufs)?;
             let samples = Samples { rays: probes, t_vals: &work.t_vals[0], n_rays: rays, n_samples: s, probes: true };
             self.encode_samples(rec, model, params, samples, work)?;
-            self.mlp.forward(rec, &model.mlps()[0], params, &work.mlp);
+            // Density alone is read: the colour branch's view input is any buffer.
+            self.mlp.forward(rec, &model.mlps()[0], params, &work.mlp, probes);
             self.occupancy_update.update_opacity(rec, up, bufs)?;
         }
         work.set_active(active)?;
@@ -503,7 +508,9 @@ impl GpuModel {
     /// After every chunk of a training step: the pyramid's gradient pushed down into the
     /// planes' (level 0's, in `grads`), and the planes' total variation, weighted by
     /// `planes_tv_mult`, added to it (the CPU's `field_backward_chunks` and
-    /// `field_regulariser`). Nothing for the Mip-NeRF field.
+    /// `field_regulariser`), in one dispatch; for a step whose losses are read (`losses_read`),
+    /// the total variation's loss too ([`read_planes_tv`](Self::read_planes_tv)). Nothing for
+    /// the Mip-NeRF field.
     ///
     /// # Errors
     /// Planes too large for one dispatch.
@@ -514,12 +521,14 @@ impl GpuModel {
         params: &wgpu::Buffer,
         work: &ModelBuffers,
         grads: &wgpu::Buffer,
+        losses_read: bool,
     ) -> Result<(), GpuError> {
         let (Some(f), Some(bufs)) = (PlaneField::of(model), &work.field) else { return Ok(()) };
-        self.tri_mip.push_down(rec, &f, grads, bufs)?;
         let weight = model.config().planes_tv_mult;
-        if weight > 0.0 {
-            self.tri_mip.total_variation(rec, &f, weight, params, grads, bufs)?;
+        let planes_tv = (weight > 0.0).then_some((weight, params));
+        self.tri_mip.push_down(rec, &f, planes_tv, grads, bufs)?;
+        if planes_tv.is_some() && losses_read {
+            self.tri_mip.total_variation(rec, &f, params, bufs)?;
         }
         Ok(())
     }
@@ -685,12 +694,12 @@ impl GpuModel {
             let mut compaction = Compaction::new(ctx, rays.len(), model.config().num_levels);
             compaction.upload(ctx, &kept, rays.len())?;
             self.encode_compacted(&mut rec, pass, &batch, &mut compaction, &mut work)?;
-            self.finish_field(&mut rec, model, &params_buf, &work, &grads)?;
+            self.finish_field(&mut rec, model, &params_buf, &work, &grads, true)?;
             let _ = rec.submit();
             self.read_losses(ctx, model, &batch, &compaction.outs)?
         } else {
             self.encode(&mut rec, pass, &batch, &work)?;
-            self.finish_field(&mut rec, model, &params_buf, &work, &grads)?;
+            self.finish_field(&mut rec, model, &params_buf, &work, &grads, true)?;
             let _ = rec.submit();
             self.read_losses(ctx, model, &batch, &work.ray_out)?
         };

@@ -382,12 +382,15 @@ impl GpuBackend {
         };
         let src: &RayBatch = kept.as_deref().map_or(&*batch, |c| &c.batch);
         encode_batch(&self.kernels, &mut rec, pass, (src, n_src), work, chunks.as_mut())?;
-        // Every level's outputs in batch order, for the losses: the background for the rays that
-        // were not kept.
+        // Every level's outputs in batch order, for the losses a report reads: the background
+        // for the rays that were not kept (a step that does not report reads no loss, and the
+        // gradient is the kept rays' alone, so it puts nothing back).
         let ray_out: &[wgpu::Buffer] = match (&kept, chunks.as_ref()) {
             (Some(c), chunked) => {
-                let kept_out = chunked.map_or(&work.ray_out, |(_, outs)| outs);
-                self.kernels.expand_outputs(&mut rec, &self.model, mode, batch, c, kept_out)?;
+                if report {
+                    let kept_out = chunked.map_or(&work.ray_out, |(_, outs)| outs);
+                    self.kernels.expand_outputs(&mut rec, &self.model, mode, batch, c, kept_out)?;
+                }
                 &c.outs
             }
             (None, Some((_, outs))) => outs,
@@ -400,7 +403,7 @@ impl GpuBackend {
             max_norm: self.optim.grad_max_norm,
             split: self.optim.field.map(|f| (self.model.field_params(), f)),
         };
-        self.kernels.finish_field(&mut rec, &self.model, &self.state.params, work, &self.state.grads)?;
+        self.kernels.finish_field(&mut rec, &self.model, &self.state.params, work, &self.state.grads, report)?;
         self.adam_kernel.encode(&mut rec, &adam, self.adam_t + 1, &self.state)?;
         self.train_cache = rec.submit();
         self.adam_t += 1;

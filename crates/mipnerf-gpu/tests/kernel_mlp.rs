@@ -12,11 +12,13 @@ use common::*;
 const TOL_GPU_MLP_REL: f32 = 2e-4;
 const TOL_GPU_MLP_ABS: f32 = 2e-5;
 
-/// The inputs of one MLP pass: parameters, point features, view features, and the gradients of
+/// The inputs of one MLP pass: parameters, point features, view directions and their encoding
+/// (what the product kernels read; the fused ones encode the directions), and the gradients of
 /// the raw outputs.
 struct MlpCase {
     params: Vec<f32>,
     x: Vec<f32>,
+    view_dirs: Vec<f32>,
     view: Vec<f32>,
     d_rgb: Vec<f32>,
     d_density: Vec<f32>,
@@ -35,10 +37,20 @@ impl MlpCase {
     ) -> Self {
         use rand::Rng;
         let n = n_rays * spr;
+        let deg_view = (cfg.view_dim - 3) / 6;
+        assert_eq!(cfg.view_dim, 3 + 6 * deg_view, "a view encoding of degrees 0..{deg_view}");
+        let dirs: Vec<glam::Vec3> = (0..n_rays)
+            .map(|_| glam::Vec3::from_array([0; 3].map(|_| rng.random_range(-1.0f32..1.0))).normalize_or(glam::Vec3::Z))
+            .collect();
+        let mut view = vec![0.0; n_rays * cfg.view_dim];
+        for (d, out) in dirs.iter().zip(view.chunks_exact_mut(cfg.view_dim)) {
+            mipnerf_core::mip::pos_enc(*d, 0, deg_view as u32, true, out);
+        }
         Self {
             params,
             x: (0..n * cfg.x_dim).map(|_| rng.random_range(-1.0..1.0)).collect(),
-            view: (0..n_rays * cfg.view_dim).map(|_| rng.random_range(-1.0..1.0)).collect(),
+            view_dirs: dirs.iter().flat_map(|d| d.to_array()).collect(),
+            view,
             d_rgb: (0..n * 3).map(|_| rng.random_range(-1.0..1.0)).collect(),
             d_density: (0..n).map(|_| rng.random_range(-1.0..1.0)).collect(),
             n_rays,
@@ -87,6 +99,7 @@ fn mlp_on_gpu(
     }
     ctx.queue().write_buffer(&bufs.x, 0, bytemuck::cast_slice(&c.x));
     ctx.queue().write_buffer(&bufs.view, 0, bytemuck::cast_slice(&c.view));
+    let view_dirs = ctx.storage_buffer("view directions", &c.view_dirs, false);
     let p = ctx.storage_buffer("params", &c.params, true);
     let g = ctx.storage_buffer("grads", &vec![0.0f32; c.params.len()], true);
     let dr = ctx.storage_buffer("d rgb", &c.d_rgb, false);
@@ -99,8 +112,9 @@ fn mlp_on_gpu(
     }
     ctx.queue().write_buffer(dd, 0, bytemuck::cast_slice(&strided));
     let mut rec = Recorder::new(ctx, "mlp test");
-    gpu.forward(&mut rec, shape, &p, &bufs);
-    gpu.backward(&mut rec, shape, &p, &bufs, &dr, &g)?;
+    gpu.forward(&mut rec, shape, &p, &bufs, &view_dirs);
+    let pg = mipnerf_gpu::mlp::ParamBuffers { params: &p, grads: &g };
+    gpu.backward(&mut rec, shape, pg, &bufs, &dr, &view_dirs)?;
     let _ = rec.submit();
     let (heads, stride) = bufs.raw_density();
     let density = ctx.read_f32(heads, n * stride)?.iter().step_by(stride).copied().collect();

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use mipnerf_gpu::GradientAtomics;
 use mipnerf_gpu::kernels::{
-    ALL_SOURCES, SHARED_SOURCES, WgslStruct,
+    ALL_SOURCES, INCLUDED_SOURCES, SHARED_SOURCES, WgslStruct,
     adam::AdamParams,
     batch::{BatchParams, GpuView},
     cast_ipe::CastIpeParams,
@@ -49,9 +49,9 @@ fn every_shader_file_parses_and_validates_as_composed() {
     for path in &files {
         let src = std::fs::read_to_string(path).unwrap();
         let name = path.file_name().unwrap().to_string_lossy().to_string();
-        if let Some((_, shared)) = SHARED_SOURCES.iter().find(|(n, _)| *n == name) {
-            // The shared files, composed in front of every kernel; each also valid on its own
-            // after the generated constants.
+        if let Some((_, shared)) = SHARED_SOURCES.iter().chain(&INCLUDED_SOURCES).find(|(n, _)| *n == name) {
+            // The shared files, composed in front of every kernel or of those that include them;
+            // each also valid on its own after the generated constants.
             assert_eq!(&src, shared, "{name} differs from the kernels' shared source");
             if let Err(e) = parse_and_validate(&name, &format!("{}\n{src}", prelude())) {
                 failures.push(e);
@@ -225,7 +225,8 @@ fn no_kernel_tests_for_nan_by_self_comparison_or_relies_on_fma() {
         found
     }
     let mut bad = Vec::new();
-    let files = ALL_SOURCES.iter().map(|s| (s.file, s.own)).chain(SHARED_SOURCES.iter().copied());
+    let files =
+        ALL_SOURCES.iter().map(|s| (s.file, s.own)).chain(SHARED_SOURCES.iter().chain(&INCLUDED_SOURCES).copied());
     for (name, src) in files {
         bad.extend(offences(src).into_iter().map(|o| format!("{name} {o}")));
     }

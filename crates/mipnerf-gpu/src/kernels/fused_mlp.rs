@@ -28,7 +28,7 @@ use crate::kernels::{Binding, Recorder, WORKGROUP, dispatch_grid};
 use crate::{GpuContext, GpuError};
 
 /// The WGSL source of these kernels.
-pub const SOURCE: super::Shader = super::shader!("fused_mlp.wgsl", [FusedMlpParams]);
+pub const SOURCE: super::Shader = super::shader!("fused_mlp.wgsl", [FusedMlpParams], includes["view_encoding.wgsl"]);
 
 /// The widest layer (and input) the fused kernels take: the size of their two private arrays
 /// of activations (WGSL: `MLP_MAX_WIDTH`).
@@ -132,7 +132,7 @@ super::wgsl_struct!(
 pub fn fits(shape: &MlpShape) -> bool {
     let c = &shape.config;
     let no_skip = (0..c.net_depth).all(|i| !shape.concat_after(i));
-    let narrow = c.net_width.max(c.net_width_condition).max(c.x_dim) <= MAX_WIDTH;
+    let narrow = c.net_width.max(c.net_width_condition).max(c.x_dim).max(c.view_dim) <= MAX_WIDTH;
     no_skip && narrow && weight_parts(shape).iter().all(|&(_, len)| len <= UNIFORM_FLOATS)
 }
 
@@ -273,8 +273,9 @@ pub struct FusedBatch<'a> {
     pub samples_per_ray: usize,
     /// The encodings, `n x x_dim`.
     pub x: &'a wgpu::Buffer,
-    /// The view encodings, `n / samples_per_ray x view_dim`.
-    pub view: &'a wgpu::Buffer,
+    /// The rays' view directions, `n / samples_per_ray x 3` (their encoding is computed where
+    /// it is read).
+    pub view_dirs: &'a wgpu::Buffer,
     /// Raw colours, `n x 3`.
     pub raw_rgb: &'a wgpu::Buffer,
     /// The encodings' gradient, written where given.
@@ -297,7 +298,8 @@ impl FusedMlpKernel {
     /// If the device rejects them.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
         let (read, write) = (Binding::Storage { read_only: true }, Binding::Storage { read_only: false });
-        // table, the two blocks of weights, x, view, acts, raw_rgb, d_rgb, d_acts, d_x, grads.
+        // table, the two blocks of weights, x, view directions, acts, raw_rgb, d_rgb, d_acts, d_x,
+        // grads.
         let bindings = [read, Binding::Uniform, Binding::Uniform, read, read, write, write, read, write, write, write];
         let entries = ["forward", "backward_samples", "weight_gradients"];
         let ([forward, backward_samples, weight_gradients], layout) =
@@ -332,7 +334,7 @@ impl FusedMlpKernel {
     }
 
     /// Records the forward pass: `bufs.acts` and `batch.raw_rgb` from `batch.x` and
-    /// `batch.view`, the weights copied from `params` to the uniform blocks first.
+    /// `batch.view_dirs`, the weights copied from `params` to the uniform blocks first.
     /// `params` must allow copies from it (`COPY_SRC`), as the trainer's parameters do.
     pub fn forward(
         &self,
@@ -348,7 +350,8 @@ impl FusedMlpKernel {
         let (p, grid) = Self::params(shape, batch, bufs);
         let [u0, u1, u2] = &bufs.unused;
         let [wt, wc] = &bufs.weights;
-        let buffers = [&bufs.table, wt, wc, batch.x, batch.view, &bufs.acts, batch.raw_rgb, u0, &bufs.d_acts, u1, u2];
+        let buffers =
+            [&bufs.table, wt, wc, batch.x, batch.view_dirs, &bufs.acts, batch.raw_rgb, u0, &bufs.d_acts, u1, u2];
         rec.dispatch("fused_mlp forward", &self.forward, &self.layout, &p, &buffers, grid);
     }
 
@@ -373,7 +376,7 @@ impl FusedMlpKernel {
         let d_x = batch.d_x.unwrap_or(&bufs.unused[1]);
         let [wt, wc] = &bufs.weights;
         let buffers =
-            [&bufs.table, wt, wc, batch.x, batch.view, &bufs.acts, batch.raw_rgb, d_rgb, &bufs.d_acts, d_x, grads];
+            [&bufs.table, wt, wc, batch.x, batch.view_dirs, &bufs.acts, batch.raw_rgb, d_rgb, &bufs.d_acts, d_x, grads];
         rec.dispatch("fused_mlp backward", &self.backward_samples, &self.layout, &p, &buffers, grid);
         let (gx, gy) = dispatch_grid(u64::from(p.blocks) * u64::from(p.runs), WORKGROUP)?;
         let p = FusedMlpParams { groups_x: gx, ..p };

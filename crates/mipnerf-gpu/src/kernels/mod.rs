@@ -97,16 +97,27 @@ pub struct Shader {
     pub own: &'static str,
     /// The declarations of the host's structs it reads, in order ([`WgslStruct::declaration`]).
     pub structs: &'static [fn() -> String],
+    /// Files of `shaders/` whose functions it calls besides the [`SHARED_SOURCES`], by name,
+    /// composed in front of it in order ([`INCLUDED_SOURCES`]).
+    pub includes: &'static [(&'static str, &'static str)],
 }
 
-/// The [`Shader`] of a file of `shaders/` and the `#[repr(C)]` structs (each a [`WgslStruct`])
-/// whose declarations go in front of it.
+/// `shaders/view_encoding.wgsl`: a view direction's positional encoding, one value at a time,
+/// for the kernels that write it and the fused MLP that reads it where it needs it.
+pub const VIEW_ENCODING_SOURCE: &str = shader_source!("view_encoding.wgsl");
+
+/// The files some kernels include ([`Shader::includes`]), by name.
+pub const INCLUDED_SOURCES: [(&str, &str); 1] = [("view_encoding.wgsl", VIEW_ENCODING_SOURCE)];
+
+/// The [`Shader`] of a file of `shaders/`, the `#[repr(C)]` structs (each a [`WgslStruct`])
+/// whose declarations go in front of it, and the files it includes (of [`INCLUDED_SOURCES`]).
 macro_rules! shader {
-    ($file:literal, [$($t:ty),* $(,)?]) => {
+    ($file:literal, [$($t:ty),* $(,)?] $(, includes [$($inc:literal),* $(,)?])?) => {
         $crate::kernels::Shader {
             file: $file,
             own: $crate::kernels::shader_source!($file),
             structs: &[$(<$t as $crate::kernels::WgslStruct>::declaration),*],
+            includes: &[$($(($inc, $crate::kernels::shader_source!($inc))),*)?],
         }
     };
 }
@@ -120,13 +131,14 @@ pub fn compose(shader: &Shader) -> String {
     compose_with(shader, GradientAtomics::CompareExchange)
 }
 
-/// A kernel's complete WGSL: the generated [`prelude`], the [`SHARED_SOURCES`], the declarations
-/// of the host's structs it reads, the kernel's own file, and for each of its buffers declared
+/// A kernel's complete WGSL: the generated [`prelude`], the [`SHARED_SOURCES`], the files it
+/// includes, the declarations of the host's structs it reads, the kernel's own file, and for
+/// each of its buffers declared
 /// `array<GradientAtomic>` the functions that load, store and add to it ([`gradient_atomics`]).
 /// What the device compiles and the naga test validates.
 #[must_use]
 pub fn compose_with(shader: &Shader, atomics: GradientAtomics) -> String {
-    let shared: Vec<&str> = SHARED_SOURCES.iter().map(|(_, src)| *src).collect();
+    let shared: Vec<&str> = SHARED_SOURCES.iter().chain(shader.includes).map(|(_, src)| *src).collect();
     let structs: String = shader.structs.iter().map(|declaration| declaration()).collect();
     let own = shader.own;
     format!("{}\n{}\n{structs}\n{own}\n{}", prelude(), shared.join("\n"), gradient_atomics(own, atomics))

@@ -336,8 +336,10 @@ impl TriMipKernel {
         self.dispatch(rec, ("tri_mip scatter_planes", &self.scatter), p, n, buffers)
     }
 
-    /// Records the push-down of `bufs.grad_pyramid` into level 0's gradient in `grads` (one
-    /// dispatch; the pyramid's gradient is left as it is: clear it before the next step).
+    /// Records the push-down of `bufs.grad_pyramid` into level 0's gradient in `grads`, and with
+    /// `planes_tv` (a weight and the parameters, level 0 first) that weight times the gradient of
+    /// level 0's total variation added there too, in one dispatch (the pyramid's gradient is left
+    /// as it is: clear it before the next step). The loss is [`total_variation`](Self::total_variation)'s.
     ///
     /// # Errors
     /// Planes too large for one dispatch.
@@ -345,18 +347,22 @@ impl TriMipKernel {
         &self,
         rec: &mut Recorder<'_>,
         field: &PlaneField,
+        planes_tv: Option<(f32, &wgpu::Buffer)>,
         grads: &wgpu::Buffer,
         bufs: &FieldBuffers,
     ) -> Result<(), GpuError> {
         let (r, s) = (&bufs.unused_read, &bufs.unused_samples);
         let n = field.planes.num_params() as u64;
-        let buffers = [r, r, r, &bufs.pyramid, s, grads, &bufs.grad_pyramid, &bufs.tv_rows];
-        self.dispatch(rec, ("tri_mip push_down", &self.push_down), field.params(0, 0), n, buffers)
+        let (tv_scale, params) =
+            planes_tv.map_or((0.0, r), |(w, params)| (total_variation_scale(&field.planes, w), params));
+        let p = TriMipParams { tv_scale, ..field.params(0, 0) };
+        let buffers = [r, r, params, &bufs.pyramid, s, grads, &bufs.grad_pyramid, &bufs.tv_rows];
+        self.dispatch(rec, ("tri_mip push_down", &self.push_down), p, n, buffers)
     }
 
-    /// Records `weight` times the total variation of level 0 (in `params`): its gradient
-    /// **added** to `grads`, each row's sum of squared differences into `bufs.tv_rows` (the loss
-    /// is [`total_variation_loss`] of them).
+    /// Records the sums of squared neighbour differences of level 0 (in `params`), a row each,
+    /// into `bufs.tv_rows`: the total variation's loss is [`total_variation_loss`] of them (its
+    /// gradient is [`push_down`](Self::push_down)'s).
     ///
     /// # Errors
     /// Planes too large for one dispatch.
@@ -364,16 +370,13 @@ impl TriMipKernel {
         &self,
         rec: &mut Recorder<'_>,
         field: &PlaneField,
-        weight: f32,
         params: &wgpu::Buffer,
-        grads: &wgpu::Buffer,
         bufs: &FieldBuffers,
     ) -> Result<(), GpuError> {
-        let p = TriMipParams { tv_scale: total_variation_scale(&field.planes, weight), ..field.params(0, 0) };
-        let (r, s) = (&bufs.unused_read, &bufs.unused_samples);
+        let (r, s, g) = (&bufs.unused_read, &bufs.unused_samples, &bufs.unused_grads);
         let n = 3 * field.planes.resolution as u64;
-        let buffers = [r, r, params, &bufs.pyramid, s, grads, &bufs.grad_pyramid, &bufs.tv_rows];
-        self.dispatch(rec, ("tri_mip total_variation", &self.total_variation), p, n, buffers)
+        let buffers = [r, r, params, &bufs.pyramid, s, g, &bufs.grad_pyramid, &bufs.tv_rows];
+        self.dispatch(rec, ("tri_mip total_variation", &self.total_variation), field.params(0, 0), n, buffers)
     }
 }
 
@@ -464,13 +467,13 @@ impl TriMipKernel {
         let samples = Samples { rays: &ray_buf, t_vals: &t_buf, n_rays: rays.len(), n_samples, probes: false };
         let mut rec = Recorder::new(ctx, "tri_mip backward");
         self.scatter(&mut rec, field, samples, &d_x_buf, &grads, &bufs)?;
-        self.push_down(&mut rec, field, &grads, &bufs)?;
+        self.push_down(&mut rec, field, None, &grads, &bufs)?;
         let _ = rec.submit();
         ctx.read_f32(&grads, n_params)
     }
 
     /// `weight` times the planes' total variation of level 0 (`params`): the loss and its
-    /// gradient.
+    /// gradient (the push-down's, of a pyramid whose gradient is 0).
     ///
     /// # Errors
     /// Any error wgpu reports.
@@ -486,7 +489,8 @@ impl TriMipKernel {
         let params_buf = ctx.storage_buffer("tri_mip params", params, false);
         let grads = ctx.storage_buffer("tri_mip gradient", &vec![0.0f32; params.len()], true);
         let mut rec = Recorder::new(ctx, "tri_mip total variation");
-        self.total_variation(&mut rec, field, weight, &params_buf, &grads, &bufs)?;
+        self.push_down(&mut rec, field, Some((weight, &params_buf)), &grads, &bufs)?;
+        self.total_variation(&mut rec, field, &params_buf, &bufs)?;
         let _ = rec.submit();
         let rows = ctx.read_f32(&bufs.tv_rows, 3 * field.planes.resolution)?;
         Ok((total_variation_loss(&field.planes, weight, &rows), ctx.read_f32(&grads, params.len())?))

@@ -6,7 +6,7 @@ use crate::kernels::Recorder;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of this kernel.
-pub const SOURCE: super::Shader = super::shader!("view_enc.wgsl", [ViewEncParams]);
+pub const SOURCE: super::Shader = super::shader!("view_enc.wgsl", [ViewEncParams], includes["view_encoding.wgsl"]);
 
 /// The uniform block of `view_enc.wgsl` (`struct Params`), 16 bytes.
 #[repr(C)]
