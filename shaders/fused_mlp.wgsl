@@ -46,8 +46,6 @@
 // The parameters' gradient (`add_to_grads` is generated: kernels::gradient_atomics).
 @group(0) @binding(11) var<storage, read_write> grads: array<GradientAtomic>;
 
-alias Activations = array<f32, MLP_MAX_WIDTH>;
-
 // A job of `weight_gradients` (MLP_JOB_WORDS words): the input's source and offset, the output
 // gradient's source and offset, input rows (bias not counted), columns, the kernel rows' and the
 // bias's offsets in `grads` from `p.base` (MLP_NO_BIAS: none), the job's first 4 x 4 block.
@@ -72,10 +70,6 @@ fn view_degrees() -> u32 {
 
 fn layer_count() -> u32 {
     return p.net_depth + 3u + p.depth_condition;
-}
-
-fn trunk_weight(i: u32) -> f32 {
-    return trunk_weights[i >> 2u][i & 3u];
 }
 
 fn colour_weight(i: u32) -> f32 {
@@ -109,26 +103,15 @@ fn forward(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     var fan_in = p.x_dim;
     for (var i = 0u; i < d; i = i + 1u) {
-        let kernel = table[2u * i];
-        let bias = table[2u * i + 1u];
+        b = trunk_layer(i, fan_in, w, &a);
         for (var o = 0u; o < w; o = o + 1u) {
-            var z = trunk_weight(bias + o);
-            for (var k = 0u; k < fan_in; k = k + 1u) {
-                z = z + a[k] * trunk_weight(kernel + k * w + o);
-            }
-            b[o] = max(z, 0.0);
             acts[r + trunk_at(i) + o] = b[o];
         }
         a = b;
         fan_in = w;
     }
     // The heads: the raw density and the bottleneck (no activation), into b.
-    let kernel_d = table[2u * d];
-    var density = trunk_weight(table[2u * d + 1u]);
-    for (var k = 0u; k < w; k = k + 1u) {
-        density = density + a[k] * trunk_weight(kernel_d + k);
-    }
-    acts[r] = density;
+    acts[r] = density_head(d, w, &a);
     let kernel_b = table[2u * d + 2u];
     let bias_b = table[2u * d + 3u];
     for (var o = 0u; o < w; o = o + 1u) {

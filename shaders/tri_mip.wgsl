@@ -49,46 +49,34 @@
 // Per row of level 0 (3 resolution rows): the row's sum of squared neighbour differences.
 @group(0) @binding(8) var<storage, read_write> tv_rows: array<f32>;
 
-// Taps a plane reads: 2 levels x 4 bilinear corners.
-const TAPS_PER_PLANE: u32 = 8u;
+// The planes' shape (`plane_taps.wgsl`).
+fn planes() -> Planes {
+    return Planes(params.resolution, params.features, params.levels);
+}
 
 fn side_at(level: u32) -> u32 {
-    return params.resolution >> level;
+    return plane_side(planes(), level);
 }
 
 // Where level `level` >= 1 starts in `pyramid`.
 fn level_base(level: u32) -> u32 {
-    var base = 0u;
-    for (var k = 1u; k < level; k = k + 1u) {
-        let s = side_at(k);
-        base = base + 3u * s * s * params.features;
-    }
-    return base;
+    return plane_level_base(planes(), level);
 }
 
 // The point (in the planes' box, [0, 1]^3) and the level a sample reads: Model::encode_samples.
 fn sample_point(sample: u32) -> vec4<f32> {
-    let side = 2.0 * params.half_side;
     var x: vec3<f32>;
     var radius: f32;
     if (params.probes != 0u) {
-        // Model::encode_probe: the isotropic standard deviation, sqrt of the mean variance.
         let g = rays[sample];
         x = g.xyz;
-        radius = 2.0 * sqrt(max(((g.w + g.w) + g.w) / 3.0, 0.0)) / side;
+        radius = probe_footprint(g.w, params.half_side);
     } else {
         let xr = frustum_point(sample);
         x = xr.xyz;
         radius = xr.w;
     }
-    let at = (x + vec3<f32>(params.half_side)) / side;
-    var level = 0.0;
-    if (params.pre_filtered != 0u) {
-        // tri_mip::level_of (a point's log2(0) = -inf reads level 0; WGSL promises nothing of a
-        // NaN radius, which only NaN rays give).
-        level = clamp(log2(2.0 * radius * f32(params.resolution)), 0.0, f32(params.levels - 1u));
-    }
-    return vec4<f32>(at, level);
+    return plane_point(planes(), params.half_side, params.pre_filtered != 0u, x, radius);
 }
 
 // A frustum's mean (through the contraction in an unbounded scene) and its footprint's radius
@@ -116,71 +104,6 @@ fn frustum_point(sample: u32) -> vec4<f32> {
         }
     }
     return vec4<f32>(x, radius);
-}
-
-// One tap: the texel's level, the offset of its first feature in that level, its weight.
-struct Tap {
-    level: u32,
-    offset: u32,
-    weight: f32,
-}
-
-// The two texels around `t` along a side of `size` texels (clamped to the edge) and the
-// weight of the second: tri_mip::taps' `corner`.
-fn corner(t: f32, size: u32) -> vec3<f32> {
-    let f = clamp(t, 0.0, 1.0) * f32(size) - 0.5;
-    let i = floor(f);
-    let i0 = min(u32(max(i, 0.0)), size - 1u);
-    let i1 = min(u32(max(i + 1.0, 0.0)), size - 1u);
-    return vec3<f32>(f32(i0), f32(i1), f - i);
-}
-
-// Tap `k` (0..8) of plane `plane` for a point `at` read at `level`: tri_mip::taps, in its order
-// (the lower level's 4 corners, then the upper level's; corners (u0, v0), (u1, v0), (u0, v1),
-// (u1, v1)).
-fn plane_tap(plane: u32, at: vec3<f32>, level_in: f32, k: u32) -> Tap {
-    let top = params.levels - 1u;
-    let level = clamp(level_in, 0.0, f32(top));
-    let l0 = min(u32(floor(level)), top);
-    let l1 = min(l0 + 1u, top);
-    let blend = level - f32(l0);
-    var l = l0;
-    var level_weight = 1.0 - blend;
-    if (k >= 4u) {
-        l = l1;
-        level_weight = blend;
-    }
-    // PLANES: (0, 1), (0, 2), (1, 2).
-    var a = at.x;
-    var b = at.y;
-    if (plane == 1u) {
-        b = at.z;
-    } else if (plane == 2u) {
-        a = at.y;
-        b = at.z;
-    }
-    let size = side_at(l);
-    let cu = corner(a, size);
-    let cv = corner(b, size);
-    let wu = cu.z;
-    let wv = cv.z;
-    let c = k % 4u;
-    var u = u32(cu.x);
-    var v = u32(cv.x);
-    var w = (1.0 - wu) * (1.0 - wv);
-    if (c == 1u) {
-        u = u32(cu.y);
-        w = wu * (1.0 - wv);
-    } else if (c == 2u) {
-        v = u32(cv.y);
-        w = (1.0 - wu) * wv;
-    } else if (c == 3u) {
-        u = u32(cu.y);
-        v = u32(cv.y);
-        w = wu * wv;
-    }
-    let offset = (plane * size * size + v * size + u) * params.features;
-    return Tap(l, offset, level_weight * w);
 }
 
 fn flat_index(gid: vec3<u32>) -> u32 {
@@ -247,26 +170,13 @@ fn encode_planes(@builtin(global_invocation_id) gid: vec3<u32>) {
     let plane = idx % 3u;
     let p = sample_point(sample);
     var taps: array<Tap, TAPS_PER_PLANE>;
-    var bases: array<u32, TAPS_PER_PLANE>;
     for (var k = 0u; k < TAPS_PER_PLANE; k = k + 1u) {
-        taps[k] = plane_tap(plane, p.xyz, p.w, k);
-        bases[k] = level_base(taps[k].level);
+        taps[k] = plane_tap(planes(), plane, p.xyz, p.w, k);
     }
     let c = params.features;
     let out = (3u * sample + plane) * c;
     for (var f = 0u; f < c; f = f + 1u) {
-        var acc = 0.0;
-        for (var k = 0u; k < TAPS_PER_PLANE; k = k + 1u) {
-            let t = taps[k];
-            var texel: f32;
-            if (t.level == 0u) {
-                texel = model_params[t.offset + f];
-            } else {
-                texel = pyramid[bases[k] + t.offset + f];
-            }
-            acc = acc + t.weight * texel;
-        }
-        encoded[out + f] = acc;
+        encoded[out + f] = plane_feature(&taps, f);
     }
 }
 
@@ -282,7 +192,7 @@ fn scatter_planes(@builtin(global_invocation_id) gid: vec3<u32>) {
     let c = params.features;
     let src = (3u * sample + plane) * c;
     for (var k = 0u; k < TAPS_PER_PLANE; k = k + 1u) {
-        let t = plane_tap(plane, p.xyz, p.w, k);
+        let t = plane_tap(planes(), plane, p.xyz, p.w, k);
         if (t.weight == 0.0) {
             continue;
         }
@@ -291,9 +201,8 @@ fn scatter_planes(@builtin(global_invocation_id) gid: vec3<u32>) {
                 add_to_grads(t.offset + f, t.weight * encoded[src + f]);
             }
         } else {
-            let base = level_base(t.level) + t.offset;
             for (var f = 0u; f < c; f = f + 1u) {
-                add_to_grad_pyramid(base + f, t.weight * encoded[src + f]);
+                add_to_grad_pyramid(t.offset + f, t.weight * encoded[src + f]);
             }
         }
     }

@@ -148,6 +148,21 @@ impl MlpBuffers {
         matches!(self.passes, Passes::Fused(_))
     }
 
+    /// Where the passes run fused: `shape`'s trunk weights copied from `params` (recorded) and
+    /// what a kernel that runs the trunk alone binds, the layers' table and those weights
+    /// ([`FusedMlpKernel::trunk_inputs`]). `None` for the product kernels.
+    pub fn fused_trunk(
+        &self,
+        rec: &mut Recorder<'_>,
+        shape: &MlpShape,
+        params: &wgpu::Buffer,
+    ) -> Option<(&wgpu::Buffer, &wgpu::Buffer)> {
+        match &self.passes {
+            Passes::Fused(f) => Some(FusedMlpKernel::trunk_inputs(rec, shape, params, f)),
+            Passes::Products(_) => None,
+        }
+    }
+
     /// Floats per sample of these buffers for `shape` (the encodings' gradient aside): the
     /// encodings, what the passes keep, the raw colours, and the product kernels' gradient
     /// scratch.

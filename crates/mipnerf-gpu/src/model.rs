@@ -21,7 +21,8 @@ use crate::kernels::cast_ipe::{CastIpeKernel, CastIpeParams};
 use crate::kernels::compact::{Compaction, ExpandKernel, ExpandParams, GatherKernel, kept_rays};
 use crate::kernels::occupancy::{DeviceGrid, GuidedRays, OccupancyKernel};
 use crate::kernels::occupancy_update::{
-    OccupancyRefreshKernel, OccupancyUpdateKernel, OccupancyUpdateParams, UpdateBuffers,
+    OccupancyProbeKernel, OccupancyRefreshKernel, OccupancyUpdateKernel, OccupancyUpdateParams, ProbeBuffers,
+    UpdateBuffers,
 };
 use crate::kernels::render::{RenderBuffers, RenderKernel, RenderParams, background_code};
 use crate::kernels::sample::{CoarseLevel, SampleKernels};
@@ -204,6 +205,7 @@ pub struct GpuModel {
     sample: SampleKernels,
     occupancy: OccupancyKernel,
     occupancy_update: OccupancyUpdateKernel,
+    occupancy_probe: OccupancyProbeKernel,
     occupancy_refresh: OccupancyRefreshKernel,
     cast: CastIpeKernel,
     tri_mip: TriMipKernel,
@@ -241,6 +243,7 @@ impl GpuModel {
             sample: SampleKernels::with_variant(ctx, s)?,
             occupancy: OccupancyKernel::new(ctx)?,
             occupancy_update: OccupancyUpdateKernel::new(ctx)?,
+            occupancy_probe: OccupancyProbeKernel::new(ctx)?,
             occupancy_refresh: OccupancyRefreshKernel::new(ctx)?,
             cast: CastIpeKernel::new(ctx)?,
             tri_mip: TriMipKernel::new(ctx)?,
@@ -434,13 +437,15 @@ impl GpuModel {
     }
 
     /// Records an update of `grid`'s opacities from the model's densities at `params`: the CPU's
-    /// [`OccupancyGrid::update`] up to its end, on the device. For each chunk of cells (as many
-    /// as `work` holds samples): every cell's probe placed (`occupancy_update.wgsl`), encoded by
-    /// the field in its probe mode (`cast_ipe.wgsl` or `tri_mip.wgsl`), the first MLP's forward
-    /// pass, and the cell's opacity kept. The Tri-Mip pyramid must have been built from `params`
-    /// ([`prepare_field`](Self::prepare_field)); `work`'s active rays are left as they were.
-    /// Then, as the update's end, which cells are occupied and their dilations, from the
-    /// opacities on the device (`occupancy_refresh.wgsl`): nothing is read back.
+    /// [`OccupancyGrid::update`] up to its end, on the device. For the Tri-Mip field with a fused
+    /// MLP, one dispatch over every cell (`occupancy_probe.wgsl`: its probe read from the planes,
+    /// the MLP's trunk and density head, its opacity kept). Otherwise for each chunk of cells (as
+    /// many as `work` holds samples): every cell's probe placed (`occupancy_update.wgsl`),
+    /// encoded by the field in its probe mode (`cast_ipe.wgsl` or `tri_mip.wgsl`), the first
+    /// MLP's forward pass, and the cell's opacity kept. The Tri-Mip pyramid must have been built
+    /// from `params` ([`prepare_field`](Self::prepare_field)); `work`'s active rays are left as
+    /// they were. Then, as the update's end, which cells are occupied and their dilations, from
+    /// the opacities on the device (`occupancy_refresh.wgsl`): nothing is read back.
     ///
     /// # Errors
     /// [`GpuError::InvalidInput`] for a grid over the contracted space of a bounded model or the
@@ -463,15 +468,63 @@ impl GpuModel {
                 if c.unbounded { "an unbounded" } else { "a bounded" }
             )));
         }
-        let s = c.num_samples;
+        let r = grid.resolution();
+        let up = OccupancyUpdateParams {
+            resolution: r as u32,
+            seed,
+            step,
+            contracted: u32::from(grid.contracted()),
+            density_activation: c.density_activation as u32,
+            bound: grid.bound(),
+            cell_size: 2.0 * grid.bound() / r as f32,
+            decay: grid.decay(),
+            density_bias: c.density_bias,
+            ..OccupancyUpdateParams::default()
+        };
+        let shape = &model.mlps()[0];
+        let fused = PlaneField::of(model)
+            .zip(work.field.as_ref())
+            .and_then(|planes| work.mlp.fused_trunk(rec, shape, params).map(|trunk| (planes, trunk)));
+        if let Some(((f, field), (table, trunk_weights))) = fused {
+            let up = OccupancyUpdateParams {
+                n_cells: (r * r * r) as u32,
+                plane_resolution: f.planes.resolution as u32,
+                plane_features: f.planes.features as u32,
+                plane_levels: f.planes.levels as u32,
+                half_side: f.half_side,
+                pre_filtered: u32::from(f.pre_filtered),
+                x_dim: shape.config.x_dim as u32,
+                net_depth: shape.config.net_depth as u32,
+                net_width: shape.config.net_width as u32,
+                ..up
+            };
+            let bufs = ProbeBuffers { params, pyramid: &field.pyramid, table, trunk_weights, grid };
+            self.occupancy_probe.encode(rec, up, bufs)?;
+        } else {
+            self.update_grid_in_chunks(rec, model, params, work, grid, up)?;
+        }
+        let warmed_up = grid.end_update(u64::from(step));
+        self.occupancy_refresh.refresh(rec, grid, warmed_up)
+    }
+
+    /// [`update_grid`](Self::update_grid)'s opacities chunk after chunk of cells through the
+    /// model's own passes, from the update's uniform block `up` (its grid's and model's values).
+    fn update_grid_in_chunks(
+        &self,
+        rec: &mut Recorder<'_>,
+        model: &Model,
+        params: &wgpu::Buffer,
+        work: &mut ModelBuffers,
+        grid: &mut DeviceGrid,
+        up: OccupancyUpdateParams,
+    ) -> Result<(), GpuError> {
+        let s = model.config().num_samples;
         let chunk = work.capacity() * s;
         grid.reserve_probes(rec.context(), chunk);
         let g = &*grid;
         let probes = g.probes().ok_or_else(|| GpuError::InvalidInput("no probe buffer".into()))?;
-        let r = g.resolution();
-        let n_cells = r * r * r;
+        let n_cells = g.resolution().pow(3);
         let active = work.n_rays();
-        let cell_size = 2.0 * g.bound() / r as f32;
         for first in (0..n_cells).step_by(chunk) {
             let count = chunk.min(n_cells - first);
             let rays = count.div_ceil(s);
@@ -480,17 +533,8 @@ impl GpuModel {
             let up = OccupancyUpdateParams {
                 first_cell: first as u32,
                 n_cells: count as u32,
-                resolution: r as u32,
-                seed,
-                step,
-                contracted: u32::from(g.contracted()),
-                density_activation: c.density_activation as u32,
-                bound: g.bound(),
-                cell_size,
-                decay: g.decay(),
-                density_bias: c.density_bias,
                 raw_stride: raw_stride as u32,
-                ..OccupancyUpdateParams::default()
+                ..up
             };
             let bufs = UpdateBuffers { probes, raw_density, grid: g };
             self.occupancy_update.place_probes(rec, up, bufs)?;
@@ -500,9 +544,7 @@ impl GpuModel {
             self.mlp.forward(rec, &model.mlps()[0], params, &work.mlp, probes);
             self.occupancy_update.update_opacity(rec, up, bufs)?;
         }
-        work.set_active(active)?;
-        let warmed_up = grid.end_update(u64::from(step));
-        self.occupancy_refresh.refresh(rec, grid, warmed_up)
+        work.set_active(active)
     }
 
     /// After every chunk of a training step: the pyramid's gradient pushed down into the

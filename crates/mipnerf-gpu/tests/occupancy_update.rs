@@ -1,6 +1,7 @@
 //! An occupancy grid's update on the device (`occupancy_update.wgsl`, the fields' probe modes in
 //! `cast_ipe.wgsl` and `tri_mip.wgsl`, the MLP's forward pass, and the occupied cells and their
-//! dilations from `occupancy_refresh.wgsl`) against the CPU's `OccupancyGrid::update`, for both
+//! dilations from `occupancy_refresh.wgsl`; for the Tri-Mip field with a fused MLP,
+//! `occupancy_probe.wgsl` in one dispatch) against the CPU's `OccupancyGrid::update`, for both
 //! fields, bounded and over an unbounded scene's contracted space, in several chunks of cells.
 #![allow(clippy::unwrap_used, missing_docs)]
 
@@ -93,10 +94,16 @@ fn update_agrees(what: &str, cfg: ModelConfig, grid: OccupancyConfig) {
     );
 }
 
-fn tri_mip(unbounded: bool) -> ModelConfig {
+/// The Tri-Mip field with the recipe's MLP (run fused: the update in one dispatch), or with one
+/// too wide for the fused kernels (`wide`: the update through the product kernels, in chunks).
+fn tri_mip(unbounded: bool, wide: bool) -> ModelConfig {
     let half_side = if unbounded { CONTRACTED_BOUND } else { 1.5 };
     let field = Field::TriMip { planes: TriMipRecipe::planes(32), half_side, pre_filtered: true };
-    TriMipRecipe::with_mlp(ModelConfig { field, unbounded, ..Preset::Fast.config() }, TriMipRecipe::RECIPE.mlp)
+    let mlp = if wide { [2, 96, 1, 64] } else { TriMipRecipe::RECIPE.mlp };
+    let cfg = TriMipRecipe::with_mlp(ModelConfig { field, unbounded, ..Preset::Fast.config() }, mlp);
+    let runs_fused = mipnerf_gpu::mlp::MlpBuffers::runs_fused(&Model::new(cfg.clone()).unwrap().mlps()[0]);
+    assert_eq!(runs_fused, !wide, "the MLP [{mlp:?}] runs fused: {runs_fused}");
+    cfg
 }
 
 fn grid(resolution: usize, contracted: bool) -> OccupancyConfig {
@@ -107,12 +114,13 @@ fn grid(resolution: usize, contracted: bool) -> OccupancyConfig {
 
 #[test]
 fn the_tri_mip_fields_grid_update_on_the_device_is_the_cpus() {
-    update_agrees("tri-mip", tri_mip(false), grid(12, false));
+    update_agrees("tri-mip", tri_mip(false, false), grid(12, false));
+    update_agrees("tri-mip, product kernels", tri_mip(false, true), grid(12, false));
 }
 
 #[test]
 fn the_tri_mip_fields_contracted_grid_update_on_the_device_is_the_cpus() {
-    update_agrees("tri-mip, contracted", tri_mip(true), grid(12, true));
+    update_agrees("tri-mip, contracted", tri_mip(true, false), grid(12, true));
 }
 
 #[test]

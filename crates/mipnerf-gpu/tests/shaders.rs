@@ -49,9 +49,19 @@ fn every_shader_file_parses_and_validates_as_composed() {
     for path in &files {
         let src = std::fs::read_to_string(path).unwrap();
         let name = path.file_name().unwrap().to_string_lossy().to_string();
-        if let Some((_, shared)) = SHARED_SOURCES.iter().chain(&INCLUDED_SOURCES).find(|(n, _)| *n == name) {
-            // The shared files, composed in front of every kernel or of those that include them;
-            // each also valid on its own after the generated constants.
+        if let Some((_, included)) = INCLUDED_SOURCES.iter().find(|(n, _)| *n == name) {
+            // A file some kernels include reads their bindings: it is validated composed into
+            // each of them (below).
+            assert_eq!(&src, included, "{name} differs from the kernels' included source");
+            assert!(
+                ALL_SOURCES.iter().any(|s| s.includes.iter().any(|(n, _)| *n == name)),
+                "{name} is included by no kernel"
+            );
+            continue;
+        }
+        if let Some((_, shared)) = SHARED_SOURCES.iter().find(|(n, _)| *n == name) {
+            // The shared files, composed in front of every kernel; each also valid on its own
+            // after the generated constants.
             assert_eq!(&src, shared, "{name} differs from the kernels' shared source");
             if let Err(e) = parse_and_validate(&name, &format!("{}\n{src}", prelude())) {
                 failures.push(e);

@@ -28,7 +28,8 @@ use crate::kernels::{Binding, Recorder, WORKGROUP, dispatch_grid};
 use crate::{GpuContext, GpuError};
 
 /// The WGSL source of these kernels.
-pub const SOURCE: super::Shader = super::shader!("fused_mlp.wgsl", [FusedMlpParams], includes["view_encoding.wgsl"]);
+pub const SOURCE: super::Shader =
+    super::shader!("fused_mlp.wgsl", [FusedMlpParams], includes["view_encoding.wgsl", "mlp_trunk.wgsl"]);
 
 /// The widest layer (and input) the fused kernels take: the size of their two private arrays
 /// of activations (WGSL: `MLP_MAX_WIDTH`).
@@ -344,15 +345,40 @@ impl FusedMlpKernel {
         batch: &FusedBatch<'_>,
         bufs: &FusedBuffers,
     ) {
-        for (&(offset, len), to) in weight_parts(shape).iter().zip(&bufs.weights) {
-            rec.encoder().copy_buffer_to_buffer(params, 4 * offset as u64, to, 0, 4 * len as u64);
-        }
+        Self::copy_weights(rec, shape, params, bufs, 2);
         let (p, grid) = Self::params(shape, batch, bufs);
         let [u0, u1, u2] = &bufs.unused;
         let [wt, wc] = &bufs.weights;
         let buffers =
             [&bufs.table, wt, wc, batch.x, batch.view_dirs, &bufs.acts, batch.raw_rgb, u0, &bufs.d_acts, u1, u2];
         rec.dispatch("fused_mlp forward", &self.forward, &self.layout, &p, &buffers, grid);
+    }
+
+    /// Records the copy of `shape`'s weights from `params` into `bufs`' uniform blocks: the
+    /// first `parts` of them (1: the trunk and heads, 2: the colour branch too).
+    fn copy_weights(
+        rec: &mut Recorder<'_>,
+        shape: &MlpShape,
+        params: &wgpu::Buffer,
+        bufs: &FusedBuffers,
+        parts: usize,
+    ) {
+        for (&(offset, len), to) in weight_parts(shape).iter().zip(&bufs.weights).take(parts) {
+            rec.encoder().copy_buffer_to_buffer(params, 4 * offset as u64, to, 0, 4 * len as u64);
+        }
+    }
+
+    /// Records the copy of `shape`'s trunk and heads' weights from `params` into `bufs`, and
+    /// returns what a pass that reads the trunk alone binds (`mlp_trunk.wgsl`'s `table` and
+    /// `trunk_weights`): the occupancy grid's fused update.
+    pub fn trunk_inputs<'a>(
+        rec: &mut Recorder<'_>,
+        shape: &MlpShape,
+        params: &wgpu::Buffer,
+        bufs: &'a FusedBuffers,
+    ) -> (&'a wgpu::Buffer, &'a wgpu::Buffer) {
+        Self::copy_weights(rec, shape, params, bufs, 1);
+        (&bufs.table, &bufs.weights[0])
     }
 
     /// Records the backward pass of the last forward pass (the weights it copied): from the raw

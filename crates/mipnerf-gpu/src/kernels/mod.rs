@@ -106,8 +106,25 @@ pub struct Shader {
 /// for the kernels that write it and the fused MLP that reads it where it needs it.
 pub const VIEW_ENCODING_SOURCE: &str = shader_source!("view_encoding.wgsl");
 
+/// `shaders/plane_taps.wgsl`: where a point and its footprint fall on the Tri-Mip planes, and
+/// the taps a plane reads there, for the kernels that read the planes.
+pub const PLANE_TAPS_SOURCE: &str = shader_source!("plane_taps.wgsl");
+
+/// `shaders/mlp_trunk.wgsl`: the small MLP's trunk and density head, for the fused MLP and the
+/// occupancy grid's fused probes.
+pub const MLP_TRUNK_SOURCE: &str = shader_source!("mlp_trunk.wgsl");
+
+/// `shaders/occupancy_cells.wgsl`: an occupancy grid's cells as its update sees them (a cell's
+/// probe, its opacity kept), for the update's kernels.
+pub const OCCUPANCY_CELLS_SOURCE: &str = shader_source!("occupancy_cells.wgsl");
+
 /// The files some kernels include ([`Shader::includes`]), by name.
-pub const INCLUDED_SOURCES: [(&str, &str); 1] = [("view_encoding.wgsl", VIEW_ENCODING_SOURCE)];
+pub const INCLUDED_SOURCES: [(&str, &str); 4] = [
+    ("view_encoding.wgsl", VIEW_ENCODING_SOURCE),
+    ("plane_taps.wgsl", PLANE_TAPS_SOURCE),
+    ("mlp_trunk.wgsl", MLP_TRUNK_SOURCE),
+    ("occupancy_cells.wgsl", OCCUPANCY_CELLS_SOURCE),
+];
 
 /// The [`Shader`] of a file of `shaders/`, the `#[repr(C)]` structs (each a [`WgslStruct`])
 /// whose declarations go in front of it, and the files it includes (of [`INCLUDED_SOURCES`]).
@@ -309,6 +326,7 @@ pub const ALL_SOURCES: &[Shader] = &[
     sample::SOURCE,
     occupancy::SOURCE,
     occupancy_update::SOURCE,
+    occupancy_update::PROBE_SOURCE,
     occupancy_update::REFRESH_SOURCE,
     view_enc::SOURCE,
     batch::SOURCE,

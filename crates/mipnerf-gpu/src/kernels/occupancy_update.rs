@@ -1,6 +1,7 @@
 //! `shaders/occupancy_update.wgsl`: an occupancy grid's update on the device, the density probes
-//! placed in its cells and their opacities kept; `shaders/occupancy_refresh.wgsl`: its end, the
-//! occupied cells and their dilations found from the opacities, on the device too.
+//! placed in its cells and their opacities kept; `shaders/occupancy_probe.wgsl`: the same through
+//! the Tri-Mip planes and a fused MLP in one dispatch; `shaders/occupancy_refresh.wgsl`: its end,
+//! the occupied cells and their dilations found from the opacities, on the device too.
 //!
 //! CPU reference: [`mipnerf_core::occupancy::OccupancyGrid::update`] (its refresh:
 //! [`mipnerf_core::occupancy::OccupancyGrid::packed_layers`] after it). The model's passes
@@ -11,7 +12,14 @@ use crate::kernels::occupancy::DeviceGrid;
 use crate::{GpuContext, GpuError, kernels};
 
 /// The WGSL source of this kernel.
-pub const SOURCE: super::Shader = super::shader!("occupancy_update.wgsl", [OccupancyUpdateParams]);
+pub const SOURCE: super::Shader =
+    super::shader!("occupancy_update.wgsl", [OccupancyUpdateParams], includes["occupancy_cells.wgsl"]);
+/// The WGSL source of the fused update through the Tri-Mip planes.
+pub const PROBE_SOURCE: super::Shader = super::shader!(
+    "occupancy_probe.wgsl",
+    [OccupancyUpdateParams],
+    includes["occupancy_cells.wgsl", "plane_taps.wgsl", "mlp_trunk.wgsl"]
+);
 /// The WGSL source of the refresh of the occupied cells.
 pub const REFRESH_SOURCE: super::Shader = super::shader!("occupancy_refresh.wgsl", [RefreshParams]);
 
@@ -95,7 +103,8 @@ impl OccupancyRefreshKernel {
 
 super::wgsl_struct!(RefreshParams, "Params", [resolution, n_cells, layer, warmed_up, threshold, groups_x, pad0, pad1]);
 
-/// The uniform block of `occupancy_update.wgsl` (`struct Params`), 64 bytes.
+/// The uniform block of `occupancy_update.wgsl` and `occupancy_probe.wgsl` (`struct Params`),
+/// 96 bytes.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct OccupancyUpdateParams {
@@ -125,6 +134,22 @@ pub struct OccupancyUpdateParams {
     pub density_bias: f32,
     /// Floats between consecutive samples' raw densities.
     pub raw_stride: u32,
+    /// The fused update (`occupancy_probe.wgsl`): texels along a side of the planes' level 0.
+    pub plane_resolution: u32,
+    /// The fused update: features a texel.
+    pub plane_features: u32,
+    /// The fused update: the planes' pyramid levels, level 0 included.
+    pub plane_levels: u32,
+    /// The fused update: the planes' box is `[-half_side, half_side]^3`.
+    pub half_side: f32,
+    /// The fused update: 1 to read each probe at its footprint's level (tri-mip), 0 at level 0.
+    pub pre_filtered: u32,
+    /// The fused update: the MLP's input width (the planes' encoding).
+    pub x_dim: u32,
+    /// The fused update: the MLP's trunk layers.
+    pub net_depth: u32,
+    /// The fused update: the trunk's width.
+    pub net_width: u32,
     /// Padding to 16 bytes.
     pub pad0: u32,
     /// Padding.
@@ -229,8 +254,72 @@ super::wgsl_struct!(
         decay,
         density_bias,
         raw_stride,
+        plane_resolution,
+        plane_features,
+        plane_levels,
+        half_side,
+        pre_filtered,
+        x_dim,
+        net_depth,
+        net_width,
         pad0,
         pad1,
         pad2,
     ]
 );
+
+/// The buffers the fused update reads.
+#[derive(Clone, Copy, Debug)]
+pub struct ProbeBuffers<'a> {
+    /// The model's parameters (the planes' level 0 first).
+    pub params: &'a wgpu::Buffer,
+    /// The planes' levels 1.. (built from `params`).
+    pub pyramid: &'a wgpu::Buffer,
+    /// The fused MLP's table of its layers' offsets in `trunk_weights`.
+    pub table: &'a wgpu::Buffer,
+    /// The MLP's trunk and heads' weights, copied from `params` (a uniform block).
+    pub trunk_weights: &'a wgpu::Buffer,
+    /// The grid whose opacities are kept.
+    pub grid: &'a DeviceGrid,
+}
+
+/// The compiled `occupancy_probe.wgsl`: an update's chunk of cells through the Tri-Mip planes
+/// and a fused MLP in one dispatch.
+#[derive(Debug)]
+pub struct OccupancyProbeKernel {
+    pipeline: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+}
+
+impl OccupancyProbeKernel {
+    /// Compiles the kernel.
+    ///
+    /// # Errors
+    /// If the device rejects it.
+    pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
+        let read = kernels::Binding::Storage { read_only: true };
+        let bindings = [kernels::Binding::Storage { read_only: false }, read, read, read, kernels::Binding::Uniform];
+        let ([pipeline], layout) =
+            kernels::build_entries_bound(ctx, "occupancy_probe", PROBE_SOURCE, &bindings, ["probe_opacity"], true)?;
+        Ok(Self { pipeline, layout })
+    }
+
+    /// Records the opacities of `params`' chunk of cells, kept from their probes' densities
+    /// read through the planes and the MLP's trunk (`params` carries the planes' and the
+    /// MLP's shape).
+    ///
+    /// # Errors
+    /// A chunk too large for one dispatch.
+    pub fn encode(
+        &self,
+        rec: &mut Recorder<'_>,
+        mut params: OccupancyUpdateParams,
+        bufs: ProbeBuffers<'_>,
+    ) -> Result<(), GpuError> {
+        let (gx, gy) = kernels::dispatch_grid(u64::from(params.n_cells), kernels::WORKGROUP)?;
+        params.groups_x = gx;
+        let buffers = [bufs.grid.opacity(), bufs.params, bufs.pyramid, bufs.table, bufs.trunk_weights];
+        rec.dispatch("occupancy_probe", &self.pipeline, &self.layout, &params, &buffers, (gx, gy, 1));
+        Ok(())
+    }
+}

@@ -29,7 +29,7 @@ use crate::kernels::{Recorder, WORKGROUP, dispatch_grid};
 use crate::{GpuContext, GpuError};
 
 /// The WGSL source of this kernel.
-pub const SOURCE: super::Shader = super::shader!("tri_mip.wgsl", [TriMipParams]);
+pub const SOURCE: super::Shader = super::shader!("tri_mip.wgsl", [TriMipParams], includes["plane_taps.wgsl"]);
 
 /// Most levels one dispatch of the pyramid makes (WGSL: `PYRAMID_GROUP_LEVELS`; each invocation
 /// reads a block of `2^levels` texels a side, `PYRAMID_BLOCK_AREA` at most).
