@@ -30,8 +30,12 @@ for run in sys.argv[1:]:
         for row in csv.DictReader(f):
             windows.setdefault(int(row["step"]) // 1000, []).append(float(row["psnr"]))
     curve = " ".join(f"{sum(v) / len(v):.2f}" for _, v in sorted(windows.items()))
-    t = load(f"{run}/checkpoint.safetensors", ["hash_grid/tables", "occupancy/opacity"])
-    g, occ = t["hash_grid/tables"], t["occupancy/opacity"]
+    b = open(f"{run}/checkpoint.safetensors", "rb").read()
+    names = json.loads(b[8 : 8 + struct.unpack("<Q", b[:8])[0]])
+    with_grid = "occupancy/opacity" in names
+    t = load(f"{run}/checkpoint.safetensors", ["hash_grid/tables"] + (["occupancy/opacity"] if with_grid else []))
+    g = t["hash_grid/tables"]
     rms = math.sqrt(sum(x * x for x in g) / len(g))
-    occupied = sum(1 for x in occ if x > 0.01) / len(occ)
-    print(f"| {run} | {curve} | {rms:.3f} | {occupied:.3f} |")
+    # A run without an occupancy grid has no occupied cells to count.
+    occupied = f"{sum(1 for x in t['occupancy/opacity'] if x > 0.01) / len(t['occupancy/opacity']):.3f}" if with_grid else "no grid"
+    print(f"| {run} | {curve} | {rms:.3f} | {occupied} |")
