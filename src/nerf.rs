@@ -10,7 +10,7 @@ use mipnerf_core::backend::{Backend, BackendError, ImageSpec, MAX_BATCH_RAYS, Re
 use mipnerf_core::checkpoint::{self, CheckpointError};
 use mipnerf_core::dataset::{DataError, Dataset, Split, View};
 use mipnerf_core::model::{
-    FastRecipe, Field, HashGridRecipe, Levels, Model, ModelConfig, ModelError, Preset, TriMipRecipe,
+    FastRecipe, Field, GridFit, HashGridRecipe, Levels, Model, ModelConfig, ModelError, Preset, TriMipRecipe,
 };
 use mipnerf_core::occupancy::{GridPlan, OccupancyGrid};
 use mipnerf_core::schedule::LrSchedule;
@@ -69,6 +69,9 @@ pub struct Options {
     pub(crate) render_bounds: (f32, f32),
     pub(crate) precision: Precision,
     pub(crate) flush_subnormals: bool,
+    /// Whether `model` is a grid field's recipe ([`Options::tri_mip`], [`Options::hash_grid`])
+    /// to fit to the data when it is known ([`GridFit`]), as the CLI's `--field` does.
+    pub(crate) grid_recipe: bool,
 }
 
 impl Default for Options {
@@ -97,6 +100,7 @@ impl Options {
             render_bounds: (2.0, 6.0),
             precision: Precision::F32,
             flush_subnormals: preset.flushes_subnormals(),
+            grid_recipe: false,
         };
         if preset == Preset::Fast {
             let recipe = FastRecipe::RECIPE;
@@ -113,8 +117,11 @@ impl Options {
     /// These options with the Tri-Mip field ([`Field::TriMip`]: cones read from pre-filtered
     /// feature planes, then a small MLP) in place of the Mip-NeRF MLP, with the field's recipe
     /// ([`TriMipRecipe`]: its planes, its MLP, the planes' own Adam settings) as the CLI's
-    /// `--field tri-mip` takes it. `half_side`: half the side of the cube around the origin the
-    /// planes cover (the scene's, in world units). The field's small MLP computes in f32.
+    /// `--field tri-mip` takes it, fitted to the data when a [`Nerf`] is made for it
+    /// ([`GridFit`]: for forward-facing photos the planes' total variation at 0.1; for an
+    /// unbounded scene coarser planes held smoother). `half_side`: half the side of the cube
+    /// around the origin the planes cover (the scene's, in world units). The field's small MLP
+    /// computes in f32.
     #[must_use]
     pub fn tri_mip(mut self, half_side: f32) -> Self {
         let recipe = TriMipRecipe::RECIPE;
@@ -124,6 +131,7 @@ impl Options {
         self.model.planes_tv_mult = recipe.planes_tv;
         self.model.grid_decay_mult = 0.0;
         self.model_chosen = true;
+        self.grid_recipe = true;
         self.optim.field = Some(recipe.adam);
         self.precision = Precision::F32;
         self
@@ -132,9 +140,10 @@ impl Options {
     /// These options with the hash-grid field ([`Field::HashGrid`]: Zip-NeRF's hash grid, each
     /// level down-weighted at the cone's footprint, then a small MLP) in place of the Mip-NeRF
     /// MLP, with the field's recipe ([`HashGridRecipe`]: its grid, its MLP, the grid's own Adam
-    /// settings, its weight decay for bounded scenes) as the CLI's `--field hash-grid` takes it,
-    /// over the cube of half side `half_side` around the origin. CPU only (a GPU device refuses
-    /// it by name); f32.
+    /// settings, its weight decay) as the CLI's `--field hash-grid` takes it, fitted to the data
+    /// when a [`Nerf`] is made for it ([`GridFit`]: for forward-facing photos the grid's weight
+    /// decay at 0.01 and the learning rate's decay ended at 10,000 steps), over the cube of half
+    /// side `half_side` around the origin. CPU only (a GPU device refuses it by name); f32.
     #[must_use]
     pub fn hash_grid(mut self, half_side: f32) -> Self {
         let recipe = HashGridRecipe::RECIPE;
@@ -143,6 +152,7 @@ impl Options {
         self.model.planes_tv_mult = 0.0;
         self.model.grid_decay_mult = recipe.decay;
         self.model_chosen = true;
+        self.grid_recipe = true;
         self.optim.field = Some(recipe.adam);
         self.precision = Precision::F32;
         self
@@ -152,11 +162,13 @@ impl Options {
     /// data as the CLI's do ([`mipnerf_core::config::DataFit`]): `white_bkgd` (composited as the
     /// data is); for forward-facing data in NDC (LLFF, COLMAP) `ray_shape`, cylinders, and
     /// `density_noise` 1 where it is 0, as the official LLFF configuration; for masked photos
-    /// `random_bkgd`.
+    /// `random_bkgd`. A grid field's recipe ([`Options::tri_mip`]) is no longer fitted to the
+    /// data: the model is as given.
     #[must_use]
     pub fn with_model(mut self, model: ModelConfig) -> Self {
         self.model = model;
         self.model_chosen = true;
+        self.grid_recipe = false;
         self
     }
 
@@ -376,7 +388,8 @@ impl Nerf {
     /// An invalid model, occupancy on data it cannot guide, or a device that cannot be opened.
     pub fn new(data: Dataset, options: Options) -> Result<Self, Error> {
         let data = Arc::new(data);
-        let model = model_for(&options, &data)?;
+        let options = fitted_to(&options, &data);
+        let model = Model::new(options.model.clone())?;
         let mut state = TrainState::fresh(&model, options.seed);
         if options.occupancy {
             state.occupancy = Some(occupancy_grid(&data)?);
@@ -631,11 +644,30 @@ fn describe_model(c: &ModelConfig) -> String {
     )
 }
 
-/// The model of `options` fitted to the data as the CLI fits it ([`Dataset::model_fit`]).
-fn model_for(options: &Options, data: &Dataset) -> Result<Model, Error> {
-    let mut config = options.model.clone();
-    data.model_fit().apply(&mut config);
-    Ok(Model::new(config)?)
+/// `options` fitted to the data as the CLI fits its settings ([`Dataset::model_fit`]), and a
+/// grid field's recipe to it ([`GridFit`]): the planes' resolution and total variation, the hash
+/// grid's weight decay and, where the options leave it open, the steps its rate decays over.
+fn fitted_to(options: &Options, data: &Dataset) -> Options {
+    let mut options = options.clone();
+    let fit = data.model_fit();
+    fit.apply(&mut options.model);
+    if options.grid_recipe {
+        let m = &mut options.model;
+        let recipe = GridFit::of(fit, m.unbounded);
+        match &mut m.field {
+            Field::TriMip { planes, .. } => {
+                *planes = TriMipRecipe::planes(recipe.planes_resolution);
+                m.planes_tv_mult = recipe.planes_tv;
+            }
+            Field::HashGrid { .. } => {
+                m.grid_decay_mult = recipe.hash_grid_decay;
+                let lr = &mut options.optim.lr;
+                lr.decay_steps = lr.decay_steps.or(recipe.hash_grid_lr_decay_steps);
+            }
+            Field::MipNerf => {}
+        }
+    }
+    options
 }
 
 /// The fast recipe's occupancy grid around the scene of `data` as the CLI lays it
@@ -646,4 +678,30 @@ fn occupancy_grid(data: &Dataset) -> Result<OccupancyGrid, Error> {
     let plan = GridPlan { resolution, bound: None, unbounded: false, carve_masks: true };
     let (grid, _) = OccupancyGrid::for_data(data, plan).map_err(|e| Error::Occupancy(e.to_string()))?;
     Ok(grid)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The hash grid's rate on forward-facing photos decays over the recipe's 10,000 steps, as
+    /// the CLI's; a schedule that says where its decay ends keeps it.
+    #[test]
+    fn the_hash_grids_rate_on_forward_facing_photos_ends_its_decay_where_the_clis_does() {
+        let colmap = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/colmap_lego");
+        let data = mipnerf_data::load(&colmap, Split::Train, &LoadOptions::default()).unwrap();
+        let options = Options::preset(Preset::Tiny).hash_grid(1.5);
+        let steps = HashGridRecipe::RECIPE.lr_decay_steps_forward_facing;
+        assert_eq!(fitted_to(&options, &data).optim.lr.decay_steps, Some(steps));
+        let mut own = options.optim().clone();
+        own.lr.decay_steps = Some(500);
+        assert_eq!(fitted_to(&options.with_optim(own), &data).optim.lr.decay_steps, Some(500));
+        let blender = mipnerf_data::load(
+            &Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/lego_tiny"),
+            Split::Train,
+            &LoadOptions::default(),
+        )
+        .unwrap();
+        assert_eq!(fitted_to(&Options::preset(Preset::Tiny).hash_grid(1.5), &blender).optim.lr.decay_steps, None);
+    }
 }

@@ -198,6 +198,33 @@ fn forward_facing_data_trains_with_cylinders_and_occupancy_in_ndc() {
     assert_eq!(Some(grid.config.bound), bound, "the grid covers the NDC cube");
 }
 
+/// A grid field's recipe is fitted to the data as the CLI's `--field` fits it (`GridFit`): on
+/// forward-facing photos the planes take their total variation (0.1) and the hash grid its
+/// weight decay (0.01) and a learning rate whose decay ends at 10,000 steps; on Blender data
+/// neither; a model given whole (`with_model`) is kept as given.
+#[test]
+fn a_grid_fields_recipe_is_fitted_to_the_data_as_the_clis() {
+    use mipnerf_core::model::{GridFit, HashGridRecipe};
+    let colmap = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/colmap_lego");
+    let forward_facing =
+        GridFit::of(mipnerf_core::config::DataFit { forward_facing: true, white_bkgd: false, masked: false }, false);
+    assert_eq!((forward_facing.planes_tv, forward_facing.hash_grid_decay), (0.1, 0.01));
+    let config =
+        |dir: &Path, options: Options| Nerf::from_dir(dir, options).unwrap().backend().model().config().clone();
+    let planes = config(&colmap, cpu_tiny().tri_mip(1.5));
+    assert_eq!(planes.planes_tv_mult, forward_facing.planes_tv);
+    let grid = config(&colmap, cpu_tiny().hash_grid(1.5));
+    assert_eq!(grid.grid_decay_mult, forward_facing.hash_grid_decay);
+    assert_eq!(forward_facing.hash_grid_lr_decay_steps, Some(HashGridRecipe::RECIPE.lr_decay_steps_forward_facing));
+    // Blender data: the bounded recipe's (no total variation, no decay).
+    let blender = config(&lego_tiny(), cpu_tiny().tri_mip(1.5));
+    assert_eq!(blender.planes_tv_mult, 0.0);
+    // A model given whole is not refitted.
+    let given = cpu_tiny().tri_mip(1.5);
+    let model = mipnerf::ModelConfig { planes_tv_mult: 0.5, ..given.model().clone() };
+    assert_eq!(config(&colmap, given.with_model(model)).planes_tv_mult, 0.5);
+}
+
 /// A model saved by `Nerf::save` and loaded without its data renders as before: the checkpoint
 /// holds its configuration (background, ray shape) and how its pixels become rays (bounds, pixel
 /// centres, NDC), for forward-facing COLMAP data and for Blender data. Loaded with

@@ -436,6 +436,44 @@ impl TriMipRecipe {
     }
 }
 
+/// A grid field's recipe for the data it trains on, where a run does not say otherwise: the
+/// planes' resolution and total variation ([`TriMipRecipe`]), the hash grid's weight decay and
+/// the steps its learning rate decays over ([`HashGridRecipe`]). The one rule the CLI's settings
+/// and the library's `Options::tri_mip` and `Options::hash_grid` both follow.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GridFit {
+    /// Texels along a side of the Tri-Mip planes.
+    pub planes_resolution: usize,
+    /// The weight of the planes' total variation ([`ModelConfig::planes_tv_mult`]).
+    pub planes_tv: f32,
+    /// The weight of the hash grid's weight decay ([`ModelConfig::grid_decay_mult`]).
+    pub hash_grid_decay: f32,
+    /// The hash grid's: the steps the learning rate decays over, where it then stays
+    /// ([`crate::schedule::LrSchedule::decay_steps`]; none: the run's own).
+    pub hash_grid_lr_decay_steps: Option<u64>,
+}
+
+impl GridFit {
+    /// The recipes' values for data that `fit` describes, in an unbounded scene or not.
+    #[must_use]
+    pub fn of(fit: DataFit, unbounded: bool) -> Self {
+        let (planes, grid) = (TriMipRecipe::RECIPE, HashGridRecipe::RECIPE);
+        let planes_tv = if fit.forward_facing {
+            planes.planes_tv_forward_facing
+        } else if unbounded {
+            planes.planes_tv_unbounded
+        } else {
+            planes.planes_tv
+        };
+        Self {
+            planes_resolution: if unbounded { planes.resolution_unbounded } else { planes.resolution },
+            planes_tv,
+            hash_grid_decay: if fit.forward_facing { grid.decay_forward_facing } else { grid.decay },
+            hash_grid_lr_decay_steps: fit.forward_facing.then_some(grid.lr_decay_steps_forward_facing),
+        }
+    }
+}
+
 /// Named model sizes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]

@@ -24,7 +24,7 @@ use crate::tri_mip::{Pyramid, Taps};
 use crate::wide::wide;
 
 pub use crate::config::{
-    FAST_SAMPLES, FastRecipe, Field, HashGridRecipe, Mode, ModelConfig, PointEncoding, Preset, TriMipRecipe,
+    FAST_SAMPLES, FastRecipe, Field, GridFit, HashGridRecipe, Mode, ModelConfig, PointEncoding, Preset, TriMipRecipe,
 };
 use field::FieldGrads;
 pub use field::FieldState;

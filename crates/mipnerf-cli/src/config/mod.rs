@@ -8,7 +8,7 @@ use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
 use mipnerf_core::PixelCenters;
 use mipnerf_core::RayShape;
-use mipnerf_core::config::DataFit;
+use mipnerf_core::config::{DataFit, GridFit};
 use mipnerf_core::model::{FastRecipe, Field, HashGridRecipe, ModelConfig, PointEncoding, Preset, TriMipRecipe};
 use mipnerf_core::schedule::LrSchedule;
 use mipnerf_core::train::{AdamConfig, FieldAdam, OptimConfig};
@@ -482,7 +482,8 @@ impl TrainSettings {
         let preset = self.preset.unwrap_or(PresetArg::Tiny);
         let fast = preset == PresetArg::Fast;
         let (tri_mip, grid) = (self.uses_tri_mip(), self.uses_grid_field());
-        let (tri_mip_tv, hash_grid_decay, lr_decay_steps) = self.grid_recipe_for(forward_facing, unbounded);
+        let recipe = GridFit::of(fit, unbounded);
+        let (tri_mip_tv, hash_grid_decay, lr_decay_steps) = self.grid_recipe_for(recipe);
         // A time budget ends the run, so the step count only caps it when given.
         let steps = self.steps.unwrap_or(if self.time_budget.is_some() { MAX_STEPS } else { 2000 });
         let occupancy = self.uses_occupancy();
@@ -541,11 +542,7 @@ impl TrainSettings {
             tri_mip_bound: self.tri_mip_bound,
             // The field's recipe where the field is Tri-Mip; kept as given otherwise, for `validate`
             // to refuse.
-            tri_mip_resolution: self.tri_mip_resolution.or(tri_mip.then_some(if unbounded {
-                TriMipRecipe::RECIPE.resolution_unbounded
-            } else {
-                TriMipRecipe::RECIPE.resolution
-            })),
+            tri_mip_resolution: self.tri_mip_resolution.or(tri_mip.then_some(recipe.planes_resolution)),
             tri_mip_mlp: self.tri_mip_mlp.or(grid.then_some(TriMipRecipe::RECIPE.mlp)),
             tri_mip_lr_mult: self.tri_mip_lr_mult.or(grid.then(|| self.grid_adam().lr_mult)),
             grid_adam_eps: self.grid_adam_eps,
@@ -576,24 +573,15 @@ impl TrainSettings {
         }
     }
 
-    /// The grid fields' recipe for the data where the settings do not say: the planes' total
-    /// variation, the hash grid's weight decay and its rate's decay steps (none where 0 or where
-    /// the field is another).
-    fn grid_recipe_for(&self, forward_facing: bool, unbounded: bool) -> (Option<f32>, Option<f32>, Option<u64>) {
-        let (planes, hash_grid) = (TriMipRecipe::RECIPE, HashGridRecipe::RECIPE);
+    /// The grid fields' recipe for the data (`recipe`) where the settings do not say: the planes'
+    /// total variation, the hash grid's weight decay and its rate's decay steps (none where 0 or
+    /// where the field is another).
+    fn grid_recipe_for(&self, recipe: GridFit) -> (Option<f32>, Option<f32>, Option<u64>) {
         let is_hash_grid = self.field == Some(FieldArg::HashGrid);
-        let planes_tv = if forward_facing {
-            planes.planes_tv_forward_facing
-        } else if unbounded {
-            planes.planes_tv_unbounded
-        } else {
-            planes.planes_tv
-        };
-        let decay = if forward_facing { hash_grid.decay_forward_facing } else { hash_grid.decay };
         (
-            self.tri_mip_tv.or(self.uses_tri_mip().then_some(planes_tv)).filter(|&w| w != 0.0),
-            self.hash_grid_decay.or(is_hash_grid.then_some(decay)).filter(|&w| w != 0.0),
-            self.lr_decay_steps.or((is_hash_grid && forward_facing).then_some(hash_grid.lr_decay_steps_forward_facing)),
+            self.tri_mip_tv.or(self.uses_tri_mip().then_some(recipe.planes_tv)).filter(|&w| w != 0.0),
+            self.hash_grid_decay.or(is_hash_grid.then_some(recipe.hash_grid_decay)).filter(|&w| w != 0.0),
+            self.lr_decay_steps.or(recipe.hash_grid_lr_decay_steps.filter(|_| is_hash_grid)),
         )
     }
 

@@ -98,27 +98,33 @@ pub struct Shader {
     /// The declarations of the host's structs it reads, in order ([`WgslStruct::declaration`]).
     pub structs: &'static [fn() -> String],
     /// Files of `shaders/` whose functions it calls besides the [`SHARED_SOURCES`], by name,
-    /// composed in front of it in order ([`INCLUDED_SOURCES`]).
+    /// composed in front of it in order (each one of `INCLUDED_SOURCES`, which the shader test
+    /// validates).
     pub includes: &'static [(&'static str, &'static str)],
 }
 
 /// `shaders/view_encoding.wgsl`: a view direction's positional encoding, one value at a time,
 /// for the kernels that write it and the fused MLP that reads it where it needs it.
+#[cfg(feature = "test-support")]
 pub const VIEW_ENCODING_SOURCE: &str = shader_source!("view_encoding.wgsl");
 
 /// `shaders/plane_taps.wgsl`: where a point and its footprint fall on the Tri-Mip planes, and
 /// the taps a plane reads there, for the kernels that read the planes.
+#[cfg(feature = "test-support")]
 pub const PLANE_TAPS_SOURCE: &str = shader_source!("plane_taps.wgsl");
 
 /// `shaders/mlp_trunk.wgsl`: the small MLP's trunk and density head, for the fused MLP and the
 /// occupancy grid's fused probes.
+#[cfg(feature = "test-support")]
 pub const MLP_TRUNK_SOURCE: &str = shader_source!("mlp_trunk.wgsl");
 
 /// `shaders/occupancy_cells.wgsl`: an occupancy grid's cells as its update sees them (a cell's
 /// probe, its opacity kept), for the update's kernels.
+#[cfg(feature = "test-support")]
 pub const OCCUPANCY_CELLS_SOURCE: &str = shader_source!("occupancy_cells.wgsl");
 
 /// The files some kernels include ([`Shader::includes`]), by name.
+#[cfg(feature = "test-support")]
 pub const INCLUDED_SOURCES: [(&str, &str); 4] = [
     ("view_encoding.wgsl", VIEW_ENCODING_SOURCE),
     ("plane_taps.wgsl", PLANE_TAPS_SOURCE),
@@ -127,7 +133,7 @@ pub const INCLUDED_SOURCES: [(&str, &str); 4] = [
 ];
 
 /// The [`Shader`] of a file of `shaders/`, the `#[repr(C)]` structs (each a [`WgslStruct`])
-/// whose declarations go in front of it, and the files it includes (of [`INCLUDED_SOURCES`]).
+/// whose declarations go in front of it, and the files it includes (of `INCLUDED_SOURCES`).
 macro_rules! shader {
     ($file:literal, [$($t:ty),* $(,)?] $(, includes [$($inc:literal),* $(,)?])?) => {
         $crate::kernels::Shader {
@@ -157,8 +163,13 @@ pub fn compose(shader: &Shader) -> String {
 pub fn compose_with(shader: &Shader, atomics: GradientAtomics) -> String {
     let shared: Vec<&str> = SHARED_SOURCES.iter().chain(shader.includes).map(|(_, src)| *src).collect();
     let structs: String = shader.structs.iter().map(|declaration| declaration()).collect();
-    let own = shader.own;
-    format!("{}\n{}\n{structs}\n{own}\n{}", prelude(), shared.join("\n"), gradient_atomics(own, atomics))
+    let (file, own) = (shader.file, shader.own);
+    format!(
+        "{}\n{}\n{structs}\n// shaders/{file}\n{own}\n{}",
+        prelude(),
+        shared.join("\n"),
+        gradient_atomics(own, atomics)
+    )
 }
 
 /// The WGSL of shared gradients for the kernel `own`: the type `GradientAtomic` (`atomic<f32>`
