@@ -192,11 +192,13 @@ pub struct TrainSettings {
     pub grid_adam_skip_untouched: Option<bool>,
     /// Weight of the Tri-Mip planes' total variation in the loss (TensoRF's regulariser, the
     /// mean squared difference of neighbouring texels) [default: the field's recipe: 0.1 for
-    /// forward-facing photos, 1 for unbounded scenes, else 0; recorded when not 0].
+    /// forward-facing photos, 1 for unbounded scenes, else 0; recorded when not 0, or when 0
+    /// against the recipe].
     pub tri_mip_tv: Option<f32>,
     /// Weight of Zip-NeRF's normalised weight decay of the hash grid's tables in the loss (the
     /// sum over levels of the mean squared feature) [default: the field's recipe,
-    /// `HashGridRecipe::RECIPE`: 0.01 for forward-facing photos, else 0; recorded when not 0].
+    /// `HashGridRecipe::RECIPE`: 0.01 for forward-facing photos, else 0; recorded when not 0, or
+    /// when 0 against the recipe].
     pub hash_grid_decay: Option<f32>,
     /// Adam's `beta2`, the decay of its running mean of squared gradients, for every parameter
     /// [default: flax's 0.999; recorded when another]. Instant-NGP's 0.99 makes the hash grid's
@@ -521,8 +523,9 @@ impl TrainSettings {
             supersample: Some(self.supersample.unwrap_or(1)),
             ray_shape: Some(self.ray_shape.unwrap_or(fit.ray_shape())),
             // Recorded only when it is not 0, so that the configurations of other runs read as
-            // they always did.
-            density_noise: Some(self.density_noise.unwrap_or(fit.density_noise())).filter(|&d| d != 0.0),
+            // they always did, or where the data's default is not (so that a resumed run keeps 0).
+            density_noise: Some(self.density_noise.unwrap_or(fit.density_noise()))
+                .filter(|&d| d != 0.0 || fit.density_noise() != 0.0),
             white_bkgd: Some(self.white_bkgd.unwrap_or(fit.white_bkgd)),
             random_bkgd: Some(self.random_bkgd.unwrap_or(fit.random_bkgd())),
             masks: self.masks.clone(),
@@ -574,14 +577,18 @@ impl TrainSettings {
     }
 
     /// The grid fields' recipe for the data (`recipe`) where the settings do not say: the planes'
-    /// total variation, the hash grid's weight decay and its rate's decay steps (none where 0 or
-    /// where the field is another).
+    /// total variation, the hash grid's weight decay and its rate's decay steps (none where the
+    /// field is another, or where a weight is 0 as the recipe's is: a 0 against the recipe is
+    /// recorded, so that a resumed run keeps it).
     fn grid_recipe_for(&self, recipe: GridFit) -> (Option<f32>, Option<f32>, Option<u64>) {
-        let is_hash_grid = self.field == Some(FieldArg::HashGrid);
+        let (tri_mip, hash_grid) = (self.uses_tri_mip(), self.field == Some(FieldArg::HashGrid));
+        let keep = |w: f32, ours: bool, of_recipe: f32| w != 0.0 || (ours && of_recipe != 0.0);
         (
-            self.tri_mip_tv.or(self.uses_tri_mip().then_some(recipe.planes_tv)).filter(|&w| w != 0.0),
-            self.hash_grid_decay.or(is_hash_grid.then_some(recipe.hash_grid_decay)).filter(|&w| w != 0.0),
-            self.lr_decay_steps.or(recipe.hash_grid_lr_decay_steps.filter(|_| is_hash_grid)),
+            self.tri_mip_tv.or(tri_mip.then_some(recipe.planes_tv)).filter(|&w| keep(w, tri_mip, recipe.planes_tv)),
+            self.hash_grid_decay
+                .or(hash_grid.then_some(recipe.hash_grid_decay))
+                .filter(|&w| keep(w, hash_grid, recipe.hash_grid_decay)),
+            self.lr_decay_steps.or(recipe.hash_grid_lr_decay_steps.filter(|_| hash_grid)),
         )
     }
 

@@ -89,7 +89,34 @@ fn adams_beta2_and_the_grids_decay_reach_the_optimiser_and_the_model() {
     assert_eq!(recipe.decay, 0.0);
     assert_eq!(grid(None, false), (None, 0.0, None));
     assert_eq!(grid(Some(0.5), false), (Some(0.5), 0.5, None));
-    assert_eq!(grid(Some(0.0), true), (None, 0.0, steps));
+    // Turned off against the recipe: recorded, so that a resumed run (whose settings are the
+    // recorded ones, resolved again) keeps it off.
+    assert_eq!(grid(Some(0.0), true), (Some(0.0), 0.0, steps));
+    let off = TrainSettings {
+        field: Some(FieldArg::HashGrid),
+        hash_grid_decay: Some(0.0),
+        tri_mip_bound: Some(1.0),
+        ..TrainSettings::default()
+    }
+    .resolved(true);
+    assert_eq!(off.resolved(true).model_config().unwrap().grid_decay_mult, 0.0);
+    let planes_off = TrainSettings {
+        field: Some(FieldArg::TriMip),
+        tri_mip_tv: Some(0.0),
+        tri_mip_bound: Some(1.0),
+        ..TrainSettings::default()
+    }
+    .resolved(true);
+    assert_eq!(planes_off.tri_mip_tv, Some(0.0));
+    assert_eq!(planes_off.resolved(true).model_config().unwrap().planes_tv_mult, 0.0);
+    let noise_off = TrainSettings { density_noise: Some(0.0), ..TrainSettings::default() }.resolved(true);
+    assert_eq!(noise_off.density_noise, Some(0.0));
+    assert_eq!(noise_off.resolved(true).model_config().unwrap().density_noise, 0.0);
+    // Where the data's default is 0 too, nothing is recorded (as before).
+    assert_eq!(
+        TrainSettings { density_noise: Some(0.0), ..TrainSettings::default() }.resolved(false).density_noise,
+        None
+    );
     assert_eq!(plain.model_config().unwrap().grid_decay_mult, 0.0);
     // Other runs decay over all their steps unless told.
     let decay_steps = |field, set| {
