@@ -646,7 +646,8 @@ fn describe_model(c: &ModelConfig) -> String {
 
 /// `options` fitted to the data as the CLI fits its settings ([`Dataset::model_fit`]), and a
 /// grid field's recipe to it ([`GridFit`]): the planes' resolution and total variation, the hash
-/// grid's weight decay and, where the options leave it open, the steps its rate decays over.
+/// grid's weight decay and, where the options leave them open, the steps its rate decays over
+/// and the steps its density noise fades over.
 fn fitted_to(options: &Options, data: &Dataset) -> Options {
     let mut options = options.clone();
     let fit = data.model_fit();
@@ -661,6 +662,9 @@ fn fitted_to(options: &Options, data: &Dataset) -> Options {
             }
             Field::HashGrid { .. } => {
                 m.grid_decay_mult = recipe.hash_grid_decay;
+                if m.density_noise > 0.0 && m.density_noise_steps == 0 {
+                    m.density_noise_steps = recipe.hash_grid_density_noise_steps.unwrap_or(0);
+                }
                 let lr = &mut options.optim.lr;
                 lr.decay_steps = lr.decay_steps.or(recipe.hash_grid_lr_decay_steps);
             }
@@ -693,6 +697,10 @@ mod tests {
         let options = Options::preset(Preset::Tiny).hash_grid(1.5);
         let steps = HashGridRecipe::RECIPE.lr_decay_steps_forward_facing;
         assert_eq!(fitted_to(&options, &data).optim.lr.decay_steps, Some(steps));
+        // The density noise of forward-facing photos fades with it, as the CLI's.
+        let fitted = fitted_to(&options, &data);
+        let fade = HashGridRecipe::RECIPE.density_noise_steps_forward_facing;
+        assert_eq!((fitted.model.density_noise, fitted.model.density_noise_steps), (1.0, fade));
         let mut own = options.optim().clone();
         own.lr.decay_steps = Some(500);
         assert_eq!(fitted_to(&options.with_optim(own), &data).optim.lr.decay_steps, Some(500));
@@ -702,6 +710,7 @@ mod tests {
             &LoadOptions::default(),
         )
         .unwrap();
-        assert_eq!(fitted_to(&Options::preset(Preset::Tiny).hash_grid(1.5), &blender).optim.lr.decay_steps, None);
+        let fitted = fitted_to(&Options::preset(Preset::Tiny).hash_grid(1.5), &blender);
+        assert_eq!((fitted.optim.lr.decay_steps, fitted.model.density_noise_steps), (None, 0));
     }
 }

@@ -32,6 +32,7 @@ STATUS = {
     "expf": "history: one change (the IPE's exp)",
     "hash-grid/fern": "superseded by hash-grid/fern-capped (the recipe for forward-facing photos)",
     "hash-grid/fern-diverged": "history: the runs whose loss climbed, before hash-grid/stability",
+    "hash-grid/fern-capped": "superseded by hash-grid/fern-fade (the recipe with the density noise faded)",
 }
 
 

@@ -291,6 +291,11 @@ fn resolve_settings(
     if resume && merged.density_noise.is_none() {
         merged.density_noise = Some(0.0);
     }
+    // Likewise its noise was held unless a fade is recorded (runs before the hash grid's recipe
+    // faded it on forward-facing photos held it).
+    if resume && merged.density_noise_steps.is_none() {
+        merged.density_noise_steps = Some(0);
+    }
     let data_dir = merged.data.clone().context("no dataset: pass --data DIR (or data = \"DIR\" in --config)")?;
     if resume && !data_dir.exists() {
         return Err(crate::run::moved_dataset(&data_dir));

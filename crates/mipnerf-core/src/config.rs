@@ -83,6 +83,13 @@ pub struct ModelConfig {
     pub rgb_padding: f32,
     /// Standard deviation of Gaussian noise added to raw density in training.
     pub density_noise: f32,
+    /// The training steps over which [`density_noise`](Self::density_noise) falls linearly to 0
+    /// ([`Self::density_noise_at`]); 0: held at its value throughout (the official code's). A
+    /// grid field's Adam (epsilon 1e-15) turns the noise's gradients, which change sign from
+    /// step to step, into full steps, and the hash grid's loss climbed on fern with the noise
+    /// held (`docs/results/hash-grid/climb-noise/`). Not written when 0.
+    #[serde(skip_serializing_if = "is_zero_steps")]
+    pub density_noise_steps: u64,
     /// Composite on a white background (else black): in evaluation and rendering always, and in
     /// training unless `random_bkgd`.
     pub white_bkgd: bool,
@@ -161,6 +168,10 @@ fn is_zero(v: &f32) -> bool {
     *v == 0.0
 }
 
+fn is_zero_steps(v: &u64) -> bool {
+    *v == 0
+}
+
 impl Field {
     /// Whether this is the default, the Mip-NeRF field.
     #[must_use]
@@ -203,6 +214,7 @@ impl Default for ModelConfig {
             density_bias: -1.0,
             rgb_padding: 0.001,
             density_noise: 0.0,
+            density_noise_steps: 0,
             white_bkgd: true,
             random_bkgd: false,
             coarse_loss_mult: 0.1,
@@ -390,6 +402,13 @@ pub struct HashGridRecipe {
     /// the climb comes after about 18,000 steps instead (`docs/results/hash-grid/fern-capped/`:
     /// 24.62 dB at 10 minutes, 19.11 at 30).
     pub lr_decay_steps_forward_facing: u64,
+    /// For forward-facing photos, the steps over which the density noise (the official code's
+    /// 1 on LLFF data) falls to 0 ([`ModelConfig::density_noise_steps`]): 10,000, where the
+    /// rate's decay ends. Held, the noise made the loss climb on fern after 9,000 to 18,000
+    /// steps (`docs/results/hash-grid/climb-noise/`); on fern's held-out training photos,
+    /// 14,000 steps gave 23.49 dB with it held, 23.54 fading over 5,000 steps and 23.65 over
+    /// 10,000 (`docs/results/hash-grid/noise-fern-tune/`).
+    pub density_noise_steps_forward_facing: u64,
 }
 
 impl HashGridRecipe {
@@ -401,6 +420,7 @@ impl HashGridRecipe {
         decay: 0.0,
         decay_forward_facing: 0.01,
         lr_decay_steps_forward_facing: 10_000,
+        density_noise_steps_forward_facing: 10_000,
     };
 }
 
@@ -451,6 +471,9 @@ pub struct GridFit {
     /// The hash grid's: the steps the learning rate decays over, where it then stays
     /// ([`crate::schedule::LrSchedule::decay_steps`]; none: the run's own).
     pub hash_grid_lr_decay_steps: Option<u64>,
+    /// The hash grid's: the steps the density noise fades over, where the data has the noise
+    /// ([`ModelConfig::density_noise_steps`]; none: held).
+    pub hash_grid_density_noise_steps: Option<u64>,
 }
 
 impl GridFit {
@@ -470,6 +493,7 @@ impl GridFit {
             planes_tv,
             hash_grid_decay: if fit.forward_facing { grid.decay_forward_facing } else { grid.decay },
             hash_grid_lr_decay_steps: fit.forward_facing.then_some(grid.lr_decay_steps_forward_facing),
+            hash_grid_density_noise_steps: fit.forward_facing.then_some(grid.density_noise_steps_forward_facing),
         }
     }
 }
@@ -565,6 +589,21 @@ impl ModelConfig {
         }
     }
 
+    /// The density noise's standard deviation in a pass of `mode`: in training,
+    /// [`density_noise`](Self::density_noise) times `1 - step / density_noise_steps` (0 from that
+    /// step on; held where `density_noise_steps` is 0); none in evaluation.
+    #[must_use]
+    pub fn density_noise_at(&self, mode: Mode) -> f32 {
+        match mode {
+            Mode::Eval => 0.0,
+            Mode::Train { .. } if self.density_noise_steps == 0 => self.density_noise,
+            Mode::Train { step, .. } => {
+                let left = 1.0 - f64::from(step) / self.density_noise_steps as f64;
+                self.density_noise * left.max(0.0) as f32
+            }
+        }
+    }
+
     /// Width of the sample encoding.
     #[must_use]
     pub fn x_dim(&self) -> usize {
@@ -615,6 +654,26 @@ pub enum Mode {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn density_noise_falls_linearly_to_zero_over_its_steps_or_is_held() {
+        let held = ModelConfig { density_noise: 2.0, ..ModelConfig::default() };
+        let train = |step| Mode::Train { seed: 0, step };
+        assert_eq!(held.density_noise_at(train(0)), 2.0);
+        assert_eq!(held.density_noise_at(train(u32::MAX)), 2.0);
+        assert_eq!(held.density_noise_at(Mode::Eval), 0.0);
+        let fading = ModelConfig { density_noise_steps: 1000, ..held };
+        assert_eq!(fading.density_noise_at(train(0)), 2.0);
+        assert_eq!(fading.density_noise_at(train(250)), 1.5);
+        assert_eq!(fading.density_noise_at(train(1000)), 0.0);
+        assert_eq!(fading.density_noise_at(train(5000)), 0.0);
+        assert_eq!(fading.density_noise_at(Mode::Eval), 0.0);
+        // Not written when held, so that other runs' checkpoints are the bytes they were.
+        let text = serde_json::to_string(&held).unwrap();
+        assert!(!text.contains("density_noise_steps"), "{text}");
+        let back: ModelConfig = serde_json::from_str(&serde_json::to_string(&fading).unwrap()).unwrap();
+        assert_eq!(back.density_noise_steps, 1000);
+    }
 
     #[test]
     fn data_fit_sets_what_the_data_is_and_keeps_chosen_training_settings() {

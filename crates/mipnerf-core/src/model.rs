@@ -531,7 +531,7 @@ impl Model {
                 ws.cache.raw_rgb.clear();
                 ws.cache.raw_rgb.resize(3 * n, 0.0);
             }
-            let noise = stages::DensityNoise { std: c.density_noise, level, mode };
+            let noise = stages::DensityNoise::of(c, level, mode);
             stages::add_density_noise(noise, &ws.ids, s, &mut ws.cache.raw_density[..n]);
             let raw = RawOutputs { rgb: &ws.cache.raw_rgb[..3 * n], density: &ws.cache.raw_density[..n] };
             let level_rays = LevelRays { t: &ws.t, rays, backgrounds: &ws.backgrounds };

@@ -339,7 +339,7 @@ impl GpuModel {
             };
             let mut rp = RenderParams::new(c, nr, level_w[level], grads.is_some());
             rp.density_stride = bufs.raw_density().1 as u32;
-            rp = rp.with_density_noise(stages::DensityNoise { std: c.density_noise, level, mode });
+            rp = rp.with_density_noise(stages::DensityNoise::of(c, level, mode));
             if randomized && c.random_bkgd {
                 rp = rp.with_random_background(seed, step);
             }

@@ -45,6 +45,11 @@ fn whole_model_loss_and_gradients_match_cpu_reference() {
             (tiny.clone().nerf(), Mode::Train { seed: 1, step: 2 }),
             // Noise on raw density in training (the same random numbers on both sides).
             (ModelConfig { density_noise: 1.0, ..tiny.clone() }, Mode::Train { seed: 4, step: 9 }),
+            // The noise part-way through its fade (0.55 of it at step 9 of 20).
+            (
+                ModelConfig { density_noise: 1.0, density_noise_steps: 20, ..tiny.clone() },
+                Mode::Train { seed: 4, step: 9 },
+            ),
             // The supersampled NeRF: 2x2 rays per pixel, the loss on their mean.
             (ModelConfig { supersample: 2, ..tiny.clone().nerf() }, Mode::Train { seed: 6, step: 1 }),
             // Random backgrounds (one colour per pixel of the batch), per ray and supersampled.

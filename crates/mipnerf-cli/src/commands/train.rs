@@ -330,6 +330,7 @@ impl TrainFlags {
                 RayShapeArg::Cylinder => RayShape::Cylinder,
             }),
             density_noise: self.density_noise,
+            density_noise_steps: None,
             white_bkgd: self.background.map(|b| b != BackgroundArg::Black),
             random_bkgd: self.background.map(|b| b == BackgroundArg::Random),
             masks: self.masks.clone(),

@@ -123,6 +123,12 @@ impl TrainSettings {
         if self.lr_decay_steps == Some(0) {
             bail!("`lr_decay_steps` (a config-file key) must be at least 1, got 0");
         }
+        if self.density_noise_steps.is_some_and(|n| n > 0) && self.density_noise.unwrap_or(0.0) == 0.0 {
+            bail!(
+                "`density_noise_steps` (a config-file key) fades the density noise, which is 0 here: set \
+                 --density-noise, or drop it"
+            );
+        }
         if let Some(b) = self.adam_beta2
             && !(b.is_finite() && b > 0.0 && b < 1.0)
         {

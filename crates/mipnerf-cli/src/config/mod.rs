@@ -257,6 +257,12 @@ pub struct TrainSettings {
     /// official code's `density_noise`: 0 for Blender, 1 for LLFF) [default: 1 for forward-facing
     /// photos, else 0].
     pub density_noise: Option<f32>,
+    /// The training steps over which the density noise falls linearly to 0; 0 holds it
+    /// [default: held throughout, the official code's; the hash-grid field's recipe,
+    /// `HashGridRecipe::RECIPE`, for forward-facing photos: 10000; recorded when not 0, or when 0
+    /// against the recipe]. A grid field's Adam turns the held noise into floaters on fern
+    /// (docs/results/hash-grid/climb-noise).
+    pub density_noise_steps: Option<u64>,
     /// Composite on white (`--background white`) or not (`black`) [default: true, false for LLFF
     /// and COLMAP].
     pub white_bkgd: Option<bool>,
@@ -338,6 +344,15 @@ pub const RESUMABLE: &[&str] = &[
     "val_images",
 ];
 
+/// What a grid field's recipe sets of a run's settings where they do not say
+/// ([`TrainSettings::grid_recipe_for`]).
+struct GridRecipeSettings {
+    tri_mip_tv: Option<f32>,
+    hash_grid_decay: Option<f32>,
+    lr_decay_steps: Option<u64>,
+    density_noise_steps: Option<u64>,
+}
+
 macro_rules! merge_fields {
     ($base:expr, $over:expr, $($f:ident),*) => { TrainSettings { $($f: $over.$f.clone().or($base.$f.clone()),)* } };
 }
@@ -398,6 +413,7 @@ impl TrainSettings {
             supersample,
             ray_shape,
             density_noise,
+            density_noise_steps,
             white_bkgd,
             random_bkgd,
             masks,
@@ -485,7 +501,8 @@ impl TrainSettings {
         let fast = preset == PresetArg::Fast;
         let (tri_mip, grid) = (self.uses_tri_mip(), self.uses_grid_field());
         let recipe = GridFit::of(fit, unbounded);
-        let (tri_mip_tv, hash_grid_decay, lr_decay_steps) = self.grid_recipe_for(recipe);
+        let noise = self.density_noise.unwrap_or(fit.density_noise());
+        let grid_recipe = self.grid_recipe_for(recipe, noise);
         // A time budget ends the run, so the step count only caps it when given.
         let steps = self.steps.unwrap_or(if self.time_budget.is_some() { MAX_STEPS } else { 2000 });
         let occupancy = self.uses_occupancy();
@@ -524,8 +541,8 @@ impl TrainSettings {
             ray_shape: Some(self.ray_shape.unwrap_or(fit.ray_shape())),
             // Recorded only when it is not 0, so that the configurations of other runs read as
             // they always did, or where the data's default is not (so that a resumed run keeps 0).
-            density_noise: Some(self.density_noise.unwrap_or(fit.density_noise()))
-                .filter(|&d| d != 0.0 || fit.density_noise() != 0.0),
+            density_noise: Some(noise).filter(|&d| d != 0.0 || fit.density_noise() != 0.0),
+            density_noise_steps: grid_recipe.density_noise_steps,
             white_bkgd: Some(self.white_bkgd.unwrap_or(fit.white_bkgd)),
             random_bkgd: Some(self.random_bkgd.unwrap_or(fit.random_bkgd())),
             masks: self.masks.clone(),
@@ -550,10 +567,10 @@ impl TrainSettings {
             tri_mip_lr_mult: self.tri_mip_lr_mult.or(grid.then(|| self.grid_adam().lr_mult)),
             grid_adam_eps: self.grid_adam_eps,
             grid_adam_skip_untouched: self.grid_adam_skip_untouched,
-            tri_mip_tv,
-            hash_grid_decay,
+            tri_mip_tv: grid_recipe.tri_mip_tv,
+            hash_grid_decay: grid_recipe.hash_grid_decay,
             adam_beta2: self.adam_beta2.filter(|&b| b != AdamConfig::default().beta2),
-            lr_decay_steps,
+            lr_decay_steps: grid_recipe.lr_decay_steps,
             occupancy: Some(occupancy),
             occupancy_resolution: occupancy
                 .then(|| self.occupancy_resolution.unwrap_or(FastRecipe::RECIPE.occupancy_resolution)),
@@ -577,19 +594,28 @@ impl TrainSettings {
     }
 
     /// The grid fields' recipe for the data (`recipe`) where the settings do not say: the planes'
-    /// total variation, the hash grid's weight decay and its rate's decay steps (none where the
-    /// field is another, or where a weight is 0 as the recipe's is: a 0 against the recipe is
+    /// total variation, the hash grid's weight decay, its rate's decay steps and the steps its
+    /// density noise (`noise`, resolved) fades over (none where the field is another, where the
+    /// data has no noise, or where a weight is 0 as the recipe's is: a 0 against the recipe is
     /// recorded, so that a resumed run keeps it).
-    fn grid_recipe_for(&self, recipe: GridFit) -> (Option<f32>, Option<f32>, Option<u64>) {
+    fn grid_recipe_for(&self, recipe: GridFit, noise: f32) -> GridRecipeSettings {
         let (tri_mip, hash_grid) = (self.uses_tri_mip(), self.field == Some(FieldArg::HashGrid));
         let keep = |w: f32, ours: bool, of_recipe: f32| w != 0.0 || (ours && of_recipe != 0.0);
-        (
-            self.tri_mip_tv.or(tri_mip.then_some(recipe.planes_tv)).filter(|&w| keep(w, tri_mip, recipe.planes_tv)),
-            self.hash_grid_decay
+        GridRecipeSettings {
+            tri_mip_tv: self
+                .tri_mip_tv
+                .or(tri_mip.then_some(recipe.planes_tv))
+                .filter(|&w| keep(w, tri_mip, recipe.planes_tv)),
+            hash_grid_decay: self
+                .hash_grid_decay
                 .or(hash_grid.then_some(recipe.hash_grid_decay))
                 .filter(|&w| keep(w, hash_grid, recipe.hash_grid_decay)),
-            self.lr_decay_steps.or(recipe.hash_grid_lr_decay_steps.filter(|_| hash_grid)),
-        )
+            lr_decay_steps: self.lr_decay_steps.or(recipe.hash_grid_lr_decay_steps.filter(|_| hash_grid)),
+            density_noise_steps: {
+                let of_recipe = recipe.hash_grid_density_noise_steps.filter(|_| hash_grid && noise != 0.0);
+                self.density_noise_steps.or(of_recipe).filter(|&n| n != 0 || of_recipe.is_some())
+            },
+        }
     }
 
     /// The time budget in seconds, if one is set.
@@ -671,6 +697,7 @@ impl TrainSettings {
         if !(m.density_noise.is_finite() && (0.0..=100.0).contains(&m.density_noise)) {
             bail!("--density-noise must be between 0 and 100, got {}", m.density_noise);
         }
+        m.density_noise_steps = self.density_noise_steps.unwrap_or(0);
         m.unbounded = self.unbounded.unwrap_or(false);
         m.distortion_loss_mult = self.distortion_loss.unwrap_or(0.0);
         if !(m.distortion_loss_mult.is_finite() && (0.0..=1.0).contains(&m.distortion_loss_mult)) {

@@ -118,6 +118,31 @@ fn adams_beta2_and_the_grids_decay_reach_the_optimiser_and_the_model() {
         None
     );
     assert_eq!(plain.model_config().unwrap().grid_decay_mult, 0.0);
+    // The hash grid's density noise on forward-facing photos fades over the recipe's steps,
+    // recorded; with the noise off, or another field, or on other data, it is held (none).
+    let fade = |field, noise: Option<f32>, set: Option<u64>, forward_facing: bool| {
+        let s = TrainSettings {
+            field,
+            density_noise: noise,
+            density_noise_steps: set,
+            tri_mip_bound: Some(1.0),
+            ..TrainSettings::default()
+        }
+        .resolved(forward_facing);
+        (s.density_noise_steps, s.resolved(forward_facing).model_config().unwrap().density_noise_steps)
+    };
+    let recipe_fade = recipe.density_noise_steps_forward_facing;
+    assert_eq!(fade(Some(FieldArg::HashGrid), None, None, true), (Some(recipe_fade), recipe_fade));
+    assert_eq!(fade(Some(FieldArg::HashGrid), None, Some(300), true), (Some(300), 300));
+    assert_eq!(fade(Some(FieldArg::HashGrid), Some(0.0), None, true), (None, 0));
+    assert_eq!(fade(Some(FieldArg::HashGrid), None, None, false), (None, 0));
+    assert_eq!(fade(Some(FieldArg::TriMip), None, None, true), (None, 0));
+    assert_eq!(fade(None, None, None, true), (None, 0));
+    assert_eq!(fade(None, None, Some(300), true), (Some(300), 300));
+    // Held against the recipe: recorded, so that a resumed run keeps it held; elsewhere 0 is
+    // what it would be anyway.
+    assert_eq!(fade(Some(FieldArg::HashGrid), None, Some(0), true), (Some(0), 0));
+    assert_eq!(fade(None, None, Some(0), true), (None, 0));
     // Other runs decay over all their steps unless told.
     let decay_steps = |field, set| {
         let s = TrainSettings { field, lr_decay_steps: set, tri_mip_bound: Some(1.0), ..TrainSettings::default() }

@@ -21,6 +21,13 @@ pub struct DensityNoise {
 }
 
 impl DensityNoise {
+    /// The model's noise on `level` in a pass of `mode`: its standard deviation at the pass's
+    /// step ([`ModelConfig::density_noise_at`]), as both backends add it.
+    #[must_use]
+    pub fn of(config: &ModelConfig, level: usize, mode: Mode) -> Self {
+        Self { std: config.density_noise_at(mode), level, mode }
+    }
+
     /// Whether any noise is added: in training, with a positive standard deviation.
     #[must_use]
     pub fn is_on(self) -> bool {
