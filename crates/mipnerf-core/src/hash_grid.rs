@@ -193,6 +193,16 @@ impl HashGridConfig {
     }
 }
 
+/// Samples a level reads at once ([`LevelShape::block_corners`]): one AVX-512 vector of `f32`.
+const BLOCK: usize = 16;
+
+/// A block's corners: for each of the cell's 8 vertices, each sample's entry in the level's table
+/// and its weight, the level's [`downweight`] included.
+struct BlockCorners {
+    entry: [[u32; BLOCK]; 8],
+    weight: [[f32; BLOCK]; 8],
+}
+
 /// One level's constants: cells a side, its table's offset, dense or hashed.
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct LevelShape {
@@ -220,6 +230,14 @@ impl LevelShape {
     /// entry's first parameter and its trilinear weight.
     #[inline(always)]
     fn corners(&self, x: Vec3, features: usize) -> [(usize, f32); 8] {
+        let (entries, weights) = self.cell(x);
+        std::array::from_fn(|c| (self.offset + entries[c] as usize * features, weights[c]))
+    }
+
+    /// The 8 vertices of the cell around `x`: each one's entry in the level's table and its
+    /// trilinear weight, vertex `c` at `(c & 1, c >> 1 & 1, c >> 2)` from the cell's lowest.
+    #[inline(always)]
+    fn cell(&self, x: Vec3) -> ([u32; 8], [f32; 8]) {
         let n = self.cells as f32;
         let axis = |t: f32| {
             let p = t.clamp(0.0, 1.0) * n;
@@ -228,21 +246,86 @@ impl LevelShape {
         };
         let ((i, fx), (j, fy), (k, fz)) = (axis(x.x), axis(x.y), axis(x.z));
         let side = self.cells as u32 + 1;
-        let mut out = [(0usize, 0.0f32); 8];
-        for (c, o) in out.iter_mut().enumerate() {
+        let (mut entries, mut weights) = ([0u32; 8], [0.0f32; 8]);
+        for c in 0..8 {
             let (dx, dy, dz) = ((c & 1) as u32, ((c >> 1) & 1) as u32, ((c >> 2) & 1) as u32);
             let (a, b, d) = (i + dx, j + dy, k + dz);
-            let index = if self.dense {
+            entries[c] = if self.dense {
                 a + side * (b + side * d)
             } else {
                 (a ^ b.wrapping_mul(PRIMES[0]) ^ d.wrapping_mul(PRIMES[1])) & self.mask
             };
-            let w = (if dx == 1 { fx } else { 1.0 - fx })
+            weights[c] = (if dx == 1 { fx } else { 1.0 - fx })
                 * (if dy == 1 { fy } else { 1.0 - fy })
                 * (if dz == 1 { fz } else { 1.0 - fz });
-            *o = (self.offset + index as usize * features, w);
+        }
+        (entries, weights)
+    }
+
+    /// [`Self::corners`] of up to [`BLOCK`] samples (each vertex's entry, not yet its offset in
+    /// the parameters), times the level's [`downweight`], the same values: sample after sample
+    /// in each vertex's row, so that the loop runs across samples in vectors. Lanes past
+    /// `samples.len()` are left at entry 0 with weight 0.
+    #[inline(always)]
+    fn block_corners(&self, samples: &[GridSample]) -> BlockCorners {
+        debug_assert!(samples.len() <= BLOCK);
+        let mut out = BlockCorners { entry: [[0; BLOCK]; 8], weight: [[0.0; BLOCK]; 8] };
+        for (lane, sample) in samples.iter().enumerate() {
+            let (entries, weights) = self.cell(sample.at);
+            let level_weight = downweight(sample.scale, self.cells);
+            for c in 0..8 {
+                out.entry[c][lane] = entries[c];
+                out.weight[c][lane] = weights[c] * level_weight;
+            }
         }
         out
+    }
+}
+
+/// A block's features at one level into `column` of each sample's row of `rows` (`dim` values
+/// a sample): each the sum over the cell's vertices, in their order, of the vertex's weight times
+/// its entry (`features` values from `offset + entry · features` in `params`). `F` is the number
+/// of features where a loop of that many is to be unrolled, else 0 (then `column`'s length).
+#[inline(always)]
+fn gather<const F: usize>(
+    params: &[f32],
+    offset: usize,
+    corners: &BlockCorners,
+    rows: &mut [f32],
+    dim: usize,
+    column: std::ops::Range<usize>,
+) {
+    let f = if F == 0 { column.len() } else { F };
+    for (lane, row) in rows.chunks_exact_mut(dim).enumerate() {
+        let mut sum = [0.0f32; 16];
+        for c in 0..8 {
+            let at = offset + corners.entry[c][lane] as usize * f;
+            let w = corners.weight[c][lane];
+            sum[..f].iter_mut().zip(&params[at..at + f]).for_each(|(s, p)| *s += w * p);
+        }
+        row[column.clone()].copy_from_slice(&sum[..f]);
+    }
+}
+
+/// The adjoint of [`gather`]: each sample's gradient in `column` of its row of `rows`, times
+/// each vertex's weight, added to the vertex's entry of `table` (a level's gradient, its
+/// entries from 0), sample after sample and vertex after vertex.
+#[inline(always)]
+fn scatter<const F: usize>(
+    table: &mut [f32],
+    corners: &BlockCorners,
+    rows: &[f32],
+    dim: usize,
+    column: std::ops::Range<usize>,
+) {
+    let f = if F == 0 { column.len() } else { F };
+    for (lane, row) in rows.chunks_exact(dim).enumerate() {
+        let d = &row[column.clone()];
+        for c in 0..8 {
+            let at = corners.entry[c][lane] as usize * f;
+            let w = corners.weight[c][lane];
+            table[at..at + f].iter_mut().zip(&d[..f]).for_each(|(g, d)| *g += w * d);
+        }
     }
 }
 
@@ -260,6 +343,7 @@ pub struct GridSample {
 /// standard deviation `scale` (box units): `erf(1 / sqrt(8 σ² n²))`, 1 for a point, near 0
 /// once the footprint spans several cells.
 #[must_use]
+#[inline(always)]
 pub fn downweight(scale: f32, cells: usize) -> f32 {
     let s = scale * cells as f32 * std::f32::consts::SQRT_2 * 2.0;
     if s.is_nan() || s <= 0.0 { 1.0 } else { erf(1.0 / s) }
@@ -267,13 +351,15 @@ pub fn downweight(scale: f32, cells: usize) -> f32 {
 
 /// The error function for `x >= 0`, within 1.5e-7 (Abramowitz and Stegun 7.1.26).
 #[must_use]
+#[inline(always)]
 pub fn erf(x: f32) -> f32 {
     if x.is_infinite() {
         return 1.0;
     }
     let t = 1.0 / (1.0 + 0.327_591_1 * x);
     let poly = t * (0.254_829_6 + t * (-0.284_496_74 + t * (1.421_413_7 + t * (-1.453_152_1 + t * 1.061_405_4))));
-    1.0 - poly * (-x * x).exp()
+    // `f32::exp`'s bits (crate::expf), in a form that a loop over samples turns into vectors.
+    1.0 - poly * crate::expf::expf(-x * x)
 }
 
 /// A grid's shape with each level's constants worked out once (cells a side, where its table
@@ -327,8 +413,14 @@ impl Levels {
             #[inline(always)]
             || {
                 for (l, shape) in self.shapes.iter().enumerate() {
-                    for (s, o) in samples.iter().zip(out.chunks_exact_mut(dim)) {
-                        shape.read(params, s, &mut o[l * f..(l + 1) * f]);
+                    for (block, rows) in samples.chunks(BLOCK).zip(out.chunks_mut(BLOCK * dim)) {
+                        let corners = shape.block_corners(block);
+                        let column = l * f..(l + 1) * f;
+                        match f {
+                            2 => gather::<2>(params, shape.offset, &corners, rows, dim, column),
+                            4 => gather::<4>(params, shape.offset, &corners, rows, dim, column),
+                            _ => gather::<0>(params, shape.offset, &corners, rows, dim, column),
+                        }
                     }
                 }
             },
@@ -374,12 +466,13 @@ impl Levels {
                 #[inline(always)]
                 || {
                     for (samples, d_x) in batches {
-                        for (k, s) in samples.iter().enumerate() {
-                            let d = &d_x[k * dim + *l * f..k * dim + (*l + 1) * f];
-                            let weight = downweight(s.scale, shape.cells);
-                            for (at, w) in shape.corners(s.at, f) {
-                                let w = w * weight;
-                                table[at..at + f].iter_mut().zip(d).for_each(|(g, d)| *g += w * d);
+                        for (block, rows) in samples.chunks(BLOCK).zip(d_x.chunks(BLOCK * dim)) {
+                            let corners = shape.block_corners(block);
+                            let column = *l * f..(*l + 1) * f;
+                            match f {
+                                2 => scatter::<2>(table, &corners, rows, dim, column),
+                                4 => scatter::<4>(table, &corners, rows, dim, column),
+                                _ => scatter::<0>(table, &corners, rows, dim, column),
                             }
                         }
                     }
