@@ -5,7 +5,9 @@
 //   m = b1 m + (1 - b1) g; v = b2 v + (1 - b2) g^2; p -= lr (m / c1) / (sqrt(v / c2) + eps),
 // the first `split` parameters (a field's own, the Tri-Mip planes) with `field_lr` and
 // `field_eps` (`AdamState::update_split`), and, where `field_skip_untouched` is 1, those of them
-// whose gradient is 0 left as they are, moments included (`FieldAdam::skip_untouched`).
+// whose gradient is 0 left as they are, moments included (`FieldAdam::skip_untouched`), and the
+// others' (the MLP's) gradient plus `mlp_l2` times the parameter where it is not 0
+// (`AdamConfig::l2`).
 //
 // Entry points: `grad_sq_partial` (one sum of squares per workgroup of REDUCE_WORKGROUP (256) gradients),
 // `grad_norm_finish` (one workgroup: the norm and the clipping factor into `stats`), `main` (the
@@ -86,6 +88,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     if (i < p.split && p.field_skip_untouched != 0u && g == 0.0) {
         return;
+    }
+    if (i >= p.split && p.mlp_l2 != 0.0) {
+        g = g + p.mlp_l2 * params[i];
     }
     let mi = p.beta1 * m[i] + (1.0 - p.beta1) * g;
     let vi = p.beta2 * v[i] + (1.0 - p.beta2) * g * g;

@@ -14,11 +14,21 @@ pub struct AdamConfig {
     pub beta2: f32,
     /// Added to the second moment's square root.
     pub eps: f32,
+    /// Instant-NGP's L2 regularisation of the network: `l2 · p` added to the (clipped) gradient
+    /// of every parameter after a field's own (the MLP's), before the moments; 0: off, the
+    /// official code's. Instant-NGP's 1e-6, "to prevent divergence after long training periods".
+    /// Not written when 0.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub l2: f32,
+}
+
+fn is_zero(v: &f32) -> bool {
+    *v == 0.0
 }
 
 impl Default for AdamConfig {
     fn default() -> Self {
-        Self { beta1: 0.9, beta2: 0.999, eps: 1e-8 }
+        Self { beta1: 0.9, beta2: 0.999, eps: 1e-8, l2: 0.0 }
     }
 }
 
@@ -71,7 +81,7 @@ impl AdamState {
         let c1 = 1.0 - cfg.beta1.powi(t);
         let c2 = 1.0 - cfg.beta2.powi(t);
         const BLOCK: usize = 16 * 1024;
-        let part = |lr: f32, adam: FieldAdam, p: &mut [f32], m: &mut [f32], v: &mut [f32], g: &[f32]| {
+        let part = |lr: f32, adam: FieldAdam, l2: f32, p: &mut [f32], m: &mut [f32], v: &mut [f32], g: &[f32]| {
             let eps = adam.eps;
             p.par_chunks_mut(BLOCK)
                 .zip(m.par_chunks_mut(BLOCK))
@@ -79,6 +89,7 @@ impl AdamState {
                 .zip(g.par_chunks(BLOCK))
                 .for_each(|(((p, m), v), g)| {
                     let step = |((p, m), v): ((&mut f32, &mut f32), &mut f32), g: f32| {
+                        let g = if l2 == 0.0 { g } else { g + l2 * *p };
                         *m = cfg.beta1 * *m + (1.0 - cfg.beta1) * g;
                         *v = cfg.beta2 * *v + (1.0 - cfg.beta2) * g * g;
                         *p -= lr * (*m / c1) / ((*v / c2).sqrt() + eps);
@@ -100,8 +111,8 @@ impl AdamState {
         let (m0, m1) = self.m.split_at_mut(first);
         let (v0, v1) = self.v.split_at_mut(first);
         let (g0, g1) = grads.split_at(first);
-        part(lr * field.lr_mult, field, p0, m0, v0, g0);
-        part(lr, FieldAdam::mlp(cfg), p1, m1, v1, g1);
+        part(lr * field.lr_mult, field, 0.0, p0, m0, v0, g0);
+        part(lr, FieldAdam::mlp(cfg), cfg.l2, p1, m1, v1, g1);
     }
 }
 

@@ -107,6 +107,32 @@ fn the_planes_take_their_own_learning_rate_and_epsilon_in_one_adam_step() {
 }
 
 #[test]
+fn the_mlps_l2_adds_to_its_gradient_alone_and_pulls_its_weights_towards_zero() {
+    let cfg = AdamConfig { l2: 0.5, ..AdamConfig::default() };
+    let field = FieldAdam { lr_mult: 10.0, eps: 1e-15, skip_untouched: false };
+    let params: Vec<f32> = (0..10).map(|i| i as f32 * 0.1 - 0.45).collect();
+    let grads: Vec<f32> = (0..10).map(|i| (i as f32 - 4.5) * 1e-3).collect();
+    let mut state = AdamState::new(10);
+    let mut with_l2 = params.clone();
+    state.update_split(&cfg, 1e-3, Some((4, field)), &mut with_l2, &grads);
+    // The same as no L2 with the MLP's gradients plus 0.5 times its parameters; the field's
+    // entries (the first 4) as without it.
+    let plain = AdamConfig { l2: 0.0, ..cfg };
+    let mut added = grads.clone();
+    added[4..].iter_mut().zip(&params[4..]).for_each(|(g, p)| *g += 0.5 * p);
+    let mut by_hand = params.clone();
+    AdamState::new(10).update_split(&plain, 1e-3, Some((4, field)), &mut by_hand, &added);
+    assert_eq!(with_l2, by_hand);
+    let mut without = params.clone();
+    AdamState::new(10).update_split(&plain, 1e-3, Some((4, field)), &mut without, &grads);
+    assert_eq!(with_l2[..4], without[..4]);
+    // Where the gradient is small beside the pull, every weight moves towards zero.
+    for i in 4..10 {
+        assert!(with_l2[i].abs() < params[i].abs(), "MLP {i}: {} -> {}", params[i], with_l2[i]);
+    }
+}
+
+#[test]
 fn a_skipped_untouched_entry_keeps_its_value_and_moments() {
     let cfg = AdamConfig::default();
     let field = |skip_untouched| FieldAdam { lr_mult: 10.0, eps: 1e-15, skip_untouched };

@@ -25,18 +25,23 @@ fn adam_and_gradient_clipping_match_cpu_reference() {
     // The same with the field's untouched entries skipped, some gradients 0 on both sides of the
     // split.
     let sparse = Some((300, FieldAdam { lr_mult: 10.0, eps: 1e-15, skip_untouched: true }));
+    // Last, the MLP's L2 (Instant-NGP's, here large enough to move every update: 0.05 x
+    // parameters of about 0.5 against gradients of about 0.05), over all the parameters and
+    // after a field's.
     let cases = [
-        (0.0, 0.0, None),
-        (0.05, 0.0, None),
-        (0.0, 0.5, None),
-        (0.08, 1.0, None),
-        (0.0, 0.0, planes),
-        (0.0, 0.5, planes),
-        (0.0, 0.0, sparse),
-        (0.0, 0.5, sparse),
+        (0.0, 0.0, None, 0.0),
+        (0.05, 0.0, None, 0.0),
+        (0.0, 0.5, None, 0.0),
+        (0.08, 1.0, None, 0.0),
+        (0.0, 0.0, planes, 0.0),
+        (0.0, 0.5, planes, 0.0),
+        (0.0, 0.0, sparse, 0.0),
+        (0.0, 0.5, sparse, 0.0),
+        (0.0, 0.0, None, 0.05),
+        (0.0, 0.5, planes, 0.05),
     ];
-    for (max_val, max_norm, split) in cases {
-        let step = AdamStep { cfg, lr, max_val, max_norm, split };
+    for (max_val, max_norm, split, l2) in cases {
+        let step = AdamStep { cfg: AdamConfig { l2, ..cfg }, lr, max_val, max_norm, split };
         // The starting parameters and three steps' gradients.
         let mut rng = SmallRng::seed_from_u64(3);
         let params: Vec<f32> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();

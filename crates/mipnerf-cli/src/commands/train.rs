@@ -351,6 +351,7 @@ impl TrainFlags {
             tri_mip_tv: None,
             hash_grid_decay: None,
             adam_beta2: None,
+            mlp_l2: None,
             lr_decay_steps: None,
             occupancy: yes(self.occupancy).or(no(self.no_occupancy)),
             occupancy_resolution: self.occupancy_resolution,

@@ -137,6 +137,11 @@ impl TrainSettings {
                  got {b}"
             );
         }
+        if let Some(w) = self.mlp_l2
+            && !(w.is_finite() && (0.0..=1.0).contains(&w))
+        {
+            bail!("`mlp_l2` (a config-file key) must be a number from 0 (off) to 1 (Instant-NGP's 1e-6), got {w}");
+        }
         if let Some(r) = self.spherify_radius
             && !(r.is_finite() && r > 0.0)
         {

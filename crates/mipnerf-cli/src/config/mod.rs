@@ -204,6 +204,10 @@ pub struct TrainSettings {
     /// [default: flax's 0.999; recorded when another]. Instant-NGP's 0.99 makes the hash grid's
     /// loss climb on fern (docs/results/hash-grid/stability).
     pub adam_beta2: Option<f32>,
+    /// Instant-NGP's L2 regularisation of the MLP: this times each of the MLP's parameters
+    /// added to its gradient before Adam (Instant-NGP: 1e-6) [default: 0, off, the official
+    /// code's; recorded when set].
+    pub mlp_l2: Option<f32>,
     /// Training steps in total [default: 2000].
     pub steps: Option<u64>,
     /// Rays (pixels) per batch [default: 1024].
@@ -390,6 +394,7 @@ impl TrainSettings {
             tri_mip_tv,
             hash_grid_decay,
             adam_beta2,
+            mlp_l2,
             steps,
             batch_rays,
             seed,
@@ -570,6 +575,7 @@ impl TrainSettings {
             tri_mip_tv: grid_recipe.tri_mip_tv,
             hash_grid_decay: grid_recipe.hash_grid_decay,
             adam_beta2: self.adam_beta2.filter(|&b| b != AdamConfig::default().beta2),
+            mlp_l2: self.mlp_l2.filter(|&w| w != 0.0),
             lr_decay_steps: grid_recipe.lr_decay_steps,
             occupancy: Some(occupancy),
             occupancy_resolution: occupancy
@@ -762,7 +768,11 @@ impl TrainSettings {
             lr,
             grad_max_norm: self.grad_max_norm.unwrap_or(0.0),
             grad_max_val: self.grad_max_val.unwrap_or(0.0),
-            adam: AdamConfig { beta2: self.adam_beta2.unwrap_or(AdamConfig::default().beta2), ..AdamConfig::default() },
+            adam: AdamConfig {
+                beta2: self.adam_beta2.unwrap_or(AdamConfig::default().beta2),
+                l2: self.mlp_l2.unwrap_or(0.0),
+                ..AdamConfig::default()
+            },
             field: self.uses_grid_field().then(|| FieldAdam {
                 lr_mult: self.tri_mip_lr_mult.unwrap_or(self.grid_adam().lr_mult),
                 eps: self.grid_adam_eps.unwrap_or(self.grid_adam().eps),

@@ -72,6 +72,10 @@ fn adams_beta2_and_the_grids_decay_reach_the_optimiser_and_the_model() {
     assert_eq!((plain.adam_beta2, plain.optim_config().unwrap().adam.beta2), (None, 0.999));
     let set = TrainSettings { adam_beta2: Some(0.99), ..TrainSettings::default() }.resolved(false);
     assert_eq!((set.adam_beta2, set.optim_config().unwrap().adam.beta2), (Some(0.99), 0.99));
+    // The MLP's L2: off unless set, recorded when set.
+    assert_eq!((plain.mlp_l2, plain.optim_config().unwrap().adam.l2), (None, 0.0));
+    let l2 = TrainSettings { mlp_l2: Some(1e-6), ..TrainSettings::default() }.resolved(false);
+    assert_eq!((l2.mlp_l2, l2.resolved(false).optim_config().unwrap().adam.l2), (Some(1e-6), 1e-6));
     // The hash grid's recipe: its decay and its rate's decay steps on forward-facing photos.
     let grid = |decay: Option<f32>, forward_facing: bool| {
         let s = TrainSettings {

@@ -50,8 +50,9 @@ pub struct AdamParams {
     /// 1: the field's entries whose gradient is 0 are left as they are, moments included
     /// ([`FieldAdam::skip_untouched`]); 0: updated.
     pub field_skip_untouched: u32,
-    /// Padding.
-    pub _pad1: u32,
+    /// `l2 · p` added to the gradient of the parameters from `split` on (the MLP's;
+    /// [`AdamConfig::l2`](mipnerf_core::optim::AdamConfig::l2)); 0: off.
+    pub mlp_l2: f32,
 }
 
 /// The buffers of an update of `count` parameters.
@@ -144,7 +145,7 @@ impl AdamKernel {
             field_lr: step.lr * field.lr_mult,
             field_eps: field.eps,
             field_skip_untouched: u32::from(field.skip_untouched),
-            _pad1: 0,
+            mlp_l2: step.cfg.l2,
         };
         let bufs = [&b.grads, &b.params, &b.m, &b.v, &b.partials, &b.stats];
         if step.max_norm > 0.0 {
@@ -179,6 +180,6 @@ super::wgsl_struct!(
         field_lr,
         field_eps,
         field_skip_untouched,
-        _pad1
+        mlp_l2
     ]
 );
