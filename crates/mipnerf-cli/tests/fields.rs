@@ -145,6 +145,11 @@ fn what_the_tri_mip_field_does_not_run_is_refused_by_name() {
     assert!(text.contains("`adam_beta2` (a config-file key) must be a number between 0 and 1"), "{text}");
     let text = train_with(&config("l2", "mlp_l2 = -1e-6\n"), &[]);
     assert!(text.contains("`mlp_l2` (a config-file key) must be a number from 0 (off) to 1"), "{text}");
+    let text = train_with(&config("c2f-mip", "coarse_to_fine_steps = 100\n"), &[]);
+    assert!(text.contains("`coarse_to_fine_steps` (a config-file key) sets a grid field's"), "{text}");
+    let text =
+        train_with(&config("c2f-gpu", "coarse_to_fine_steps = 100\n"), &["--field", "tri-mip", "--backend", "gpu"]);
+    assert!(text.contains("coarse_to_fine_steps runs on the CPU backend only"), "{text}");
     // The demo scene is an object on white: no density noise to fade.
     let text = train_with(&config("noise-steps-quiet", "density_noise_steps = 100\n"), &[]);
     assert!(

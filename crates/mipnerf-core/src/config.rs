@@ -122,6 +122,16 @@ pub struct ModelConfig {
     /// near zero (0: off; the hash-grid field only). Not written when 0.
     #[serde(skip_serializing_if = "is_zero")]
     pub grid_decay_mult: f32,
+    /// The training steps over which a grid field learns coarse to fine: every training sample's
+    /// footprint is widened by a floor ([`Self::footprint_floor_at`]) that halves
+    /// [`COARSE_TO_FINE_OCTAVES`] times over these steps and is 0 after them, so that the fine
+    /// levels (the hash grid's finer grids, the planes' finer mip levels) are read, and learn,
+    /// only as the floor passes them (the grids of Plenoxels and TensoRF grow over training for
+    /// the same end; BARF and Neuralangelo bring in fine frequencies and levels so). 0: off, the
+    /// field read at the sample's own footprint throughout. A grid field only; CPU backend.
+    /// Not written when 0.
+    #[serde(default, skip_serializing_if = "is_zero_steps")]
+    pub coarse_to_fine_steps: u64,
     /// The field the samples are read from (the Mip-NeRF MLP on the IPE, the default; or the
     /// Tri-Mip planes before a small MLP). Not written when it is the default, so that the
     /// Mip-NeRF model's checkpoints are the bytes they were.
@@ -161,6 +171,15 @@ pub enum Field {
         half_side: f32,
     },
 }
+
+/// The footprint floor's radius at the first step of a coarse-to-fine run
+/// ([`ModelConfig::footprint_floor_at`]), in the grid box's units: a sixteenth of the box, which
+/// the recipes' coarsest levels resolve (the hash grid's 16 cells a side; the planes' level 4).
+pub const COARSE_TO_FINE_RADIUS: f32 = 1.0 / 16.0;
+
+/// How many times the footprint floor halves over a coarse-to-fine run: from a sixteenth of the
+/// box to a thousandth (1/1024), under the finest level's cells (the hash grid's 512 a side).
+pub const COARSE_TO_FINE_OCTAVES: f64 = 6.0;
 
 /// Whether `v` is 0 (a weight that is off, not written).
 #[allow(clippy::trivially_copy_pass_by_ref)]
@@ -223,6 +242,7 @@ impl Default for ModelConfig {
             distortion_loss_mult: 0.0,
             planes_tv_mult: 0.0,
             grid_decay_mult: 0.0,
+            coarse_to_fine_steps: 0,
             field: Field::MipNerf,
         }
     }
@@ -604,6 +624,23 @@ impl ModelConfig {
         }
     }
 
+    /// The floor under a training sample's footprint in a pass of `mode`, as a radius in the grid
+    /// box's units (a side is 1): [`COARSE_TO_FINE_RADIUS`] at step 0, halving
+    /// [`COARSE_TO_FINE_OCTAVES`] times by [`coarse_to_fine_steps`](Self::coarse_to_fine_steps)
+    /// (a fine level's turn as long as a coarse one's), 0 from then on, where that is 0, and in
+    /// evaluation. The footprint's radius `r` is read as `sqrt(r² + floor²)`: the scene seen
+    /// through an isotropic blur of that radius. Not differentiated (a constant of the step).
+    #[must_use]
+    pub fn footprint_floor_at(&self, mode: Mode) -> f32 {
+        match mode {
+            Mode::Train { step, .. } if u64::from(step) < self.coarse_to_fine_steps => {
+                let done = f64::from(step) / self.coarse_to_fine_steps as f64;
+                (f64::from(COARSE_TO_FINE_RADIUS) * (-done * COARSE_TO_FINE_OCTAVES).exp2()) as f32
+            }
+            _ => 0.0,
+        }
+    }
+
     /// Width of the sample encoding.
     #[must_use]
     pub fn x_dim(&self) -> usize {
@@ -654,6 +691,28 @@ pub enum Mode {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_footprint_floor_halves_six_times_over_its_steps_then_is_zero_and_never_in_evaluation() {
+        let train = |step| Mode::Train { seed: 0, step };
+        let off = ModelConfig::default();
+        assert_eq!(off.footprint_floor_at(train(0)), 0.0);
+        let c2f = ModelConfig { coarse_to_fine_steps: 600, ..off };
+        assert_eq!(c2f.footprint_floor_at(train(0)), COARSE_TO_FINE_RADIUS);
+        // An octave each 100 steps.
+        for k in 0..6u32 {
+            let want = COARSE_TO_FINE_RADIUS / (1u32 << k) as f32;
+            assert!((c2f.footprint_floor_at(train(100 * k)) - want).abs() <= 1e-6 * want, "step {}", 100 * k);
+        }
+        assert!(c2f.footprint_floor_at(train(599)) > COARSE_TO_FINE_RADIUS / 64.0);
+        assert_eq!(c2f.footprint_floor_at(train(600)), 0.0);
+        assert_eq!(c2f.footprint_floor_at(train(u32::MAX)), 0.0);
+        assert_eq!(c2f.footprint_floor_at(Mode::Eval), 0.0);
+        let text = serde_json::to_string(&off).unwrap();
+        assert!(!text.contains("coarse_to_fine_steps"), "{text}");
+        let back: ModelConfig = serde_json::from_str(&serde_json::to_string(&c2f).unwrap()).unwrap();
+        assert_eq!(back.coarse_to_fine_steps, 600);
+    }
 
     #[test]
     fn density_noise_falls_linearly_to_zero_over_its_steps_or_is_held() {

@@ -360,7 +360,7 @@ impl Model {
         let norm = (3.0 * lm_sum) as f32;
         let n_pix = targets.len() as f32;
         let guide = self.guide(grid, rays);
-        let field = self.field_state(params);
+        let field = self.field_state(params).with_footprint_floor(self.config.footprint_floor_at(mode));
         // With a guide, only the rays that meet occupied cells run, compacted; the others add
         // their background's error to the sums below.
         let compacted = guide.as_ref().map(|g| {

@@ -361,3 +361,53 @@ fn the_weight_decay_is_each_levels_mean_square_and_its_gradient_matches_finite_d
         common::batch_loss(&model, batch, mode),
     );
 }
+
+#[test]
+fn coarse_to_fine_reads_the_fine_levels_faintly_first_differentiates_exactly_and_ends_as_the_plain_field() {
+    let (rays, colours) = ball_scene(2, 6);
+    let mut plain = small(1.5);
+    plain.num_levels = 1;
+    let c2f = ModelConfig { coarse_to_fine_steps: 100, ..plain.clone() };
+    let (model, plain) = (Model::new(c2f).unwrap(), Model::new(plain).unwrap());
+    let mut params = model.init_params(3);
+    let mut rng = SmallRng::seed_from_u64(4);
+    for p in &mut params[..model.field_params()] {
+        *p = rng.random_range(-0.5..0.5);
+    }
+    let batch = TrainBatch { rays: &rays[..40], targets: &colours[..40] };
+    let run = |model: &Model, step: u32| {
+        let mut grads = vec![0.0; model.num_params()];
+        let loss = model.loss_and_grad(&params, batch, Mode::Train { seed: 1, step }, &mut grads, GradWith::default());
+        (loss.loss, grads)
+    };
+    // From its last step on (and in evaluation), the field read at the samples' own footprints.
+    assert_eq!(run(&model, 100), run(&plain, 100));
+    // At step 0 the floor (a sixteenth of the box: a standard deviation of 1/32, added to the
+    // samples' own) weighs the finest level's 32 cells at most erf(1/sqrt(8)) = 0.38 and the
+    // coarsest's 4 cells 1.00: each finer level learns less than it would (0.95, 0.89, 0.86,
+    // 0.73 of its own gradient here; the MLP's response moves them all).
+    let ((_, start), (_, own)) = (run(&model, 0), run(&plain, 0));
+    let grid = small_grid();
+    let norm = |g: &[f32], level: usize| {
+        let end = if level + 1 < grid.levels { grid.offset(level + 1) } else { grid.num_params() };
+        g[grid.offset(level)..end].iter().map(|v| f64::from(*v).powi(2)).sum::<f64>().sqrt()
+    };
+    let ratios: Vec<f64> = (0..grid.levels).map(|l| norm(&start, l) / norm(&own, l)).collect();
+    assert!(ratios.windows(2).all(|w| w[1] < w[0]), "finer levels learn less: {ratios:.3?}");
+    assert!(ratios[0] > 0.9 && ratios[grid.levels - 1] < 0.8, "the coarsest and the finest level: {ratios:.3?}");
+    // The floor is a constant of the step: the gradient through it is the loss's.
+    let reached: Vec<usize> = (0..model.field_params()).filter(|&i| start[i] != 0.0).collect();
+    let mut picks: Vec<(String, usize)> =
+        (0..24).map(|_| ("grid".to_owned(), reached[rng.random_range(0..reached.len())])).collect();
+    picks.extend((0..8).map(|_| ("mlp".to_owned(), rng.random_range(model.field_params()..model.num_params()))));
+    let mode = Mode::Train { seed: 1, step: 0 };
+    common::assert_gradients_match_finite_differences(
+        picks,
+        &start,
+        &mut params,
+        common::batch_loss(&model, batch, mode),
+    );
+    // The Mip-NeRF MLP reads every frequency at the cone's own scale: no floor for it.
+    let refused = Model::new(ModelConfig { coarse_to_fine_steps: 100, ..Preset::Tiny.config() });
+    assert!(refused.is_err_and(|e| e.to_string().contains("coarse_to_fine_steps")));
+}

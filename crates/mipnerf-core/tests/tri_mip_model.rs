@@ -27,17 +27,23 @@ fn small(pre_filtered: bool) -> ModelConfig {
 
 #[test]
 fn the_whole_losss_gradient_through_the_planes_and_the_mlp_matches_finite_differences() {
-    the_whole_loss_matches_finite_differences(false);
+    the_whole_loss_matches_finite_differences(false, 0);
+}
+
+#[test]
+fn coarse_to_fine_reads_the_planes_coarser_at_first_and_matches_finite_differences() {
+    the_whole_loss_matches_finite_differences(false, 100);
 }
 
 #[test]
 fn in_an_unbounded_scene_the_planes_read_the_contracted_space_and_match_finite_differences() {
-    the_whole_loss_matches_finite_differences(true);
+    the_whole_loss_matches_finite_differences(true, 0);
 }
 
 /// The whole loss's gradient against central differences, the planes over world space or (in an
-/// unbounded scene) over the contracted space, cube of half side 2.
-fn the_whole_loss_matches_finite_differences(unbounded: bool) {
+/// unbounded scene) over the contracted space, cube of half side 2; with `coarse_to_fine` steps
+/// at its first, the footprints widened by their floor (then the loss is not the plain one's).
+fn the_whole_loss_matches_finite_differences(unbounded: bool, coarse_to_fine: u64) {
     let (rays, colours) = ball_scene(2, 6);
     let mut cfg = small(true);
     // One level: the fine level's intervals carry no gradient by design (see training.rs).
@@ -49,7 +55,8 @@ fn the_whole_loss_matches_finite_differences(unbounded: bool) {
         let Field::TriMip { planes, pre_filtered, .. } = cfg.field else { unreachable!() };
         cfg.field = Field::TriMip { planes, half_side: 2.0, pre_filtered };
     }
-    let model = Model::new(cfg).unwrap();
+    let plain = Model::new(cfg.clone()).unwrap();
+    let model = Model::new(ModelConfig { coarse_to_fine_steps: coarse_to_fine, ..cfg }).unwrap();
     assert!(model.field_params() > 0 && model.field_params() < model.num_params());
     let mut params = model.init_params(3);
     // Planes of a visible size, so that the loss moves with them.
@@ -58,6 +65,10 @@ fn the_whole_loss_matches_finite_differences(unbounded: bool) {
         *p = rng.random_range(-0.5..0.5);
     }
     let mode = Mode::Train { seed: 1, step: 0 };
+    let batch = TrainBatch { rays: &rays[..40], targets: &colours[..40] };
+    let (widened, own) =
+        (common::batch_loss(&model, batch, mode)(&params), common::batch_loss(&plain, batch, mode)(&params));
+    assert_eq!(widened == own, coarse_to_fine == 0, "loss {widened} against the plain field's {own}");
     let mut grads = vec![0.0; model.num_params()];
     model.loss_and_grad(
         &params,

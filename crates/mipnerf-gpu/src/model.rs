@@ -60,6 +60,13 @@ impl ModelBuffers {
                 "the distortion loss runs on the CPU backend only (--backend cpu), not in WGSL".into(),
             ));
         }
+        if c.coarse_to_fine_steps != 0 {
+            return Err(GpuError::InvalidInput(
+                "coarse_to_fine_steps runs on the CPU backend only (--backend cpu): the WGSL kernels read each \
+                 sample at its own footprint"
+                    .into(),
+            ));
+        }
         if matches!(c.field, mipnerf_core::model::Field::HashGrid { .. }) {
             return Err(GpuError::InvalidInput(
                 "the hash-grid field runs on the CPU backend only (--backend cpu): its WGSL kernels are not written"

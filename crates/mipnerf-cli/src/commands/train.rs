@@ -352,6 +352,7 @@ impl TrainFlags {
             hash_grid_decay: None,
             adam_beta2: None,
             mlp_l2: None,
+            coarse_to_fine_steps: None,
             lr_decay_steps: None,
             occupancy: yes(self.occupancy).or(no(self.no_occupancy)),
             occupancy_resolution: self.occupancy_resolution,

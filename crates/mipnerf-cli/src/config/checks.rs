@@ -18,6 +18,7 @@ impl TrainSettings {
             ("tri_mip_lr_mult", self.tri_mip_lr_mult.is_some()),
             ("grid_adam_eps", self.grid_adam_eps.is_some()),
             ("grid_adam_skip_untouched", self.grid_adam_skip_untouched.is_some()),
+            ("coarse_to_fine_steps", self.coarse_to_fine_steps.is_some_and(|n| n != 0)),
         ];
         if !self.uses_tri_mip()
             && let Some((key, _)) = planes.iter().find(|(_, on)| *on)

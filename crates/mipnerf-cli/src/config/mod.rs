@@ -208,6 +208,10 @@ pub struct TrainSettings {
     /// added to its gradient before Adam (Instant-NGP: 1e-6) [default: 0, off, the official
     /// code's; recorded when set].
     pub mlp_l2: Option<f32>,
+    /// A grid field learns coarse to fine over this many steps: each training sample's footprint
+    /// widened by a floor that halves from a sixteenth of the grid's box six times over them
+    /// (`ModelConfig::coarse_to_fine_steps`) [default: 0, off; recorded when set].
+    pub coarse_to_fine_steps: Option<u64>,
     /// Training steps in total [default: 2000].
     pub steps: Option<u64>,
     /// Rays (pixels) per batch [default: 1024].
@@ -386,6 +390,7 @@ impl TrainSettings {
             hash_grid_decay,
             adam_beta2,
             mlp_l2,
+            coarse_to_fine_steps,
             steps,
             batch_rays,
             seed,
@@ -558,6 +563,7 @@ impl TrainSettings {
             bail!("--density-noise must be between 0 and 100, got {}", m.density_noise);
         }
         m.density_noise_steps = self.density_noise_steps.unwrap_or(0);
+        m.coarse_to_fine_steps = self.coarse_to_fine_steps.unwrap_or(0);
         m.unbounded = self.unbounded.unwrap_or(false);
         m.distortion_loss_mult = self.distortion_loss.unwrap_or(0.0);
         if !(m.distortion_loss_mult.is_finite() && (0.0..=1.0).contains(&m.distortion_loss_mult)) {

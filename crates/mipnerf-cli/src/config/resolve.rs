@@ -109,6 +109,7 @@ impl TrainSettings {
             hash_grid_decay: grid_recipe.hash_grid_decay,
             adam_beta2: self.adam_beta2.filter(|&b| b != AdamConfig::default().beta2),
             mlp_l2: self.mlp_l2.filter(|&w| w != 0.0),
+            coarse_to_fine_steps: self.coarse_to_fine_steps.filter(|&n| n != 0),
             lr_decay_steps: grid_recipe.lr_decay_steps,
             occupancy: Some(occupancy),
             occupancy_resolution: occupancy

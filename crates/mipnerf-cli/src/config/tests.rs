@@ -76,6 +76,15 @@ fn adams_beta2_and_the_grids_decay_reach_the_optimiser_and_the_model() {
     assert_eq!((plain.mlp_l2, plain.optim_config().unwrap().adam.l2), (None, 0.0));
     let l2 = TrainSettings { mlp_l2: Some(1e-6), ..TrainSettings::default() }.resolved(false);
     assert_eq!((l2.mlp_l2, l2.resolved(false).optim_config().unwrap().adam.l2), (Some(1e-6), 1e-6));
+    // Coarse to fine: off unless set, recorded when set, in the model's configuration.
+    assert_eq!((plain.coarse_to_fine_steps, plain.model_config().unwrap().coarse_to_fine_steps), (None, 0));
+    let c2f =
+        TrainSettings { field: Some(FieldArg::HashGrid), coarse_to_fine_steps: Some(500), ..TrainSettings::default() };
+    let c2f = c2f.resolved(true);
+    assert_eq!(
+        (c2f.coarse_to_fine_steps, c2f.resolved(true).model_config().unwrap().coarse_to_fine_steps),
+        (Some(500), 500)
+    );
     // The hash grid's recipe: its decay and its rate's decay steps on forward-facing photos.
     let grid = |decay: Option<f32>, forward_facing: bool| {
         let s = TrainSettings {

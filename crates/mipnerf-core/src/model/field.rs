@@ -38,6 +38,19 @@ impl FieldGrads {
 pub struct FieldState {
     pyramid: Option<Pyramid>,
     grid: Option<hash_grid::Levels>,
+    /// The floor under the samples' footprints in this pass, in the box's units
+    /// ([`ModelConfig::footprint_floor_at`](crate::config::ModelConfig::footprint_floor_at)):
+    /// 0 but in a coarse-to-fine run's first training steps.
+    footprint_floor: f32,
+}
+
+impl FieldState {
+    /// This pass's state with every sample's footprint read as at least `floor` wide (a radius
+    /// in the box's units, combined with the sample's own in quadrature; 0: as it is).
+    #[must_use]
+    pub fn with_footprint_floor(self, floor: f32) -> Self {
+        Self { footprint_floor: floor, ..self }
+    }
 }
 
 impl Model {
@@ -103,6 +116,11 @@ impl Model {
             if c.unbounded {
                 radius *= crate::contract::contraction_across(x);
                 x = crate::contract::contract(x);
+            }
+            // A coarse-to-fine run's floor, only where there is one (the bits are otherwise
+            // the sample's own radius).
+            if field.footprint_floor > 0.0 {
+                radius = radius.hypot(field.footprint_floor);
             }
             ((x + half_side) / side, radius)
         };
@@ -242,7 +260,8 @@ impl Model {
     }
 
     /// The field regularisers' weights: each a positive number with its field (the planes'
-    /// total variation with the Tri-Mip field, the weight decay with the hash grid), or 0.
+    /// total variation with the Tri-Mip field, the weight decay with the hash grid), or 0; and
+    /// a coarse-to-fine schedule with a grid field only.
     pub(super) fn check_regulariser_weights(config: &crate::config::ModelConfig) -> Result<(), super::ModelError> {
         if config.planes_tv_mult != 0.0
             && !(config.planes_tv_mult.is_finite()
@@ -265,6 +284,13 @@ impl Model {
                  got {} with the {:?} field",
                 config.grid_decay_mult, config.field
             )));
+        }
+        if config.coarse_to_fine_steps != 0 && config.field.half_side().is_none() {
+            return Err(super::ModelError::Config(
+                "coarse_to_fine_steps widens the footprints a grid field reads: the Tri-Mip planes or the hash grid, \
+                 not the Mip-NeRF MLP, whose IPE reads every frequency at the cone's own scale"
+                    .into(),
+            ));
         }
         Ok(())
     }
