@@ -130,7 +130,7 @@ pub struct ModelConfig {
     /// the same end; BARF and Neuralangelo bring in fine frequencies and levels so). 0: off, the
     /// field read at the sample's own footprint throughout. A grid field only; CPU backend.
     /// Not written when 0.
-    #[serde(default, skip_serializing_if = "is_zero_steps")]
+    #[serde(skip_serializing_if = "is_zero_steps")]
     pub coarse_to_fine_steps: u64,
     /// The field the samples are read from (the Mip-NeRF MLP on the IPE, the default; or the
     /// Tri-Mip planes before a small MLP). Not written when it is the default, so that the
@@ -187,6 +187,8 @@ fn is_zero(v: &f32) -> bool {
     *v == 0.0
 }
 
+/// Whether `v` is 0 (a schedule that is off, not written).
+#[allow(clippy::trivially_copy_pass_by_ref)]
 fn is_zero_steps(v: &u64) -> bool {
     *v == 0
 }

@@ -22,6 +22,9 @@ pub struct AdamConfig {
     pub l2: f32,
 }
 
+/// Whether `v` is 0 (an L2 that is off, not written). `config.rs` has its twin: this module may
+/// not import that one (`config` imports the optimiser's settings; tests/module_graph.rs).
+#[allow(clippy::trivially_copy_pass_by_ref)]
 fn is_zero(v: &f32) -> bool {
     *v == 0.0
 }

@@ -33,7 +33,7 @@ impl TrainSettings {
         if !self.uses_grid_field() {
             if let Some((key, _)) = grid.iter().find(|(_, on)| *on) {
                 bail!(
-                    "`{key}` (a config-file key) sets a grid field's MLP or optimiser: add --field tri-mip or \
+                    "`{key}` (a config-file key) sets a grid field's MLP, optimiser or schedule: add --field tri-mip or \
                      hash-grid, or drop it"
                 );
             }
